@@ -1,0 +1,3 @@
+//! Ground-side library behind the `ground` command line.
+
+pub mod solver;

@@ -1,0 +1,160 @@
+//! One guidance step: navigation state + target + time to go in, thrust command out.
+//!
+//! The step validates its inputs, encodes the features the network was trained on, runs the
+//! actor's mean head and decodes its action. Any failure is a typed error: the caller (flight
+//! software) then commands thrust off; a NaN never reaches the thrusters.
+
+use shared::orbit::{CartesianState, OrbitShape};
+
+use crate::dynamics::SpacecraftState;
+use crate::dynamics::ThrustCommand;
+use crate::features::{
+    decode_action, rendezvous_features, to_network_input, transfer_features, FeatureError, ACTION_LEN,
+    RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+};
+
+/// A deterministic actor: features in, action in [-1, 1]^3 out. Implemented by the onboard MLPs
+/// (f32 and int8) and by anything else that can fly (tests, baselines).
+pub trait Actor<const IN: usize> {
+    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN];
+}
+
+/// The onboard MLPs fly as actors: their output is already the tanh-squashed action.
+impl<const IN: usize, const H1: usize, const H2: usize> Actor<IN> for crate::policy::Mlp<'_, IN, H1, H2, ACTION_LEN> {
+    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN] {
+        self.forward(features)
+    }
+}
+
+/// Where the spacecraft must go.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GuidanceTarget {
+    /// A transfer: reach this orbit, anywhere on it.
+    Orbit(OrbitShape),
+    /// A rendezvous: meet the body, whose current state is given (propagate it with
+    /// [`crate::kepler::coast`] from its epoch).
+    Body(CartesianState),
+}
+
+/// Why no command was produced (the caller commands thrust off).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GuidanceError {
+    /// Navigation state, target or time to go is unusable.
+    Input(FeatureError),
+    /// The network produced a non-finite action (corrupt weights?).
+    NonFiniteAction,
+}
+
+impl core::fmt::Display for GuidanceError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Input(e) => write!(f, "guidance input refused: {e}"),
+            Self::NonFiniteAction => f.write_str("policy produced a non-finite action"),
+        }
+    }
+}
+
+/// Transfer guidance: features of SPEC section 5, actor, decoded command.
+pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
+    actor: &A,
+    navigation: &SpacecraftState,
+    target: &OrbitShape,
+    time_to_go: f64,
+) -> Result<ThrustCommand, GuidanceError> {
+    let features = transfer_features(navigation, target, time_to_go).map_err(GuidanceError::Input)?;
+    command_from(actor.act(&to_network_input(&features)))
+}
+
+/// Rendezvous guidance: features of SPEC section 6, actor, decoded command.
+pub fn rendezvous_step<A: Actor<RENDEZVOUS_FEATURES>>(
+    actor: &A,
+    navigation: &SpacecraftState,
+    target_body: &CartesianState,
+    time_to_go: f64,
+) -> Result<ThrustCommand, GuidanceError> {
+    let features = rendezvous_features(navigation, target_body, time_to_go).map_err(GuidanceError::Input)?;
+    command_from(actor.act(&to_network_input(&features)))
+}
+
+fn command_from(action: [f32; ACTION_LEN]) -> Result<ThrustCommand, GuidanceError> {
+    if !action.iter().all(|a| a.is_finite()) {
+        return Err(GuidanceError::NonFiniteAction);
+    }
+    Ok(decode_action(&action))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dynamics::StateError;
+
+    /// Along-track full thrust whatever the input.
+    struct Tangential;
+    impl<const N: usize> Actor<N> for Tangential {
+        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+            [1.0, 0.0, 1.0]
+        }
+    }
+
+    /// Returns a feature as throttle so the test sees what the actor was given.
+    struct Echo(usize);
+    impl<const N: usize> Actor<N> for Echo {
+        fn act(&self, x: &[f32; N]) -> [f32; ACTION_LEN] {
+            [x.get(self.0).copied().unwrap_or(f32::NAN), 0.0, 1.0]
+        }
+    }
+
+    struct Broken;
+    impl<const N: usize> Actor<N> for Broken {
+        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+            [f32::NAN, 0.0, 1.0]
+        }
+    }
+
+    const NAV: SpacecraftState = SpacecraftState {
+        r: [1.0, 0.0],
+        v: [0.0, 1.0],
+        m: 0.9,
+    };
+    const MARS: OrbitShape = OrbitShape {
+        a: 1.52,
+        e: 0.0,
+        omega: 0.0,
+    };
+
+    #[test]
+    fn flies_the_actor_through_the_features() {
+        let c = transfer_step(&Tangential, &NAV, &MARS, 2.0).unwrap();
+        assert_eq!((c.throttle, c.alpha_r, c.alpha_theta), (1.0, 0.0, 1.0));
+        // Feature 5 is the mass: the actor saw 0.9 -> throttle (0.9 + 1) / 2.
+        let c = transfer_step(&Echo(5), &NAV, &MARS, 2.0).unwrap();
+        assert!((c.throttle - 0.95).abs() < 1e-7);
+        // Rendezvous feature 20 is the time to go (0.5 -> throttle 0.75).
+        let body = MARS.cartesian_at(1.0);
+        let c = rendezvous_step(&Echo(20), &NAV, &body, 0.5).unwrap();
+        assert!((c.throttle - 0.75).abs() < 1e-7);
+    }
+
+    #[test]
+    fn bad_inputs_and_bad_networks_give_errors_not_commands() {
+        let bad = SpacecraftState {
+            r: [f64::NAN, 0.0],
+            ..NAV
+        };
+        assert_eq!(
+            transfer_step(&Tangential, &bad, &MARS, 1.0),
+            Err(GuidanceError::Input(FeatureError::State(StateError::NonFinite)))
+        );
+        let at_sun = SpacecraftState { r: [0.0, 0.0], ..NAV };
+        assert_eq!(
+            transfer_step(&Tangential, &at_sun, &MARS, 1.0),
+            Err(GuidanceError::Input(FeatureError::State(StateError::ZeroRadius)))
+        );
+        let empty = SpacecraftState { m: -0.1, ..NAV };
+        assert!(rendezvous_step(&Tangential, &empty, &MARS.cartesian_at(0.0), 1.0).is_err());
+        assert_eq!(
+            transfer_step(&Broken, &NAV, &MARS, 1.0),
+            Err(GuidanceError::NonFiniteAction)
+        );
+    }
+}

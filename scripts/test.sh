@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The project's test command (README): installs what it needs, then checks formatting, lints
+# (the onboard crate's panic-freedom lints included), the Cortex-M4F build, and runs all tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n==> %s\n' "$*"; }
+
+step "toolchain: rustfmt, clippy, thumbv7em-none-eabihf"
+rustup component add rustfmt clippy >/dev/null 2>&1 || true
+rustup target add thumbv7em-none-eabihf
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "clippy (host, all targets, warnings are errors)"
+cargo clippy --workspace --all-targets -- -D warnings
+
+step "onboard + shared for the Cortex-M4F (no_std, no heap), clippy included"
+cargo clippy -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release -- -D warnings
+cargo build -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release
+
+step "tests"
+cargo test --workspace --all-targets
+cargo test --workspace --doc

@@ -1,0 +1,696 @@
+//! The versioned weight-blob format (SPEC section 10): how a trained actor travels from the
+//! ground to the flight computer.
+//!
+//! Byte layout (all integers little-endian):
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `LTGB` |
+//! | 4 | 2 | format version ([`FORMAT_VERSION`]) |
+//! | 6 | 4 | payload length L |
+//! | 10 | L | payload: postcard encoding of [`NetworkBlob`] |
+//! | 10 + L | 4 | CRC-32 (ISO-HDLC, the zlib/PNG one) of the payload |
+//!
+//! Decoding borrows: every weight array in a decoded [`NetworkBlob`] is a slice of the input
+//! bytes, so a blob linked into flash is used in place, never copied to RAM.
+//!
+//! Weight layouts are fixed by the quantization scheme, chosen for the inference kernels:
+//! - `F32`: weights f32 LE, **input-major** (`w[i * outputs + j]`, the transpose of PyTorch's
+//!   `[out][in]`), so a layer is a sequence of axpy updates over the output vector; bias f32 LE.
+//! - `Int8`: weights i8, **output-major** (`w[j * inputs + i]`, PyTorch's layout), so each output
+//!   is an integer dot product; one f32 scale per output channel (symmetric, zero point 0);
+//!   bias i32 LE in units of `input_scale * weight_scale[j]`; the layer input is quantized
+//!   symmetrically to i8 with `input_scale` (calibrated on the ground).
+
+use serde::{Deserialize, Serialize};
+
+pub use crate::scenario::ProblemKind;
+
+/// First four bytes of every blob.
+pub const MAGIC: [u8; 4] = *b"LTGB";
+/// The format version this crate reads and writes.
+pub const FORMAT_VERSION: u16 = 1;
+/// Bytes before the payload: magic, version, payload length.
+pub const HEADER_LEN: usize = 10;
+/// Bytes after the payload: the CRC-32.
+pub const TRAILER_LEN: usize = 4;
+/// Most layers a network may have.
+pub const MAX_LAYERS: usize = 4;
+/// Largest layer width accepted (inputs or outputs).
+pub const MAX_WIDTH: usize = 1024;
+
+/// The network's input encoding (SPEC sections 5 and 6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FeatureLayout {
+    /// The 10 transfer features with the target-orbit proxy.
+    TransferPolar10,
+    /// The 22 rendezvous features.
+    RendezvousPolar22,
+}
+
+impl FeatureLayout {
+    /// Number of network inputs.
+    // Never zero, so an `is_empty` would only be noise.
+    #[allow(clippy::len_without_is_empty)]
+    pub fn len(self) -> usize {
+        match self {
+            Self::TransferPolar10 => 10,
+            Self::RendezvousPolar22 => 22,
+        }
+    }
+
+    /// The problem this layout encodes.
+    pub fn problem(self) -> ProblemKind {
+        match self {
+            Self::TransferPolar10 => ProblemKind::Transfer,
+            Self::RendezvousPolar22 => ProblemKind::Rendezvous,
+        }
+    }
+}
+
+/// How the weights are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Quantization {
+    /// f32 weights and biases.
+    F32,
+    /// int8 per-output-channel symmetric weights, i32 bias, i8 activations.
+    Int8,
+}
+
+/// A layer's output non-linearity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Activation {
+    Relu,
+    Tanh,
+}
+
+/// One dense layer, borrowing its arrays from the blob bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LayerBlob<'a> {
+    pub inputs: u16,
+    pub outputs: u16,
+    pub activation: Activation,
+    /// F32: `inputs * outputs * 4` bytes input-major; Int8: `inputs * outputs` bytes output-major.
+    #[serde(borrow)]
+    pub weights: &'a [u8],
+    /// F32: `outputs` f32 LE; Int8: `outputs` i32 LE.
+    #[serde(borrow)]
+    pub bias: &'a [u8],
+    /// Int8 only: `outputs` f32 LE per-channel weight scales (empty for F32).
+    #[serde(borrow)]
+    pub weight_scales: &'a [u8],
+    /// Int8 only: the scale that quantizes this layer's input to i8 (1.0 for F32).
+    pub input_scale: f32,
+}
+
+/// The payload: a self-describing actor mean network.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NetworkBlob<'a> {
+    pub kind: ProblemKind,
+    pub features: FeatureLayout,
+    pub quantization: Quantization,
+    /// Free text: config hash, training run, date. Never interpreted.
+    #[serde(borrow)]
+    pub provenance: &'a str,
+    #[serde(borrow)]
+    pub layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
+}
+
+/// The CRC-32 of the trailer: the common zlib/PNG polynomial, so any tool can check a blob.
+const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Which array of a layer an error is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ArrayKind {
+    Weights,
+    Bias,
+    WeightScales,
+}
+
+impl core::fmt::Display for ArrayKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Weights => "weights",
+            Self::Bias => "bias",
+            Self::WeightScales => "weight_scales",
+        })
+    }
+}
+
+/// Why postcard refused the payload (a `Copy` mirror of `postcard::Error`, which is not `Copy`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PayloadError {
+    /// The payload ended inside a value.
+    UnexpectedEnd,
+    BadVarint,
+    BadBool,
+    BadChar,
+    BadUtf8,
+    BadOption,
+    /// An enum discriminant out of range.
+    BadEnum,
+    BadEncoding,
+    /// A serde-level refusal, e.g. an unknown enum variant or an over-long sequence.
+    Invalid,
+    /// Any other postcard error (also serialization failures when encoding).
+    Other,
+}
+
+impl From<postcard::Error> for PayloadError {
+    fn from(e: postcard::Error) -> Self {
+        use postcard::Error as E;
+        match e {
+            E::DeserializeUnexpectedEnd => Self::UnexpectedEnd,
+            E::DeserializeBadVarint => Self::BadVarint,
+            E::DeserializeBadBool => Self::BadBool,
+            E::DeserializeBadChar => Self::BadChar,
+            E::DeserializeBadUtf8 => Self::BadUtf8,
+            E::DeserializeBadOption => Self::BadOption,
+            E::DeserializeBadEnum => Self::BadEnum,
+            E::DeserializeBadEncoding => Self::BadEncoding,
+            E::SerdeDeCustom => Self::Invalid,
+            _ => Self::Other,
+        }
+    }
+}
+
+impl core::fmt::Display for PayloadError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::UnexpectedEnd => "payload ends inside a value",
+            Self::BadVarint => "malformed varint",
+            Self::BadBool => "bool not 0 or 1",
+            Self::BadChar => "invalid char",
+            Self::BadUtf8 => "provenance is not valid UTF-8",
+            Self::BadOption => "option tag not 0 or 1",
+            Self::BadEnum => "enum discriminant out of range",
+            Self::BadEncoding => "bad encoding",
+            Self::Invalid => "value refused (unknown enum variant or too long a sequence)",
+            Self::Other => "postcard error",
+        })
+    }
+}
+
+/// Every way a blob can be refused. `Copy` and allocation-free so the flight code can keep and
+/// report it; the fields say where and by how much, for the ground operator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BlobError {
+    /// Fewer bytes than the header and trailer, or than the declared payload length needs.
+    Truncated {
+        needed: usize,
+        found: usize,
+    },
+    /// Bytes after the declared end of the blob.
+    TrailingBytes {
+        expected: usize,
+        found: usize,
+    },
+    BadMagic {
+        found: [u8; 4],
+    },
+    UnsupportedVersion {
+        found: u16,
+        supported: u16,
+    },
+    CrcMismatch {
+        stored: u32,
+        computed: u32,
+    },
+    /// postcard could not decode (or encode) the payload.
+    Payload(PayloadError),
+    /// postcard decoded a `NetworkBlob` but left bytes of the payload unread.
+    PayloadNotConsumed {
+        unused: usize,
+    },
+    /// The feature layout belongs to another problem than `kind`.
+    KindMismatch {
+        kind: ProblemKind,
+        features: FeatureLayout,
+    },
+    NoLayers,
+    TooManyLayers {
+        found: usize,
+        max: usize,
+    },
+    /// The first layer's inputs differ from the feature count.
+    InputMismatch {
+        expected: usize,
+        found: u16,
+    },
+    /// Layer `layer`'s inputs differ from the previous layer's outputs.
+    ChainBreak {
+        layer: usize,
+        expected: u16,
+        found: u16,
+    },
+    /// A width is zero or above [`MAX_WIDTH`].
+    BadWidth {
+        layer: usize,
+        inputs: u16,
+        outputs: u16,
+    },
+    /// An array's byte length does not match the layer shape and quantization.
+    ArrayLength {
+        layer: usize,
+        array: ArrayKind,
+        expected: usize,
+        found: usize,
+    },
+    /// Hidden layers must be ReLU, the output layer Tanh.
+    BadActivation {
+        layer: usize,
+        expected: Activation,
+        found: Activation,
+    },
+    /// A scale is non-finite or not positive; `channel` is `None` for `input_scale`, `bits` the
+    /// raw f32 (kept as bits so the error stays `Eq`).
+    BadScale {
+        layer: usize,
+        channel: Option<usize>,
+        bits: u32,
+    },
+    /// A non-finite f32 weight or bias, at element `index`.
+    NonFiniteWeight {
+        layer: usize,
+        array: ArrayKind,
+        index: usize,
+    },
+    /// The output buffer given to [`encode`] is too small.
+    BufferTooSmall {
+        needed: usize,
+        available: usize,
+    },
+    /// The payload does not fit the u32 length field.
+    PayloadTooLarge {
+        len: usize,
+    },
+}
+
+impl core::fmt::Display for BlobError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Self::Truncated { needed, found } => {
+                write!(f, "blob truncated: {found} bytes, needs {needed}")
+            }
+            Self::TrailingBytes { expected, found } => write!(
+                f,
+                "blob has {} trailing bytes: {found} bytes, header declares {expected}",
+                found - expected.min(found)
+            ),
+            Self::BadMagic { found } => write!(f, "bad magic {found:02x?}, expected \"LTGB\""),
+            Self::UnsupportedVersion { found, supported } => write!(
+                f,
+                "unsupported blob format version {found} (this build reads version {supported})"
+            ),
+            Self::CrcMismatch { stored, computed } => write!(
+                f,
+                "payload CRC-32 mismatch: stored {stored:#010x}, computed {computed:#010x}"
+            ),
+            Self::Payload(e) => write!(f, "payload encoding: {e}"),
+            Self::PayloadNotConsumed { unused } => {
+                write!(f, "payload has {unused} bytes after the network description")
+            }
+            Self::KindMismatch { kind, features } => {
+                write!(f, "problem kind {kind:?} does not match feature layout {features:?}")
+            }
+            Self::NoLayers => f.write_str("network has no layers"),
+            Self::TooManyLayers { found, max } => {
+                write!(f, "network has {found} layers, at most {max} supported")
+            }
+            Self::InputMismatch { expected, found } => {
+                write!(f, "first layer takes {found} inputs, the feature layout has {expected}")
+            }
+            Self::ChainBreak { layer, expected, found } => {
+                write!(f, "layer {layer} takes {found} inputs, previous layer gives {expected}")
+            }
+            Self::BadWidth { layer, inputs, outputs } => {
+                write!(f, "layer {layer} is {inputs}x{outputs}: widths must be 1..={MAX_WIDTH}")
+            }
+            Self::ArrayLength {
+                layer,
+                array,
+                expected,
+                found,
+            } => write!(
+                f,
+                "layer {layer} {array}: {found} bytes, shape and quantization need {expected}"
+            ),
+            Self::BadActivation { layer, expected, found } => {
+                write!(f, "layer {layer} activation {found:?}, expected {expected:?}")
+            }
+            Self::BadScale {
+                layer,
+                channel: None,
+                bits,
+            } => write!(
+                f,
+                "layer {layer} input_scale {} is not finite and positive",
+                f32::from_bits(bits)
+            ),
+            Self::BadScale {
+                layer,
+                channel: Some(c),
+                bits,
+            } => write!(
+                f,
+                "layer {layer} weight scale {c} = {} is not finite and positive",
+                f32::from_bits(bits)
+            ),
+            Self::NonFiniteWeight { layer, array, index } => {
+                write!(f, "layer {layer} {array}[{index}] is not finite")
+            }
+            Self::BufferTooSmall { needed, available } => {
+                write!(f, "output buffer of {available} bytes, blob needs {needed}")
+            }
+            Self::PayloadTooLarge { len } => {
+                write!(f, "payload of {len} bytes does not fit the u32 length field")
+            }
+        }
+    }
+}
+
+// `core::error::Error` is `std::error::Error`; implementing it in core serves both builds.
+impl core::error::Error for BlobError {}
+impl core::error::Error for PayloadError {}
+
+/// Reads the `i`-th little-endian f32 of `bytes`; `None` past the end. Blob arrays are
+/// unaligned byte slices, so they are read element by element, never cast.
+pub fn f32_at(bytes: &[u8], i: usize) -> Option<f32> {
+    le4(bytes, i).map(f32::from_le_bytes)
+}
+
+/// Reads the `i`-th little-endian i32 of `bytes`; `None` past the end.
+pub fn i32_at(bytes: &[u8], i: usize) -> Option<i32> {
+    le4(bytes, i).map(i32::from_le_bytes)
+}
+
+/// All complete little-endian f32 of `bytes`, in order.
+pub fn f32s(bytes: &[u8]) -> impl Iterator<Item = f32> + '_ {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+}
+
+fn le4(bytes: &[u8], i: usize) -> Option<[u8; 4]> {
+    let start = i.checked_mul(4)?;
+    let b = bytes.get(start..start.checked_add(4)?)?;
+    b.try_into().ok()
+}
+
+/// f32 values as the LE bytes a blob array holds (for the ground exporter).
+#[cfg(feature = "std")]
+pub fn f32_le_bytes(values: &[f32]) -> std::vec::Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// i32 values as the LE bytes a blob array holds (Int8 biases).
+#[cfg(feature = "std")]
+pub fn i32_le_bytes(values: &[i32]) -> std::vec::Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// i8 values as the bytes a blob array holds (Int8 weights).
+#[cfg(feature = "std")]
+pub fn i8_bytes(values: &[i8]) -> std::vec::Vec<u8> {
+    values.iter().map(|&v| v as u8).collect()
+}
+
+impl LayerBlob<'_> {
+    /// Byte lengths `[weights, bias, weight_scales]` this layer's shape needs under `q`.
+    pub fn expected_lens(&self, q: Quantization) -> [usize; 3] {
+        let (i, o) = (usize::from(self.inputs), usize::from(self.outputs));
+        // u16 * u16 * 4 < 2^34: saturate rather than overflow on 32-bit targets.
+        let n = i.saturating_mul(o);
+        match q {
+            Quantization::F32 => [n.saturating_mul(4), o * 4, 0],
+            Quantization::Int8 => [n, o * 4, o * 4],
+        }
+    }
+}
+
+fn finite_positive(x: f32) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+impl NetworkBlob<'_> {
+    /// Every semantic check, so a blob that passes can be run by the inference kernels without
+    /// further bounds or shape checks (except the action size, which the onboard loader owns).
+    pub fn validate(&self) -> Result<(), BlobError> {
+        if self.features.problem() != self.kind {
+            return Err(BlobError::KindMismatch {
+                kind: self.kind,
+                features: self.features,
+            });
+        }
+        let n = self.layers.len();
+        if n == 0 {
+            return Err(BlobError::NoLayers);
+        }
+        if n > MAX_LAYERS {
+            return Err(BlobError::TooManyLayers {
+                found: n,
+                max: MAX_LAYERS,
+            });
+        }
+        let q = self.quantization;
+        for (l, layer) in self.layers.iter().enumerate() {
+            let ok = |w: u16| w != 0 && usize::from(w) <= MAX_WIDTH;
+            if !ok(layer.inputs) || !ok(layer.outputs) {
+                return Err(BlobError::BadWidth {
+                    layer: l,
+                    inputs: layer.inputs,
+                    outputs: layer.outputs,
+                });
+            }
+            if l == 0 {
+                if usize::from(layer.inputs) != self.features.len() {
+                    return Err(BlobError::InputMismatch {
+                        expected: self.features.len(),
+                        found: layer.inputs,
+                    });
+                }
+            } else {
+                let prev = self.layers[l - 1].outputs;
+                if layer.inputs != prev {
+                    return Err(BlobError::ChainBreak {
+                        layer: l,
+                        expected: prev,
+                        found: layer.inputs,
+                    });
+                }
+            }
+            let want = if l + 1 == n { Activation::Tanh } else { Activation::Relu };
+            if layer.activation != want {
+                return Err(BlobError::BadActivation {
+                    layer: l,
+                    expected: want,
+                    found: layer.activation,
+                });
+            }
+            let arrays = [
+                (ArrayKind::Weights, layer.weights),
+                (ArrayKind::Bias, layer.bias),
+                (ArrayKind::WeightScales, layer.weight_scales),
+            ];
+            for ((array, bytes), expected) in arrays.into_iter().zip(layer.expected_lens(q)) {
+                if bytes.len() != expected {
+                    return Err(BlobError::ArrayLength {
+                        layer: l,
+                        array,
+                        expected,
+                        found: bytes.len(),
+                    });
+                }
+            }
+            if !finite_positive(layer.input_scale) {
+                return Err(BlobError::BadScale {
+                    layer: l,
+                    channel: None,
+                    bits: layer.input_scale.to_bits(),
+                });
+            }
+            match q {
+                Quantization::F32 => {
+                    for (array, bytes) in [(ArrayKind::Weights, layer.weights), (ArrayKind::Bias, layer.bias)] {
+                        if let Some(index) = f32s(bytes).position(|v| !v.is_finite()) {
+                            return Err(BlobError::NonFiniteWeight { layer: l, array, index });
+                        }
+                    }
+                }
+                Quantization::Int8 => {
+                    if let Some((c, s)) = f32s(layer.weight_scales)
+                        .enumerate()
+                        .find(|&(_, s)| !finite_positive(s))
+                    {
+                        return Err(BlobError::BadScale {
+                            layer: l,
+                            channel: Some(c),
+                            bits: s.to_bits(),
+                        });
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Reads a LEB128 varint as postcard writes it (at most 10 bytes), advancing `pos`.
+fn peek_varint(bytes: &[u8], pos: &mut usize) -> Option<u64> {
+    let mut v = 0u64;
+    for shift in (0..70).step_by(7) {
+        let b = *bytes.get(*pos)?;
+        *pos += 1;
+        v |= u64::from(b & 0x7f).checked_shl(shift)?;
+        if b & 0x80 == 0 {
+            return Some(v);
+        }
+    }
+    None
+}
+
+/// The layer count a payload declares, if its prefix (three enum tags, provenance) is well
+/// formed. Only used to explain a postcard failure: heapless refuses an over-long layer list
+/// with an anonymous serde error.
+fn declared_layer_count(payload: &[u8]) -> Option<u64> {
+    let mut pos = 0;
+    for _ in 0..3 {
+        if peek_varint(payload, &mut pos)? > 1 {
+            return None;
+        }
+    }
+    let str_len = usize::try_from(peek_varint(payload, &mut pos)?).ok()?;
+    let end = pos.checked_add(str_len)?;
+    core::str::from_utf8(payload.get(pos..end)?).ok()?;
+    pos = end;
+    peek_varint(payload, &mut pos)
+}
+
+/// Checks and decodes a blob in place, borrowing every array from `bytes`. Never panics,
+/// never allocates, reads nothing outside `bytes`. The checks run cheapest and most
+/// telling first: framing, magic, version, length, CRC, then the payload and its semantics.
+pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
+    let min = HEADER_LEN + TRAILER_LEN;
+    if bytes.len() < min {
+        return Err(BlobError::Truncated {
+            needed: min,
+            found: bytes.len(),
+        });
+    }
+    let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
+    if magic != MAGIC {
+        return Err(BlobError::BadMagic { found: magic });
+    }
+    let version = u16::from_le_bytes([bytes[4], bytes[5]]);
+    if version != FORMAT_VERSION {
+        return Err(BlobError::UnsupportedVersion {
+            found: version,
+            supported: FORMAT_VERSION,
+        });
+    }
+    let declared = u32::from_le_bytes([bytes[6], bytes[7], bytes[8], bytes[9]]);
+    // On a 16-bit usize an unrepresentable length cannot fit in memory anyway.
+    let total = usize::try_from(declared)
+        .ok()
+        .and_then(|l| l.checked_add(min))
+        .unwrap_or(usize::MAX);
+    if bytes.len() < total {
+        return Err(BlobError::Truncated {
+            needed: total,
+            found: bytes.len(),
+        });
+    }
+    if bytes.len() > total {
+        return Err(BlobError::TrailingBytes {
+            expected: total,
+            found: bytes.len(),
+        });
+    }
+    let payload = &bytes[HEADER_LEN..total - TRAILER_LEN];
+    let t = &bytes[total - TRAILER_LEN..];
+    let stored = u32::from_le_bytes([t[0], t[1], t[2], t[3]]);
+    let computed = CRC32.checksum(payload);
+    if stored != computed {
+        return Err(BlobError::CrcMismatch { stored, computed });
+    }
+    let (blob, rest) = match postcard::take_from_bytes::<NetworkBlob<'_>>(payload) {
+        Ok(v) => v,
+        Err(e) => {
+            return Err(match declared_layer_count(payload) {
+                Some(n) if n > MAX_LAYERS as u64 => BlobError::TooManyLayers {
+                    found: usize::try_from(n).unwrap_or(usize::MAX),
+                    max: MAX_LAYERS,
+                },
+                _ => BlobError::Payload(e.into()),
+            })
+        }
+    };
+    if !rest.is_empty() {
+        return Err(BlobError::PayloadNotConsumed { unused: rest.len() });
+    }
+    blob.validate()?;
+    Ok(blob)
+}
+
+fn payload_len(blob: &NetworkBlob<'_>) -> Result<usize, BlobError> {
+    postcard::experimental::serialized_size(blob).map_err(|e| BlobError::Payload(e.into()))
+}
+
+fn framed_len(payload: usize) -> Result<usize, BlobError> {
+    if u32::try_from(payload).is_err() {
+        return Err(BlobError::PayloadTooLarge { len: payload });
+    }
+    payload
+        .checked_add(HEADER_LEN + TRAILER_LEN)
+        .ok_or(BlobError::PayloadTooLarge { len: payload })
+}
+
+/// Total bytes [`encode`] will write for `blob` (validating it first).
+pub fn encoded_len(blob: &NetworkBlob<'_>) -> Result<usize, BlobError> {
+    blob.validate()?;
+    framed_len(payload_len(blob)?)
+}
+
+/// Validates `blob` and writes the framed blob to the start of `out`; returns the bytes
+/// written. No heap, so the flight side could re-emit a blob too.
+pub fn encode(blob: &NetworkBlob<'_>, out: &mut [u8]) -> Result<usize, BlobError> {
+    blob.validate()?;
+    encode_unchecked(blob, out)
+}
+
+/// [`encode`] without [`NetworkBlob::validate`]: only for tests that need a correctly framed
+/// blob with a semantic defect, to prove the decoder's own checks fire.
+#[doc(hidden)]
+pub fn encode_unchecked(blob: &NetworkBlob<'_>, out: &mut [u8]) -> Result<usize, BlobError> {
+    let len = payload_len(blob)?;
+    let total = framed_len(len)?;
+    if out.len() < total {
+        return Err(BlobError::BufferTooSmall {
+            needed: total,
+            available: out.len(),
+        });
+    }
+    let (header, rest) = out.split_at_mut(HEADER_LEN);
+    let (payload, rest) = rest.split_at_mut(len);
+    let written = postcard::to_slice(blob, payload)
+        .map_err(|e| BlobError::Payload(e.into()))?
+        .len();
+    if written != len {
+        return Err(BlobError::Payload(PayloadError::Other));
+    }
+    header[..4].copy_from_slice(&MAGIC);
+    header[4..6].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+    // framed_len checked that len fits in u32.
+    header[6..10].copy_from_slice(&(len as u32).to_le_bytes());
+    rest[..TRAILER_LEN].copy_from_slice(&CRC32.checksum(payload).to_le_bytes());
+    Ok(total)
+}
+
+/// [`encode`] into a new exactly sized vector (the ground exporter's entry point).
+#[cfg(feature = "std")]
+pub fn encode_to_vec(blob: &NetworkBlob<'_>) -> Result<std::vec::Vec<u8>, BlobError> {
+    let mut out = std::vec![0u8; encoded_len(blob)?];
+    let n = encode_unchecked(blob, &mut out)?;
+    debug_assert_eq!(n, out.len());
+    Ok(out)
+}

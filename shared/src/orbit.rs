@@ -1,0 +1,263 @@
+//! Planar Keplerian orbits in canonical units (SPEC section 2): elements, polar and Cartesian
+//! states. Angles are radians here; the CLI takes degrees at the edge.
+
+use serde::{Deserialize, Serialize};
+
+/// Why orbit elements are unusable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OrbitError {
+    /// Semi-major axis not finite or not positive.
+    SemiMajorAxis,
+    /// Eccentricity outside [0, 1) (only closed orbits are in scope) or not finite.
+    Eccentricity,
+    /// An angle is not finite.
+    Angle,
+}
+
+impl core::fmt::Display for OrbitError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::SemiMajorAxis => "semi-major axis must be finite and > 0 AU",
+            Self::Eccentricity => "eccentricity must be finite and in [0, 1)",
+            Self::Angle => "angles must be finite",
+        })
+    }
+}
+
+/// Shape and orientation of a closed planar orbit: semi-major axis a (AU), eccentricity e,
+/// argument of periapsis omega (rad). A target orbit of a transfer is exactly this.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OrbitShape {
+    pub a: f64,
+    pub e: f64,
+    pub omega: f64,
+}
+
+/// A point on an orbit: its shape plus the true anomaly nu (rad).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OrbitElements {
+    pub shape: OrbitShape,
+    pub nu: f64,
+}
+
+/// Polar state (SPEC section 2): radius, polar angle, radial and transverse velocity.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PolarState {
+    pub r: f64,
+    pub theta: f64,
+    pub v_r: f64,
+    pub v_theta: f64,
+}
+
+/// Cartesian position and velocity in the orbit plane.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CartesianState {
+    pub r: [f64; 2],
+    pub v: [f64; 2],
+}
+
+impl OrbitShape {
+    /// Checks that the shape describes a closed orbit.
+    pub fn validate(&self) -> Result<(), OrbitError> {
+        if !(self.a.is_finite() && self.a > 0.0) {
+            return Err(OrbitError::SemiMajorAxis);
+        }
+        if !(self.e.is_finite() && (0.0..1.0).contains(&self.e)) {
+            return Err(OrbitError::Eccentricity);
+        }
+        if !self.omega.is_finite() {
+            return Err(OrbitError::Angle);
+        }
+        Ok(())
+    }
+
+    /// Semi-latus rectum p = a (1 - e^2).
+    pub fn semi_latus_rectum(&self) -> f64 {
+        self.a * (1.0 - self.e * self.e)
+    }
+
+    /// Orbital period 2 pi a^(3/2) in t*.
+    pub fn period(&self) -> f64 {
+        2.0 * core::f64::consts::PI * self.a * libm::sqrt(self.a)
+    }
+
+    /// Polar state at true anomaly nu.
+    pub fn polar_at(&self, nu: f64) -> PolarState {
+        let p = self.semi_latus_rectum();
+        let (s, c) = (libm::sin(nu), libm::cos(nu));
+        let k = libm::sqrt(1.0 / p);
+        PolarState {
+            r: p / (1.0 + self.e * c),
+            theta: self.omega + nu,
+            v_r: k * self.e * s,
+            v_theta: k * (1.0 + self.e * c),
+        }
+    }
+
+    /// Derivative of the polar radius and velocities with respect to nu at nu (theta' = 1).
+    /// Used by the transversality condition of free-anomaly transfers.
+    pub fn polar_derivative_at(&self, nu: f64) -> PolarState {
+        let p = self.semi_latus_rectum();
+        let (s, c) = (libm::sin(nu), libm::cos(nu));
+        let k = libm::sqrt(1.0 / p);
+        let den = 1.0 + self.e * c;
+        PolarState {
+            r: p * self.e * s / (den * den),
+            theta: 1.0,
+            v_r: k * self.e * c,
+            v_theta: -k * self.e * s,
+        }
+    }
+
+    /// Cartesian state at true anomaly nu.
+    pub fn cartesian_at(&self, nu: f64) -> CartesianState {
+        self.polar_at(nu).to_cartesian()
+    }
+}
+
+impl OrbitElements {
+    /// Checks the shape and the anomaly.
+    pub fn validate(&self) -> Result<(), OrbitError> {
+        self.shape.validate()?;
+        if !self.nu.is_finite() {
+            return Err(OrbitError::Angle);
+        }
+        Ok(())
+    }
+
+    pub fn polar(&self) -> PolarState {
+        self.shape.polar_at(self.nu)
+    }
+
+    pub fn cartesian(&self) -> CartesianState {
+        self.shape.cartesian_at(self.nu)
+    }
+}
+
+impl PolarState {
+    /// Cartesian state from the polar one (SPEC section 2 relations inverted).
+    pub fn to_cartesian(&self) -> CartesianState {
+        let (s, c) = (libm::sin(self.theta), libm::cos(self.theta));
+        CartesianState {
+            r: [self.r * c, self.r * s],
+            v: [self.v_r * c - self.v_theta * s, self.v_r * s + self.v_theta * c],
+        }
+    }
+}
+
+impl CartesianState {
+    /// Polar state (SPEC section 2). The angle is atan2(y, x) in (-pi, pi].
+    pub fn to_polar(&self) -> PolarState {
+        let [x, y] = self.r;
+        let [vx, vy] = self.v;
+        let r = libm::hypot(x, y);
+        PolarState {
+            r,
+            theta: libm::atan2(y, x),
+            v_r: (x * vx + y * vy) / r,
+            v_theta: (x * vy - y * vx) / r,
+        }
+    }
+
+    /// Specific orbital energy v^2/2 - 1/r (mu = 1).
+    pub fn energy(&self) -> f64 {
+        let [vx, vy] = self.v;
+        0.5 * (vx * vx + vy * vy) - 1.0 / libm::hypot(self.r[0], self.r[1])
+    }
+
+    /// Specific angular momentum (z component).
+    pub fn angular_momentum(&self) -> f64 {
+        self.r[0] * self.v[1] - self.r[1] * self.v[0]
+    }
+
+    /// Osculating elements of a bound orbit, or `None` for a hyperbolic/parabolic or degenerate state.
+    pub fn elements(&self) -> Option<OrbitElements> {
+        let energy = self.energy();
+        let h = self.angular_momentum();
+        let r = libm::hypot(self.r[0], self.r[1]);
+        if energy.is_nan() || energy >= 0.0 || !r.is_finite() || r <= 0.0 {
+            return None;
+        }
+        let a = -0.5 / energy;
+        // Eccentricity vector e = (v x h) - r_hat, planar.
+        let ex = self.v[1] * h - self.r[0] / r;
+        let ey = -self.v[0] * h - self.r[1] / r;
+        let e = libm::hypot(ex, ey);
+        let omega = if e > 0.0 { libm::atan2(ey, ex) } else { 0.0 };
+        let theta = libm::atan2(self.r[1], self.r[0]);
+        let nu = theta - omega;
+        Some(OrbitElements {
+            shape: OrbitShape { a, e, omega },
+            nu,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polar_cartesian_round_trip_and_vis_viva() {
+        let shape = OrbitShape {
+            a: 1.3,
+            e: 0.4,
+            omega: 0.7,
+        };
+        for k in 0..12 {
+            let nu = -3.0 + 0.5 * k as f64;
+            let cart = shape.cartesian_at(nu);
+            // vis-viva: v^2 = 2/r - 1/a
+            let v2 = cart.v[0] * cart.v[0] + cart.v[1] * cart.v[1];
+            let r = libm::hypot(cart.r[0], cart.r[1]);
+            assert!((v2 - (2.0 / r - 1.0 / shape.a)).abs() < 1e-14);
+            let back = cart.elements().unwrap();
+            assert!((back.shape.a - shape.a).abs() < 1e-12);
+            assert!((back.shape.e - shape.e).abs() < 1e-12);
+            let d = libm::remainder(back.shape.omega - shape.omega, 2.0 * core::f64::consts::PI);
+            assert!(d.abs() < 1e-12);
+            let polar = cart.to_polar();
+            let direct = shape.polar_at(nu);
+            assert!((polar.r - direct.r).abs() < 1e-14);
+            assert!((polar.v_r - direct.v_r).abs() < 1e-14);
+            assert!((polar.v_theta - direct.v_theta).abs() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn derivative_with_respect_to_anomaly_matches_finite_differences() {
+        let shape = OrbitShape {
+            a: 0.8,
+            e: 0.6,
+            omega: -1.0,
+        };
+        let h = 1e-6;
+        for k in 0..8 {
+            let nu = 0.8 * k as f64;
+            let d = shape.polar_derivative_at(nu);
+            let (p, m) = (shape.polar_at(nu + h), shape.polar_at(nu - h));
+            assert!((d.r - (p.r - m.r) / (2.0 * h)).abs() < 1e-8);
+            assert!((d.v_r - (p.v_r - m.v_r) / (2.0 * h)).abs() < 1e-8);
+            assert!((d.v_theta - (p.v_theta - m.v_theta) / (2.0 * h)).abs() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn refuses_open_or_non_finite_orbits() {
+        let ok = OrbitShape {
+            a: 1.0,
+            e: 0.1,
+            omega: 0.0,
+        };
+        assert_eq!(ok.validate(), Ok(()));
+        assert_eq!(OrbitShape { a: 0.0, ..ok }.validate(), Err(OrbitError::SemiMajorAxis));
+        assert_eq!(OrbitShape { e: 1.0, ..ok }.validate(), Err(OrbitError::Eccentricity));
+        assert_eq!(OrbitShape { e: -0.1, ..ok }.validate(), Err(OrbitError::Eccentricity));
+        assert_eq!(OrbitShape { omega: f64::NAN, ..ok }.validate(), Err(OrbitError::Angle));
+        let el = OrbitElements {
+            shape: ok,
+            nu: f64::INFINITY,
+        };
+        assert_eq!(el.validate(), Err(OrbitError::Angle));
+    }
+}
