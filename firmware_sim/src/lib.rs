@@ -148,7 +148,11 @@ impl Actor<TRANSFER_FEATURES> for ProxyTracking {
         let throttle = ((error - 0.02) / 0.2).clamp(0.0, 1.0);
         let (radial, along) = (v_r_t - v_r + 0.5 * (r_t - r), v_theta_t - v_theta + 0.5 * gap);
         let norm = radial.hypot(along).max(1e-9);
-        [(2.0 * throttle - 1.0) as f32, (radial / norm) as f32, (along / norm) as f32]
+        [
+            (2.0 * throttle - 1.0) as f32,
+            (radial / norm) as f32,
+            (along / norm) as f32,
+        ]
     }
 }
 
