@@ -414,8 +414,9 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         q
     }
 
-    /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]` (saturating at the bias add;
-    /// the dot product itself cannot overflow: `IN <= 65535` products of magnitude `<= 2^14`).
+    /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]`, saturating at the bias add.
+    /// For `xq` in `-127..=127` (what [`Self::quantize_input`] gives) the dot product is exact:
+    /// `IN <= 65535` products of magnitude `<= 2^14`. Other i16 values wrap, never panic.
     ///
     /// Uses [`Self::accumulate_lanes`] on x86 and other wide-SIMD targets, and
     /// [`Self::accumulate_rows`] on 32-bit Arm (the Cortex-M4), where

@@ -195,6 +195,17 @@ fn input_quantization_rounds_half_away_and_clamps() {
     assert_eq!(q, [0, -2, 127, -127, 127, 0]);
 }
 
+/// The next f32 toward +inf (`f32::next_up` needs Rust 1.86; the MSRV is 1.85).
+fn next_up(t: f32) -> f32 {
+    if t == 0.0 {
+        f32::from_bits(1)
+    } else if t > 0.0 {
+        f32::from_bits(t.to_bits() + 1)
+    } else {
+        f32::from_bits(t.to_bits() - 1)
+    }
+}
+
 #[test]
 fn input_quantization_matches_f64_rounding() {
     // round(x / s) half away from zero, clamped, against f64 on random values, exact ties
@@ -213,9 +224,9 @@ fn input_quantization_matches_f64_rounding() {
                 _ => {
                     let t = (((rng.next_u64() % 600) as i32 - 300) as f32 * 0.5) * scale;
                     if k % 2 == 0 {
-                        t.next_up()
+                        next_up(t)
                     } else {
-                        t.next_down()
+                        -next_up(-t)
                     }
                 }
             });
