@@ -167,6 +167,75 @@ pub fn solve_transfer(
     })
 }
 
+/// One level of the energy-to-fuel homotopy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HomotopyLevel {
+    pub eps: f64,
+    pub outcome: NewtonOutcome,
+}
+
+/// The homotopy schedule of SPEC section 3: eps = 1, halving, last level the first below 1e-4.
+pub fn homotopy_schedule() -> impl Iterator<Item = f64> {
+    core::iter::successors(Some(1.0f64), |&e| (e >= 1e-4).then_some(e * 0.5))
+}
+
+/// Solves the transfer along the homotopy, each level warm-started from the previous one.
+/// A level that does not converge from there is approached through intermediate eps values
+/// (geometric means, up to `MAX_SUBDIVISIONS` halvings of the log-step). Stops at the first
+/// level that cannot be reached; the levels solved so far are returned.
+pub fn solve_transfer_homotopy(
+    scenario: &Scenario,
+    spacecraft: &shared::spacecraft::CanonicalSpacecraft,
+    z0: &TransferVector,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
+) -> Result<Vec<HomotopyLevel>, IntegrationError> {
+    const MAX_SUBDIVISIONS: u32 = 6;
+    let solve_at = |eps: f64, z: &TransferVector| {
+        solve_transfer(
+            scenario,
+            &OptimalControlParams {
+                spacecraft: *spacecraft,
+                eps,
+            },
+            z,
+            tolerances,
+            settings,
+        )
+    };
+    let mut z = *z0;
+    let mut solved_eps: Option<f64> = None;
+    let mut levels = Vec::new();
+    for eps in homotopy_schedule() {
+        let mut outcome = solve_at(eps, &z)?;
+        if let (false, Some(from)) = (outcome.converged, solved_eps) {
+            // Walk from the last solved eps towards this level in smaller log-steps.
+            let (mut at, mut z_at, mut ratio, mut halvings) = (from, z, eps / from, 0);
+            while at > eps && halvings <= MAX_SUBDIVISIONS {
+                let next = (at * ratio).max(eps);
+                let step = solve_at(next, &z_at)?;
+                if step.converged {
+                    (at, z_at) = (next, step.z);
+                    outcome = step;
+                } else {
+                    ratio = ratio.sqrt();
+                    halvings += 1;
+                }
+            }
+            if at > eps {
+                outcome.converged = false;
+            }
+        }
+        levels.push(HomotopyLevel { eps, outcome });
+        if !outcome.converged {
+            break;
+        }
+        z = outcome.z;
+        solved_eps = Some(eps);
+    }
+    Ok(levels)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -259,6 +328,55 @@ mod tests {
             yf[idx::M] < bound && yf[idx::M] > 0.8,
             "m_f {} vs Hohmann bound {bound}",
             yf[idx::M]
+        );
+    }
+
+    /// What the homotopy reaches today: the first levels, with fuel use falling monotonically.
+    /// Deeper levels (eps <= 1/64 on this case) stall at a residual floor near 1e-8 and are the
+    /// next piece of work (issue 3); when they converge this test should demand all 15 levels.
+    #[test]
+    fn homotopy_levels_converge_with_monotone_fuel_use() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let scenario = circular_scenario(1.0, 1.3);
+        let z0 = TransferVector::from_column_slice(&[-0.3, 0.0, 0.0, -0.3, 0.05, 7.5]);
+        let levels = solve_transfer_homotopy(&scenario, &sc, &z0, &tol, &NewtonSettings::default()).unwrap();
+        let schedule: Vec<f64> = homotopy_schedule().collect();
+        assert_eq!(schedule.len(), 15);
+        assert!(schedule[14] < 1e-4 && schedule[13] >= 1e-4);
+        let solved: Vec<&HomotopyLevel> = levels.iter().filter(|l| l.outcome.converged).collect();
+        assert!(solved.len() >= 6, "only {} levels solved", solved.len());
+        let mut previous_mass = 0.0;
+        for level in solved {
+            let params = OptimalControlParams {
+                spacecraft: sc,
+                eps: level.eps,
+            };
+            let z = level.outcome.z;
+            let y0 = initial_state_costate(&scenario, &[z[0], z[1], z[2], z[3], z[4]]);
+            let system = super::super::pontryagin::StateCostate(params);
+            let (yf, _) = integrate(&system, 0.0, &y0, scenario.time_of_flight(), &tol).unwrap();
+            // Less weight on energy, less propellant: the final mass never drops along the way.
+            assert!(
+                yf[idx::M] >= previous_mass - 1e-9,
+                "eps {}: {} < {previous_mass}",
+                level.eps,
+                yf[idx::M]
+            );
+            previous_mass = yf[idx::M];
+        }
+        let (r1, r2) = (1.0f64, 1.3f64);
+        let dv_hohmann = (1.0 / r1).sqrt() * ((2.0 * r2 / (r1 + r2)).sqrt() - 1.0)
+            + (1.0 / r2).sqrt() * (1.0 - (2.0 * r1 / (r1 + r2)).sqrt());
+        assert!(previous_mass < (-dv_hohmann / sc.exhaust_speed).exp());
+        println!(
+            "solved {} levels, last eps {:?}, m_f {previous_mass}",
+            levels.len(),
+            levels.last().map(|l| l.eps)
         );
     }
 
