@@ -1,0 +1,179 @@
+//! Trajectory records (SPEC section 3): what one solved scenario keeps, sampled both at the
+//! thesis's 100 ephemeris epochs and at every 14-day environment step.
+
+use onboard::integrator::{integrate, IntegrationError, Tolerances};
+use serde::{Deserialize, Serialize};
+use shared::scenario::{Scenario, ScenarioKind};
+use shared::spacecraft::CanonicalSpacecraft;
+use shared::units::STEP;
+
+use crate::solver::pontryagin::{idx, optimal_throttle, switching_function, OptimalControlParams, StateCostate, Y_LEN};
+
+/// Ephemeris epochs per trajectory (the thesis's "100 vectors per ephemeris").
+pub const EPHEMERIS_POINTS: usize = 100;
+
+/// State and optimal control at one epoch (canonical units).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TrajectorySample {
+    /// Time since departure, t*.
+    pub t: f64,
+    pub r: [f64; 2],
+    pub v: [f64; 2],
+    pub m: f64,
+    /// Optimal throttle u in [0, 1].
+    pub throttle: f64,
+    /// Unit thrust direction (primer vector) in the inertial frame.
+    pub direction: [f64; 2],
+    /// The same direction in the local polar frame (alpha_r, alpha_theta).
+    pub direction_polar: [f64; 2],
+}
+
+/// One solved (or failed) scenario.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrajectoryRecord {
+    pub kind: ScenarioKind,
+    pub seed: u64,
+    pub index: u64,
+    pub scenario: Scenario,
+    pub converged: bool,
+    /// Why the solve failed, when it did.
+    pub failure: Option<String>,
+    /// Initial costates (lambda_r, lambda_v, lambda_m).
+    pub costates: [f64; 5],
+    /// Transfers: the final true anomaly on the target orbit (rad).
+    pub final_anomaly: Option<f64>,
+    pub final_eps: f64,
+    /// Final mass, fraction of m0.
+    pub final_mass: f64,
+    /// Number of maximal intervals with u > 1/2 sampled on the ephemeris grid.
+    pub thrust_arcs: u32,
+    /// Largest terminal-condition residual (canonical).
+    pub residual: f64,
+    /// Wall time of the solve, s.
+    pub seconds: f64,
+    /// `EPHEMERIS_POINTS` samples evenly spread over [0, TOF].
+    pub ephemeris: Vec<TrajectorySample>,
+    /// One sample per environment step boundary: k = 0..=N at t = k * STEP.
+    pub steps: Vec<TrajectorySample>,
+}
+
+/// The sample at a state-costate vector.
+pub fn sample(t: f64, y: &[f64; Y_LEN], params: &OptimalControlParams) -> TrajectorySample {
+    let u: f64 = optimal_throttle(switching_function(y, params.spacecraft.exhaust_speed), params.eps);
+    let (lvx, lvy) = (y[idx::LV], y[idx::LV + 1]);
+    let norm = lvx.hypot(lvy);
+    let direction = if norm > 0.0 { [-lvx / norm, -lvy / norm] } else { [0.0, 0.0] };
+    let r = y[idx::R].hypot(y[idx::R + 1]);
+    let (c, s) = (y[idx::R] / r, y[idx::R + 1] / r);
+    TrajectorySample {
+        t,
+        r: [y[idx::R], y[idx::R + 1]],
+        v: [y[idx::V], y[idx::V + 1]],
+        m: y[idx::M],
+        throttle: u,
+        direction,
+        direction_polar: [direction[0] * c + direction[1] * s, -direction[0] * s + direction[1] * c],
+    }
+}
+
+/// Propagates the optimal state-costate trajectory from `y0` and samples it at `times` (sorted,
+/// starting at or after 0). Integration restarts at every sample so no interpolation error enters.
+pub fn sample_at(
+    y0: &[f64; Y_LEN],
+    params: &OptimalControlParams,
+    times: &[f64],
+    tolerances: &Tolerances,
+) -> Result<Vec<TrajectorySample>, IntegrationError> {
+    let system = StateCostate(*params);
+    let (mut t, mut y) = (0.0, *y0);
+    let mut out = Vec::with_capacity(times.len());
+    for &ti in times {
+        if ti > t {
+            y = integrate(&system, t, &y, ti, tolerances)?.0;
+            t = ti;
+        }
+        out.push(sample(t, &y, params));
+    }
+    Ok(out)
+}
+
+/// The ephemeris and environment-step grids of a scenario.
+pub fn sample_grids(scenario: &Scenario) -> (Vec<f64>, Vec<f64>) {
+    let tof = scenario.time_of_flight();
+    let n = EPHEMERIS_POINTS - 1;
+    let ephemeris = (0..EPHEMERIS_POINTS).map(|k| tof * k as f64 / n as f64).collect();
+    let steps = (0..=scenario.steps).map(|k| f64::from(k) * STEP).collect();
+    (ephemeris, steps)
+}
+
+/// Maximal runs of samples with u > 1/2.
+pub fn count_thrust_arcs(samples: &[TrajectorySample]) -> u32 {
+    let mut arcs = 0;
+    let mut on = false;
+    for s in samples {
+        let now = s.throttle > 0.5;
+        if now && !on {
+            arcs += 1;
+        }
+        on = now;
+    }
+    arcs
+}
+
+/// Spacecraft parameters a record was solved with are part of the config, not the record; this
+/// checks that a record's samples are consistent with them (mass law: dm/dt = -T u / c).
+pub fn mass_consistent(record: &TrajectoryRecord, spacecraft: &CanonicalSpacecraft, tolerance: f64) -> bool {
+    record.ephemeris.windows(2).all(|w| {
+        let dt = w[1].t - w[0].t;
+        let max_drop = spacecraft.thrust / spacecraft.exhaust_speed * dt;
+        let drop = w[0].m - w[1].m;
+        drop >= -tolerance && drop <= max_drop + tolerance
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::spacecraft::Spacecraft;
+
+    #[test]
+    fn grids_span_the_flight_and_sampling_matches_one_long_propagation() {
+        let scenario = ScenarioKind::TransferCircular.draw(1, 0);
+        let (eph, steps) = sample_grids(&scenario);
+        assert_eq!(eph.len(), EPHEMERIS_POINTS);
+        assert_eq!(steps.len(), scenario.steps as usize + 1);
+        assert_eq!(eph[0], 0.0);
+        assert!((eph[EPHEMERIS_POINTS - 1] - scenario.time_of_flight()).abs() < 1e-12);
+        assert!((steps[scenario.steps as usize] - scenario.time_of_flight()).abs() < 1e-12);
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let params = OptimalControlParams { spacecraft: sc, eps: 0.5 };
+        let c = scenario.initial.cartesian();
+        let y0 = [c.r[0], c.r[1], c.v[0], c.v[1], 1.0, -0.3, 0.0, 0.0, -0.3, 0.05];
+        let tol = Tolerances::default();
+        let samples = sample_at(&y0, &params, &eph, &tol).unwrap();
+        let (y_end, _) = integrate(&StateCostate(params), 0.0, &y0, scenario.time_of_flight(), &tol).unwrap();
+        let last = samples.last().unwrap();
+        assert!((last.r[0] - y_end[0]).abs() < 1e-9 && (last.m - y_end[4]).abs() < 1e-12);
+        for s in &samples {
+            assert!((s.direction[0].hypot(s.direction[1]) - 1.0).abs() < 1e-12);
+            assert!((s.direction_polar[0].hypot(s.direction_polar[1]) - 1.0).abs() < 1e-12);
+            assert!((0.0..=1.0).contains(&s.throttle));
+        }
+    }
+
+    #[test]
+    fn thrust_arcs_count_maximal_runs() {
+        let mk = |u: f64| TrajectorySample {
+            t: 0.0,
+            r: [1.0, 0.0],
+            v: [0.0, 1.0],
+            m: 1.0,
+            throttle: u,
+            direction: [0.0, 1.0],
+            direction_polar: [0.0, 1.0],
+        };
+        let samples: Vec<_> = [1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0].iter().map(|&u| mk(u)).collect();
+        assert_eq!(count_thrust_arcs(&samples), 3);
+        assert_eq!(count_thrust_arcs(&samples[2..4]), 0);
+    }
+}

@@ -1,0 +1,1 @@
+//! CCSDS Orbit Ephemeris Message export (being written).
