@@ -55,6 +55,9 @@ pub struct TrajectoryRecord {
     pub ephemeris: Vec<TrajectorySample>,
     /// One sample per environment step boundary: k = 0..=N at t = k * STEP.
     pub steps: Vec<TrajectorySample>,
+    /// How many distinct energy-optimal (eps = 1) solutions the multi-start found: more than
+    /// one means several local optima; the best by final mass was continued.
+    pub distinct_energy_optima: u32,
 }
 
 /// The sample at a state-costate vector.
@@ -62,7 +65,11 @@ pub fn sample(t: f64, y: &[f64; Y_LEN], params: &OptimalControlParams) -> Trajec
     let u: f64 = optimal_throttle(switching_function(y, params.spacecraft.exhaust_speed), params.eps);
     let (lvx, lvy) = (y[idx::LV], y[idx::LV + 1]);
     let norm = lvx.hypot(lvy);
-    let direction = if norm > 0.0 { [-lvx / norm, -lvy / norm] } else { [0.0, 0.0] };
+    let direction = if norm > 0.0 {
+        [-lvx / norm, -lvy / norm]
+    } else {
+        [0.0, 0.0]
+    };
     let r = y[idx::R].hypot(y[idx::R + 1]);
     let (c, s) = (y[idx::R] / r, y[idx::R + 1] / r);
     TrajectorySample {
@@ -72,7 +79,10 @@ pub fn sample(t: f64, y: &[f64; Y_LEN], params: &OptimalControlParams) -> Trajec
         m: y[idx::M],
         throttle: u,
         direction,
-        direction_polar: [direction[0] * c + direction[1] * s, -direction[0] * s + direction[1] * c],
+        direction_polar: [
+            direction[0] * c + direction[1] * s,
+            -direction[0] * s + direction[1] * c,
+        ],
     }
 }
 
@@ -146,7 +156,10 @@ mod tests {
         assert!((eph[EPHEMERIS_POINTS - 1] - scenario.time_of_flight()).abs() < 1e-12);
         assert!((steps[scenario.steps as usize] - scenario.time_of_flight()).abs() < 1e-12);
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let params = OptimalControlParams { spacecraft: sc, eps: 0.5 };
+        let params = OptimalControlParams {
+            spacecraft: sc,
+            eps: 0.5,
+        };
         let c = scenario.initial.cartesian();
         let y0 = [c.r[0], c.r[1], c.v[0], c.v[1], 1.0, -0.3, 0.0, 0.0, -0.3, 0.05];
         let tol = Tolerances::default();

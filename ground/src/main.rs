@@ -8,10 +8,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use firmware_sim::{fly_transfer, ProxyTracking};
+use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use onboard::features::RewardWeights;
 use onboard::integrator::Tolerances;
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::scenario::{ProblemKind, Scenario};
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 use shared::units::{canonical_to_days, STEP};
 
@@ -24,6 +25,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Solve one mass-optimal transfer by the indirect method (Pontryagin, energy-to-fuel
+    /// homotopy, shooting). Rendezvous is not implemented yet.
+    Solve(SolveArgs),
     /// The main job. For now: a feedback-law orbit raise flown step by step through the
     /// onboard guidance step, feature encoding and propagator (the learning pipeline comes later).
     Run {
@@ -41,15 +45,164 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    match cli.command {
-        Command::Run { a0, af, nu0_deg } => match demo(a0, af, nu0_deg) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e}");
-                ExitCode::FAILURE
-            }
-        },
+    let result = match cli.command {
+        Command::Run { a0, af, nu0_deg } => demo(a0, af, nu0_deg),
+        Command::Solve(args) => solve_command(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
     }
+}
+
+/// `ground solve`: one fuel-optimal case from explicit orbits or from a scenario draw.
+#[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
+struct SolveArgs {
+    /// Draw the case from this scenario distribution (with --seed and --index) instead of
+    /// giving the orbits explicitly.
+    #[arg(long, value_parser = parse_scenario_kind)]
+    scenario: Option<ScenarioKind>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    /// Initial orbit: semi-major axis (AU), eccentricity, argument of periapsis and true anomaly (deg).
+    #[arg(long)]
+    a0: Option<f64>,
+    #[arg(long, default_value_t = 1e-4)]
+    e0: f64,
+    #[arg(long, default_value_t = 0.0)]
+    omega0: f64,
+    #[arg(long, default_value_t = 0.0)]
+    nu0: f64,
+    /// Target orbit: semi-major axis (AU), eccentricity, argument of periapsis (deg).
+    #[arg(long)]
+    af: Option<f64>,
+    #[arg(long, default_value_t = 1e-4)]
+    ef: f64,
+    #[arg(long, default_value_t = 0.0)]
+    omegaf: f64,
+    /// Rendezvous with a body starting at true anomaly --nuf0 (deg) on the target orbit.
+    #[arg(long)]
+    rendezvous: bool,
+    #[arg(long, default_value_t = 0.0)]
+    nuf0: f64,
+    /// Time of flight in days (default: SPEC section 4, max of the two periods rounded up to
+    /// whole 14-day steps). Must be a positive whole number of 14-day steps.
+    #[arg(long)]
+    tof_days: Option<f64>,
+    /// Print one JSON object instead of a summary.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_scenario_kind(name: &str) -> Result<ScenarioKind, String> {
+    ScenarioKind::ALL.into_iter().find(|k| k.name() == name).ok_or_else(|| {
+        let names: Vec<_> = ScenarioKind::ALL.iter().map(|k| k.name()).collect();
+        format!("unknown scenario '{name}', expected one of: {}", names.join(", "))
+    })
+}
+
+fn scenario_from_args(args: &SolveArgs) -> Result<(ScenarioKind, Scenario), String> {
+    if let Some(kind) = args.scenario {
+        return Ok((kind, kind.draw(args.seed, args.index)));
+    }
+    let (Some(a0), Some(af)) = (args.a0, args.af) else {
+        return Err("give either --scenario NAME (with --seed/--index) or at least --a0 and --af".into());
+    };
+    let initial = OrbitElements {
+        shape: OrbitShape {
+            a: a0,
+            e: args.e0,
+            omega: args.omega0.to_radians(),
+        },
+        nu: args.nu0.to_radians(),
+    };
+    let target = OrbitShape {
+        a: af,
+        e: args.ef,
+        omega: args.omegaf.to_radians(),
+    };
+    initial.validate().map_err(|e| format!("initial orbit: {e}"))?;
+    target.validate().map_err(|e| format!("target orbit: {e}"))?;
+    let steps = match args.tof_days {
+        None => Scenario::steps_for(&initial.shape, &target),
+        Some(days) => {
+            let n = days / 14.0;
+            if !(days.is_finite() && days > 0.0) || (n - n.round()).abs() > 1e-9 || n.round() > f64::from(u32::MAX) {
+                return Err(format!(
+                    "--tof-days must be a positive whole number of 14-day steps, got {days}"
+                ));
+            }
+            n.round() as u32
+        }
+    };
+    let (problem, kind) = if args.rendezvous {
+        (ProblemKind::Rendezvous, ScenarioKind::RendezvousHard)
+    } else {
+        (ProblemKind::Transfer, ScenarioKind::TransferHard)
+    };
+    let scenario = Scenario {
+        problem,
+        initial,
+        target,
+        target_nu0: args.nuf0.to_radians(),
+        steps,
+    };
+    scenario.validate().map_err(|e| e.to_string())?;
+    Ok((kind, scenario))
+}
+
+fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let (kind, scenario) = scenario_from_args(args)?;
+    let sc = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let record = solve_scenario(kind, args.seed, args.index, &scenario, &sc, &SolveOptions::default());
+    if args.json {
+        let summary = serde_json::json!({
+            "converged": record.converged,
+            "failure": record.failure,
+            "final_mass": record.final_mass,
+            "thrust_arcs": record.thrust_arcs,
+            "final_eps": record.final_eps,
+            "residual": record.residual,
+            "seconds": record.seconds,
+            "costates": record.costates,
+            "final_anomaly_deg": record.final_anomaly.map(f64::to_degrees),
+            "distinct_energy_optima": record.distinct_energy_optima,
+            "steps": scenario.steps,
+            "tof_days": canonical_to_days(scenario.time_of_flight()),
+        });
+        println!("{summary}");
+    } else {
+        println!(
+            "converged: {} ({})\nfinal mass: {:.6} m0\nthrust arcs: {}\nfinal eps: {:.3e}\nresidual: {:.2e}\nseconds: {:.3}\ncostates: {:?}",
+            record.converged,
+            record.failure.as_deref().unwrap_or("ok"),
+            record.final_mass,
+            record.thrust_arcs,
+            record.final_eps,
+            record.residual,
+            record.seconds,
+            record.costates
+        );
+        let profile: String = record
+            .ephemeris
+            .iter()
+            .map(|s| match s.throttle {
+                u if u > 0.99 => '#',
+                u if u > 0.01 => '+',
+                _ => '.',
+            })
+            .collect();
+        println!("throttle over the flight (100 epochs, # full, + partial, . off):\n{profile}");
+    }
+    Ok(())
 }
 
 fn demo(a0: f64, af: f64, nu0_deg: f64) -> Result<(), Box<dyn std::error::Error>> {

@@ -1,4 +1,200 @@
-//! The indirect fuel-optimal trajectory solver (SPEC section 3).
+//! The indirect fuel-optimal trajectory solver (SPEC section 3): Pontryagin's conditions
+//! ([`pontryagin`]), single shooting with exact sensitivities and the energy-to-fuel homotopy
+//! ([`shooting`]), and the driver that turns a scenario into a [`TrajectoryRecord`].
 
 pub mod pontryagin;
 pub mod shooting;
+
+use std::time::Instant;
+
+use onboard::integrator::Tolerances;
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::spacecraft::CanonicalSpacecraft;
+
+use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
+use pontryagin::OptimalControlParams;
+use shooting::{
+    initial_state_costate, solve_transfer, solve_transfer_homotopy, NewtonSettings, TransferVector, FINAL_EPS,
+};
+
+/// Settings of one solve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveOptions {
+    /// Integration tolerances of every shooting propagation (SPEC: rtol 1e-11 or tighter).
+    pub tolerances: Tolerances,
+    pub newton: NewtonSettings,
+    /// The homotopy stops at the first level below this (SPEC: 1e-4).
+    pub final_eps: f64,
+    /// Budget of predictor-corrector Newton solves along the homotopy (bounds the time a hard
+    /// case can take).
+    pub max_homotopy_solves: u32,
+}
+
+impl Default for SolveOptions {
+    fn default() -> Self {
+        Self {
+            tolerances: Tolerances {
+                relative: 1e-12,
+                absolute: 1e-13,
+                max_steps: 20_000,
+                initial_step: 0.0,
+            },
+            newton: NewtonSettings {
+                max_iterations: 30,
+                tolerance: 1e-8,
+            },
+            final_eps: FINAL_EPS,
+            max_homotopy_solves: 60,
+        }
+    }
+}
+
+/// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer: lambda_r along -r_hat
+/// and lambda_v along -theta_hat (primer along-track, as for a spiral), several magnitudes, and
+/// final anomalies from the angle swept at the initial, mean and final mean motions.
+pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
+    let polar = scenario.initial.polar();
+    let (c, s) = (polar.theta.cos(), polar.theta.sin());
+    let tof = scenario.time_of_flight();
+    let n0 = scenario.initial.shape.a.powf(-1.5);
+    let nf = scenario.target.a.powf(-1.5);
+    let mut guesses = Vec::new();
+    for rate in [n0, 0.5 * (n0 + nf), nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
+        let nu_f = polar.theta + rate * tof - scenario.target.omega;
+        for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+            guesses.push(TransferVector::from_column_slice(&[
+                -k_r * c,
+                -k_r * s,
+                k_v * s,
+                -k_v * c,
+                0.05,
+                nu_f,
+            ]));
+        }
+    }
+    guesses
+}
+
+/// Solves one transfer scenario: multi-start at eps = 1 (of the distinct energy-optimal
+/// solutions found, the one with the largest final mass is continued), then the homotopy, then
+/// sampling of the solution. Never fails: a case that
+/// does not converge is returned with `converged = false` and the reason.
+pub fn solve_scenario(
+    kind: ScenarioKind,
+    seed: u64,
+    index: u64,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> TrajectoryRecord {
+    let start = Instant::now();
+    let mut record = TrajectoryRecord {
+        kind,
+        seed,
+        index,
+        scenario: *scenario,
+        converged: false,
+        failure: None,
+        costates: [0.0; 5],
+        final_anomaly: None,
+        final_eps: 1.0,
+        final_mass: f64::NAN,
+        thrust_arcs: 0,
+        residual: f64::INFINITY,
+        seconds: 0.0,
+        ephemeris: Vec::new(),
+        steps: Vec::new(),
+        distinct_energy_optima: 0,
+    };
+    if let Err(e) = scenario.validate() {
+        record.failure = Some(format!("invalid scenario: {e}"));
+        return record;
+    }
+    if scenario.problem != ProblemKind::Transfer {
+        record.failure = Some("rendezvous shooting is not implemented yet".into());
+        return record;
+    }
+    let energy = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps: 1.0,
+    };
+    // Every converged start, with the final mass of its energy-optimal trajectory: distinct
+    // local optima (revolution counts, burn splits) show up as distinct masses.
+    let mut starts: Vec<(TransferVector, f64)> = Vec::new();
+    for z0 in transfer_guesses(scenario) {
+        let Ok(outcome) = solve_transfer(scenario, &energy, &z0, &options.tolerances, &options.newton) else {
+            continue;
+        };
+        if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
+            continue;
+        }
+        let y0 = initial_state_costate(
+            scenario,
+            &[outcome.z[0], outcome.z[1], outcome.z[2], outcome.z[3], outcome.z[4]],
+        );
+        let system = pontryagin::StateCostate(energy);
+        if let Ok((yf, _)) =
+            onboard::integrator::integrate(&system, 0.0, &y0, scenario.time_of_flight(), &options.tolerances)
+        {
+            starts.push((outcome.z, yf[pontryagin::idx::M]));
+        }
+    }
+    record.distinct_energy_optima = starts.len() as u32;
+    let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
+        record.failure = Some("no energy-optimal start converged".into());
+        record.seconds = start.elapsed().as_secs_f64();
+        return record;
+    };
+    let levels = match solve_transfer_homotopy(
+        scenario,
+        spacecraft,
+        &z_energy,
+        &options.tolerances,
+        &options.newton,
+        options.final_eps,
+        options.max_homotopy_solves,
+    ) {
+        Ok(levels) => levels,
+        Err(e) => {
+            record.failure = Some(format!("homotopy propagation failed: {e:?}"));
+            record.seconds = start.elapsed().as_secs_f64();
+            return record;
+        }
+    };
+    let Some(last_good) = levels.iter().rev().find(|l| l.outcome.converged) else {
+        record.failure = Some("homotopy failed at its first level".into());
+        record.seconds = start.elapsed().as_secs_f64();
+        return record;
+    };
+    let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && last_good.eps < options.final_eps;
+    if !reached_final {
+        let failed_at = levels.last().map_or(f64::NAN, |l| l.eps);
+        record.failure = Some(format!("homotopy stalled before eps = {failed_at:.3e}"));
+    }
+    let z = last_good.outcome.z;
+    record.costates = [z[0], z[1], z[2], z[3], z[4]];
+    record.final_anomaly = Some(z[5]);
+    record.final_eps = last_good.eps;
+    record.residual = last_good.outcome.residual;
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps: last_good.eps,
+    };
+    let y0 = initial_state_costate(scenario, &record.costates);
+    let (eph_t, step_t) = sample_grids(scenario);
+    match (
+        sample_at(&y0, &params, &eph_t, &options.tolerances),
+        sample_at(&y0, &params, &step_t, &options.tolerances),
+    ) {
+        (Ok(eph), Ok(steps)) => {
+            record.final_mass = eph.last().map_or(f64::NAN, |s| s.m);
+            record.thrust_arcs = count_thrust_arcs(&eph);
+            record.ephemeris = eph;
+            record.steps = steps;
+            record.converged = reached_final;
+        }
+        (Err(e), _) | (_, Err(e)) => record.failure = Some(format!("sampling the solution failed: {e:?}")),
+    }
+    record.seconds = start.elapsed().as_secs_f64();
+    record
+}

@@ -236,7 +236,8 @@ fn homotopy_tangent(
 
 /// Solves the transfer along the homotopy schedule. Between levels it follows the solution path
 /// with a tangent predictor and a Newton corrector, halving the log-step in eps when the
-/// corrector fails (down to a ratio of 0.99). Stops at the first level that cannot be reached;
+/// corrector fails (down to a ratio of 0.99), within a budget of `max_corrector_solves` Newton
+/// solves in all. Stops at the first level that cannot be reached;
 /// the levels solved so far are returned, the failed one last.
 pub fn solve_transfer_homotopy(
     scenario: &Scenario,
@@ -245,6 +246,7 @@ pub fn solve_transfer_homotopy(
     tolerances: &Tolerances,
     settings: &NewtonSettings,
     final_eps: f64,
+    max_corrector_solves: u32,
 ) -> Result<Vec<HomotopyLevel>, IntegrationError> {
     let solve_at = |eps: f64, z: &TransferVector| {
         solve_transfer(
@@ -269,9 +271,21 @@ pub fn solve_transfer_homotopy(
     }
     let (mut eps, mut z) = (first, outcome.z);
     let mut ratio: f64 = 0.5;
+    let mut solves = 0u32;
     for target in schedule {
         let mut last = outcome;
         while eps > target {
+            solves += 1;
+            if solves > max_corrector_solves {
+                levels.push(HomotopyLevel {
+                    eps: target,
+                    outcome: NewtonOutcome {
+                        converged: false,
+                        ..last
+                    },
+                });
+                return Ok(levels);
+            }
             let next = (eps * ratio).max(target);
             let predicted = match homotopy_tangent(scenario, spacecraft, &z, eps, tolerances) {
                 Ok(Some(t)) => z + t * (next - eps),
@@ -424,7 +438,7 @@ mod tests {
             max_iterations: 30,
             ..NewtonSettings::default()
         };
-        let levels = solve_transfer_homotopy(&scenario, &sc, &z0, &tol, &settings, 0.05).unwrap();
+        let levels = solve_transfer_homotopy(&scenario, &sc, &z0, &tol, &settings, 0.05, 100).unwrap();
         assert_eq!(levels.iter().map(|l| l.eps).collect::<Vec<_>>(), schedule[..6].to_vec());
         // With the tangent predictor each level takes a handful of Newton iterations.
         assert!(

@@ -1,0 +1,56 @@
+//! `ground solve` from the outside: bad input is refused with a clear message, and `--json`
+//! prints one object with the documented fields.
+
+use std::process::Command;
+
+fn ground(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_ground")).args(args).output().unwrap()
+}
+
+#[test]
+fn invalid_orbits_and_times_are_refused_with_a_clear_message() {
+    for (args, needle) in [
+        (vec!["solve", "--a0", "0", "--af", "1.3"], "semi-major axis"),
+        (vec!["solve", "--a0", "1", "--af", "1.3", "--e0", "1.2"], "eccentricity"),
+        (vec!["solve", "--a0", "1", "--af", "NaN"], "semi-major axis"),
+        (
+            vec!["solve", "--a0", "1", "--af", "1.3", "--tof-days", "-14"],
+            "tof-days",
+        ),
+        (
+            vec!["solve", "--a0", "1", "--af", "1.3", "--tof-days", "20"],
+            "whole number",
+        ),
+        (vec!["solve", "--scenario", "transfer-easy"], "unknown scenario"),
+        (vec!["solve"], "--scenario"),
+    ] {
+        let out = ground(&args);
+        assert!(!out.status.success(), "{args:?} was accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn json_output_has_the_documented_fields_and_a_physical_solution() {
+    let out = ground(&["solve", "--a0", "1", "--af", "1.3", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "converged",
+        "final_mass",
+        "thrust_arcs",
+        "final_eps",
+        "residual",
+        "seconds",
+        "costates",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    assert_eq!(v["costates"].as_array().unwrap().len(), 5);
+    // Whatever eps it reached, the solution it reports meets its terminal conditions and is
+    // no better than the impulsive Hohmann transfer (1 -> 1.3 AU: m_f <= 0.90853).
+    assert!(v["residual"].as_f64().unwrap() < 1e-8, "{v}");
+    let m = v["final_mass"].as_f64().unwrap();
+    assert!(m > 0.85 && m < 0.90853, "{v}");
+}
