@@ -2,4 +2,6 @@
 
 pub mod dataset;
 pub mod export;
+pub mod generate;
+pub mod io;
 pub mod solver;

@@ -8,6 +8,10 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use firmware_sim::{fly_transfer, ProxyTracking};
+use std::path::PathBuf;
+
+use lowthrust_ground::generate::{generate, merge, Manifest, Shard, Summary};
+use lowthrust_ground::solver::shooting::FINAL_EPS;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use onboard::features::RewardWeights;
 use onboard::integrator::Tolerances;
@@ -28,6 +32,18 @@ enum Command {
     /// Solve one mass-optimal transfer by the indirect method (Pontryagin, energy-to-fuel
     /// homotopy, shooting). Rendezvous is not implemented yet.
     Solve(SolveArgs),
+    /// Solve every scenario of a distribution into a dataset folder: parallel, resumable,
+    /// shardable (see the README for a Slurm job array).
+    Generate(GenerateArgs),
+    /// Combine the dataset files of shards into one dataset.
+    Merge {
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Shard dataset files (dataset-I-of-N.ltds).
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+    },
     /// The main job. For now: a feedback-law orbit raise flown step by step through the
     /// onboard guidance step, feature encoding and propagator (the learning pipeline comes later).
     Run {
@@ -48,6 +64,10 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run { a0, af, nu0_deg } => demo(a0, af, nu0_deg),
         Command::Solve(args) => solve_command(&args),
+        Command::Generate(args) => generate_command(&args),
+        Command::Merge { out, inputs } => merge(&inputs, &out)
+            .map(|summary| print_summary(&summary))
+            .map_err(Into::into),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -98,6 +118,76 @@ struct SolveArgs {
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(clap::Args)]
+struct GenerateArgs {
+    #[arg(long, value_parser = parse_scenario_kind)]
+    scenario: ScenarioKind,
+    #[arg(long)]
+    count: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long)]
+    out: PathBuf,
+    /// Solve only shard I of N (indices i with i mod N == I).
+    #[arg(long, default_value = "0/1")]
+    shard: Shard,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Stop the homotopy at the first level below this eps (SPEC: 1e-4).
+    #[arg(long, default_value_t = FINAL_EPS)]
+    final_eps: f64,
+}
+
+fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if !(args.final_eps.is_finite() && args.final_eps > 0.0 && args.final_eps <= 1.0) {
+        return Err(format!("--final-eps must be in (0, 1], got {}", args.final_eps).into());
+    }
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global()?;
+    }
+    let sc = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let manifest = Manifest {
+        scenario: args.scenario,
+        seed: args.seed,
+        count: args.count,
+    };
+    let options = SolveOptions {
+        final_eps: args.final_eps,
+        ..SolveOptions::default()
+    };
+    let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
+    print_summary(&summary);
+    Ok(())
+}
+
+fn print_summary(s: &Summary) {
+    println!(
+        "{} seed {} shard {}/{}: {} records, {} converged ({:.1} %), solve time mean {:.2} s median {:.2} s max {:.2} s",
+        s.scenario,
+        s.seed,
+        s.shard.index,
+        s.shard.count,
+        s.records,
+        s.converged,
+        100.0 * s.convergence_rate,
+        s.seconds_mean,
+        s.seconds_median,
+        s.seconds_max
+    );
+    if s.converged > 0 {
+        println!(
+            "final mass: mean {:.4} std {:.4} min {:.4} max {:.4}",
+            s.final_mass_mean, s.final_mass_std, s.final_mass_min, s.final_mass_max
+        );
+    }
+    for (index, reason) in s.failures.iter().take(10) {
+        println!("  failed #{index}: {reason}");
+    }
 }
 
 fn parse_scenario_kind(name: &str) -> Result<ScenarioKind, String> {

@@ -1,0 +1,145 @@
+//! Files that are never half-written: atomic replace (temp file in the same folder, fsync,
+//! rename) and a checksummed container for record sets.
+
+use std::fs::{self, File};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+/// Writes `bytes` to `path` atomically: readers see the old file or the new one, never a part.
+pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    fs::create_dir_all(dir)?;
+    let name = path
+        .file_name()
+        .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"))?;
+    let mut tmp = PathBuf::from(dir);
+    tmp.push(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    {
+        let mut f = File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    fs::rename(&tmp, path).inspect_err(|_| {
+        let _ = fs::remove_file(&tmp);
+    })
+}
+
+/// Why a container file was refused.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ContainerError {
+    Truncated,
+    BadMagic,
+    UnsupportedVersion(u16),
+    CrcMismatch,
+    Decode(String),
+}
+
+impl std::fmt::Display for ContainerError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Truncated => f.write_str("file is truncated"),
+            Self::BadMagic => f.write_str("not a file of this kind (bad magic)"),
+            Self::UnsupportedVersion(v) => write!(f, "unsupported format version {v}"),
+            Self::CrcMismatch => f.write_str("checksum mismatch: the file is corrupt"),
+            Self::Decode(e) => write!(f, "payload does not decode: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for ContainerError {}
+
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// magic (4) + version (u16 LE) + postcard payload + CRC-32 of the payload (u32 LE).
+pub fn encode_container<T: serde::Serialize>(
+    magic: [u8; 4],
+    version: u16,
+    value: &T,
+) -> Result<Vec<u8>, ContainerError> {
+    let payload = postcard::to_stdvec(value).map_err(|e| ContainerError::Decode(e.to_string()))?;
+    let mut out = Vec::with_capacity(payload.len() + 10);
+    out.extend_from_slice(&magic);
+    out.extend_from_slice(&version.to_le_bytes());
+    out.extend_from_slice(&payload);
+    out.extend_from_slice(&CRC.checksum(&payload).to_le_bytes());
+    Ok(out)
+}
+
+/// Inverse of [`encode_container`]; refuses anything that is not exactly such a file.
+pub fn decode_container<T: serde::de::DeserializeOwned>(
+    magic: [u8; 4],
+    version: u16,
+    bytes: &[u8],
+) -> Result<T, ContainerError> {
+    if bytes.len() < 10 {
+        return Err(ContainerError::Truncated);
+    }
+    let (head, rest) = bytes.split_at(6);
+    if head[..4] != magic {
+        return Err(ContainerError::BadMagic);
+    }
+    let found = u16::from_le_bytes([head[4], head[5]]);
+    if found != version {
+        return Err(ContainerError::UnsupportedVersion(found));
+    }
+    let (payload, crc) = rest.split_at(rest.len() - 4);
+    if CRC.checksum(payload).to_le_bytes() != crc {
+        return Err(ContainerError::CrcMismatch);
+    }
+    let (value, unused) = postcard::take_from_bytes(payload).map_err(|e| ContainerError::Decode(e.to_string()))?;
+    if !unused.is_empty() {
+        return Err(ContainerError::Decode(format!("{} trailing bytes", unused.len())));
+    }
+    Ok(value)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn container_round_trips_and_refuses_every_corruption() {
+        let value: Vec<(u32, f64, String)> = (0..50).map(|i| (i, f64::from(i) * 0.5, format!("r{i}"))).collect();
+        let bytes = encode_container(*b"TEST", 3, &value).unwrap();
+        assert_eq!(
+            decode_container::<Vec<(u32, f64, String)>>(*b"TEST", 3, &bytes).unwrap(),
+            value
+        );
+        for len in 0..bytes.len() {
+            assert!(decode_container::<Vec<(u32, f64, String)>>(*b"TEST", 3, &bytes[..len]).is_err());
+        }
+        for i in 0..bytes.len() {
+            for bit in 0..8 {
+                let mut b = bytes.clone();
+                b[i] ^= 1 << bit;
+                assert!(
+                    decode_container::<Vec<(u32, f64, String)>>(*b"TEST", 3, &b).is_err(),
+                    "byte {i} bit {bit}"
+                );
+            }
+        }
+        assert_eq!(
+            decode_container::<Vec<(u32, f64, String)>>(*b"TEST", 4, &bytes),
+            Err(ContainerError::UnsupportedVersion(3))
+        );
+        assert_eq!(
+            decode_container::<Vec<(u32, f64, String)>>(*b"XEST", 3, &bytes),
+            Err(ContainerError::BadMagic)
+        );
+    }
+
+    #[test]
+    fn atomic_write_replaces_whole_files_and_leaves_no_temporaries() {
+        let dir = std::env::temp_dir().join(format!("lowthrust-io-test-{}", std::process::id()));
+        let path = dir.join("a.bin");
+        atomic_write(&path, b"first").unwrap();
+        atomic_write(&path, b"second, longer").unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"second, longer");
+        let names: Vec<_> = fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("a.bin")]);
+        fs::remove_dir_all(&dir).unwrap();
+    }
+}
