@@ -8,9 +8,11 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use firmware_sim::{fly_transfer, ProxyTracking};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use lowthrust_ground::generate::{generate, merge, Manifest, Shard, Summary};
+use lowthrust_ground::export::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
+use lowthrust_ground::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
+use lowthrust_ground::io::atomic_write;
 use lowthrust_ground::solver::shooting::FINAL_EPS;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use onboard::features::RewardWeights;
@@ -35,6 +37,21 @@ enum Command {
     /// Solve every scenario of a distribution into a dataset folder: parallel, resumable,
     /// shardable (see the README for a Slurm job array).
     Generate(GenerateArgs),
+    /// Export one trajectory of a dataset as a CCSDS OEM (KVN, EME2000, TDB) plus a thrust CSV.
+    Oem {
+        /// Dataset file (dataset.ltds).
+        #[arg(long)]
+        dataset: PathBuf,
+        /// Scenario index of the trajectory.
+        #[arg(long)]
+        index: u64,
+        /// Output folder: trajectory-INDEX.oem and trajectory-INDEX-thrust.csv.
+        #[arg(long)]
+        out: PathBuf,
+        /// Departure epoch (TDB, ISO 8601).
+        #[arg(long, default_value = "2030-01-01T00:00:00")]
+        departure: String,
+    },
     /// Combine the dataset files of shards into one dataset.
     Merge {
         /// Output folder.
@@ -65,6 +82,12 @@ fn main() -> ExitCode {
         Command::Run { a0, af, nu0_deg } => demo(a0, af, nu0_deg),
         Command::Solve(args) => solve_command(&args),
         Command::Generate(args) => generate_command(&args),
+        Command::Oem {
+            dataset,
+            index,
+            out,
+            departure,
+        } => oem_command(&dataset, index, &out, &departure),
         Command::Merge { out, inputs } => merge(&inputs, &out)
             .map(|summary| print_summary(&summary))
             .map_err(Into::into),
@@ -162,6 +185,25 @@ fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error
     };
     let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
     print_summary(&summary);
+    Ok(())
+}
+
+fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
+    let file = read_dataset(dataset)?;
+    let record = file
+        .records
+        .iter()
+        .find(|r| r.index == index)
+        .ok_or_else(|| format!("{} has no record with index {index}", dataset.display()))?;
+    let options = OemOptions::new(departure.parse::<CalendarEpoch>()?);
+    let oem = oem_string(record, &options)?;
+    let mut csv = Vec::new();
+    write_thrust_csv(record, &options, &mut csv)?;
+    let oem_path = out.join(format!("trajectory-{index}.oem"));
+    let csv_path = out.join(format!("trajectory-{index}-thrust.csv"));
+    atomic_write(&oem_path, oem.as_bytes()).map_err(|e| format!("{}: {e}", oem_path.display()))?;
+    atomic_write(&csv_path, &csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    println!("wrote {} and {}", oem_path.display(), csv_path.display());
     Ok(())
 }
 
