@@ -99,7 +99,7 @@ fn seconds_after_departure(iso: &str) -> f64 {
     let num = |a: usize, b: usize| iso[a..b].parse::<u32>().unwrap();
     let (year, month, day) = (num(0, 4), num(5, 7), num(8, 10));
     let month_days = |y: u32, m: u32| match m {
-        2 if y % 4 == 0 && (y % 100 != 0 || y % 400 == 0) => 29,
+        2 if y.is_multiple_of(4) && (!y.is_multiple_of(100) || y.is_multiple_of(400)) => 29,
         2 => 28,
         4 | 6 | 9 | 11 => 30,
         _ => 31,
