@@ -28,6 +28,12 @@ pub struct SolveOptions {
     /// Budget of predictor-corrector Newton solves along the homotopy (bounds the time a hard
     /// case can take).
     pub max_homotopy_solves: u32,
+    /// The multi-start stops once this many distinct energy-optimal solutions are found.
+    pub max_distinct_starts: u32,
+    /// Iteration and integration budgets of each multi-start attempt: a guess that is going
+    /// nowhere is dropped early instead of costing seconds.
+    pub start_newton: NewtonSettings,
+    pub start_max_steps: u32,
 }
 
 impl Default for SolveOptions {
@@ -45,31 +51,46 @@ impl Default for SolveOptions {
             },
             final_eps: FINAL_EPS,
             max_homotopy_solves: 60,
+            max_distinct_starts: 3,
+            start_newton: NewtonSettings {
+                max_iterations: 20,
+                tolerance: 1e-8,
+            },
+            start_max_steps: 4_000,
         }
     }
 }
 
-/// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer: lambda_r along -r_hat
-/// and lambda_v along -theta_hat (primer along-track, as for a spiral), several magnitudes, and
-/// final anomalies from the angle swept at the initial, mean and final mean motions.
+/// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer, most plausible
+/// first: the primer along the velocity for a raise (against it for a lowering), lambda_v
+/// along -+theta_hat and lambda_r along -r_hat, several magnitudes, and final anomalies from the
+/// angle swept at the initial, mean and final mean motions; then the same with the other sign.
 pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
     let polar = scenario.initial.polar();
     let (c, s) = (polar.theta.cos(), polar.theta.sin());
     let tof = scenario.time_of_flight();
     let n0 = scenario.initial.shape.a.powf(-1.5);
     let nf = scenario.target.a.powf(-1.5);
+    let raise = if scenario.target.a >= scenario.initial.shape.a {
+        1.0
+    } else {
+        -1.0
+    };
     let mut guesses = Vec::new();
-    for rate in [n0, 0.5 * (n0 + nf), nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
-        let nu_f = polar.theta + rate * tof - scenario.target.omega;
-        for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
-            guesses.push(TransferVector::from_column_slice(&[
-                -k_r * c,
-                -k_r * s,
-                k_v * s,
-                -k_v * c,
-                0.05,
-                nu_f,
-            ]));
+    for sign in [raise, -raise] {
+        for rate in [0.5 * (n0 + nf), n0, nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
+            let nu_f = polar.theta + rate * tof - scenario.target.omega;
+            for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+                // Primer (thrust direction) = -lambda_v = sign * theta_hat.
+                guesses.push(TransferVector::from_column_slice(&[
+                    -k_r * c,
+                    -k_r * s,
+                    sign * k_v * s,
+                    -sign * k_v * c,
+                    0.05,
+                    nu_f,
+                ]));
+            }
         }
     }
     guesses
@@ -121,8 +142,15 @@ pub fn solve_scenario(
     // Every converged start, with the final mass of its energy-optimal trajectory: distinct
     // local optima (revolution counts, burn splits) show up as distinct masses.
     let mut starts: Vec<(TransferVector, f64)> = Vec::new();
+    let start_tolerances = Tolerances {
+        max_steps: options.start_max_steps,
+        ..options.tolerances
+    };
     for z0 in transfer_guesses(scenario) {
-        let Ok(outcome) = solve_transfer(scenario, &energy, &z0, &options.tolerances, &options.newton) else {
+        if starts.len() >= options.max_distinct_starts as usize {
+            break;
+        }
+        let Ok(outcome) = solve_transfer(scenario, &energy, &z0, &start_tolerances, &options.start_newton) else {
             continue;
         };
         if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
