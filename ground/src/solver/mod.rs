@@ -7,14 +7,16 @@ pub mod shooting;
 
 use std::time::Instant;
 
-use onboard::integrator::Tolerances;
+use nalgebra::{Const, DimMin, SVector};
+use onboard::integrator::{integrate, Tolerances};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    initial_state_costate, solve_transfer, solve_transfer_homotopy, NewtonSettings, TransferVector, FINAL_EPS,
+    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonSettings, RendezvousShooting, RendezvousVector,
+    ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
 };
 
 /// Settings of one solve.
@@ -131,82 +133,59 @@ pub fn solve_scenario(
         record.failure = Some(format!("invalid scenario: {e}"));
         return record;
     }
-    if scenario.problem != ProblemKind::Transfer {
-        record.failure = Some("rendezvous shooting is not implemented yet".into());
-        return record;
-    }
-    let energy = OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: 1.0,
-    };
-    // Every converged start, with the final mass of its energy-optimal trajectory: distinct
-    // local optima (revolution counts, burn splits) show up as distinct masses.
-    let mut starts: Vec<(TransferVector, f64)> = Vec::new();
-    let start_tolerances = Tolerances {
-        max_steps: options.start_max_steps,
-        ..options.tolerances
-    };
-    for z0 in transfer_guesses(scenario) {
-        if starts.len() >= options.max_distinct_starts as usize {
-            break;
+    let solved = match scenario.problem {
+        ProblemKind::Transfer => {
+            let problem = TransferShooting {
+                scenario,
+                spacecraft: *spacecraft,
+            };
+            solve_problem(&problem, scenario, spacecraft, transfer_guesses(scenario), options).map(|s| {
+                let z = s.level.outcome.z;
+                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                (summary, Some(z[5]), z)
+            })
         }
-        let Ok(outcome) = solve_transfer(scenario, &energy, &z0, &start_tolerances, &options.start_newton) else {
-            continue;
-        };
-        if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
-            continue;
+        ProblemKind::Rendezvous => {
+            let problem = RendezvousShooting {
+                scenario,
+                spacecraft: *spacecraft,
+            };
+            // The transfer guesses without their final anomaly, duplicates removed.
+            let mut guesses: Vec<RendezvousVector> = Vec::new();
+            for g in transfer_guesses(scenario) {
+                let r = RendezvousVector::from_column_slice(&g.as_slice()[..RENDEZVOUS_UNKNOWNS]);
+                if !guesses.contains(&r) {
+                    guesses.push(r);
+                }
+            }
+            solve_problem(&problem, scenario, spacecraft, guesses, options).map(|s| {
+                let z = s.level.outcome.z;
+                let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
+                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                (summary, None, padded)
+            })
         }
-        let y0 = initial_state_costate(
-            scenario,
-            &[outcome.z[0], outcome.z[1], outcome.z[2], outcome.z[3], outcome.z[4]],
-        );
-        let system = pontryagin::StateCostate(energy);
-        if let Ok((yf, _)) =
-            onboard::integrator::integrate(&system, 0.0, &y0, scenario.time_of_flight(), &options.tolerances)
-        {
-            starts.push((outcome.z, yf[pontryagin::idx::M]));
-        }
-    }
-    record.distinct_energy_optima = starts.len() as u32;
-    let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
-        record.failure = Some("no energy-optimal start converged".into());
-        record.seconds = start.elapsed().as_secs_f64();
-        return record;
     };
-    let levels = match solve_transfer_homotopy(
-        scenario,
-        spacecraft,
-        &z_energy,
-        &options.tolerances,
-        &options.newton,
-        options.final_eps,
-        options.max_homotopy_solves,
-    ) {
-        Ok(levels) => levels,
-        Err(e) => {
-            record.failure = Some(format!("homotopy propagation failed: {e:?}"));
+    let ((final_eps, residual, distinct, reached_final), final_anomaly, z) = match solved {
+        Ok(x) => x,
+        Err((reason, distinct)) => {
+            record.failure = Some(reason);
+            record.distinct_energy_optima = distinct;
             record.seconds = start.elapsed().as_secs_f64();
             return record;
         }
     };
-    let Some(last_good) = levels.iter().rev().find(|l| l.outcome.converged) else {
-        record.failure = Some("homotopy failed at its first level".into());
-        record.seconds = start.elapsed().as_secs_f64();
-        return record;
-    };
-    let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && last_good.eps < options.final_eps;
+    record.distinct_energy_optima = distinct;
     if !reached_final {
-        let failed_at = levels.last().map_or(f64::NAN, |l| l.eps);
-        record.failure = Some(format!("homotopy stalled before eps = {failed_at:.3e}"));
+        record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}"));
     }
-    let z = last_good.outcome.z;
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
-    record.final_anomaly = Some(z[5]);
-    record.final_eps = last_good.eps;
-    record.residual = last_good.outcome.residual;
+    record.final_anomaly = final_anomaly;
+    record.final_eps = final_eps;
+    record.residual = residual;
     let params = OptimalControlParams {
         spacecraft: *spacecraft,
-        eps: last_good.eps,
+        eps: final_eps,
     };
     let y0 = initial_state_costate(scenario, &record.costates);
     let (eph_t, step_t) = sample_grids(scenario);
@@ -225,4 +204,86 @@ pub fn solve_scenario(
     }
     record.seconds = start.elapsed().as_secs_f64();
     record
+}
+
+/// The last converged homotopy level of a solve, how many distinct energy-optimal starts
+/// were found, and whether the schedule's final level was reached.
+struct Solved<const K: usize> {
+    level: HomotopyLevel<K>,
+    distinct: u32,
+    reached_final: bool,
+}
+
+/// Multi-start at eps = 1 (the distinct solution with the largest final mass is continued),
+/// then the homotopy. Errors carry the reason and the number of distinct starts found.
+fn solve_problem<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    guesses: Vec<SVector<f64, K>>,
+    options: &SolveOptions,
+) -> Result<Solved<K>, (String, u32)>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let start_tolerances = Tolerances {
+        max_steps: options.start_max_steps,
+        ..options.tolerances
+    };
+    // Every converged start, with the final mass of its energy-optimal trajectory: distinct
+    // local optima (revolution counts, burn splits) show up as distinct masses.
+    let mut starts: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    for z0 in guesses {
+        if starts.len() >= options.max_distinct_starts as usize {
+            break;
+        }
+        let Ok(outcome) = newton(problem, 1.0, &z0, &start_tolerances, &options.start_newton) else {
+            continue;
+        };
+        if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
+            continue;
+        }
+        if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
+            starts.push((outcome.z, m));
+        }
+    }
+    let distinct = starts.len() as u32;
+    let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
+        return Err(("no energy-optimal start converged".into(), distinct));
+    };
+    let levels = homotopy(
+        problem,
+        &z_energy,
+        &options.tolerances,
+        &options.newton,
+        options.final_eps,
+        options.max_homotopy_solves,
+    )
+    .map_err(|e| (format!("homotopy propagation failed: {e:?}"), distinct))?;
+    let Some(level) = levels.iter().rev().find(|l| l.outcome.converged).copied() else {
+        return Err(("homotopy failed at its first level".into(), distinct));
+    };
+    let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
+    Ok(Solved {
+        level,
+        distinct,
+        reached_final,
+    })
+}
+
+/// Final mass of the energy-optimal (eps = 1) trajectory of a converged start.
+fn energy_final_mass<const K: usize>(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &SVector<f64, K>,
+    tolerances: &Tolerances,
+) -> Option<f64> {
+    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
+    let y0 = initial_state_costate(scenario, &costates);
+    let system = pontryagin::StateCostate(OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps: 1.0,
+    });
+    let (yf, _) = integrate(&system, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
+    Some(yf[pontryagin::idx::M])
 }

@@ -1,11 +1,13 @@
 //! Single shooting for the free-anomaly transfer (SPEC section 3): the residual of the terminal
 //! conditions and its exact Jacobian, and a damped Newton iteration on them.
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Const, DimMin, SMatrix, SVector};
 use num_dual::{Dual2_64, DualNum};
 use onboard::integrator::{integrate, IntegrationError, Tolerances};
-use shared::orbit::OrbitShape;
+use onboard::kepler::coast;
+use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::Scenario;
+use shared::spacecraft::CanonicalSpacecraft;
 
 use super::pontryagin::{idx, OptimalControlParams, StateCostateSensitivity, Y_LEN};
 
@@ -80,7 +82,44 @@ pub fn transfer_residual(
     Ok((f, jac))
 }
 
-/// Settings of the Levenberg-Marquardt iteration.
+/// A shooting problem: K unknowns, K terminal conditions, their residual and exact Jacobian at
+/// a homotopy parameter eps.
+pub trait ShootingProblem<const K: usize> {
+    fn residual(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError>;
+}
+
+/// The free-anomaly transfer (6 unknowns: lambda_0 and nu_f).
+#[derive(Debug, Clone, Copy)]
+pub struct TransferShooting<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+}
+
+impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferShooting<'_> {
+    fn residual(
+        &self,
+        eps: f64,
+        z: &TransferVector,
+        tolerances: &Tolerances,
+    ) -> Result<(TransferVector, TransferJacobian), IntegrationError> {
+        transfer_residual(
+            self.scenario,
+            &OptimalControlParams {
+                spacecraft: self.spacecraft,
+                eps,
+            },
+            z,
+            tolerances,
+        )
+    }
+}
+
+/// Settings of the Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonSettings {
     pub max_iterations: u32,
@@ -99,25 +138,28 @@ impl Default for NewtonSettings {
 
 /// Where an iteration ended.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NewtonOutcome {
-    pub z: TransferVector,
+pub struct NewtonOutcome<const K: usize = TRANSFER_UNKNOWNS> {
+    pub z: SVector<f64, K>,
     pub residual: f64,
     pub iterations: u32,
     pub converged: bool,
 }
 
-/// Damped Newton on the transfer residual: the full Newton step dz = -J^-1 F with backtracking
+/// Damped Newton on a shooting problem: the full Newton step dz = -J^-1 F with backtracking
 /// (Armijo on |F|^2) while it makes progress, and a Levenberg-Marquardt step (JtJ + mu D) dz =
 /// -Jt F with Nielsen's damping update when the Newton direction fails (singular J or no
 /// decrease within 12 halvings). A failed propagation counts as a rejected trial.
-pub fn solve_transfer(
-    scenario: &Scenario,
-    params: &OptimalControlParams,
-    z0: &TransferVector,
+pub fn newton<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    eps: f64,
+    z0: &SVector<f64, K>,
     tolerances: &Tolerances,
     settings: &NewtonSettings,
-) -> Result<NewtonOutcome, IntegrationError> {
-    let eval = |z: &TransferVector| transfer_residual(scenario, params, z, tolerances);
+) -> Result<NewtonOutcome<K>, IntegrationError>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let eval = |z: &SVector<f64, K>| problem.residual(eps, z, tolerances);
     let mut z = *z0;
     let (mut f, mut jac) = eval(&z)?;
     let mut mu = 1e-3;
@@ -158,7 +200,7 @@ pub fn solve_transfer(
         let jtj = jac.transpose() * jac;
         let g = jac.transpose() * f;
         let mut a = jtj;
-        for i in 0..TRANSFER_UNKNOWNS {
+        for i in 0..K {
             a[(i, i)] += mu * jtj[(i, i)].max(1e-12);
         }
         let Some(step) = a.lu().solve(&(-g)) else {
@@ -190,11 +232,26 @@ pub fn solve_transfer(
     })
 }
 
+/// Newton on the transfer residual (see [`newton`]).
+pub fn solve_transfer(
+    scenario: &Scenario,
+    params: &OptimalControlParams,
+    z0: &TransferVector,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
+) -> Result<NewtonOutcome, IntegrationError> {
+    let problem = TransferShooting {
+        scenario,
+        spacecraft: params.spacecraft,
+    };
+    newton(&problem, params.eps, z0, tolerances, settings)
+}
+
 /// One level of the energy-to-fuel homotopy.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct HomotopyLevel {
+pub struct HomotopyLevel<const K: usize = TRANSFER_UNKNOWNS> {
     pub eps: f64,
-    pub outcome: NewtonOutcome,
+    pub outcome: NewtonOutcome<K>,
 }
 
 /// The last level of the SPEC section 3 schedule is the first eps below this.
@@ -208,63 +265,44 @@ pub fn homotopy_schedule(final_eps: f64) -> impl Iterator<Item = f64> {
 
 /// Tangent of the solution path: dz/d(eps) = -J^-1 dF/d(eps), with dF/d(eps) by a central
 /// difference in eps (the propagations are smooth in eps for eps > 0).
-fn homotopy_tangent(
-    scenario: &Scenario,
-    spacecraft: &shared::spacecraft::CanonicalSpacecraft,
-    z: &TransferVector,
+fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z: &SVector<f64, K>,
     eps: f64,
     tolerances: &Tolerances,
-) -> Result<Option<TransferVector>, IntegrationError> {
-    let at = |e: f64| {
-        transfer_residual(
-            scenario,
-            &OptimalControlParams {
-                spacecraft: *spacecraft,
-                eps: e,
-            },
-            z,
-            tolerances,
-        )
-    };
+) -> Result<Option<SVector<f64, K>>, IntegrationError>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
     let h = eps * 1e-4;
-    let (_, jac) = at(eps)?;
-    let (fp, _) = at(eps + h)?;
-    let (fm, _) = at(eps - h)?;
+    let (_, jac) = problem.residual(eps, z, tolerances)?;
+    let (fp, _) = problem.residual(eps + h, z, tolerances)?;
+    let (fm, _) = problem.residual(eps - h, z, tolerances)?;
     let df_de = (fp - fm) / (2.0 * h);
     Ok(jac.lu().solve(&(-df_de)))
 }
 
-/// Solves the transfer along the homotopy schedule. Between levels it follows the solution path
-/// with a tangent predictor and a Newton corrector, halving the log-step in eps when the
-/// corrector fails (down to a ratio of 0.99), within a budget of `max_corrector_solves` Newton
-/// solves in all. Stops at the first level that cannot be reached;
-/// the levels solved so far are returned, the failed one last.
-pub fn solve_transfer_homotopy(
-    scenario: &Scenario,
-    spacecraft: &shared::spacecraft::CanonicalSpacecraft,
-    z0: &TransferVector,
+/// Solves a shooting problem along the homotopy schedule. Between levels it follows the
+/// solution path with a tangent predictor and a Newton corrector, halving the log-step in eps
+/// when the corrector fails (down to a ratio of 0.99), within a budget of
+/// `max_corrector_solves` Newton solves in all. Stops at the first level that cannot be
+/// reached; the levels solved so far are returned, the failed one last.
+pub fn homotopy<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z0: &SVector<f64, K>,
     tolerances: &Tolerances,
     settings: &NewtonSettings,
     final_eps: f64,
     max_corrector_solves: u32,
-) -> Result<Vec<HomotopyLevel>, IntegrationError> {
-    let solve_at = |eps: f64, z: &TransferVector| {
-        solve_transfer(
-            scenario,
-            &OptimalControlParams {
-                spacecraft: *spacecraft,
-                eps,
-            },
-            z,
-            tolerances,
-            settings,
-        )
-    };
+) -> Result<Vec<HomotopyLevel<K>>, IntegrationError>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
     let mut schedule = homotopy_schedule(final_eps);
     let Some(first) = schedule.next() else {
         return Ok(Vec::new());
     };
-    let outcome = solve_at(first, z0)?;
+    let outcome = newton(problem, first, z0, tolerances, settings)?;
     let mut levels = vec![HomotopyLevel { eps: first, outcome }];
     if !outcome.converged {
         return Ok(levels);
@@ -287,12 +325,12 @@ pub fn solve_transfer_homotopy(
                 return Ok(levels);
             }
             let next = (eps * ratio).max(target);
-            let predicted = match homotopy_tangent(scenario, spacecraft, &z, eps, tolerances) {
+            let predicted = match homotopy_tangent(problem, &z, eps, tolerances) {
                 Ok(Some(t)) => z + t * (next - eps),
                 _ => z,
             };
             // A propagation that fails from a predicted point is a failed corrector, not an error.
-            let step = solve_at(next, &predicted).unwrap_or(NewtonOutcome {
+            let step = newton(problem, next, &predicted, tolerances, settings).unwrap_or(NewtonOutcome {
                 z: predicted,
                 residual: f64::INFINITY,
                 iterations: 0,
@@ -321,6 +359,81 @@ pub fn solve_transfer_homotopy(
         });
     }
     Ok(levels)
+}
+
+/// [`homotopy`] on a transfer.
+pub fn solve_transfer_homotopy(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z0: &TransferVector,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
+    final_eps: f64,
+    max_corrector_solves: u32,
+) -> Result<Vec<HomotopyLevel>, IntegrationError> {
+    let problem = TransferShooting {
+        scenario,
+        spacecraft: *spacecraft,
+    };
+    homotopy(&problem, z0, tolerances, settings, final_eps, max_corrector_solves)
+}
+
+/// Rendezvous unknowns: the five initial costates.
+pub const RENDEZVOUS_UNKNOWNS: usize = 5;
+pub type RendezvousVector = SVector<f64, RENDEZVOUS_UNKNOWNS>;
+
+/// The rendezvous (SPEC section 3, TBR): r(tf), v(tf) equal the body's state, lambda_m(tf) = 0.
+/// The body moves on its Keplerian orbit from anomaly nu_f0 at t = 0.
+#[derive(Debug, Clone, Copy)]
+pub struct RendezvousShooting<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+}
+
+impl RendezvousShooting<'_> {
+    /// The body's state at the end of the flight.
+    pub fn body_at_arrival(&self) -> Result<CartesianState, IntegrationError> {
+        let start = self.scenario.target.cartesian_at(self.scenario.target_nu0);
+        coast(&start, self.scenario.time_of_flight()).map_err(|_| IntegrationError::InvalidInput)
+    }
+}
+
+impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
+    fn residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<(RendezvousVector, SMatrix<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>), IntegrationError> {
+        let params = OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        };
+        let lambda0 = [z[0], z[1], z[2], z[3], z[4]];
+        let y0 = initial_state_costate(self.scenario, &lambda0);
+        let (ys, _) = integrate(
+            &StateCostateSensitivity(params),
+            0.0,
+            &StateCostateSensitivity::initial(&y0),
+            self.scenario.time_of_flight(),
+            tolerances,
+        )?;
+        let body = self.body_at_arrival()?;
+        let target = [body.r[0], body.r[1], body.v[0], body.v[1]];
+        let mut f = RendezvousVector::zeros();
+        let mut jac = SMatrix::<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>::zeros();
+        for i in 0..4 {
+            f[i] = ys[idx::R + i] - target[i];
+        }
+        f[4] = ys[idx::LM];
+        for k in 0..RENDEZVOUS_UNKNOWNS {
+            for i in 0..4 {
+                jac[(i, k)] = StateCostateSensitivity::sensitivity(&ys, idx::R + i, k);
+            }
+            jac[(4, k)] = StateCostateSensitivity::sensitivity(&ys, idx::LM, k);
+        }
+        Ok((f, jac))
+    }
 }
 
 #[cfg(test)]
@@ -473,6 +586,57 @@ mod tests {
             levels.len(),
             levels.last().map(|l| l.eps)
         );
+    }
+
+    #[test]
+    fn rendezvous_jacobian_matches_finite_differences_and_targets_the_moving_body() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let mut scenario = scenario();
+        scenario.problem = ProblemKind::Rendezvous;
+        scenario.target_nu0 = 1.2;
+        let problem = RendezvousShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        // The body's arrival state is the Kepler coast of its departure state (independent check:
+        // same orbit shape, energy and angular momentum).
+        let body = problem.body_at_arrival().unwrap();
+        let el = body.elements().unwrap();
+        assert!((el.shape.a - scenario.target.a).abs() < 1e-12 && (el.shape.e - scenario.target.e).abs() < 1e-12);
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let z = RendezvousVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1]);
+        let (f, jac) = problem.residual(0.5, &z, &tol).unwrap();
+        let h = 1e-6;
+        for k in 0..RENDEZVOUS_UNKNOWNS {
+            let (mut zp, mut zm) = (z, z);
+            zp[k] += h;
+            zm[k] -= h;
+            let (fp, _) = problem.residual(0.5, &zp, &tol).unwrap();
+            let (fm, _) = problem.residual(0.5, &zm, &tol).unwrap();
+            for i in 0..RENDEZVOUS_UNKNOWNS {
+                let fd = (fp[i] - fm[i]) / (2.0 * h);
+                assert!(
+                    (jac[(i, k)] - fd).abs() < 1e-5 * (1.0 + fd.abs()),
+                    "dF{i}/dz{k}: {} vs {fd}",
+                    jac[(i, k)]
+                );
+            }
+        }
+        // The position residual is measured against the body, not the orbit point of the
+        // spacecraft's own anomaly: moving the body's phase changes it.
+        let mut later = scenario;
+        later.target_nu0 += 0.5;
+        let (f_later, _) = RendezvousShooting {
+            scenario: &later,
+            spacecraft: sc,
+        }
+        .residual(0.5, &z, &tol)
+        .unwrap();
+        assert!((f_later[0] - f[0]).abs() + (f_later[1] - f[1]).abs() > 0.1);
     }
 
     #[test]
