@@ -187,16 +187,20 @@ pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
     decode_container(DATASET_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
 }
 
+/// Where the dataset file of a run (whole or shard) lives in its output folder.
+pub fn dataset_path(out: &Path, shard: Shard) -> PathBuf {
+    if shard == Shard::WHOLE {
+        out.join("dataset.ltds")
+    } else {
+        out.join(format!("dataset-{}-of-{}.ltds", shard.index, shard.count))
+    }
+}
+
 /// Writes the dataset file and the summaries of a record set into `out`.
 pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, GenerateError> {
-    let name = if file.shard == Shard::WHOLE {
-        "dataset.ltds".to_string()
-    } else {
-        format!("dataset-{}-of-{}.ltds", file.shard.index, file.shard.count)
-    };
-    let bytes = encode_container(DATASET_MAGIC, FORMAT_VERSION, file)
-        .map_err(|e| GenerateError::Corrupt(out.join(&name), e))?;
-    let path = out.join(&name);
+    let path = dataset_path(out, file.shard);
+    let bytes =
+        encode_container(DATASET_MAGIC, FORMAT_VERSION, file).map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
     atomic_write(&path, &bytes).map_err(io_err(&path))?;
     let summary = summarize(&file.manifest, file.shard, &file.records);
     let json =

@@ -5,3 +5,4 @@ pub mod export;
 pub mod generate;
 pub mod io;
 pub mod solver;
+pub mod plot;

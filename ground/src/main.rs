@@ -11,8 +11,9 @@ use firmware_sim::{fly_transfer, ProxyTracking};
 use std::path::{Path, PathBuf};
 
 use lowthrust_ground::export::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
-use lowthrust_ground::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
+use lowthrust_ground::generate::{dataset_path, generate, merge, read_dataset, Manifest, Shard, Summary};
 use lowthrust_ground::io::atomic_write;
+use lowthrust_ground::plot::plot_trajectories;
 use lowthrust_ground::solver::shooting::FINAL_EPS;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use onboard::features::RewardWeights;
@@ -141,6 +142,9 @@ struct SolveArgs {
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
+    /// Also draw the trajectory with its initial and target orbits into this SVG file.
+    #[arg(long)]
+    plot: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -185,6 +189,19 @@ fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error
     };
     let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
     print_summary(&summary);
+    // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
+    let file = read_dataset(&dataset_path(&args.out, args.shard))?;
+    let shown: Vec<_> = file
+        .records
+        .iter()
+        .filter(|r| !r.ephemeris.is_empty())
+        .take(4)
+        .collect();
+    if !shown.is_empty() {
+        let path = args.out.join("trajectories.svg");
+        plot_trajectories(&shown, &path)?;
+        println!("plotted {} trajectories in {}", shown.len(), path.display());
+    }
     Ok(())
 }
 
@@ -295,6 +312,9 @@ fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>> {
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
     let record = solve_scenario(kind, args.seed, args.index, &scenario, &sc, &SolveOptions::default());
+    if let Some(path) = &args.plot {
+        plot_trajectories(&[&record], path)?;
+    }
     if args.json {
         let summary = serde_json::json!({
             "converged": record.converged,
