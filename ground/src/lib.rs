@@ -4,5 +4,5 @@ pub mod dataset;
 pub mod export;
 pub mod generate;
 pub mod io;
-pub mod solver;
 pub mod plot;
+pub mod solver;
