@@ -9,7 +9,7 @@ use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::Scenario;
 use shared::spacecraft::CanonicalSpacecraft;
 
-use super::pontryagin::{idx, OptimalControlParams, StateCostateSensitivity, Y_LEN};
+use super::pontryagin::{idx, OptimalControlParams, StateCostate, StateCostateSensitivity, Y_LEN};
 
 /// Transfer unknowns: the five initial costates and the final true anomaly nu_f.
 pub const TRANSFER_UNKNOWNS: usize = 6;
@@ -82,9 +82,39 @@ pub fn transfer_residual(
     Ok((f, jac))
 }
 
+/// Terminal residual F(z) of a transfer without the Jacobian: a 10-state propagation instead of
+/// the 60-state one, for line-search trials and finite differences in eps.
+pub fn transfer_residual_only(
+    scenario: &Scenario,
+    params: &OptimalControlParams,
+    z: &TransferVector,
+    tolerances: &Tolerances,
+) -> Result<TransferVector, IntegrationError> {
+    let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
+    let (y, _) = integrate(&StateCostate(*params), 0.0, &y0, scenario.time_of_flight(), tolerances)?;
+    let orbit = orbit_state(&scenario.target, Dual2_64::from_re(z[5]).derivative());
+    let mut f = TransferVector::zeros();
+    for i in 0..4 {
+        f[i] = y[idx::R + i] - orbit[i].re;
+    }
+    f[4] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
+    f[5] = y[idx::LM];
+    Ok(f)
+}
+
 /// A shooting problem: K unknowns, K terminal conditions, their residual and exact Jacobian at
 /// a homotopy parameter eps.
 pub trait ShootingProblem<const K: usize> {
+    /// The residual alone (cheaper: no sensitivities). Defaults to [`Self::residual`].
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<SVector<f64, K>, IntegrationError> {
+        self.residual(eps, z, tolerances).map(|(f, _)| f)
+    }
+
     fn residual(
         &self,
         eps: f64,
@@ -183,9 +213,12 @@ where
             let mut accepted = None;
             for _ in 0..12 {
                 let trial = z + step * alpha;
-                if let Ok((ft, jt)) = eval(&trial) {
+                // Trials need F only; the Jacobian is computed once a trial is accepted.
+                if let Ok(ft) = problem.residual_only(eps, &trial, tolerances) {
                     if ft.norm_squared() <= (1.0 - 1e-4 * alpha) * f2 {
-                        accepted = Some((trial, ft, jt));
+                        if let Ok((ft, jt)) = eval(&trial) {
+                            accepted = Some((trial, ft, jt));
+                        }
                         break;
                     }
                 }
@@ -276,8 +309,8 @@ where
 {
     let h = eps * 1e-4;
     let (_, jac) = problem.residual(eps, z, tolerances)?;
-    let (fp, _) = problem.residual(eps + h, z, tolerances)?;
-    let (fm, _) = problem.residual(eps - h, z, tolerances)?;
+    let fp = problem.residual_only(eps + h, z, tolerances)?;
+    let fm = problem.residual_only(eps - h, z, tolerances)?;
     let df_de = (fp - fm) / (2.0 * h);
     Ok(jac.lu().solve(&(-df_de)))
 }
@@ -399,6 +432,34 @@ impl RendezvousShooting<'_> {
 }
 
 impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<RendezvousVector, IntegrationError> {
+        let params = OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        };
+        let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
+        let (y, _) = integrate(
+            &StateCostate(params),
+            0.0,
+            &y0,
+            self.scenario.time_of_flight(),
+            tolerances,
+        )?;
+        let body = self.body_at_arrival()?;
+        let target = [body.r[0], body.r[1], body.v[0], body.v[1]];
+        let mut f = RendezvousVector::zeros();
+        for i in 0..4 {
+            f[i] = y[idx::R + i] - target[i];
+        }
+        f[4] = y[idx::LM];
+        Ok(f)
+    }
+
     fn residual(
         &self,
         eps: f64,
@@ -637,6 +698,32 @@ mod tests {
         .residual(0.5, &z, &tol)
         .unwrap();
         assert!((f_later[0] - f[0]).abs() + (f_later[1] - f[1]).abs() > 0.1);
+    }
+
+    #[test]
+    fn residual_only_agrees_with_the_residual_of_the_sensitivity_propagation() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let mut sce = scenario();
+        let z = TransferVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1, 2.0]);
+        let t = TransferShooting {
+            scenario: &sce,
+            spacecraft: sc,
+        };
+        let (f, _) = t.residual(0.3, &z, &tol).unwrap();
+        assert!((t.residual_only(0.3, &z, &tol).unwrap() - f).amax() < 1e-9);
+        sce.problem = ProblemKind::Rendezvous;
+        let r = RendezvousShooting {
+            scenario: &sce,
+            spacecraft: sc,
+        };
+        let zr = RendezvousVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1]);
+        let (f, _) = r.residual(0.3, &zr, &tol).unwrap();
+        assert!((r.residual_only(0.3, &zr, &tol).unwrap() - f).amax() < 1e-9);
     }
 
     #[test]
