@@ -504,6 +504,23 @@ mod tests {
     use shared::scenario::ProblemKind;
     use shared::spacecraft::Spacecraft;
 
+    /// The integration accuracy every shooting test uses (SPEC: rtol 1e-11 or tighter).
+    fn tight() -> Tolerances {
+        Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        }
+    }
+
+    /// Final mass of the impulsive Hohmann transfer between circular orbits r1 -> r2: the
+    /// upper bound of any finite-thrust transfer's final mass.
+    fn hohmann_mass_bound(r1: f64, r2: f64, exhaust_speed: f64) -> f64 {
+        let dv = (1.0 / r1).sqrt() * ((2.0 * r2 / (r1 + r2)).sqrt() - 1.0)
+            + (1.0 / r2).sqrt() * (1.0 - (2.0 * r1 / (r1 + r2)).sqrt());
+        (-dv / exhaust_speed).exp()
+    }
+
     fn scenario() -> Scenario {
         let initial = OrbitElements {
             shape: OrbitShape {
@@ -581,10 +598,7 @@ mod tests {
             &tol,
         )
         .unwrap();
-        let (r1, r2) = (1.0f64, 1.3f64);
-        let dv_hohmann = (1.0 / r1).sqrt() * ((2.0 * r2 / (r1 + r2)).sqrt() - 1.0)
-            + (1.0 / r2).sqrt() * (1.0 - (2.0 * r1 / (r1 + r2)).sqrt());
-        let bound = (-dv_hohmann / sc.exhaust_speed).exp();
+        let bound = hohmann_mass_bound(1.0, 1.3, sc.exhaust_speed);
         assert!(
             yf[idx::M] < bound && yf[idx::M] > 0.8,
             "m_f {} vs Hohmann bound {bound}",
@@ -598,11 +612,7 @@ mod tests {
     #[test]
     fn homotopy_levels_converge_with_monotone_fuel_use() {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let tol = Tolerances {
-            relative: 1e-12,
-            absolute: 1e-13,
-            ..Tolerances::default()
-        };
+        let tol = tight();
         let scenario = circular_scenario(1.0, 1.3);
         let z0 = TransferVector::from_column_slice(&[-0.3, 0.0, 0.0, -0.3, 0.05, 7.5]);
         let schedule: Vec<f64> = homotopy_schedule(FINAL_EPS).collect();
@@ -638,10 +648,8 @@ mod tests {
             );
             previous_mass = yf[idx::M];
         }
-        let (r1, r2) = (1.0f64, 1.3f64);
-        let dv_hohmann = (1.0 / r1).sqrt() * ((2.0 * r2 / (r1 + r2)).sqrt() - 1.0)
-            + (1.0 / r2).sqrt() * (1.0 - (2.0 * r1 / (r1 + r2)).sqrt());
-        assert!(previous_mass < (-dv_hohmann / sc.exhaust_speed).exp());
+        let bound = hohmann_mass_bound(1.0, 1.3, sc.exhaust_speed);
+        assert!(previous_mass < bound);
         println!(
             "solved {} levels, last eps {:?}, m_f {previous_mass}",
             levels.len(),
@@ -664,11 +672,7 @@ mod tests {
         let body = problem.body_at_arrival().unwrap();
         let el = body.elements().unwrap();
         assert!((el.shape.a - scenario.target.a).abs() < 1e-12 && (el.shape.e - scenario.target.e).abs() < 1e-12);
-        let tol = Tolerances {
-            relative: 1e-12,
-            absolute: 1e-13,
-            ..Tolerances::default()
-        };
+        let tol = tight();
         let z = RendezvousVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1]);
         let (f, jac) = problem.residual(0.5, &z, &tol).unwrap();
         let h = 1e-6;
@@ -703,11 +707,7 @@ mod tests {
     #[test]
     fn residual_only_agrees_with_the_residual_of_the_sensitivity_propagation() {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let tol = Tolerances {
-            relative: 1e-12,
-            absolute: 1e-13,
-            ..Tolerances::default()
-        };
+        let tol = tight();
         let mut sce = scenario();
         let z = TransferVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1, 2.0]);
         let t = TransferShooting {
@@ -758,11 +758,7 @@ mod tests {
             spacecraft: Spacecraft::MSR_ERO.canonical().unwrap(),
             eps: 0.5,
         };
-        let tol = Tolerances {
-            relative: 1e-12,
-            absolute: 1e-13,
-            ..Tolerances::default()
-        };
+        let tol = tight();
         let z = TransferVector::from_column_slice(&[0.3, -0.2, 0.5, -0.9, 0.1, 2.0]);
         let (_, jac) = transfer_residual(&scenario(), &params, &z, &tol).unwrap();
         let h = 1e-6;
