@@ -4,7 +4,6 @@
 use onboard::integrator::{integrate, IntegrationError, Tolerances};
 use serde::{Deserialize, Serialize};
 use shared::scenario::{Scenario, ScenarioKind};
-use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
 use crate::solver::pontryagin::{idx, optimal_throttle, switching_function, OptimalControlParams, StateCostate, Y_LEN};
@@ -128,17 +127,6 @@ pub fn count_thrust_arcs(samples: &[TrajectorySample]) -> u32 {
         on = now;
     }
     arcs
-}
-
-/// Spacecraft parameters a record was solved with are part of the config, not the record; this
-/// checks that a record's samples are consistent with them (mass law: dm/dt = -T u / c).
-pub fn mass_consistent(record: &TrajectoryRecord, spacecraft: &CanonicalSpacecraft, tolerance: f64) -> bool {
-    record.ephemeris.windows(2).all(|w| {
-        let dt = w[1].t - w[0].t;
-        let max_drop = spacecraft.thrust / spacecraft.exhaust_speed * dt;
-        let drop = w[0].m - w[1].m;
-        drop >= -tolerance && drop <= max_drop + tolerance
-    })
 }
 
 #[cfg(test)]

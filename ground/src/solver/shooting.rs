@@ -40,6 +40,20 @@ pub fn initial_state_costate(scenario: &Scenario, lambda0: &[f64; 5]) -> [f64; Y
     ]
 }
 
+/// The transfer's terminal conditions F at the final state-costate `y` (SPEC section 3): r and v
+/// on the target orbit at nu_f, transversality, lambda_m(tf) = 0. Also returns the orbit point
+/// with its first and second derivatives in nu_f, which the Jacobian needs.
+fn transfer_terminal(scenario: &Scenario, y: &[f64], nu_f: f64) -> (TransferVector, [Dual2_64; 4]) {
+    let orbit = orbit_state(&scenario.target, Dual2_64::from_re(nu_f).derivative());
+    let mut f = TransferVector::zeros();
+    for i in 0..4 {
+        f[i] = y[idx::R + i] - orbit[i].re;
+    }
+    f[4] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
+    f[5] = y[idx::LM];
+    (f, orbit)
+}
+
 /// Terminal residual F(z) of a transfer and its Jacobian dF/dz.
 pub fn transfer_residual(
     scenario: &Scenario,
@@ -47,26 +61,16 @@ pub fn transfer_residual(
     z: &TransferVector,
     tolerances: &Tolerances,
 ) -> Result<(TransferVector, TransferJacobian), IntegrationError> {
-    let lambda0 = [z[0], z[1], z[2], z[3], z[4]];
-    let y0 = initial_state_costate(scenario, &lambda0);
-    let system = StateCostateSensitivity(*params);
+    let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
     let (ys, _) = integrate(
-        &system,
+        &StateCostateSensitivity(*params),
         0.0,
         &StateCostateSensitivity::initial(&y0),
         scenario.time_of_flight(),
         tolerances,
     )?;
-    let nu_f = z[5];
-    let orbit = orbit_state(&scenario.target, Dual2_64::from_re(nu_f).derivative());
-    let lambda_rv = [ys[idx::LR], ys[idx::LR + 1], ys[idx::LV], ys[idx::LV + 1]];
-    let mut f = TransferVector::zeros();
+    let (f, orbit) = transfer_terminal(scenario, &ys, z[5]);
     let mut jac = TransferJacobian::zeros();
-    for i in 0..4 {
-        f[i] = ys[idx::R + i] - orbit[i].re;
-    }
-    f[4] = (0..4).map(|i| lambda_rv[i] * orbit[i].v1).sum();
-    f[5] = ys[idx::LM];
     for k in 0..5 {
         let s = |row: usize| StateCostateSensitivity::sensitivity(&ys, row, k);
         for i in 0..4 {
@@ -78,7 +82,7 @@ pub fn transfer_residual(
     for i in 0..4 {
         jac[(i, 5)] = -orbit[i].v1;
     }
-    jac[(4, 5)] = (0..4).map(|i| lambda_rv[i] * orbit[i].v2).sum();
+    jac[(4, 5)] = (0..4).map(|i| ys[idx::LR + i] * orbit[i].v2).sum();
     Ok((f, jac))
 }
 
@@ -92,14 +96,7 @@ pub fn transfer_residual_only(
 ) -> Result<TransferVector, IntegrationError> {
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
     let (y, _) = integrate(&StateCostate(*params), 0.0, &y0, scenario.time_of_flight(), tolerances)?;
-    let orbit = orbit_state(&scenario.target, Dual2_64::from_re(z[5]).derivative());
-    let mut f = TransferVector::zeros();
-    for i in 0..4 {
-        f[i] = y[idx::R + i] - orbit[i].re;
-    }
-    f[4] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
-    f[5] = y[idx::LM];
-    Ok(f)
+    Ok(transfer_terminal(scenario, &y, z[5]).0)
 }
 
 /// A shooting problem: K unknowns, K terminal conditions, their residual and exact Jacobian at
@@ -424,6 +421,19 @@ pub struct RendezvousShooting<'a> {
 }
 
 impl RendezvousShooting<'_> {
+    /// The terminal conditions at the final state-costate `y`: r and v equal the body's,
+    /// lambda_m(tf) = 0.
+    fn terminal(&self, y: &[f64]) -> Result<RendezvousVector, IntegrationError> {
+        let body = self.body_at_arrival()?;
+        let target = [body.r[0], body.r[1], body.v[0], body.v[1]];
+        let mut f = RendezvousVector::zeros();
+        for i in 0..4 {
+            f[i] = y[idx::R + i] - target[i];
+        }
+        f[4] = y[idx::LM];
+        Ok(f)
+    }
+
     /// The body's state at the end of the flight.
     pub fn body_at_arrival(&self) -> Result<CartesianState, IntegrationError> {
         let start = self.scenario.target.cartesian_at(self.scenario.target_nu0);
@@ -450,14 +460,7 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
             self.scenario.time_of_flight(),
             tolerances,
         )?;
-        let body = self.body_at_arrival()?;
-        let target = [body.r[0], body.r[1], body.v[0], body.v[1]];
-        let mut f = RendezvousVector::zeros();
-        for i in 0..4 {
-            f[i] = y[idx::R + i] - target[i];
-        }
-        f[4] = y[idx::LM];
-        Ok(f)
+        self.terminal(&y)
     }
 
     fn residual(
@@ -470,8 +473,7 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
             spacecraft: self.spacecraft,
             eps,
         };
-        let lambda0 = [z[0], z[1], z[2], z[3], z[4]];
-        let y0 = initial_state_costate(self.scenario, &lambda0);
+        let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
         let (ys, _) = integrate(
             &StateCostateSensitivity(params),
             0.0,
@@ -479,14 +481,8 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
             self.scenario.time_of_flight(),
             tolerances,
         )?;
-        let body = self.body_at_arrival()?;
-        let target = [body.r[0], body.r[1], body.v[0], body.v[1]];
-        let mut f = RendezvousVector::zeros();
+        let f = self.terminal(&ys)?;
         let mut jac = SMatrix::<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>::zeros();
-        for i in 0..4 {
-            f[i] = ys[idx::R + i] - target[i];
-        }
-        f[4] = ys[idx::LM];
         for k in 0..RENDEZVOUS_UNKNOWNS {
             for i in 0..4 {
                 jac[(i, k)] = StateCostateSensitivity::sensitivity(&ys, idx::R + i, k);
