@@ -20,7 +20,7 @@ use lowthrust_ground::solver::{solve_scenario, transfer_guesses, SolveOptions};
 use plotters::style::RGBColor;
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
-use shared::spacecraft::Spacecraft;
+use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 use shared::units::canonical_to_days;
 
 /// Width of the chart column of the orbit-plane figure (the legend is to its right).
@@ -41,6 +41,33 @@ fn options() -> SolveOptions {
         final_eps: 0.3,
         ..SolveOptions::default()
     }
+}
+
+/// The homotopy levels of a transfer from its first converged energy-optimal start.
+fn homotopy_levels(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, opts: &SolveOptions) -> Vec<HomotopyLevel> {
+    let energy = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps: 1.0,
+    };
+    let z0: TransferVector = transfer_guesses(scenario)
+        .iter()
+        .find_map(|g| {
+            solve_transfer(scenario, &energy, g, &opts.tolerances, &opts.newton)
+                .ok()
+                .filter(|o| o.converged)
+        })
+        .expect("an energy-optimal start")
+        .z;
+    solve_transfer_homotopy(
+        scenario,
+        spacecraft,
+        &z0,
+        &opts.tolerances,
+        &opts.newton,
+        opts.final_eps,
+        opts.max_homotopy_solves,
+    )
+    .unwrap()
 }
 
 fn circle(a: f64) -> OrbitShape {
@@ -367,26 +394,7 @@ fn solved_transfer_and_its_homotopy_are_plotted() {
     assert!(labels.iter().any(|t| t.contains("(2 cases)")));
 
     // Fig. 4.3: re-propagate each converged homotopy level of the same scenario.
-    let energy = OptimalControlParams { spacecraft, eps: 1.0 };
-    let z0: TransferVector = transfer_guesses(&scenario)
-        .iter()
-        .find_map(|g| {
-            solve_transfer(&scenario, &energy, g, &opts.tolerances, &opts.newton)
-                .ok()
-                .filter(|o| o.converged)
-        })
-        .expect("an energy-optimal start")
-        .z;
-    let levels = solve_transfer_homotopy(
-        &scenario,
-        &spacecraft,
-        &z0,
-        &opts.tolerances,
-        &opts.newton,
-        opts.final_eps,
-        opts.max_homotopy_solves,
-    )
-    .unwrap();
+    let levels = homotopy_levels(&scenario, &spacecraft, &opts);
     let converged: Vec<f64> = levels.iter().filter(|l| l.outcome.converged).map(|l| l.eps).collect();
     assert_eq!(converged, [1.0, 0.5, 0.25]);
     let samples = 200;
@@ -557,7 +565,6 @@ fn full_homotopy_figures() {
     let dir = out_dir("fig-4-3");
     let spacecraft = Spacecraft::MSR_ERO.canonical().unwrap();
     let opts = SolveOptions::default();
-    let energy = OptimalControlParams { spacecraft, eps: 1.0 };
     let index: u64 = std::env::var("PLOT_INDEX")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -568,25 +575,7 @@ fn full_homotopy_figures() {
         "index {index}: {scenario:?} converged {} m_f {}",
         solved.converged, solved.final_mass
     );
-    let z0 = transfer_guesses(&scenario)
-        .iter()
-        .find_map(|g| {
-            solve_transfer(&scenario, &energy, g, &opts.tolerances, &opts.newton)
-                .ok()
-                .filter(|o| o.converged)
-        })
-        .expect("an energy-optimal start")
-        .z;
-    let levels = solve_transfer_homotopy(
-        &scenario,
-        &spacecraft,
-        &z0,
-        &opts.tolerances,
-        &opts.newton,
-        opts.final_eps,
-        opts.max_homotopy_solves,
-    )
-    .unwrap();
+    let levels = homotopy_levels(&scenario, &spacecraft, &opts);
     let curves = homotopy_throttle_curves(&scenario, &spacecraft, &levels, 400, &opts.tolerances).unwrap();
     plot_throttle_homotopy(&curves, &dir.join("throttle_homotopy.svg")).unwrap();
     plot_trajectories(&[&solved], &dir.join("transfer.svg")).unwrap();
