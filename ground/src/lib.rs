@@ -6,3 +6,4 @@ pub mod generate;
 pub mod io;
 pub mod plot;
 pub mod solver;
+pub mod sac;

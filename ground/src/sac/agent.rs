@@ -1,0 +1,451 @@
+//! The SAC agent: actor, twin critics with Polyak-averaged targets, learned temperature.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use tch::nn::{self, VarStore};
+use tch::{Device, Kind, Tensor};
+
+use super::adam::Adam;
+use super::networks::{Actor, Critic};
+use super::replay::Batch;
+use super::SacConfig;
+
+/// What one gradient update measured (means over the batch).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct UpdateStats {
+    pub critic_loss: f64,
+    pub actor_loss: f64,
+    pub temperature_loss: f64,
+    pub temperature: f64,
+    /// -E[log pi], the policy's entropy estimate.
+    pub entropy: f64,
+    pub q_mean: f64,
+    /// Mean squared distance of tanh(mean) to the demonstrated action (0 without demonstrations).
+    pub behaviour_cloning_loss: f64,
+}
+
+/// Why a checkpoint was refused.
+#[derive(Debug)]
+pub enum CheckpointError {
+    Io(std::io::Error),
+    Format(String),
+    Mismatch(String),
+}
+
+impl std::fmt::Display for CheckpointError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Io(e) => write!(f, "checkpoint I/O: {e}"),
+            Self::Format(e) => write!(f, "checkpoint is not a readable safetensors file: {e}"),
+            Self::Mismatch(e) => write!(f, "checkpoint does not match this agent: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for CheckpointError {}
+
+pub struct Sac {
+    pub config: SacConfig,
+    obs_dim: usize,
+    act_dim: usize,
+    device: Device,
+    actor_store: VarStore,
+    actor: Actor,
+    critic_store: VarStore,
+    critics: [Critic; 2],
+    target_store: VarStore,
+    targets: [Critic; 2],
+    /// (target, online) pairs sharing storage with the stores, for Polyak averaging.
+    target_pairs: Vec<(Tensor, Tensor)>,
+    temperature_store: VarStore,
+    log_temperature: Tensor,
+    actor_optimizer: Adam,
+    critic_optimizer: Adam,
+    temperature_optimizer: Adam,
+    target_entropy: f64,
+    /// Gradient updates done so far.
+    pub updates: u64,
+}
+
+fn tensor_2d(data: &[f32], rows: usize, cols: usize, device: Device) -> Tensor {
+    Tensor::from_slice(data).view([rows as i64, cols as i64]).to_device(device)
+}
+
+impl Sac {
+    pub fn new(config: SacConfig, obs_dim: usize, act_dim: usize, device: Device) -> Self {
+        let actor_store = VarStore::new(device);
+        let actor = Actor::new(&(actor_store.root() / "actor"), obs_dim, act_dim, &config.hidden);
+        let critic_store = VarStore::new(device);
+        let critics = [1, 2].map(|i| Critic::new(&(critic_store.root() / format!("critic{i}")), obs_dim, act_dim, &config.hidden));
+        let mut target_store = VarStore::new(device);
+        let targets = [1, 2].map(|i| Critic::new(&(target_store.root() / format!("critic{i}")), obs_dim, act_dim, &config.hidden));
+        target_store.freeze();
+        let online = critic_store.variables();
+        let target_pairs: Vec<(Tensor, Tensor)> = target_store
+            .variables()
+            .into_iter()
+            .map(|(name, t)| (t, online[&name].shallow_clone()))
+            .collect();
+        tch::no_grad(|| {
+            for (t, s) in &target_pairs {
+                let mut t = t.shallow_clone();
+                t.copy_(s);
+            }
+        });
+        let temperature_store = VarStore::new(device);
+        let log_temperature = temperature_store.root().var(
+            "log_temperature",
+            &[1],
+            nn::Init::Const(config.initial_log_temperature),
+        );
+        let lr = config.learning_rate;
+        let actor_optimizer = Adam::new(actor_store.trainable_variables(), lr);
+        let critic_optimizer = Adam::new(critic_store.trainable_variables(), lr);
+        let temperature_optimizer = Adam::new(vec![log_temperature.shallow_clone()], lr);
+        let target_entropy = config.target_entropy.unwrap_or(-(act_dim as f64));
+        Self {
+            config,
+            obs_dim,
+            act_dim,
+            device,
+            actor_store,
+            actor,
+            critic_store,
+            critics,
+            target_store,
+            targets,
+            target_pairs,
+            temperature_store,
+            log_temperature,
+            actor_optimizer,
+            critic_optimizer,
+            temperature_optimizer,
+            target_entropy,
+            updates: 0,
+        }
+    }
+
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+
+    pub fn temperature(&self) -> f64 {
+        self.log_temperature.exp().double_value(&[0])
+    }
+
+    /// Actions for `rows` observations laid out row-major: deterministic (tanh of the mean, what
+    /// is flown and evaluated) or sampled (exploration).
+    pub fn act(&self, obs: &[f32], rows: usize, deterministic: bool) -> Vec<f32> {
+        tch::no_grad(|| {
+            let o = tensor_2d(obs, rows, self.obs_dim, self.device);
+            let a = if deterministic { self.actor.deterministic(&o) } else { self.actor.sample(&o).action };
+            Vec::<f32>::try_from(a.to_device(Device::Cpu).view([-1])).unwrap_or_default()
+        })
+    }
+
+    /// The twin-critic minimum Q(s, a) for a batch (diagnostics and tests).
+    pub fn q_value(&self, obs: &[f32], actions: &[f32], rows: usize) -> Vec<f32> {
+        tch::no_grad(|| {
+            let o = tensor_2d(obs, rows, self.obs_dim, self.device);
+            let a = tensor_2d(actions, rows, self.act_dim, self.device);
+            let q = self.critics[0].forward(&o, &a).min_other(&self.critics[1].forward(&o, &a));
+            Vec::<f32>::try_from(q.to_device(Device::Cpu).view([-1])).unwrap_or_default()
+        })
+    }
+
+    /// One SAC gradient update on a mini-batch.
+    pub fn update(&mut self, batch: &Batch) -> UpdateStats {
+        let b = batch.size;
+        let obs = tensor_2d(&batch.obs, b, self.obs_dim, self.device);
+        let actions = tensor_2d(&batch.actions, b, self.act_dim, self.device);
+        let rewards = tensor_2d(&batch.rewards, b, 1, self.device);
+        let next_obs = tensor_2d(&batch.next_obs, b, self.obs_dim, self.device);
+        let dones = tensor_2d(&batch.dones, b, 1, self.device);
+        let temperature = self.log_temperature.exp().detach();
+
+        // 1. Critics regress on the soft Bellman target, built from the target critics and a
+        //    fresh action from the current policy at s'.
+        let soft_target = tch::no_grad(|| {
+            let next = self.actor.sample(&next_obs);
+            let q_next = self.targets[0]
+                .forward(&next_obs, &next.action)
+                .min_other(&self.targets[1].forward(&next_obs, &next.action));
+            let soft_value = q_next - &temperature * &next.log_prob;
+            &rewards + (1.0 - &dones) * self.config.discount * soft_value
+        });
+        let q1 = self.critics[0].forward(&obs, &actions);
+        let q2 = self.critics[1].forward(&obs, &actions);
+        let critic_loss = (&q1 - &soft_target).square().mean(Kind::Float) + (&q2 - &soft_target).square().mean(Kind::Float);
+        self.critic_optimizer.backward_step(&critic_loss);
+
+        // 2. The actor maximises soft value min(Q1, Q2) - alpha log pi. Critic weights are frozen
+        //    here so the backward pass skips their gradients (they would be discarded anyway).
+        self.critic_store.freeze();
+        let sample = self.actor.sample(&obs);
+        let q_pi = self.critics[0]
+            .forward(&obs, &sample.action)
+            .min_other(&self.critics[1].forward(&obs, &sample.action));
+        let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
+        let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
+        let bc_error = (&sample.mean_action - &actions).square().sum_dim_intlist(-1, true, Kind::Float);
+        let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
+        let actor_loss = if self.config.behaviour_cloning > 0.0 {
+            let lambda = 1.0 / q_pi.abs().mean(Kind::Float).detach().clamp_min(1e-6);
+            soft_loss.shallow_clone() * lambda + &bc_loss * self.config.behaviour_cloning
+        } else {
+            soft_loss.shallow_clone()
+        };
+        self.actor_optimizer.backward_step(&actor_loss);
+        self.critic_store.unfreeze();
+
+        // 3. Temperature: raise alpha when the entropy is below target, lower it when above.
+        let log_prob = sample.log_prob.detach();
+        let temperature_loss = -(&self.log_temperature * (&log_prob + self.target_entropy)).mean(Kind::Float);
+        self.temperature_optimizer.backward_step(&temperature_loss);
+
+        // 4. Targets trail the online critics: theta' <- (1 - tau) theta' + tau theta.
+        self.polyak_update();
+        self.updates += 1;
+
+        UpdateStats {
+            critic_loss: critic_loss.double_value(&[]),
+            actor_loss: soft_loss.double_value(&[]),
+            temperature_loss: temperature_loss.double_value(&[]),
+            temperature: temperature.double_value(&[0]),
+            entropy: -log_prob.mean(Kind::Float).double_value(&[]),
+            q_mean: q1.mean(Kind::Float).double_value(&[]),
+            behaviour_cloning_loss: bc_loss.double_value(&[]),
+        }
+    }
+
+    fn polyak_update(&mut self) {
+        let tau = self.config.target_smoothing;
+        tch::no_grad(|| {
+            for (t, s) in &self.target_pairs {
+                let mut t = t.shallow_clone();
+                let _ = t.lerp_(s, tau);
+            }
+        });
+    }
+
+    /// Named tensors of the whole learner state (networks, targets, temperature, optimisers).
+    fn named_state(&self) -> Vec<(String, Tensor)> {
+        let mut out = Vec::new();
+        for (prefix, store) in [("online", &self.actor_store), ("online", &self.critic_store), ("target", &self.target_store)] {
+            let mut vars: Vec<_> = store.variables().into_iter().collect();
+            vars.sort_by(|a, b| a.0.cmp(&b.0));
+            out.extend(vars.into_iter().map(|(n, t)| (format!("{prefix}.{n}"), t)));
+        }
+        out.push(("online.log_temperature".into(), self.log_temperature.shallow_clone()));
+        out.extend(self.actor_optimizer.state("adam.actor"));
+        out.extend(self.critic_optimizer.state("adam.critic"));
+        out.extend(self.temperature_optimizer.state("adam.temperature"));
+        out.push(("updates".into(), Tensor::from_slice(&[self.updates as i64])));
+        out
+    }
+
+    /// Writes the full learner state as one safetensors file (PyTorch users open it with
+    /// `safetensors.torch.load_file`; the actor is under `online.actor.*`), atomically.
+    pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
+        let tmp = path.with_extension("safetensors.tmp");
+        let state = self.named_state();
+        let cpu: Vec<(String, Tensor)> = state.into_iter().map(|(n, t)| (n, t.to_device(Device::Cpu))).collect();
+        Tensor::write_safetensors(&cpu, &tmp).map_err(|e| CheckpointError::Format(e.to_string()))?;
+        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(CheckpointError::Io)?;
+        std::fs::rename(&tmp, path).map_err(CheckpointError::Io)
+    }
+
+    /// Restores a state written by [`Sac::save`]; every tensor must be present with its shape.
+    pub fn load(&mut self, path: &Path) -> Result<(), CheckpointError> {
+        if !path.exists() {
+            return Err(CheckpointError::Io(std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("{} does not exist", path.display()),
+            )));
+        }
+        let tensors: HashMap<String, Tensor> = Tensor::read_safetensors(path)
+            .map_err(|e| CheckpointError::Format(e.to_string()))?
+            .into_iter()
+            .collect();
+        let get = |name: &str| tensors.get(name).map(|t| t.to_device(self.device));
+        // Check everything before touching anything, so a mismatch leaves the agent intact.
+        for (name, dst) in self.named_state() {
+            let src = get(&name).ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
+            if src.size() != dst.size() {
+                return Err(CheckpointError::Mismatch(format!(
+                    "tensor {name} has shape {:?}, this agent expects {:?}",
+                    src.size(),
+                    dst.size()
+                )));
+            }
+        }
+        for (name, dst) in self.named_state() {
+            if name.starts_with("adam.") || name == "updates" {
+                continue;
+            }
+            let mut dst = dst;
+            tch::no_grad(|| dst.copy_(&get(&name).unwrap_or_else(|| dst.shallow_clone())));
+        }
+        let adam = |opt: &mut Adam, prefix: &str| {
+            opt.load_state(prefix, &|n| get(n)).map_err(CheckpointError::Mismatch)
+        };
+        adam(&mut self.actor_optimizer, "adam.actor")?;
+        adam(&mut self.critic_optimizer, "adam.critic")?;
+        adam(&mut self.temperature_optimizer, "adam.temperature")?;
+        self.updates = get("updates").map(|t| t.int64_value(&[0]) as u64).unwrap_or(0);
+        Ok(())
+    }
+
+    /// The actor's weights by layer name (`l0`, `l1`, `mean`, `log_std`; weight [out, in]) for
+    /// the onboard exporter.
+    pub fn actor_weights(&self) -> HashMap<String, (Vec<i64>, Vec<f32>)> {
+        self.actor_store
+            .variables()
+            .into_iter()
+            .map(|(name, t)| {
+                let shape = t.size();
+                let data = Vec::<f32>::try_from(t.to_device(Device::Cpu).detach().view([-1])).unwrap_or_default();
+                (name.trim_start_matches("actor.").to_string(), (shape, data))
+            })
+            .collect()
+    }
+
+    /// Number of trainable parameters in (actor, both critics).
+    pub fn parameter_counts(&self) -> (i64, i64) {
+        let count = |s: &VarStore| s.trainable_variables().iter().map(|t| t.numel() as i64).sum();
+        (count(&self.actor_store), count(&self.critic_store))
+    }
+
+    /// (target, online) critic parameter pairs, for inspection.
+    pub fn target_pairs(&self) -> &[(Tensor, Tensor)] {
+        &self.target_pairs
+    }
+
+    /// The temperature's variable store (one scalar, log alpha).
+    pub fn temperature_store(&self) -> &VarStore {
+        &self.temperature_store
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sac::replay::{sampler, ReplayBuffer, Transition};
+
+    fn tiny(config: SacConfig) -> Sac {
+        tch::manual_seed(11);
+        Sac::new(SacConfig { hidden: vec![32, 32], batch_size: 64, ..config }, 1, 1, Device::Cpu)
+    }
+
+    /// A one-step bandit: the observation is constant, reward -(a - 0.5)^2, every step terminal.
+    fn bandit_buffer(n: usize) -> ReplayBuffer {
+        let mut buf = ReplayBuffer::new(1, 1, n);
+        for k in 0..n {
+            let a = -1.0 + 2.0 * (k as f32 + 0.5) / n as f32;
+            buf.push(&Transition {
+                obs: &[1.0],
+                action: &[a],
+                reward: -(a - 0.5) * (a - 0.5),
+                next_obs: &[1.0],
+                done: true,
+                demonstration: false,
+            });
+        }
+        buf
+    }
+
+    #[test]
+    fn critic_learns_the_reward_and_actor_finds_the_bandit_optimum() {
+        let mut sac = tiny(SacConfig { learning_rate: 3e-3, ..SacConfig::default() });
+        let buf = bandit_buffer(256);
+        let mut rng = sampler(1);
+        for _ in 0..1500 {
+            sac.update(&buf.sample(64, &mut rng));
+        }
+        // Terminal transitions: the soft target is the reward itself, so Q(s, a) -> -(a - 0.5)^2.
+        let actions = [-0.8f32, -0.2, 0.5, 0.9];
+        let q = sac.q_value(&[1.0; 4], &actions, 4);
+        for (a, q) in actions.iter().zip(&q) {
+            let expected = -(a - 0.5) * (a - 0.5);
+            assert!((q - expected).abs() < 0.05, "Q({a}) = {q}, expected {expected}");
+        }
+        let best = sac.act(&[1.0], 1, true)[0];
+        assert!((best - 0.5).abs() < 0.1, "deterministic action {best}");
+    }
+
+    #[test]
+    fn temperature_moves_toward_the_entropy_target() {
+        let buf = bandit_buffer(64);
+        for (target, should_rise) in [(5.0, true), (-50.0, false)] {
+            let mut sac = tiny(SacConfig { target_entropy: Some(target), ..SacConfig::default() });
+            let before = sac.temperature();
+            let mut rng = sampler(2);
+            for _ in 0..5 {
+                sac.update(&buf.sample(64, &mut rng));
+            }
+            let after = sac.temperature();
+            assert_eq!(after > before, should_rise, "target {target}: {before} -> {after}");
+        }
+    }
+
+    #[test]
+    fn targets_are_polyak_averages_of_the_online_critics() {
+        let mut sac = tiny(SacConfig { target_smoothing: 0.1, ..SacConfig::default() });
+        let snapshot = |sac: &Sac| -> Vec<(Tensor, Tensor)> {
+            sac.target_pairs().iter().map(|(t, s)| (t.copy(), s.copy())).collect()
+        };
+        let initial = snapshot(&sac);
+        for (t, s) in &initial {
+            assert_eq!(t.size(), s.size());
+            assert!(t.allclose(s, 0.0, 0.0, false), "targets start equal to the online critics");
+        }
+        let buf = bandit_buffer(64);
+        sac.update(&buf.sample(64, &mut sampler(3)));
+        for ((t_old, _), (t_new, s_new)) in initial.iter().zip(snapshot(&sac)) {
+            let expected = t_old * 0.9 + &s_new * 0.1;
+            assert!(t_new.allclose(&expected, 1e-6, 1e-7, false));
+        }
+    }
+
+    #[test]
+    fn checkpoint_round_trip_restores_the_policy_and_refuses_mismatches() {
+        let dir = std::env::temp_dir().join(format!("sac-ckpt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("agent.safetensors");
+        let mut sac = tiny(SacConfig::default());
+        let buf = bandit_buffer(64);
+        let mut rng = sampler(4);
+        for _ in 0..3 {
+            sac.update(&buf.sample(64, &mut rng));
+        }
+        sac.save(&path).unwrap();
+        let obs = [0.3f32, -0.7, 1.0];
+        let mut other = tiny(SacConfig { initial_log_temperature: 1.0, ..SacConfig::default() });
+        assert_ne!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
+        other.load(&path).unwrap();
+        assert_eq!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
+        assert_eq!(other.temperature(), sac.temperature());
+        assert_eq!(other.updates, 3);
+        // Resumed training continues identically (same batches, same optimiser moments).
+        tch::manual_seed(5);
+        let s1 = sac.update(&buf.sample(64, &mut sampler(9)));
+        tch::manual_seed(5);
+        let s2 = other.update(&buf.sample(64, &mut sampler(9)));
+        assert_eq!(s1, s2);
+
+        let mut wider = Sac::new(SacConfig { hidden: vec![48, 32], ..SacConfig::default() }, 1, 1, Device::Cpu);
+        assert!(matches!(wider.load(&path), Err(CheckpointError::Mismatch(_))));
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes.truncate(bytes.len() / 2);
+        let broken = dir.join("broken.safetensors");
+        std::fs::write(&broken, &bytes).unwrap();
+        assert!(matches!(other.load(&broken), Err(CheckpointError::Format(_))));
+        assert!(matches!(other.load(&dir.join("absent.safetensors")), Err(CheckpointError::Io(_))));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

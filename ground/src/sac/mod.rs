@@ -1,0 +1,86 @@
+//! Soft Actor-Critic (Haarnoja et al. 2018, automatic temperature), written to be read top to
+//! bottom in [`agent::Sac::update`]. Hyper-parameters default to the thesis (SPEC section 8).
+
+pub mod adam;
+pub mod agent;
+pub mod networks;
+pub mod pendulum;
+pub mod replay;
+
+use serde::{Deserialize, Serialize};
+
+/// The learner's hyper-parameters (SPEC section 8); defaults are the thesis's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SacConfig {
+    /// Hidden layer widths, shared by the actor and both critics.
+    pub hidden: Vec<usize>,
+    pub learning_rate: f64,
+    pub discount: f64,
+    /// Polyak factor of the target critics, applied after every update.
+    pub target_smoothing: f64,
+    pub batch_size: usize,
+    pub replay_capacity: usize,
+    /// Environment steps before the first gradient update.
+    pub warmup_steps: u64,
+    /// Gradient updates per environment step.
+    pub updates_per_step: u32,
+    /// Entropy target; `None` means minus the action dimension (-3 here).
+    pub target_entropy: Option<f64>,
+    pub initial_log_temperature: f64,
+    /// Weight of the behaviour-cloning term on demonstration tuples (0 = plain SAC, the thesis).
+    /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
+    /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free.
+    pub behaviour_cloning: f64,
+}
+
+impl Default for SacConfig {
+    fn default() -> Self {
+        Self {
+            hidden: vec![256, 256],
+            learning_rate: 3e-4,
+            discount: 0.99,
+            target_smoothing: 0.005,
+            batch_size: 256,
+            replay_capacity: 1_000_000,
+            warmup_steps: 50_000,
+            updates_per_step: 1,
+            target_entropy: None,
+            initial_log_temperature: 0.0,
+            behaviour_cloning: 0.0,
+        }
+    }
+}
+
+impl SacConfig {
+    /// Refuses values no run could use, before any work starts.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("sac.{name} must be positive and finite, got {v}"))
+            }
+        };
+        positive("learning_rate", self.learning_rate)?;
+        if !(0.0..1.0).contains(&self.discount) {
+            return Err(format!("sac.discount must be in [0, 1), got {}", self.discount));
+        }
+        if !(self.target_smoothing > 0.0 && self.target_smoothing <= 1.0) {
+            return Err(format!("sac.target_smoothing must be in (0, 1], got {}", self.target_smoothing));
+        }
+        if self.hidden.is_empty() || self.hidden.contains(&0) {
+            return Err(format!("sac.hidden must list positive widths, got {:?}", self.hidden));
+        }
+        if self.batch_size == 0 || self.replay_capacity == 0 || self.updates_per_step == 0 {
+            return Err("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive".into());
+        }
+        if !(self.behaviour_cloning.is_finite() && self.behaviour_cloning >= 0.0) {
+            return Err(format!("sac.behaviour_cloning must be >= 0, got {}", self.behaviour_cloning));
+        }
+        if !self.initial_log_temperature.is_finite() || self.target_entropy.is_some_and(|t| !t.is_finite()) {
+            return Err("sac.initial_log_temperature and sac.target_entropy must be finite".into());
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,145 @@
+//! The actor (squashed Gaussian) and critic networks. Layer names are fixed because the exporter
+//! reads them: `l0`, `l1`, ... for hidden layers, `mean` and `log_std` for the actor's heads, `q`
+//! for the critic's output. Weights are tch's [out, in].
+
+use tch::nn::{self, Module};
+use tch::Tensor;
+
+/// Bounds on the actor's log standard deviation (Haarnoja et al.'s reference code).
+pub const LOG_STD_MIN: f64 = -20.0;
+pub const LOG_STD_MAX: f64 = 2.0;
+
+fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize]) -> nn::Sequential {
+    let mut seq = nn::seq();
+    let mut width = input as i64;
+    for (i, &h) in hidden.iter().enumerate() {
+        seq = seq.add(nn::linear(path / format!("l{i}"), width, h as i64, Default::default())).add_fn(|x| x.relu());
+        width = h as i64;
+    }
+    seq
+}
+
+/// pi(a|s): a = tanh(u), u ~ N(mean(s), std(s)^2).
+pub struct Actor {
+    trunk: nn::Sequential,
+    mean: nn::Linear,
+    log_std: nn::Linear,
+}
+
+/// An action drawn from the actor with its log-density (after the tanh squash).
+pub struct ActionSample {
+    pub action: Tensor,
+    pub log_prob: Tensor,
+    /// tanh(mean): the deterministic action flown onboard.
+    pub mean_action: Tensor,
+}
+
+impl Actor {
+    pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
+        let last = *hidden.last().unwrap_or(&obs_dim) as i64;
+        Self {
+            trunk: hidden_stack(path, obs_dim, hidden),
+            mean: nn::linear(path / "mean", last, act_dim as i64, Default::default()),
+            log_std: nn::linear(path / "log_std", last, act_dim as i64, Default::default()),
+        }
+    }
+
+    /// The deterministic action tanh(mean(s)).
+    pub fn deterministic(&self, obs: &Tensor) -> Tensor {
+        self.mean.forward(&self.trunk.forward(obs)).tanh()
+    }
+
+    /// A reparameterised sample (gradients flow through mean and std).
+    pub fn sample(&self, obs: &Tensor) -> ActionSample {
+        let h = self.trunk.forward(obs);
+        let mean = self.mean.forward(&h);
+        let log_std = self.log_std.forward(&h).clamp(LOG_STD_MIN, LOG_STD_MAX);
+        let noise = mean.randn_like();
+        let pre_tanh = &mean + log_std.exp() * &noise;
+        let log_prob = squashed_gaussian_log_prob(&pre_tanh, &noise, &log_std);
+        ActionSample {
+            action: pre_tanh.tanh(),
+            log_prob,
+            mean_action: mean.tanh(),
+        }
+    }
+}
+
+/// log pi(tanh(u)) for u = mean + std * noise, summed over action dimensions, shape [batch, 1].
+/// The change of variables subtracts log(1 - tanh(u)^2), written as 2 (log 2 - u - softplus(-2u))
+/// so it stays finite where tanh saturates (the naive form needs an epsilon and is biased there).
+pub fn squashed_gaussian_log_prob(pre_tanh: &Tensor, noise: &Tensor, log_std: &Tensor) -> Tensor {
+    let gaussian = (noise.square() * -0.5) - log_std - 0.5 * (2.0 * std::f64::consts::PI).ln();
+    let log_det = (std::f64::consts::LN_2 - pre_tanh - (pre_tanh * -2.0).softplus()) * 2.0;
+    (gaussian - log_det).sum_dim_intlist(-1, true, tch::Kind::Float)
+}
+
+/// Q(s, a): an MLP over the concatenated state and action.
+pub struct Critic {
+    trunk: nn::Sequential,
+    q: nn::Linear,
+}
+
+impl Critic {
+    pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
+        let last = *hidden.last().unwrap_or(&(obs_dim + act_dim)) as i64;
+        Self {
+            trunk: hidden_stack(path, obs_dim + act_dim, hidden),
+            q: nn::linear(path / "q", last, 1, Default::default()),
+        }
+    }
+
+    pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Tensor {
+        self.q.forward(&self.trunk.forward(&Tensor::cat(&[obs, action], 1)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn normal_cdf(x: f64) -> f64 {
+        0.5 * libm::erfc(-x / std::f64::consts::SQRT_2)
+    }
+
+    /// The squashed density integrates (numerically, over a fine grid in a) to the probability the
+    /// Gaussian puts on the pre-image interval, i.e. the tanh change of variables is right.
+    #[test]
+    fn squashed_log_prob_matches_the_numeric_density() {
+        for (mean, log_std) in [(0.3f64, -0.5f64), (-1.2, 0.4), (2.5, -1.5)] {
+            let density = |a: f64| {
+                let u = a.atanh();
+                let noise = (u - mean) / log_std.exp();
+                let lp = squashed_gaussian_log_prob(
+                    &Tensor::from_slice(&[u]).view([1, 1]),
+                    &Tensor::from_slice(&[noise]).view([1, 1]),
+                    &Tensor::from_slice(&[log_std]).view([1, 1]),
+                );
+                lp.double_value(&[0, 0]).exp()
+            };
+            for (lo, hi) in [(-0.9, -0.2), (-0.2, 0.5), (0.5, 0.99)] {
+                let n = 4000;
+                let h = (hi - lo) / n as f64;
+                // Simpson's rule.
+                let mut integral = density(lo) + density(hi);
+                for k in 1..n {
+                    integral += if k % 2 == 1 { 4.0 } else { 2.0 } * density(lo + k as f64 * h);
+                }
+                integral *= h / 3.0;
+                let sigma = log_std.exp();
+                let exact = normal_cdf((f64::atanh(hi) - mean) / sigma) - normal_cdf((f64::atanh(lo) - mean) / sigma);
+                assert!((integral - exact).abs() < 1e-6, "mean {mean}, [{lo}, {hi}]: {integral} vs {exact}");
+            }
+        }
+    }
+
+    #[test]
+    fn log_prob_stays_finite_where_tanh_saturates() {
+        let u = Tensor::from_slice(&[30.0f32, -30.0]).view([1, 2]);
+        let lp = squashed_gaussian_log_prob(&u, &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)), &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)));
+        let v = lp.double_value(&[0, 0]);
+        // log(1 - tanh(30)^2) = log(4) - 60 + O(e^-60) per dimension.
+        let expected = 2.0 * (-0.5 * (2.0 * std::f64::consts::PI).ln()) - 2.0 * (4f64.ln() - 60.0);
+        assert!((v - expected).abs() < 1e-3, "{v} vs {expected}");
+    }
+}
