@@ -6,6 +6,9 @@ cd "$(dirname "$0")/.."
 
 step() { printf '\n==> %s\n' "$*"; }
 
+step "PyTorch 2.13.0 for tch (project venv, once)"
+bash scripts/setup-torch.sh
+
 step "toolchain: rustfmt, clippy, thumbv7em-none-eabihf"
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target add thumbv7em-none-eabihf

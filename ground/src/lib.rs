@@ -5,5 +5,5 @@ pub mod export;
 pub mod generate;
 pub mod io;
 pub mod plot;
-pub mod solver;
 pub mod sac;
+pub mod solver;

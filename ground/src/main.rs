@@ -62,6 +62,34 @@ enum Command {
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
     },
+    /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
+    /// better mean episode reward within 20,000 steps); prints the learning curve.
+    Pendulum {
+        #[arg(long, default_value_t = 20_000)]
+        steps: u64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Random-action steps before the first update.
+        #[arg(long, default_value_t = 1_000)]
+        warmup: u64,
+        #[arg(long, default_value_t = 1_000)]
+        eval_every: u64,
+        /// Torch intra-op threads.
+        #[arg(long, default_value_t = 1)]
+        threads: i32,
+        /// Write the curve as CSV here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
+    /// Learner throughput: SAC updates per second at the thesis settings (10 features, 3
+    /// actions, 2x256, batch 256) and the fraction of the measured GEMM rate reached.
+    BenchSac {
+        #[arg(long, default_value_t = 300)]
+        updates: usize,
+        /// Torch intra-op thread counts to measure.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        threads: Vec<i32>,
+    },
     /// The main job. For now: a feedback-law orbit raise flown step by step through the
     /// onboard guidance step, feature encoding and propagator (the learning pipeline comes later).
     Run {
@@ -89,6 +117,18 @@ fn main() -> ExitCode {
             out,
             departure,
         } => oem_command(&dataset, index, &out, &departure),
+        Command::Pendulum {
+            steps,
+            seed,
+            warmup,
+            eval_every,
+            threads,
+            csv,
+        } => pendulum_command(steps, seed, warmup, eval_every, threads, csv.as_deref()),
+        Command::BenchSac { updates, threads } => {
+            bench_sac(updates, &threads);
+            Ok(())
+        }
         Command::Merge { out, inputs } => merge(&inputs, &out)
             .map(|summary| print_summary(&summary))
             .map_err(Into::into),
@@ -437,4 +477,56 @@ fn demo(a0: f64, af: f64, nu0_deg: f64) -> Result<(), Box<dyn std::error::Error>
     );
     println!("one step = {STEP:.8} t*");
     Ok(())
+}
+
+fn pendulum_command(
+    steps: u64,
+    seed: u64,
+    warmup: u64,
+    eval_every: u64,
+    threads: i32,
+    csv: Option<&Path>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use lowthrust_ground::sac::{pendulum, SacConfig};
+    tch::set_num_threads(threads);
+    let config = SacConfig {
+        warmup_steps: warmup,
+        ..SacConfig::default()
+    };
+    let curve = pendulum::sanity_run(config, steps, eval_every, seed);
+    let mut text = String::from("env_steps,mean_reward,std_reward,seconds\n");
+    for p in &curve {
+        println!(
+            "step {:>6}  mean reward {:>8.1} +- {:>6.1}  ({:.0} s)",
+            p.env_steps, p.mean_reward, p.std_reward, p.seconds
+        );
+        text.push_str(&format!(
+            "{},{},{},{}\n",
+            p.env_steps, p.mean_reward, p.std_reward, p.seconds
+        ));
+    }
+    if let Some(path) = csv {
+        lowthrust_ground::io::atomic_write(path, text.as_bytes())?;
+    }
+    Ok(())
+}
+
+fn bench_sac(updates: usize, threads: &[i32]) {
+    use lowthrust_ground::sac::{bench, SacConfig};
+    let config = SacConfig::default();
+    let flops = bench::update_flops(10, 3, &config.hidden, config.batch_size);
+    for &n in threads {
+        tch::set_num_threads(n);
+        let gemm = bench::gemm_gflops(256, 51);
+        let seconds = bench::seconds_per_update(&config, 10, 3, updates);
+        println!(
+            "threads {n}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
+            1.0 / seconds,
+            seconds * 1e3,
+            flops / 1e9,
+            flops / seconds / 1e9,
+            100.0 * flops / seconds / 1e9 / gemm,
+            gemm
+        );
+    }
 }

@@ -17,6 +17,7 @@ pub enum ProblemKind {
 
 /// The four scenario distributions of SPEC section 4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
     TransferCircular,
     TransferHard,

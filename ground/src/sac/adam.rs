@@ -49,7 +49,12 @@ impl Adam {
         let bias2 = 1.0 - self.beta2.powi(self.steps as i32);
         let step_size = self.learning_rate / bias1;
         tch::no_grad(|| {
-            for ((p, m), v) in self.params.iter_mut().zip(&mut self.first_moment).zip(&mut self.second_moment) {
+            for ((p, m), v) in self
+                .params
+                .iter_mut()
+                .zip(&mut self.first_moment)
+                .zip(&mut self.second_moment)
+            {
                 let g = p.grad();
                 if !g.defined() {
                     continue;
@@ -58,7 +63,7 @@ impl Adam {
                 let _ = v.g_mul_scalar_(self.beta2);
                 let _ = v.addcmul_(&(&g * (1.0 - self.beta2)), &g);
                 let denom = (v.sqrt() / bias2.sqrt()) + self.epsilon;
-                let _ = p.addcdiv_(&(m.as_ref() * -step_size), &denom);
+                let _ = p.addcdiv_(&(&*m * -step_size), &denom);
             }
         });
     }
@@ -80,7 +85,11 @@ impl Adam {
             for (name, dst) in [(format!("{prefix}.m.{i}"), m), (format!("{prefix}.v.{i}"), v)] {
                 let src = get(&name).ok_or_else(|| format!("missing tensor {name}"))?;
                 if src.size() != dst.size() {
-                    return Err(format!("tensor {name} has shape {:?}, expected {:?}", src.size(), dst.size()));
+                    return Err(format!(
+                        "tensor {name} has shape {:?}, expected {:?}",
+                        src.size(),
+                        dst.size()
+                    ));
                 }
                 tch::no_grad(|| dst.copy_(&src.to_kind(Kind::Float)));
             }

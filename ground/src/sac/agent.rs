@@ -69,7 +69,9 @@ pub struct Sac {
 }
 
 fn tensor_2d(data: &[f32], rows: usize, cols: usize, device: Device) -> Tensor {
-    Tensor::from_slice(data).view([rows as i64, cols as i64]).to_device(device)
+    Tensor::from_slice(data)
+        .view([rows as i64, cols as i64])
+        .to_device(device)
 }
 
 impl Sac {
@@ -77,9 +79,23 @@ impl Sac {
         let actor_store = VarStore::new(device);
         let actor = Actor::new(&(actor_store.root() / "actor"), obs_dim, act_dim, &config.hidden);
         let critic_store = VarStore::new(device);
-        let critics = [1, 2].map(|i| Critic::new(&(critic_store.root() / format!("critic{i}")), obs_dim, act_dim, &config.hidden));
+        let critics = [1, 2].map(|i| {
+            Critic::new(
+                &(critic_store.root() / format!("critic{i}")),
+                obs_dim,
+                act_dim,
+                &config.hidden,
+            )
+        });
         let mut target_store = VarStore::new(device);
-        let targets = [1, 2].map(|i| Critic::new(&(target_store.root() / format!("critic{i}")), obs_dim, act_dim, &config.hidden));
+        let targets = [1, 2].map(|i| {
+            Critic::new(
+                &(target_store.root() / format!("critic{i}")),
+                obs_dim,
+                act_dim,
+                &config.hidden,
+            )
+        });
         target_store.freeze();
         let online = critic_store.variables();
         let target_pairs: Vec<(Tensor, Tensor)> = target_store
@@ -94,11 +110,10 @@ impl Sac {
             }
         });
         let temperature_store = VarStore::new(device);
-        let log_temperature = temperature_store.root().var(
-            "log_temperature",
-            &[1],
-            nn::Init::Const(config.initial_log_temperature),
-        );
+        let log_temperature =
+            temperature_store
+                .root()
+                .var("log_temperature", &[1], nn::Init::Const(config.initial_log_temperature));
         let lr = config.learning_rate;
         let actor_optimizer = Adam::new(actor_store.trainable_variables(), lr);
         let critic_optimizer = Adam::new(critic_store.trainable_variables(), lr);
@@ -143,7 +158,11 @@ impl Sac {
     pub fn act(&self, obs: &[f32], rows: usize, deterministic: bool) -> Vec<f32> {
         tch::no_grad(|| {
             let o = tensor_2d(obs, rows, self.obs_dim, self.device);
-            let a = if deterministic { self.actor.deterministic(&o) } else { self.actor.sample(&o).action };
+            let a = if deterministic {
+                self.actor.deterministic(&o)
+            } else {
+                self.actor.sample(&o).action
+            };
             Vec::<f32>::try_from(a.to_device(Device::Cpu).view([-1])).unwrap_or_default()
         })
     }
@@ -153,7 +172,9 @@ impl Sac {
         tch::no_grad(|| {
             let o = tensor_2d(obs, rows, self.obs_dim, self.device);
             let a = tensor_2d(actions, rows, self.act_dim, self.device);
-            let q = self.critics[0].forward(&o, &a).min_other(&self.critics[1].forward(&o, &a));
+            let q = self.critics[0]
+                .forward(&o, &a)
+                .min_other(&self.critics[1].forward(&o, &a));
             Vec::<f32>::try_from(q.to_device(Device::Cpu).view([-1])).unwrap_or_default()
         })
     }
@@ -180,7 +201,8 @@ impl Sac {
         });
         let q1 = self.critics[0].forward(&obs, &actions);
         let q2 = self.critics[1].forward(&obs, &actions);
-        let critic_loss = (&q1 - &soft_target).square().mean(Kind::Float) + (&q2 - &soft_target).square().mean(Kind::Float);
+        let critic_loss =
+            (&q1 - &soft_target).square().mean(Kind::Float) + (&q2 - &soft_target).square().mean(Kind::Float);
         self.critic_optimizer.backward_step(&critic_loss);
 
         // 2. The actor maximises soft value min(Q1, Q2) - alpha log pi. Critic weights are frozen
@@ -192,7 +214,9 @@ impl Sac {
             .min_other(&self.critics[1].forward(&obs, &sample.action));
         let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
         let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
-        let bc_error = (&sample.mean_action - &actions).square().sum_dim_intlist(-1, true, Kind::Float);
+        let bc_error = (&sample.mean_action - &actions)
+            .square()
+            .sum_dim_intlist(-1, true, Kind::Float);
         let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
         let actor_loss = if self.config.behaviour_cloning > 0.0 {
             let lambda = 1.0 / q_pi.abs().mean(Kind::Float).detach().clamp_min(1e-6);
@@ -236,7 +260,11 @@ impl Sac {
     /// Named tensors of the whole learner state (networks, targets, temperature, optimisers).
     fn named_state(&self) -> Vec<(String, Tensor)> {
         let mut out = Vec::new();
-        for (prefix, store) in [("online", &self.actor_store), ("online", &self.critic_store), ("target", &self.target_store)] {
+        for (prefix, store) in [
+            ("online", &self.actor_store),
+            ("online", &self.critic_store),
+            ("target", &self.target_store),
+        ] {
             let mut vars: Vec<_> = store.variables().into_iter().collect();
             vars.sort_by(|a, b| a.0.cmp(&b.0));
             out.extend(vars.into_iter().map(|(n, t)| (format!("{prefix}.{n}"), t)));
@@ -256,7 +284,9 @@ impl Sac {
         let state = self.named_state();
         let cpu: Vec<(String, Tensor)> = state.into_iter().map(|(n, t)| (n, t.to_device(Device::Cpu))).collect();
         Tensor::write_safetensors(&cpu, &tmp).map_err(|e| CheckpointError::Format(e.to_string()))?;
-        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(CheckpointError::Io)?;
+        std::fs::File::open(&tmp)
+            .and_then(|f| f.sync_all())
+            .map_err(CheckpointError::Io)?;
         std::fs::rename(&tmp, path).map_err(CheckpointError::Io)
     }
 
@@ -291,9 +321,8 @@ impl Sac {
             let mut dst = dst;
             tch::no_grad(|| dst.copy_(&get(&name).unwrap_or_else(|| dst.shallow_clone())));
         }
-        let adam = |opt: &mut Adam, prefix: &str| {
-            opt.load_state(prefix, &|n| get(n)).map_err(CheckpointError::Mismatch)
-        };
+        let adam =
+            |opt: &mut Adam, prefix: &str| opt.load_state(prefix, &|n| get(n)).map_err(CheckpointError::Mismatch);
         adam(&mut self.actor_optimizer, "adam.actor")?;
         adam(&mut self.critic_optimizer, "adam.critic")?;
         adam(&mut self.temperature_optimizer, "adam.temperature")?;
@@ -339,7 +368,16 @@ mod tests {
 
     fn tiny(config: SacConfig) -> Sac {
         tch::manual_seed(11);
-        Sac::new(SacConfig { hidden: vec![32, 32], batch_size: 64, ..config }, 1, 1, Device::Cpu)
+        Sac::new(
+            SacConfig {
+                hidden: vec![32, 32],
+                batch_size: 64,
+                ..config
+            },
+            1,
+            1,
+            Device::Cpu,
+        )
     }
 
     /// A one-step bandit: the observation is constant, reward -(a - 0.5)^2, every step terminal.
@@ -361,7 +399,10 @@ mod tests {
 
     #[test]
     fn critic_learns_the_reward_and_actor_finds_the_bandit_optimum() {
-        let mut sac = tiny(SacConfig { learning_rate: 3e-3, ..SacConfig::default() });
+        let mut sac = tiny(SacConfig {
+            learning_rate: 3e-3,
+            ..SacConfig::default()
+        });
         let buf = bandit_buffer(256);
         let mut rng = sampler(1);
         for _ in 0..1500 {
@@ -382,7 +423,10 @@ mod tests {
     fn temperature_moves_toward_the_entropy_target() {
         let buf = bandit_buffer(64);
         for (target, should_rise) in [(5.0, true), (-50.0, false)] {
-            let mut sac = tiny(SacConfig { target_entropy: Some(target), ..SacConfig::default() });
+            let mut sac = tiny(SacConfig {
+                target_entropy: Some(target),
+                ..SacConfig::default()
+            });
             let before = sac.temperature();
             let mut rng = sampler(2);
             for _ in 0..5 {
@@ -395,14 +439,20 @@ mod tests {
 
     #[test]
     fn targets_are_polyak_averages_of_the_online_critics() {
-        let mut sac = tiny(SacConfig { target_smoothing: 0.1, ..SacConfig::default() });
+        let mut sac = tiny(SacConfig {
+            target_smoothing: 0.1,
+            ..SacConfig::default()
+        });
         let snapshot = |sac: &Sac| -> Vec<(Tensor, Tensor)> {
             sac.target_pairs().iter().map(|(t, s)| (t.copy(), s.copy())).collect()
         };
         let initial = snapshot(&sac);
         for (t, s) in &initial {
             assert_eq!(t.size(), s.size());
-            assert!(t.allclose(s, 0.0, 0.0, false), "targets start equal to the online critics");
+            assert!(
+                t.allclose(s, 0.0, 0.0, false),
+                "targets start equal to the online critics"
+            );
         }
         let buf = bandit_buffer(64);
         sac.update(&buf.sample(64, &mut sampler(3)));
@@ -425,7 +475,10 @@ mod tests {
         }
         sac.save(&path).unwrap();
         let obs = [0.3f32, -0.7, 1.0];
-        let mut other = tiny(SacConfig { initial_log_temperature: 1.0, ..SacConfig::default() });
+        let mut other = tiny(SacConfig {
+            initial_log_temperature: 1.0,
+            ..SacConfig::default()
+        });
         assert_ne!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
         other.load(&path).unwrap();
         assert_eq!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
@@ -438,14 +491,25 @@ mod tests {
         let s2 = other.update(&buf.sample(64, &mut sampler(9)));
         assert_eq!(s1, s2);
 
-        let mut wider = Sac::new(SacConfig { hidden: vec![48, 32], ..SacConfig::default() }, 1, 1, Device::Cpu);
+        let mut wider = Sac::new(
+            SacConfig {
+                hidden: vec![48, 32],
+                ..SacConfig::default()
+            },
+            1,
+            1,
+            Device::Cpu,
+        );
         assert!(matches!(wider.load(&path), Err(CheckpointError::Mismatch(_))));
         let mut bytes = std::fs::read(&path).unwrap();
         bytes.truncate(bytes.len() / 2);
         let broken = dir.join("broken.safetensors");
         std::fs::write(&broken, &bytes).unwrap();
         assert!(matches!(other.load(&broken), Err(CheckpointError::Format(_))));
-        assert!(matches!(other.load(&dir.join("absent.safetensors")), Err(CheckpointError::Io(_))));
+        assert!(matches!(
+            other.load(&dir.join("absent.safetensors")),
+            Err(CheckpointError::Io(_))
+        ));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

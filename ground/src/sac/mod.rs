@@ -3,9 +3,11 @@
 
 pub mod adam;
 pub mod agent;
+pub mod bench;
 pub mod networks;
 pub mod pendulum;
 pub mod replay;
+pub mod trainer;
 
 use serde::{Deserialize, Serialize};
 
@@ -67,7 +69,10 @@ impl SacConfig {
             return Err(format!("sac.discount must be in [0, 1), got {}", self.discount));
         }
         if !(self.target_smoothing > 0.0 && self.target_smoothing <= 1.0) {
-            return Err(format!("sac.target_smoothing must be in (0, 1], got {}", self.target_smoothing));
+            return Err(format!(
+                "sac.target_smoothing must be in (0, 1], got {}",
+                self.target_smoothing
+            ));
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err(format!("sac.hidden must list positive widths, got {:?}", self.hidden));
@@ -76,7 +81,10 @@ impl SacConfig {
             return Err("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive".into());
         }
         if !(self.behaviour_cloning.is_finite() && self.behaviour_cloning >= 0.0) {
-            return Err(format!("sac.behaviour_cloning must be >= 0, got {}", self.behaviour_cloning));
+            return Err(format!(
+                "sac.behaviour_cloning must be >= 0, got {}",
+                self.behaviour_cloning
+            ));
         }
         if !self.initial_log_temperature.is_finite() || self.target_entropy.is_some_and(|t| !t.is_finite()) {
             return Err("sac.initial_log_temperature and sac.target_entropy must be finite".into());

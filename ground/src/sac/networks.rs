@@ -13,7 +13,9 @@ fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize]) -> nn::Sequenti
     let mut seq = nn::seq();
     let mut width = input as i64;
     for (i, &h) in hidden.iter().enumerate() {
-        seq = seq.add(nn::linear(path / format!("l{i}"), width, h as i64, Default::default())).add_fn(|x| x.relu());
+        seq = seq
+            .add(nn::linear(path / format!("l{i}"), width, h as i64, Default::default()))
+            .add_fn(|x| x.relu());
         width = h as i64;
     }
     seq
@@ -128,7 +130,10 @@ mod tests {
                 integral *= h / 3.0;
                 let sigma = log_std.exp();
                 let exact = normal_cdf((f64::atanh(hi) - mean) / sigma) - normal_cdf((f64::atanh(lo) - mean) / sigma);
-                assert!((integral - exact).abs() < 1e-6, "mean {mean}, [{lo}, {hi}]: {integral} vs {exact}");
+                assert!(
+                    (integral - exact).abs() < 1e-6,
+                    "mean {mean}, [{lo}, {hi}]: {integral} vs {exact}"
+                );
             }
         }
     }
@@ -136,7 +141,11 @@ mod tests {
     #[test]
     fn log_prob_stays_finite_where_tanh_saturates() {
         let u = Tensor::from_slice(&[30.0f32, -30.0]).view([1, 2]);
-        let lp = squashed_gaussian_log_prob(&u, &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)), &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)));
+        let lp = squashed_gaussian_log_prob(
+            &u,
+            &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)),
+            &Tensor::zeros([1, 2], (tch::Kind::Float, tch::Device::Cpu)),
+        );
         let v = lp.double_value(&[0, 0]);
         // log(1 - tanh(30)^2) = log(4) - 60 + O(e^-60) per dimension.
         let expected = 2.0 * (-0.5 * (2.0 * std::f64::consts::PI).ln()) - 2.0 * (4f64.ln() - 60.0);

@@ -5,6 +5,11 @@
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 
+use super::agent::Sac;
+use super::replay::{sampler, ReplayBuffer};
+use super::trainer::{mean_std, run, Episodic, LoopOptions, LoopState, StepOutcome, TrainObserver, WarmupPolicy};
+use super::SacConfig;
+
 pub const OBS_DIM: usize = 3;
 pub const ACT_DIM: usize = 1;
 pub const EPISODE_STEPS: u32 = 200;
@@ -21,6 +26,7 @@ pub struct Pendulum {
     angle: f64,
     rate: f64,
     steps: u32,
+    seed: u64,
     rng: ChaCha8Rng,
 }
 
@@ -39,6 +45,7 @@ impl Pendulum {
             angle: 0.0,
             rate: 0.0,
             steps: 0,
+            seed,
             rng: ChaCha8Rng::seed_from_u64(seed),
         };
         p.reset();
@@ -67,6 +74,117 @@ impl Pendulum {
         self.steps += 1;
         (self.observation(), -cost, self.steps >= EPISODE_STEPS)
     }
+}
+
+impl Episodic for Pendulum {
+    fn obs_dim(&self) -> usize {
+        OBS_DIM
+    }
+
+    fn act_dim(&self) -> usize {
+        ACT_DIM
+    }
+
+    fn reset(&mut self, episode: u64) -> Vec<f32> {
+        self.rng = ChaCha8Rng::seed_from_u64(self.seed);
+        self.rng.set_stream(episode);
+        Pendulum::reset(self).to_vec()
+    }
+
+    fn step(&mut self, action: &[f32]) -> StepOutcome {
+        let (obs, reward, over) = Pendulum::step(self, action.first().copied().unwrap_or(0.0));
+        StepOutcome {
+            obs: obs.to_vec(),
+            reward,
+            terminal: false,
+            truncated: over,
+        }
+    }
+}
+
+/// Mean episode reward of the deterministic policy over `episodes` fixed evaluation episodes.
+pub fn evaluate(agent: &Sac, episodes: u64, seed: u64) -> (f64, f64) {
+    let mut env = Pendulum::new(seed ^ 0x5eed_e7a1);
+    let rewards: Vec<f64> = (0..episodes)
+        .map(|e| {
+            let mut obs = Episodic::reset(&mut env, e);
+            let mut total = 0.0;
+            loop {
+                let out = Episodic::step(&mut env, &agent.act(&obs, 1, true));
+                total += out.reward;
+                if out.truncated {
+                    break total;
+                }
+                obs = out.obs;
+            }
+        })
+        .collect();
+    mean_std(&rewards)
+}
+
+/// One point of the sanity run's learning curve.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct CurvePoint {
+    pub env_steps: u64,
+    pub mean_reward: f64,
+    pub std_reward: f64,
+    pub seconds: f64,
+}
+
+/// Trains SAC on the pendulum for `steps` environment steps (1 update per step after
+/// `config.warmup_steps`), evaluating 10 episodes every `eval_every` steps.
+pub fn sanity_run(config: SacConfig, steps: u64, eval_every: u64, seed: u64) -> Vec<CurvePoint> {
+    struct Curve {
+        start: std::time::Instant,
+        seed: u64,
+        points: Vec<CurvePoint>,
+        bar: indicatif::ProgressBar,
+    }
+    impl TrainObserver for Curve {
+        fn evaluate(&mut self, env_steps: u64, agent: &Sac) -> f64 {
+            let (mean_reward, std_reward) = evaluate(agent, 10, self.seed);
+            self.points.push(CurvePoint {
+                env_steps,
+                mean_reward,
+                std_reward,
+                seconds: self.start.elapsed().as_secs_f64(),
+            });
+            self.bar.set_position(env_steps);
+            self.bar.set_message(format!("eval {mean_reward:.0}"));
+            mean_reward
+        }
+    }
+    tch::manual_seed(seed as i64);
+    let mut agent = Sac::new(config.clone(), OBS_DIM, ACT_DIM, tch::Device::Cpu);
+    let mut buffer = ReplayBuffer::new(OBS_DIM, ACT_DIM, config.replay_capacity);
+    let mut env = Pendulum::new(seed);
+    let bar = indicatif::ProgressBar::new(steps).with_style(
+        indicatif::ProgressStyle::with_template("pendulum {bar:40} {pos}/{len} steps {msg} [{elapsed}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut curve = Curve {
+        start: std::time::Instant::now(),
+        seed,
+        points: Vec::new(),
+        bar,
+    };
+    let options = LoopOptions {
+        total_steps: steps,
+        eval_every,
+        checkpoint_every: 0,
+        warmup: WarmupPolicy::Random,
+    };
+    run(
+        &mut env,
+        &mut agent,
+        &mut buffer,
+        &mut LoopState::default(),
+        &mut sampler(seed),
+        &options,
+        &mut curve,
+    );
+    curve.bar.finish();
+    curve.points
 }
 
 #[cfg(test)]

@@ -143,10 +143,13 @@ impl ReplayBuffer {
         for _ in 0..size {
             // Modulo bias is below 1e-13 for any capacity that fits in memory.
             let i = (rng.next_u64() % self.len as u64) as usize;
-            b.obs.extend_from_slice(&self.obs[i * self.obs_dim..(i + 1) * self.obs_dim]);
-            b.actions.extend_from_slice(&self.actions[i * self.act_dim..(i + 1) * self.act_dim]);
+            b.obs
+                .extend_from_slice(&self.obs[i * self.obs_dim..(i + 1) * self.obs_dim]);
+            b.actions
+                .extend_from_slice(&self.actions[i * self.act_dim..(i + 1) * self.act_dim]);
             b.rewards.push(self.rewards[i]);
-            b.next_obs.extend_from_slice(&self.next_obs[i * self.obs_dim..(i + 1) * self.obs_dim]);
+            b.next_obs
+                .extend_from_slice(&self.next_obs[i * self.obs_dim..(i + 1) * self.obs_dim]);
             b.dones.push(self.dones[i]);
             b.demonstrations.push(self.demonstrations[i]);
         }

@@ -1,0 +1,75 @@
+//! Throughput of the learner: gradient updates per second at given network sizes, and the
+//! fraction of the machine's measured GEMM rate they reach.
+
+use std::time::Instant;
+
+use tch::{Device, Kind, Tensor};
+
+use super::agent::Sac;
+use super::replay::{sampler, ReplayBuffer, Transition};
+use super::SacConfig;
+
+/// Floating-point operations of one update (forward + backward multiply-adds of every linear
+/// layer touched), counted from the layer shapes.
+pub fn update_flops(obs_dim: usize, act_dim: usize, hidden: &[usize], batch: usize) -> f64 {
+    let mlp = |input: usize, output: usize| -> f64 {
+        let mut widths = vec![input];
+        widths.extend_from_slice(hidden);
+        widths.push(output);
+        widths.windows(2).map(|w| 2.0 * (w[0] * w[1]) as f64).sum::<f64>() * batch as f64
+    };
+    let actor = mlp(obs_dim, 2 * act_dim);
+    let critic = mlp(obs_dim + act_dim, 1);
+    // Target: actor forward + 2 target critics forward. Critic step: 2 critics, forward (1x)
+    // and backward (2x: input and weight gradients). Actor step: actor forward, 2 critics
+    // forward, backward through the critics to the action only (1x, weights frozen), actor
+    // backward (2x). Total 4 actor + 12 critic forward passes.
+    let target = actor + 2.0 * critic;
+    let critic_step = 2.0 * 3.0 * critic;
+    let actor_step = actor + 2.0 * critic + 2.0 * critic + 2.0 * actor;
+    target + critic_step + actor_step
+}
+
+/// Measured GEMM rate (GFLOP/s) of a square n x n x n product, median of `reps`.
+pub fn gemm_gflops(n: i64, reps: usize) -> f64 {
+    let a = Tensor::randn([n, n], (Kind::Float, Device::Cpu));
+    let b = Tensor::randn([n, n], (Kind::Float, Device::Cpu));
+    let mut times = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        let t = Instant::now();
+        let c = a.matmul(&b);
+        let _ = c.double_value(&[0, 0]);
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    2.0 * (n * n * n) as f64 / times[reps / 2] / 1e9
+}
+
+/// Mean seconds per update, batch sampling included, over `updates` updates (after 20 warm-up
+/// updates).
+pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, updates: usize) -> f64 {
+    tch::manual_seed(0);
+    let mut sac = Sac::new(config.clone(), obs_dim, act_dim, Device::Cpu);
+    let mut buffer = ReplayBuffer::new(obs_dim, act_dim, 10_000);
+    let mut rng = sampler(0);
+    let obs: Vec<f32> = (0..obs_dim).map(|i| i as f32 * 0.1).collect();
+    let action: Vec<f32> = (0..act_dim).map(|i| i as f32 * 0.2 - 0.2).collect();
+    for k in 0..10_000 {
+        buffer.push(&Transition {
+            obs: &obs,
+            action: &action,
+            reward: (k % 7) as f32 * -0.1,
+            next_obs: &obs,
+            done: k % 50 == 0,
+            demonstration: false,
+        });
+    }
+    for _ in 0..20 {
+        sac.update(&buffer.sample(config.batch_size, &mut rng));
+    }
+    let t = Instant::now();
+    for _ in 0..updates {
+        sac.update(&buffer.sample(config.batch_size, &mut rng));
+    }
+    t.elapsed().as_secs_f64() / updates as f64
+}

@@ -1,0 +1,149 @@
+//! The SAC interaction loop: act, step, store, update (1 update per environment step after the
+//! warm-up), evaluate periodically, keep the best model, checkpoint for resumption. Generic over
+//! [`Episodic`] so the sanity task and the spacecraft problems run the same loop.
+
+use rand_chacha::ChaCha8Rng;
+
+use super::agent::{Sac, UpdateStats};
+use super::replay::{ReplayBuffer, Transition};
+
+/// An episodic task as the learner sees it: flat f32 observations and actions in [-1, 1].
+pub trait Episodic {
+    fn obs_dim(&self) -> usize;
+    fn act_dim(&self) -> usize;
+    /// Starts episode number `episode` (deterministic per task seed and episode number).
+    fn reset(&mut self, episode: u64) -> Vec<f32>;
+    /// One step under `action`.
+    fn step(&mut self, action: &[f32]) -> StepOutcome;
+}
+
+/// The result of one environment step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepOutcome {
+    pub obs: Vec<f32>,
+    pub reward: f64,
+    /// The episode reached a terminal state: no bootstrapping past it.
+    pub terminal: bool,
+    /// The episode was cut by a time limit that is not part of the state: bootstrap through it.
+    pub truncated: bool,
+}
+
+/// How the exploration actions of the warm-up steps are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WarmupPolicy {
+    /// Uniform random actions (an agent trained from scratch).
+    Random,
+    /// The agent's own stochastic policy (a pretrained agent).
+    Agent,
+}
+
+/// Where the loop stands; checkpointed so a run resumes where it stopped.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LoopState {
+    pub env_steps: u64,
+    pub episodes: u64,
+    pub best_eval_reward: Option<f64>,
+    /// Sum of rewards of the episode in progress.
+    pub episode_reward: f64,
+}
+
+/// What the caller wants to hear about while the loop runs.
+pub trait TrainObserver {
+    /// After every gradient update.
+    fn on_update(&mut self, _env_steps: u64, _stats: &UpdateStats) {}
+    /// After every finished training episode.
+    fn on_episode(&mut self, _env_steps: u64, _reward: f64) {}
+    /// Every `eval_every` environment steps: evaluate the agent, return the score to maximise.
+    fn evaluate(&mut self, env_steps: u64, agent: &Sac) -> f64;
+    /// A new best evaluation score was reached.
+    fn on_best(&mut self, _env_steps: u64, _agent: &Sac, _score: f64) {}
+    /// Every `checkpoint_every` steps and at the end: persist agent, buffer and loop state.
+    fn checkpoint(&mut self, _agent: &Sac, _buffer: &ReplayBuffer, _state: &LoopState, _rng: &ChaCha8Rng) {}
+}
+
+/// Loop settings that are not SAC hyper-parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopOptions {
+    pub total_steps: u64,
+    pub eval_every: u64,
+    pub checkpoint_every: u64,
+    pub warmup: WarmupPolicy,
+}
+
+fn uniform_action(rng: &mut ChaCha8Rng, dim: usize) -> Vec<f32> {
+    use rand_core::Rng;
+    (0..dim)
+        .map(|_| ((rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0)
+        .collect()
+}
+
+/// Runs environment steps from `state.env_steps` to `options.total_steps`.
+pub fn run<T: Episodic>(
+    task: &mut T,
+    agent: &mut Sac,
+    buffer: &mut ReplayBuffer,
+    state: &mut LoopState,
+    rng: &mut ChaCha8Rng,
+    options: &LoopOptions,
+    observer: &mut dyn TrainObserver,
+) {
+    let act_dim = task.act_dim();
+    let warmup_steps = agent.config.warmup_steps;
+    let batch_size = agent.config.batch_size;
+    let updates_per_step = agent.config.updates_per_step;
+    // A resumed run restarts the interrupted episode from its beginning (its partial reward is
+    // dropped); the transitions it had stored stay in the buffer.
+    let mut obs = task.reset(state.episodes);
+    state.episode_reward = 0.0;
+    while state.env_steps < options.total_steps {
+        let action = if state.env_steps < warmup_steps && options.warmup == WarmupPolicy::Random {
+            uniform_action(rng, act_dim)
+        } else {
+            agent.act(&obs, 1, false)
+        };
+        let out = task.step(&action);
+        buffer.push(&Transition {
+            obs: &obs,
+            action: &action,
+            reward: out.reward as f32,
+            next_obs: &out.obs,
+            done: out.terminal,
+            demonstration: false,
+        });
+        state.env_steps += 1;
+        state.episode_reward += out.reward;
+        if out.terminal || out.truncated {
+            observer.on_episode(state.env_steps, state.episode_reward);
+            state.episodes += 1;
+            state.episode_reward = 0.0;
+            obs = task.reset(state.episodes);
+        } else {
+            obs = out.obs;
+        }
+        if state.env_steps >= warmup_steps && buffer.len() >= batch_size {
+            for _ in 0..updates_per_step {
+                let stats = agent.update(&buffer.sample(batch_size, rng));
+                observer.on_update(state.env_steps, &stats);
+            }
+        }
+        if options.eval_every > 0 && state.env_steps.is_multiple_of(options.eval_every) {
+            let score = observer.evaluate(state.env_steps, agent);
+            if state.best_eval_reward.is_none_or(|b| score > b) {
+                state.best_eval_reward = Some(score);
+                observer.on_best(state.env_steps, agent, score);
+            }
+        }
+        if options.checkpoint_every > 0 && state.env_steps.is_multiple_of(options.checkpoint_every) {
+            observer.checkpoint(agent, buffer, state, rng);
+        }
+    }
+    observer.checkpoint(agent, buffer, state, rng);
+}
+
+/// Mean and standard deviation of `values`.
+pub fn mean_std(values: &[f64]) -> (f64, f64) {
+    let n = values.len().max(1) as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}
