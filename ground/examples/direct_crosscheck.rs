@@ -6,10 +6,14 @@
 //! cargo run --release -p lowthrust-ground --example direct_crosscheck -- [segments-per-step] [levels] [case...]
 //! cases: circular (1 -> 1.3 AU), hard:SEED:INDEX, rdv:SEED:INDEX (rendezvous-hard), rdvc:SEED:INDEX
 
+use lowthrust_ground::dataset::{sample_at, TrajectoryRecord};
 use lowthrust_ground::solver::direct::{solve_direct, DirectGuess, DirectOptions};
+use lowthrust_ground::solver::pontryagin::OptimalControlParams;
+use lowthrust_ground::solver::shooting::initial_state_costate;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
 
 fn circular() -> (ScenarioKind, Scenario) {
@@ -55,6 +59,35 @@ fn parse(case: &str) -> (String, ScenarioKind, Scenario, u64, u64) {
     (case.into(), kind, kind.draw(seed, index), seed, index)
 }
 
+/// The indirect solution's control sampled at the segment midpoints (throttle u, polar
+/// direction): a warm start for the cases where tangential thrust leads nowhere. The direct
+/// solve then checks local optimality on its own mesh (and must move: the sampled control is
+/// not feasible for the piecewise-constant transcription).
+fn indirect_guess(rec: &TrajectoryRecord, sc: &CanonicalSpacecraft, segments: usize) -> DirectGuess {
+    let tof = rec.scenario.time_of_flight();
+    let h = tof / segments as f64;
+    let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
+    let params = OptimalControlParams {
+        spacecraft: *sc,
+        eps: rec.final_eps,
+    };
+    let y0 = initial_state_costate(&rec.scenario, &rec.costates);
+    let samples = sample_at(&y0, &params, &times, &SolveOptions::default().tolerances).unwrap();
+    DirectGuess {
+        controls: samples
+            .iter()
+            .map(|s| {
+                [
+                    s.throttle * s.direction_polar[0],
+                    s.throttle * s.direction_polar[1],
+                    s.throttle,
+                ]
+            })
+            .collect(),
+        nu_f: rec.final_anomaly.unwrap_or(0.0),
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let per_step: usize = args.first().map_or(4, |s| s.parse().unwrap());
@@ -88,7 +121,16 @@ fn main() {
             ..DirectOptions::default()
         };
         let k0 = per_step * scenario.steps as usize;
-        let tangential = DirectGuess::tangential(&scenario, &sc, k0, 0.5, &options.tolerances).unwrap();
+        let tangential = if std::env::var("DIRECT_FROM_INDIRECT").is_ok() {
+            println!("(warm start: the indirect solution's control, sampled per segment)");
+            indirect_guess(&rec, &sc, k0)
+        } else {
+            DirectGuess::tangential(&scenario, &sc, k0, 0.5, &options.tolerances).unwrap()
+        };
+        let start_mass = 1.0
+            - sc.thrust / sc.exhaust_speed * scenario.time_of_flight() / k0 as f64
+                * tangential.controls.iter().map(|c| c[2]).sum::<f64>();
+        println!("guess: m_f {start_mass:.9} on {k0} segments");
         // Same cost as the indirect solution (its final eps), then the fuel-optimal one (eps = 0),
         // the latter warm-started from the former's coarse solution.
         let mut coarse = None;
