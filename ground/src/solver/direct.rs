@@ -18,12 +18,15 @@
 //! (Fletcher's Sl1QP). The states are always obtained by propagating the controls (single
 //! shooting: segment defects are zero), but each QP is stated in the lifted, sparse form
 //! (states of every node as QP variables tied by the linearised segment maps), so the QP has
-//! a banded KKT system and a block-diagonal Hessian. The QP subproblem, with the control cones
-//! kept exact, is solved by the Clarabel interior-point conic solver. Its multipliers give the
-//! Lagrangian Hessian: on every segment, z_k^T d2F_k / d(x_k, p_k)^2 (8 x 8) by central
-//! differences of the exact segment Jacobians, projected on the positive semidefinite cone.
-//! Terminal conditions are elastic (l1 slacks) so that the QP is always feasible; a second-
-//! order correction handles the Maratos effect.
+//! a banded KKT system. The QP subproblem, with the control cones kept exact, is solved by the
+//! Clarabel interior-point conic solver. Its curvature is the cost's own (2 eps in s) and the
+//! target orbit's in nu_f; the dynamics' curvature is left out: projecting each segment's
+//! indefinite block z^T d2F/d(x, p)^2 on the PSD cone over-curves the model (steps half as long
+//! as they should be, measured), and the control-only block made no difference. The method is
+//! thus close to sequential linear-conic programming: fast where the optimum is bang-bang,
+//! trust-region limited on smooth throttle arcs (see NOTES-direct.md). Terminal conditions are
+//! elastic (l1 slacks) so that the QP is always feasible; a second-order correction handles the
+//! Maratos effect.
 //!
 //! Derivatives. Each segment is propagated by the onboard DOP853 with its variational
 //! equations (5 states + a 5 x 8 Jacobian with respect to the initial state and the three
@@ -469,8 +472,8 @@ impl Triplets {
 
 /// The model of one SQP iteration: the linearised segment maps and the curvature of the
 /// Lagrangian in nu_f (the target orbit's curvature weighted by the terminal multipliers).
-/// The cost's own curvature in s (2 eps T h / c) is added by the QP; see the module notes for
-/// why the segment maps' curvature is left out.
+/// The cost's own curvature in s is added by the QP; see the module documentation for why the
+/// segment maps' curvature is left out.
 struct Model {
     jacobians: Vec<SegmentJacobian>,
     curvature_nu: f64,
