@@ -1,6 +1,8 @@
 //! Ground-side library behind the `ground` command line.
 
 pub mod dataset;
+pub mod demo;
+pub mod env;
 pub mod export;
 pub mod generate;
 pub mod io;

@@ -1,0 +1,619 @@
+//! The Markov decision processes of SPEC sections 4 to 6: the transfer (TBT) and rendezvous (TBR)
+//! environments, built only on the onboard crate's dynamics and feature encoding so that
+//! training and flight share one implementation.
+//!
+//! - Physics: [`onboard::dynamics::propagate`] (zero-order hold in the local polar frame, exact
+//!   Kepler on coast steps); the rendezvous body moves by [`onboard::kepler::coast`] from its
+//!   anomaly at t = 0 (the solver's convention).
+//! - Features, residuals, reward, action decoding: [`onboard::features`]; the observation is
+//!   the f32 narrowing the onboard network sees ([`onboard::features::to_network_input`]).
+//! - Time: step k (0..=N) is at t = k STEP with time to go (N - k) STEP; the episode is done
+//!   after step N ([`Scenario::steps`], the SPEC section 4 rule).
+//!
+//! Actions: `[a0, a1, a2]`, decoded by [`onboard::features::decode_action`]: components clamped to
+//! [-1, 1], u = (a0 + 1) / 2, direction (a1, a2) normalised, thrust off when |(a1, a2)| < 1e-6.
+//! A **non-finite action** is handled as [`EnvConfig::non_finite_action`] says: by default it is
+//! flown as thrust off, exactly what the flight software does when its guidance step refuses a
+//! NaN, and flagged in [`StepInfo::non_finite_action`]; [`NonFiniteAction::Refuse`] makes it a
+//! typed error instead ([`EnvError::NonFiniteAction`]) and leaves the environment unchanged.
+//! Nothing here panics on any action or scenario.
+//!
+//! Reward: the printed SPEC section 5 form by default; [`TerminalAccuracy`] adds an optional term
+//! that weighs the residuals more as time runs out. It is reported apart in [`StepInfo`].
+
+pub mod batch;
+#[cfg(test)]
+mod tests;
+
+use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
+use onboard::features::{
+    decode_action, rendezvous_features, rendezvous_residuals, reward, to_network_input, transfer_features,
+    transfer_residuals, FeatureError, Residuals, RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+};
+use onboard::integrator::Tolerances;
+use onboard::kepler::{coast, KeplerError};
+use serde::{Deserialize, Serialize};
+use shared::orbit::CartesianState;
+use shared::scenario::{ProblemKind, Scenario, ScenarioError, ScenarioKind};
+use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
+use shared::units::STEP;
+
+/// Reward weights of thesis Eq. 4.7-4.8 (SPEC section 5), serialisable.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RewardConfig {
+    /// w_p, on the position residual squared.
+    pub position: f64,
+    /// w_v, on the velocity residual squared.
+    pub velocity: f64,
+    /// w_u, on the throttle.
+    pub throttle: f64,
+}
+
+impl Default for RewardConfig {
+    fn default() -> Self {
+        let w = RewardWeights::default();
+        Self {
+            position: w.position,
+            velocity: w.velocity,
+            throttle: w.throttle,
+        }
+    }
+}
+
+impl RewardConfig {
+    pub fn weights(&self) -> RewardWeights {
+        RewardWeights {
+            position: self.position,
+            velocity: self.velocity,
+            throttle: self.throttle,
+        }
+    }
+}
+
+/// The optional terminal-accuracy term of SPEC section 5 (thesis Chapter 7, item i), added to
+/// the printed reward. With dr, dv the residuals after the step (same definitions as the
+/// reward) and j = N - (k + 1) the number of steps still to go after it:
+///
+/// - `None`: no term; the printed reward (the default).
+/// - `TerminalPenalty`: `-(position dr + velocity dv)` on the last step only (j = 0).
+/// - `TimeWeighted`: `-(position dr + velocity dv) exp(-j / horizon_steps)` on every step, so
+///   the weight is 1 on the last step and decays with e-folding `horizon_steps` steps towards
+///   the start (horizon -> 0 gives `TerminalPenalty`).
+///
+/// Linear (not Gaussian) in the residuals, so the term keeps a gradient far from the target
+/// where the printed reward saturates at -2. In a TOML config:
+/// `terminal = { kind = "time-weighted", position = 10.0, velocity = 10.0, horizon_steps = 3.0 }`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum TerminalAccuracy {
+    #[default]
+    None,
+    TerminalPenalty {
+        position: f64,
+        velocity: f64,
+    },
+    TimeWeighted {
+        position: f64,
+        velocity: f64,
+        horizon_steps: f64,
+    },
+}
+
+impl TerminalAccuracy {
+    /// The term for residuals `res` after a step that leaves `steps_to_go` steps.
+    pub fn term(&self, res: &Residuals, steps_to_go: u32) -> f64 {
+        match *self {
+            Self::None => 0.0,
+            Self::TerminalPenalty { position, velocity } => {
+                if steps_to_go == 0 {
+                    -(position * res.position + velocity * res.velocity)
+                } else {
+                    0.0
+                }
+            }
+            Self::TimeWeighted {
+                position,
+                velocity,
+                horizon_steps,
+            } => {
+                let weight = if steps_to_go == 0 {
+                    1.0
+                } else {
+                    (-f64::from(steps_to_go) / horizon_steps).exp()
+                };
+                -(position * res.position + velocity * res.velocity) * weight
+            }
+        }
+    }
+
+    fn validate(&self) -> Result<(), EnvError> {
+        let ok = |x: f64| x.is_finite() && x >= 0.0;
+        let valid = match *self {
+            Self::None => true,
+            Self::TerminalPenalty { position, velocity } => ok(position) && ok(velocity),
+            Self::TimeWeighted {
+                position,
+                velocity,
+                horizon_steps,
+            } => ok(position) && ok(velocity) && horizon_steps.is_finite() && horizon_steps > 0.0,
+        };
+        if valid {
+            Ok(())
+        } else {
+            Err(EnvError::Config(
+                "terminal-accuracy weights must be finite and >= 0, the horizon > 0",
+            ))
+        }
+    }
+}
+
+/// What a non-finite action does (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NonFiniteAction {
+    /// Flown as thrust off (as in flight) and flagged in [`StepInfo::non_finite_action`].
+    #[default]
+    Coast,
+    /// Refused with [`EnvError::NonFiniteAction`]; the environment does not move.
+    Refuse,
+}
+
+/// Integrator accuracy of the thrusting steps (coast steps are exact Kepler).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IntegratorConfig {
+    pub relative: f64,
+    pub absolute: f64,
+    pub max_steps: u32,
+}
+
+impl Default for IntegratorConfig {
+    /// The onboard defaults (rtol 1e-12, atol 1e-13): what the flight propagator and the SIL
+    /// plant use.
+    fn default() -> Self {
+        let t = Tolerances::default();
+        Self {
+            relative: t.relative,
+            absolute: t.absolute,
+            max_steps: t.max_steps,
+        }
+    }
+}
+
+impl IntegratorConfig {
+    pub fn tolerances(&self) -> Tolerances {
+        Tolerances {
+            relative: self.relative,
+            absolute: self.absolute,
+            max_steps: self.max_steps,
+            initial_step: 0.0,
+        }
+    }
+}
+
+/// Everything an environment is parameterised by; `[env]` of a TOML config.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EnvConfig {
+    pub spacecraft: Spacecraft,
+    pub reward: RewardConfig,
+    pub terminal: TerminalAccuracy,
+    pub non_finite_action: NonFiniteAction,
+    pub integrator: IntegratorConfig,
+}
+
+/// Why an environment call failed. Every failure is one of these, never a panic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EnvError {
+    Spacecraft(SpacecraftError),
+    Config(&'static str),
+    Scenario(ScenarioError),
+    /// A transfer scenario given to the rendezvous environment or the other way round.
+    WrongProblem {
+        expected: ProblemKind,
+        found: ProblemKind,
+    },
+    /// `step` before any `reset`.
+    NotReset,
+    /// `step` after the terminal step.
+    EpisodeOver,
+    /// `reset_at` with a step index beyond N.
+    StepOutOfRange {
+        step: u32,
+        steps: u32,
+    },
+    /// The action had a NaN or infinite component and the config refuses such actions.
+    NonFiniteAction,
+    /// The spacecraft state cannot be propagated over step `step` (tank empty, integrator
+    /// failure, state at the Sun, ...).
+    Propagation {
+        step: u32,
+        error: PropagationError,
+    },
+    /// The state or target at step `step` is outside the feature domain.
+    Features {
+        step: u32,
+        error: FeatureError,
+    },
+    /// The rendezvous body could not be propagated to step `step`.
+    Body {
+        step: u32,
+        error: KeplerError,
+    },
+}
+
+impl core::fmt::Display for EnvError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Spacecraft(e) => write!(f, "invalid spacecraft: {e}"),
+            Self::Config(m) => write!(f, "invalid environment config: {m}"),
+            Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
+            Self::WrongProblem { expected, found } => {
+                write!(f, "a {found:?} scenario given to the {expected:?} environment")
+            }
+            Self::NotReset => f.write_str("step called before reset"),
+            Self::EpisodeOver => f.write_str("step called after the terminal step; reset first"),
+            Self::StepOutOfRange { step, steps } => write!(f, "step {step} is beyond the episode's {steps} steps"),
+            Self::NonFiniteAction => f.write_str("the action has a NaN or infinite component"),
+            Self::Propagation { step, error } => write!(f, "propagation over step {step} failed: {error}"),
+            Self::Features { step, error } => write!(f, "features at step {step}: {error}"),
+            Self::Body { step, error } => write!(f, "target body at step {step}: {error:?}"),
+        }
+    }
+}
+
+impl std::error::Error for EnvError {}
+
+/// The two problems: how their features and residuals are computed. Implemented by
+/// [`Transfer`] and [`Rendezvous`]; [`MdpEnv`] is generic over it.
+pub trait Problem: Send + Sync + 'static {
+    const KIND: ProblemKind;
+    /// Number of features (10 or 22).
+    const OBS: usize;
+    /// `[f64; OBS]`.
+    type Features: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f64]>;
+    /// `[f32; OBS]`: what the network sees.
+    type Obs: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + 'static;
+
+    /// Features of `state` at step `step` (time t = step STEP, time to go (N - step) STEP).
+    fn features(scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Features, EnvError>;
+    fn residuals(features: &Self::Features) -> Residuals;
+    fn observation(features: &Self::Features) -> Self::Obs;
+}
+
+/// The transfer problem (SPEC section 5).
+#[derive(Debug, Clone, Copy)]
+pub struct Transfer;
+
+/// The rendezvous problem (SPEC section 6).
+#[derive(Debug, Clone, Copy)]
+pub struct Rendezvous;
+
+/// Time to go at step `step` of `scenario`: (N - step) STEP, clamped at 0.
+pub fn time_to_go(scenario: &Scenario, step: u32) -> f64 {
+    f64::from(scenario.steps.saturating_sub(step)) * STEP
+}
+
+/// The rendezvous body's state at step `step`: its orbit point at `target_nu0`, coasted for
+/// step STEP (from t = 0 every time, so no error accumulates along the episode).
+pub fn body_at(scenario: &Scenario, step: u32) -> Result<CartesianState, EnvError> {
+    let start = scenario.target.cartesian_at(scenario.target_nu0);
+    coast(&start, f64::from(step) * STEP).map_err(|error| EnvError::Body { step, error })
+}
+
+impl Problem for Transfer {
+    const KIND: ProblemKind = ProblemKind::Transfer;
+    const OBS: usize = TRANSFER_FEATURES;
+    type Features = [f64; TRANSFER_FEATURES];
+    type Obs = [f32; TRANSFER_FEATURES];
+
+    fn features(scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Features, EnvError> {
+        transfer_features(state, &scenario.target, time_to_go(scenario, step))
+            .map_err(|error| EnvError::Features { step, error })
+    }
+
+    fn residuals(features: &Self::Features) -> Residuals {
+        transfer_residuals(features)
+    }
+
+    fn observation(features: &Self::Features) -> Self::Obs {
+        to_network_input(features)
+    }
+}
+
+impl Problem for Rendezvous {
+    const KIND: ProblemKind = ProblemKind::Rendezvous;
+    const OBS: usize = RENDEZVOUS_FEATURES;
+    type Features = [f64; RENDEZVOUS_FEATURES];
+    type Obs = [f32; RENDEZVOUS_FEATURES];
+
+    fn features(scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Features, EnvError> {
+        let body = body_at(scenario, step)?;
+        rendezvous_features(state, &body, time_to_go(scenario, step))
+            .map_err(|error| EnvError::Features { step, error })
+    }
+
+    fn residuals(features: &Self::Features) -> Residuals {
+        rendezvous_residuals(features)
+    }
+
+    fn observation(features: &Self::Features) -> Self::Obs {
+        to_network_input(features)
+    }
+}
+
+/// The reward of a step that ended at step index `step_after` (1..=N) with residuals `res`
+/// under throttle `throttle` (the decoded one, 0 when the thrust was off): the printed reward
+/// plus the terminal-accuracy term. Returned as (total, printed, terminal term). The one
+/// function both the environment and the demonstrations use.
+pub fn step_reward(
+    config: &EnvConfig,
+    scenario: &Scenario,
+    res: &Residuals,
+    throttle: f64,
+    step_after: u32,
+) -> (f64, f64, f64) {
+    let base = reward(res, throttle, &config.reward.weights());
+    let extra = config.terminal.term(res, scenario.steps.saturating_sub(step_after));
+    (base + extra, base, extra)
+}
+
+/// What a step did besides its reward.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepInfo {
+    /// Step index after this step (1..=N).
+    pub step: u32,
+    /// Residuals after the step (SPEC section 5/6 definitions).
+    pub residuals: Residuals,
+    /// The command flown (thrust off: throttle 0).
+    pub command: ThrustCommand,
+    /// Throttle flown, 0..=1 (0 when the direction was undefined or the action not finite).
+    pub throttle: f64,
+    /// Mass after the step (m0 units).
+    pub mass: f64,
+    /// Spacecraft state after the step.
+    pub state: SpacecraftState,
+    /// The printed reward (SPEC section 5), before the terminal-accuracy term.
+    pub base_reward: f64,
+    /// The terminal-accuracy term (0 by default).
+    pub terminal_term: f64,
+    /// The action had a non-finite component and was flown as thrust off.
+    pub non_finite_action: bool,
+}
+
+/// One transition as the learner sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Step<O> {
+    pub observation: O,
+    pub reward: f64,
+    /// True after step N (terminal; no bootstrapping past it).
+    pub done: bool,
+    pub info: StepInfo,
+}
+
+/// An MDP the SAC code can be generic over.
+pub trait Environment: Send {
+    /// Number of observation features.
+    const OBS: usize;
+    const PROBLEM: ProblemKind;
+    /// `[f32; OBS]`.
+    type Obs: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + 'static;
+
+    /// A new environment (no episode yet: call a reset first).
+    fn new(config: &EnvConfig) -> Result<Self, EnvError>
+    where
+        Self: Sized;
+    fn config(&self) -> &EnvConfig;
+    /// Starts an episode of `scenario` at its initial state (m = 1, step 0).
+    fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError>;
+    /// Starts an episode of scenario `index` of the stream `seed` of `kind` (SPEC section 4).
+    fn reset_drawn(&mut self, kind: ScenarioKind, seed: u64, index: u64) -> Result<Self::Obs, EnvError> {
+        self.reset(&kind.draw(seed, index))
+    }
+    /// Starts an episode of `scenario` in `state` at step `step` (0..=N; N gives a finished
+    /// episode). For demonstrations and tests.
+    fn reset_at(&mut self, scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Obs, EnvError>;
+    /// One 14-day step under `action`.
+    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError>;
+    /// [`Environment::step`] with an f64 action, narrowed to f32 first: the action is decoded by
+    /// the onboard code in the network's precision.
+    fn step_f64(&mut self, action: &[f64; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError> {
+        self.step(&action.map(|a| a as f32))
+    }
+    /// The current observation (`None` before the first reset).
+    fn observation(&self) -> Option<Self::Obs>;
+    /// The current spacecraft state.
+    fn state(&self) -> Option<SpacecraftState>;
+    fn scenario(&self) -> Option<&Scenario>;
+    /// Steps taken so far in the episode (k).
+    fn steps_taken(&self) -> u32;
+    fn is_done(&self) -> bool;
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Episode<P: Problem> {
+    scenario: Scenario,
+    state: SpacecraftState,
+    step: u32,
+    features: P::Features,
+}
+
+/// The environment of problem `P`: [`TransferEnv`] or [`RendezvousEnv`].
+#[derive(Debug, Clone)]
+pub struct MdpEnv<P: Problem> {
+    config: EnvConfig,
+    spacecraft: CanonicalSpacecraft,
+    tolerances: Tolerances,
+    episode: Option<Episode<P>>,
+}
+
+/// The transfer MDP (SPEC section 5): 10 features.
+pub type TransferEnv = MdpEnv<Transfer>;
+/// The rendezvous MDP (SPEC section 6): 22 features.
+pub type RendezvousEnv = MdpEnv<Rendezvous>;
+
+impl<P: Problem> MdpEnv<P> {
+    pub fn spacecraft(&self) -> &CanonicalSpacecraft {
+        &self.spacecraft
+    }
+
+    /// Current features in f64 (the observation before narrowing).
+    pub fn features(&self) -> Option<P::Features> {
+        self.episode.as_ref().map(|e| e.features)
+    }
+
+    /// The reward the environment gives for a step that ends in `state_after` at step index
+    /// `step_after` under `throttle`: `(total reward, residuals, printed reward, terminal term)`.
+    /// [`Environment::step`] computes its reward with exactly this function.
+    pub fn reward_at(
+        config: &EnvConfig,
+        scenario: &Scenario,
+        state_after: &SpacecraftState,
+        step_after: u32,
+        throttle: f64,
+    ) -> Result<(f64, Residuals, f64, f64), EnvError> {
+        let features = P::features(scenario, state_after, step_after)?;
+        let res = P::residuals(&features);
+        let (total, base, extra) = step_reward(config, scenario, &res, throttle, step_after);
+        Ok((total, res, base, extra))
+    }
+
+    fn check_scenario(scenario: &Scenario) -> Result<(), EnvError> {
+        if scenario.problem != P::KIND {
+            return Err(EnvError::WrongProblem {
+                expected: P::KIND,
+                found: scenario.problem,
+            });
+        }
+        scenario.validate().map_err(EnvError::Scenario)
+    }
+}
+
+impl<P: Problem> Environment for MdpEnv<P> {
+    const OBS: usize = P::OBS;
+    const PROBLEM: ProblemKind = P::KIND;
+    type Obs = P::Obs;
+
+    fn new(config: &EnvConfig) -> Result<Self, EnvError> {
+        let spacecraft = config.spacecraft.canonical().map_err(EnvError::Spacecraft)?;
+        config.terminal.validate()?;
+        let r = &config.reward;
+        if ![r.position, r.velocity, r.throttle]
+            .iter()
+            .all(|w| w.is_finite() && *w >= 0.0)
+        {
+            return Err(EnvError::Config("reward weights must be finite and >= 0"));
+        }
+        let i = &config.integrator;
+        if !(i.relative.is_finite() && i.relative > 0.0 && i.absolute.is_finite() && i.absolute > 0.0)
+            || i.max_steps == 0
+        {
+            return Err(EnvError::Config(
+                "integrator tolerances must be finite and > 0, max_steps > 0",
+            ));
+        }
+        Ok(Self {
+            config: *config,
+            spacecraft,
+            tolerances: i.tolerances(),
+            episode: None,
+        })
+    }
+
+    fn config(&self) -> &EnvConfig {
+        &self.config
+    }
+
+    fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError> {
+        let state = SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
+        self.reset_at(scenario, &state, 0)
+    }
+
+    fn reset_at(&mut self, scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Obs, EnvError> {
+        Self::check_scenario(scenario)?;
+        if step > scenario.steps {
+            return Err(EnvError::StepOutOfRange {
+                step,
+                steps: scenario.steps,
+            });
+        }
+        let features = P::features(scenario, state, step)?;
+        self.episode = Some(Episode {
+            scenario: *scenario,
+            state: *state,
+            step,
+            features,
+        });
+        Ok(P::observation(&features))
+    }
+
+    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError> {
+        let episode = self.episode.as_ref().ok_or(EnvError::NotReset)?;
+        if episode.step >= episode.scenario.steps {
+            return Err(EnvError::EpisodeOver);
+        }
+        let non_finite = !action.iter().all(|a| a.is_finite());
+        if non_finite && self.config.non_finite_action == NonFiniteAction::Refuse {
+            return Err(EnvError::NonFiniteAction);
+        }
+        // decode_action maps a non-finite action to thrust off itself.
+        let command = decode_action(action);
+        let k = episode.step;
+        let state = propagate(&episode.state, &command, &self.spacecraft, STEP, &self.tolerances)
+            .map_err(|error| EnvError::Propagation { step: k, error })?;
+        let step_after = k + 1;
+        let features = P::features(&episode.scenario, &state, step_after)?;
+        let residuals = P::residuals(&features);
+        let (total, base, extra) = step_reward(
+            &self.config,
+            &episode.scenario,
+            &residuals,
+            command.throttle,
+            step_after,
+        );
+        let done = step_after == episode.scenario.steps;
+        self.episode = Some(Episode {
+            scenario: episode.scenario,
+            state,
+            step: step_after,
+            features,
+        });
+        Ok(Step {
+            observation: P::observation(&features),
+            reward: total,
+            done,
+            info: StepInfo {
+                step: step_after,
+                residuals,
+                command,
+                throttle: command.throttle,
+                mass: state.m,
+                state,
+                base_reward: base,
+                terminal_term: extra,
+                non_finite_action: non_finite,
+            },
+        })
+    }
+
+    fn observation(&self) -> Option<Self::Obs> {
+        self.episode.as_ref().map(|e| P::observation(&e.features))
+    }
+
+    fn state(&self) -> Option<SpacecraftState> {
+        self.episode.as_ref().map(|e| e.state)
+    }
+
+    fn scenario(&self) -> Option<&Scenario> {
+        self.episode.as_ref().map(|e| &e.scenario)
+    }
+
+    fn steps_taken(&self) -> u32 {
+        self.episode.as_ref().map_or(0, |e| e.step)
+    }
+
+    fn is_done(&self) -> bool {
+        self.episode.as_ref().is_some_and(|e| e.step >= e.scenario.steps)
+    }
+}
