@@ -49,8 +49,8 @@ fn throughput<E: Environment>(name: &str, kind: ScenarioKind, episodes: u64) {
 fn bench(c: &mut Criterion) {
     steps::<TransferEnv>(c, "transfer", ScenarioKind::TransferHard);
     steps::<RendezvousEnv>(c, "rendezvous", ScenarioKind::RendezvousHard);
-    throughput::<TransferEnv>("transfer-hard", ScenarioKind::TransferHard, 200);
-    throughput::<RendezvousEnv>("rendezvous-hard", ScenarioKind::RendezvousHard, 200);
+    throughput::<TransferEnv>("transfer-hard", ScenarioKind::TransferHard, 2000);
+    throughput::<RendezvousEnv>("rendezvous-hard", ScenarioKind::RendezvousHard, 2000);
 }
 
 criterion_group!(benches, bench);

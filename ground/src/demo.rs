@@ -26,7 +26,7 @@
 
 use std::path::Path;
 
-use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::dynamics::{propagate, SpacecraftState, ThrustCommand};
 use onboard::features::{decode_action, ACTION_LEN};
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances, MAX_EVENTS};
 use rayon::prelude::*;
@@ -95,6 +95,20 @@ pub struct ZohControl {
 }
 
 impl ZohControl {
+    /// The exact (unclipped, f64) command of w: throttle |w| capped at 1, direction w/|w|;
+    /// thrust off below [`COAST_THROTTLE`].
+    pub fn command(&self) -> ThrustCommand {
+        let u = self.w[0].hypot(self.w[1]);
+        if u < COAST_THROTTLE {
+            return ThrustCommand::OFF;
+        }
+        ThrustCommand {
+            throttle: u.min(1.0),
+            alpha_r: self.w[0] / u,
+            alpha_theta: self.w[1] / u,
+        }
+    }
+
     /// The action encoding w: (2|w| - 1, w/|w|), clipped; thrust off below [`COAST_THROTTLE`].
     pub fn action(&self) -> [f32; ACTION_LEN] {
         let u = self.w[0].hypot(self.w[1]);
@@ -255,6 +269,9 @@ pub struct StepMismatch {
     pub mean_throttle: f64,
     /// |w_trapezoid - w| of the endpoint rule on the record's two step samples.
     pub trapezoid_error: f64,
+    /// Position error of the unclipped f64 ZOH command ([`ZohControl::command`]) propagated by
+    /// the same onboard propagator: the hold error alone, without clipping and f32 narrowing.
+    pub unclipped_position: f64,
 }
 
 /// The tuples of one record, with the one-step mismatch of every step.
@@ -305,6 +322,14 @@ pub fn record_demonstration<P: Problem>(
             step: k,
         });
         let e = flown.info.state;
+        let exact = propagate(
+            &s_k,
+            &control.command(),
+            env.spacecraft(),
+            STEP,
+            &config.integrator.tolerances(),
+        )
+        .map_err(|error| DemoError::Env(EnvError::Propagation { step: k, error }))?;
         let trapezoid =
             [0, 1].map(|i| 0.5 * (now.throttle * now.direction_polar[i] + next.throttle * next.direction_polar[i]));
         mismatch.push(StepMismatch {
@@ -316,6 +341,7 @@ pub fn record_demonstration<P: Problem>(
             zoh_throttle: control.w[0].hypot(control.w[1]),
             mean_throttle: control.mean_throttle,
             trapezoid_error: (trapezoid[0] - control.w[0]).hypot(trapezoid[1] - control.w[1]),
+            unclipped_position: (exact.r[0] - s_next.r[0]).hypot(exact.r[1] - s_next.r[1]),
         });
     }
     Ok(RecordDemonstration { transitions, mismatch })
@@ -383,6 +409,8 @@ pub struct MismatchReport {
     pub switching_velocity: Stats,
     /// |w_trapezoid - w|: how far the endpoint rule on the record's step samples is off.
     pub trapezoid_error: Stats,
+    /// Position mismatch of the unclipped f64 ZOH command: the hold error alone.
+    pub unclipped_position: Stats,
 }
 
 impl MismatchReport {
@@ -405,6 +433,7 @@ impl MismatchReport {
             switching_position: Stats::of(m.iter().filter(switching).map(|s| s.position)),
             switching_velocity: Stats::of(m.iter().filter(switching).map(|s| s.velocity)),
             trapezoid_error: Stats::of(m.iter().map(|s| s.trapezoid_error)),
+            unclipped_position: Stats::of(m.iter().map(|s| s.unclipped_position)),
         }
     }
 }
@@ -429,7 +458,7 @@ impl core::fmt::Display for MismatchReport {
             "  {:<28} {:>6} {:>10} {:>10} {:>10} {:>10} {:>10}",
             "", "count", "mean", "p50", "p95", "max", "km / m/s"
         )?;
-        let rows: [(&str, &Stats, f64); 8] = [
+        let rows: [(&str, &Stats, f64); 9] = [
             ("position (AU)", &self.position, shared::units::AU_M / 1e3),
             ("velocity (AU/t*)", &self.velocity, shared::units::VELOCITY_UNIT_M_S),
             ("mass (m0)", &self.mass, f64::NAN),
@@ -448,6 +477,11 @@ impl core::fmt::Display for MismatchReport {
                 "velocity, switching steps",
                 &self.switching_velocity,
                 shared::units::VELOCITY_UNIT_M_S,
+            ),
+            (
+                "position, unclipped f64 ZOH",
+                &self.unclipped_position,
+                shared::units::AU_M / 1e3,
             ),
             ("trapezoid rule |dw|", &self.trapezoid_error, f64::NAN),
         ];
@@ -698,5 +732,76 @@ mod tests {
             Err(DemoError::Inconsistent { .. })
         ));
         let _: &Scenario = &good.scenario;
+    }
+
+    /// Through a dataset file as the CLI will: written by the generator's writer, read back,
+    /// the problem taken from its manifest, the filter applied.
+    #[test]
+    fn mismatch_report_reads_a_dataset_file() {
+        use crate::generate::{write_outputs, DatasetFile, Manifest, Shard};
+        let dir = std::env::temp_dir().join(format!("lowthrust-demo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let record = rendezvous_record().clone();
+        let mut stalled = record.clone();
+        stalled.index = 1;
+        stalled.converged = false;
+        let file = DatasetFile {
+            manifest: Manifest {
+                scenario: record.kind,
+                seed: record.seed,
+                count: 2,
+            },
+            shard: Shard::WHOLE,
+            records: vec![record, stalled],
+        };
+        write_outputs(&dir, &file).unwrap();
+        let path = dir.join("dataset.ltds");
+        let config = EnvConfig::default();
+        let converged = mismatch_report(&path, &config, RecordFilter::Converged).unwrap();
+        let all = mismatch_report(&path, &config, RecordFilter::All).unwrap();
+        assert_eq!(converged.problem, ProblemKind::Rendezvous);
+        assert_eq!((converged.records_used, converged.records_filtered_out), (1, 1));
+        assert_eq!((all.records_used, all.tuples), (2, 2 * converged.tuples));
+        assert!(converged.unclipped_position.max < converged.position.max + 1e-12);
+        assert!(matches!(
+            mismatch_report(&dir.join("missing.ltds"), &config, RecordFilter::All),
+            Err(DemoError::Dataset(_))
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The report of a real dataset: `LOWTHRUST_DATASET=/path/dataset.ltds cargo test -p
+    /// lowthrust-ground --lib demo::tests::dataset_mismatch_report -- --ignored --nocapture`
+    /// (`LOWTHRUST_FILTER=all` to include unconverged records).
+    #[test]
+    #[ignore = "needs a dataset file"]
+    fn dataset_mismatch_report() {
+        let path = std::env::var("LOWTHRUST_DATASET").expect("LOWTHRUST_DATASET");
+        let filter = match std::env::var("LOWTHRUST_FILTER").as_deref() {
+            Ok("all") => RecordFilter::All,
+            _ => RecordFilter::Converged,
+        };
+        print_mismatch_report(Path::new(&path), &Spacecraft::MSR_ERO, filter).unwrap();
+    }
+
+    #[test]
+    fn quick_records_report() {
+        let config = EnvConfig::default();
+        let tol = default_tolerances();
+        let t = demonstrations::<Transfer>(
+            std::slice::from_ref(transfer_record()),
+            &config,
+            RecordFilter::All,
+            &tol,
+        );
+        println!("{}", MismatchReport::from_mismatch(ProblemKind::Transfer, &t));
+        let r = demonstrations::<Rendezvous>(
+            std::slice::from_ref(rendezvous_record()),
+            &config,
+            RecordFilter::All,
+            &tol,
+        );
+        println!("{}", MismatchReport::from_mismatch(ProblemKind::Rendezvous, &r));
+        assert!(t.failed.is_empty() && r.failed.is_empty());
     }
 }
