@@ -1,5 +1,6 @@
 //! Ground-side library behind the `ground` command line.
 
+pub mod charts;
 pub mod dataset;
 pub mod demo;
 pub mod env;

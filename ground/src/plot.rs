@@ -54,10 +54,10 @@ const TRAJECTORY_SIZE: (u32, u32) = (1300, 960);
 const TRAJECTORY_LEGEND_WIDTH: u32 = 360;
 const THROTTLE_SIZE: (u32, u32) = (1200, 650);
 const THROTTLE_LEGEND_WIDTH: u32 = 200;
-const TITLE_SIZE: f64 = 30.0;
-const LABEL_SIZE: f64 = 22.0;
-const TICK_SIZE: f64 = 18.0;
-const LEGEND_SIZE: f64 = 19.0;
+pub(crate) const TITLE_SIZE: f64 = 30.0;
+pub(crate) const LABEL_SIZE: f64 = 22.0;
+pub(crate) const TICK_SIZE: f64 = 18.0;
+pub(crate) const LEGEND_SIZE: f64 = 19.0;
 
 /// Why a figure was not written.
 #[derive(Debug)]
@@ -84,6 +84,12 @@ pub enum PlotError {
     NoConvergedLevel,
     /// Re-propagating the costates of the level at `eps` failed.
     Propagation { eps: f64, error: IntegrationError },
+    /// A chart ([`crate::charts`]) has no finite value to draw; names the chart.
+    NothingToDraw(&'static str),
+    /// A histogram was asked for zero bins.
+    InvalidBins(usize),
+    /// A histogram range that is not finite and increasing.
+    InvalidRange { low: f64, high: f64 },
     /// The drawing library failed.
     Render(String),
     /// Writing the file failed.
@@ -104,6 +110,11 @@ impl fmt::Display for PlotError {
             Self::TooFewSamples(n) => write!(f, "a throttle curve needs at least 2 samples, {n} asked"),
             Self::NoConvergedLevel => f.write_str("no homotopy level converged"),
             Self::Propagation { eps, error } => write!(f, "propagating the level eps = {eps:e} failed: {error:?}"),
+            Self::NothingToDraw(chart) => write!(f, "{chart}: no finite value to draw"),
+            Self::InvalidBins(n) => write!(f, "a histogram needs at least one bin, {n} asked"),
+            Self::InvalidRange { low, high } => {
+                write!(f, "histogram range [{low}, {high}] is not finite and increasing")
+            }
             Self::Render(e) => write!(f, "drawing the plot failed: {e}"),
             Self::Io(e) => write!(f, "writing the plot failed: {e}"),
         }
@@ -218,7 +229,7 @@ pub fn format_eps(eps: f64) -> String {
     }
 }
 
-fn check_svg_path(path: &Path) -> Result<(), PlotError> {
+pub(crate) fn check_svg_path(path: &Path) -> Result<(), PlotError> {
     let svg = path
         .extension()
         .and_then(|e| e.to_str())
@@ -230,10 +241,13 @@ fn check_svg_path(path: &Path) -> Result<(), PlotError> {
     }
 }
 
-type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
+pub(crate) type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 
 /// Draws on an SVG canvas of `size` pixels and returns the document.
-fn render_svg(size: (u32, u32), draw: impl FnOnce(&Area<'_>) -> Result<(), PlotError>) -> Result<String, PlotError> {
+pub(crate) fn render_svg(
+    size: (u32, u32),
+    draw: impl FnOnce(&Area<'_>) -> Result<(), PlotError>,
+) -> Result<String, PlotError> {
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, size).into_drawing_area();
@@ -291,7 +305,7 @@ impl RecordLayer {
 }
 
 /// The closed ellipse of an orbit shape, [`ORBIT_POINTS`] + 1 points.
-fn orbit_points(shape: &OrbitShape) -> Vec<(f64, f64)> {
+pub(crate) fn orbit_points(shape: &OrbitShape) -> Vec<(f64, f64)> {
     (0..=ORBIT_POINTS)
         .map(|k| {
             let c = shape.cartesian_at(2.0 * std::f64::consts::PI * k as f64 / ORBIT_POINTS as f64);
@@ -315,7 +329,7 @@ fn thrust_runs(samples: &[TrajectorySample]) -> Vec<(bool, Vec<(f64, f64)>)> {
     runs
 }
 
-fn record_color(i: usize) -> RGBColor {
+pub(crate) fn record_color(i: usize) -> RGBColor {
     RECORD_COLORS[i % RECORD_COLORS.len()]
 }
 
@@ -334,7 +348,7 @@ fn record_detail(rec: &TrajectoryRecord) -> String {
 
 /// Axis ranges that hold `bounds` (x0, x1, y0, y1) with a margin and give one AU the same
 /// number of pixels on both axes of a `pixels` (width, height) plotting area.
-fn equal_aspect_ranges(bounds: (f64, f64, f64, f64), pixels: (u32, u32)) -> ((f64, f64), (f64, f64)) {
+pub(crate) fn equal_aspect_ranges(bounds: (f64, f64, f64, f64), pixels: (u32, u32)) -> ((f64, f64), (f64, f64)) {
     let (x0, x1, y0, y1) = bounds;
     let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
     let (w, h) = (f64::from(pixels.0.max(1)), f64::from(pixels.1.max(1)));
@@ -490,7 +504,7 @@ fn sequential_color(i: usize, n: usize) -> RGBColor {
 }
 
 /// A legend symbol.
-enum Mark {
+pub(crate) enum Mark {
     /// Colour, stroke width, dashed.
     Line(RGBColor, u32, bool),
     Circle(RGBColor),
@@ -498,7 +512,7 @@ enum Mark {
 }
 
 /// A legend drawn as a column in its own area (pixel coordinates), so it never hides data.
-struct Legend<'a, 'b> {
+pub(crate) struct Legend<'a, 'b> {
     area: &'a Area<'b>,
     y: i32,
 }
@@ -508,7 +522,7 @@ impl<'a, 'b> Legend<'a, 'b> {
     const SYMBOL: i32 = 40;
     const ROW: i32 = 28;
 
-    fn new(area: &'a Area<'b>) -> Self {
+    pub(crate) fn new(area: &'a Area<'b>) -> Self {
         Self { area, y: 40 }
     }
 
@@ -520,17 +534,17 @@ impl<'a, 'b> Legend<'a, 'b> {
         Ok(())
     }
 
-    fn heading(&mut self, text: &str, color: RGBColor) -> Result<(), PlotError> {
+    pub(crate) fn heading(&mut self, text: &str, color: RGBColor) -> Result<(), PlotError> {
         self.text(Self::X, text, color)?;
         self.y += Self::ROW;
         Ok(())
     }
 
-    fn gap(&mut self) {
+    pub(crate) fn gap(&mut self) {
         self.y += Self::ROW / 2;
     }
 
-    fn entry(&mut self, mark: Mark, text: &str) -> Result<(), PlotError> {
+    pub(crate) fn entry(&mut self, mark: Mark, text: &str) -> Result<(), PlotError> {
         let (x0, x1, y) = (Self::X, Self::X + Self::SYMBOL, self.y);
         match mark {
             Mark::Line(color, width, false) => {
