@@ -1,9 +1,12 @@
 //! Ground-side library behind the `ground` command line.
 
 pub mod charts;
+pub mod config;
 pub mod dataset;
 pub mod demo;
 pub mod env;
+pub mod eval;
+pub mod experiment;
 pub mod export;
 pub mod generate;
 pub mod io;

@@ -10,6 +10,8 @@ use clap::{Parser, Subcommand};
 use firmware_sim::{fly_transfer, ProxyTracking};
 use std::path::{Path, PathBuf};
 
+use lowthrust_ground::config::{ExperimentConfig, EMBEDDED_DEFAULT};
+
 use lowthrust_ground::export::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
 use lowthrust_ground::generate::{dataset_path, generate, merge, read_dataset, Manifest, Shard, Summary};
 use lowthrust_ground::io::atomic_write;
@@ -61,6 +63,43 @@ enum Command {
         /// Shard dataset files (dataset-I-of-N.ltds).
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
+    },
+    /// Pretraining (SPEC section 8): demonstration tuples from the config's dataset fill the
+    /// replay buffer, then N_pt SAC updates with evaluations; the best model is kept.
+    Pretrain(ExperimentArgs),
+    /// RL training (vanilla, or from the pretrained model and its buffer with
+    /// --from-pretrained), periodic evaluation, best model kept, resumable.
+    Train {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Start from RUN/pretrain (best model and demonstration buffer).
+        #[arg(long)]
+        from_pretrained: bool,
+    },
+    /// Monte Carlo evaluation (SPEC section 9) of a checkpoint against zero-thrust and random
+    /// policies, with the optimality gap against the indirect solution on a subset.
+    Evaluate {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Agent checkpoint (a best.safetensors of a phase).
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Episodes (default: the config's evaluate.episodes).
+        #[arg(long)]
+        episodes: Option<u64>,
+        /// Scenarios also solved by the indirect method (default: the config's).
+        #[arg(long)]
+        gap_cases: Option<u64>,
+    },
+    /// One-step mismatch between the environment and the optimal trajectories of a dataset
+    /// (SPEC section 7).
+    Demos {
+        /// Dataset file or folder.
+        #[arg(long)]
+        dataset: PathBuf,
+        /// Use every solved record, not only converged ones.
+        #[arg(long)]
+        all: bool,
     },
     /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
     /// better mean episode reward within 20,000 steps); prints the learning curve.
@@ -117,6 +156,18 @@ fn main() -> ExitCode {
             out,
             departure,
         } => oem_command(&dataset, index, &out, &departure),
+        Command::Pretrain(args) => pretrain_command(&args),
+        Command::Train {
+            experiment,
+            from_pretrained,
+        } => train_command(&experiment, from_pretrained),
+        Command::Evaluate {
+            experiment,
+            checkpoint,
+            episodes,
+            gap_cases,
+        } => evaluate_command(&experiment, &checkpoint, episodes, gap_cases),
+        Command::Demos { dataset, all } => demos_command(&dataset, all),
         Command::Pendulum {
             steps,
             seed,
@@ -529,4 +580,102 @@ fn bench_sac(updates: usize, threads: &[i32]) {
             gemm
         );
     }
+}
+
+/// The experiment config and run folder shared by pretrain, train and evaluate.
+#[derive(clap::Args)]
+struct ExperimentArgs {
+    /// Experiment config (TOML); without it the embedded small default (configs/quick.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run folder (created; an existing one is resumed).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+impl ExperimentArgs {
+    /// The config and the folder its relative paths start from.
+    fn load(&self) -> Result<(ExperimentConfig, PathBuf), Box<dyn std::error::Error>> {
+        match &self.config {
+            Some(path) => {
+                let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+                Ok((ExperimentConfig::load(path)?, base))
+            }
+            None => Ok((ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?, self.out.clone())),
+        }
+    }
+}
+
+fn print_phase(summary: &lowthrust_ground::experiment::PhaseSummary) {
+    println!(
+        "{}: {} updates, {} environment steps, {:.0} s, {} demonstration records",
+        summary.folder.display(),
+        summary.updates,
+        summary.env_steps,
+        summary.seconds,
+        summary.demonstrations
+    );
+    if let Some(best) = &summary.best {
+        let s = &best.summary;
+        println!(
+            "best evaluation (updates {}, steps {}): reward {:.4} +- {:.4}, dr p50 {:.4} AU p95 {:.4} AU, dv p50 {:.4}, final mass {:.4}",
+            best.updates,
+            best.env_steps,
+            s.total_reward.mean,
+            s.total_reward.std,
+            s.terminal_position.p50,
+            s.terminal_position.p95,
+            s.terminal_velocity.p50,
+            s.final_mass.mean
+        );
+    }
+}
+
+fn pretrain_command(args: &ExperimentArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let summary = lowthrust_ground::experiment::pretrain(&config, &base, &args.out)?;
+    print_phase(&summary);
+    Ok(())
+}
+
+fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box<dyn std::error::Error>> {
+    use lowthrust_ground::experiment::{train, Start};
+    let (config, _) = args.load()?;
+    let start = if from_pretrained {
+        Start::Pretrained
+    } else {
+        Start::Scratch
+    };
+    let summary = train(&config, &args.out, start)?;
+    print_phase(&summary);
+    Ok(())
+}
+
+fn evaluate_command(
+    args: &ExperimentArgs,
+    checkpoint: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, _) = args.load()?;
+    let report = lowthrust_ground::eval::monte_carlo(&config, checkpoint, &args.out, episodes, gap_cases)?;
+    print!("{}", lowthrust_ground::eval::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}
+
+fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error::Error>> {
+    use lowthrust_ground::demo::{print_mismatch_report, RecordFilter};
+    let filter = if all {
+        RecordFilter::All
+    } else {
+        RecordFilter::Converged
+    };
+    let file = if dataset.is_dir() {
+        dataset.join("dataset.ltds")
+    } else {
+        dataset.to_path_buf()
+    };
+    print_mismatch_report(&file, &shared::spacecraft::Spacecraft::MSR_ERO, filter)?;
+    Ok(())
 }

@@ -19,9 +19,14 @@ pub enum ProblemKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
+    // Aliases: manifests written before the kebab-case names still load.
+    #[serde(alias = "TransferCircular")]
     TransferCircular,
+    #[serde(alias = "TransferHard")]
     TransferHard,
+    #[serde(alias = "RendezvousCircular")]
     RendezvousCircular,
+    #[serde(alias = "RendezvousHard")]
     RendezvousHard,
 }
 

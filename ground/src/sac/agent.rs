@@ -7,7 +7,7 @@ use tch::nn::{self, VarStore};
 use tch::{Device, Kind, Tensor};
 
 use super::adam::Adam;
-use super::networks::{Actor, Critic};
+use super::networks::{Actor, TwinCritic};
 use super::replay::Batch;
 use super::SacConfig;
 
@@ -53,9 +53,9 @@ pub struct Sac {
     actor_store: VarStore,
     actor: Actor,
     critic_store: VarStore,
-    critics: [Critic; 2],
+    critics: TwinCritic,
     target_store: VarStore,
-    targets: [Critic; 2],
+    targets: TwinCritic,
     /// (target, online) pairs sharing storage with the stores, for Polyak averaging.
     target_pairs: Vec<(Tensor, Tensor)>,
     temperature_store: VarStore,
@@ -79,23 +79,9 @@ impl Sac {
         let actor_store = VarStore::new(device);
         let actor = Actor::new(&(actor_store.root() / "actor"), obs_dim, act_dim, &config.hidden);
         let critic_store = VarStore::new(device);
-        let critics = [1, 2].map(|i| {
-            Critic::new(
-                &(critic_store.root() / format!("critic{i}")),
-                obs_dim,
-                act_dim,
-                &config.hidden,
-            )
-        });
+        let critics = TwinCritic::new(&(critic_store.root() / "critic"), obs_dim, act_dim, &config.hidden);
         let mut target_store = VarStore::new(device);
-        let targets = [1, 2].map(|i| {
-            Critic::new(
-                &(target_store.root() / format!("critic{i}")),
-                obs_dim,
-                act_dim,
-                &config.hidden,
-            )
-        });
+        let targets = TwinCritic::new(&(target_store.root() / "critic"), obs_dim, act_dim, &config.hidden);
         target_store.freeze();
         let online = critic_store.variables();
         let target_pairs: Vec<(Tensor, Tensor)> = target_store
@@ -172,9 +158,7 @@ impl Sac {
         tch::no_grad(|| {
             let o = tensor_2d(obs, rows, self.obs_dim, self.device);
             let a = tensor_2d(actions, rows, self.act_dim, self.device);
-            let q = self.critics[0]
-                .forward(&o, &a)
-                .min_other(&self.critics[1].forward(&o, &a));
+            let q = self.critics.min_q(&o, &a);
             Vec::<f32>::try_from(q.to_device(Device::Cpu).view([-1])).unwrap_or_default()
         })
     }
@@ -193,25 +177,20 @@ impl Sac {
         //    fresh action from the current policy at s'.
         let soft_target = tch::no_grad(|| {
             let next = self.actor.sample(&next_obs);
-            let q_next = self.targets[0]
-                .forward(&next_obs, &next.action)
-                .min_other(&self.targets[1].forward(&next_obs, &next.action));
+            let q_next = self.targets.min_q(&next_obs, &next.action);
             let soft_value = q_next - &temperature * &next.log_prob;
             &rewards + (1.0 - &dones) * self.config.discount * soft_value
         });
-        let q1 = self.critics[0].forward(&obs, &actions);
-        let q2 = self.critics[1].forward(&obs, &actions);
-        let critic_loss =
-            (&q1 - &soft_target).square().mean(Kind::Float) + (&q2 - &soft_target).square().mean(Kind::Float);
+        // q: [2, batch, 1]; the loss is MSE(Q1) + MSE(Q2), i.e. twice the mean over both.
+        let q = self.critics.forward(&obs, &actions);
+        let critic_loss = (&q - &soft_target).square().mean(Kind::Float) * 2.0;
         self.critic_optimizer.backward_step(&critic_loss);
 
         // 2. The actor maximises soft value min(Q1, Q2) - alpha log pi. Critic weights are frozen
         //    here so the backward pass skips their gradients (they would be discarded anyway).
         self.critic_store.freeze();
         let sample = self.actor.sample(&obs);
-        let q_pi = self.critics[0]
-            .forward(&obs, &sample.action)
-            .min_other(&self.critics[1].forward(&obs, &sample.action));
+        let q_pi = self.critics.min_q(&obs, &sample.action);
         let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
         let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
         let bc_error = (&sample.mean_action - &actions)
@@ -242,7 +221,7 @@ impl Sac {
             temperature_loss: temperature_loss.double_value(&[]),
             temperature: temperature.double_value(&[0]),
             entropy: -log_prob.mean(Kind::Float).double_value(&[]),
-            q_mean: q1.mean(Kind::Float).double_value(&[]),
+            q_mean: q.get(0).mean(Kind::Float).double_value(&[]),
             behaviour_cloning_loss: bc_loss.double_value(&[]),
         }
     }
@@ -280,6 +259,9 @@ impl Sac {
     /// Writes the full learner state as one safetensors file (PyTorch users open it with
     /// `safetensors.torch.load_file`; the actor is under `online.actor.*`), atomically.
     pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(CheckpointError::Io)?;
+        }
         let tmp = path.with_extension("safetensors.tmp");
         let state = self.named_state();
         let cpu: Vec<(String, Tensor)> = state.into_iter().map(|(n, t)| (n, t.to_device(Device::Cpu))).collect();
@@ -366,6 +348,16 @@ mod tests {
     use super::*;
     use crate::sac::replay::{sampler, ReplayBuffer, Transition};
 
+    /// libtorch's random generator and thread pool are process-wide: the tests of this module
+    /// take turns (a parallel test would draw from the same stream and break determinism), and
+    /// use one intra-op thread (OpenMP workers of parallel tests oversubscribe two cores).
+    fn torch_lock() -> std::sync::MutexGuard<'static, ()> {
+        static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+        let guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+        tch::set_num_threads(1);
+        guard
+    }
+
     fn tiny(config: SacConfig) -> Sac {
         tch::manual_seed(11);
         Sac::new(
@@ -399,6 +391,7 @@ mod tests {
 
     #[test]
     fn critic_learns_the_reward_and_actor_finds_the_bandit_optimum() {
+        let _torch = torch_lock();
         let mut sac = tiny(SacConfig {
             learning_rate: 3e-3,
             ..SacConfig::default()
@@ -421,6 +414,7 @@ mod tests {
 
     #[test]
     fn temperature_moves_toward_the_entropy_target() {
+        let _torch = torch_lock();
         let buf = bandit_buffer(64);
         for (target, should_rise) in [(5.0, true), (-50.0, false)] {
             let mut sac = tiny(SacConfig {
@@ -439,6 +433,7 @@ mod tests {
 
     #[test]
     fn targets_are_polyak_averages_of_the_online_critics() {
+        let _torch = torch_lock();
         let mut sac = tiny(SacConfig {
             target_smoothing: 0.1,
             ..SacConfig::default()
@@ -464,6 +459,7 @@ mod tests {
 
     #[test]
     fn checkpoint_round_trip_restores_the_policy_and_refuses_mismatches() {
+        let _torch = torch_lock();
         let dir = std::env::temp_dir().join(format!("sac-ckpt-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("agent.safetensors");

@@ -76,23 +76,47 @@ pub fn squashed_gaussian_log_prob(pre_tanh: &Tensor, noise: &Tensor, log_std: &T
     (gaussian - log_det).sum_dim_intlist(-1, true, tch::Kind::Float)
 }
 
-/// Q(s, a): an MLP over the concatenated state and action.
-pub struct Critic {
-    trunk: nn::Sequential,
-    q: nn::Linear,
+/// SAC's two critics Q1(s, a), Q2(s, a) evaluated together: layer l stores both networks'
+/// weights stacked as `w{l}` [2, in, out] and biases `b{l}` [2, 1, out], so each layer is one
+/// batched matrix product for both (half the kernel calls of two separate networks, the same
+/// arithmetic). The two networks stay independent: separate initial draws, no shared weight.
+pub struct TwinCritic {
+    weights: Vec<Tensor>,
+    biases: Vec<Tensor>,
 }
 
-impl Critic {
+impl TwinCritic {
     pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
-        let last = *hidden.last().unwrap_or(&(obs_dim + act_dim)) as i64;
-        Self {
-            trunk: hidden_stack(path, obs_dim + act_dim, hidden),
-            q: nn::linear(path / "q", last, 1, Default::default()),
+        let mut widths = vec![(obs_dim + act_dim) as i64];
+        widths.extend(hidden.iter().map(|&h| h as i64));
+        widths.push(1);
+        let (mut weights, mut biases) = (Vec::new(), Vec::new());
+        for (l, w) in widths.windows(2).enumerate() {
+            // PyTorch's nn.Linear default: U(-1/sqrt(in), 1/sqrt(in)) for weights and biases.
+            let bound = 1.0 / (w[0] as f64).sqrt();
+            let init = nn::Init::Uniform { lo: -bound, up: bound };
+            weights.push(path.var(&format!("w{l}"), &[2, w[0], w[1]], init));
+            biases.push(path.var(&format!("b{l}"), &[2, 1, w[1]], init));
         }
+        Self { weights, biases }
     }
 
+    /// Both Q values, shape [2, batch, 1].
     pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Tensor {
-        self.q.forward(&self.trunk.forward(&Tensor::cat(&[obs, action], 1)))
+        let mut h = Tensor::cat(&[obs, action], 1).unsqueeze(0).expand([2, -1, -1], false);
+        let last = self.weights.len() - 1;
+        for (l, (w, b)) in self.weights.iter().zip(&self.biases).enumerate() {
+            h = b.baddbmm(&h, w, 1.0, 1.0);
+            if l < last {
+                h = h.relu();
+            }
+        }
+        h
+    }
+
+    /// min(Q1, Q2), shape [batch, 1].
+    pub fn min_q(&self, obs: &Tensor, action: &Tensor) -> Tensor {
+        self.forward(obs, action).amin(0, false)
     }
 }
 
@@ -150,5 +174,41 @@ mod tests {
         // log(1 - tanh(30)^2) = log(4) - 60 + O(e^-60) per dimension.
         let expected = 2.0 * (-0.5 * (2.0 * std::f64::consts::PI).ln()) - 2.0 * (4f64.ln() - 60.0);
         assert!((v - expected).abs() < 1e-3, "{v} vs {expected}");
+    }
+}
+
+#[cfg(test)]
+mod twin_tests {
+    use super::*;
+    use tch::{Device, Kind};
+
+    /// Each slice of the stacked critic is an ordinary MLP: recompute Q1 and Q2 layer by layer
+    /// with plain matrix products and compare.
+    #[test]
+    fn twin_critic_equals_two_separate_mlps() {
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let critic = TwinCritic::new(&vs.root(), 4, 2, &[8, 8]);
+        let obs = Tensor::randn([5, 4], (Kind::Float, Device::Cpu));
+        let act = Tensor::randn([5, 2], (Kind::Float, Device::Cpu));
+        let q = critic.forward(&obs, &act);
+        assert_eq!(q.size(), vec![2, 5, 1]);
+        let vars = vs.variables();
+        for k in 0..2i64 {
+            let mut h = Tensor::cat(&[&obs, &act], 1);
+            for l in 0..3 {
+                let w = vars[&format!("w{l}")].get(k);
+                let b = vars[&format!("b{l}")].get(k);
+                h = h.matmul(&w) + b;
+                if l < 2 {
+                    h = h.relu();
+                }
+            }
+            assert!(h.allclose(&q.get(k), 1e-5, 1e-6, false));
+        }
+        // The two networks were drawn independently.
+        assert!(!vars["w1"].get(0).allclose(&vars["w1"].get(1), 1e-3, 1e-3, false));
+        let min = critic.min_q(&obs, &act);
+        assert!(min.allclose(&q.get(0).minimum(&q.get(1)), 0.0, 0.0, false));
     }
 }

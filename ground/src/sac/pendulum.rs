@@ -141,7 +141,7 @@ pub fn sanity_run(config: SacConfig, steps: u64, eval_every: u64, seed: u64) -> 
         bar: indicatif::ProgressBar,
     }
     impl TrainObserver for Curve {
-        fn evaluate(&mut self, env_steps: u64, agent: &Sac) -> f64 {
+        fn evaluate(&mut self, env_steps: u64, agent: &Sac) {
             let (mean_reward, std_reward) = evaluate(agent, 10, self.seed);
             self.points.push(CurvePoint {
                 env_steps,
@@ -151,7 +151,6 @@ pub fn sanity_run(config: SacConfig, steps: u64, eval_every: u64, seed: u64) -> 
             });
             self.bar.set_position(env_steps);
             self.bar.set_message(format!("eval {mean_reward:.0}"));
-            mean_reward
         }
     }
     tch::manual_seed(seed as i64);

@@ -42,7 +42,6 @@ pub enum WarmupPolicy {
 pub struct LoopState {
     pub env_steps: u64,
     pub episodes: u64,
-    pub best_eval_reward: Option<f64>,
     /// Sum of rewards of the episode in progress.
     pub episode_reward: f64,
 }
@@ -53,10 +52,12 @@ pub trait TrainObserver {
     fn on_update(&mut self, _env_steps: u64, _stats: &UpdateStats) {}
     /// After every finished training episode.
     fn on_episode(&mut self, _env_steps: u64, _reward: f64) {}
-    /// Every `eval_every` environment steps: evaluate the agent, return the score to maximise.
-    fn evaluate(&mut self, env_steps: u64, agent: &Sac) -> f64;
-    /// A new best evaluation score was reached.
-    fn on_best(&mut self, _env_steps: u64, _agent: &Sac, _score: f64) {}
+    /// Every `eval_every` environment steps: evaluate the agent (and keep it if it is the best).
+    fn evaluate(&mut self, env_steps: u64, agent: &Sac);
+    /// Stop the loop early (an observer failed to write its outputs, say).
+    fn stop(&self) -> bool {
+        false
+    }
     /// Every `checkpoint_every` steps and at the end: persist agent, buffer and loop state.
     fn checkpoint(&mut self, _agent: &Sac, _buffer: &ReplayBuffer, _state: &LoopState, _rng: &ChaCha8Rng) {}
 }
@@ -95,7 +96,7 @@ pub fn run<T: Episodic>(
     // dropped); the transitions it had stored stay in the buffer.
     let mut obs = task.reset(state.episodes);
     state.episode_reward = 0.0;
-    while state.env_steps < options.total_steps {
+    while state.env_steps < options.total_steps && !observer.stop() {
         let action = if state.env_steps < warmup_steps && options.warmup == WarmupPolicy::Random {
             uniform_action(rng, act_dim)
         } else {
@@ -127,11 +128,7 @@ pub fn run<T: Episodic>(
             }
         }
         if options.eval_every > 0 && state.env_steps.is_multiple_of(options.eval_every) {
-            let score = observer.evaluate(state.env_steps, agent);
-            if state.best_eval_reward.is_none_or(|b| score > b) {
-                state.best_eval_reward = Some(score);
-                observer.on_best(state.env_steps, agent, score);
-            }
+            observer.evaluate(state.env_steps, agent);
         }
         if options.checkpoint_every > 0 && state.env_steps.is_multiple_of(options.checkpoint_every) {
             observer.checkpoint(agent, buffer, state, rng);

@@ -1,0 +1,359 @@
+//! Monte Carlo evaluation (SPEC section 9): N episodes of the deterministic policy from a seed
+//! disjoint from training, against two baselines (zero thrust, uniform random actions) on the
+//! same scenarios, and the optimality gap against the indirect solution of the first scenarios.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand_chacha::ChaCha8Rng;
+use rand_core::{Rng, SeedableRng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared::scenario::{ProblemKind, Scenario};
+
+use crate::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
+use crate::config::ExperimentConfig;
+use crate::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
+use crate::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use crate::experiment::{policy_batch, ExperimentError};
+use crate::io::atomic_write;
+use crate::sac::agent::Sac;
+use crate::solver::{solve_scenario, SolveOptions};
+
+/// Episodes whose flown path is drawn.
+const PLOTTED_TRAJECTORIES: usize = 6;
+/// Terminal accuracy goal of the issue: |dr| <= 0.01 AU and |dv| <= 0.01 in 95% of episodes.
+pub const ACCURACY_GOAL: f64 = 0.01;
+
+/// One scenario's indirect optimum next to what the policy flew.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GapRow {
+    pub episode: usize,
+    pub policy_mass: f64,
+    pub optimal_mass: f64,
+    pub optimal_converged: bool,
+    pub optimal_eps: f64,
+    /// m_policy / m_optimal (SPEC section 9).
+    pub mass_ratio: f64,
+    /// Propellant used / optimal propellant - 1.
+    pub overspend: f64,
+    pub policy_dr: f64,
+    pub policy_dv: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MonteCarloReport {
+    pub scenario: String,
+    pub checkpoint: PathBuf,
+    pub episodes: usize,
+    pub seed: u64,
+    pub seconds: f64,
+    pub policy: OutcomeSummary,
+    pub zero_thrust: OutcomeSummary,
+    pub random: OutcomeSummary,
+    /// Fraction of completed episodes with |dr| <= 0.01 AU and |dv| <= 0.01.
+    pub within_accuracy_goal: f64,
+    pub gap: Vec<GapRow>,
+    pub mass_ratio: Option<Stats>,
+    pub overspend: Option<Stats>,
+}
+
+/// `ground evaluate`: the Monte Carlo of SPEC section 9 for the agent in `checkpoint`, written
+/// to `out` (mc.csv, summary.json, histograms.svg, trajectories.svg).
+pub fn monte_carlo(
+    config: &ExperimentConfig,
+    checkpoint: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<MonteCarloReport, ExperimentError> {
+    match config.scenario.problem() {
+        ProblemKind::Transfer => monte_carlo_for::<Transfer>(config, checkpoint, out, episodes, gap_cases),
+        ProblemKind::Rendezvous => monte_carlo_for::<Rendezvous>(config, checkpoint, out, episodes, gap_cases),
+    }
+}
+
+/// Loads the actor of a checkpoint for the config's problem.
+pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) -> Result<Sac, ExperimentError> {
+    tch::set_num_threads(config.compute.threads);
+    let mut agent = Sac::new(config.sac.clone(), obs_dim, 3, config.device());
+    agent.load(checkpoint)?;
+    Ok(agent)
+}
+
+fn fly<P: Problem>(
+    config: &ExperimentConfig,
+    scenarios: &[Scenario],
+    policy: impl FnMut(&[P::Obs]) -> Vec<[f32; 3]>,
+    record: bool,
+) -> Result<Vec<EpisodeOutcome>, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    Ok(evaluate_batched::<MdpEnv<P>, _>(
+        &config.env,
+        scenarios,
+        policy,
+        record,
+    )?)
+}
+
+fn monte_carlo_for<P: Problem>(
+    config: &ExperimentConfig,
+    checkpoint: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<MonteCarloReport, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    let start = Instant::now();
+    let agent = load_agent(config, P::OBS, checkpoint)?;
+    let n = episodes.unwrap_or(config.evaluate.episodes);
+    let seed = config.seeds.monte_carlo;
+    let scenarios = draw_scenarios(config.scenario, seed, n);
+    let bar = indicatif::ProgressBar::new_spinner().with_message(format!("Monte Carlo: {n} episodes"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
+    let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
+    let plotted = fly::<P>(
+        config,
+        &scenarios[..scenarios.len().min(PLOTTED_TRAJECTORIES)],
+        |obs| policy_batch(&agent, obs),
+        true,
+    )?;
+    let zero = fly::<P>(config, &scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a6e_646f);
+    let mut uniform = move || ((rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0;
+    let random = fly::<P>(
+        config,
+        &scenarios,
+        |obs| obs.iter().map(|_| [uniform(), uniform(), uniform()]).collect(),
+        false,
+    )?;
+    bar.finish_and_clear();
+
+    let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
+    let gap = optimality_gap(config, &scenarios[..k], &policy[..k]);
+    let within = policy
+        .iter()
+        .filter(|o| o.completed && o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL)
+        .count() as f64
+        / policy.iter().filter(|o| o.completed).count().max(1) as f64;
+    let usable: Vec<&GapRow> = gap
+        .iter()
+        .filter(|g| g.optimal_converged || g.optimal_mass.is_finite())
+        .collect();
+    let report = MonteCarloReport {
+        scenario: config.scenario.name().to_string(),
+        checkpoint: checkpoint.to_path_buf(),
+        episodes: policy.len(),
+        seed,
+        seconds: start.elapsed().as_secs_f64(),
+        policy: summarize(&policy),
+        zero_thrust: summarize(&zero),
+        random: summarize(&random),
+        within_accuracy_goal: within,
+        mass_ratio: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.mass_ratio))),
+        overspend: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.overspend))),
+        gap,
+    };
+    write_outputs(out, &report, &policy, &zero, &random, &scenarios, &plotted)?;
+    Ok(report)
+}
+
+/// Indirect solutions of `scenarios` (in parallel) against the policy's final masses.
+fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[EpisodeOutcome]) -> Vec<GapRow> {
+    let Ok(spacecraft) = config.env.spacecraft.canonical() else {
+        return Vec::new();
+    };
+    let options = SolveOptions::default();
+    let bar = indicatif::ProgressBar::new(scenarios.len() as u64).with_style(
+        indicatif::ProgressStyle::with_template(
+            "optimality gap {bar:30} {pos}/{len} indirect solves [{elapsed}<{eta}]",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let rows = scenarios
+        .par_iter()
+        .zip(policy.par_iter())
+        .enumerate()
+        .map(|(i, (scenario, flown))| {
+            let record = solve_scenario(
+                config.scenario,
+                config.seeds.monte_carlo,
+                i as u64,
+                scenario,
+                &spacecraft,
+                &options,
+            );
+            bar.inc(1);
+            let optimal = record.final_mass;
+            GapRow {
+                episode: i,
+                policy_mass: flown.final_mass,
+                optimal_mass: optimal,
+                optimal_converged: record.converged,
+                optimal_eps: record.final_eps,
+                mass_ratio: flown.final_mass / optimal,
+                overspend: (1.0 - flown.final_mass) / (1.0 - optimal) - 1.0,
+                policy_dr: flown.terminal.position,
+                policy_dv: flown.terminal.velocity,
+            }
+        })
+        .collect();
+    bar.finish_and_clear();
+    rows
+}
+
+fn write_outputs(
+    out: &Path,
+    report: &MonteCarloReport,
+    policy: &[EpisodeOutcome],
+    zero: &[EpisodeOutcome],
+    random: &[EpisodeOutcome],
+    scenarios: &[Scenario],
+    plotted: &[EpisodeOutcome],
+) -> Result<(), ExperimentError> {
+    let write = |name: &str, bytes: &[u8]| {
+        let path = out.join(name);
+        atomic_write(&path, bytes).map_err(|e| ExperimentError::Io(path, e))
+    };
+    let mut csv = String::from(
+        "episode,completed,reward,final_mass,dr,dv,zero_thrust_reward,zero_thrust_dr,random_reward,random_dr\n",
+    );
+    for ((p, z), r) in policy.iter().zip(zero).zip(random) {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{},{},{},{}",
+            p.episode,
+            p.completed,
+            p.total_reward,
+            p.final_mass,
+            p.terminal.position,
+            p.terminal.velocity,
+            z.total_reward,
+            z.terminal.position,
+            r.total_reward,
+            r.terminal.position
+        );
+    }
+    write("mc.csv", csv.as_bytes())?;
+    let mut gap = String::from(
+        "episode,policy_mass,optimal_mass,optimal_converged,optimal_eps,mass_ratio,overspend,policy_dr,policy_dv\n",
+    );
+    for g in &report.gap {
+        let _ = writeln!(
+            gap,
+            "{},{},{},{},{},{},{},{},{}",
+            g.episode,
+            g.policy_mass,
+            g.optimal_mass,
+            g.optimal_converged,
+            g.optimal_eps,
+            g.mass_ratio,
+            g.overspend,
+            g.policy_dr,
+            g.policy_dv
+        );
+    }
+    write("optimality-gap.csv", gap.as_bytes())?;
+    write("summary.json", &serde_json::to_vec_pretty(report).unwrap_or_default())?;
+
+    let done = || policy.iter().filter(|o| o.completed);
+    let dr_median = report.policy.terminal_position.p50;
+    let panels = vec![
+        Panel {
+            title: "Episode reward".into(),
+            x_label: "total reward".into(),
+            values: done().map(|o| o.total_reward).collect(),
+            markers: vec![("zero thrust mean".into(), report.zero_thrust.total_reward.mean)],
+        },
+        Panel {
+            title: "Final mass".into(),
+            x_label: "m_f / m_0".into(),
+            values: done().map(|o| o.final_mass).collect(),
+            markers: vec![],
+        },
+        Panel {
+            title: "Terminal position residual".into(),
+            x_label: "|dr| (AU)".into(),
+            values: done().map(|o| o.terminal.position).collect(),
+            markers: vec![("goal 0.01 AU".into(), ACCURACY_GOAL), ("median".into(), dr_median)],
+        },
+        Panel {
+            title: "Terminal velocity residual".into(),
+            x_label: "|dv| (canonical)".into(),
+            values: done().map(|o| o.terminal.velocity).collect(),
+            markers: vec![("goal 0.01".into(), ACCURACY_GOAL)],
+        },
+    ];
+    let _ = histogram_grid(
+        &out.join("histograms.svg"),
+        &format!("Monte Carlo, {} episodes", report.episodes),
+        &panels,
+        40,
+    );
+    let paths: Vec<FlownPath> = plotted
+        .iter()
+        .filter_map(|o| {
+            let t = o.trajectory.as_ref()?;
+            let s = scenarios.get(o.episode)?;
+            Some(FlownPath {
+                label: format!(
+                    "#{}: m_f {:.4}, dr {:.4} AU",
+                    o.episode, o.final_mass, o.terminal.position
+                ),
+                initial: s.initial.shape,
+                target: s.target,
+                points: t
+                    .iter()
+                    .map(|p| (p.state.r[0], p.state.r[1], p.command.map_or(0.0, |c| c.throttle)))
+                    .collect(),
+            })
+        })
+        .collect();
+    let _ = flown_trajectories(&out.join("trajectories.svg"), "Flown by the policy", &paths);
+    Ok(())
+}
+
+/// A short human-readable summary of a Monte Carlo report.
+pub fn describe(report: &MonteCarloReport) -> String {
+    let mut s = String::new();
+    let row = |s: &mut String, name: &str, o: &OutcomeSummary| {
+        let _ = writeln!(
+            s,
+            "{name:<12} reward {:>8.4} +- {:<7.4} final mass {:.4}  dr p50 {:.4} p95 {:.4} AU  dv p50 {:.4} p95 {:.4}  ({} of {} completed)",
+            o.total_reward.mean,
+            o.total_reward.std,
+            o.final_mass.mean,
+            o.terminal_position.p50,
+            o.terminal_position.p95,
+            o.terminal_velocity.p50,
+            o.terminal_velocity.p95,
+            o.completed,
+            o.episodes
+        );
+    };
+    row(&mut s, "policy", &report.policy);
+    row(&mut s, "zero thrust", &report.zero_thrust);
+    row(&mut s, "random", &report.random);
+    let _ = writeln!(
+        s,
+        "within |dr| <= 0.01 AU and |dv| <= 0.01: {:.1}% of completed episodes",
+        100.0 * report.within_accuracy_goal
+    );
+    if let (Some(ratio), Some(over)) = (&report.mass_ratio, &report.overspend) {
+        let _ = writeln!(
+            s,
+            "optimality gap on {} scenarios: m_policy/m_opt mean {:.4} (min {:.4}), propellant overspend median {:.1}%",
+            ratio.count,
+            ratio.mean,
+            ratio.min,
+            100.0 * over.p50
+        );
+    }
+    s
+}

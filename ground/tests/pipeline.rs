@@ -1,0 +1,165 @@
+//! The learning pipeline at toy scale through the same code as the CLI: a tiny dataset,
+//! pretraining, RL from the pretrained model (interrupted and resumed), Monte Carlo evaluation.
+//! Checks that every artifact exists, loads and is consistent.
+
+use std::path::{Path, PathBuf};
+
+use lowthrust_ground::config::ExperimentConfig;
+use lowthrust_ground::eval::monte_carlo;
+use lowthrust_ground::experiment::{pretrain, train, ExperimentError, PhaseState, Start};
+use lowthrust_ground::generate::{generate, Manifest, Shard};
+use lowthrust_ground::sac::agent::Sac;
+use lowthrust_ground::solver::SolveOptions;
+use shared::scenario::ScenarioKind;
+use shared::spacecraft::Spacecraft;
+
+fn scratch_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Two transfer-circular trajectories, homotopy stopped early (eps 0.3) so the solve is quick:
+/// demonstrations are built the same way at any eps.
+fn toy_dataset(dir: &Path) -> PathBuf {
+    let out = dir.join("dataset");
+    let manifest = Manifest {
+        scenario: ScenarioKind::TransferCircular,
+        seed: 9,
+        count: 2,
+    };
+    let options = SolveOptions {
+        final_eps: 0.3,
+        ..SolveOptions::default()
+    };
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let summary = generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
+    assert_eq!(summary.converged, 2, "toy dataset did not solve");
+    out
+}
+
+fn toy_config(dataset: &Path) -> ExperimentConfig {
+    ExperimentConfig::from_toml(&format!(
+        r#"
+scenario = "transfer-circular"
+[sac]
+hidden = [32, 32]
+batch_size = 32
+warmup_steps = 60
+replay_capacity = 5000
+[pretrain]
+dataset = "{}"
+updates = 120
+eval_every = 40
+mode = "behaviour-cloning"
+records = "all"
+[train]
+env_steps = 150
+eval_every = 50
+eval_episodes = 4
+checkpoint_every = 50
+[evaluate]
+episodes = 16
+optimality_gap_cases = 0
+"#,
+        dataset.display()
+    ))
+    .unwrap()
+}
+
+fn state(path: &Path) -> PhaseState {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+#[test]
+fn pretrain_train_resume_and_evaluate_at_toy_scale() {
+    let dir = scratch_dir("pipeline");
+    let dataset = toy_dataset(&dir);
+    let mut config = toy_config(&dataset);
+    let run = dir.join("run");
+
+    // Pretraining: demonstrations of both records, evaluations at 0, 40, 80, 120 updates.
+    let pre = pretrain(&config, &dir, &run).unwrap();
+    assert_eq!(pre.updates, 120);
+    assert_eq!(pre.demonstrations, 2);
+    let pre_state = state(&run.join("pretrain/state.json"));
+    let eval_updates: Vec<u64> = pre_state.evaluations.iter().map(|r| r.updates).collect();
+    assert_eq!(eval_updates, vec![0, 40, 80, 120]);
+    let best = pre.best.unwrap();
+    let best_reward = pre_state
+        .evaluations
+        .iter()
+        .map(|r| r.summary.total_reward.mean)
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(
+        best.summary.total_reward.mean, best_reward,
+        "the best evaluation is the one kept"
+    );
+    for file in [
+        "best.safetensors",
+        "last.safetensors",
+        "replay.ltrb",
+        "eval.csv",
+        "updates.csv",
+        "state.json",
+    ] {
+        assert!(run.join("pretrain").join(file).is_file(), "pretrain/{file} missing");
+    }
+    let csv = std::fs::read_to_string(run.join("pretrain/eval.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4);
+
+    // RL from the pretrained model, interrupted after 100 steps and resumed to 150.
+    config.train.env_steps = 100;
+    let first = train(&config, &run, Start::Pretrained).unwrap();
+    assert_eq!(first.env_steps, 100);
+    let demos = first.demonstrations;
+    assert!(demos > 0, "demonstrations stay in the RL buffer");
+    config.train.env_steps = 150;
+    let resumed = train(&config, &run, Start::Pretrained).unwrap();
+    assert_eq!(resumed.env_steps, 150);
+    let rl_state = state(&run.join("train-pretrained/state.json"));
+    let eval_steps: Vec<u64> = rl_state.evaluations.iter().map(|r| r.env_steps).collect();
+    assert_eq!(eval_steps, vec![0, 50, 100, 150]);
+    // Updates: one per step once the buffer is past warm-up (60 steps), in both sittings.
+    assert_eq!(rl_state.updates, 150 - 60 + 1);
+
+    // The best RL checkpoint loads into a fresh agent with the config's shapes.
+    let best = run.join("train-pretrained/best.safetensors");
+    let mut agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    agent.load(&best).unwrap();
+
+    // Monte Carlo: every episode completes, baselines on the same scenarios, files written.
+    let mc_dir = run.join("mc");
+    let report = monte_carlo(&config, &best, &mc_dir, None, None).unwrap();
+    assert_eq!(report.episodes, 16);
+    assert_eq!(report.policy.completed, 16);
+    assert_eq!(report.zero_thrust.completed, 16);
+    // Zero thrust keeps all the mass: the final mass statistics say so exactly.
+    assert_eq!(report.zero_thrust.final_mass.min, 1.0);
+    for file in ["mc.csv", "summary.json", "optimality-gap.csv"] {
+        assert!(mc_dir.join(file).is_file(), "mc/{file} missing");
+    }
+    assert_eq!(
+        std::fs::read_to_string(mc_dir.join("mc.csv")).unwrap().lines().count(),
+        17
+    );
+
+    // A config of another problem is refused on the same run folder.
+    let other = ExperimentConfig::from_toml("scenario = \"rendezvous-circular\"").unwrap();
+    assert!(matches!(
+        train(&other, &run, Start::Scratch),
+        Err(ExperimentError::Mismatch(_))
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_missing_dataset_is_refused_before_any_work() {
+    let dir = scratch_dir("missing");
+    let config = toy_config(&dir.join("no-such-dataset"));
+    let err = pretrain(&config, &dir, &dir.join("run")).unwrap_err();
+    assert!(matches!(err, ExperimentError::Config(_)), "{err}");
+    assert!(!dir.join("run/pretrain").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
