@@ -22,6 +22,9 @@ pub struct ExperimentConfig {
     pub env: EnvConfig,
     #[serde(default)]
     pub sac: SacConfig,
+    /// The trajectory dataset the main job (`ground run`) generates for pretraining.
+    #[serde(default)]
+    pub generate: GenerateConfig,
     #[serde(default)]
     pub pretrain: PretrainConfig,
     #[serde(default)]
@@ -50,6 +53,26 @@ impl Default for Seeds {
             train: 1,
             evaluation: 1_000_003,
             monte_carlo: 2_000_003,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GenerateConfig {
+    /// Trajectories solved (the thesis: 1,000 circular, 10,000 hard).
+    pub count: u64,
+    pub seed: u64,
+    /// Final eps of the energy-to-fuel homotopy (SPEC: below 1e-4).
+    pub final_eps: f64,
+}
+
+impl Default for GenerateConfig {
+    fn default() -> Self {
+        Self {
+            count: 1_000,
+            seed: 7,
+            final_eps: crate::solver::shooting::FINAL_EPS,
         }
     }
 }
@@ -216,6 +239,10 @@ impl ExperimentConfig {
         positive("evaluate.episodes", self.evaluate.episodes)?;
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
             return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
+        }
+        positive("generate.count", self.generate.count)?;
+        if !(self.generate.final_eps > 0.0 && self.generate.final_eps <= 1.0) {
+            return Err(ConfigError::Invalid("generate.final_eps must be in (0, 1]".into()));
         }
         if self.compute.threads < 1 {
             return Err(ConfigError::Invalid("compute.threads must be at least 1".into()));

@@ -32,7 +32,8 @@ use crate::sac::trainer::{self, Episodic, LoopOptions, LoopState, StepOutcome, T
 
 const REPLAY_MAGIC: [u8; 4] = *b"LTRB";
 const REPLAY_VERSION: u16 = 1;
-/// Loss statistics are averaged over this many updates per CSV row.
+/// Loss statistics are averaged over at most this many updates per CSV row (fewer for short
+/// phases, so every phase logs about 100 rows).
 const UPDATE_LOG_EVERY: u64 = 1_000;
 
 /// Why a phase could not run or stopped.
@@ -347,6 +348,7 @@ struct Phase<'a> {
     seconds_before: f64,
     bar: indicatif::ProgressBar,
     x_is_env_steps: bool,
+    log_every: u64,
 }
 
 impl<'a> Phase<'a> {
@@ -367,6 +369,7 @@ impl<'a> Phase<'a> {
             seconds_before,
             bar,
             x_is_env_steps: what != "pretrain",
+            log_every: (total / 100).clamp(1, UPDATE_LOG_EVERY),
         }
     }
 
@@ -377,7 +380,7 @@ impl<'a> Phase<'a> {
     fn record_update(&mut self, env_steps: u64, stats: &UpdateStats) {
         self.state.updates += 1;
         self.accumulator.add(stats);
-        if self.state.updates.is_multiple_of(UPDATE_LOG_EVERY) {
+        if self.state.updates.is_multiple_of(self.log_every) {
             let row = self.accumulator.take(self.state.updates, env_steps);
             self.state.update_log.push(row);
         }

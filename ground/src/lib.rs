@@ -10,6 +10,7 @@ pub mod experiment;
 pub mod export;
 pub mod generate;
 pub mod io;
+pub mod pipeline;
 pub mod plot;
 pub mod sac;
 pub mod solver;

@@ -163,3 +163,39 @@ fn a_missing_dataset_is_refused_before_any_work() {
     assert!(!dir.join("run/pretrain").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The main job (`ground run`) end to end at toy scale: the same stages as the default run,
+/// and a report whose every link resolves.
+#[test]
+fn main_job_writes_a_report_whose_links_resolve() {
+    use lowthrust_ground::pipeline::{broken_links, run_main_job};
+    let dir = scratch_dir("main-job");
+    let mut config = toy_config(&dir.join("unused"));
+    config.pretrain.dataset = None;
+    config.generate.count = 2;
+    config.generate.seed = 9;
+    config.generate.final_eps = 0.3;
+    let run = dir.join("run");
+    let job = run_main_job(&config, &run).unwrap();
+    assert_eq!(job.dataset.records, 2);
+    assert_eq!(job.pretrain.updates, 120);
+    assert_eq!(job.train.env_steps, 150);
+    assert_eq!(job.monte_carlo.episodes, 16);
+    let text = std::fs::read_to_string(&job.report).unwrap();
+    assert!(text.contains("| zero thrust |"), "{text}");
+    assert_eq!(broken_links(&job.report), Vec::<String>::new());
+    for figure in [
+        "pretrain/critic-loss.svg",
+        "train-pretrained/eval-reward.svg",
+        "mc/histograms.svg",
+        "mc/trajectories.svg",
+    ] {
+        assert!(run.join(figure).is_file(), "{figure} not drawn");
+    }
+    // The best RL model is what the Monte Carlo evaluated.
+    assert_eq!(
+        job.monte_carlo.checkpoint,
+        run.join("train-pretrained/best.safetensors")
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

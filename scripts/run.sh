@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# The main job (README's first command): installs PyTorch for tch once, builds, and runs
+# `ground run` (dataset -> pretraining -> RL -> Monte Carlo -> runs/quick/report.md).
+# Extra arguments go to `ground run` (e.g. --config configs/quick.toml --out runs/other).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup-torch.sh
+exec cargo run --release -p lowthrust-ground -- run "$@"
