@@ -580,7 +580,10 @@ pub struct PhaseSummary {
     pub env_steps: u64,
     pub seconds: f64,
     pub best: Option<EvalRow>,
-    pub demonstrations: usize,
+    /// Trajectory records turned into demonstrations (pretraining only).
+    pub demonstration_records: usize,
+    /// Demonstration tuples in the phase's replay buffer.
+    pub demonstration_tuples: usize,
 }
 
 /// The demonstration tuples of the config's dataset as replay transitions.
@@ -680,7 +683,8 @@ where
         env_steps: 0,
         seconds: phase.state.seconds,
         best: phase.state.best,
-        demonstrations: used,
+        demonstration_records: used,
+        demonstration_tuples: buffer.demonstration_count(),
     })
 }
 
@@ -779,7 +783,8 @@ where
         env_steps: phase.state.loop_state.env_steps,
         seconds: phase.state.seconds,
         best: phase.state.best,
-        demonstrations,
+        demonstration_records: 0,
+        demonstration_tuples: demonstrations,
     })
 }
 

@@ -536,12 +536,12 @@ impl ExperimentArgs {
 
 fn print_phase(summary: &lowthrust_ground::experiment::PhaseSummary) {
     println!(
-        "{}: {} updates, {} environment steps, {:.0} s, {} demonstration records",
+        "{}: {} updates, {} environment steps, {:.0} s, {} demonstration tuples in the buffer",
         summary.folder.display(),
         summary.updates,
         summary.env_steps,
         summary.seconds,
-        summary.demonstrations
+        summary.demonstration_tuples
     );
     if let Some(best) = &summary.best {
         let s = &best.summary;

@@ -183,8 +183,8 @@ pub fn report_markdown_unchecked(
     s.push_str(&phase_line("RL from the pretrained model", rl));
     let _ = writeln!(
         s,
-        "\n{} demonstration records gave the pretraining buffer.\n",
-        pre.demonstrations
+        "\n{} trajectory records gave {} demonstration tuples (SPEC section 7); they stay in the RL buffer.\n",
+        pre.demonstration_records, pre.demonstration_tuples
     );
     for (folder, title) in [("pretrain", "Pretraining"), ("train-pretrained", "RL")] {
         let _ = writeln!(

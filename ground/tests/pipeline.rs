@@ -82,7 +82,14 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
     // Pretraining: demonstrations of both records, evaluations at 0, 40, 80, 120 updates.
     let pre = pretrain(&config, &dir, &run).unwrap();
     assert_eq!(pre.updates, 120);
-    assert_eq!(pre.demonstrations, 2);
+    assert_eq!(pre.demonstration_records, 2);
+    let steps: usize = (0..2)
+        .map(|i| ScenarioKind::TransferCircular.draw(9, i).steps as usize)
+        .sum();
+    assert_eq!(
+        pre.demonstration_tuples, steps,
+        "one tuple per 14-day step of each record"
+    );
     let pre_state = state(&run.join("pretrain/state.json"));
     let eval_updates: Vec<u64> = pre_state.evaluations.iter().map(|r| r.updates).collect();
     assert_eq!(eval_updates, vec![0, 40, 80, 120]);
@@ -113,8 +120,10 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
     config.train.env_steps = 100;
     let first = train(&config, &run, Start::Pretrained).unwrap();
     assert_eq!(first.env_steps, 100);
-    let demos = first.demonstrations;
-    assert!(demos > 0, "demonstrations stay in the RL buffer");
+    assert_eq!(
+        first.demonstration_tuples, steps,
+        "demonstrations stay in the RL buffer"
+    );
     config.train.env_steps = 150;
     let resumed = train(&config, &run, Start::Pretrained).unwrap();
     assert_eq!(resumed.env_steps, 150);
