@@ -348,6 +348,20 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_config_parses_and_validates() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let mut count = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                ExperimentConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                count += 1;
+            }
+        }
+        assert!(count >= 3, "configs/ holds {count} configs");
+    }
+
+    #[test]
     fn a_missing_dataset_is_refused() {
         let c = ExperimentConfig::from_toml(
             "scenario = \"transfer-circular\"\n[pretrain]\ndataset = \"/nonexistent/dataset\"",
