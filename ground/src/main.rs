@@ -140,6 +140,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    lowthrust_ground::sac::tune_allocator();
     let result = match cli.command {
         Command::Run { config, out } => main_job(config.as_deref(), &out),
         Command::Solve(args) => solve_command(&args),

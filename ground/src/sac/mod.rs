@@ -11,6 +11,19 @@ pub mod trainer;
 
 use serde::{Deserialize, Serialize};
 
+/// Makes glibc keep freed large blocks for reuse. A SAC update allocates and frees tensors of
+/// 0.25-0.5 MB; above glibc's mmap threshold each one is a fresh mmap whose pages fault in on
+/// first touch and go back with munmap on free. Measured with perf: kernel page-fault handling
+/// and malloc took about 14% of an update. Process-wide and idempotent; call it once at start.
+pub fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator parameters; both values are valid for glibc.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
+}
+
 /// The learner's hyper-parameters (SPEC section 8); defaults are the thesis's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
