@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use rand_chacha::ChaCha8Rng;
-use rand_core::{Rng, SeedableRng};
+use rand_core::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario};
@@ -19,6 +19,7 @@ use crate::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::experiment::{policy_batch, ExperimentError};
 use crate::io::atomic_write;
 use crate::sac::agent::Sac;
+use crate::sac::trainer::uniform_action;
 use crate::solver::{solve_scenario, SolveOptions};
 
 /// Episodes whose flown path is drawn.
@@ -126,11 +127,17 @@ where
     )?;
     let zero = fly::<P>(config, &scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a6e_646f);
-    let mut uniform = move || ((rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0;
     let random = fly::<P>(
         config,
         &scenarios,
-        |obs| obs.iter().map(|_| [uniform(), uniform(), uniform()]).collect(),
+        |obs| {
+            obs.iter()
+                .map(|_| {
+                    let a = uniform_action(&mut rng, 3);
+                    [a[0], a[1], a[2]]
+                })
+                .collect()
+        },
         false,
     )?;
     bar.finish_and_clear();
@@ -340,20 +347,29 @@ pub fn describe(report: &MonteCarloReport) -> String {
     row(&mut s, "policy", &report.policy);
     row(&mut s, "zero thrust", &report.zero_thrust);
     row(&mut s, "random", &report.random);
-    let _ = writeln!(
-        s,
-        "within |dr| <= 0.01 AU and |dv| <= 0.01: {:.1}% of completed episodes",
-        100.0 * report.within_accuracy_goal
-    );
-    if let (Some(ratio), Some(over)) = (&report.mass_ratio, &report.overspend) {
-        let _ = writeln!(
-            s,
-            "optimality gap on {} scenarios: m_policy/m_opt mean {:.4} (min {:.4}), propellant overspend median {:.1}%",
-            ratio.count,
-            ratio.mean,
-            ratio.min,
-            100.0 * over.p50
-        );
+    let _ = writeln!(s, "{}", accuracy_line(report));
+    if let Some(gap) = gap_line(report) {
+        let _ = writeln!(s, "{gap}");
     }
     s
+}
+
+/// How many episodes met the terminal-accuracy goal, in words.
+pub fn accuracy_line(report: &MonteCarloReport) -> String {
+    format!(
+        "Within |dr| <= 0.01 AU and |dv| <= 0.01: {:.1}% of completed episodes.",
+        100.0 * report.within_accuracy_goal
+    )
+}
+
+/// The optimality gap in words, when the indirect solutions were computed.
+pub fn gap_line(report: &MonteCarloReport) -> Option<String> {
+    let (ratio, over) = (report.mass_ratio.as_ref()?, report.overspend.as_ref()?);
+    Some(format!(
+        "Optimality gap on {} scenarios solved by the indirect method: m_policy / m_optimal mean {:.4} (min {:.4}); propellant overspend median {:.1}%.",
+        ratio.count,
+        ratio.mean,
+        ratio.min,
+        100.0 * over.p50
+    ))
 }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use lowthrust_ground::config::{ExperimentConfig, EMBEDDED_DEFAULT};
 
 use lowthrust_ground::export::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
-use lowthrust_ground::generate::{dataset_path, generate, merge, read_dataset, Manifest, Shard, Summary};
+use lowthrust_ground::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
 use lowthrust_ground::io::atomic_write;
 use lowthrust_ground::plot::plot_trajectories;
 use lowthrust_ground::solver::shooting::FINAL_EPS;
@@ -276,17 +276,12 @@ fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error
     let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
     print_summary(&summary);
     // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
-    let file = read_dataset(&dataset_path(&args.out, args.shard))?;
-    let shown: Vec<_> = file
-        .records
-        .iter()
-        .filter(|r| !r.ephemeris.is_empty())
-        .take(4)
-        .collect();
-    if !shown.is_empty() {
-        let path = args.out.join("trajectories.svg");
-        plot_trajectories(&shown, &path)?;
-        println!("plotted {} trajectories in {}", shown.len(), path.display());
+    let shown = lowthrust_ground::pipeline::plot_dataset_sample(&args.out, args.shard)?;
+    if shown > 0 {
+        println!(
+            "plotted {shown} trajectories in {}",
+            args.out.join("trajectories.svg").display()
+        );
     }
     Ok(())
 }

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use crate::config::ExperimentConfig;
 use crate::env::batch::OutcomeSummary;
-use crate::eval::{describe, monte_carlo, MonteCarloReport};
+use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::generate::{dataset_path, generate, read_dataset, Manifest, Shard, Summary};
 use crate::io::atomic_write;
@@ -56,17 +56,8 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     };
     let dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, true)
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
-    if let Ok(file) = read_dataset(&dataset_path(&dataset_dir, Shard::WHOLE)) {
-        let shown: Vec<_> = file
-            .records
-            .iter()
-            .filter(|r| !r.ephemeris.is_empty())
-            .take(4)
-            .collect();
-        if !shown.is_empty() {
-            let _ = plot_trajectories(&shown, &dataset_dir.join("trajectories.svg"));
-        }
-    }
+    // The figure is a convenience: a dataset that cannot be plotted is still a dataset.
+    let _ = plot_dataset_sample(&dataset_dir, Shard::WHOLE);
     config.pretrain.dataset = Some(dataset_dir.clone());
     stage_seconds[0] = t.elapsed().as_secs_f64();
 
@@ -211,20 +202,9 @@ pub fn report_markdown_unchecked(
     s.push_str(&outcome_row("learned (deterministic)", &mc.policy));
     s.push_str(&outcome_row("zero thrust", &mc.zero_thrust));
     s.push_str(&outcome_row("uniform random", &mc.random));
-    let _ = writeln!(
-        s,
-        "\nWithin |dr| ≤ 0.01 AU and |dv| ≤ 0.01: {:.1}% of episodes.\n",
-        100.0 * mc.within_accuracy_goal
-    );
-    if let (Some(ratio), Some(over)) = (&mc.mass_ratio, &mc.overspend) {
-        let _ = writeln!(
-            s,
-            "Optimality gap on {} scenarios solved by the indirect method: m_policy / m_optimal mean {:.4} (min {:.4}); propellant overspend median {:.1}% ([table](mc/optimality-gap.csv)).\n",
-            ratio.count,
-            ratio.mean,
-            ratio.min,
-            100.0 * over.p50
-        );
+    let _ = writeln!(s, "\n{}\n", accuracy_line(mc));
+    if let Some(gap) = gap_line(mc) {
+        let _ = writeln!(s, "{gap} ([table](mc/optimality-gap.csv))\n");
     }
     let _ = writeln!(s, "![Monte Carlo histograms](mc/histograms.svg)\n");
     let _ = writeln!(s, "![trajectories flown by the policy](mc/trajectories.svg)\n");
@@ -232,7 +212,6 @@ pub fn report_markdown_unchecked(
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    let _ = writeln!(s, "```text\n{}```", describe(mc));
     s
 }
 
@@ -257,6 +236,22 @@ pub fn report_markdown(
         .collect::<Vec<_>>()
         .join("\n")
         + "\n"
+}
+
+/// Plots the first four solved trajectories of a dataset folder (thesis Fig. 4.4/4.5) into
+/// `trajectories.svg` there; returns how many were drawn.
+pub fn plot_dataset_sample(out: &Path, shard: Shard) -> Result<usize, Box<dyn std::error::Error>> {
+    let file = read_dataset(&dataset_path(out, shard))?;
+    let shown: Vec<_> = file
+        .records
+        .iter()
+        .filter(|r| !r.ephemeris.is_empty())
+        .take(4)
+        .collect();
+    if !shown.is_empty() {
+        plot_trajectories(&shown, &out.join("trajectories.svg"))?;
+    }
+    Ok(shown.len())
 }
 
 /// Relative links of a Markdown report whose target file does not exist (for the tests).

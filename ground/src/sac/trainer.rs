@@ -71,7 +71,8 @@ pub struct LoopOptions {
     pub warmup: WarmupPolicy,
 }
 
-fn uniform_action(rng: &mut ChaCha8Rng, dim: usize) -> Vec<f32> {
+/// An action drawn uniformly from [-1, 1]^dim (exploration before learning; the random baseline).
+pub fn uniform_action(rng: &mut ChaCha8Rng, dim: usize) -> Vec<f32> {
     use rand_core::Rng;
     (0..dim)
         .map(|_| ((rng.next_u64() >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0)
