@@ -74,6 +74,20 @@ fn tensor_2d(data: &[f32], rows: usize, cols: usize, device: Device) -> Tensor {
         .to_device(device)
 }
 
+/// The soft Bellman target y = r + gamma (1 - done) (min Q'(s', a') - alpha log pi(a'|s')):
+/// the entropy bonus enters the bootstrapped value, and a terminal transition bootstraps nothing.
+pub fn soft_bellman_target(
+    rewards: &Tensor,
+    dones: &Tensor,
+    q_next: &Tensor,
+    log_prob_next: &Tensor,
+    temperature: &Tensor,
+    discount: f64,
+) -> Tensor {
+    let soft_value = q_next - temperature * log_prob_next;
+    rewards + (1.0 - dones) * discount * soft_value
+}
+
 impl Sac {
     pub fn new(config: SacConfig, obs_dim: usize, act_dim: usize, device: Device) -> Self {
         let actor_store = VarStore::new(device);
@@ -178,8 +192,14 @@ impl Sac {
         let soft_target = tch::no_grad(|| {
             let next = self.actor.sample(&next_obs);
             let q_next = self.targets.min_q(&next_obs, &next.action);
-            let soft_value = q_next - &temperature * &next.log_prob;
-            &rewards + (1.0 - &dones) * self.config.discount * soft_value
+            soft_bellman_target(
+                &rewards,
+                &dones,
+                &q_next,
+                &next.log_prob,
+                &temperature,
+                self.config.discount,
+            )
         });
         // q: [2, batch, 1]; the loss is MSE(Q1) + MSE(Q2), i.e. twice the mean over both.
         let q = self.critics.forward(&obs, &actions);
@@ -410,6 +430,25 @@ mod tests {
         }
         let best = sac.act(&[1.0], 1, true)[0];
         assert!((best - 0.5).abs() < 0.1, "deterministic action {best}");
+    }
+
+    #[test]
+    fn soft_target_adds_the_entropy_bonus_and_stops_at_terminal_states() {
+        let t = |v: &[f32]| Tensor::from_slice(v).view([-1, 1]);
+        let y = soft_bellman_target(
+            &t(&[1.0, 1.0, -0.5]),
+            &t(&[0.0, 1.0, 0.0]),
+            &t(&[2.0, 2.0, -3.0]),
+            &t(&[-0.5, -0.5, 1.5]),
+            &Tensor::from_slice(&[0.1f32]),
+            0.9,
+        );
+        // 1 + 0.9 (2 + 0.1 * 0.5); terminal: the reward alone; -0.5 + 0.9 (-3 - 0.1 * 1.5).
+        let expected = [2.845f32, 1.0, -0.5 + 0.9 * (-3.0 - 0.15)];
+        let got = Vec::<f32>::try_from(y.view([-1])).unwrap();
+        for (g, e) in got.iter().zip(expected) {
+            assert!((g - e).abs() < 1e-6, "{got:?} vs {expected:?}");
+        }
     }
 
     #[test]
