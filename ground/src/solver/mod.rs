@@ -5,10 +5,11 @@
 pub mod pontryagin;
 pub mod shooting;
 
+use std::cell::Cell;
 use std::time::Instant;
 
-use nalgebra::{Const, DimMin, SVector};
-use onboard::integrator::{integrate, Tolerances};
+use nalgebra::{Const, DimMin, SMatrix, SVector};
+use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -36,6 +37,11 @@ pub struct SolveOptions {
     /// nowhere is dropped early instead of costing seconds.
     pub start_newton: NewtonSettings,
     pub start_max_steps: u32,
+    /// Propagations (residual evaluations, with or without sensitivities) the multi-start and
+    /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
+    /// nowhere, identical on every machine and in every shard.
+    pub max_start_propagations: u32,
+    pub max_homotopy_propagations: u32,
 }
 
 impl Default for SolveOptions {
@@ -44,21 +50,23 @@ impl Default for SolveOptions {
             tolerances: Tolerances {
                 relative: 1e-12,
                 absolute: 1e-13,
-                max_steps: 20_000,
+                max_steps: 5_000,
                 initial_step: 0.0,
             },
             newton: NewtonSettings {
-                max_iterations: 30,
+                max_iterations: 15,
                 tolerance: 1e-8,
             },
             final_eps: FINAL_EPS,
             max_homotopy_solves: 60,
             max_distinct_starts: 3,
             start_newton: NewtonSettings {
-                max_iterations: 20,
+                max_iterations: 25,
                 tolerance: 1e-8,
             },
             start_max_steps: 4_000,
+            max_start_propagations: 3_000,
+            max_homotopy_propagations: 2_500,
         }
     }
 }
@@ -141,7 +149,13 @@ pub fn solve_scenario(
             };
             solve_problem(&problem, scenario, spacecraft, transfer_guesses(scenario), options).map(|s| {
                 let z = s.level.outcome.z;
-                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                let summary = (
+                    s.level.eps,
+                    s.level.outcome.residual,
+                    s.distinct,
+                    s.reached_final,
+                    s.budget_spent,
+                );
                 (summary, Some(z[5]), z)
             })
         }
@@ -161,12 +175,18 @@ pub fn solve_scenario(
             solve_problem(&problem, scenario, spacecraft, guesses, options).map(|s| {
                 let z = s.level.outcome.z;
                 let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
-                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                let summary = (
+                    s.level.eps,
+                    s.level.outcome.residual,
+                    s.distinct,
+                    s.reached_final,
+                    s.budget_spent,
+                );
                 (summary, None, padded)
             })
         }
     };
-    let ((final_eps, residual, distinct, reached_final), final_anomaly, z) = match solved {
+    let ((final_eps, residual, distinct, reached_final, budget_spent), final_anomaly, z) = match solved {
         Ok(x) => x,
         Err((reason, distinct)) => {
             record.failure = Some(reason);
@@ -177,7 +197,12 @@ pub fn solve_scenario(
     };
     record.distinct_energy_optima = distinct;
     if !reached_final {
-        record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}"));
+        let budget = if budget_spent {
+            " (propagation budget spent)"
+        } else {
+            ""
+        };
+        record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
     record.final_anomaly = final_anomaly;
@@ -206,12 +231,67 @@ pub fn solve_scenario(
     record
 }
 
+/// A shooting problem that refuses to propagate once its budget is spent (the refusal reads
+/// as a failed propagation, which every caller already handles).
+struct Budgeted<'a, P> {
+    inner: &'a P,
+    used: Cell<u32>,
+    limit: u32,
+}
+
+impl<'a, P> Budgeted<'a, P> {
+    fn new(inner: &'a P, limit: u32) -> Self {
+        Self {
+            inner,
+            used: Cell::new(0),
+            limit,
+        }
+    }
+
+    fn take(&self) -> Result<(), IntegrationError> {
+        let used = self.used.get();
+        if used >= self.limit {
+            return Err(IntegrationError::StepBudgetExhausted { t: 0.0 });
+        }
+        self.used.set(used + 1);
+        Ok(())
+    }
+
+    fn exhausted(&self) -> bool {
+        self.used.get() >= self.limit
+    }
+}
+
+impl<P: ShootingProblem<K>, const K: usize> ShootingProblem<K> for Budgeted<'_, P> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<SVector<f64, K>, IntegrationError> {
+        self.take()?;
+        self.inner.residual_only(eps, z, tolerances)
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError> {
+        self.take()?;
+        self.inner.residual(eps, z, tolerances)
+    }
+}
+
 /// The last converged homotopy level of a solve, how many distinct energy-optimal starts
 /// were found, and whether the schedule's final level was reached.
 struct Solved<const K: usize> {
     level: HomotopyLevel<K>,
     distinct: u32,
     reached_final: bool,
+    /// The homotopy stopped because its propagation budget ran out.
+    budget_spent: bool,
 }
 
 /// Multi-start at eps = 1 (the distinct solution with the largest final mass is continued),
@@ -233,11 +313,12 @@ where
     // Every converged start, with the final mass of its energy-optimal trajectory: distinct
     // local optima (revolution counts, burn splits) show up as distinct masses.
     let mut starts: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    let start_problem = Budgeted::new(problem, options.max_start_propagations);
     for z0 in guesses {
-        if starts.len() >= options.max_distinct_starts as usize {
+        if starts.len() >= options.max_distinct_starts as usize || start_problem.exhausted() {
             break;
         }
-        let Ok(outcome) = newton(problem, 1.0, &z0, &start_tolerances, &options.start_newton) else {
+        let Ok(outcome) = newton(&start_problem, 1.0, &z0, &start_tolerances, &options.start_newton) else {
             continue;
         };
         if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
@@ -249,10 +330,16 @@ where
     }
     let distinct = starts.len() as u32;
     let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
-        return Err(("no energy-optimal start converged".into(), distinct));
+        let why = if start_problem.exhausted() {
+            "no energy-optimal start converged within the propagation budget"
+        } else {
+            "no energy-optimal start converged"
+        };
+        return Err((why.into(), distinct));
     };
+    let homotopy_problem = Budgeted::new(problem, options.max_homotopy_propagations);
     let levels = homotopy(
-        problem,
+        &homotopy_problem,
         &z_energy,
         &options.tolerances,
         &options.newton,
@@ -268,6 +355,7 @@ where
         level,
         distinct,
         reached_final,
+        budget_spent: homotopy_problem.exhausted(),
     })
 }
 
@@ -280,10 +368,10 @@ fn energy_final_mass<const K: usize>(
 ) -> Option<f64> {
     let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
     let y0 = initial_state_costate(scenario, &costates);
-    let system = pontryagin::StateCostate(OptimalControlParams {
+    let params = OptimalControlParams {
         spacecraft: *spacecraft,
         eps: 1.0,
-    });
-    let (yf, _) = integrate(&system, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
+    };
+    let yf = pontryagin::propagate(&params, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
     Some(yf[pontryagin::idx::M])
 }
