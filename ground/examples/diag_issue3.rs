@@ -7,6 +7,9 @@ use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
 fn main() {
+    if std::env::var_os("GUESS").is_some() {
+        return guess();
+    }
     if std::env::var_os("HOMO").is_some() {
         return homo();
     }
@@ -82,7 +85,13 @@ fn main() {
 
 fn full() {
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-    let opts = SolveOptions::default();
+    let mut opts = SolveOptions::default();
+    if let Some(w) = std::env::var("START_WORK").ok().and_then(|s| s.parse().ok()) {
+        opts.max_start_work = w;
+    }
+    if let Some(w) = std::env::var("START_IT").ok().and_then(|s| s.parse().ok()) {
+        opts.start_newton.max_iterations = w;
+    }
     let kind = match std::env::var("KIND").as_deref() {
         Ok("hard") => ScenarioKind::TransferHard,
         Ok("rv") => ScenarioKind::RendezvousCircular,
@@ -92,7 +101,12 @@ fn full() {
     let i0: u64 = std::env::var("IDX").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
     for index in i0..i0 + n {
         let scenario = kind.draw(7, index);
+        let w0 = lowthrust_ground::solver::pontryagin::work_done();
         let r = lowthrust_ground::solver::solve_scenario(kind, 7, index, &scenario, &sc, &opts);
+        print!(
+            "work {:.2}M ",
+            (lowthrust_ground::solver::pontryagin::work_done() - w0) as f64 * 1e-6
+        );
         println!("case {index}: a0 {:.3} af {:.3} e0 {:.3} ef {:.3} N {} conv {} eps {:.2e} res {:.1e} m {:.6} arcs {} optima {} {:.2}s {:?}",
             scenario.initial.shape.a, scenario.target.a, scenario.initial.shape.e, scenario.target.e, scenario.steps,
             r.converged, r.final_eps, r.residual, r.final_mass, r.thrust_arcs, r.distinct_energy_optima, r.seconds, r.failure);
@@ -264,5 +278,40 @@ fn homo() {
         if ratio > 0.999 {
             break;
         }
+    }
+}
+
+fn guess() {
+    use lowthrust_ground::solver::pontryagin::work_done;
+    use lowthrust_ground::solver::shooting::NewtonSettings;
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let opts = SolveOptions::default();
+    let kind = match std::env::var("KIND").as_deref() {
+        Ok("hard") => ScenarioKind::TransferHard,
+        _ => ScenarioKind::TransferCircular,
+    };
+    let n: u64 = std::env::var("N").ok().and_then(|s| s.parse().ok()).unwrap_or(1);
+    let i0: u64 = std::env::var("IDX").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
+    let settings = NewtonSettings {
+        max_iterations: 40,
+        tolerance: 1e-8,
+    };
+    for index in i0..i0 + n {
+        let scenario = kind.draw(7, index);
+        let p = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let mut line = String::new();
+        for (k, z0) in transfer_guesses(&scenario).iter().enumerate() {
+            let w = work_done();
+            let o = newton(&p, 1.0, z0, &opts.tolerances, &settings);
+            let w = (work_done() - w) / 1000;
+            match o {
+                Ok(o) if o.converged => line += &format!(" {k}:ok{}it/{w}k", o.iterations),
+                _ => line += &format!(" {k}:-/{w}k"),
+            }
+        }
+        println!("case {index}:{line}");
     }
 }

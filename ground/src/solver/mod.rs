@@ -5,7 +5,6 @@
 pub mod pontryagin;
 pub mod shooting;
 
-use std::cell::Cell;
 use std::time::Instant;
 
 use nalgebra::{Const, DimMin, SMatrix, SVector};
@@ -16,8 +15,8 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonSettings, RendezvousShooting, RendezvousVector,
-    ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
+    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
+    RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
 };
 
 /// Settings of one solve.
@@ -37,11 +36,11 @@ pub struct SolveOptions {
     /// nowhere is dropped early instead of costing seconds.
     pub start_newton: NewtonSettings,
     pub start_max_steps: u32,
-    /// Propagations (residual evaluations, with or without sensitivities) the multi-start and
+    /// Integration work (Runge-Kutta steps, see [`pontryagin::work_done`]) the multi-start and
     /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
-    /// nowhere, identical on every machine and in every shard.
-    pub max_start_propagations: u32,
-    pub max_homotopy_propagations: u32,
+    /// nowhere, identical on every machine, under any load and in every shard.
+    pub max_start_work: u64,
+    pub max_homotopy_work: u64,
 }
 
 impl Default for SolveOptions {
@@ -65,8 +64,8 @@ impl Default for SolveOptions {
                 tolerance: 1e-8,
             },
             start_max_steps: 4_000,
-            max_start_propagations: 3_000,
-            max_homotopy_propagations: 2_500,
+            max_start_work: 2_000_000,
+            max_homotopy_work: 3_000_000,
         }
     }
 }
@@ -197,11 +196,7 @@ pub fn solve_scenario(
     };
     record.distinct_energy_optima = distinct;
     if !reached_final {
-        let budget = if budget_spent {
-            " (propagation budget spent)"
-        } else {
-            ""
-        };
+        let budget = if budget_spent { " (work budget spent)" } else { "" };
         record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
@@ -231,34 +226,33 @@ pub fn solve_scenario(
     record
 }
 
-/// A shooting problem that refuses to propagate once its budget is spent (the refusal reads
-/// as a failed propagation, which every caller already handles).
+/// A shooting problem that refuses to propagate once its budget of integration work (see
+/// [`pontryagin::work_done`]) is spent; the refusal reads as a failed propagation, which every
+/// caller already handles.
 struct Budgeted<'a, P> {
     inner: &'a P,
-    used: Cell<u32>,
-    limit: u32,
+    start: u64,
+    limit: u64,
 }
 
 impl<'a, P> Budgeted<'a, P> {
-    fn new(inner: &'a P, limit: u32) -> Self {
+    fn new(inner: &'a P, limit: u64) -> Self {
         Self {
             inner,
-            used: Cell::new(0),
+            start: pontryagin::work_done(),
             limit,
         }
     }
 
     fn take(&self) -> Result<(), IntegrationError> {
-        let used = self.used.get();
-        if used >= self.limit {
+        if self.exhausted() {
             return Err(IntegrationError::StepBudgetExhausted { t: 0.0 });
         }
-        self.used.set(used + 1);
         Ok(())
     }
 
     fn exhausted(&self) -> bool {
-        self.used.get() >= self.limit
+        pontryagin::work_done().saturating_sub(self.start) >= self.limit
     }
 }
 
@@ -313,31 +307,55 @@ where
     // Every converged start, with the final mass of its energy-optimal trajectory: distinct
     // local optima (revolution counts, burn splits) show up as distinct masses.
     let mut starts: Vec<(SVector<f64, K>, f64)> = Vec::new();
-    let start_problem = Budgeted::new(problem, options.max_start_propagations);
+    let start_problem = Budgeted::new(problem, options.max_start_work);
+    // A guess that converges usually does so cheaply, one that does not burns many times more:
+    // a first pass gives every guess a small share of the budget, a second continues the
+    // unconverged ones with the smallest residuals.
+    let mut pending: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    let consider = |outcome: NewtonOutcome<K>, starts: &mut Vec<(SVector<f64, K>, f64)>| {
+        if !outcome.converged {
+            return Some((outcome.z, outcome.residual));
+        }
+        if !starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
+            if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
+                starts.push((outcome.z, m));
+            }
+        }
+        None
+    };
+    let enough = |starts: &Vec<(SVector<f64, K>, f64)>| {
+        starts.len() >= options.max_distinct_starts as usize || start_problem.exhausted()
+    };
     for z0 in guesses {
-        if starts.len() >= options.max_distinct_starts as usize || start_problem.exhausted() {
+        if enough(&starts) {
             break;
         }
-        let Ok(outcome) = newton(&start_problem, 1.0, &z0, &start_tolerances, &options.start_newton) else {
-            continue;
-        };
-        if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
-            continue;
+        let share = Budgeted::new(&start_problem, options.max_start_work / 25);
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+            pending.extend(consider(outcome, &mut starts));
         }
-        if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
-            starts.push((outcome.z, m));
+    }
+    pending.retain(|(_, r)| r.is_finite());
+    pending.sort_by(|a, b| a.1.total_cmp(&b.1));
+    for (z0, _) in pending.into_iter().take(4) {
+        if enough(&starts) {
+            break;
+        }
+        let share = Budgeted::new(&start_problem, options.max_start_work / 4);
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+            consider(outcome, &mut starts);
         }
     }
     let distinct = starts.len() as u32;
     let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
         let why = if start_problem.exhausted() {
-            "no energy-optimal start converged within the propagation budget"
+            "no energy-optimal start converged within the work budget"
         } else {
             "no energy-optimal start converged"
         };
         return Err((why.into(), distinct));
     };
-    let homotopy_problem = Budgeted::new(problem, options.max_homotopy_propagations);
+    let homotopy_problem = Budgeted::new(problem, options.max_homotopy_work);
     let levels = homotopy(
         &homotopy_problem,
         &z_energy,
