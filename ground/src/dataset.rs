@@ -55,7 +55,8 @@ pub struct TrajectoryRecord {
     /// One sample per environment step boundary: k = 0..=N at t = k * STEP.
     pub steps: Vec<TrajectorySample>,
     /// How many distinct energy-optimal (eps = 1) solutions the multi-start found: more than
-    /// one means several local optima; the best by final mass was continued.
+    /// one means several local optima; each was continued and the fuel-optimal solution with
+    /// the largest final mass kept.
     pub distinct_energy_optima: u32,
 }
 

@@ -15,7 +15,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
+    homotopy_until, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
     RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
 };
 
@@ -64,16 +64,16 @@ impl Default for SolveOptions {
                 tolerance: 1e-8,
             },
             start_max_steps: 4_000,
-            max_start_work: 2_000_000,
+            max_start_work: 4_000_000,
             max_homotopy_work: 3_000_000,
         }
     }
 }
 
 /// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer, most plausible
-/// first: the primer along the velocity for a raise (against it for a lowering), lambda_v
-/// along -+theta_hat and lambda_r along -r_hat, several magnitudes, and final anomalies from the
-/// angle swept at the initial, mean and final mean motions; then the same with the other sign.
+/// first: final anomalies from the angle swept at the mean, initial and final mean motions,
+/// lambda_r along -r_hat, lambda_v along -+theta_hat (the primer along the velocity for a
+/// raise, against it for a lowering, then the other sign), several magnitudes.
 pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
     let polar = scenario.initial.polar();
     let (c, s) = (polar.theta.cos(), polar.theta.sin());
@@ -86,10 +86,12 @@ pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
         -1.0
     };
     let mut guesses = Vec::new();
-    for sign in [raise, -raise] {
-        for rate in [0.5 * (n0 + nf), n0, nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
-            let nu_f = polar.theta + rate * tof - scenario.target.omega;
-            for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+    for rate in [0.5 * (n0 + nf), n0, nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
+        let nu_f = polar.theta + rate * tof - scenario.target.omega;
+        for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+            // Both signs early: with eccentric orbits the sign that the semi-major axes
+            // suggest is often the wrong one.
+            for sign in [raise, -raise] {
                 // Primer (thrust direction) = -lambda_v = sign * theta_hat.
                 guesses.push(TransferVector::from_column_slice(&[
                     -k_r * c,
@@ -153,7 +155,7 @@ pub fn solve_scenario(
                     s.level.outcome.residual,
                     s.distinct,
                     s.reached_final,
-                    s.budget_spent,
+                    (s.budget_spent, s.degenerate),
                 );
                 (summary, Some(z[5]), z)
             })
@@ -179,7 +181,7 @@ pub fn solve_scenario(
                     s.level.outcome.residual,
                     s.distinct,
                     s.reached_final,
-                    s.budget_spent,
+                    (s.budget_spent, s.degenerate),
                 );
                 (summary, None, padded)
             })
@@ -196,7 +198,11 @@ pub fn solve_scenario(
     };
     record.distinct_energy_optima = distinct;
     if !reached_final {
-        let budget = if budget_spent { " (work budget spent)" } else { "" };
+        let budget = match budget_spent {
+            (_, true) => " (degenerate: throttle on the ramp over most of the flight, singular-arc limit)",
+            (true, false) => " (work budget spent)",
+            _ => "",
+        };
         record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
@@ -286,6 +292,8 @@ struct Solved<const K: usize> {
     reached_final: bool,
     /// The homotopy stopped because its propagation budget ran out.
     budget_spent: bool,
+    /// The homotopy stopped on a degenerate (singular-arc) extremal, see [`degenerate`].
+    degenerate: bool,
 }
 
 /// Multi-start at eps = 1 (the distinct solution with the largest final mass is continued),
@@ -312,6 +320,7 @@ where
     // a first pass gives every guess a small share of the budget, a second continues the
     // unconverged ones with the smallest residuals.
     let mut pending: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    let n_guesses = guesses.len();
     let consider = |outcome: NewtonOutcome<K>, starts: &mut Vec<(SVector<f64, K>, f64)>| {
         if !outcome.converged {
             return Some((outcome.z, outcome.residual));
@@ -330,7 +339,7 @@ where
         if enough(&starts) {
             break;
         }
-        let share = Budgeted::new(&start_problem, options.max_start_work / 25);
+        let share = Budgeted::new(&start_problem, options.max_start_work / (n_guesses as u64 + 10));
         if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
             pending.extend(consider(outcome, &mut starts));
         }
@@ -347,34 +356,116 @@ where
         }
     }
     let distinct = starts.len() as u32;
-    let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
+    if starts.is_empty() {
         let why = if start_problem.exhausted() {
             "no energy-optimal start converged within the work budget"
         } else {
             "no energy-optimal start converged"
         };
         return Err((why.into(), distinct));
+    }
+    // Every distinct start is continued (best energy-optimal mass first, each with its own
+    // budget): the best fuel-optimal solution need not come from the best energy-optimal one,
+    // and a start whose homotopy stalls hands over to the next. Of the starts that reach the
+    // final eps the one with the largest final mass is kept; if none does, the deepest level.
+    starts.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let mut best: Option<(Solved<K>, f64)> = None;
+    let mut last_error = String::from("homotopy failed at its first level");
+    for (z_energy, _) in &starts {
+        let homotopy_problem = Budgeted::new(problem, options.max_homotopy_work);
+        let levels = match homotopy_until(
+            &homotopy_problem,
+            z_energy,
+            &options.tolerances,
+            &options.newton,
+            options.final_eps,
+            options.max_homotopy_solves,
+            |eps, z| degenerate(scenario, spacecraft, z, eps, &options.tolerances),
+        ) {
+            Ok(levels) => levels,
+            Err(e) => {
+                last_error = format!("homotopy propagation failed: {e:?}");
+                continue;
+            }
+        };
+        let Some(level) = levels.iter().rev().find(|l| l.outcome.converged).copied() else {
+            continue;
+        };
+        let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
+        let mass =
+            final_mass(scenario, spacecraft, &level.outcome.z, level.eps, &options.tolerances).unwrap_or(f64::NAN);
+        let solved = Solved {
+            level,
+            distinct,
+            reached_final,
+            budget_spent: homotopy_problem.exhausted(),
+            degenerate: !reached_final
+                && degenerate(scenario, spacecraft, &level.outcome.z, level.eps, &options.tolerances),
+        };
+        let better = match &best {
+            None => true,
+            Some((b, m)) => match (solved.reached_final, b.reached_final) {
+                (true, false) => true,
+                (false, true) => false,
+                (true, true) => mass > *m,
+                (false, false) => solved.level.eps < b.level.eps,
+            },
+        };
+        if better {
+            best = Some((solved, mass));
+        }
+    }
+    best.map(|(s, _)| s).ok_or((last_error, distinct))
+}
+
+/// Below this eps a solution that spends more than [`DEGENERATE_RAMP_FRACTION`] of the flight
+/// on the throttle ramp is taken as degenerate and its homotopy stopped.
+pub const DEGENERATE_EPS: f64 = 0.02;
+pub const DEGENERATE_RAMP_FRACTION: f64 = 0.5;
+
+/// Whether the extremal of costates `z` at `eps` hugs the switching surface: at eps <= 2e-2
+/// the throttle is strictly between 0 and 1 over more than half the flight. Fuel-optimal
+/// extremals are bang-bang, so such a path heads for a singular arc, along which the shooting
+/// Jacobian grows like 1/eps and the corrector crawls. It is what transfer-circular does:
+/// between circular orbits with a free final anomaly the burns may be spread over the initial
+/// and final circles at almost no cost (see NOTES-issue3.md). Stopping there bounds the time
+/// of such cases; the record says why.
+fn degenerate<const K: usize>(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &SVector<f64, K>,
+    eps: f64,
+    tolerances: &Tolerances,
+) -> bool {
+    if eps > DEGENERATE_EPS {
+        return false;
+    }
+    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
+    let y0 = initial_state_costate(scenario, &costates);
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps,
     };
-    let homotopy_problem = Budgeted::new(problem, options.max_homotopy_work);
-    let levels = homotopy(
-        &homotopy_problem,
-        &z_energy,
-        &options.tolerances,
-        &options.newton,
-        options.final_eps,
-        options.max_homotopy_solves,
-    )
-    .map_err(|e| (format!("homotopy propagation failed: {e:?}"), distinct))?;
-    let Some(level) = levels.iter().rev().find(|l| l.outcome.converged).copied() else {
-        return Err(("homotopy failed at its first level".into(), distinct));
+    pontryagin::ramp_fraction(&params, &y0, scenario.time_of_flight(), tolerances)
+        .is_ok_and(|f| f > DEGENERATE_RAMP_FRACTION)
+}
+
+/// Final mass of the trajectory of costates `z` at homotopy parameter `eps`.
+fn final_mass<const K: usize>(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &SVector<f64, K>,
+    eps: f64,
+    tolerances: &Tolerances,
+) -> Option<f64> {
+    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
+    let y0 = initial_state_costate(scenario, &costates);
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps,
     };
-    let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
-    Ok(Solved {
-        level,
-        distinct,
-        reached_final,
-        budget_spent: homotopy_problem.exhausted(),
-    })
+    let yf = pontryagin::propagate(&params, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
+    Some(yf[pontryagin::idx::M])
 }
 
 /// Final mass of the energy-optimal (eps = 1) trajectory of a converged start.
@@ -384,12 +475,5 @@ fn energy_final_mass<const K: usize>(
     z: &SVector<f64, K>,
     tolerances: &Tolerances,
 ) -> Option<f64> {
-    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
-    let y0 = initial_state_costate(scenario, &costates);
-    let params = OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: 1.0,
-    };
-    let yf = pontryagin::propagate(&params, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
-    Some(yf[pontryagin::idx::M])
+    final_mass(scenario, spacecraft, z, 1.0, tolerances)
 }

@@ -343,6 +343,56 @@ pub fn propagate(
     Ok(y)
 }
 
+/// Records the time spent on the ramp (0 < u < 1) of the throttle law.
+struct RampClock<'a> {
+    switch: RegimeSwitch<'a>,
+    since: f64,
+    on_ramp: f64,
+}
+
+impl<const N: usize> Observer<N> for RampClock<'_> {
+    fn on_event(&mut self, index: usize, t: f64, y: &[f64; N], rising: bool) {
+        if self.switch.regime.get() == Regime::Ramp {
+            self.on_ramp += t - self.since;
+        }
+        self.since = t;
+        Observer::<N>::on_event(&mut self.switch, index, t, y, rising);
+    }
+}
+
+/// Fraction of [0, t1] that the optimal trajectory from y0 spends on the throttle ramp
+/// (|rho| < eps). A fuel-optimal solution is bang-bang, so at small eps this is small; a large
+/// value means the smoothed extremal hugs the switching surface (a singular, degenerate limit).
+pub fn ramp_fraction(
+    params: &OptimalControlParams,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<f64, IntegrationError> {
+    let regime = Cell::new(Regime::of(
+        switching_function(y0, params.spacecraft.exhaust_speed),
+        params.eps,
+    ));
+    let system = Modal {
+        params: *params,
+        regime: &regime,
+    };
+    let mut clock = RampClock {
+        switch: RegimeSwitch {
+            regime: &regime,
+            eps: params.eps,
+        },
+        since: 0.0,
+        on_ramp: 0.0,
+    };
+    let (_, stats) = integrate_observed(&system, 0.0, y0, t1, tolerances, &mut clock)?;
+    add_work(&stats, 1);
+    if regime.get() == Regime::Ramp {
+        clock.on_ramp += t1 - clock.since;
+    }
+    Ok(clock.on_ramp / t1)
+}
+
 /// [`propagate`] with the sensitivity matrix d y / d lambda_0 (see [`StateCostateSensitivity`]),
 /// from y0 with the identity on the costate rows.
 pub fn propagate_sensitivity(
