@@ -477,3 +477,56 @@ fn energy_final_mass<const K: usize>(
 ) -> Option<f64> {
     final_mass(scenario, spacecraft, z, 1.0, tolerances)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::spacecraft::Spacecraft;
+    use shooting::{ShootingProblem, TransferShooting};
+
+    /// A transfer-hard case solved end to end: the record reaches the SPEC's final eps, and an
+    /// independent re-propagation of its costates meets every terminal condition to 1e-8 at
+    /// rtol 1e-12, with a bang-bang throttle (little time on the ramp) and a mass that fell.
+    #[test]
+    fn hard_transfer_reaches_the_final_eps_with_terminal_conditions_to_1e_8() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferHard;
+        let scenario = kind.draw(7, 12);
+        let record = solve_scenario(kind, 7, 12, &scenario, &sc, &SolveOptions::default());
+        assert!(record.converged, "{:?}", record.failure);
+        assert!(record.final_eps < FINAL_EPS && record.final_eps > 0.5 * FINAL_EPS);
+        let mut z = TransferVector::zeros();
+        z.as_mut_slice()[..5].copy_from_slice(&record.costates);
+        z[5] = record.final_anomaly.unwrap();
+        let tolerances = SolveOptions::default().tolerances;
+        let f = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        }
+        .residual_only(record.final_eps, &z, &tolerances)
+        .unwrap();
+        assert!(f.amax() < 1e-8, "terminal residual {f}");
+        let params = OptimalControlParams {
+            spacecraft: sc,
+            eps: record.final_eps,
+        };
+        let y0 = initial_state_costate(&scenario, &record.costates);
+        let ramp = pontryagin::ramp_fraction(&params, &y0, scenario.time_of_flight(), &tolerances).unwrap();
+        assert!(ramp < 0.01, "time on the throttle ramp {ramp}");
+        assert!(record.final_mass > 0.5 && record.final_mass < 1.0 && record.thrust_arcs >= 1);
+    }
+
+    /// Transfer-circular heads for a singular arc (see `degenerate`): the solve stops early with
+    /// that reason instead of crawling, and the level it stopped at is a solved one.
+    #[test]
+    fn circular_transfer_stops_on_the_degenerate_singular_arc_with_the_reason() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferCircular;
+        let scenario = kind.draw(7, 3);
+        let record = solve_scenario(kind, 7, 3, &scenario, &sc, &SolveOptions::default());
+        assert!(!record.converged);
+        let failure = record.failure.unwrap_or_default();
+        assert!(failure.contains("degenerate"), "{failure}");
+        assert!(record.final_eps <= DEGENERATE_EPS && record.residual < 1e-8);
+    }
+}
