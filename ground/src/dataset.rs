@@ -1,12 +1,12 @@
 //! Trajectory records (SPEC section 3): what one solved scenario keeps, sampled both at the
 //! thesis's 100 ephemeris epochs and at every 14-day environment step.
 
-use onboard::integrator::{integrate, IntegrationError, Tolerances};
+use onboard::integrator::{IntegrationError, Tolerances};
 use serde::{Deserialize, Serialize};
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::units::STEP;
 
-use crate::solver::pontryagin::{idx, optimal_throttle, switching_function, OptimalControlParams, StateCostate, Y_LEN};
+use crate::solver::pontryagin::{idx, optimal_throttle, propagate, switching_function, OptimalControlParams, Y_LEN};
 
 /// Ephemeris epochs per trajectory (the thesis's "100 vectors per ephemeris").
 pub const EPHEMERIS_POINTS: usize = 100;
@@ -55,7 +55,8 @@ pub struct TrajectoryRecord {
     /// One sample per environment step boundary: k = 0..=N at t = k * STEP.
     pub steps: Vec<TrajectorySample>,
     /// How many distinct energy-optimal (eps = 1) solutions the multi-start found: more than
-    /// one means several local optima; the best by final mass was continued.
+    /// one means several local optima; each was continued and the fuel-optimal solution with
+    /// the largest final mass kept.
     pub distinct_energy_optima: u32,
 }
 
@@ -93,12 +94,11 @@ pub fn sample_at(
     times: &[f64],
     tolerances: &Tolerances,
 ) -> Result<Vec<TrajectorySample>, IntegrationError> {
-    let system = StateCostate(*params);
     let (mut t, mut y) = (0.0, *y0);
     let mut out = Vec::with_capacity(times.len());
     for &ti in times {
         if ti > t {
-            y = integrate(&system, t, &y, ti, tolerances)?.0;
+            y = propagate(params, t, &y, ti, tolerances)?;
             t = ti;
         }
         out.push(sample(t, &y, params));
@@ -132,6 +132,8 @@ pub fn count_thrust_arcs(samples: &[TrajectorySample]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::solver::pontryagin::StateCostate;
+    use onboard::integrator::integrate;
     use shared::spacecraft::Spacecraft;
 
     #[test]

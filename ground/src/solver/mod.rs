@@ -8,16 +8,16 @@ pub mod shooting;
 
 use std::time::Instant;
 
-use nalgebra::{Const, DimMin, SVector};
-use onboard::integrator::{integrate, Tolerances};
+use nalgebra::{Const, DimMin, SMatrix, SVector};
+use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonSettings, RendezvousShooting, RendezvousVector,
-    ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
+    homotopy_until, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
+    RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
 };
 
 /// Settings of one solve.
@@ -37,6 +37,11 @@ pub struct SolveOptions {
     /// nowhere is dropped early instead of costing seconds.
     pub start_newton: NewtonSettings,
     pub start_max_steps: u32,
+    /// Integration work (Runge-Kutta steps, see [`pontryagin::work_done`]) the multi-start and
+    /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
+    /// nowhere, identical on every machine, under any load and in every shard.
+    pub max_start_work: u64,
+    pub max_homotopy_work: u64,
 }
 
 impl Default for SolveOptions {
@@ -45,29 +50,31 @@ impl Default for SolveOptions {
             tolerances: Tolerances {
                 relative: 1e-12,
                 absolute: 1e-13,
-                max_steps: 20_000,
+                max_steps: 5_000,
                 initial_step: 0.0,
             },
             newton: NewtonSettings {
-                max_iterations: 30,
+                max_iterations: 15,
                 tolerance: 1e-8,
             },
             final_eps: FINAL_EPS,
             max_homotopy_solves: 60,
             max_distinct_starts: 3,
             start_newton: NewtonSettings {
-                max_iterations: 20,
+                max_iterations: 25,
                 tolerance: 1e-8,
             },
             start_max_steps: 4_000,
+            max_start_work: 4_000_000,
+            max_homotopy_work: 3_000_000,
         }
     }
 }
 
 /// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer, most plausible
-/// first: the primer along the velocity for a raise (against it for a lowering), lambda_v
-/// along -+theta_hat and lambda_r along -r_hat, several magnitudes, and final anomalies from the
-/// angle swept at the initial, mean and final mean motions; then the same with the other sign.
+/// first: final anomalies from the angle swept at the mean, initial and final mean motions,
+/// lambda_r along -r_hat, lambda_v along -+theta_hat (the primer along the velocity for a
+/// raise, against it for a lowering, then the other sign), several magnitudes.
 pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
     let polar = scenario.initial.polar();
     let (c, s) = (polar.theta.cos(), polar.theta.sin());
@@ -80,10 +87,12 @@ pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
         -1.0
     };
     let mut guesses = Vec::new();
-    for sign in [raise, -raise] {
-        for rate in [0.5 * (n0 + nf), n0, nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
-            let nu_f = polar.theta + rate * tof - scenario.target.omega;
-            for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+    for rate in [0.5 * (n0 + nf), n0, nf, 0.75 * n0 + 0.25 * nf, 0.25 * n0 + 0.75 * nf] {
+        let nu_f = polar.theta + rate * tof - scenario.target.omega;
+        for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+            // Both signs early: with eccentric orbits the sign that the semi-major axes
+            // suggest is often the wrong one.
+            for sign in [raise, -raise] {
                 // Primer (thrust direction) = -lambda_v = sign * theta_hat.
                 guesses.push(TransferVector::from_column_slice(&[
                     -k_r * c,
@@ -142,7 +151,13 @@ pub fn solve_scenario(
             };
             solve_problem(&problem, scenario, spacecraft, transfer_guesses(scenario), options).map(|s| {
                 let z = s.level.outcome.z;
-                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                let summary = (
+                    s.level.eps,
+                    s.level.outcome.residual,
+                    s.distinct,
+                    s.reached_final,
+                    (s.budget_spent, s.degenerate),
+                );
                 (summary, Some(z[5]), z)
             })
         }
@@ -162,12 +177,18 @@ pub fn solve_scenario(
             solve_problem(&problem, scenario, spacecraft, guesses, options).map(|s| {
                 let z = s.level.outcome.z;
                 let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
-                let summary = (s.level.eps, s.level.outcome.residual, s.distinct, s.reached_final);
+                let summary = (
+                    s.level.eps,
+                    s.level.outcome.residual,
+                    s.distinct,
+                    s.reached_final,
+                    (s.budget_spent, s.degenerate),
+                );
                 (summary, None, padded)
             })
         }
     };
-    let ((final_eps, residual, distinct, reached_final), final_anomaly, z) = match solved {
+    let ((final_eps, residual, distinct, reached_final, budget_spent), final_anomaly, z) = match solved {
         Ok(x) => x,
         Err((reason, distinct)) => {
             record.failure = Some(reason);
@@ -178,7 +199,12 @@ pub fn solve_scenario(
     };
     record.distinct_energy_optima = distinct;
     if !reached_final {
-        record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}"));
+        let budget = match budget_spent {
+            (_, true) => " (degenerate: throttle on the ramp over most of the flight, singular-arc limit)",
+            (true, false) => " (work budget spent)",
+            _ => "",
+        };
+        record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
     record.final_anomaly = final_anomaly;
@@ -207,12 +233,68 @@ pub fn solve_scenario(
     record
 }
 
+/// A shooting problem that refuses to propagate once its budget of integration work (see
+/// [`pontryagin::work_done`]) is spent; the refusal reads as a failed propagation, which every
+/// caller already handles.
+struct Budgeted<'a, P> {
+    inner: &'a P,
+    start: u64,
+    limit: u64,
+}
+
+impl<'a, P> Budgeted<'a, P> {
+    fn new(inner: &'a P, limit: u64) -> Self {
+        Self {
+            inner,
+            start: pontryagin::work_done(),
+            limit,
+        }
+    }
+
+    fn take(&self) -> Result<(), IntegrationError> {
+        if self.exhausted() {
+            return Err(IntegrationError::StepBudgetExhausted { t: 0.0 });
+        }
+        Ok(())
+    }
+
+    fn exhausted(&self) -> bool {
+        pontryagin::work_done().saturating_sub(self.start) >= self.limit
+    }
+}
+
+impl<P: ShootingProblem<K>, const K: usize> ShootingProblem<K> for Budgeted<'_, P> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<SVector<f64, K>, IntegrationError> {
+        self.take()?;
+        self.inner.residual_only(eps, z, tolerances)
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError> {
+        self.take()?;
+        self.inner.residual(eps, z, tolerances)
+    }
+}
+
 /// The last converged homotopy level of a solve, how many distinct energy-optimal starts
 /// were found, and whether the schedule's final level was reached.
 struct Solved<const K: usize> {
     level: HomotopyLevel<K>,
     distinct: u32,
     reached_final: bool,
+    /// The homotopy stopped because its propagation budget ran out.
+    budget_spent: bool,
+    /// The homotopy stopped on a degenerate (singular-arc) extremal, see [`degenerate`].
+    degenerate: bool,
 }
 
 /// Multi-start at eps = 1 (the distinct solution with the largest final mass is continued),
@@ -234,42 +316,157 @@ where
     // Every converged start, with the final mass of its energy-optimal trajectory: distinct
     // local optima (revolution counts, burn splits) show up as distinct masses.
     let mut starts: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    let start_problem = Budgeted::new(problem, options.max_start_work);
+    // A guess that converges usually does so cheaply, one that does not burns many times more:
+    // a first pass gives every guess a small share of the budget, a second continues the
+    // unconverged ones with the smallest residuals.
+    let mut pending: Vec<(SVector<f64, K>, f64)> = Vec::new();
+    let n_guesses = guesses.len();
+    let consider = |outcome: NewtonOutcome<K>, starts: &mut Vec<(SVector<f64, K>, f64)>| {
+        if !outcome.converged {
+            return Some((outcome.z, outcome.residual));
+        }
+        if !starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
+            if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
+                starts.push((outcome.z, m));
+            }
+        }
+        None
+    };
+    let enough = |starts: &Vec<(SVector<f64, K>, f64)>| {
+        starts.len() >= options.max_distinct_starts as usize || start_problem.exhausted()
+    };
     for z0 in guesses {
-        if starts.len() >= options.max_distinct_starts as usize {
+        if enough(&starts) {
             break;
         }
-        let Ok(outcome) = newton(problem, 1.0, &z0, &start_tolerances, &options.start_newton) else {
-            continue;
-        };
-        if !outcome.converged || starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
-            continue;
+        let share = Budgeted::new(&start_problem, options.max_start_work / (n_guesses as u64 + 10));
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+            pending.extend(consider(outcome, &mut starts));
         }
-        if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
-            starts.push((outcome.z, m));
+    }
+    pending.retain(|(_, r)| r.is_finite());
+    pending.sort_by(|a, b| a.1.total_cmp(&b.1));
+    for (z0, _) in pending.into_iter().take(4) {
+        if enough(&starts) {
+            break;
+        }
+        let share = Budgeted::new(&start_problem, options.max_start_work / 4);
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+            consider(outcome, &mut starts);
         }
     }
     let distinct = starts.len() as u32;
-    let Some(z_energy) = starts.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map(|s| s.0) else {
-        return Err(("no energy-optimal start converged".into(), distinct));
+    if starts.is_empty() {
+        let why = if start_problem.exhausted() {
+            "no energy-optimal start converged within the work budget"
+        } else {
+            "no energy-optimal start converged"
+        };
+        return Err((why.into(), distinct));
+    }
+    // Every distinct start is continued (best energy-optimal mass first, each with its own
+    // budget): the best fuel-optimal solution need not come from the best energy-optimal one,
+    // and a start whose homotopy stalls hands over to the next. Of the starts that reach the
+    // final eps the one with the largest final mass is kept; if none does, the deepest level.
+    starts.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let mut best: Option<(Solved<K>, f64)> = None;
+    let mut last_error = String::from("homotopy failed at its first level");
+    for (z_energy, _) in &starts {
+        let homotopy_problem = Budgeted::new(problem, options.max_homotopy_work);
+        let levels = match homotopy_until(
+            &homotopy_problem,
+            z_energy,
+            &options.tolerances,
+            &options.newton,
+            options.final_eps,
+            options.max_homotopy_solves,
+            |eps, z| degenerate(scenario, spacecraft, z, eps, &options.tolerances),
+        ) {
+            Ok(levels) => levels,
+            Err(e) => {
+                last_error = format!("homotopy propagation failed: {e:?}");
+                continue;
+            }
+        };
+        let Some(level) = levels.iter().rev().find(|l| l.outcome.converged).copied() else {
+            continue;
+        };
+        let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
+        let mass =
+            final_mass(scenario, spacecraft, &level.outcome.z, level.eps, &options.tolerances).unwrap_or(f64::NAN);
+        let solved = Solved {
+            level,
+            distinct,
+            reached_final,
+            budget_spent: homotopy_problem.exhausted(),
+            degenerate: !reached_final
+                && degenerate(scenario, spacecraft, &level.outcome.z, level.eps, &options.tolerances),
+        };
+        let better = match &best {
+            None => true,
+            Some((b, m)) => match (solved.reached_final, b.reached_final) {
+                (true, false) => true,
+                (false, true) => false,
+                (true, true) => mass > *m,
+                (false, false) => solved.level.eps < b.level.eps,
+            },
+        };
+        if better {
+            best = Some((solved, mass));
+        }
+    }
+    best.map(|(s, _)| s).ok_or((last_error, distinct))
+}
+
+/// Below this eps a solution that spends more than [`DEGENERATE_RAMP_FRACTION`] of the flight
+/// on the throttle ramp is taken as degenerate and its homotopy stopped.
+pub const DEGENERATE_EPS: f64 = 0.02;
+pub const DEGENERATE_RAMP_FRACTION: f64 = 0.5;
+
+/// Whether the extremal of costates `z` at `eps` hugs the switching surface: at eps <= 2e-2
+/// the throttle is strictly between 0 and 1 over more than half the flight. Fuel-optimal
+/// extremals are bang-bang, so such a path heads for a singular arc, along which the shooting
+/// Jacobian grows like 1/eps and the corrector crawls. It is what transfer-circular does:
+/// between circular orbits with a free final anomaly the burns may be spread over the initial
+/// and final circles at almost no cost (see NOTES-issue3.md). Stopping there bounds the time
+/// of such cases; the record says why.
+fn degenerate<const K: usize>(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &SVector<f64, K>,
+    eps: f64,
+    tolerances: &Tolerances,
+) -> bool {
+    if eps > DEGENERATE_EPS {
+        return false;
+    }
+    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
+    let y0 = initial_state_costate(scenario, &costates);
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps,
     };
-    let levels = homotopy(
-        problem,
-        &z_energy,
-        &options.tolerances,
-        &options.newton,
-        options.final_eps,
-        options.max_homotopy_solves,
-    )
-    .map_err(|e| (format!("homotopy propagation failed: {e:?}"), distinct))?;
-    let Some(level) = levels.iter().rev().find(|l| l.outcome.converged).copied() else {
-        return Err(("homotopy failed at its first level".into(), distinct));
+    pontryagin::ramp_fraction(&params, &y0, scenario.time_of_flight(), tolerances)
+        .is_ok_and(|f| f > DEGENERATE_RAMP_FRACTION)
+}
+
+/// Final mass of the trajectory of costates `z` at homotopy parameter `eps`.
+fn final_mass<const K: usize>(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &SVector<f64, K>,
+    eps: f64,
+    tolerances: &Tolerances,
+) -> Option<f64> {
+    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
+    let y0 = initial_state_costate(scenario, &costates);
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps,
     };
-    let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
-    Ok(Solved {
-        level,
-        distinct,
-        reached_final,
-    })
+    let yf = pontryagin::propagate(&params, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
+    Some(yf[pontryagin::idx::M])
 }
 
 /// Final mass of the energy-optimal (eps = 1) trajectory of a converged start.
@@ -279,12 +476,58 @@ fn energy_final_mass<const K: usize>(
     z: &SVector<f64, K>,
     tolerances: &Tolerances,
 ) -> Option<f64> {
-    let costates: [f64; 5] = core::array::from_fn(|i| z.get(i).copied().unwrap_or(0.0));
-    let y0 = initial_state_costate(scenario, &costates);
-    let system = pontryagin::StateCostate(OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: 1.0,
-    });
-    let (yf, _) = integrate(&system, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
-    Some(yf[pontryagin::idx::M])
+    final_mass(scenario, spacecraft, z, 1.0, tolerances)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::spacecraft::Spacecraft;
+    use shooting::{ShootingProblem, TransferShooting};
+
+    /// A transfer-hard case solved end to end: the record reaches the SPEC's final eps, and an
+    /// independent re-propagation of its costates meets every terminal condition to 1e-8 at
+    /// rtol 1e-12, with a bang-bang throttle (little time on the ramp) and a mass that fell.
+    #[test]
+    fn hard_transfer_reaches_the_final_eps_with_terminal_conditions_to_1e_8() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferHard;
+        let scenario = kind.draw(7, 12);
+        let record = solve_scenario(kind, 7, 12, &scenario, &sc, &SolveOptions::default());
+        assert!(record.converged, "{:?}", record.failure);
+        assert!(record.final_eps < FINAL_EPS && record.final_eps > 0.5 * FINAL_EPS);
+        let mut z = TransferVector::zeros();
+        z.as_mut_slice()[..5].copy_from_slice(&record.costates);
+        z[5] = record.final_anomaly.unwrap();
+        let tolerances = SolveOptions::default().tolerances;
+        let f = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        }
+        .residual_only(record.final_eps, &z, &tolerances)
+        .unwrap();
+        assert!(f.amax() < 1e-8, "terminal residual {f}");
+        let params = OptimalControlParams {
+            spacecraft: sc,
+            eps: record.final_eps,
+        };
+        let y0 = initial_state_costate(&scenario, &record.costates);
+        let ramp = pontryagin::ramp_fraction(&params, &y0, scenario.time_of_flight(), &tolerances).unwrap();
+        assert!(ramp < 0.01, "time on the throttle ramp {ramp}");
+        assert!(record.final_mass > 0.5 && record.final_mass < 1.0 && record.thrust_arcs >= 1);
+    }
+
+    /// Transfer-circular heads for a singular arc (see `degenerate`): the solve stops early with
+    /// that reason instead of crawling, and the level it stopped at is a solved one.
+    #[test]
+    fn circular_transfer_stops_on_the_degenerate_singular_arc_with_the_reason() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferCircular;
+        let scenario = kind.draw(7, 3);
+        let record = solve_scenario(kind, 7, 3, &scenario, &sc, &SolveOptions::default());
+        assert!(!record.converged);
+        let failure = record.failure.unwrap_or_default();
+        assert!(failure.contains("degenerate"), "{failure}");
+        assert!(record.final_eps <= DEGENERATE_EPS && record.residual < 1e-8);
+    }
 }

@@ -8,7 +8,11 @@
 
 use nalgebra::{Const, SVector};
 use num_dual::{Derivative, DualNum, DualVec64};
-use onboard::integrator::{OdeSystem, MAX_EVENTS};
+use std::cell::Cell;
+
+use onboard::integrator::{
+    integrate_observed, IntegrationError, IntegrationStats, Observer, OdeSystem, Tolerances, MAX_EVENTS,
+};
 use shared::spacecraft::CanonicalSpacecraft;
 
 /// State + costate length.
@@ -57,8 +61,75 @@ pub fn optimal_throttle<D: DualNum<Primitive = f64> + Copy>(rho: D, eps: f64) ->
     }
 }
 
+/// Which branch of the smoothed throttle law applies: u = 0, the linear ramp, or u = 1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Regime {
+    Coast,
+    Ramp,
+    Full,
+}
+
+impl Regime {
+    /// The branch that the throttle law selects at switching function `rho`.
+    pub fn of(rho: f64, eps: f64) -> Self {
+        if eps <= 0.0 {
+            if rho > 0.0 {
+                Self::Full
+            } else {
+                Self::Coast
+            }
+        } else if rho > eps {
+            Self::Full
+        } else if rho < -eps {
+            Self::Coast
+        } else {
+            Self::Ramp
+        }
+    }
+
+    /// The branch entered when event `index` (0: rho - eps, 1: rho + eps) is crossed upwards
+    /// (`rising`) or downwards.
+    pub fn after_event(index: usize, rising: bool, eps: f64) -> Self {
+        match (index, rising) {
+            (0, true) => Self::Full,
+            (1, false) => Self::Coast,
+            _ if eps <= 0.0 => {
+                if rising {
+                    Self::Full
+                } else {
+                    Self::Coast
+                }
+            }
+            _ => Self::Ramp,
+        }
+    }
+
+    /// The throttle of this branch (the ramp extended beyond [-eps, eps] as a straight line).
+    pub fn throttle<D: DualNum<Primitive = f64> + Copy>(self, rho: D, eps: f64) -> D {
+        match self {
+            Self::Coast => D::from(0.0),
+            Self::Full => D::from(1.0),
+            Self::Ramp => (rho / eps + 1.0) * 0.5,
+        }
+    }
+}
+
 /// dy/dt of the state-costate system with the optimal control substituted.
 pub fn state_costate_rhs<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y_LEN], p: &OptimalControlParams) -> [D; Y_LEN] {
+    let regime = Regime::of(switching_function(y, p.spacecraft.exhaust_speed).re(), p.eps);
+    state_costate_rhs_in(y, p, regime)
+}
+
+/// dy/dt of the state-costate system on one branch of the throttle law. Integrating with the
+/// branch held fixed between located switches (see [`propagate`]) keeps every Runge-Kutta step
+/// on one smooth arc: the variational equations jump at a switch (du/drho goes from 0 to
+/// 1/(2 eps)), and a step whose last stages see the other branch is rejected again and again
+/// at small eps until the step size underflows.
+pub fn state_costate_rhs_in<D: DualNum<Primitive = f64> + Copy>(
+    y: &[D; Y_LEN],
+    p: &OptimalControlParams,
+    regime: Regime,
+) -> [D; Y_LEN] {
     let (t_max, c) = (p.spacecraft.thrust, p.spacecraft.exhaust_speed);
     let (x, yy) = (y[idx::R], y[idx::R + 1]);
     let (vx, vy, m) = (y[idx::V], y[idx::V + 1], y[idx::M]);
@@ -69,7 +140,7 @@ pub fn state_costate_rhs<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y_LEN], p: 
     let r3 = r2 * r;
     let r5 = r3 * r2;
     let lv = (lvx * lvx + lvy * lvy).sqrt();
-    let u = optimal_throttle(switching_function(y, c), p.eps);
+    let u = regime.throttle(switching_function(y, c), p.eps);
     // Primer vector: thrust opposite lambda_v.
     let acc = u * t_max / m;
     let (ax, ay) = (-acc * lvx / lv, -acc * lvy / lv);
@@ -128,6 +199,24 @@ pub struct StateCostateSensitivity(pub OptimalControlParams);
 
 type Dual5 = DualVec64<Const<SENS_COLS>>;
 
+/// The state-costate derivatives and the variational equations on one throttle branch.
+fn sensitivity_rhs(ys: &[f64; YS_LEN], params: &OptimalControlParams, regime: Regime, dydt: &mut [f64; YS_LEN]) {
+    // Seed each component with its row of the sensitivity matrix: the dual parts of f then
+    // are J(y) * Phi, the right-hand side of the variational equations.
+    let y: [Dual5; Y_LEN] = core::array::from_fn(|i| {
+        let row = SVector::<f64, SENS_COLS>::from_fn(|k, _| ys[Y_LEN + k * Y_LEN + i]);
+        Dual5::new(ys[i], Derivative::some(row))
+    });
+    let f = state_costate_rhs_in(&y, params, regime);
+    for (i, fi) in f.iter().enumerate() {
+        dydt[i] = fi.re;
+        let d = fi.eps.unwrap_generic(Const::<SENS_COLS>, Const::<1>);
+        for k in 0..SENS_COLS {
+            dydt[Y_LEN + k * Y_LEN + i] = d[k];
+        }
+    }
+}
+
 impl StateCostateSensitivity {
     /// Initial condition: y0 with the identity on the costate rows of the sensitivity.
     pub fn initial(y0: &[f64; Y_LEN]) -> [f64; YS_LEN] {
@@ -147,20 +236,9 @@ impl StateCostateSensitivity {
 
 impl OdeSystem<YS_LEN> for StateCostateSensitivity {
     fn derivatives(&self, _t: f64, ys: &[f64; YS_LEN], dydt: &mut [f64; YS_LEN]) {
-        // Seed each component with its row of the sensitivity matrix: the dual parts of f then
-        // are J(y) * Phi, the right-hand side of the variational equations.
-        let y: [Dual5; Y_LEN] = core::array::from_fn(|i| {
-            let row = SVector::<f64, SENS_COLS>::from_fn(|k, _| ys[Y_LEN + k * Y_LEN + i]);
-            Dual5::new(ys[i], Derivative::some(row))
-        });
-        let f = state_costate_rhs(&y, &self.0);
-        for (i, fi) in f.iter().enumerate() {
-            dydt[i] = fi.re;
-            let d = fi.eps.unwrap_generic(Const::<SENS_COLS>, Const::<1>);
-            for k in 0..SENS_COLS {
-                dydt[Y_LEN + k * Y_LEN + i] = d[k];
-            }
-        }
+        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+        let regime = Regime::of(switching_function(&y, self.0.spacecraft.exhaust_speed), self.0.eps);
+        sensitivity_rhs(ys, &self.0, regime, dydt);
     }
 
     fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; MAX_EVENTS] {
@@ -169,10 +247,189 @@ impl OdeSystem<YS_LEN> for StateCostateSensitivity {
     }
 }
 
+/// The state-costate ODE with the throttle branch held in a discrete mode that only the located
+/// switches change (see [`state_costate_rhs_in`]).
+struct Modal<'a> {
+    params: OptimalControlParams,
+    regime: &'a Cell<Regime>,
+}
+
+impl OdeSystem<Y_LEN> for Modal<'_> {
+    fn derivatives(&self, _t: f64, y: &[f64; Y_LEN], dydt: &mut [f64; Y_LEN]) {
+        *dydt = state_costate_rhs_in(y, &self.params, self.regime.get());
+    }
+
+    fn events(&self, _t: f64, y: &[f64; Y_LEN]) -> [f64; MAX_EVENTS] {
+        switch_events(y, &self.params)
+    }
+}
+
+/// [`StateCostateSensitivity`] with the branch held in a discrete mode.
+struct ModalSensitivity<'a> {
+    params: OptimalControlParams,
+    regime: &'a Cell<Regime>,
+}
+
+impl OdeSystem<YS_LEN> for ModalSensitivity<'_> {
+    fn derivatives(&self, _t: f64, ys: &[f64; YS_LEN], dydt: &mut [f64; YS_LEN]) {
+        sensitivity_rhs(ys, &self.params, self.regime.get(), dydt);
+    }
+
+    fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; MAX_EVENTS] {
+        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+        switch_events(&y, &self.params)
+    }
+}
+
+/// Switches the mode at every located switch.
+struct RegimeSwitch<'a> {
+    regime: &'a Cell<Regime>,
+    eps: f64,
+}
+
+impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
+    fn on_event(&mut self, index: usize, _t: f64, _y: &[f64; N], rising: bool) {
+        self.regime.set(Regime::after_event(index, rising, self.eps));
+    }
+}
+
+std::thread_local! {
+    /// Integration work done on this thread by [`propagate`] and [`propagate_sensitivity`], in
+    /// Runge-Kutta trial steps of the 10-state system (a step of the 60-state sensitivity system
+    /// counts [`SENSITIVITY_STEP_WORK`]). Solver budgets are taken from it: a count, unlike a
+    /// clock, is the same on every machine and under any load.
+    static WORK: Cell<u64> = const { Cell::new(0) };
+}
+
+/// Work of one sensitivity step relative to a plain one (measured: ~6x the derivative cost).
+pub const SENSITIVITY_STEP_WORK: u64 = 6;
+
+/// The integration work done on this thread so far (see [`WORK`]).
+pub fn work_done() -> u64 {
+    WORK.with(Cell::get)
+}
+
+fn add_work(stats: &IntegrationStats, weight: u64) {
+    let steps = u64::from(stats.accepted_steps) + u64::from(stats.rejected_steps);
+    WORK.with(|w| w.set(w.get().saturating_add(steps * weight)));
+}
+
+/// Propagates the state-costate system from (t0, y0) to t1, stepping onto every switch and
+/// holding the throttle branch fixed in between (the way every solver propagation is done).
+pub fn propagate(
+    params: &OptimalControlParams,
+    t0: f64,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<[f64; Y_LEN], IntegrationError> {
+    let regime = Cell::new(Regime::of(
+        switching_function(y0, params.spacecraft.exhaust_speed),
+        params.eps,
+    ));
+    let system = Modal {
+        params: *params,
+        regime: &regime,
+    };
+    let mut observer = RegimeSwitch {
+        regime: &regime,
+        eps: params.eps,
+    };
+    let (y, stats) = integrate_observed(&system, t0, y0, t1, tolerances, &mut observer).inspect_err(|_| {
+        // A failed propagation spent at most its step budget.
+        WORK.with(|w| w.set(w.get().saturating_add(u64::from(tolerances.max_steps))));
+    })?;
+    add_work(&stats, 1);
+    Ok(y)
+}
+
+/// Records the time spent on the ramp (0 < u < 1) of the throttle law.
+struct RampClock<'a> {
+    switch: RegimeSwitch<'a>,
+    since: f64,
+    on_ramp: f64,
+}
+
+impl<const N: usize> Observer<N> for RampClock<'_> {
+    fn on_event(&mut self, index: usize, t: f64, y: &[f64; N], rising: bool) {
+        if self.switch.regime.get() == Regime::Ramp {
+            self.on_ramp += t - self.since;
+        }
+        self.since = t;
+        Observer::<N>::on_event(&mut self.switch, index, t, y, rising);
+    }
+}
+
+/// Fraction of [0, t1] that the optimal trajectory from y0 spends on the throttle ramp
+/// (|rho| < eps). A fuel-optimal solution is bang-bang, so at small eps this is small; a large
+/// value means the smoothed extremal hugs the switching surface (a singular, degenerate limit).
+pub fn ramp_fraction(
+    params: &OptimalControlParams,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<f64, IntegrationError> {
+    let regime = Cell::new(Regime::of(
+        switching_function(y0, params.spacecraft.exhaust_speed),
+        params.eps,
+    ));
+    let system = Modal {
+        params: *params,
+        regime: &regime,
+    };
+    let mut clock = RampClock {
+        switch: RegimeSwitch {
+            regime: &regime,
+            eps: params.eps,
+        },
+        since: 0.0,
+        on_ramp: 0.0,
+    };
+    let (_, stats) = integrate_observed(&system, 0.0, y0, t1, tolerances, &mut clock)?;
+    add_work(&stats, 1);
+    if regime.get() == Regime::Ramp {
+        clock.on_ramp += t1 - clock.since;
+    }
+    Ok(clock.on_ramp / t1)
+}
+
+/// [`propagate`] with the sensitivity matrix d y / d lambda_0 (see [`StateCostateSensitivity`]),
+/// from y0 with the identity on the costate rows.
+pub fn propagate_sensitivity(
+    params: &OptimalControlParams,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<[f64; YS_LEN], IntegrationError> {
+    let regime = Cell::new(Regime::of(
+        switching_function(y0, params.spacecraft.exhaust_speed),
+        params.eps,
+    ));
+    let system = ModalSensitivity {
+        params: *params,
+        regime: &regime,
+    };
+    let mut observer = RegimeSwitch {
+        regime: &regime,
+        eps: params.eps,
+    };
+    let ys0 = StateCostateSensitivity::initial(y0);
+    let (y, stats) = integrate_observed(&system, 0.0, &ys0, t1, tolerances, &mut observer).inspect_err(|_| {
+        WORK.with(|w| {
+            w.set(
+                w.get()
+                    .saturating_add(u64::from(tolerances.max_steps) * SENSITIVITY_STEP_WORK),
+            )
+        });
+    })?;
+    add_work(&stats, SENSITIVITY_STEP_WORK);
+    Ok(y)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use onboard::integrator::{integrate, Tolerances};
+    use onboard::integrator::integrate;
     use shared::spacecraft::Spacecraft;
 
     fn params(eps: f64) -> OptimalControlParams {
@@ -287,6 +544,69 @@ mod tests {
                 let s = StateCostateSensitivity::sensitivity(&ys, i, k);
                 assert!(
                     (s - fd).abs() < 1e-5 * (1.0 + fd.abs()),
+                    "d y{i} / d lambda{k}: {s} vs {fd}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn regime_follows_the_throttle_law_and_the_event_directions() {
+        for eps in [0.5, 1e-4, 0.0] {
+            for rho in [-1.0, -0.3, -1e-5, 0.0, 2e-5, 0.3, 1.0] {
+                let regime = Regime::of(rho, eps);
+                let u: f64 = regime.throttle(rho, eps.max(1e-300));
+                let expect: f64 = optimal_throttle(rho, eps);
+                assert!((u - expect).abs() < 1e-15, "eps {eps} rho {rho}: {regime:?}");
+            }
+        }
+        // Event 0 is rho - eps, event 1 is rho + eps; crossing one moves to the adjacent branch.
+        assert_eq!(Regime::after_event(0, true, 0.1), Regime::Full);
+        assert_eq!(Regime::after_event(0, false, 0.1), Regime::Ramp);
+        assert_eq!(Regime::after_event(1, true, 0.1), Regime::Ramp);
+        assert_eq!(Regime::after_event(1, false, 0.1), Regime::Coast);
+        // Bang-bang: both events are rho itself.
+        assert_eq!(Regime::after_event(0, false, 0.0), Regime::Coast);
+        assert_eq!(Regime::after_event(1, true, 0.0), Regime::Full);
+    }
+
+    /// A propagation that switches between the three branches many times agrees with the
+    /// state-dependent right-hand side, and its sensitivities with finite differences, at a small
+    /// eps where the branch jump of the variational equations matters.
+    #[test]
+    fn modal_propagation_matches_the_plain_system_and_finite_differences() {
+        let p = params(1e-3);
+        let y0 = [1.0, 0.0, 0.0, 1.0, 1.0, 0.2, 0.1, -0.3, -0.6, 0.05];
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let tf = 6.0;
+        let modal = propagate(&p, 0.0, &y0, tf, &tol).unwrap();
+        let (plain, stats) = integrate(&StateCostate(p), 0.0, &y0, tf, &tol).unwrap();
+        assert!(stats.events_located >= 2, "the test arc should switch: {stats:?}");
+        for i in 0..Y_LEN {
+            assert!(
+                (modal[i] - plain[i]).abs() < 1e-8 * (1.0 + plain[i].abs()),
+                "y{i}: {} vs {}",
+                modal[i],
+                plain[i]
+            );
+        }
+        let ys = propagate_sensitivity(&p, &y0, tf, &tol).unwrap();
+        let h = 1e-7;
+        for k in 0..SENS_COLS {
+            let (mut yp, mut ym) = (y0, y0);
+            yp[idx::LR + k] += h;
+            ym[idx::LR + k] -= h;
+            let fp = propagate(&p, 0.0, &yp, tf, &tol).unwrap();
+            let fm = propagate(&p, 0.0, &ym, tf, &tol).unwrap();
+            for i in 0..Y_LEN {
+                let fd = (fp[i] - fm[i]) / (2.0 * h);
+                let s = StateCostateSensitivity::sensitivity(&ys, i, k);
+                assert!(
+                    (s - fd).abs() < 1e-4 * (1.0 + fd.abs()),
                     "d y{i} / d lambda{k}: {s} vs {fd}"
                 );
             }

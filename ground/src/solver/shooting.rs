@@ -1,15 +1,15 @@
 //! Single shooting for the free-anomaly transfer (SPEC section 3): the residual of the terminal
 //! conditions and its exact Jacobian, and a damped Newton iteration on them.
 
-use nalgebra::{Const, DimMin, SMatrix, SVector};
+use nalgebra::{Const, DMatrix, DVector, DimMin, SMatrix, SVector};
 use num_dual::{Dual2_64, DualNum};
-use onboard::integrator::{integrate, IntegrationError, Tolerances};
+use onboard::integrator::{IntegrationError, Tolerances};
 use onboard::kepler::coast;
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::Scenario;
 use shared::spacecraft::CanonicalSpacecraft;
 
-use super::pontryagin::{idx, OptimalControlParams, StateCostate, StateCostateSensitivity, Y_LEN};
+use super::pontryagin::{idx, propagate, propagate_sensitivity, OptimalControlParams, StateCostateSensitivity, Y_LEN};
 
 /// Transfer unknowns: the five initial costates and the final true anomaly nu_f.
 pub const TRANSFER_UNKNOWNS: usize = 6;
@@ -62,13 +62,7 @@ pub fn transfer_residual(
     tolerances: &Tolerances,
 ) -> Result<(TransferVector, TransferJacobian), IntegrationError> {
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-    let (ys, _) = integrate(
-        &StateCostateSensitivity(*params),
-        0.0,
-        &StateCostateSensitivity::initial(&y0),
-        scenario.time_of_flight(),
-        tolerances,
-    )?;
+    let ys = propagate_sensitivity(params, &y0, scenario.time_of_flight(), tolerances)?;
     let (f, orbit) = transfer_terminal(scenario, &ys, z[5]);
     let mut jac = TransferJacobian::zeros();
     for k in 0..5 {
@@ -95,7 +89,7 @@ pub fn transfer_residual_only(
     tolerances: &Tolerances,
 ) -> Result<TransferVector, IntegrationError> {
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-    let (y, _) = integrate(&StateCostate(*params), 0.0, &y0, scenario.time_of_flight(), tolerances)?;
+    let y = propagate(params, 0.0, &y0, scenario.time_of_flight(), tolerances)?;
     Ok(transfer_terminal(scenario, &y, z[5]).0)
 }
 
@@ -172,10 +166,59 @@ pub struct NewtonOutcome<const K: usize = TRANSFER_UNKNOWNS> {
     pub converged: bool,
 }
 
-/// Damped Newton on a shooting problem: the full Newton step dz = -J^-1 F with backtracking
-/// (Armijo on |F|^2) while it makes progress, and a Levenberg-Marquardt step (JtJ + mu D) dz =
-/// -Jt F with Nielsen's damping update when the Newton direction fails (singular J or no
-/// decrease within 12 halvings). A failed propagation counts as a rejected trial.
+/// Minimum-norm solution of J dz = -F by the singular value decomposition, singular values
+/// below `rcond * s_max` treated as zero, and optionally the `drop` smallest ones dropped as
+/// well. Returns the step and the ratio s_min / s_max of the full spectrum.
+fn svd_step<const K: usize>(
+    jac: &SMatrix<f64, K, K>,
+    f: &SVector<f64, K>,
+    rcond: f64,
+    drop: usize,
+) -> Option<(SVector<f64, K>, f64)> {
+    // A dynamic copy: nalgebra's fixed-size SVD needs type-level bounds a const-generic K lacks,
+    // and a 6x6 copy costs nothing next to one propagation.
+    let svd = DMatrix::from_column_slice(K, K, jac.as_slice()).svd(true, true);
+    let (u, v_t) = (svd.u.as_ref()?, svd.v_t.as_ref()?);
+    let sv = &svd.singular_values;
+    let s_max = sv.max();
+    if !(s_max.is_finite() && s_max > 0.0) {
+        return None;
+    }
+    let mut order: Vec<usize> = (0..K).collect();
+    order.sort_by(|&a, &b| sv[a].total_cmp(&sv[b]));
+    let s_min = sv[order[0]];
+    let mut step = SVector::<f64, K>::zeros();
+    for (rank, &i) in order.iter().enumerate() {
+        if rank < drop || sv[i] <= rcond * s_max {
+            continue;
+        }
+        let coef = -u.column(i).dot(&DVector::from_column_slice(f.as_slice())) / sv[i];
+        for k in 0..K {
+            step[k] += coef * v_t[(i, k)];
+        }
+    }
+    step.iter().all(|x| x.is_finite()).then_some((step, s_min / s_max))
+}
+
+/// Singular values below this fraction of the largest are treated as zero (minimum-norm step).
+const RCOND: f64 = 1e-13;
+/// A Jacobian this ill-conditioned (s_min / s_max) has a flat valley along its weakest
+/// direction (the transfer-circular shift family, see the module notes): the valley step is tried.
+const VALLEY_CONDITION: f64 = 1e-3;
+/// Below this the Jacobian is rank deficient rather than ill-conditioned (typically a trial that
+/// never thrusts, where F does not depend on the costates at all): no valley to follow there.
+const PLATEAU_CONDITION: f64 = 1e-13;
+
+/// Newton on a shooting problem, built for Jacobians that are nearly rank deficient.
+///
+/// Each iteration takes the minimum-norm Gauss-Newton step dz = -J^+ F (SVD) with backtracking
+/// (Armijo on |F|^2, trials on the residual alone). When that fails and J is ill-conditioned,
+/// the solution lies in a curved, nearly flat valley (between circular orbits the thrust
+/// program can slide along a one-parameter family of near-extremals): a straight step along the
+/// weak direction leaves the valley by its curvature, so the valley step moves along it and
+/// then projects back onto the valley floor with Gauss-Newton steps that leave the weakest
+/// direction out. Last comes a Levenberg-Marquardt step with Nielsen's damping. A failed
+/// propagation counts as a rejected trial.
 pub fn newton<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     eps: f64,
@@ -204,11 +247,11 @@ where
         }
         iterations += 1;
         let f2 = f.norm_squared();
-        // Newton direction with backtracking.
-        if let Some(step) = jac.lu().solve(&(-f)) {
+        let full = svd_step(&jac, &f, RCOND, 0);
+        if let Some((step, _)) = full {
             let mut alpha = 1.0;
             let mut accepted = None;
-            for _ in 0..12 {
+            for _ in 0..8 {
                 let trial = z + step * alpha;
                 // Trials need F only; the Jacobian is computed once a trial is accepted.
                 if let Ok(ft) = problem.residual_only(eps, &trial, tolerances) {
@@ -222,6 +265,12 @@ where
                 alpha *= 0.5;
             }
             if let Some((trial, ft, jt)) = accepted {
+                (z, f, jac) = (trial, ft, jt);
+                continue;
+            }
+        }
+        if let Some((step, condition)) = full.filter(|(_, c)| (PLATEAU_CONDITION..VALLEY_CONDITION).contains(c)) {
+            if let Some((trial, ft, jt)) = valley_step(problem, eps, &z, &step, condition, f2, tolerances) {
                 (z, f, jac) = (trial, ft, jt);
                 continue;
             }
@@ -260,6 +309,48 @@ where
         iterations,
         converged: residual < settings.tolerance,
     })
+}
+
+type Evaluated<const K: usize> = (SVector<f64, K>, SVector<f64, K>, SMatrix<f64, K, K>);
+
+/// Moves a fraction of the Newton step along the valley, then projects back onto its floor by up
+/// to four Gauss-Newton steps without the weakest direction; accepted when |F|^2 fell.
+fn valley_step<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    eps: f64,
+    z: &SVector<f64, K>,
+    step: &SVector<f64, K>,
+    _condition: f64,
+    f2: f64,
+    tolerances: &Tolerances,
+) -> Option<Evaluated<K>>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    for alpha in [1.0, 0.25, 0.0625] {
+        let mut trial = z + step * alpha;
+        let (mut ft, mut jt) = problem.residual(eps, &trial, tolerances).ok()?;
+        for _ in 0..4 {
+            if ft.norm_squared() <= (1.0 - 1e-4) * f2 {
+                break;
+            }
+            let Some((proj, _)) = svd_step(&jt, &ft, RCOND, 1) else {
+                break;
+            };
+            let next = trial + proj;
+            let Ok((fn_, jn)) = problem.residual(eps, &next, tolerances) else {
+                break;
+            };
+            if fn_.norm_squared() >= ft.norm_squared() {
+                break;
+            }
+            (trial, ft, jt) = (next, fn_, jn);
+        }
+        if ft.norm_squared() <= (1.0 - 1e-4) * f2 {
+            return Some((trial, ft, jt));
+        }
+    }
+    None
 }
 
 /// Newton on the transfer residual (see [`newton`]).
@@ -328,6 +419,31 @@ pub fn homotopy<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
+    homotopy_until(
+        problem,
+        z0,
+        tolerances,
+        settings,
+        final_eps,
+        max_corrector_solves,
+        |_, _| false,
+    )
+}
+
+/// [`homotopy`] that also gives up after a schedule level at which `give_up(eps, z)` holds
+/// (the level is returned, then a failed copy of it at the next level).
+pub fn homotopy_until<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z0: &SVector<f64, K>,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
+    final_eps: f64,
+    max_corrector_solves: u32,
+    give_up: impl Fn(f64, &SVector<f64, K>) -> bool,
+) -> Result<Vec<HomotopyLevel<K>>, IntegrationError>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
     let mut schedule = homotopy_schedule(final_eps);
     let Some(first) = schedule.next() else {
         return Ok(Vec::new());
@@ -342,6 +458,17 @@ where
     let mut solves = 0u32;
     for target in schedule {
         let mut last = outcome;
+        if give_up(eps, &z) {
+            levels.push(HomotopyLevel {
+                eps: target,
+                outcome: NewtonOutcome {
+                    z,
+                    converged: false,
+                    ..last
+                },
+            });
+            return Ok(levels);
+        }
         while eps > target {
             solves += 1;
             if solves > max_corrector_solves {
@@ -453,13 +580,7 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
             eps,
         };
         let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let (y, _) = integrate(
-            &StateCostate(params),
-            0.0,
-            &y0,
-            self.scenario.time_of_flight(),
-            tolerances,
-        )?;
+        let y = propagate(&params, 0.0, &y0, self.scenario.time_of_flight(), tolerances)?;
         self.terminal(&y)
     }
 
@@ -474,13 +595,7 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
             eps,
         };
         let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let (ys, _) = integrate(
-            &StateCostateSensitivity(params),
-            0.0,
-            &StateCostateSensitivity::initial(&y0),
-            self.scenario.time_of_flight(),
-            tolerances,
-        )?;
+        let ys = propagate_sensitivity(&params, &y0, self.scenario.time_of_flight(), tolerances)?;
         let f = self.terminal(&ys)?;
         let mut jac = SMatrix::<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>::zeros();
         for k in 0..RENDEZVOUS_UNKNOWNS {
@@ -496,6 +611,7 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use onboard::integrator::integrate;
     use shared::orbit::OrbitElements;
     use shared::scenario::ProblemKind;
     use shared::spacecraft::Spacecraft;
@@ -773,5 +889,23 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn svd_step_is_the_minimum_norm_solution_and_can_drop_the_weakest_direction() {
+        // Rank 2 in 3 unknowns: the null direction (1, -1, 0) / sqrt 2 gets no component.
+        let jac = SMatrix::<f64, 3, 3>::new(1.0, 1.0, 0.0, 2.0, 2.0, 0.0, 0.0, 0.0, 3.0);
+        let f = SVector::<f64, 3>::new(-1.0, -2.0, -3.0);
+        let (step, condition) = svd_step(&jac, &f, RCOND, 0).unwrap();
+        assert!(condition < 1e-15);
+        assert!((jac * step + f).amax() < 1e-12, "consistent system solved: {step}");
+        assert!((step[0] - step[1]).abs() < 1e-12, "no null-space component: {step}");
+        // Invertible but ill-conditioned: dropping the weakest direction leaves it out.
+        let jac = SMatrix::<f64, 2, 2>::new(1.0, 0.0, 0.0, 1e-6);
+        let f = SVector::<f64, 2>::new(-1.0, -1.0);
+        let (full, condition) = svd_step(&jac, &f, RCOND, 0).unwrap();
+        assert!((condition - 1e-6).abs() < 1e-18 && (full[1] - 1e6).abs() < 1e-3);
+        let (projected, _) = svd_step(&jac, &f, RCOND, 1).unwrap();
+        assert!((projected[0] - 1.0).abs() < 1e-15 && projected[1] == 0.0);
     }
 }
