@@ -58,7 +58,8 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
     // The figure is a convenience: a dataset that cannot be plotted is still a dataset.
     let _ = plot_dataset_sample(&dataset_dir, Shard::WHOLE);
-    config.pretrain.dataset = Some(dataset_dir.clone());
+    // Absolute, so the config's relative-path base cannot apply twice.
+    config.pretrain.dataset = Some(std::path::absolute(&dataset_dir).unwrap_or(dataset_dir.clone()));
     stage_seconds[0] = t.elapsed().as_secs_f64();
 
     // 2. Pretraining on the demonstrations.

@@ -68,6 +68,16 @@ optimality_gap_cases = 0
     .unwrap()
 }
 
+/// `path` (absolute) written relative to the current directory: "../" up to the root, then down.
+fn relative_to_cwd(path: &Path) -> PathBuf {
+    let cwd = std::env::current_dir().unwrap();
+    let mut rel = PathBuf::new();
+    for _ in cwd.components().skip(1) {
+        rel.push("..");
+    }
+    rel.join(path.strip_prefix("/").unwrap())
+}
+
 fn state(path: &Path) -> PhaseState {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
@@ -184,7 +194,10 @@ fn main_job_writes_a_report_whose_links_resolve() {
     config.generate.count = 2;
     config.generate.seed = 9;
     config.generate.final_eps = 0.3;
-    let run = dir.join("run");
+    // A relative run folder, as `ground run --out runs/quick` gives (the dataset path must not be
+    // resolved against it twice).
+    let run = relative_to_cwd(&dir.join("run"));
+    assert!(run.is_relative());
     let job = run_main_job(&config, &run).unwrap();
     assert_eq!(job.dataset.records, 2);
     assert_eq!(job.pretrain.updates, 120);
