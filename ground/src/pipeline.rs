@@ -154,9 +154,17 @@ pub fn report_markdown_unchecked(
         stage_seconds.iter().sum::<f64>() / 60.0
     );
     let _ = writeln!(s, "## Fuel-optimal demonstrations\n");
+    let masses = if dataset.converged > 0 {
+        format!(
+            "; final mass of the converged ones {:.4} (min {:.4}, max {:.4})",
+            dataset.final_mass_mean, dataset.final_mass_min, dataset.final_mass_max
+        )
+    } else {
+        String::new()
+    };
     let _ = writeln!(
         s,
-        "{} trajectories solved by the indirect method (seed {}), {} converged to eps < {:.0e} (rate {:.0}%); solve time mean {:.1} s, max {:.1} s; final mass of converged ones {:.4} (min {:.4}, max {:.4}). Trajectories whose homotopy stopped early are used at the eps they reached (`pretrain.records`).\n",
+        "{} trajectories solved by the indirect method (seed {}), {} converged to eps < {:.0e} (rate {:.0}%); solve time mean {:.1} s, max {:.1} s{masses}. Trajectories whose homotopy stopped early are used at the eps they reached (`pretrain.records`).\n",
         dataset.records,
         dataset.seed,
         dataset.converged,
@@ -164,9 +172,6 @@ pub fn report_markdown_unchecked(
         100.0 * dataset.convergence_rate,
         dataset.seconds_mean,
         dataset.seconds_max,
-        dataset.final_mass_mean,
-        dataset.final_mass_min,
-        dataset.final_mass_max
     );
     let _ = writeln!(s, "![dataset trajectories](dataset/trajectories.svg)\n");
     let _ = writeln!(s, "Per-trajectory figures: [summary.csv](dataset/summary.csv).\n");
