@@ -18,8 +18,8 @@ use shared::orbit::OrbitShape;
 use crate::io::atomic_write;
 pub use crate::plot::PlotError;
 use crate::plot::{
-    check_svg_path, equal_aspect_ranges, orbit_points, record_color, render_svg, Area, Legend, Mark, COAST_COLOR,
-    LABEL_SIZE, LEGEND_SIZE, SUN_COLOR, THRUST_COLOR, THRUST_THRESHOLD, TICK_SIZE, TITLE_SIZE,
+    check_svg_path, draw_orbit_plane, orbit_points, render_svg, Area, Legend, Mark, OrbitPlaneLayer, LABEL_SIZE,
+    LEGEND_SIZE, THRUST_COLOR, THRUST_THRESHOLD, TICK_SIZE, TITLE_SIZE,
 };
 
 /// Line colours, one per series (cycled): the matplotlib "tab10" palette.
@@ -197,12 +197,14 @@ pub fn flown_trajectories(path: &Path, title: &str, paths: &[FlownPath]) -> Resu
                 .validate()
                 .map_err(|_| PlotError::InvalidOrbit { record, which })?;
         }
-        layers.push(FlownLayer::new(p));
+        layers.push(flown_layer(p));
     }
     if layers.iter().all(|l| l.start.is_none()) {
         return Err(PlotError::NothingToDraw("flown trajectories"));
     }
-    let svg = render_svg(FLOWN_SIZE, |root| draw_flown(root, title, paths, &layers))?;
+    let svg = render_svg(FLOWN_SIZE, |root| {
+        draw_orbit_plane(root, title, FLOWN_LEGEND_WIDTH, &layers)
+    })?;
     atomic_write(path, svg.as_bytes()).map_err(PlotError::Io)
 }
 
@@ -511,40 +513,27 @@ fn draw_histogram(area: &Area<'_>, x_label: &str, hist: &Hist, markers: &[(Strin
     Ok(())
 }
 
-/// What one flown path contributes to the orbit-plane figure, in AU.
-struct FlownLayer {
-    initial: Vec<(f64, f64)>,
-    target: Vec<(f64, f64)>,
-    /// Maximal runs of path segments with one thrust state: (thrusting, points).
-    runs: Vec<(bool, Vec<(f64, f64)>)>,
-    start: Option<(f64, f64)>,
-    end: Option<(f64, f64)>,
-}
-
-impl FlownLayer {
-    /// The orbits must be valid ellipses.
-    fn new(path: &FlownPath) -> Self {
-        let points: Vec<(f64, f64, f64)> = path
-            .points
-            .iter()
-            .copied()
-            .filter(|&(x, y, u)| x.is_finite() && y.is_finite() && u.is_finite())
-            .collect();
-        Self {
-            initial: orbit_points(&path.initial),
-            target: orbit_points(&path.target),
-            runs: throttle_runs(&points),
-            start: points.first().map(|p| (p.0, p.1)),
-            end: points.last().map(|p| (p.0, p.1)),
-        }
-    }
-
-    fn points(&self) -> impl Iterator<Item = &(f64, f64)> {
-        self.initial
-            .iter()
-            .chain(&self.target)
-            .chain(self.runs.iter().flat_map(|(_, p)| p))
-            .chain(self.start.iter())
+/// A flown path as an orbit-plane layer (non-finite points dropped; orbits must be valid).
+fn flown_layer(path: &FlownPath) -> OrbitPlaneLayer {
+    let points: Vec<(f64, f64, f64)> = path
+        .points
+        .iter()
+        .copied()
+        .filter(|&(x, y, u)| x.is_finite() && y.is_finite() && u.is_finite())
+        .collect();
+    let notes = if points.is_empty() {
+        vec![("no finite point".to_string(), THRUST_COLOR)]
+    } else {
+        Vec::new()
+    };
+    OrbitPlaneLayer {
+        initial: orbit_points(&path.initial),
+        target: orbit_points(&path.target),
+        runs: throttle_runs(&points),
+        start: points.first().map(|p| (p.0, p.1)),
+        end: points.last().map(|p| (p.0, p.1)),
+        label: path.label.clone(),
+        notes,
     }
 }
 
@@ -564,88 +553,10 @@ fn throttle_runs(points: &[(f64, f64, f64)]) -> Vec<(bool, Vec<(f64, f64)>)> {
     runs
 }
 
-fn draw_flown(root: &Area<'_>, title: &str, paths: &[FlownPath], layers: &[FlownLayer]) -> Result<(), PlotError> {
-    let body = root.titled(title, ("sans-serif", TITLE_SIZE))?;
-    let (width, _) = body.dim_in_pixel();
-    let (plot_area, legend_area) = body.split_horizontally(width.saturating_sub(FLOWN_LEGEND_WIDTH));
-
-    let mut bounds = (0.0f64, 0.0f64, 0.0f64, 0.0f64); // the Sun is always in view
-    for &(x, y) in layers.iter().flat_map(FlownLayer::points) {
-        bounds = (bounds.0.min(x), bounds.1.max(x), bounds.2.min(y), bounds.3.max(y));
-    }
-    let builder = |x: (f64, f64), y: (f64, f64)| {
-        ChartBuilder::on(&plot_area)
-            .margin(15)
-            .x_label_area_size(60)
-            .y_label_area_size(80)
-            .build_cartesian_2d(x.0..x.1, y.0..y.1)
-    };
-    // Building a chart draws nothing: a first build measures the plotting area in pixels.
-    let pixels = builder((-1.0, 1.0), (-1.0, 1.0))?.plotting_area().dim_in_pixel();
-    let (xr, yr) = equal_aspect_ranges(bounds, pixels);
-    let mut chart = builder(xr, yr)?;
-    chart
-        .configure_mesh()
-        .x_desc("x [AU]")
-        .y_desc("y [AU]")
-        .axis_desc_style(("sans-serif", LABEL_SIZE))
-        .label_style(("sans-serif", TICK_SIZE))
-        .x_label_formatter(&|v| format!("{v:.1}"))
-        .y_label_formatter(&|v| format!("{v:.1}"))
-        .light_line_style(RGBColor(0xEE, 0xEE, 0xEE))
-        .bold_line_style(RGBColor(0xD0, 0xD0, 0xD0))
-        .draw()?;
-
-    for (i, layer) in layers.iter().enumerate() {
-        let color = record_color(i);
-        chart.draw_series(DashedLineSeries::new(
-            layer.initial.iter().copied(),
-            9,
-            6,
-            color.stroke_width(2),
-        ))?;
-        chart.draw_series(LineSeries::new(layer.target.iter().copied(), color.stroke_width(2)))?;
-    }
-    for layer in layers {
-        for (thrusting, points) in &layer.runs {
-            let color = if *thrusting { THRUST_COLOR } else { COAST_COLOR };
-            chart.draw_series(LineSeries::new(points.iter().copied(), color.stroke_width(3)))?;
-        }
-    }
-    chart.draw_series([Circle::new((0.0, 0.0), 10, SUN_COLOR.filled())])?;
-    for (i, layer) in layers.iter().enumerate() {
-        let color = record_color(i);
-        if let (Some(start), Some(end)) = (layer.start, layer.end) {
-            chart.draw_series([
-                Circle::new(start, 7, color.filled()),
-                Circle::new(start, 7, BLACK.stroke_width(1)),
-            ])?;
-            chart.draw_series([TriangleMarker::new(end, 9, color.filled())])?;
-        }
-    }
-
-    let mut legend = Legend::new(&legend_area);
-    legend.entry(Mark::Line(THRUST_COLOR, 3, false), "thrust (u > 0.5)")?;
-    legend.entry(Mark::Line(COAST_COLOR, 3, false), "coast (u \u{2264} 0.5)")?;
-    legend.entry(Mark::Circle(SUN_COLOR), "Sun")?;
-    legend.entry(Mark::Circle(BLACK), "departure")?;
-    legend.entry(Mark::Triangle(BLACK), "arrival")?;
-    for (i, (p, layer)) in paths.iter().zip(layers).enumerate() {
-        let color = record_color(i);
-        legend.gap();
-        legend.heading(&p.label, color)?;
-        if layer.start.is_none() {
-            legend.heading("no finite point", THRUST_COLOR)?;
-        }
-        legend.entry(Mark::Line(color, 2, true), "initial orbit")?;
-        legend.entry(Mark::Line(color, 2, false), "target orbit")?;
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::plot::{record_color, COAST_COLOR, SUN_COLOR};
     use std::path::PathBuf;
 
     fn out_dir(name: &str) -> PathBuf {

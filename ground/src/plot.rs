@@ -151,7 +151,7 @@ pub fn plot_trajectories(records: &[&TrajectoryRecord], path: &Path) -> Result<(
     }
     let mut layers = Vec::with_capacity(records.len());
     for (i, rec) in records.iter().enumerate() {
-        layers.push(RecordLayer::new(i, rec)?);
+        layers.push(OrbitPlaneLayer::from_record(i, rec)?);
     }
     let svg = render_svg(TRAJECTORY_SIZE, |root| draw_trajectories(root, records, &layers))?;
     atomic_write(path, svg.as_bytes()).map_err(PlotError::Io)
@@ -259,17 +259,22 @@ pub(crate) fn render_svg(
 }
 
 /// What one record contributes to the orbit-plane figure, in AU.
-struct RecordLayer {
-    initial: Vec<(f64, f64)>,
-    target: Vec<(f64, f64)>,
+/// One transfer in the orbit plane: its orbits, its path split into thrust and coast runs,
+/// departure and arrival, and its legend lines (the first drawn in the layer's colour).
+pub(crate) struct OrbitPlaneLayer {
+    pub(crate) initial: Vec<(f64, f64)>,
+    pub(crate) target: Vec<(f64, f64)>,
     /// Maximal runs of path segments with one thrust state: (thrusting, points).
-    runs: Vec<(bool, Vec<(f64, f64)>)>,
-    start: (f64, f64),
-    end: (f64, f64),
+    pub(crate) runs: Vec<(bool, Vec<(f64, f64)>)>,
+    pub(crate) start: Option<(f64, f64)>,
+    pub(crate) end: Option<(f64, f64)>,
+    pub(crate) label: String,
+    pub(crate) notes: Vec<(String, RGBColor)>,
 }
 
-impl RecordLayer {
-    fn new(record: usize, rec: &TrajectoryRecord) -> Result<Self, PlotError> {
+impl OrbitPlaneLayer {
+    /// A solved record's layer; its path must be finite and its orbits valid ellipses.
+    fn from_record(record: usize, rec: &TrajectoryRecord) -> Result<Self, PlotError> {
         let (Some(first), Some(last)) = (rec.ephemeris.first(), rec.ephemeris.last()) else {
             return Err(PlotError::NoSamples { record });
         };
@@ -286,12 +291,18 @@ impl RecordLayer {
                 .map_err(|_| PlotError::InvalidOrbit { record, which })?;
             Ok(orbit_points(shape))
         };
+        let mut notes = vec![(record_detail(rec), BLACK)];
+        if !rec.converged {
+            notes.push(("NOT converged".to_string(), THRUST_COLOR));
+        }
         Ok(Self {
             initial: orbit(&rec.scenario.initial.shape, "initial")?,
             target: orbit(&rec.scenario.target, "target")?,
             runs: thrust_runs(&rec.ephemeris),
-            start: (first.r[0], first.r[1]),
-            end: (last.r[0], last.r[1]),
+            start: Some((first.r[0], first.r[1])),
+            end: Some((last.r[0], last.r[1])),
+            label: record_label(rec),
+            notes,
         })
     }
 
@@ -300,7 +311,8 @@ impl RecordLayer {
             .iter()
             .chain(&self.target)
             .chain(self.runs.iter().flat_map(|(_, p)| p))
-            .chain([&self.start, &self.end])
+            .chain(self.start.iter())
+            .chain(self.end.iter())
     }
 }
 
@@ -357,18 +369,32 @@ pub(crate) fn equal_aspect_ranges(bounds: (f64, f64, f64, f64), pixels: (u32, u3
     ((cx - hx, cx + hx), (cy - hy, cy + hy))
 }
 
-fn draw_trajectories(root: &Area<'_>, records: &[&TrajectoryRecord], layers: &[RecordLayer]) -> Result<(), PlotError> {
+fn draw_trajectories(
+    root: &Area<'_>,
+    records: &[&TrajectoryRecord],
+    layers: &[OrbitPlaneLayer],
+) -> Result<(), PlotError> {
     let title = if records.len() == 1 {
         format!("Fuel-optimal transfer: {}", record_label(records[0]))
     } else {
         format!("Fuel-optimal transfers ({} cases)", records.len())
     };
-    let body = root.titled(&title, ("sans-serif", TITLE_SIZE))?;
+    draw_orbit_plane(root, &title, TRAJECTORY_LEGEND_WIDTH, layers)
+}
+
+/// Transfers in the orbit plane with equal axis scales, the Sun at the origin, and a legend.
+pub(crate) fn draw_orbit_plane(
+    root: &Area<'_>,
+    title: &str,
+    legend_width: u32,
+    layers: &[OrbitPlaneLayer],
+) -> Result<(), PlotError> {
+    let body = root.titled(title, ("sans-serif", TITLE_SIZE))?;
     let (width, _) = body.dim_in_pixel();
-    let (plot_area, legend_area) = body.split_horizontally(width.saturating_sub(TRAJECTORY_LEGEND_WIDTH));
+    let (plot_area, legend_area) = body.split_horizontally(width.saturating_sub(legend_width));
 
     let mut bounds = (0.0f64, 0.0f64, 0.0f64, 0.0f64); // the Sun is always in view
-    for &(x, y) in layers.iter().flat_map(RecordLayer::points) {
+    for &(x, y) in layers.iter().flat_map(OrbitPlaneLayer::points) {
         bounds = (bounds.0.min(x), bounds.1.max(x), bounds.2.min(y), bounds.3.max(y));
     }
     let builder = |x: (f64, f64), y: (f64, f64)| {
@@ -413,11 +439,13 @@ fn draw_trajectories(root: &Area<'_>, records: &[&TrajectoryRecord], layers: &[R
     chart.draw_series([Circle::new((0.0, 0.0), 10, SUN_COLOR.filled())])?;
     for (i, layer) in layers.iter().enumerate() {
         let color = record_color(i);
-        chart.draw_series([
-            Circle::new(layer.start, 7, color.filled()),
-            Circle::new(layer.start, 7, BLACK.stroke_width(1)),
-        ])?;
-        chart.draw_series([TriangleMarker::new(layer.end, 9, color.filled())])?;
+        if let (Some(start), Some(end)) = (layer.start, layer.end) {
+            chart.draw_series([
+                Circle::new(start, 7, color.filled()),
+                Circle::new(start, 7, BLACK.stroke_width(1)),
+            ])?;
+            chart.draw_series([TriangleMarker::new(end, 9, color.filled())])?;
+        }
     }
 
     let mut legend = Legend::new(&legend_area);
@@ -426,13 +454,12 @@ fn draw_trajectories(root: &Area<'_>, records: &[&TrajectoryRecord], layers: &[R
     legend.entry(Mark::Circle(SUN_COLOR), "Sun")?;
     legend.entry(Mark::Circle(BLACK), "departure")?;
     legend.entry(Mark::Triangle(BLACK), "arrival")?;
-    for (i, rec) in records.iter().enumerate() {
+    for (i, layer) in layers.iter().enumerate() {
         let color = record_color(i);
         legend.gap();
-        legend.heading(&record_label(rec), color)?;
-        legend.heading(&record_detail(rec), BLACK)?;
-        if !rec.converged {
-            legend.heading("NOT converged", THRUST_COLOR)?;
+        legend.heading(&layer.label, color)?;
+        for (note, note_color) in &layer.notes {
+            legend.heading(note, *note_color)?;
         }
         legend.entry(Mark::Line(color, 2, true), "initial orbit")?;
         legend.entry(Mark::Line(color, 2, false), "target orbit")?;
