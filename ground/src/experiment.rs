@@ -704,6 +704,11 @@ where
     prepare_run(config, run)?;
     let dir = run.join(start.folder());
     let mut agent = new_agent(config, false, P::OBS);
+    if start == Start::Scratch {
+        // Vanilla SAC: no demonstrations, so no behaviour-cloning term and no 1/mean|Q| scaling
+        // of the actor loss, whatever the config keeps for the pretrained arm.
+        agent.config.behaviour_cloning = 0.0;
+    }
     let mut rng = sampler(config.seeds.train ^ 0x7261_696e);
     let state = load_state(&dir.join("state.json"))?;
     let (mut buffer, state, demonstrations) = match (state, start) {
