@@ -177,13 +177,7 @@ mod tests {
             e: 0.0,
             omega: 0.0,
         };
-        Scenario {
-            problem: ProblemKind::Transfer,
-            initial,
-            target,
-            target_nu0: 0.0,
-            steps: Scenario::steps_for(&initial.shape, &target),
-        }
+        Scenario::transfer(initial, target)
     }
 
     struct Off;

@@ -12,7 +12,7 @@ use lowthrust_ground::solver::pontryagin::OptimalControlParams;
 use lowthrust_ground::solver::shooting::initial_state_costate;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
 
@@ -30,15 +30,7 @@ fn circular() -> (ScenarioKind, Scenario) {
         e: 1e-4,
         omega: 0.0,
     };
-    let steps = Scenario::steps_for(&initial.shape, &target);
-    let scenario = Scenario {
-        problem: ProblemKind::Transfer,
-        initial,
-        target,
-        target_nu0: 0.0,
-        steps,
-    };
-    (ScenarioKind::TransferCircular, scenario)
+    (ScenarioKind::TransferCircular, Scenario::transfer(initial, target))
 }
 
 fn parse(case: &str) -> (String, ScenarioKind, Scenario, u64, u64) {

@@ -133,9 +133,11 @@ fn phase_line(name: &str, p: &PhaseSummary) -> String {
     }
 }
 
-/// The run's report: what was done, the tables, and links to every figure (relative paths).
-pub fn report_markdown_unchecked(
+/// The run's report: what was done, the tables, and links to every figure drawn under `run`
+/// (relative paths).
+pub fn report_markdown(
     config: &ExperimentConfig,
+    run: &Path,
     dataset: &Summary,
     pre: &PhaseSummary,
     rl: &PhaseSummary,
@@ -218,21 +220,14 @@ pub fn report_markdown_unchecked(
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    s
+    note_missing_figures(&s, run)
 }
 
-/// The report, with links to figures that were not drawn (too few points) turned into notes.
-pub fn report_markdown(
-    config: &ExperimentConfig,
-    run: &Path,
-    dataset: &Summary,
-    pre: &PhaseSummary,
-    rl: &PhaseSummary,
-    mc: &MonteCarloReport,
-    stage_seconds: &[f64; 4],
-) -> String {
-    let text = report_markdown_unchecked(config, dataset, pre, rl, mc, stage_seconds);
-    text.lines()
+/// Replaces the image lines of `report` whose figure is absent under `run` (too few points to
+/// draw) by a note, so every link of the report resolves.
+fn note_missing_figures(report: &str, run: &Path) -> String {
+    report
+        .lines()
         .map(|line| match (line.strip_prefix("!["), line.rfind("](")) {
             (Some(_), Some(i)) if line.ends_with(')') && !run.join(&line[i + 2..line.len() - 1]).exists() => {
                 format!("({} was not drawn: too few points)", &line[i + 2..line.len() - 1])

@@ -19,7 +19,7 @@ use lowthrust_ground::solver::shooting::{
 use lowthrust_ground::solver::{solve_scenario, transfer_guesses, SolveOptions};
 use plotters::style::RGBColor;
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 use shared::units::canonical_to_days;
 
@@ -79,16 +79,13 @@ fn circle(a: f64) -> OrbitShape {
 /// the last 20 %.
 fn synthetic_record() -> TrajectoryRecord {
     let (initial, target) = (circle(1.0), circle(1.5));
-    let scenario = Scenario {
-        problem: ProblemKind::Transfer,
-        initial: OrbitElements {
+    let scenario = Scenario::transfer(
+        OrbitElements {
             shape: initial,
             nu: 0.0,
         },
         target,
-        target_nu0: 0.0,
-        steps: Scenario::steps_for(&initial, &target),
-    };
+    );
     let tof = scenario.time_of_flight();
     let n = 100;
     let ephemeris = (0..n)

@@ -147,6 +147,17 @@ pub struct Scenario {
 }
 
 impl Scenario {
+    /// A transfer from `initial` to any point of `target`, with the SPEC section 4 time of flight.
+    pub fn transfer(initial: OrbitElements, target: OrbitShape) -> Self {
+        Self {
+            problem: ProblemKind::Transfer,
+            initial,
+            target,
+            target_nu0: 0.0,
+            steps: Self::steps_for(&initial.shape, &target),
+        }
+    }
+
     /// Time of flight in t*.
     pub fn time_of_flight(&self) -> f64 {
         f64::from(self.steps) * STEP

@@ -25,13 +25,7 @@ fn transfer_scenario() -> Scenario {
         e: 0.2,
         omega: 1.0,
     };
-    Scenario {
-        problem: ProblemKind::Transfer,
-        initial,
-        target,
-        target_nu0: 0.0,
-        steps: Scenario::steps_for(&initial.shape, &target),
-    }
+    Scenario::transfer(initial, target)
 }
 
 fn rendezvous_scenario() -> Scenario {

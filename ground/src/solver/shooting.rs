@@ -670,14 +670,7 @@ mod tests {
             e: 1e-4,
             omega: 0.0,
         };
-        let steps = Scenario::steps_for(&initial.shape, &target);
-        Scenario {
-            problem: ProblemKind::Transfer,
-            initial,
-            target,
-            target_nu0: 0.0,
-            steps,
-        }
+        Scenario::transfer(initial, target)
     }
 
     #[test]
