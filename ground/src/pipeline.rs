@@ -1,6 +1,8 @@
 //! The main job (`ground run`): a small transfer dataset by the indirect method, pretraining,
-//! RL from the pretrained model, Monte Carlo evaluation, and a Markdown report that links every
-//! figure, all in one run folder. Each stage resumes from what an interrupted run left.
+//! RL from the pretrained model, Monte Carlo evaluation, the onboard blobs (f32, int8) flown in
+//! the software-in-the-loop guidance loop against a dispersed plant, and a Markdown report that
+//! links every figure, all in one run folder. Each stage resumes from what an interrupted run
+//! left.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -10,9 +12,11 @@ use crate::config::ExperimentConfig;
 use crate::env::batch::OutcomeSummary;
 use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
+use crate::export::policy::{export, ExportReport};
 use crate::generate::{dataset_path, generate, read_dataset, Manifest, Shard, Summary};
 use crate::io::atomic_write;
 use crate::plot::plot_trajectories;
+use crate::sil::{sil_monte_carlo, SilReport};
 use crate::solver::SolveOptions;
 
 /// What the main job produced.
@@ -23,19 +27,23 @@ pub struct MainJob {
     pub pretrain: PhaseSummary,
     pub train: PhaseSummary,
     pub monte_carlo: MonteCarloReport,
-    /// Wall time of each stage, s: generate, pretrain, train, evaluate.
-    pub stage_seconds: [f64; 4],
+    /// The onboard blobs of the best model (run/export).
+    pub export: ExportReport,
+    /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8.
+    pub sil: [SilReport; 2],
+    /// Wall time of each stage, s: generate, pretrain, train, evaluate, export + SIL.
+    pub stage_seconds: [f64; 5],
 }
 
 /// Runs every stage into `run` and writes `run/report.md`.
 pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, ExperimentError> {
     let mut config = config.clone();
-    let mut stage_seconds = [0.0; 4];
+    let mut stage_seconds = [0.0; 5];
 
     // 1. Fuel-optimal demonstrations (resumable: finished records are skipped).
     let t = Instant::now();
     println!(
-        "[1/4] solving {} {} trajectories (indirect method)",
+        "[1/5] solving {} {} trajectories (indirect method)",
         config.generate.count,
         config.scenario.name()
     );
@@ -65,7 +73,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // 2. Pretraining on the demonstrations.
     let t = Instant::now();
     println!(
-        "[2/4] pretraining: {} updates on the demonstration buffer",
+        "[2/5] pretraining: {} updates on the demonstration buffer",
         config.pretrain.updates
     );
     let pre = pretrain(&config, run, run)?;
@@ -74,7 +82,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // 3. RL from the pretrained model.
     let t = Instant::now();
     println!(
-        "[3/4] training: {} environment steps from the pretrained model",
+        "[3/5] training: {} environment steps from the pretrained model",
         config.train.env_steps
     );
     let rl = train(&config, run, Start::Pretrained)?;
@@ -82,22 +90,37 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
 
     // 4. Monte Carlo of the best model.
     let t = Instant::now();
-    println!("[4/4] Monte Carlo: {} episodes", config.evaluate.episodes);
+    println!("[4/5] Monte Carlo: {} episodes", config.evaluate.episodes);
     let best = rl.folder.join("best.safetensors");
     let mc = monte_carlo(&config, &best, &run.join("mc"), None, None)?;
     stage_seconds[3] = t.elapsed().as_secs_f64();
 
-    let report = run.join("report.md");
-    let text = report_markdown(&config, run, &dataset, &pre, &rl, &mc, &stage_seconds);
-    atomic_write(&report, text.as_bytes()).map_err(|e| ExperimentError::Io(report.clone(), e))?;
-    Ok(MainJob {
-        report,
+    // 5. Onboard blobs, flown in the SIL loop against the dispersed plant.
+    let t = Instant::now();
+    println!(
+        "[5/5] export f32 + int8 blobs, SIL: {} dispersed flights each",
+        config.sil.episodes
+    );
+    let export_dir = run.join("export");
+    let export = export(&config, run, &best, &export_dir)?;
+    let fly =
+        |blob: &Path, folder: &str| sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions);
+    let sil = [fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?];
+    stage_seconds[4] = t.elapsed().as_secs_f64();
+
+    let job = MainJob {
+        report: run.join("report.md"),
         dataset,
         pretrain: pre,
         train: rl,
         monte_carlo: mc,
+        export,
+        sil,
         stage_seconds,
-    })
+    };
+    let text = report_markdown(&config, run, &job);
+    atomic_write(&job.report, text.as_bytes()).map_err(|e| ExperimentError::Io(job.report.clone(), e))?;
+    Ok(job)
 }
 
 fn outcome_row(name: &str, o: &OutcomeSummary) -> String {
@@ -135,24 +158,24 @@ fn phase_line(name: &str, p: &PhaseSummary) -> String {
 
 /// The run's report: what was done, the tables, and links to every figure drawn under `run`
 /// (relative paths).
-pub fn report_markdown(
-    config: &ExperimentConfig,
-    run: &Path,
-    dataset: &Summary,
-    pre: &PhaseSummary,
-    rl: &PhaseSummary,
-    mc: &MonteCarloReport,
-    stage_seconds: &[f64; 4],
-) -> String {
+pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> String {
+    let (dataset, pre, rl, mc, stage_seconds) = (
+        &job.dataset,
+        &job.pretrain,
+        &job.train,
+        &job.monte_carlo,
+        &job.stage_seconds,
+    );
     let mut s = String::new();
     let _ = writeln!(s, "# Main job report: {}\n", config.scenario.name());
     let _ = writeln!(
         s,
-        "Stages: dataset {:.0} s, pretraining {:.0} s, training {:.0} s, Monte Carlo {:.0} s (total {:.1} min). The config is in [config.toml](config.toml).\n",
+        "Stages: dataset {:.0} s, pretraining {:.0} s, training {:.0} s, Monte Carlo {:.0} s, export and SIL {:.0} s (total {:.1} min). The config is in [config.toml](config.toml).\n",
         stage_seconds[0],
         stage_seconds[1],
         stage_seconds[2],
         stage_seconds[3],
+        stage_seconds[4],
         stage_seconds.iter().sum::<f64>() / 60.0
     );
     let _ = writeln!(s, "## Fuel-optimal demonstrations\n");
@@ -220,7 +243,77 @@ pub fn report_markdown(
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
+    export_section(&mut s, &job.export, &job.sil);
     note_missing_figures(&s, run)
+}
+
+fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
+    let _ = writeln!(s, "## Onboard blobs and software-in-the-loop flight\n");
+    let _ = writeln!(
+        s,
+        "The best model's actor mean network as onboard weight blobs ([export.json](export/export.json)); action error against the trained (tch) actor on {} held-out states; int8 activation scales calibrated on {} states ({} of them demonstrations). Closed loop: the blob flown by the onboard crate in the ground environment on the {} Monte Carlo scenarios.\n",
+        export.held_out_states, export.calibration_states, export.demonstration_states, export.closed_loop_episodes
+    );
+    let _ = writeln!(
+        s,
+        "| blob | bytes | action error p50 / p95 / max | closed-loop reward | dr p50 (AU) |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|");
+    for b in [&export.f32, &export.int8] {
+        let name = b
+            .file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "| [{name}](export/{name}) | {} | {:.1e} / {:.1e} / {:.1e} | {:.4} | {:.4} |",
+            b.bytes,
+            b.action_error.p50,
+            b.action_error.p95,
+            b.action_error.max,
+            b.closed_loop.total_reward.mean,
+            b.closed_loop.terminal_position.p50
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nThe int8 blob's closed-loop mean reward differs from the f32 blob's by {:.2} % (issue 5 asks for at most 2 %).\n",
+        100.0 * export.int8_reward_difference
+    );
+    let d = &sil[0].dispersions;
+    let _ = writeln!(
+        s,
+        "**SIL with dispersions** (the onboard guidance loop against the truth plant, 1 sigma): navigation {:.0} km / {:.2} m/s per axis, thrust magnitude {:.1} % (per flight), pointing {:.2} deg, {} missed-thrust events of {} days per year.\n",
+        d.navigation_position * shared::units::AU_M / 1e3,
+        d.navigation_velocity * shared::units::VELOCITY_UNIT_M_S,
+        100.0 * d.thrust_magnitude,
+        d.pointing.to_degrees(),
+        d.missed_thrust_per_year,
+        d.missed_thrust_days
+    );
+    let _ = writeln!(s, "| blob | flights | reward | final mass | dr p50 (AU) | dr p95 (AU) | dv p50 | guidance faults | missed thrust |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    for (r, folder) in sil.iter().zip(["sil-f32", "sil-int8"]) {
+        let p = &r.monte_carlo.policy;
+        let _ = writeln!(
+            s,
+            "| {} ([summary]({folder}/sil.json)) | {}/{} | {:.4} ± {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {} | {:.1} % |",
+            r.controller,
+            p.completed,
+            r.flights,
+            p.total_reward.mean,
+            p.total_reward.std,
+            p.final_mass.mean,
+            p.terminal_position.p50,
+            p.terminal_position.p95,
+            p.terminal_velocity.p50,
+            r.guidance_faults,
+            100.0 * r.missed_thrust_fraction
+        );
+    }
+    let _ = writeln!(s, "\n![SIL histograms, int8](sil-int8/histograms.svg)\n");
+    let _ = writeln!(s, "![SIL flights, int8](sil-int8/trajectories.svg)\n");
 }
 
 /// Replaces the image lines of `report` whose figure is absent under `run` (too few points to

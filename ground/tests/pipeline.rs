@@ -194,6 +194,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
     config.generate.count = 2;
     config.generate.seed = 9;
     config.generate.final_eps = 0.3;
+    // The onboard contract's actor (10-256-256-3), so the export and SIL stages can fly it.
+    config.sac.hidden = vec![256, 256];
+    config.sil.episodes = 8;
     // A relative run folder, as `ground run --out runs/quick` gives (the dataset path must not be
     // resolved against it twice).
     let run = relative_to_cwd(&dir.join("run"));
@@ -211,9 +214,22 @@ fn main_job_writes_a_report_whose_links_resolve() {
         "train-pretrained/eval-reward.svg",
         "mc/histograms.svg",
         "mc/trajectories.svg",
+        "export/transfer-f32.blob",
+        "export/transfer-int8.blob",
+        "export/export.json",
+        "sil-f32/sil.json",
+        "sil-int8/histograms.svg",
+        "sil-int8/trajectories.svg",
     ] {
         assert!(run.join(figure).is_file(), "{figure} not drawn");
     }
+    // The blobs load onboard and SIL flew them: f32 and int8, every flight completed.
+    for (sil, name) in job.sil.iter().zip(["f32", "int8"]) {
+        assert_eq!(sil.controller, name);
+        assert_eq!(sil.monte_carlo.policy.completed, 8);
+    }
+    assert!(job.export.f32.action_error.max <= 1e-5);
+    assert!(text.contains("SIL with dispersions"), "{text}");
     // The best RL model is what the Monte Carlo evaluated.
     assert_eq!(
         job.monte_carlo.checkpoint,
