@@ -1,10 +1,20 @@
-//! Software-in-the-loop flight: the onboard guidance step flying against a plant.
+//! Software-in-the-loop flight: the onboard guidance loop flying against a truth plant.
 //!
-//! Today the plant is the onboard propagator itself, stepped once per 14-day guidance cycle
-//! with the command held in the polar frame (the MDP's zero-order hold). Dispersions
-//! (navigation noise, thrust and pointing errors, missed-thrust windows), a plant propagated
-//! independently of the guidance cycle and the Cortex-M4 image under QEMU come with the export
-//! work (issue 5).
+//! The loop is what flight software runs each 14-day guidance cycle: take the navigation
+//! state, encode the features, run the network, command the thruster (thrust off when the
+//! guidance step refuses its input or the blob was refused at load). The truth plant is
+//! propagated by the onboard dynamics, segment by segment inside each cycle, so the
+//! [`dispersion`]s of the real world (navigation noise, thrust magnitude and pointing errors,
+//! missed-thrust events that start and end anywhere in a cycle) act on it. With
+//! [`Dispersions::NONE`] a flight is bit-identical to the ground environment's episode.
+//!
+//! The core is `no_std` and allocation-free ([`fly_transfer_observed`] reports each step to a
+//! closure), so the Cortex-M4 image runs the very same code; the `std` feature adds
+//! [`Flight`], a recorded flight.
+#![cfg_attr(not(feature = "std"), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod dispersion;
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{
@@ -12,54 +22,89 @@ use onboard::features::{
 };
 use onboard::guidance::{transfer_step, Actor, GuidanceError};
 use onboard::integrator::Tolerances;
-use shared::scenario::{ProblemKind, Scenario, ScenarioError};
+use onboard::policy::{PolicyError, TransferPolicy};
+use shared::blob::ProblemKind;
+use shared::scenario::{Scenario, ScenarioError};
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
+pub use dispersion::{DispersedPlant, DispersionError, Dispersions};
+
+/// The flight computer's network: the blob's policy, or safe mode when the blob was refused.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Controller<'a> {
+    Network(TransferPolicy<'a>),
+    /// The blob was refused at load (why is kept): every command is thrust off.
+    SafeMode(PolicyError),
+}
+
+impl<'a> Controller<'a> {
+    /// Loads a transfer blob; a blob of another version, kind or shape, truncated or altered,
+    /// puts the controller in safe mode instead of flying garbage.
+    pub fn load_transfer(blob: &'a [u8]) -> Self {
+        match TransferPolicy::from_bytes(blob, ProblemKind::Transfer) {
+            Ok(policy) => Self::Network(policy),
+            Err(error) => Self::SafeMode(error),
+        }
+    }
+}
+
+/// The action that decodes to thrust off (throttle (a0 + 1) / 2 = 0).
+pub const THRUST_OFF_ACTION: [f32; 3] = [-1.0, 0.0, 1.0];
+
+impl Actor<TRANSFER_FEATURES> for Controller<'_> {
+    fn act(&self, features: &[f32; TRANSFER_FEATURES]) -> [f32; 3] {
+        match self {
+            Self::Network(policy) => policy.forward(features),
+            Self::SafeMode(_) => THRUST_OFF_ACTION,
+        }
+    }
+}
+
 /// One guidance cycle as flown.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FlightStep {
     /// Step index k (0-based): the command was computed at t = k * STEP.
     pub index: u32,
-    /// Features the actor saw at the start of the step.
+    /// What navigation reported at the start of the step (the truth plus navigation error).
+    pub navigation: SpacecraftState,
+    /// Features of the true state at the start of the step (the MDP's observation).
     pub features: [f64; TRANSFER_FEATURES],
-    /// Command applied over the step (thrust off when guidance refused its input).
+    /// Command of the guidance step (thrust off when guidance refused its input).
     pub command: ThrustCommand,
+    /// What the thruster did with it (pointing error, thrust magnitude factor applied to the
+    /// throttle); missed-thrust time inside the step is not in here, see `missed_thrust`.
+    pub applied: ThrustCommand,
+    /// Canonical time of the step spent in missed-thrust events.
+    pub missed_thrust: f64,
     /// Why guidance produced no command, if it did not.
     pub guidance_error: Option<GuidanceError>,
-    /// State at the end of the step.
+    /// True state at the end of the step.
     pub state: SpacecraftState,
-    /// Reward at the end of the step (SPEC section 5).
+    /// Reward at the end of the step (SPEC section 5, printed reward).
     pub reward: f64,
-    /// Residuals against the target at the end of the step.
+    /// Residuals of the true state against the target at the end of the step.
     pub residuals: Residuals,
 }
 
-/// A closed-loop flight.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Flight {
-    pub initial: SpacecraftState,
-    pub steps: Vec<FlightStep>,
-}
-
-impl Flight {
-    pub fn total_reward(&self) -> f64 {
-        self.steps.iter().map(|s| s.reward).sum()
-    }
-
-    pub fn final_state(&self) -> SpacecraftState {
-        self.steps.last().map_or(self.initial, |s| s.state)
-    }
-
-    pub fn final_residuals(&self) -> Option<Residuals> {
-        self.steps.last().map(|s| s.residuals)
-    }
+/// What a flight ended with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlightSummary {
+    /// Guidance cycles flown.
+    pub steps: u32,
+    pub total_reward: f64,
+    pub final_state: SpacecraftState,
+    /// Residuals at the end (none for a flight of zero steps).
+    pub final_residuals: Option<Residuals>,
+    /// Cycles in which guidance refused its input and commanded thrust off.
+    pub guidance_faults: u32,
 }
 
 /// Why a flight could not be flown.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SilError {
     Scenario(ScenarioError),
+    Dispersion(DispersionError),
     /// This loop flies transfers; rendezvous comes with its environment.
     NotATransfer,
     /// The plant could not be propagated (for example the tank ran dry) at step `index`.
@@ -67,7 +112,7 @@ pub enum SilError {
         index: u32,
         error: PropagationError,
     },
-    /// The plant state left the feature domain (for example r = 0) at step `index`.
+    /// The true state left the feature domain (for example r = 0) at step `index`.
     Features {
         index: u32,
         error: FeatureError,
@@ -78,6 +123,7 @@ impl core::fmt::Display for SilError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
+            Self::Dispersion(e) => write!(f, "invalid dispersions: {e}"),
             Self::NotATransfer => f.write_str("only transfer scenarios can be flown so far"),
             Self::Plant { index, error } => write!(f, "plant propagation failed at step {index}: {error}"),
             Self::Features { index, error } => write!(f, "plant state unusable at step {index}: {error}"),
@@ -85,48 +131,146 @@ impl core::fmt::Display for SilError {
     }
 }
 
+#[cfg(feature = "std")]
 impl std::error::Error for SilError {}
 
-/// Flies a transfer scenario closed-loop: at each 14-day cycle the guidance step computes a
-/// command from the current state, the plant propagates one step under it.
+/// Flies a transfer scenario closed loop and reports every cycle to `observer`: at each
+/// 14-day cycle the guidance step computes a command from the navigation state, the truth
+/// plant flies it (with `dispersions`, drawn from `seed`) to the next cycle. No allocation.
+#[allow(clippy::too_many_arguments)] // the flight's inputs, each needed; a struct would only rename them
+pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>(
+    actor: &A,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
+    mut observer: O,
+) -> Result<FlightSummary, SilError> {
+    scenario.validate().map_err(SilError::Scenario)?;
+    dispersions.validate().map_err(SilError::Dispersion)?;
+    if scenario.problem != ProblemKind::Transfer {
+        return Err(SilError::NotATransfer);
+    }
+    let mut plant = DispersedPlant::new(dispersions, seed);
+    let actual = CanonicalSpacecraft {
+        thrust: spacecraft.thrust * plant.thrust_factor(),
+        ..*spacecraft
+    };
+    let mut state = SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
+    let mut summary = FlightSummary {
+        steps: 0,
+        total_reward: 0.0,
+        final_state: state,
+        final_residuals: None,
+        guidance_faults: 0,
+    };
+    for index in 0..scenario.steps {
+        let time_to_go = f64::from(scenario.steps - index) * STEP;
+        let features = transfer_features(&state, &scenario.target, time_to_go)
+            .map_err(|error| SilError::Features { index, error })?;
+        let navigation = plant.navigate(&state);
+        let (command, guidance_error) = match transfer_step(actor, &navigation, &scenario.target, time_to_go) {
+            Ok(c) => (c, None),
+            Err(e) => (ThrustCommand::OFF, Some(e)),
+        };
+        let pointed = plant.point(&command);
+        let applied = ThrustCommand {
+            throttle: pointed.throttle * plant.thrust_factor(),
+            ..pointed
+        };
+        // The plant, segment by segment: thrust on, or off inside a missed-thrust event.
+        let cycle_start = f64::from(index) * STEP;
+        let (mut tau, mut missed_thrust) = (0.0, 0.0);
+        while tau < STEP {
+            let (end, thrust_on) = plant.segment(cycle_start, tau, STEP);
+            let flown = if thrust_on { pointed } else { ThrustCommand::OFF };
+            state = propagate(&state, &flown, &actual, end - tau, tolerances)
+                .map_err(|error| SilError::Plant { index, error })?;
+            if !thrust_on {
+                missed_thrust += end - tau;
+            }
+            tau = end;
+        }
+        let after = transfer_features(&state, &scenario.target, time_to_go - STEP)
+            .map_err(|error| SilError::Features { index, error })?;
+        let residuals = transfer_residuals(&after);
+        // The reward charges the commanded throttle, as the MDP does.
+        let step = FlightStep {
+            index,
+            navigation,
+            features,
+            command,
+            applied,
+            missed_thrust,
+            guidance_error,
+            state,
+            reward: reward(&residuals, command.throttle, weights),
+            residuals,
+        };
+        summary.steps += 1;
+        summary.total_reward += step.reward;
+        summary.final_state = state;
+        summary.final_residuals = Some(residuals);
+        summary.guidance_faults += u32::from(guidance_error.is_some());
+        observer(&step);
+    }
+    Ok(summary)
+}
+
+/// A recorded closed-loop flight.
+#[cfg(feature = "std")]
+#[derive(Debug, Clone, PartialEq)]
+pub struct Flight {
+    pub initial: SpacecraftState,
+    pub steps: Vec<FlightStep>,
+    pub summary: FlightSummary,
+}
+
+#[cfg(feature = "std")]
+impl Flight {
+    pub fn total_reward(&self) -> f64 {
+        self.summary.total_reward
+    }
+
+    pub fn final_state(&self) -> SpacecraftState {
+        self.summary.final_state
+    }
+
+    pub fn final_residuals(&self) -> Option<Residuals> {
+        self.summary.final_residuals
+    }
+}
+
+/// Flies a transfer and records every cycle (see [`fly_transfer_observed`]).
+#[cfg(feature = "std")]
+#[allow(clippy::too_many_arguments)] // as fly_transfer_observed
 pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
     tolerances: &Tolerances,
     weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
 ) -> Result<Flight, SilError> {
-    scenario.validate().map_err(SilError::Scenario)?;
-    if scenario.problem != ProblemKind::Transfer {
-        return Err(SilError::NotATransfer);
-    }
-    let initial = SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
-    let mut state = initial;
     let mut steps = Vec::with_capacity(scenario.steps as usize);
-    for index in 0..scenario.steps {
-        let time_to_go = f64::from(scenario.steps - index) * STEP;
-        let features = transfer_features(&state, &scenario.target, time_to_go)
-            .map_err(|error| SilError::Features { index, error })?;
-        let (command, guidance_error) = match transfer_step(actor, &state, &scenario.target, time_to_go) {
-            Ok(c) => (c, None),
-            Err(e) => (ThrustCommand::OFF, Some(e)),
-        };
-        state = propagate(&state, &command, spacecraft, STEP, tolerances)
-            .map_err(|error| SilError::Plant { index, error })?;
-        let after = transfer_features(&state, &scenario.target, time_to_go - STEP)
-            .map_err(|error| SilError::Features { index, error })?;
-        let residuals = transfer_residuals(&after);
-        steps.push(FlightStep {
-            index,
-            features,
-            command,
-            guidance_error,
-            state,
-            reward: reward(&residuals, command.throttle, weights),
-            residuals,
-        });
-    }
-    Ok(Flight { initial, steps })
+    let summary = fly_transfer_observed(
+        actor,
+        scenario,
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+        seed,
+        |s| steps.push(*s),
+    )?;
+    Ok(Flight {
+        initial: SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0),
+        steps,
+        summary,
+    })
 }
 
 /// A hand-tuned feedback law for demonstrations and as a baseline for learned policies: thrust
@@ -144,10 +288,10 @@ impl Actor<TRANSFER_FEATURES> for ProxyTracking {
         let [r, _, _, v_r, v_theta, _, r_t, v_r_t, v_theta_t, _] = f.map(f64::from);
         let a = 1.0 / (2.0 / r - (v_r * v_r + v_theta * v_theta));
         let gap = if a > 0.0 { self.target_a - a } else { self.target_a };
-        let error = gap.abs() + (r_t - r).abs() + (v_r_t - v_r).hypot(v_theta_t - v_theta);
+        let error = gap.abs() + (r_t - r).abs() + libm::hypot(v_r_t - v_r, v_theta_t - v_theta);
         let throttle = ((error - 0.02) / 0.2).clamp(0.0, 1.0);
         let (radial, along) = (v_r_t - v_r + 0.5 * (r_t - r), v_theta_t - v_theta + 0.5 * gap);
-        let norm = radial.hypot(along).max(1e-9);
+        let norm = libm::hypot(radial, along).max(1e-9);
         [
             (2.0 * throttle - 1.0) as f32,
             (radial / norm) as f32,
@@ -191,7 +335,16 @@ mod tests {
     fn a_coasting_flight_is_one_kepler_arc_and_keeps_its_mass() {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let s = scenario(1.52);
-        let flight = fly_transfer(&Off, &s, &sc, &Tolerances::default(), &RewardWeights::default()).unwrap();
+        let flight = fly_transfer(
+            &Off,
+            &s,
+            &sc,
+            &Tolerances::default(),
+            &RewardWeights::default(),
+            &Dispersions::NONE,
+            0,
+        )
+        .unwrap();
         let end = flight.final_state();
         let direct = coast(&s.initial.cartesian(), s.time_of_flight()).unwrap();
         for (a, b) in end.r.iter().chain(&end.v).zip(direct.r.iter().chain(&direct.v)) {
@@ -209,7 +362,16 @@ mod tests {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let s = scenario(1.52);
         let law = ProxyTracking { target_a: 1.52 };
-        let flight = fly_transfer(&law, &s, &sc, &Tolerances::default(), &RewardWeights::default()).unwrap();
+        let flight = fly_transfer(
+            &law,
+            &s,
+            &sc,
+            &Tolerances::default(),
+            &RewardWeights::default(),
+            &Dispersions::NONE,
+            0,
+        )
+        .unwrap();
         let throttle_steps: f64 = flight.steps.iter().map(|k| k.command.throttle).sum();
         assert!(throttle_steps > 0.0);
         let expected_mass = 1.0 - sc.thrust * throttle_steps * STEP / sc.exhaust_speed;
@@ -226,7 +388,162 @@ mod tests {
         let res = flight.final_residuals().unwrap();
         assert!(res.position < 0.02 && res.velocity < 0.02, "{res:?}");
         // It must beat not thrusting at all, by the spec's reward.
-        let off = fly_transfer(&Off, &s, &sc, &Tolerances::default(), &RewardWeights::default()).unwrap();
+        let off = fly_transfer(
+            &Off,
+            &s,
+            &sc,
+            &Tolerances::default(),
+            &RewardWeights::default(),
+            &Dispersions::NONE,
+            0,
+        )
+        .unwrap();
         assert!(flight.total_reward() > off.total_reward());
+    }
+
+    fn fly(law: &ProxyTracking, s: &Scenario, d: &Dispersions, seed: u64) -> Flight {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        fly_transfer(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
+    }
+
+    #[test]
+    fn without_dispersions_each_step_is_one_onboard_propagation_of_the_command() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let s = scenario(1.3);
+        let law = ProxyTracking { target_a: 1.3 };
+        let flight = fly(&law, &s, &Dispersions::NONE, 9);
+        let mut state = flight.initial;
+        for k in &flight.steps {
+            assert_eq!(k.navigation, state);
+            assert_eq!(k.applied, k.command);
+            assert_eq!(k.missed_thrust, 0.0);
+            state = propagate(&state, &k.command, &sc, STEP, &Tolerances::default()).unwrap();
+            assert_eq!(k.state, state, "step {}", k.index);
+        }
+    }
+
+    #[test]
+    fn missed_thrust_inside_cycles_burns_only_the_time_thrust_was_on() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let s = scenario(1.52);
+        let law = ProxyTracking { target_a: 1.52 };
+        let d = Dispersions {
+            missed_thrust_per_year: 6.0,
+            missed_thrust_days: 9.0,
+            ..Dispersions::NONE
+        };
+        let flight = fly(&law, &s, &d, 4);
+        let missed: f64 = flight.steps.iter().map(|k| k.missed_thrust).sum();
+        let nine_days = 9.0 * 86_400.0 / shared::units::TIME_UNIT_S;
+        // Events happened, some straddle a cycle boundary (neither 0 nor a whole event).
+        assert!(missed > nine_days, "{missed}");
+        assert!(flight
+            .steps
+            .iter()
+            .any(|k| k.missed_thrust > 0.0 && (k.missed_thrust - nine_days).abs() > 1e-9));
+        // Mass: the rocket equation over the time thrust was really on.
+        let mut m = 1.0;
+        for k in &flight.steps {
+            m -= sc.thrust * k.command.throttle * (STEP - k.missed_thrust) / sc.exhaust_speed;
+            assert!((k.state.m - m).abs() < 1e-12, "step {}", k.index);
+        }
+    }
+
+    #[test]
+    fn thrust_magnitude_error_scales_the_mass_flow_for_the_whole_flight() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let s = scenario(1.52);
+        let law = ProxyTracking { target_a: 1.52 };
+        let d = Dispersions {
+            thrust_magnitude: 0.05,
+            ..Dispersions::NONE
+        };
+        let flight = fly(&law, &s, &d, 11);
+        let factor = DispersedPlant::new(&d, 11).thrust_factor();
+        assert!(factor != 1.0 && (factor - 1.0).abs() < 0.25, "{factor}");
+        let throttle_time: f64 = flight.steps.iter().map(|k| k.command.throttle * STEP).sum();
+        let expected = 1.0 - sc.thrust * factor * throttle_time / sc.exhaust_speed;
+        assert!((flight.final_state().m - expected).abs() < 1e-12);
+        for k in &flight.steps {
+            assert!((k.applied.throttle - k.command.throttle * factor).abs() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn navigation_and_pointing_errors_have_the_sizes_asked_for() {
+        let s = scenario(1.52);
+        let law = ProxyTracking { target_a: 1.52 };
+        let d = Dispersions {
+            navigation_position: 1e-3,
+            navigation_velocity: 2e-3,
+            pointing: 0.05,
+            ..Dispersions::NONE
+        };
+        let (mut dr, mut dv, mut angle, mut n, mut burns) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for seed in 0..40 {
+            let flight = fly(&law, &s, &d, seed);
+            let mut truth = flight.initial;
+            for k in &flight.steps {
+                for i in 0..2 {
+                    dr += (k.navigation.r[i] - truth.r[i]).powi(2);
+                    dv += (k.navigation.v[i] - truth.v[i]).powi(2);
+                }
+                n += 2.0;
+                if k.command.throttle > 0.0 {
+                    let (c, a) = (k.command, k.applied);
+                    assert!((a.alpha_r.hypot(a.alpha_theta) - 1.0).abs() < 1e-12);
+                    let turn = (c.alpha_r * a.alpha_theta - c.alpha_theta * a.alpha_r)
+                        .atan2(c.alpha_r * a.alpha_r + c.alpha_theta * a.alpha_theta);
+                    angle += turn * turn;
+                    burns += 1.0;
+                }
+                truth = k.state;
+            }
+        }
+        // Sample standard deviations within 10 % of the sigmas (thousands of draws each).
+        assert!(((dr / n).sqrt() / 1e-3 - 1.0).abs() < 0.1, "{}", (dr / n).sqrt());
+        assert!(((dv / n).sqrt() / 2e-3 - 1.0).abs() < 0.1, "{}", (dv / n).sqrt());
+        assert!(burns > 300.0);
+        assert!(
+            ((angle / burns).sqrt() / 0.05 - 1.0).abs() < 0.1,
+            "{}",
+            (angle / burns).sqrt()
+        );
+    }
+
+    #[test]
+    fn a_refused_blob_flies_thrust_off_and_bad_dispersions_are_refused() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let s = scenario(1.52);
+        let controller = Controller::load_transfer(&[0u8; 64]);
+        assert!(matches!(controller, Controller::SafeMode(_)));
+        let flight = fly_transfer(
+            &controller,
+            &s,
+            &sc,
+            &Tolerances::default(),
+            &RewardWeights::default(),
+            &Dispersions::TYPICAL,
+            1,
+        )
+        .unwrap();
+        assert!(flight.steps.iter().all(|k| k.command.throttle == 0.0));
+        assert_eq!(flight.final_state().m, 1.0);
+        let bad = Dispersions {
+            pointing: f64::NAN,
+            ..Dispersions::NONE
+        };
+        assert_eq!(
+            fly_transfer(
+                &controller,
+                &s,
+                &sc,
+                &Tolerances::default(),
+                &RewardWeights::default(),
+                &bad,
+                1
+            ),
+            Err(SilError::Dispersion(DispersionError))
+        );
     }
 }

@@ -5,6 +5,8 @@
 
 pub mod blob;
 pub mod orbit;
+#[cfg(feature = "std")]
+pub mod quantize;
 pub mod scenario;
 pub mod spacecraft;
 pub mod units;

@@ -1,7 +1,7 @@
 //! From a blob written by the ground side (`shared::blob`) to commands flown by the onboard crate
 //! in the SIL loop: the contract between the crates, end to end.
 
-use firmware_sim::fly_transfer;
+use firmware_sim::{fly_transfer, Dispersions};
 use onboard::features::{decode_action, to_network_input, RewardWeights};
 use onboard::integrator::Tolerances;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
@@ -168,6 +168,8 @@ fn a_ground_blob_flies_in_the_sil_loop_with_the_commands_the_network_computes() 
                 &sc,
                 &Tolerances::default(),
                 &RewardWeights::default(),
+                &Dispersions::NONE,
+                0,
             )
             .unwrap();
             assert_eq!(flight.steps.len(), scenario.steps as usize);
