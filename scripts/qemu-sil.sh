@@ -20,6 +20,8 @@ cd "$(dirname "$0")/.."
 start=$(date +%s)
 
 M4=firmware_sim/m4
+# The image's own target folder, whatever CARGO_TARGET_DIR says for the workspace.
+M4_TARGET="$PWD/$M4/target"
 OUT=target/qemu-sil
 HOST_BIN="${CARGO_TARGET_DIR:-target}/release"
 mkdir -p "$OUT"
@@ -80,7 +82,7 @@ printf '\002\000' | dd of="$neg/version.blob" bs=1 seek=4 conv=notrunc status=no
 "$HOST_BIN/random_blob" --seed 1 --out "$neg" --rendezvous >/dev/null
 
 step "clippy and rustfmt for the image crate (excluded from the workspace)"
-(cd "$M4" && LOWTHRUST_BLOB="$(realpath "$last")" nice cargo clippy --release -q -- -D warnings)
+(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$last")" nice cargo clippy --release -q -- -D warnings)
 (cd "$M4" && cargo fmt --check)
 
 summary=()
@@ -91,11 +93,11 @@ run_case() {
     local name=$1 blob=$2 expect=$3
     local qemu="$OUT/$name.qemu.txt" host="$OUT/$name.host.txt"
     step "$name: $(basename "$blob") ($(stat -c %s "$blob") bytes), expected: $expect"
-    (cd "$M4" && LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q)
-    cp "$M4/target/thumbv7em-none-eabihf/release/lowthrust-m4" "$OUT/$name.elf"
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q)
+    cp "$M4_TARGET/thumbv7em-none-eabihf/release/lowthrust-m4" "$OUT/$name.elf"
     # The runner (QEMU and its flags) is the one in firmware_sim/m4/.cargo/config.toml.
     local rc=0
-    (cd "$M4" && LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 cargo run --release -q) \
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 cargo run --release -q) \
         >"$qemu" 2>"$OUT/$name.qemu.err" || rc=$?
     if [ $rc -ne 0 ]; then
         cat "$OUT/$name.qemu.err" >&2
@@ -125,7 +127,7 @@ run_case() {
             echo "a refused blob flew with thrust on" >&2
             failed=1
         fi
-        summary+=("$(printf '%-10s refused, thrust off: %s' "$name" "$(head -n 1 "$qemu" | cut -c 15-)")")
+        summary+=("$(printf '%-18s refused, thrust off: %s' "$name" "$(head -n 1 "$qemu" | cut -c 15-)")")
         return
     fi
     grep -q '^blob \(f32\|int8\) ' "$qemu" || {
@@ -143,7 +145,7 @@ run_case() {
         awk '$1 ~ /^\.(vector_table|text|rodata)$/ {f += $2} $1 == ".data" {f += $2; r += $2}
              $1 ~ /^\.(bss|uninit)$/ {r += $2} END {print f, r}')
     if [ "${QEMU_SIL_PROFILE:-0}" = 1 ]; then
-        (cd "$M4" && LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 nice cargo run --release -q --features profile) \
+        (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 nice cargo run --release -q --features profile) \
             2>/dev/null | grep '^# profile' | sed 's/^# /  /' || true
     fi
     local limit=$F32_MAX_INSN verdict
@@ -153,14 +155,12 @@ run_case() {
     if [ "$quant" = int8 ]; then
         fit=$([ "$flash" -le $FLASH_MAX ] && [ $((ram + peak)) -le $RAM_MAX ] && echo "fits 256 KiB/64 KiB" || echo "MISSES 256 KiB/64 KiB")
     fi
-    summary+=("$(printf '%-10s %-4s %7d instructions/inference (target %d: %s); flash %d B (%.1f KiB); RAM %d B static + %d B stack peak %s' \
+    summary+=("$(printf '%-18s %-4s %7d instructions/inference (target %d: %s); flash %d B (%.1f KiB); RAM %d B static + %d B stack peak %s' \
         "$name" "$quant" "$insn" "$limit" "$verdict" "$flash" "$(awk "BEGIN {print $flash / 1024}")" "$ram" "$peak" "$fit")")
 }
 
-i=0
 for b in "${blobs[@]}"; do
-    run_case "blob$i" "$b" ok
-    i=$((i + 1))
+    run_case "$(basename "$b" .blob)" "$b" ok
 done
 for n in altered truncated version; do
     run_case "$n" "$neg/$n.blob" refused

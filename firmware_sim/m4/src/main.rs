@@ -8,6 +8,16 @@
 //! It exits 1 only when the firmware itself fails (panic, fault, output error).
 #![no_std]
 #![no_main]
+// As in onboard: a panic here would be a failed flight, so the linter refuses the ways to write one.
+#![deny(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::unreachable,
+    clippy::todo,
+    clippy::unimplemented
+)]
 
 mod counter;
 #[cfg(feature = "profile")]

@@ -56,10 +56,11 @@ pub fn write<W: Write>(
             let q0 = a.quantize_input(x);
             let q1 = b.quantize_input(&relu(a.forward(&q0)));
             let q2 = c.quantize_input(&relu(b.forward(&q1)));
+            let l2 = per_call(counter, &q1, |q| b.accumulate(q));
             let stages = [
                 ("L1 quantize 10", per_call(counter, x, |x| a.quantize_input(x))),
                 ("L1 accumulate 10x256", per_call(counter, &q0, |q| a.accumulate(q))),
-                ("L2 accumulate 256x256", per_call(counter, &q1, |q| b.accumulate(q))),
+                ("L2 accumulate 256x256", l2),
                 ("L3 accumulate 256x3", per_call(counter, &q2, |q| c.accumulate(q))),
                 (
                     "L2 quantize 256",
@@ -74,7 +75,7 @@ pub fn write<W: Write>(
                 write!(w, "; {name} {}", Hundredths(v))?;
                 parts += v;
             }
-            let mac = stages[2].1 / (256 * 256);
+            let mac = l2 / (256 * 256);
             write!(w, " ({}.{:02} per MAC)", mac / 100, mac % 100)?;
         }
         MlpLayers::F32(a, b, c) => {
@@ -84,16 +85,17 @@ pub fn write<W: Write>(
             };
             let h1 = relu(a.forward(x));
             let h2 = relu(b.forward(&h1));
+            let l2 = per_call(counter, &h1, |h| b.forward(h));
             let stages = [
                 ("L1 10x256", per_call(counter, x, |x| a.forward(x))),
-                ("L2 256x256", per_call(counter, &h1, |h| b.forward(h))),
+                ("L2 256x256", l2),
                 ("L3 256x3", per_call(counter, &h2, |h| c.forward(h))),
             ];
             for (name, v) in stages {
                 write!(w, "; {name} {}", Hundredths(v))?;
                 parts += v;
             }
-            let mac = stages[1].1 / (256 * 256);
+            let mac = l2 / (256 * 256);
             write!(w, " ({}.{:02} per MAC)", mac / 100, mac % 100)?;
         }
     }
