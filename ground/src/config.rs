@@ -32,6 +32,8 @@ pub struct ExperimentConfig {
     #[serde(default)]
     pub evaluate: EvaluateConfig,
     #[serde(default)]
+    pub sil: SilConfig,
+    #[serde(default)]
     pub compute: ComputeConfig,
 }
 
@@ -162,6 +164,26 @@ impl Default for EvaluateConfig {
     }
 }
 
+/// The software-in-the-loop Monte Carlo (`ground sil`, and the main job after export).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SilConfig {
+    /// Dispersed flights per blob (on the first scenarios of the Monte Carlo stream).
+    pub episodes: u64,
+    /// 1-sigma dispersions of the truth plant (default: `Dispersions::TYPICAL`, see
+    /// `firmware_sim::dispersion`).
+    pub dispersions: firmware_sim::Dispersions,
+}
+
+impl Default for SilConfig {
+    fn default() -> Self {
+        Self {
+            episodes: 1_000,
+            dispersions: firmware_sim::Dispersions::TYPICAL,
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ComputeConfig {
@@ -222,6 +244,10 @@ impl ExperimentConfig {
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.sac.validate().map_err(ConfigError::Invalid)?;
+        self.sil
+            .dispersions
+            .validate()
+            .map_err(|e| ConfigError::Invalid(format!("sil.dispersions: {e}")))?;
         self.env
             .spacecraft
             .canonical()

@@ -125,11 +125,34 @@ where
         |obs| policy_batch(&agent, obs),
         true,
     )?;
-    let zero = fly::<P>(config, &scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
+    bar.finish_and_clear();
+    report_and_write::<P>(config, checkpoint, &scenarios, &policy, &plotted, out, gap_cases, start)
+}
+
+/// The Monte Carlo report of a policy's `outcomes` on `scenarios` (flown by whatever flew it:
+/// the tch actor here, the SIL loop in [`crate::sil`]): the zero-thrust and random baselines on
+/// the same scenarios, the optimality gap on the first ones, the files in `out`.
+#[allow(clippy::too_many_arguments)] // the report's inputs, each needed once
+pub fn report_and_write<P: Problem>(
+    config: &ExperimentConfig,
+    source: &Path,
+    scenarios: &[Scenario],
+    policy: &[EpisodeOutcome],
+    plotted: &[EpisodeOutcome],
+    out: &Path,
+    gap_cases: Option<u64>,
+    start: Instant,
+) -> Result<MonteCarloReport, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    let seed = config.seeds.monte_carlo;
+    let n = scenarios.len() as u64;
+    let zero = fly::<P>(config, scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a6e_646f);
     let random = fly::<P>(
         config,
-        &scenarios,
+        scenarios,
         |obs| {
             obs.iter()
                 .map(|_| {
@@ -140,10 +163,9 @@ where
         },
         false,
     )?;
-    bar.finish_and_clear();
 
     let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
-    let gap = optimality_gap(config, &scenarios[..k], &policy[..k]);
+    let gap = optimality_gap(config, &scenarios[..k], &policy[..k.min(policy.len())]);
     let within = policy
         .iter()
         .filter(|o| o.completed && o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL)
@@ -155,11 +177,11 @@ where
         .collect();
     let report = MonteCarloReport {
         scenario: config.scenario.name().to_string(),
-        checkpoint: checkpoint.to_path_buf(),
+        checkpoint: source.to_path_buf(),
         episodes: policy.len(),
         seed,
         seconds: start.elapsed().as_secs_f64(),
-        policy: summarize(&policy),
+        policy: summarize(policy),
         zero_thrust: summarize(&zero),
         random: summarize(&random),
         within_accuracy_goal: within,
@@ -167,7 +189,7 @@ where
         overspend: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.overspend))),
         gap,
     };
-    write_outputs(out, &report, &policy, &zero, &random, &scenarios, &plotted)?;
+    write_outputs(out, &report, policy, &zero, &random, scenarios, plotted)?;
     Ok(report)
 }
 

@@ -13,4 +13,5 @@ pub mod io;
 pub mod pipeline;
 pub mod plot;
 pub mod sac;
+pub mod sil;
 pub mod solver;

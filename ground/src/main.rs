@@ -88,6 +88,30 @@ enum Command {
         #[arg(long)]
         gap_cases: Option<u64>,
     },
+    /// Onboard weight blobs (f32 and int8) from a checkpoint's actor, with the action error of
+    /// each against the trained actor and their closed-loop Monte Carlo (OUT/export.json).
+    Export {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Agent checkpoint (a best.safetensors of a phase).
+        #[arg(long)]
+        checkpoint: PathBuf,
+    },
+    /// Software-in-the-loop Monte Carlo: a blob flown by the onboard guidance loop against the
+    /// dispersed truth plant (the config's [sil] dispersions), with the evaluation's metrics.
+    Sil {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Weight blob (a `ground export` output).
+        #[arg(long)]
+        blob: PathBuf,
+        /// Flights (default: the config's sil.episodes).
+        #[arg(long)]
+        episodes: Option<u64>,
+        /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
+        #[arg(long)]
+        no_dispersions: bool,
+    },
     /// One-step mismatch between the environment and the optimal trajectories of a dataset
     /// (SPEC section 7).
     Demos {
@@ -162,6 +186,13 @@ fn main() -> ExitCode {
             episodes,
             gap_cases,
         } => evaluate_command(&experiment, &checkpoint, episodes, gap_cases),
+        Command::Export { experiment, checkpoint } => export_command(&experiment, &checkpoint),
+        Command::Sil {
+            experiment,
+            blob,
+            episodes,
+            no_dispersions,
+        } => sil_command(&experiment, &blob, episodes, no_dispersions),
         Command::Demos { dataset, all } => demos_command(&dataset, all),
         Command::Pendulum {
             steps,
@@ -584,6 +615,32 @@ fn evaluate_command(
     let (config, _) = args.load()?;
     let report = lowthrust_ground::eval::monte_carlo(&config, checkpoint, &args.out, episodes, gap_cases)?;
     print!("{}", lowthrust_ground::eval::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}
+
+fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let report = lowthrust_ground::export::policy::export(&config, &base, checkpoint, &args.out)?;
+    println!("{}", lowthrust_ground::export::policy::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}
+
+fn sil_command(
+    args: &ExperimentArgs,
+    blob: &Path,
+    episodes: Option<u64>,
+    no_dispersions: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, _) = args.load()?;
+    let dispersions = if no_dispersions {
+        firmware_sim::Dispersions::NONE
+    } else {
+        config.sil.dispersions
+    };
+    let report = lowthrust_ground::sil::sil_monte_carlo(&config, blob, &args.out, episodes, &dispersions)?;
+    println!("{}", lowthrust_ground::sil::describe(&report));
     println!("written to {}", args.out.display());
     Ok(())
 }

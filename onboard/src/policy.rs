@@ -37,7 +37,9 @@
 
 use core::fmt;
 
-use shared::blob::{self, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization};
+use shared::blob::{
+    self, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization, ACTIVATION_LEVELS,
+};
 
 /// Outputs per register tile of the f32 kernel (a multiple of 16, the AVX-512 lane count).
 pub const F32_TILE: usize = 64;
@@ -98,6 +100,9 @@ pub enum PolicyError {
     },
     /// An int8 layer's input scale is not finite and positive, or a weight scale is not finite.
     BadScale { layer: usize },
+    /// An int8 layer has more inputs than its i32 accumulator sums exactly
+    /// ([`blob::MAX_INT8_INPUTS`]).
+    TooWideForInt8 { layer: usize, inputs: usize },
 }
 
 impl PolicyError {
@@ -115,6 +120,7 @@ impl PolicyError {
             },
             Self::WrongActivation { expected, found, .. } => Self::WrongActivation { layer, expected, found },
             Self::BadScale { .. } => Self::BadScale { layer },
+            Self::TooWideForInt8 { inputs, .. } => Self::TooWideForInt8 { layer, inputs },
             other => other,
         }
     }
@@ -156,6 +162,11 @@ impl fmt::Display for PolicyError {
                 write!(f, "layer {layer} activation is {found:?}, expected {expected:?}")
             }
             Self::BadScale { layer } => write!(f, "layer {layer} has an invalid scale"),
+            Self::TooWideForInt8 { layer, inputs } => write!(
+                f,
+                "int8 layer {layer} has {inputs} inputs, more than the {} an i32 accumulator sums exactly",
+                blob::MAX_INT8_INPUTS
+            ),
         }
     }
 }
@@ -221,7 +232,8 @@ fn relu(x: f32) -> f32 {
 /// (ties to even) in the low mantissa bits.
 const ROUND_MAGIC: f32 = 12_582_912.0;
 
-/// `clamp(round(x / scale), -127, 127)`, round half away from zero; NaN gives 0.
+/// `clamp(round(x / scale), -L, L)` with `L` = [`ACTIVATION_LEVELS`], round half away from
+/// zero; NaN gives 0.
 ///
 /// Branch-free and free of float-to-int casts (Rust's saturating `as` does not vectorize):
 /// round to nearest even with [`ROUND_MAGIC`], read the integer from the bits, then move exact
@@ -229,14 +241,15 @@ const ROUND_MAGIC: f32 = 12_582_912.0;
 #[inline(always)]
 fn quantize(x: f32, scale: f32) -> i16 {
     let v = x / scale;
-    let v = if v.is_nan() { 0.0 } else { v.clamp(-127.0, 127.0) };
+    let levels = f32::from(ACTIVATION_LEVELS);
+    let v = if v.is_nan() { 0.0 } else { v.clamp(-levels, levels) };
     let m = v + ROUND_MAGIC;
     // Both bit patterns lie in [2^23, 2^24) as floats, so their difference is the integer.
     let even = (m.to_bits() as i32).wrapping_sub(ROUND_MAGIC.to_bits() as i32);
     // Exact: `m - ROUND_MAGIC` is the rounded value and `v` is within 0.5 of it.
     let d = v - (m - ROUND_MAGIC);
     let q = even + i32::from(d == 0.5 && v > 0.0) - i32::from(d == -0.5 && v < 0.0);
-    // |q| <= 127.
+    // |q| <= ACTIVATION_LEVELS.
     q as i16
 }
 
@@ -379,6 +392,9 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// The activation is not checked here (see [`Mlp::from_blob`]). Errors report layer 0.
     pub fn from_layer(layer: &LayerBlob<'a>) -> Result<Self, PolicyError> {
         check_shape::<IN, OUT>(layer)?;
+        if IN > blob::MAX_INT8_INPUTS {
+            return Err(PolicyError::TooWideForInt8 { layer: 0, inputs: IN });
+        }
         check_len(LayerArray::Weights, layer.weights, IN.saturating_mul(OUT))?;
         check_len(LayerArray::Bias, layer.bias, OUT.saturating_mul(4))?;
         check_len(LayerArray::WeightScales, layer.weight_scales, OUT.saturating_mul(4))?;
@@ -405,7 +421,8 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         self.input_scale
     }
 
-    /// `x` quantized with this layer's input scale, widened to i16 (values in -127..=127).
+    /// `x` quantized with this layer's input scale to i16 (values in `-L..=L`,
+    /// `L` = [`ACTIVATION_LEVELS`]).
     pub fn quantize_input(&self, x: &[f32; IN]) -> [i16; IN] {
         let mut q = [0i16; IN];
         for (qi, &xi) in q.iter_mut().zip(x.iter()) {
@@ -415,8 +432,9 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     }
 
     /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]`, saturating at the bias add.
-    /// For `xq` in `-127..=127` (what [`Self::quantize_input`] gives) the dot product is exact:
-    /// `IN <= 65535` products of magnitude `<= 2^14`. Other i16 values wrap, never panic.
+    /// For `xq` in `-L..=L` (what [`Self::quantize_input`] gives) the dot product is exact:
+    /// at most [`blob::MAX_INT8_INPUTS`] products of magnitude `<= 128 L < 2^22` (`from_layer`
+    /// refuses wider layers). Other i16 values wrap, never panic.
     ///
     /// Uses [`Self::accumulate_lanes`] on x86 and other wide-SIMD targets, and
     /// [`Self::accumulate_rows`] on 32-bit Arm (the Cortex-M4), where

@@ -47,8 +47,9 @@ fn run_int8<const IN: usize>(
         let emulated = int8_emulate(&quant, &x);
         let bound = int8_bound(&net, &quant, &x);
         for (((g, w), b), e8) in got.iter().zip(&want).zip(&bound).zip(&emulated) {
-            // The kernel is the int8 scheme (f32 rounding aside)...
-            assert!((f64::from(*g) - e8).abs() < 1e-5, "kernel {g} vs emulation {e8}");
+            // The kernel is the int8 scheme (f32 rounding aside: at 16-bit activations an f32
+            // quotient next to a rounding tie can move one activation by one level)...
+            assert!((f64::from(*g) - e8).abs() < 1e-4, "kernel {g} vs emulation {e8}");
             // ...and the scheme's error is within the bound derived from the scales.
             let e = (f64::from(*g) - w).abs();
             assert!(e <= *b, "int8 error {e} above the derived bound {b}");
@@ -132,7 +133,7 @@ fn check_accumulate<const IN: usize, const OUT: usize>(seed: u64) {
     let view = owned.view();
     let layer = DenseInt8::<IN, OUT>::from_layer(&view).unwrap();
     for _ in 0..20 {
-        let x: [i16; IN] = core::array::from_fn(|_| (rng.next_u64() % 255) as i16 - 127);
+        let x: [i16; IN] = core::array::from_fn(|_| ((rng.next_u64() % 65535) as i32 - 32767) as i16);
         let got = layer.accumulate(&x);
         // Both kernel forms (the target picks one) give the same exact sums.
         assert_eq!(layer.accumulate_lanes(&x), got);
@@ -156,16 +157,17 @@ fn int8_accumulators_are_exact() {
     check_accumulate::<10, 7>(22);
     check_accumulate::<22, 3>(23);
     check_accumulate::<1, 1>(24);
-    check_accumulate::<1024, 5>(25);
+    check_accumulate::<512, 5>(25);
     check_accumulate::<33, 9>(26);
     check_accumulate::<64, 4>(27);
 }
 
 #[test]
 fn extreme_weights_and_inputs_do_not_overflow() {
-    // All weights -128 against inputs -127: the largest products; bias at the i32 extremes
-    // saturates rather than wrapping.
-    const IN: usize = 1024;
+    // All weights -128 against inputs -L at the widest int8 layer: the largest sum; bias at
+    // the i32 extremes saturates rather than wrapping.
+    const IN: usize = shared::blob::MAX_INT8_INPUTS;
+    const L: i16 = shared::blob::ACTIVATION_LEVELS;
     let ql = policy_support::QuantLayer {
         q: vec![vec![-128; IN], vec![-128; IN]],
         weight_scales: vec![1.0; 2],
@@ -175,9 +177,9 @@ fn extreme_weights_and_inputs_do_not_overflow() {
     let owned = int8_layer(&ql, Activation::Relu);
     let view = owned.view();
     let layer = DenseInt8::<IN, 2>::from_layer(&view).unwrap();
-    let want = [i32::MAX, i32::MIN + 128 * 127 * 1024];
-    assert_eq!(layer.accumulate_lanes(&[-127; IN]), want);
-    assert_eq!(layer.accumulate_rows(&[-127; IN]), want);
+    let want = [i32::MAX, i32::MIN + 128 * i32::from(L) * IN as i32];
+    assert_eq!(layer.accumulate_lanes(&[-L; IN]), want);
+    assert_eq!(layer.accumulate_rows(&[-L; IN]), want);
 }
 
 #[test]
@@ -189,10 +191,10 @@ fn input_quantization_rounds_half_away_and_clamps() {
     let view = owned.view();
     let layer = DenseInt8::<6, 2>::from_layer(&view).unwrap();
     assert_eq!(layer.input_scale(), 0.5);
-    let q = layer.quantize_input(&[0.25, -0.25, 0.74, 1000.0, -1000.0, f32::NAN]);
-    assert_eq!(q, [1, -1, 1, 127, -127, 0]);
-    let q = layer.quantize_input(&[0.2499, -0.7501, 63.5, -63.75, f32::INFINITY, 0.0]);
-    assert_eq!(q, [0, -2, 127, -127, 127, 0]);
+    let q = layer.quantize_input(&[0.25, -0.25, 0.74, 1e6, -1e6, f32::NAN]);
+    assert_eq!(q, [1, -1, 1, 32767, -32767, 0]);
+    let q = layer.quantize_input(&[0.2499, -0.7501, 63.5, -63.75, f32::INFINITY, 16383.75]);
+    assert_eq!(q, [0, -2, 127, -128, 32767, 32767]);
 }
 
 /// The next f32 toward +inf (`f32::next_up` needs Rust 1.86; the MSRV is 1.85).
@@ -219,7 +221,7 @@ fn input_quantization_matches_f64_rounding() {
         let layer = DenseInt8::<16, 1>::from_layer(&view).unwrap();
         for round in 0..2000 {
             let x: [f32; 16] = core::array::from_fn(|k| match round % 3 {
-                0 => rng.sym(200.0 * f64::from(scale)),
+                0 => rng.sym(40_000.0 * f64::from(scale)),
                 1 => (((rng.next_u64() % 600) as i32 - 300) as f32 * 0.5) * scale,
                 _ => {
                     let t = (((rng.next_u64() % 600) as i32 - 300) as f32 * 0.5) * scale;
@@ -233,7 +235,7 @@ fn input_quantization_matches_f64_rounding() {
             let q = layer.quantize_input(&x);
             for (&qi, &xi) in q.iter().zip(&x) {
                 // The kernel divides in f32, so round the f32 quotient.
-                let want = f64::from(xi / scale).round().clamp(-127.0, 127.0) as i16;
+                let want = f64::from(xi / scale).round().clamp(-32767.0, 32767.0) as i16;
                 assert_eq!(qi, want, "x {xi} scale {scale}");
             }
         }

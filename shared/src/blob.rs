@@ -20,7 +20,8 @@
 //! - `Int8`: weights i8, **output-major** (`w[j * inputs + i]`, PyTorch's layout), so each output
 //!   is an integer dot product; one f32 scale per output channel (symmetric, zero point 0);
 //!   bias i32 LE in units of `input_scale * weight_scale[j]`; the layer input is quantized
-//!   symmetrically to i8 with `input_scale` (calibrated on the ground).
+//!   symmetrically to 16 bits (`±ACTIVATION_LEVELS`) with `input_scale` (calibrated on the
+//!   ground). Version 2: version 1 quantized activations to ±127.
 
 use serde::{Deserialize, Serialize};
 
@@ -29,7 +30,7 @@ pub use crate::scenario::ProblemKind;
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"LTGB";
 /// The format version this crate reads and writes.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 /// Bytes before the payload: magic, version, payload length.
 pub const HEADER_LEN: usize = 10;
 /// Bytes after the payload: the CRC-32.
@@ -38,6 +39,13 @@ pub const TRAILER_LEN: usize = 4;
 pub const MAX_LAYERS: usize = 4;
 /// Largest layer width accepted (inputs or outputs).
 pub const MAX_WIDTH: usize = 1024;
+/// `Int8` activations are quantized to `-ACTIVATION_LEVELS..=ACTIVATION_LEVELS` (16-bit: the
+/// inputs mix quantities of very different size, a time to go of ~10 next to radius gaps of
+/// 0.01, which 127 levels cannot resolve; the i8 x i16 products still sum exactly in i32).
+pub const ACTIVATION_LEVELS: i16 = 32_767;
+/// Most inputs an `Int8` layer may have so its i32 accumulator cannot overflow:
+/// `inputs * 32767 * 128 < 2^31`.
+pub const MAX_INT8_INPUTS: usize = 512;
 
 /// The network's input encoding (SPEC sections 5 and 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -73,7 +81,7 @@ impl FeatureLayout {
 pub enum Quantization {
     /// f32 weights and biases.
     F32,
-    /// int8 per-output-channel symmetric weights, i32 bias, i8 activations.
+    /// int8 per-output-channel symmetric weights, i32 bias, 16-bit activations.
     Int8,
 }
 
@@ -99,7 +107,7 @@ pub struct LayerBlob<'a> {
     /// Int8 only: `outputs` f32 LE per-channel weight scales (empty for F32).
     #[serde(borrow)]
     pub weight_scales: &'a [u8],
-    /// Int8 only: the scale that quantizes this layer's input to i8 (1.0 for F32).
+    /// Int8 only: the scale that quantizes this layer's input to `±ACTIVATION_LEVELS` (1.0 for F32).
     pub input_scale: f32,
 }
 

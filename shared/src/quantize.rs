@@ -5,15 +5,16 @@
 //! The int8 scheme, as the onboard kernels read it:
 //! - weight `w_ji` -> `q_ji = round(w_ji / s_j)` with `s_j = max_i |w_ji| / 127` (per output
 //!   channel, symmetric, zero point 0);
-//! - a layer's input `x_i` -> `round(x_i / a)` clamped to `[-127, 127]`, with `a` the largest
-//!   `|x_i|` over the calibration inputs divided by 127 (so no calibration input clips);
+//! - a layer's input `x_i` -> `round(x_i / a)` clamped to `[-L, L]` (`L` =
+//!   [`ACTIVATION_LEVELS`], 16-bit activations), with `a` the largest `|x_i|` over the
+//!   calibration inputs divided by `L` (so no calibration input clips);
 //! - bias `b_j` -> `round(b_j / (a s_j))` as i32, the accumulator's unit.
 
 use std::vec::Vec;
 
 use crate::blob::{
     encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob,
-    ProblemKind, Quantization,
+    ProblemKind, Quantization, ACTIVATION_LEVELS,
 };
 
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
@@ -62,7 +63,7 @@ impl std::error::Error for QuantizeError {}
 /// The int8 quantization chosen for each layer, for reports.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Int8Layer {
-    /// Input scale `a` (the layer input's largest calibration magnitude / 127).
+    /// Input scale `a` (the layer input's largest calibration magnitude / `ACTIVATION_LEVELS`).
     pub input_scale: f32,
     /// Per-output-channel weight scales `s_j`.
     pub weight_scales: Vec<f32>,
@@ -82,6 +83,62 @@ fn features_of(kind: ProblemKind) -> FeatureLayout {
 /// `round(x / s)` half away from zero, clamped to `[-127, 127]` (the onboard rounding).
 fn quantize(x: f64, s: f64) -> i32 {
     (x / s).round().clamp(-127.0, 127.0) as i32
+}
+
+/// The scale that maps an activation of magnitude `m` to `ACTIVATION_LEVELS`, rounded up to
+/// the next f32 if needed so it never clips; 1 for an input that is always 0.
+fn activation_scale(m: f64) -> f32 {
+    if m > 0.0 {
+        let levels = f64::from(ACTIVATION_LEVELS);
+        let a = (m / levels) as f32;
+        if f64::from(a) * levels < m {
+            a.next_up()
+        } else {
+            a
+        }
+    } else {
+        1.0
+    }
+}
+
+/// Candidate clipping of a row's scale: from the largest weight (no clipping) down to half.
+const SCALE_FRACTIONS: [f32; 11] = [1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.65, 0.6, 0.55, 0.5];
+
+/// One output channel's symmetric int8 weights: the scale (the largest weight / 127, or a
+/// clipped one) that minimises the expected output error `sum_i E[x_i^2] (w_i - s q_i)^2`,
+/// so weights that meet large inputs are kept precise at the cost of clipping rare outliers.
+fn quantize_row(row: &[f32], input_mean_square: &[f64]) -> (f32, Vec<i8>) {
+    let peak = row.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+    if peak == 0.0 {
+        return (1.0, vec![0; row.len()]);
+    }
+    let error = |s: f32| -> f64 {
+        row.iter()
+            .zip(input_mean_square)
+            .map(|(&w, &ms)| {
+                let d = f64::from(quantize(f64::from(w), f64::from(s))) * f64::from(s) - f64::from(w);
+                ms * d * d
+            })
+            .sum()
+    };
+    let best = SCALE_FRACTIONS
+        .iter()
+        .map(|f| peak * f / 127.0)
+        .fold((peak / 127.0, f64::INFINITY), |(bs, be), s| {
+            let e = error(s);
+            if e < be {
+                (s, e)
+            } else {
+                (bs, be)
+            }
+        })
+        .0;
+    (
+        best,
+        row.iter()
+            .map(|&w| quantize(f64::from(w), f64::from(best)) as i8)
+            .collect(),
+    )
 }
 
 impl DenseWeights {
@@ -209,52 +266,87 @@ impl MlpWeights {
                 "an input has the wrong length or is not finite",
             ));
         }
+        // Per layer input: the largest magnitude (input scale) and each component's mean
+        // square (which weights matter), over the calibration inputs through the exact network.
         let mut largest = vec![0.0f64; self.layers.len()];
+        let mut mean_square: Vec<Vec<f64>> = self.layers.iter().map(|l| vec![0.0; l.inputs]).collect();
         for x in calibration {
-            for (m, a) in largest.iter_mut().zip(self.layer_inputs(x)) {
+            for ((m, ms), a) in largest.iter_mut().zip(&mut mean_square).zip(self.layer_inputs(x)) {
                 *m = a.iter().fold(*m, |m, v| m.max(v.abs()));
+                for (s, v) in ms.iter_mut().zip(&a) {
+                    *s += v * v / calibration.len() as f64;
+                }
             }
         }
-        Ok(self
-            .layers
+        // The calibration inputs as the quantized network sees them, layer after layer.
+        let mut flowing: Vec<Vec<f64>> = calibration
             .iter()
-            .zip(largest)
-            .map(|(l, m)| {
-                // A layer whose input is always 0 gets scale 1: any scale quantizes 0 exactly.
-                let input_scale = if m > 0.0 {
-                    // Rounded up to the next f32 if needed, so the largest input maps to <= 127.
-                    let a = (m / 127.0) as f32;
-                    if f64::from(a) * 127.0 < m {
-                        a.next_up()
-                    } else {
-                        a
-                    }
-                } else {
-                    1.0
-                };
-                let mut weights = Vec::with_capacity(l.weights.len());
-                let mut weight_scales = Vec::with_capacity(l.outputs);
-                let mut bias = Vec::with_capacity(l.outputs);
-                for (row, &b) in l.weights.chunks_exact(l.inputs).zip(&l.bias) {
-                    let peak = row.iter().fold(0.0f32, |m, w| m.max(w.abs()));
-                    let s = if peak > 0.0 { peak / 127.0 } else { 1.0 };
-                    weights.extend(row.iter().map(|&w| quantize(f64::from(w), f64::from(s)) as i8));
-                    weight_scales.push(s);
-                    let unit = f64::from(input_scale) * f64::from(s);
-                    bias.push(
-                        (f64::from(b) / unit)
-                            .round()
-                            .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32,
-                    );
-                }
-                Int8Layer {
-                    input_scale,
-                    weight_scales,
-                    weights,
-                    bias,
-                }
-            })
-            .collect())
+            .map(|x| x.iter().map(|&v| f64::from(v)).collect())
+            .collect();
+        let mut layers = Vec::with_capacity(self.layers.len());
+        for ((l, m), ms) in self.layers.iter().zip(largest).zip(&mean_square) {
+            let input_scale = activation_scale(m);
+            let a = f64::from(input_scale);
+            let levels = f64::from(ACTIVATION_LEVELS);
+            let quantized_inputs: Vec<Vec<f64>> = flowing
+                .iter()
+                .map(|x| x.iter().map(|v| (v / a).round().clamp(-levels, levels)).collect())
+                .collect();
+            let mut q = Int8Layer {
+                input_scale,
+                weight_scales: Vec::with_capacity(l.outputs),
+                weights: Vec::with_capacity(l.weights.len()),
+                bias: Vec::with_capacity(l.outputs),
+            };
+            for (row, &b) in l.weights.chunks_exact(l.inputs).zip(&l.bias) {
+                let (s, q_row) = quantize_row(row, ms);
+                // Bias correction: the rounding of the weights shifts each output by
+                // sum_i (q_i s - w_i) x_i; its mean over the calibration inputs (as quantized
+                // there) is taken out of the bias, so the quantized layer is unbiased.
+                let shift = quantized_inputs
+                    .iter()
+                    .map(|xq| {
+                        row.iter()
+                            .zip(&q_row)
+                            .zip(xq)
+                            .map(|((&w, &qw), &x)| (f64::from(qw) * f64::from(s) - f64::from(w)) * x * a)
+                            .sum::<f64>()
+                    })
+                    .sum::<f64>()
+                    / calibration.len() as f64;
+                let unit = a * f64::from(s);
+                q.bias.push(
+                    ((f64::from(b) - shift) / unit)
+                        .round()
+                        .clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32,
+                );
+                q.weight_scales.push(s);
+                q.weights.extend(q_row);
+            }
+            // The next layer's inputs: this layer's output as the onboard kernel computes it.
+            flowing = quantized_inputs
+                .iter()
+                .map(|xq| {
+                    (0..l.outputs)
+                        .map(|j| {
+                            let acc = q.weights[j * l.inputs..(j + 1) * l.inputs]
+                                .iter()
+                                .zip(xq)
+                                .map(|(&w, &x)| f64::from(w) * x)
+                                .sum::<f64>()
+                                + f64::from(q.bias[j]);
+                            let z = acc * a * f64::from(q.weight_scales[j]);
+                            match l.activation {
+                                Activation::Relu => z.max(0.0),
+                                Activation::Tanh => z.tanh(),
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            layers.push(q);
+        }
+        Ok(layers)
     }
 
     /// The int8 blob (see [`Self::quantize_int8`]) and the quantization it holds.
@@ -345,21 +437,46 @@ mod tests {
             for j in 0..l.outputs {
                 let s = q.weight_scales[j];
                 let row = &l.weights[j * l.inputs..(j + 1) * l.inputs];
-                // The largest weight of each row maps to +-127; every weight within s/2.
-                let q_row = &q.weights[j * l.inputs..(j + 1) * l.inputs];
-                assert_eq!(q_row.iter().map(|v| v.unsigned_abs()).max(), Some(127));
+                let peak = row.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+                // The scale lies between half and all of the largest weight / 127; every weight
+                // is within s/2 of its value, or clipped to +-127 steps.
+                assert!(s <= peak / 127.0 * 1.0001 && s >= peak / 127.0 * 0.4999, "{s} {peak}");
                 for (i, &w) in row.iter().enumerate() {
-                    let back = f32::from(q.weights[j * l.inputs + i]) * s;
-                    assert!((back - w).abs() <= s / 2.0 * 1.0001);
+                    let qw = q.weights[j * l.inputs + i];
+                    let back = f32::from(qw) * s;
+                    assert!((back - w).abs() <= s / 2.0 * 1.0001 || (qw.unsigned_abs() == 127 && w.abs() > back.abs()));
                 }
-                let b_back = f64::from(q.bias[j]) * f64::from(q.input_scale) * f64::from(s);
-                assert!((b_back - f64::from(l.bias[j])).abs() <= f64::from(q.input_scale * s) / 2.0 * 1.0001);
             }
         }
-        // Every calibration input of every layer fits in 127 steps of its scale.
+        // Bias correction: on the calibration inputs (layer 0 sees them as they are), the
+        // quantized layer's mean pre-activation equals the exact weights' on the same
+        // quantized inputs, to the bias's rounding (half a unit).
+        let (l, q) = (&net.layers[0], &quant[0]);
+        let a = f64::from(q.input_scale);
+        for j in 0..l.outputs {
+            let unit = a * f64::from(q.weight_scales[j]);
+            let (mut quantized, mut exact) = (0.0, 0.0);
+            for x in &calib {
+                for (i, &v) in x.iter().enumerate() {
+                    let xq = (f64::from(v) / a).round() * a;
+                    quantized += f64::from(q.weights[j * l.inputs + i]) * f64::from(q.weight_scales[j]) * xq;
+                    exact += f64::from(l.weights[j * l.inputs + i]) * xq;
+                }
+            }
+            let n = calib.len() as f64;
+            let mean_q = quantized / n + f64::from(q.bias[j]) * unit;
+            let mean_exact = exact / n + f64::from(l.bias[j]);
+            assert!(
+                (mean_q - mean_exact).abs() <= unit / 2.0 * 1.001 + 1e-12,
+                "{mean_q} {mean_exact}"
+            );
+        }
+        // Every calibration input of every layer fits in ACTIVATION_LEVELS steps of its scale.
         for x in &calib {
             for (a, q) in net.layer_inputs(x).iter().zip(&quant) {
-                assert!(a.iter().all(|v| v.abs() / f64::from(q.input_scale) <= 127.0));
+                assert!(a
+                    .iter()
+                    .all(|v| v.abs() / f64::from(q.input_scale) <= f64::from(ACTIVATION_LEVELS)));
             }
         }
     }

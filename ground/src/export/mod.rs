@@ -1,3 +1,5 @@
-//! Export of trajectories and policies to formats other tools read.
+//! Export of trajectories and policies to formats other tools read: CCSDS OEM ([`oem`]) and
+//! the onboard weight blobs ([`policy`]).
 
 pub mod oem;
+pub mod policy;

@@ -238,9 +238,17 @@ pub struct QuantLayer {
     pub input_scale: f32,
 }
 
-/// `round(x / s)` half away from zero, clamped to [-127, 127], in f64.
+/// `round(x / s)` half away from zero, clamped to [-127, 127], in f64 (weights).
 pub fn quant_f64(x: f64, s: f64) -> i32 {
     (x / s).round().clamp(-127.0, 127.0) as i32
+}
+
+/// Activation levels of the int8 scheme (16-bit activations).
+pub const LEVELS: f64 = shared::blob::ACTIVATION_LEVELS as f64;
+
+/// `round(x / s)` half away from zero, clamped to [-LEVELS, LEVELS], in f64 (activations).
+pub fn quant_act(x: f64, s: f64) -> i32 {
+    (x / s).round().clamp(-LEVELS, LEVELS) as i32
 }
 
 /// Per-output-channel symmetric weight quantization (`scale_j = max_i |w_ji| / 127`), bias in
@@ -268,7 +276,7 @@ pub fn quantize_layer(layer: &RefLayer, input_scale: f32) -> QuantLayer {
     }
 }
 
-/// Input scales calibrated as `max |activation| / 127` of each layer's input over `calib`.
+/// Input scales calibrated as `max |activation| / LEVELS` of each layer's input over `calib`.
 pub fn calibrate(net: &RefNet, calib: &[Vec<f32>]) -> Vec<f32> {
     let mut m = vec![0.0f64; net.layers.len()];
     for x in calib {
@@ -278,7 +286,7 @@ pub fn calibrate(net: &RefNet, calib: &[Vec<f32>]) -> Vec<f32> {
         }
     }
     m.iter()
-        .map(|&v| if v > 0.0 { (v / 127.0) as f32 } else { 1.0 })
+        .map(|&v| if v > 0.0 { (v / LEVELS) as f32 } else { 1.0 })
         .collect()
 }
 
@@ -318,12 +326,12 @@ pub fn int8_net(quant: &[QuantLayer], kind: ProblemKind) -> OwnedNet {
 }
 
 /// Worst-case error of quantizing (with scale `s`) a value of magnitude at most `m`: the value
-/// itself if it rounds to 0, half a step, or the clipped excess beyond 127 steps.
+/// itself if it rounds to 0, half a step, or the clipped excess beyond LEVELS steps.
 fn quant_err(m: f64, s: f64) -> f64 {
-    if m <= 127.5 * s {
+    if m <= (LEVELS + 0.5) * s {
         m.min(s / 2.0)
     } else {
-        m - 127.0 * s
+        m - LEVELS * s
     }
 }
 
@@ -395,13 +403,13 @@ pub fn int8_bound(net: &RefNet, quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
     out
 }
 
-/// The int8 scheme emulated in f64 by the test (round half away from zero, clamp to ±127).
+/// The int8 scheme emulated in f64 by the test (round half away from zero, clamp to ±LEVELS).
 pub fn int8_emulate(quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
     let n = quant.len();
     let mut a: Vec<f64> = x.iter().map(|&v| f64::from(v)).collect();
     for (l, q) in quant.iter().enumerate() {
         let s = f64::from(q.input_scale);
-        let xq: Vec<i64> = a.iter().map(|&v| i64::from(quant_f64(v, s))).collect();
+        let xq: Vec<i64> = a.iter().map(|&v| i64::from(quant_act(v, s))).collect();
         let z: Vec<f64> =
             q.q.iter()
                 .zip(&q.bias)
