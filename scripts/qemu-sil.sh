@@ -8,7 +8,7 @@
 #   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground export's transfer-*.blob)
 #
 # Either way it also checks refusal: the last blob altered (one byte flipped), truncated and
-# given another format version, and a rendezvous blob, must each be refused by the image with
+# given the next format version, and a rendezvous blob, must each be refused by the image with
 # the typed error, flown with thrust off (every throttle bit zero), exit 0, and match the host.
 # Exit status: non-zero on any trace difference, failed run or failed check. The issue's
 # instruction and footprint targets are reported (met / MISSED), not enforced.
@@ -78,7 +78,10 @@ byte=$(od -An -tu1 -j "$offset" -N1 "$last" | tr -d ' ')
 printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$neg/altered.blob" bs=1 seek="$offset" conv=notrunc status=none
 head -c $((size - 1000)) "$last" >"$neg/truncated.blob"
 cp "$last" "$neg/version.blob"
-printf '\002\000' | dd of="$neg/version.blob" bs=1 seek=4 conv=notrunc status=none
+version=$(od -An -tu2 -j 4 -N2 --endian=little "$last" | tr -d ' ')
+# shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
+printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
+    dd of="$neg/version.blob" bs=1 seek=4 conv=notrunc status=none
 "$HOST_BIN/random_blob" --seed 1 --out "$neg" --rendezvous >/dev/null
 
 step "clippy and rustfmt for the image crate (excluded from the workspace)"

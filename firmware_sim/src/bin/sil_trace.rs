@@ -65,7 +65,8 @@ fn run() -> Result<(), String> {
             inputs = recorder.inputs.into_inner();
         }
     }
-    if timing && !inputs.is_empty() {
+    // Safe mode has no inference to time.
+    if timing && matches!(controller, Controller::Network(_)) && !inputs.is_empty() {
         writeln!(out, "{}", latency(&controller, &inputs)).map_err(|e| e.to_string())?;
     }
     print!("{out}");
