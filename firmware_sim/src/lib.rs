@@ -15,6 +15,7 @@
 #![forbid(unsafe_code)]
 
 pub mod dispersion;
+pub mod trace;
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{

@@ -1,0 +1,172 @@
+//! The Cortex-M4F flight image (QEMU mps2-an386): the SIL guidance loop of `firmware_sim`
+//! flying the trace's transfers with the weight blob linked into flash, the trace and the
+//! measurements written through semihosting.
+//!
+//! The blob is refused at load if it is of another version, problem or shape, truncated or
+//! altered: the typed error goes into the trace and the flights are flown in safe mode (thrust
+//! off), then the image exits 0 as usual, since refusing is the correct behaviour.
+//! It exits 1 only when the firmware itself fails (panic, fault, output error).
+#![no_std]
+#![no_main]
+// As in onboard: a panic here would be a failed flight, so the linter refuses the ways to write one.
+#![deny(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing,
+    clippy::unreachable,
+    clippy::todo,
+    clippy::unimplemented
+)]
+
+mod counter;
+#[cfg(feature = "profile")]
+mod profile;
+mod semi;
+mod stack;
+
+use core::fmt::Write;
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use firmware_sim::trace::{self, COMMENT, FLIGHTS};
+use firmware_sim::Controller;
+
+use counter::{Counted, Counter, INSTRUCTIONS_PER_TICK, MAX_SAMPLES};
+
+/// Aligns the blob in flash (64 bytes: a cache line on parts that have one); the decoder does
+/// not need it, since it reads every array byte-wise.
+#[repr(C, align(64))]
+struct Aligned<B: ?Sized>(B);
+
+/// The weight blob named by `LOWTHRUST_BLOB` at build time (build.rs), in flash (.rodata).
+static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/policy.blob")));
+
+/// Length of the calibration loop: 2 * N instructions.
+const CALIBRATION_LOOP: u32 = 1_000_000;
+/// Back-to-back inferences of the repeated measurement (resolution 40 / 64 instructions).
+const REPEATS: u32 = 64;
+
+#[entry]
+fn main() -> ! {
+    stack::paint();
+    let mut out = semi::Out::new();
+    match run(&mut out) {
+        Ok(()) => semi::exit(true),
+        Err(core::fmt::Error) => semi::fail(format_args!("semihosting output failed")),
+    }
+}
+
+fn run(out: &mut semi::Out) -> core::fmt::Result {
+    let Some(peripherals) = cortex_m::Peripherals::take() else {
+        semi::fail(format_args!("core peripherals already taken"))
+    };
+    let counter = Counter::start(peripherals.SYST);
+    let blob: &'static [u8] = &BLOB.0;
+    let controller = Controller::load_transfer(blob);
+    let counted = Counted::new(&controller, &counter);
+    fly(out, blob, &controller, &counted)?;
+    // The flights' stack peak, before the measurements add their own frames.
+    let flight_stack = stack::high_water();
+    measure(out, &counter, &controller, &counted)?;
+    writeln!(
+        out,
+        "{COMMENT} stack: {} bytes reserved, high-water mark {flight_stack} bytes in flight, {} bytes with the \
+         measurements",
+        stack::reserved(),
+        stack::high_water()
+    )
+}
+
+/// The trace: header, then every flight. Not inlined, so its frames are the flights' own.
+#[inline(never)]
+fn fly(
+    out: &mut semi::Out,
+    blob: &[u8],
+    controller: &Controller<'_>,
+    counted: &Counted<'_, Controller<'_>>,
+) -> core::fmt::Result {
+    trace::write_header(out, blob, controller)?;
+    for flight in &FLIGHTS {
+        // The flight's outcome is in its `end` line.
+        let _flown = trace::fly(out, counted, flight)?;
+    }
+    Ok(())
+}
+
+/// The measurements, as comment lines (not compared with the host).
+#[inline(never)]
+fn measure(
+    out: &mut semi::Out,
+    counter: &Counter,
+    controller: &Controller<'_>,
+    counted: &Counted<'_, Controller<'_>>,
+) -> core::fmt::Result {
+    let (empty, looped) = counter::calibrate(counter, CALIBRATION_LOOP);
+    writeln!(
+        out,
+        "{COMMENT} calibration: empty measurement {empty} ticks, counted loop of {} instructions {looped} ticks \
+         ({INSTRUCTIONS_PER_TICK} instructions per tick expected)",
+        2 * CALIBRATION_LOOP
+    )?;
+    let mut samples = [0u32; MAX_SAMPLES];
+    let n = counted.samples(&mut samples);
+    if let Some(ticks) = samples.get_mut(..n) {
+        insertion_sort(ticks);
+        if let (Some(min), Some(med), Some(max)) = (ticks.first(), ticks.get(n / 2), ticks.last()) {
+            let i = |t: &u32| t.saturating_mul(INSTRUCTIONS_PER_TICK);
+            writeln!(
+                out,
+                "{COMMENT} instructions per inference over the flights' {n} inferences: median {} min {} max {} \
+                 (resolution {INSTRUCTIONS_PER_TICK})",
+                i(med),
+                i(min),
+                i(max)
+            )?;
+        }
+    }
+    let Some(x) = counted.first_input() else {
+        return Ok(());
+    };
+    let ticks = counter::repeated(controller, counter, &x, REPEATS);
+    let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
+    writeln!(
+        out,
+        "{COMMENT} instructions per inference, {REPEATS} back to back on the first step's features: {}.{:02} \
+         (resolution {INSTRUCTIONS_PER_TICK}/{REPEATS})",
+        total / u64::from(REPEATS),
+        (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
+    )?;
+    // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
+    #[cfg(feature = "profile")]
+    if let Controller::Network(policy) = controller {
+        profile::write(out, counter, policy, &x)?;
+    }
+    Ok(())
+}
+
+/// Sorts the (at most [`MAX_SAMPLES`]) tick counts for their median: a few lines instead of
+/// the several KiB of flash `sort_unstable` links in.
+fn insertion_sort(v: &mut [u32]) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while j > 0 && v.get(j - 1) > v.get(j) {
+            v.swap(j - 1, j);
+            j -= 1;
+        }
+    }
+}
+
+#[exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    semi::fail(format_args!("hard fault at pc {:#010x}", frame.pc()))
+}
+
+#[exception]
+unsafe fn DefaultHandler(irq: i16) {
+    semi::fail(format_args!("unexpected exception {irq}"))
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo<'_>) -> ! {
+    semi::fail(format_args!("panic: {info}"))
+}

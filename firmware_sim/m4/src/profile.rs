@@ -1,0 +1,103 @@
+//! Where the instructions of one inference go: each stage of the policy's forward pass timed
+//! alone (the layer views are public), [`REPEATS`] back-to-back calls per stage.
+
+use core::fmt::{self, Write};
+use core::hint::black_box;
+
+use firmware_sim::trace::COMMENT;
+use onboard::features::TRANSFER_FEATURES;
+use onboard::policy::{MlpLayers, TransferPolicy};
+
+use crate::counter::{Counter, INSTRUCTIONS_PER_TICK};
+
+const REPEATS: u32 = 64;
+
+/// Instructions per call of `f(input)`, in hundredths.
+fn per_call<I, R>(counter: &Counter, input: &I, f: impl Fn(&I) -> R) -> u64 {
+    let t0 = counter.now();
+    for _ in 0..REPEATS {
+        // Opaque input and output: every repetition is computed, none hoisted.
+        black_box(f(black_box(input)));
+    }
+    let t1 = counter.now();
+    u64::from(Counter::ticks(t0, t1)) * u64::from(INSTRUCTIONS_PER_TICK) * 100 / u64::from(REPEATS)
+}
+
+struct Hundredths(u64);
+
+impl fmt::Display for Hundredths {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", (self.0 + 50) / 100)
+    }
+}
+
+/// Writes the breakdown of `policy.forward(x)` as comment lines.
+pub fn write<W: Write>(
+    w: &mut W,
+    counter: &Counter,
+    policy: &TransferPolicy<'_>,
+    x: &[f32; TRANSFER_FEATURES],
+) -> fmt::Result {
+    let whole = per_call(counter, x, |x| policy.forward(x));
+    // Standalone copies: LLVM inlines and schedules them apart from the flight's Controller::act,
+    // so their sum differs from the flight's count by a few per cent.
+    write!(
+        w,
+        "{COMMENT} profile, stages called alone: forward {}",
+        Hundredths(whole)
+    )?;
+    let mut parts = 0;
+    match policy.layers() {
+        MlpLayers::Int8(a, b, c) => {
+            let relu = |mut v: [f32; 256]| {
+                v.iter_mut().for_each(|e| *e = e.max(0.0));
+                v
+            };
+            let q0 = a.quantize_input(x);
+            let q1 = b.quantize_input(&relu(a.forward(&q0)));
+            let q2 = c.quantize_input(&relu(b.forward(&q1)));
+            let l2 = per_call(counter, &q1, |q| b.accumulate(q));
+            let stages = [
+                ("L1 quantize 10", per_call(counter, x, |x| a.quantize_input(x))),
+                ("L1 accumulate 10x256", per_call(counter, &q0, |q| a.accumulate(q))),
+                ("L2 accumulate 256x256", l2),
+                ("L3 accumulate 256x3", per_call(counter, &q2, |q| c.accumulate(q))),
+                (
+                    "L2 quantize 256",
+                    per_call(counter, &[0.5f32; 256], |h| b.quantize_input(h)),
+                ),
+                ("L1 dequantize 256", {
+                    let all = per_call(counter, &q0, |q| a.forward(q));
+                    all.saturating_sub(per_call(counter, &q0, |q| a.accumulate(q)))
+                }),
+            ];
+            for (name, v) in stages {
+                write!(w, "; {name} {}", Hundredths(v))?;
+                parts += v;
+            }
+            let mac = l2 / (256 * 256);
+            write!(w, " ({}.{:02} per MAC)", mac / 100, mac % 100)?;
+        }
+        MlpLayers::F32(a, b, c) => {
+            let relu = |mut v: [f32; 256]| {
+                v.iter_mut().for_each(|e| *e = e.max(0.0));
+                v
+            };
+            let h1 = relu(a.forward(x));
+            let h2 = relu(b.forward(&h1));
+            let l2 = per_call(counter, &h1, |h| b.forward(h));
+            let stages = [
+                ("L1 10x256", per_call(counter, x, |x| a.forward(x))),
+                ("L2 256x256", l2),
+                ("L3 256x3", per_call(counter, &h2, |h| c.forward(h))),
+            ];
+            for (name, v) in stages {
+                write!(w, "; {name} {}", Hundredths(v))?;
+                parts += v;
+            }
+            let mac = l2 / (256 * 256);
+            write!(w, " ({}.{:02} per MAC)", mac / 100, mac % 100)?;
+        }
+    }
+    writeln!(w, "; the rest {}", Hundredths(whole.saturating_sub(parts)))
+}

@@ -1,0 +1,155 @@
+//! Writes a deterministic, seeded, untrained transfer actor (10-256-256-3, He-uniform) as an
+//! f32 blob and an int8 blob, for the SIL and the Cortex-M4 image when no trained blob is given.
+//!
+//! `random_blob [--seed N] [--out DIR] [--rendezvous]` writes `DIR/transfer-f32.blob` and
+//! `DIR/transfer-int8.blob` (defaults: seed 1, the current folder); `--rendezvous` writes a
+//! 22-256-256-3 `DIR/rendezvous-int8.blob` instead (the wrong problem for the transfer
+//! image, which must refuse it). The blobs come from
+//! `shared::quantize`, the exporter's own writer; the int8 activation scales are calibrated on
+//! random feature vectors of flight-like magnitude.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use shared::blob::{Activation, ProblemKind};
+use shared::quantize::{DenseWeights, MlpWeights};
+
+const TRANSFER: [usize; 4] = [10, 256, 256, 3];
+const RENDEZVOUS: [usize; 4] = [22, 256, 256, 3];
+/// Feature vectors the int8 input scales are calibrated on.
+const CALIBRATION_SAMPLES: usize = 512;
+
+/// SplitMix64: small and seeded; the blobs depend on nothing else.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi).
+    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        let u = (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        lo + (hi - lo) * u
+    }
+}
+
+/// He-uniform weights (`±sqrt(6 / fan_in)`, for ReLU) and biases `±1 / sqrt(fan_in)` as
+/// PyTorch's `nn.Linear` (non-zero, so the int8 bias rounding is exercised).
+fn he_layer(inputs: usize, outputs: usize, activation: Activation, rng: &mut Rng) -> DenseWeights {
+    let a = (6.0 / inputs as f64).sqrt();
+    let c = 1.0 / (inputs as f64).sqrt();
+    DenseWeights {
+        inputs,
+        outputs,
+        weights: (0..inputs * outputs).map(|_| rng.uniform(-a, a) as f32).collect(),
+        bias: (0..outputs).map(|_| rng.uniform(-c, c) as f32).collect(),
+        activation,
+    }
+}
+
+/// Transfer features of flight-like magnitude (SPEC section 5): radius 0.8-1.8 AU, unit
+/// direction, velocities of near-circular orbits, mass 0.6-1, time to go up to 12 t*.
+/// A rendezvous network gets O(1) inputs: it is only ever refused.
+fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
+    if inputs != TRANSFER[0] {
+        return (0..inputs).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+    }
+    let theta = rng.uniform(0.0, std::f64::consts::TAU);
+    let r = rng.uniform(0.8, 1.8);
+    let r_t = rng.uniform(0.8, 1.8);
+    [
+        r,
+        theta.cos(),
+        theta.sin(),
+        rng.uniform(-0.2, 0.2),
+        rng.uniform(0.7, 1.2) / r.sqrt(),
+        rng.uniform(0.6, 1.0),
+        r_t,
+        rng.uniform(-0.2, 0.2),
+        rng.uniform(0.7, 1.2) / r_t.sqrt(),
+        rng.uniform(0.0, 12.0),
+    ]
+    .map(|v| v as f32)
+    .to_vec()
+}
+
+fn run() -> Result<(), String> {
+    let (mut seed, mut out, mut kind) = (1u64, PathBuf::from("."), ProblemKind::Transfer);
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--rendezvous" => kind = ProblemKind::Rendezvous,
+            "--seed" | "--out" => {
+                let v = args.next().ok_or(format!("{a} needs a value"))?;
+                if a == "--seed" {
+                    seed = v.parse().map_err(|e| format!("--seed {v}: {e}"))?;
+                } else {
+                    out = PathBuf::from(v);
+                }
+            }
+            _ => {
+                return Err(format!(
+                    "usage: random_blob [--seed N] [--out DIR] [--rendezvous] (got {a})"
+                ))
+            }
+        }
+    }
+    let sizes = match kind {
+        ProblemKind::Transfer => TRANSFER,
+        ProblemKind::Rendezvous => RENDEZVOUS,
+    };
+    let mut rng = Rng(seed);
+    let layers = sizes
+        .windows(2)
+        .enumerate()
+        .map(|(l, s)| {
+            let activation = if l + 2 == sizes.len() {
+                Activation::Tanh
+            } else {
+                Activation::Relu
+            };
+            he_layer(s[0], s[1], activation, &mut rng)
+        })
+        .collect();
+    let net = MlpWeights { kind, layers };
+    let calibration: Vec<Vec<f32>> = (0..CALIBRATION_SAMPLES)
+        .map(|_| feature_sample(&mut rng, sizes[0]))
+        .collect();
+
+    let shape = sizes.map(|n| n.to_string()).join("-");
+    let provenance = format!("random_blob seed {seed}: untrained He-uniform {shape}, for SIL tests");
+    let (int8_blob, _) = net.int8_blob(&calibration, &provenance).map_err(|e| e.to_string())?;
+    let blobs = match kind {
+        ProblemKind::Transfer => vec![
+            (
+                "transfer-f32.blob",
+                net.f32_blob(&provenance).map_err(|e| e.to_string())?,
+            ),
+            ("transfer-int8.blob", int8_blob),
+        ],
+        ProblemKind::Rendezvous => vec![("rendezvous-int8.blob", int8_blob)],
+    };
+
+    std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    for (name, bytes) in &blobs {
+        let path = out.join(name);
+        std::fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("{} ({} bytes)", path.display(), bytes.len());
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("random_blob: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

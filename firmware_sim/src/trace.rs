@@ -1,0 +1,191 @@
+//! The SIL trace: one text format, and one set of flights, for the host run
+//! (`src/bin/sil_trace.rs`) and the Cortex-M4 image (`m4/`), so the two runs can be diffed
+//! line by line (`scripts/qemu-sil.sh`). Every f64 is printed as its bit pattern in hex:
+//! equal traces mean bit-identical flights, not flights that agree to printing precision.
+//!
+//! Lines (the image adds its measurements as lines starting with [`COMMENT`], which the diff
+//! ignores):
+//! - `blob f32|int8 bytes <n> provenance "<text>"` or `blob refused: <why>` (the typed load error);
+//! - `flight <name> seed <seed> steps <n>` before each flight of [`FLIGHTS`];
+//! - `step <k> cmd <u> <ar> <at> applied <u> <ar> <at> missed <t> state <x> <y> <vx> <vy> <m>
+//!   reward <r> guidance ok|<why>`, the command and the true state at the end of the step;
+//! - `end steps <n> faults <n> reward <sum> final <x> <y> <vx> <vy> <m>` or `end error: <why>`.
+
+use core::fmt::{self, Write};
+
+use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::features::{RewardWeights, TRANSFER_FEATURES};
+use onboard::guidance::Actor;
+use onboard::integrator::Tolerances;
+use shared::blob::Quantization;
+use shared::orbit::{OrbitElements, OrbitShape};
+use shared::scenario::Scenario;
+use shared::spacecraft::Spacecraft;
+
+use crate::{fly_transfer_observed, Controller, Dispersions, FlightStep, FlightSummary, SilError};
+
+/// First character of the lines a trace consumer must ignore (measurements, timings).
+pub const COMMENT: char = '#';
+
+/// One flight of the trace.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TraceFlight {
+    pub name: &'static str,
+    pub scenario: Scenario,
+    pub dispersions: Dispersions,
+    pub seed: u64,
+}
+
+/// A circular 1 AU -> 1.3 AU transfer (39 steps of 14 days) from nu = 0.3 rad.
+const fn scenario() -> Scenario {
+    Scenario {
+        problem: shared::scenario::ProblemKind::Transfer,
+        initial: OrbitElements {
+            shape: OrbitShape {
+                a: 1.0,
+                e: 0.0,
+                omega: 0.0,
+            },
+            nu: 0.3,
+        },
+        target: OrbitShape {
+            a: 1.3,
+            e: 0.0,
+            omega: 0.0,
+        },
+        target_nu0: 0.0,
+        // Scenario::steps_for (SPEC section 4): ceil(2 pi 1.3^1.5 / STEP); a test checks it.
+        steps: 39,
+    }
+}
+
+/// The trace's flights: the nominal plant (the MDP itself), then the dispersed plant of
+/// [`Dispersions::TYPICAL`], whose random draws (ChaCha, Gaussian by libm) must agree too.
+pub const FLIGHTS: [TraceFlight; 2] = [
+    TraceFlight {
+        name: "nominal",
+        scenario: scenario(),
+        dispersions: Dispersions::NONE,
+        seed: 0,
+    },
+    TraceFlight {
+        name: "dispersed",
+        scenario: scenario(),
+        dispersions: Dispersions::TYPICAL,
+        seed: 20_261_121,
+    },
+];
+
+/// The header line: what `controller` made of `blob`, or why it refused it.
+pub fn write_header<W: Write>(w: &mut W, blob: &[u8], controller: &Controller<'_>) -> fmt::Result {
+    match controller {
+        Controller::Network(policy) => {
+            let q = match policy.quantization() {
+                Quantization::F32 => "f32",
+                Quantization::Int8 => "int8",
+            };
+            // The policy keeps no provenance; the blob decoded once more has it.
+            let provenance = shared::blob::decode(blob).map_or("", |net| net.provenance);
+            writeln!(w, "blob {q} bytes {} provenance {provenance:?}", blob.len())
+        }
+        Controller::SafeMode(e) => writeln!(w, "blob refused: {e}"),
+    }
+}
+
+struct Bits(f64);
+
+impl fmt::Display for Bits {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:016x}", self.0.to_bits())
+    }
+}
+
+fn write_command<W: Write>(w: &mut W, c: &ThrustCommand) -> fmt::Result {
+    write!(w, "{} {} {}", Bits(c.throttle), Bits(c.alpha_r), Bits(c.alpha_theta))
+}
+
+fn write_state<W: Write>(w: &mut W, s: &SpacecraftState) -> fmt::Result {
+    let [x, y] = s.r;
+    let [vx, vy] = s.v;
+    write!(w, "{} {} {} {} {}", Bits(x), Bits(y), Bits(vx), Bits(vy), Bits(s.m))
+}
+
+/// One `step` line.
+pub fn write_step<W: Write>(w: &mut W, s: &FlightStep) -> fmt::Result {
+    write!(w, "step {} cmd ", s.index)?;
+    write_command(w, &s.command)?;
+    w.write_str(" applied ")?;
+    write_command(w, &s.applied)?;
+    write!(w, " missed {} state ", Bits(s.missed_thrust))?;
+    write_state(w, &s.state)?;
+    write!(w, " reward {} guidance ", Bits(s.reward))?;
+    match &s.guidance_error {
+        None => writeln!(w, "ok"),
+        Some(e) => writeln!(w, "{e}"),
+    }
+}
+
+/// The `end` line.
+pub fn write_end<W: Write>(w: &mut W, result: &Result<FlightSummary, SilError>) -> fmt::Result {
+    match result {
+        Ok(s) => {
+            write!(
+                w,
+                "end steps {} faults {} reward {} final ",
+                s.steps,
+                s.guidance_faults,
+                Bits(s.total_reward)
+            )?;
+            write_state(w, &s.final_state)?;
+            writeln!(w)
+        }
+        Err(e) => writeln!(w, "end error: {e}"),
+    }
+}
+
+/// Flies `flight` with `actor`, writing its `flight`, `step` and `end` lines to `w`. The
+/// outer error is a failed write; the inner result is the flight's.
+pub fn fly<A: Actor<TRANSFER_FEATURES>, W: Write>(
+    w: &mut W,
+    actor: &A,
+    flight: &TraceFlight,
+) -> Result<Result<FlightSummary, SilError>, fmt::Error> {
+    writeln!(
+        w,
+        "flight {} seed {} steps {}",
+        flight.name, flight.seed, flight.scenario.steps
+    )?;
+    let Ok(spacecraft) = Spacecraft::MSR_ERO.canonical() else {
+        writeln!(w, "end error: invalid spacecraft")?;
+        return Err(fmt::Error);
+    };
+    let mut written = Ok(());
+    let result = fly_transfer_observed(
+        actor,
+        &flight.scenario,
+        &spacecraft,
+        &Tolerances::default(),
+        &RewardWeights::default(),
+        &flight.dispersions,
+        flight.seed,
+        |step| {
+            if written.is_ok() {
+                written = write_step(w, step);
+            }
+        },
+    );
+    written?;
+    write_end(w, &result)?;
+    Ok(result)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_trace_scenario_has_the_spec_time_of_flight() {
+        let s = scenario();
+        assert_eq!(s, Scenario::transfer(s.initial, s.target));
+    }
+}

@@ -1,0 +1,176 @@
+#!/usr/bin/env bash
+# The Cortex-M4F SIL check: for each weight blob, build the firmware image with the blob in
+# flash (firmware_sim/m4), fly the trace's transfers on QEMU's mps2-an386, fly the same on the
+# host (firmware_sim's sil_trace), and require the two traces to be identical (every command
+# and state as f64 bits). Prints instructions per inference, flash/RAM footprint, stack peak.
+#
+#   scripts/qemu-sil.sh                 # seeded random f32 + int8 transfer blobs (random_blob)
+#   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground export's transfer-*.blob)
+#
+# Either way it also checks refusal: the last blob altered (one byte flipped), truncated and
+# given the next format version, and a rendezvous blob, must each be refused by the image with
+# the typed error, flown with thrust off (every throttle bit zero), exit 0, and match the host.
+# Exit status: non-zero on any trace difference, failed run or failed check. The issue's
+# instruction and footprint targets are reported (met / MISSED), not enforced.
+# QEMU_SIL_PROFILE=1 also times each stage of the forward pass (a second image per good blob,
+# built with the m4 crate's `profile` feature, which the footprint does not include).
+# Outputs: target/qemu-sil/ (traces, images, diffs).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+start=$(date +%s)
+
+M4=firmware_sim/m4
+# The image's own target folder, whatever CARGO_TARGET_DIR says for the workspace.
+M4_TARGET="$PWD/$M4/target"
+OUT=target/qemu-sil
+HOST_BIN="${CARGO_TARGET_DIR:-target}/release"
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+
+# Targets of issue 5 (Cortex-M4 image, transfer policy).
+F32_MAX_INSN=250000
+INT8_MAX_INSN=120000
+FLASH_MAX=$((256 * 1024))
+RAM_MAX=$((64 * 1024))
+
+step() { printf '\n==> %s\n' "$*"; }
+die() {
+    echo "qemu-sil: FAIL: $*" >&2
+    exit 1
+}
+
+llvm_size=$(ls "$(rustc --print sysroot)"/lib/rustlib/*/bin/llvm-size 2>/dev/null | head -n 1 || true)
+if ! command -v qemu-system-arm >/dev/null 2>&1 || [ -z "$llvm_size" ] \
+    || ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
+    bash scripts/setup-qemu.sh
+    llvm_size=$(ls "$(rustc --print sysroot)"/lib/rustlib/*/bin/llvm-size | head -n 1)
+fi
+
+# The image and the host must run the same code: every crate the image's own lockfile shares
+# with the workspace's must be at a version the workspace uses (libm above all).
+step "image dependencies match the workspace's"
+versions() { awk '/^name = /{n=$3} /^version = /{print n, $3}' "$1" | tr -d '"' | sort -u; }
+mismatch=$(awk 'NR == FNR {have[$1] = have[$1] " " $2 " "; next}
+                ($1 in have) && index(have[$1], " " $2 " ") == 0 {printf "%s %s; ", $1, $2}' \
+    <(versions Cargo.lock) <(versions "$M4/Cargo.lock"))
+[ -z "$mismatch" ] || die "firmware_sim/m4/Cargo.lock has versions the workspace does not: $mismatch"
+echo "shared crates at the workspace's versions"
+
+step "host tools (release): random_blob, sil_trace"
+nice cargo build --release -q -p lowthrust-firmware-sim --bin random_blob --bin sil_trace
+
+blobs=("$@")
+if [ ${#blobs[@]} -eq 0 ]; then
+    "$HOST_BIN/random_blob" --seed 1 --out "$OUT/blobs" >/dev/null
+    blobs=("$OUT/blobs/transfer-f32.blob" "$OUT/blobs/transfer-int8.blob")
+fi
+for b in "${blobs[@]}"; do [ -f "$b" ] || die "no blob $b"; done
+
+# Refusal cases, derived from the last blob, plus a rendezvous network.
+neg="$OUT/refused"
+mkdir -p "$neg"
+last="${blobs[${#blobs[@]} - 1]}"
+size=$(stat -c %s "$last")
+cp "$last" "$neg/altered.blob"
+offset=$((size / 2))
+byte=$(od -An -tu1 -j "$offset" -N1 "$last" | tr -d ' ')
+# shellcheck disable=SC2059 # the format is the octal escape of the flipped byte
+printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$neg/altered.blob" bs=1 seek="$offset" conv=notrunc status=none
+head -c $((size - 1000)) "$last" >"$neg/truncated.blob"
+cp "$last" "$neg/version.blob"
+version=$(od -An -tu2 -j 4 -N2 --endian=little "$last" | tr -d ' ')
+# shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
+printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
+    dd of="$neg/version.blob" bs=1 seek=4 conv=notrunc status=none
+"$HOST_BIN/random_blob" --seed 1 --out "$neg" --rendezvous >/dev/null
+
+step "clippy and rustfmt for the image crate (excluded from the workspace)"
+(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$last")" nice cargo clippy --release -q -- -D warnings)
+(cd "$M4" && cargo fmt --check)
+
+summary=()
+failed=0
+
+# run_case NAME BLOB ok|refused
+run_case() {
+    local name=$1 blob=$2 expect=$3
+    local qemu="$OUT/$name.qemu.txt" host="$OUT/$name.host.txt"
+    step "$name: $(basename "$blob") ($(stat -c %s "$blob") bytes), expected: $expect"
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q)
+    cp "$M4_TARGET/thumbv7em-none-eabihf/release/lowthrust-m4" "$OUT/$name.elf"
+    # The runner (QEMU and its flags) is the one in firmware_sim/m4/.cargo/config.toml.
+    local rc=0
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 cargo run --release -q) \
+        >"$qemu" 2>"$OUT/$name.qemu.err" || rc=$?
+    if [ $rc -ne 0 ]; then
+        cat "$OUT/$name.qemu.err" >&2
+        echo "image exited with status $rc" >&2
+        failed=1
+        return
+    fi
+    "$HOST_BIN/sil_trace" "$blob" --latency >"$host"
+    if diff <(grep -v '^#' "$qemu") <(grep -v '^#' "$host") >"$OUT/$name.diff"; then
+        echo "traces identical: $(grep -vc '^#' "$qemu") lines (commands and states as f64 bits)"
+    else
+        head -n 20 "$OUT/$name.diff" >&2
+        echo "traces differ: $OUT/$name.diff" >&2
+        failed=1
+    fi
+    head -n 1 "$qemu"
+    grep -h '^#' "$qemu" "$host" | sed 's/^# /  /'
+    grep '^end' "$qemu" | sed 's/^/  /'
+    if [ "$expect" = refused ]; then
+        grep -q '^blob refused: ' "$qemu" || {
+            echo "the image did not refuse the blob" >&2
+            failed=1
+        }
+        # Throttle of the command and of what was applied: the first value after each.
+        if ! awk '$1 == "step" { for (i = 1; i < NF; i++) if (($i == "cmd" || $i == "applied") && $(i + 1) != "0000000000000000") bad = 1 }
+                  END { exit bad }' "$qemu"; then
+            echo "a refused blob flew with thrust on" >&2
+            failed=1
+        fi
+        summary+=("$(printf '%-18s refused, thrust off: %s' "$name" "$(head -n 1 "$qemu" | cut -c 15-)")")
+        return
+    fi
+    grep -q '^blob \(f32\|int8\) ' "$qemu" || {
+        echo "the image refused a good blob" >&2
+        failed=1
+        return
+    }
+    local quant insn peak flash ram
+    quant=$(awk 'NR == 1 {print $2}' "$qemu")
+    insn=$(sed -n 's/.*instructions per inference over.*: median \([0-9]*\) .*/\1/p' "$qemu")
+    peak=$(sed -n 's/.*high-water mark \([0-9]*\) bytes in flight.*/\1/p' "$qemu")
+    # Flash: what is loaded (vector table, code, constants including the blob, .data's image);
+    # RAM: .data + .bss + .uninit, plus the stack's measured peak.
+    read -r flash ram < <("$llvm_size" -A "$OUT/$name.elf" |
+        awk '$1 ~ /^\.(vector_table|text|rodata)$/ {f += $2} $1 == ".data" {f += $2; r += $2}
+             $1 ~ /^\.(bss|uninit)$/ {r += $2} END {print f, r}')
+    if [ "${QEMU_SIL_PROFILE:-0}" = 1 ]; then
+        (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 nice cargo run --release -q --features profile) \
+            2>/dev/null | grep '^# profile' | sed 's/^# /  /' || true
+    fi
+    local limit=$F32_MAX_INSN verdict
+    [ "$quant" = int8 ] && limit=$INT8_MAX_INSN
+    verdict=$([ "$insn" -le "$limit" ] && echo met || echo MISSED)
+    local fit=""
+    if [ "$quant" = int8 ]; then
+        fit=$([ "$flash" -le $FLASH_MAX ] && [ $((ram + peak)) -le $RAM_MAX ] && echo "fits 256 KiB/64 KiB" || echo "MISSES 256 KiB/64 KiB")
+    fi
+    summary+=("$(printf '%-18s %-4s %7d instructions/inference (target %d: %s); flash %d B (%.1f KiB); RAM %d B static + %d B stack peak %s' \
+        "$name" "$quant" "$insn" "$limit" "$verdict" "$flash" "$(awk "BEGIN {print $flash / 1024}")" "$ram" "$peak" "$fit")")
+}
+
+for b in "${blobs[@]}"; do
+    run_case "$(basename "$b" .blob)" "$b" ok
+done
+for n in altered truncated version; do
+    run_case "$n" "$neg/$n.blob" refused
+done
+run_case wrong-kind "$neg/rendezvous-int8.blob" refused
+
+step "summary ($(($(date +%s) - start)) s)"
+printf '%s\n' "${summary[@]}"
+[ $failed -eq 0 ] || die "see above"
+echo "qemu-sil: host and Cortex-M4 traces identical for every blob"
