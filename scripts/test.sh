@@ -22,7 +22,11 @@ cargo clippy --workspace --all-targets -- -D warnings
 step "onboard + shared for the Cortex-M4F (no_std, no heap), clippy included"
 cargo clippy -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release -- -D warnings
 cargo build -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release
+cargo clippy -p lowthrust-firmware-sim --lib --no-default-features --target thumbv7em-none-eabihf --release -- -D warnings
 
 step "tests"
 cargo test --workspace --all-targets
 cargo test --workspace --doc
+
+step "Cortex-M4F image under QEMU: commands bit for bit equal to the host SIL, refused blobs fly thrust off"
+bash scripts/qemu-sil.sh
