@@ -561,31 +561,55 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         self.accumulate_paired(&xp)
     }
 
-    /// The pair kernel, `xp` in pair order: [`INT8_ROWS`] rows per pass; per group of 4
-    /// inputs, two words of activation pairs `(x0, x2)`, `(x1, x3)` shared by the rows, and per
-    /// row one word of 4 weights split by [`pair_mac`] into the matching i16 pairs (`sxtb16`)
-    /// and multiply-accumulated two products at a time (`smlad`). The last `IN % 4` inputs
-    /// (natural order) and `OUT % 4` rows take the scalar path.
+    /// The pair kernel, `xp` in pair order (see [`Self::map_paired`]).
     fn accumulate_paired(&self, xp: &Acts<IN>) -> [i32; OUT] {
         let mut acc = [0i32; OUT];
+        self.map_paired(xp, &mut acc, false, |a, _| a);
+        acc
+    }
+
+    /// The pair kernel, `xp` in pair order, with each output finished as soon as its group of
+    /// rows is summed: `out[j] = f(acc[j], input_scale * ws[j])`, `acc[j]` the accumulator
+    /// with the bias added (saturating), stored at `j` or, with `reorder`, at `j`'s position in
+    /// pair order (the next layer's input order). No accumulator array, no separate pass.
+    ///
+    /// [`INT8_ROWS`] rows per pass; per group of 4 inputs, two words of activation pairs
+    /// `(x0, x2)`, `(x1, x3)` shared by the rows, and per row one word of 4 weights split by
+    /// `sxtb16` into the matching i16 pairs and multiply-accumulated two products at a time by
+    /// `smlad` ([`pair_mac`]). The last `IN % 4` inputs (natural order) and `OUT % 4` rows take
+    /// the scalar path.
+    #[inline(always)]
+    fn map_paired<T>(&self, xp: &Acts<IN>, out: &mut [T; OUT], reorder: bool, f: impl Fn(i32, f32) -> T) {
+        let s_in = self.input_scale;
+        let finish = |a: i32, b: &[u8], w: &[u8]| f(a.saturating_add(i32_le(b)), s_in * f32_le(w));
         let mut blocks = self.weights.chunks_exact(INT8_ROWS * IN);
-        let mut groups = acc.chunks_exact_mut(INT8_ROWS);
-        for (g, block) in groups.by_ref().zip(blocks.by_ref()) {
-            for (a, s) in g.iter_mut().zip(dot4_pairs(xp, block)) {
-                *a = s;
+        let mut biases = self.bias.chunks_exact(4 * INT8_ROWS);
+        let mut scales = self.weight_scales.chunks_exact(4 * INT8_ROWS);
+        let mut groups = out.chunks_exact_mut(INT8_ROWS);
+        for (((g, block), b), w) in groups
+            .by_ref()
+            .zip(blocks.by_ref())
+            .zip(biases.by_ref())
+            .zip(scales.by_ref())
+        {
+            let [a0, a1, a2, a3] = dot4_pairs(xp, block);
+            if let ([g0, g1, g2, g3], [b0, b1, b2, b3], [w0, w1, w2, w3]) =
+                (g, b.as_chunks::<4>().0, w.as_chunks::<4>().0)
+            {
+                *g0 = finish(a0, b0, w0);
+                let (v1, v2) = (finish(a1, b1, w1), finish(a2, b2, w2));
+                (*g1, *g2) = if reorder { (v2, v1) } else { (v1, v2) };
+                *g3 = finish(a3, b3, w3);
             }
         }
-        for (a, row) in groups
-            .into_remainder()
-            .iter_mut()
-            .zip(blocks.remainder().chunks_exact(IN))
-        {
-            *a = dot1_pairs(&xp.0, row);
+        let rest = blocks
+            .remainder()
+            .chunks_exact(IN)
+            .zip(biases.remainder().chunks_exact(4))
+            .zip(scales.remainder().chunks_exact(4));
+        for (o, ((row, b), w)) in groups.into_remainder().iter_mut().zip(rest) {
+            *o = finish(dot1_pairs(&xp.0, row), b, w);
         }
-        for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
-            *a = a.saturating_add(i32_le(c));
-        }
-        acc
     }
 
     /// [`Self::accumulate`], one row at a time with [`INT8_LANES`] independent i32 lanes:
@@ -642,19 +666,30 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         y
     }
 
-    /// `quantize(relu(forward(x)), next_scale)`, input and output in `kernel`'s order: the
-    /// dequantization, ReLU and quantization fused per output ([`quantize_relu`]).
+    /// `q = quantize(relu(forward(x)), next_scale)`, input and output in `kernel`'s order: the
+    /// dequantization, ReLU and quantization fused per output ([`quantize_relu`]). Written
+    /// into the caller's array, which spares a 512-byte copy of a returned one on the M4.
     #[inline(always)]
-    fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel) -> Acts<OUT> {
+    fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel, q: &mut Acts<OUT>) {
+        if kernel == Int8Kernel::Pairs {
+            self.map_paired(xk, &mut q.0, true, |a, s| quantize_relu(a as f32 * s, next_scale));
+            return;
+        }
         let acc = self.accumulate_for(xk, kernel);
-        let mut q = Acts([0i16; OUT]);
         for ((qj, &a), c) in q.0.iter_mut().zip(acc.iter()).zip(self.weight_scales.chunks_exact(4)) {
             *qj = quantize_relu(a as f32 * (self.input_scale * f32_le(c)), next_scale);
         }
+    }
+
+    /// [`Self::forward`], `xk` in `kernel`'s order.
+    #[inline(always)]
+    fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
         if kernel == Int8Kernel::Pairs {
-            to_pair_order(&mut q.0);
+            let mut y = [0.0f32; OUT];
+            self.map_paired(xk, &mut y, false, |a, s| a as f32 * s);
+            return y;
         }
-        q
+        self.dequantize(&self.accumulate_for(xk, kernel))
     }
 }
 
@@ -975,9 +1010,11 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
             }
             MlpLayers::Int8(a, b, c) => {
                 let q0 = a.quantize_input_for(input, kernel);
-                let q1 = a.forward_relu_quantized(&q0, b.input_scale, kernel);
-                let q2 = b.forward_relu_quantized(&q1, c.input_scale, kernel);
-                c.dequantize(&c.accumulate_for(&q2, kernel))
+                let mut q1 = Acts([0i16; H1]);
+                a.forward_relu_quantized(&q0, b.input_scale, kernel, &mut q1);
+                let mut q2 = Acts([0i16; H2]);
+                b.forward_relu_quantized(&q1, c.input_scale, kernel, &mut q2);
+                c.forward_for(&q2, kernel)
             }
         };
         let mut out = [0.0f32; OUT];
