@@ -9,14 +9,17 @@
 //! copied to RAM. Constructors check every size against the const shape, so `forward` has no
 //! failure path and cannot panic on any input.
 //!
-//! **Kernels** (safe Rust vectorized by LLVM, except one register-and-load `asm!` loop for the
-//! Cortex-M4's DSP instructions in `policy/arm.rs`):
+//! **Kernels** (safe Rust vectorized by LLVM, except two `asm!` loops for the Cortex-M4F in
+//! `policy/arm.rs`):
 //! - f32 (weights input-major, `w[i * OUT + j]`): each input adds `x[i] * row_i` to the output
 //!   vector (an axpy, which vectorizes without reassociating floating-point sums). Outputs are
 //!   processed in tiles of [`F32_TILE`] whose accumulators stay in registers across all inputs;
 //!   a layer narrower than a tile (the 3 action outputs) keeps 8 partial sums over interleaved
 //!   inputs instead. A product and a sum are two roundings: Rust never contracts `a * b + c`
-//!   into an FMA, and `f32::mul_add` needs `std`.
+//!   into an FMA, and `f32::mul_add` needs `std`. On the Cortex-M4F the wide layers run in
+//!   tiles of 16 outputs held in `s0`-`s15` by an `asm!` loop (`vmla.f32`, also two roundings),
+//!   with the same products and sums in the same order per output, so the results are the same
+//!   bits.
 //! - int8 (weights output-major, `w[j * IN + i]`): the layer input is quantized once to 16-bit
 //!   levels held in i16, then each output is an exact i32 dot product with the i8 weights
 //!   (integer sums reassociate freely, so every kernel gives the same integers). The target
@@ -53,27 +56,20 @@ pub const F32_TILE: usize = 64;
 pub const INT8_ROWS: usize = 4;
 /// Independent i32 lanes of [`DenseInt8::accumulate_lanes`] (two AVX-512 registers).
 pub const INT8_LANES: usize = 32;
-/// Whether this target has the Arm DSP extension's `sxtb16` and `smlad`, which the pair kernel
-/// runs as `asm!` (`policy/arm.rs`). Arm target features are unstable in Rust, so on stable
-/// `target_feature = "dsp"` is never set; the bare-metal hard-float Arm targets stand in for it:
-/// `thumbv7em-none-eabihf` (ARMv7E-M has DSP by definition), the v7-R, v8-R and v7-A ones (DSP
-/// is part of their A32/T32). The exception, `thumbv8m.main-none-eabihf` (DSP optional, off in
-/// the target), fails to assemble the kernel: a build error, never a wrong instruction.
-const DSP: bool = cfg!(all(
-    target_arch = "arm",
-    any(target_feature = "dsp", all(target_os = "none", target_abi = "eabihf"))
-));
+/// Whether this target runs the `asm!` kernels of `policy/arm.rs`: the int8 pair kernel (DSP
+/// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vmla.f32`). Arm target
+/// features are unstable in Rust, so on stable `target_feature = "dsp"` is never set; the
+/// bare-metal hard-float Arm targets stand in for it: `thumbv7em-none-eabihf` (Cortex-M4F and
+/// M7F: ARMv7E-M has DSP by definition, hard float has the FPU), and the v7-R, v8-R and v7-A
+/// ones (DSP is part of their A32/T32). The exception, `thumbv8m.main-none-eabihf` (DSP
+/// optional, off in the target), fails to assemble the kernel: a build error, never a wrong
+/// instruction.
+const ARM_ASM: bool = cfg!(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"));
 
-#[cfg(all(
-    target_arch = "arm",
-    any(target_feature = "dsp", all(target_os = "none", target_abi = "eabihf"))
-))]
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 #[allow(unsafe_code)]
 mod arm;
-#[cfg(all(
-    target_arch = "arm",
-    any(target_feature = "dsp", all(target_os = "none", target_abi = "eabihf"))
-))]
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 use arm::{dot4_pairs, pair_mac};
 
 /// Layers of an [`Mlp`].
@@ -383,6 +379,15 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             axpy_narrow(self.weights, x, &mut y);
             return y;
         }
+        self.tiles(x, &mut y);
+        y
+    }
+
+    /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
+    /// outputs (the portable kernel), then the last `OUT % F32_TILE` outputs.
+    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         let row_bytes = OUT * 4;
         let mut col = 0usize;
         let mut tiles = y.chunks_exact_mut(F32_TILE);
@@ -408,7 +413,27 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
         if !tail.is_empty() {
             axpy_tail(self.weights, row_bytes, col, x, tail);
         }
-        y
+    }
+
+    /// [`Self::tiles`] on the Cortex-M4F: tiles of 16 outputs held in `s0`-`s15` by an `asm!`
+    /// loop (`arm::f32_tile`, `policy/arm.rs`), the same products and sums in the same order
+    /// per output as the portable tiles; any tile it declines, and the last `OUT % 16`
+    /// outputs, take the portable sequential loop.
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        let row_bytes = OUT * 4;
+        let mut col = 0usize;
+        let mut tiles = y.chunks_exact_mut(arm::F32_ARM_TILE);
+        for tile in tiles.by_ref() {
+            let done = <&mut [f32; arm::F32_ARM_TILE]>::try_from(&mut *tile)
+                .is_ok_and(|acc| arm::f32_tile(self.weights, row_bytes, col, x, acc));
+            if !done {
+                axpy_tail(self.weights, row_bytes, col, x, tile);
+            }
+            col += arm::F32_ARM_TILE;
+        }
+        axpy_tail(self.weights, row_bytes, col, x, tiles.into_remainder());
     }
 }
 
@@ -707,7 +732,7 @@ pub enum Int8Kernel {
 }
 
 /// The kernel [`Mlp::forward`] and [`DenseInt8::accumulate`] use on this target.
-pub const INT8_KERNEL: Int8Kernel = if DSP {
+pub const INT8_KERNEL: Int8Kernel = if ARM_ASM {
     Int8Kernel::Pairs
 } else if cfg!(target_arch = "arm") {
     Int8Kernel::Rows
@@ -748,10 +773,7 @@ fn u32_le(c: &[u8]) -> u32 {
 /// `acc + w0 * lo(xe) + w2 * hi(xe) + w1 * lo(xo) + w3 * hi(xo)` (wrapping), `w0..w3` the
 /// signed bytes of `w` (little endian), `lo`/`hi` the signed halves of a word: the portable
 /// emulation of `arm::pair_mac` (`policy/arm.rs`)'s `sxtb16` + `smlad` steps, for targets without them.
-#[cfg(not(all(
-    target_arch = "arm",
-    any(target_feature = "dsp", all(target_os = "none", target_abi = "eabihf"))
-)))]
+#[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
 #[inline(always)]
 fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
     let [w0, w1, w2, w3] = w.to_le_bytes().map(|b| i32::from(b as i8));
@@ -825,10 +847,7 @@ fn dot4(x: &[i16], r0: &[u8], r1: &[u8], r2: &[u8], r3: &[u8]) -> [i32; 4] {
 /// Four rows (`block`: `4 * IN` bytes, rows at stride `IN`) against activations in pair order:
 /// per group of 4 inputs, two activation words shared by the rows and one weight word per row;
 /// then the last `IN % 4` inputs. The portable form of `arm::dot4_pairs` (`policy/arm.rs`).
-#[cfg(not(all(
-    target_arch = "arm",
-    any(target_feature = "dsp", all(target_os = "none", target_abi = "eabihf"))
-)))]
+#[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
 #[inline(always)]
 fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
     let mut rows = block.chunks_exact(IN);

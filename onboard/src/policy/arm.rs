@@ -1,6 +1,17 @@
-//! The pair kernel's step in Arm DSP instructions (`sxtb16`, `smlad`), which stable Rust has
-//! no intrinsics for. Register-only `asm!`: the weights and activations are loaded by safe
-//! Rust from bounds-checked slices, so no `unsafe` block here reads or writes memory.
+//! The Cortex-M4F kernels in `asm!`, for what stable Rust cannot express or LLVM does not
+//! generate: the int8 pair kernel's Arm DSP instructions (`sxtb16`, `smlad`; stable Rust has
+//! no intrinsics for them) and the f32 tile kernel, which keeps 16 accumulators in FPU
+//! registers and loads the possibly unaligned blob weights through core registers (LLVM spills
+//! the accumulators and moves every weight separately: 5.15 instructions per multiply-add,
+//! against 2.7 here).
+//!
+//! The only module of `onboard` that allows `unsafe`. Each `unsafe` block is one `asm!`
+//! statement whose SAFETY comment shows every memory access in bounds: the loops read only
+//! through pointers taken from slices whose lengths are checked (by `from_layer`, and again
+//! here, locally, before the `asm!`), for an iteration count derived from those lengths.
+//! Both kernels compute exactly what the portable kernels compute (the same integers; the
+//! same f32 products and sums in the same order per output), which `scripts/qemu-sil.sh`
+//! checks bit for bit against the host.
 
 use core::arch::asm;
 
@@ -17,7 +28,7 @@ use super::{dot1_pairs, Acts};
 pub(super) fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
     let sum: i32;
     // SAFETY: four register-to-register data-processing instructions of ARMv7E-M (the DSP
-    // extension, present on every target this module is compiled for, see `DSP`): no memory
+    // extension, present on every target this module is compiled for, see `ARM_ASM`): no memory
     // access (`nomem`), no stack use (`nostack`), only the named registers are written (the
     // scratch `t` is a declared output). They change only the Q flag, so `preserves_flags` is
     // not claimed. The result depends only on the inputs (`pure`).
@@ -148,4 +159,155 @@ pub(super) fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 
         }
     }
     s
+}
+
+/// Outputs per tile of [`f32_tile`]: its accumulators fill `s0`-`s15`.
+pub(super) const F32_ARM_TILE: usize = 16;
+
+/// `acc[k] += x[i] * w[i][col + k]` for `i = 0, 1, 2, ...` in order, `k < 16` (`w` the layer's
+/// input-major f32 LE weights, rows of `OUT` values): per output the same products and sums
+/// in the same order as the portable f32 kernel (one `vmla.f32`: the product rounded, then
+/// the sum). Two inputs per iteration: one `vldmia` loads both, and each of their 16 weights
+/// takes an `ldr` (the blob's f32 arrays need not be word-aligned, and the Cortex-M4 allows
+/// unaligned `ldr` but not unaligned `vldr`/`vldm`), half a `vmov` (two core registers to two
+/// FPU registers) and a `vmla`: 85 instructions for 32 multiply-accumulates.
+///
+/// Returns `false`, touching nothing, unless `x` has an even number `n >= 2` of inputs, the
+/// tile lies within a row of `stride` bytes (`4 * (col + 16) <= stride`) and `weights` has
+/// `n * stride` bytes; the caller then runs the portable kernel. Not inlined: one copy serves
+/// every layer and tile (a call per tile of 16 outputs costs a few instructions; inlined,
+/// LLVM unrolls the loop over tiles into 16 copies of the kernel, 5 KB of flash per layer).
+#[inline(never)]
+pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc: &mut [f32; F32_ARM_TILE]) -> bool {
+    let n = x.len();
+    let fits = col
+        .checked_add(F32_ARM_TILE)
+        .and_then(|end| end.checked_mul(4))
+        .is_some_and(|end| end <= stride);
+    if n < 2 || !n.is_multiple_of(2) || !fits || n.checked_mul(stride).is_none_or(|len| weights.len() < len) {
+        return false;
+    }
+    let Some(tile) = weights.get(4 * col..) else {
+        return false;
+    };
+    // SAFETY: memory accessed, all in bounds:
+    // - `acc`: `vldm`/`vstm` of `s0`-`s15` read and write its 16 f32 (64 bytes), through a
+    //   pointer from a `&mut [f32; 16]` (word-aligned, as `vldm`/`vstm` require).
+    // - `x`: the loop runs `n / 2 >= 1` times (`subs`/`bne` at the bottom); each `vldmia` reads
+    //   two f32 at `px` and advances it by 8 bytes: bytes `0..4 n` of the `[f32]` (word-aligned).
+    // - weights: in iteration `t`, `pw` is at byte `2 t * stride` of `tile` and `pv` at
+    //   `(2 t + 1) * stride`, and each `ldr` reads 4 bytes at offset 0..=60 from them: bytes
+    //   `4 col + i * stride + 4 k .. + 4` of `weights` for input `i < n` and `k < 16`, whose
+    //   end `4 (col + 16) + (n - 1) * stride <= n * stride <= weights.len()` (both checked
+    //   above). `ldr` may be unaligned on the Cortex-M4 (unless the
+    //   `CCR.UNALIGN_TRP` trap is enabled; it is off at reset and nothing here enables it).
+    // - the stack: `vpush`/`vpop` of `s0`-`s19` (80 bytes), balanced, so `sp` is restored.
+    // Registers: every core register written is a declared operand; `s0`-`s19` are saved on
+    // entry and restored on exit, so no FPU register changes as the compiler sees it (Rust
+    // cannot name FPU registers as `asm!` operands on stable for this target). The flags
+    // (`subs`) are clobbered; FPSCR's rounding mode is only read, its sticky exception bits
+    // may be set, as by any f32 arithmetic.
+    unsafe {
+        asm!(
+                "vpush {{s0-s19}}",
+                "vldm {acc}, {{s0-s15}}",
+                "2:",
+                "vldmia {px}!, {{s16, s17}}",
+                "ldr {r0}, [{pw}]",
+                "ldr {r1}, [{pw}, #4]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s0, s16, s18",
+                "vmla.f32 s1, s16, s19",
+                "ldr {r0}, [{pw}, #8]",
+                "ldr {r1}, [{pw}, #12]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s2, s16, s18",
+                "vmla.f32 s3, s16, s19",
+                "ldr {r0}, [{pw}, #16]",
+                "ldr {r1}, [{pw}, #20]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s4, s16, s18",
+                "vmla.f32 s5, s16, s19",
+                "ldr {r0}, [{pw}, #24]",
+                "ldr {r1}, [{pw}, #28]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s6, s16, s18",
+                "vmla.f32 s7, s16, s19",
+                "ldr {r0}, [{pw}, #32]",
+                "ldr {r1}, [{pw}, #36]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s8, s16, s18",
+                "vmla.f32 s9, s16, s19",
+                "ldr {r0}, [{pw}, #40]",
+                "ldr {r1}, [{pw}, #44]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s10, s16, s18",
+                "vmla.f32 s11, s16, s19",
+                "ldr {r0}, [{pw}, #48]",
+                "ldr {r1}, [{pw}, #52]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s12, s16, s18",
+                "vmla.f32 s13, s16, s19",
+                "ldr {r0}, [{pw}, #56]",
+                "ldr {r1}, [{pw}, #60]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s14, s16, s18",
+                "vmla.f32 s15, s16, s19",
+                "ldr {r0}, [{pv}]",
+                "ldr {r1}, [{pv}, #4]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s0, s17, s18",
+                "vmla.f32 s1, s17, s19",
+                "ldr {r0}, [{pv}, #8]",
+                "ldr {r1}, [{pv}, #12]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s2, s17, s18",
+                "vmla.f32 s3, s17, s19",
+                "ldr {r0}, [{pv}, #16]",
+                "ldr {r1}, [{pv}, #20]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s4, s17, s18",
+                "vmla.f32 s5, s17, s19",
+                "ldr {r0}, [{pv}, #24]",
+                "ldr {r1}, [{pv}, #28]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s6, s17, s18",
+                "vmla.f32 s7, s17, s19",
+                "ldr {r0}, [{pv}, #32]",
+                "ldr {r1}, [{pv}, #36]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s8, s17, s18",
+                "vmla.f32 s9, s17, s19",
+                "ldr {r0}, [{pv}, #40]",
+                "ldr {r1}, [{pv}, #44]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s10, s17, s18",
+                "vmla.f32 s11, s17, s19",
+                "ldr {r0}, [{pv}, #48]",
+                "ldr {r1}, [{pv}, #52]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s12, s17, s18",
+                "vmla.f32 s13, s17, s19",
+                "ldr {r0}, [{pv}, #56]",
+                "ldr {r1}, [{pv}, #60]",
+                "vmov s18, s19, {r0}, {r1}",
+                "vmla.f32 s14, s17, s18",
+                "vmla.f32 s15, s17, s19",
+                "add {pw}, {pw}, {step}",
+                "add {pv}, {pv}, {step}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                "vstm {acc}, {{s0-s15}}",
+                "vpop {{s0-s19}}",
+            acc = in(reg) acc.as_mut_ptr(),
+            px = inout(reg) x.as_ptr() => _,
+            pw = inout(reg) tile.as_ptr() => _,
+            pv = inout(reg) tile.as_ptr().wrapping_add(stride) => _,
+            step = in(reg) 2 * stride,
+            n = inout(reg) n >> 1 => _,
+            r0 = out(reg) _,
+            r1 = out(reg) _,
+        );
+    }
+    true
 }
