@@ -175,8 +175,8 @@ pub(super) const F32_ARM_TILE: usize = 16;
 /// Returns `false`, touching nothing, unless `x` has an even number `n >= 2` of inputs, the
 /// tile lies within a row of `stride` bytes (`4 * (col + 16) <= stride`) and `weights` has
 /// `n * stride` bytes; the caller then runs the portable kernel. Not inlined: one copy serves
-/// every layer and tile (a call per tile of 16 outputs costs a few instructions; inlined,
-/// LLVM unrolls the loop over tiles into 16 copies of the kernel, 5 KB of flash per layer).
+/// every layer and tile (a call per tile of 16 outputs costs a few instructions; inlined
+/// into the loop over tiles it added 18 KB to the image's flash).
 #[inline(never)]
 pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc: &mut [f32; F32_ARM_TILE]) -> bool {
     let n = x.len();
