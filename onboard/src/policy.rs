@@ -9,23 +9,32 @@
 //! copied to RAM. Constructors check every size against the const shape, so `forward` has no
 //! failure path and cannot panic on any input.
 //!
-//! **Kernels** (no `unsafe`, no `core::arch`; vectorization is left to LLVM):
+//! **Kernels** (safe Rust vectorized by LLVM, except two `asm!` loops for the Cortex-M4F in
+//! `policy/arm.rs`):
 //! - f32 (weights input-major, `w[i * OUT + j]`): each input adds `x[i] * row_i` to the output
 //!   vector (an axpy, which vectorizes without reassociating floating-point sums). Outputs are
 //!   processed in tiles of [`F32_TILE`] whose accumulators stay in registers across all inputs;
 //!   a layer narrower than a tile (the 3 action outputs) keeps 8 partial sums over interleaved
 //!   inputs instead. A product and a sum are two roundings: Rust never contracts `a * b + c`
-//!   into an FMA, and `f32::mul_add` needs `std`.
-//! - int8 (weights output-major, `w[j * IN + i]`): the layer input is quantized once to i8
-//!   (held widened to i16), then each output is an exact i32 dot product of i16-widened values
-//!   (integer sums reassociate freely, so LLVM vectorizes them: `vpmovsxbw` + `vpmaddwd` on
-//!   x86). [`DenseInt8::accumulate_lanes`] (x86 and other SIMD targets) keeps [`INT8_LANES`]
-//!   independent lanes per row; [`DenseInt8::accumulate_rows`] (32-bit Arm, the Cortex-M4)
-//!   runs [`INT8_ROWS`] rows per pass with one scalar accumulator each. The sum plus the i32
-//!   bias is rescaled by `input_scale * weight_scale[j]`, the activation is applied in f32 and
-//!   the result is quantized with the next layer's `input_scale`:
-//!   `q = clamp(round(x / s), -127, 127)`, round half away from zero, computed without
-//!   float-to-int casts so it vectorizes.
+//!   into an FMA, and `f32::mul_add` needs `std`. On the Cortex-M4F the wide layers run in
+//!   tiles of 16 outputs held in `s0`-`s15` by an `asm!` loop (`vmla.f32`, also two roundings),
+//!   with the same products and sums in the same order per output, so the results are the same
+//!   bits.
+//! - int8 (weights output-major, `w[j * IN + i]`): the layer input is quantized once to 16-bit
+//!   levels held in i16, then each output is an exact i32 dot product with the i8 weights
+//!   (integer sums reassociate freely, so every kernel gives the same integers). The target
+//!   picks the kernel ([`INT8_KERNEL`]): [`DenseInt8::accumulate_lanes`] (x86 and other SIMD
+//!   targets: [`INT8_LANES`] independent lanes per row, `vpmovsxbw` + `vpmaddwd`);
+//!   [`DenseInt8::accumulate_pairs`] (Arm with the DSP extension, the Cortex-M4F: one word of 4
+//!   weights split into two i16 pairs by `sxtb16`, each multiplied against a pair of
+//!   activations and summed by one `smlad`, [`INT8_ROWS`] rows per pass; the activations are
+//!   kept in pair order between layers, see [`to_pair_order`]);
+//!   [`DenseInt8::accumulate_rows`] (other 32-bit Arm: scalar, [`INT8_ROWS`] rows per pass).
+//!   The sum plus the i32 bias is rescaled by `input_scale * weight_scale[j]`, the activation
+//!   is applied in f32 and the result is quantized with the next layer's `input_scale`:
+//!   `q = clamp(round(x / s), -L, L)`, `L` = [`ACTIVATION_LEVELS`], round half away from zero
+//!   ([`quantize`]; two exact implementations giving the same integers, one for Arm, one that
+//!   vectorizes for the others).
 //!
 //! **Non-finite inputs.** [`Mlp::forward`] never panics. If any input is NaN or infinite it
 //! returns `[f32::NAN; OUT]` in both precisions, so a corrupt state cannot turn into a plausible
@@ -33,7 +42,7 @@
 //! inputs give finite outputs in `[-1, 1]`, except in f32 when an intermediate sum overflows
 //! (inputs of order 1e30 and beyond): the output is then `±1` or NaN. The layer kernels
 //! themselves are total: NaN propagates through the f32 kernel (the ReLU keeps NaN) and is
-//! quantized to 0 by the int8 kernel (infinities saturate to ±127).
+//! quantized to 0 by the int8 kernel (infinities saturate to ±`L`).
 
 use core::fmt;
 
@@ -47,6 +56,22 @@ pub const F32_TILE: usize = 64;
 pub const INT8_ROWS: usize = 4;
 /// Independent i32 lanes of [`DenseInt8::accumulate_lanes`] (two AVX-512 registers).
 pub const INT8_LANES: usize = 32;
+/// Whether this target runs the `asm!` kernels of `policy/arm.rs`: the int8 pair kernel (DSP
+/// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vmla.f32`). Arm target
+/// features are unstable in Rust, so on stable `target_feature = "dsp"` is never set; the
+/// bare-metal hard-float Arm targets stand in for it: `thumbv7em-none-eabihf` (Cortex-M4F and
+/// M7F: ARMv7E-M has DSP by definition, hard float has the FPU), and the v7-R, v8-R and v7-A
+/// ones (DSP is part of their A32/T32). The exception, `thumbv8m.main-none-eabihf` (DSP
+/// optional, off in the target), fails to assemble the kernel: a build error, never a wrong
+/// instruction.
+const ARM_ASM: bool = cfg!(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"));
+
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+#[allow(unsafe_code)]
+mod arm;
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+use arm::{dot4_pairs, pair_mac};
+
 /// Layers of an [`Mlp`].
 pub const MLP_LAYERS: usize = 3;
 
@@ -228,18 +253,43 @@ fn relu(x: f32) -> f32 {
     }
 }
 
+/// `round(v)`, half away from zero, saturating to the i32 range; NaN gives 0 (the Arm form
+/// of the quantizer's rounding).
+///
+/// Truncate (Rust's `as`: round toward zero, saturating, NaN to 0; one `vcvt` on Arm), then
+/// add the truncation of twice the fractional part, which is ±1 exactly when `|frac| >= 0.5`.
+/// Exact: for `|v| < 2^31` the truncation `t` converts back to f32 exactly (either
+/// `|t| < 2^24`, or `v` is already an integer and `t == v`), `v - t` is exact (Sterbenz: `t`
+/// and `v` have the same sign and `|v| / 2 <= |t| <= |v|` once `|t| >= 1`; `v - 0 = v`
+/// otherwise), and doubling a value below 1 is exact. For `|v| >= 2^31` (and ±inf) `t`
+/// saturates and the correction has the same sign or is 0, so the saturating add (`qadd`)
+/// keeps the saturated value.
+#[inline(always)]
+fn round_away(v: f32) -> i32 {
+    let t = v as i32;
+    let frac = v - t as f32;
+    t.saturating_add((frac + frac) as i32)
+}
+
+/// [`quantize`] (`lo = -L`) and [`quantize_relu`] (`lo = 0`) on Arm: [`round_away`] of the
+/// quotient, clamped on the integer (rounding and clamping commute for integer bounds; the
+/// clamp to `0..=L` is one `usat`). About 10 instructions on the Cortex-M4F, where the
+/// conversions are single `vcvt`s.
+#[inline(always)]
+fn quantize_trunc(x: f32, scale: f32, lo: i32) -> i16 {
+    // lo..=L lies within the i16 range.
+    round_away(x / scale).clamp(lo, i32::from(ACTIVATION_LEVELS)) as i16
+}
+
 /// `1.5 * 2^23`: adding it to a float of magnitude below `2^22` leaves the nearest integer
 /// (ties to even) in the low mantissa bits.
 const ROUND_MAGIC: f32 = 12_582_912.0;
 
-/// `clamp(round(x / scale), -L, L)` with `L` = [`ACTIVATION_LEVELS`], round half away from
-/// zero; NaN gives 0.
-///
-/// Branch-free and free of float-to-int casts (Rust's saturating `as` does not vectorize):
-/// round to nearest even with [`ROUND_MAGIC`], read the integer from the bits, then move exact
-/// ties away from zero.
+/// [`quantize`] on other targets: branch-free and free of float-to-int casts (Rust's
+/// saturating `as` does not vectorize well on x86): clamp, round to nearest even with
+/// [`ROUND_MAGIC`], read the integer from the bits, then move exact ties away from zero.
 #[inline(always)]
-fn quantize(x: f32, scale: f32) -> i16 {
+fn quantize_magic(x: f32, scale: f32) -> i16 {
     let v = x / scale;
     let levels = f32::from(ACTIVATION_LEVELS);
     let v = if v.is_nan() { 0.0 } else { v.clamp(-levels, levels) };
@@ -251,6 +301,35 @@ fn quantize(x: f32, scale: f32) -> i16 {
     let q = even + i32::from(d == 0.5 && v > 0.0) - i32::from(d == -0.5 && v < 0.0);
     // |q| <= ACTIVATION_LEVELS.
     q as i16
+}
+
+/// `clamp(round(x / scale), -L, L)` with `L` = [`ACTIVATION_LEVELS`], round half away from
+/// zero, the quotient rounded to f32 first; NaN gives 0 (the int8 layers' input quantization).
+///
+/// Two exact implementations give the same integers for every `x` and `scale` (unit tests
+/// compare them on every f32 of magnitude in `[2^-2, 2^2)`, around every tie up to the clamp,
+/// and on random bit patterns): `quantize_trunc` on 32-bit Arm, `quantize_magic`
+/// (vectorizes) elsewhere.
+#[inline(always)]
+pub fn quantize(x: f32, scale: f32) -> i16 {
+    if cfg!(target_arch = "arm") {
+        quantize_trunc(x, scale, -i32::from(ACTIVATION_LEVELS))
+    } else {
+        quantize_magic(x, scale)
+    }
+}
+
+/// `quantize(relu(y), scale)` (ReLU keeping NaN, as the f32 kernel does) for a positive
+/// `scale`. On Arm without the ReLU: a negative quotient rounds to a value `<= 0`, which the
+/// clamp to `0..=L` maps to 0 just as ReLU's 0 would; `-0.0` and NaN give 0 either way, `+inf`
+/// gives `L` either way.
+#[inline(always)]
+pub fn quantize_relu(y: f32, scale: f32) -> i16 {
+    if cfg!(target_arch = "arm") {
+        quantize_trunc(y, scale, 0)
+    } else {
+        quantize_magic(relu(y), scale)
+    }
 }
 
 /// A dense f32 layer `y = b + W x` viewing its blob arrays in place.
@@ -300,6 +379,15 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             axpy_narrow(self.weights, x, &mut y);
             return y;
         }
+        self.tiles(x, &mut y);
+        y
+    }
+
+    /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
+    /// outputs (the portable kernel), then the last `OUT % F32_TILE` outputs.
+    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         let row_bytes = OUT * 4;
         let mut col = 0usize;
         let mut tiles = y.chunks_exact_mut(F32_TILE);
@@ -325,7 +413,27 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
         if !tail.is_empty() {
             axpy_tail(self.weights, row_bytes, col, x, tail);
         }
-        y
+    }
+
+    /// [`Self::tiles`] on the Cortex-M4F: tiles of 16 outputs held in `s0`-`s15` by an `asm!`
+    /// loop (`arm::f32_tile`, `policy/arm.rs`), the same products and sums in the same order
+    /// per output as the portable tiles; any tile it declines, and the last `OUT % 16`
+    /// outputs, take the portable sequential loop.
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        let row_bytes = OUT * 4;
+        let mut col = 0usize;
+        let mut tiles = y.chunks_exact_mut(arm::F32_ARM_TILE);
+        for tile in tiles.by_ref() {
+            let done = <&mut [f32; arm::F32_ARM_TILE]>::try_from(&mut *tile)
+                .is_ok_and(|acc| arm::f32_tile(self.weights, row_bytes, col, x, acc));
+            if !done {
+                axpy_tail(self.weights, row_bytes, col, x, tile);
+            }
+            col += arm::F32_ARM_TILE;
+        }
+        axpy_tail(self.weights, row_bytes, col, x, tiles.into_remainder());
     }
 }
 
@@ -431,20 +539,101 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         q
     }
 
+    /// `x` quantized like [`Self::quantize_input`], in `kernel`'s activation order.
+    #[inline(always)]
+    fn quantize_input_for(&self, x: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
+        let mut q = Acts(self.quantize_input(x));
+        if kernel == Int8Kernel::Pairs {
+            to_pair_order(&mut q.0);
+        }
+        q
+    }
+
     /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]`, saturating at the bias add.
     /// For `xq` in `-L..=L` (what [`Self::quantize_input`] gives) the dot product is exact:
     /// at most [`blob::MAX_INT8_INPUTS`] products of magnitude `<= 128 L < 2^22` (`from_layer`
     /// refuses wider layers). Other i16 values wrap, never panic.
     ///
-    /// Uses [`Self::accumulate_lanes`] on x86 and other wide-SIMD targets, and
-    /// [`Self::accumulate_rows`] on 32-bit Arm (the Cortex-M4), where
-    /// [`INT8_LANES`] accumulators would not fit in registers.
+    /// Uses the target's kernel, [`INT8_KERNEL`]: [`Self::accumulate_lanes`] on x86 and other
+    /// wide-SIMD targets, [`Self::accumulate_pairs`] on Arm with the DSP extension (the
+    /// Cortex-M4F), [`Self::accumulate_rows`] on other 32-bit Arm, where [`INT8_LANES`]
+    /// accumulators would not fit in registers. All three give the same integers.
     #[inline]
     pub fn accumulate(&self, xq: &[i16; IN]) -> [i32; OUT] {
-        if cfg!(target_arch = "arm") {
-            self.accumulate_rows(xq)
-        } else {
-            self.accumulate_lanes(xq)
+        match INT8_KERNEL {
+            Int8Kernel::Lanes => self.accumulate_lanes(xq),
+            Int8Kernel::Rows => self.accumulate_rows(xq),
+            Int8Kernel::Pairs => self.accumulate_pairs(xq),
+        }
+    }
+
+    /// [`Self::accumulate`] with `kernel`, `xk` in that kernel's activation order.
+    #[inline(always)]
+    fn accumulate_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [i32; OUT] {
+        match kernel {
+            Int8Kernel::Lanes => self.accumulate_lanes(&xk.0),
+            Int8Kernel::Rows => self.accumulate_rows(&xk.0),
+            Int8Kernel::Pairs => self.accumulate_paired(xk),
+        }
+    }
+
+    /// [`Self::accumulate`] with the pair kernel: `xq` is put in pair order
+    /// ([`to_pair_order`]) and handed to it. In flight the activations are quantized straight
+    /// into pair order, so this copy is only made here.
+    pub fn accumulate_pairs(&self, xq: &[i16; IN]) -> [i32; OUT] {
+        let mut xp = Acts(*xq);
+        to_pair_order(&mut xp.0);
+        self.accumulate_paired(&xp)
+    }
+
+    /// The pair kernel, `xp` in pair order (see [`Self::map_paired`]).
+    fn accumulate_paired(&self, xp: &Acts<IN>) -> [i32; OUT] {
+        let mut acc = [0i32; OUT];
+        self.map_paired(xp, &mut acc, false, |a, _| a);
+        acc
+    }
+
+    /// The pair kernel, `xp` in pair order, with each output finished as soon as its group of
+    /// rows is summed: `out[j] = f(acc[j], input_scale * ws[j])`, `acc[j]` the accumulator
+    /// with the bias added (saturating), stored at `j` or, with `reorder`, at `j`'s position in
+    /// pair order (the next layer's input order). No accumulator array, no separate pass.
+    ///
+    /// [`INT8_ROWS`] rows per pass; per group of 4 inputs, two words of activation pairs
+    /// `(x0, x2)`, `(x1, x3)` shared by the rows, and per row one word of 4 weights split by
+    /// `sxtb16` into the matching i16 pairs and multiply-accumulated two products at a time by
+    /// `smlad` ([`pair_mac`]). The last `IN % 4` inputs (natural order) and `OUT % 4` rows take
+    /// the scalar path.
+    #[inline(always)]
+    fn map_paired<T>(&self, xp: &Acts<IN>, out: &mut [T; OUT], reorder: bool, f: impl Fn(i32, f32) -> T) {
+        let s_in = self.input_scale;
+        let finish = |a: i32, b: &[u8], w: &[u8]| f(a.saturating_add(i32_le(b)), s_in * f32_le(w));
+        let mut blocks = self.weights.chunks_exact(INT8_ROWS * IN);
+        let mut biases = self.bias.chunks_exact(4 * INT8_ROWS);
+        let mut scales = self.weight_scales.chunks_exact(4 * INT8_ROWS);
+        let mut groups = out.chunks_exact_mut(INT8_ROWS);
+        for (((g, block), b), w) in groups
+            .by_ref()
+            .zip(blocks.by_ref())
+            .zip(biases.by_ref())
+            .zip(scales.by_ref())
+        {
+            let [a0, a1, a2, a3] = dot4_pairs(xp, block);
+            if let ([g0, g1, g2, g3], [b0, b1, b2, b3], [w0, w1, w2, w3]) =
+                (g, b.as_chunks::<4>().0, w.as_chunks::<4>().0)
+            {
+                *g0 = finish(a0, b0, w0);
+                let (v1, v2) = (finish(a1, b1, w1), finish(a2, b2, w2));
+                (*g1, *g2) = if reorder { (v2, v1) } else { (v1, v2) };
+                *g3 = finish(a3, b3, w3);
+            }
+        }
+        let rest = blocks
+            .remainder()
+            .chunks_exact(IN)
+            .zip(biases.remainder().chunks_exact(4))
+            .zip(scales.remainder().chunks_exact(4));
+        for (o, ((row, b), w)) in groups.into_remainder().iter_mut().zip(rest) {
+            *o = finish(dot1_pairs(&xp.0, row), b, w);
         }
     }
 
@@ -489,7 +678,12 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
 
     /// The dequantized pre-activation `(bias[j] + sum_i w[j][i] xq[i]) * input_scale * ws[j]`.
     pub fn forward(&self, xq: &[i16; IN]) -> [f32; OUT] {
-        let acc = self.accumulate(xq);
+        self.dequantize(&self.accumulate(xq))
+    }
+
+    /// `acc[j] * (input_scale * ws[j])`.
+    #[inline(always)]
+    fn dequantize(&self, acc: &[i32; OUT]) -> [f32; OUT] {
         let mut y = [0.0f32; OUT];
         for ((yj, &a), c) in y.iter_mut().zip(acc.iter()).zip(self.weight_scales.chunks_exact(4)) {
             *yj = a as f32 * (self.input_scale * f32_le(c));
@@ -497,15 +691,97 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         y
     }
 
-    /// ReLU of the pre-activation, quantized with the next layer's input scale.
-    fn forward_relu_quantized(&self, xq: &[i16; IN], next_scale: f32) -> [i16; OUT] {
-        let y = self.forward(xq);
-        let mut q = [0i16; OUT];
-        for (qj, &v) in q.iter_mut().zip(y.iter()) {
-            *qj = quantize(relu(v), next_scale);
+    /// `q = quantize(relu(forward(x)), next_scale)`, input and output in `kernel`'s order: the
+    /// dequantization, ReLU and quantization fused per output ([`quantize_relu`]). Written
+    /// into the caller's array, which spares a 512-byte copy of a returned one on the M4.
+    #[inline(always)]
+    fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel, q: &mut Acts<OUT>) {
+        if kernel == Int8Kernel::Pairs {
+            self.map_paired(xk, &mut q.0, true, |a, s| quantize_relu(a as f32 * s, next_scale));
+            return;
         }
-        q
+        let acc = self.accumulate_for(xk, kernel);
+        for ((qj, &a), c) in q.0.iter_mut().zip(acc.iter()).zip(self.weight_scales.chunks_exact(4)) {
+            *qj = quantize_relu(a as f32 * (self.input_scale * f32_le(c)), next_scale);
+        }
     }
+
+    /// [`Self::forward`], `xk` in `kernel`'s order.
+    #[inline(always)]
+    fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
+        if kernel == Int8Kernel::Pairs {
+            let mut y = [0.0f32; OUT];
+            self.map_paired(xk, &mut y, false, |a, s| a as f32 * s);
+            return y;
+        }
+        self.dequantize(&self.accumulate_for(xk, kernel))
+    }
+}
+
+/// Which integer kernel computes the int8 layers' dot products (all give the same integers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Int8Kernel {
+    /// [`DenseInt8::accumulate_lanes`]: wide SIMD (x86).
+    Lanes,
+    /// [`DenseInt8::accumulate_rows`]: scalar, several rows per pass (32-bit Arm without DSP).
+    Rows,
+    /// [`DenseInt8::accumulate_pairs`]: two i16 x i8 products per instruction (`smlad`) with the
+    /// activations in pair order ([`to_pair_order`]); `asm!` on Arm with the DSP extension, a
+    /// portable emulation of the same steps elsewhere (for tests).
+    Pairs,
+}
+
+/// The kernel [`Mlp::forward`] and [`DenseInt8::accumulate`] use on this target.
+pub const INT8_KERNEL: Int8Kernel = if ARM_ASM {
+    Int8Kernel::Pairs
+} else if cfg!(target_arch = "arm") {
+    Int8Kernel::Rows
+} else {
+    Int8Kernel::Lanes
+};
+
+/// Puts activations in the pair kernel's order, in place: in each whole group of 4,
+/// `(x0, x1, x2, x3)` becomes `(x0, x2, x1, x3)`, so the group's two words are the pairs
+/// `(x0, x2)` and `(x1, x3)` that `sxtb16` makes of a word of weights (bytes 0, 2 and 1, 3).
+/// The last `len % 4` values stay. The order is its own inverse.
+pub fn to_pair_order(x: &mut [i16]) {
+    for g in x.chunks_exact_mut(4) {
+        if let [_, b, c, _] = g {
+            core::mem::swap(b, c);
+        }
+    }
+}
+
+/// Quantized activations in a kernel's order, aligned so that the pair kernel may load them two
+/// words at a time (`ldrd` needs word alignment on the Cortex-M4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(C, align(8))]
+struct Acts<const N: usize>([i16; N]);
+
+/// Packs two i16 as the low and high halves of a word (a 32-bit load of two adjacent i16).
+#[inline(always)]
+fn pack(lo: i16, hi: i16) -> u32 {
+    u32::from(lo as u16) | (u32::from(hi as u16) << 16)
+}
+
+/// A u32 from 4 little-endian bytes.
+#[inline(always)]
+fn u32_le(c: &[u8]) -> u32 {
+    <[u8; 4]>::try_from(c).map_or(0, u32::from_le_bytes)
+}
+
+/// `acc + w0 * lo(xe) + w2 * hi(xe) + w1 * lo(xo) + w3 * hi(xo)` (wrapping), `w0..w3` the
+/// signed bytes of `w` (little endian), `lo`/`hi` the signed halves of a word: the portable
+/// emulation of `arm::pair_mac` (`policy/arm.rs`)'s `sxtb16` + `smlad` steps, for targets without them.
+#[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+#[inline(always)]
+fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
+    let [w0, w1, w2, w3] = w.to_le_bytes().map(|b| i32::from(b as i8));
+    let lo = |p: u32| i32::from(p as u16 as i16);
+    let hi = |p: u32| i32::from((p >> 16) as u16 as i16);
+    // Each product is below 2^22 in magnitude, each pair below 2^23: only the sums wrap.
+    acc.wrapping_add(w0 * lo(xe) + w2 * hi(xe))
+        .wrapping_add(w1 * lo(xo) + w3 * hi(xo))
 }
 
 /// `i16`-widened product, exact in i32.
@@ -566,6 +842,60 @@ fn dot4(x: &[i16], r0: &[u8], r1: &[u8], r2: &[u8], r3: &[u8]) -> [i32; 4] {
         }
     }
     s
+}
+
+/// Four rows (`block`: `4 * IN` bytes, rows at stride `IN`) against activations in pair order:
+/// per group of 4 inputs, two activation words shared by the rows and one weight word per row;
+/// then the last `IN % 4` inputs. The portable form of `arm::dot4_pairs` (`policy/arm.rs`).
+#[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+#[inline(always)]
+fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
+    let mut rows = block.chunks_exact(IN);
+    let (Some(r0), Some(r1), Some(r2), Some(r3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
+        return [0; 4];
+    };
+    let xp = &xp.0;
+    let mut s = [0i32; 4];
+    let (c0, c1, c2, c3) = (
+        r0.chunks_exact(4),
+        r1.chunks_exact(4),
+        r2.chunks_exact(4),
+        r3.chunks_exact(4),
+    );
+    let xg = xp.chunks_exact(4);
+    let tails = [c0.remainder(), c1.remainder(), c2.remainder(), c3.remainder()];
+    let x_tail = xg.remainder();
+    for ((((xs, w0), w1), w2), w3) in xg.zip(c0).zip(c1).zip(c2).zip(c3) {
+        if let [a, b, c, d] = xs {
+            let (xe, xo) = (pack(*a, *b), pack(*c, *d));
+            let [s0, s1, s2, s3] = s;
+            s = [
+                pair_mac(s0, u32_le(w0), xe, xo),
+                pair_mac(s1, u32_le(w1), xe, xo),
+                pair_mac(s2, u32_le(w2), xe, xo),
+                pair_mac(s3, u32_le(w3), xe, xo),
+            ];
+        }
+    }
+    for (sk, t) in s.iter_mut().zip(tails) {
+        *sk = sk.wrapping_add(dot1(x_tail, t));
+    }
+    s
+}
+
+/// One row against activations in pair order (the `OUT % 4` last rows).
+#[inline(always)]
+fn dot1_pairs(xp: &[i16], row: &[u8]) -> i32 {
+    let mut s = 0i32;
+    let wg = row.chunks_exact(4);
+    let xg = xp.chunks_exact(4);
+    let tail = dot1(xg.remainder(), wg.remainder());
+    for (xs, w) in xg.zip(wg) {
+        if let [a, b, c, d] = xs {
+            s = pair_mac(s, u32_le(w), pack(*a, *b), pack(*c, *d));
+        }
+    }
+    s.wrapping_add(tail)
 }
 
 /// The three layers of an [`Mlp`], in one precision.
@@ -679,6 +1009,13 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
     ///
     /// Never panics. Any non-finite input gives `[f32::NAN; OUT]` (see the module doc).
     pub fn forward(&self, input: &[f32; IN]) -> [f32; OUT] {
+        self.forward_with(input, INT8_KERNEL)
+    }
+
+    /// [`Self::forward`] with the given int8 kernel (ignored by an f32 network); every kernel
+    /// gives the same result bit for bit, on every target.
+    #[inline(always)]
+    pub fn forward_with(&self, input: &[f32; IN], kernel: Int8Kernel) -> [f32; OUT] {
         if !input.iter().all(|v| v.is_finite()) {
             return [f32::NAN; OUT];
         }
@@ -691,10 +1028,12 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
                 c.forward(&h2)
             }
             MlpLayers::Int8(a, b, c) => {
-                let q0 = a.quantize_input(input);
-                let q1 = a.forward_relu_quantized(&q0, b.input_scale);
-                let q2 = b.forward_relu_quantized(&q1, c.input_scale);
-                c.forward(&q2)
+                let q0 = a.quantize_input_for(input, kernel);
+                let mut q1 = Acts([0i16; H1]);
+                a.forward_relu_quantized(&q0, b.input_scale, kernel, &mut q1);
+                let mut q2 = Acts([0i16; H2]);
+                b.forward_relu_quantized(&q1, c.input_scale, kernel, &mut q2);
+                c.forward_for(&q2, kernel)
             }
         };
         let mut out = [0.0f32; OUT];
@@ -702,5 +1041,111 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
             *o = libm::tanhf(v);
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both quantizers and both ReLU forms at one point.
+    fn check(x: f32, scale: f32) {
+        let want = quantize_magic(x, scale);
+        let l = i32::from(ACTIVATION_LEVELS);
+        assert_eq!(
+            quantize_trunc(x, scale, -l),
+            want,
+            "x {x:e} ({:#010x}) scale {scale:e}",
+            x.to_bits()
+        );
+        assert_eq!(
+            quantize_trunc(x, scale, 0),
+            quantize_magic(relu(x), scale),
+            "relu: x {x:e} ({:#010x}) scale {scale:e}",
+            x.to_bits()
+        );
+    }
+
+    #[test]
+    fn quantizers_agree_on_every_float_near_the_rounding_edges() {
+        // Every f32 of magnitude in [2^-2, 2^2), both signs, at scale 1 (exact quotient):
+        // the largest float below 0.5, every tie and its neighbours below 4.
+        for bits in 0.25f32.to_bits()..4.0f32.to_bits() {
+            let x = f32::from_bits(bits);
+            check(x, 1.0);
+            check(-x, 1.0);
+        }
+    }
+
+    #[test]
+    fn quantizers_agree_around_ties_extremes_and_random_values() {
+        // Ties and their neighbours (4 ulps each way) for every half-integer past the clamp.
+        let mut k = 0.5f32;
+        while k < 34_000.0 {
+            for t in [k, -k] {
+                let (mut up, mut down) = (t, t);
+                for _ in 0..5 {
+                    check(up, 1.0);
+                    check(down, 1.0);
+                    up = f32::from_bits(up.to_bits() + 1);
+                    down = f32::from_bits(down.to_bits() - 1);
+                }
+            }
+            k += 0.5;
+        }
+        let scales = [
+            1.0f32,
+            0.5,
+            0.013,
+            3.7e-3,
+            0.25,
+            1e-30,
+            7.5e30,
+            f32::MIN_POSITIVE,
+            1e-45,
+        ];
+        let special = [
+            0.0f32,
+            -0.0,
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            1e-45,
+            2_147_483_520.0,
+            2_147_483_648.0,
+            -2_147_483_648.0,
+            -2_147_483_904.0,
+            16_777_217.0,
+            8_388_607.5,
+            32_766.5,
+            32_767.5,
+            -32_767.5,
+            0.499_999_97,
+            -0.499_999_97,
+        ];
+        for &x in &special {
+            for &s in &scales {
+                check(x, s);
+            }
+        }
+        // Random bit patterns (NaNs, infinities, subnormals) at every scale (SplitMix64).
+        let mut state = 0x5eed_u64;
+        let mut next = || {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        for _ in 0..400_000 {
+            let x = f32::from_bits(next() as u32);
+            for &s in &scales {
+                check(x, s);
+            }
+        }
     }
 }

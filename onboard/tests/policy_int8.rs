@@ -138,6 +138,7 @@ fn check_accumulate<const IN: usize, const OUT: usize>(seed: u64) {
         // Both kernel forms (the target picks one) give the same exact sums.
         assert_eq!(layer.accumulate_lanes(&x), got);
         assert_eq!(layer.accumulate_rows(&x), got);
+        assert_eq!(layer.accumulate_pairs(&x), got);
         for j in 0..OUT {
             let want: i64 = i64::from(bias[j]) + (0..IN).map(|i| i64::from(q[j][i]) * i64::from(x[i])).sum::<i64>();
             assert_eq!(i64::from(got[j]), want, "{IN}x{OUT} row {j}");
@@ -180,6 +181,7 @@ fn extreme_weights_and_inputs_do_not_overflow() {
     let want = [i32::MAX, i32::MIN + 128 * i32::from(L) * IN as i32];
     assert_eq!(layer.accumulate_lanes(&[-L; IN]), want);
     assert_eq!(layer.accumulate_rows(&[-L; IN]), want);
+    assert_eq!(layer.accumulate_pairs(&[-L; IN]), want);
 }
 
 #[test]

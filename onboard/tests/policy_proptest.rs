@@ -87,6 +87,7 @@ fn check_int8_layer<const IN: usize, const OUT: usize>(seed: u64) -> Result<(), 
     let acc = layer.accumulate(&x);
     prop_assert_eq!(layer.accumulate_lanes(&x), acc);
     prop_assert_eq!(layer.accumulate_rows(&x), acc);
+    prop_assert_eq!(layer.accumulate_pairs(&x), acc);
     for j in 0..OUT {
         let want = i64::from(bias[j]) + (0..IN).map(|i| i64::from(q[j][i]) * i64::from(x[i])).sum::<i64>();
         prop_assert_eq!(i64::from(acc[j]), want);
