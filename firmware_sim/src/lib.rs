@@ -334,18 +334,8 @@ mod tests {
 
     #[test]
     fn a_coasting_flight_is_one_kepler_arc_and_keeps_its_mass() {
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let s = scenario(1.52);
-        let flight = fly_transfer(
-            &Off,
-            &s,
-            &sc,
-            &Tolerances::default(),
-            &RewardWeights::default(),
-            &Dispersions::NONE,
-            0,
-        )
-        .unwrap();
+        let flight = fly(&Off, &s, &Dispersions::NONE, 0);
         let end = flight.final_state();
         let direct = coast(&s.initial.cartesian(), s.time_of_flight()).unwrap();
         for (a, b) in end.r.iter().chain(&end.v).zip(direct.r.iter().chain(&direct.v)) {
@@ -363,16 +353,7 @@ mod tests {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let s = scenario(1.52);
         let law = ProxyTracking { target_a: 1.52 };
-        let flight = fly_transfer(
-            &law,
-            &s,
-            &sc,
-            &Tolerances::default(),
-            &RewardWeights::default(),
-            &Dispersions::NONE,
-            0,
-        )
-        .unwrap();
+        let flight = fly(&law, &s, &Dispersions::NONE, 0);
         let throttle_steps: f64 = flight.steps.iter().map(|k| k.command.throttle).sum();
         assert!(throttle_steps > 0.0);
         let expected_mass = 1.0 - sc.thrust * throttle_steps * STEP / sc.exhaust_speed;
@@ -389,20 +370,11 @@ mod tests {
         let res = flight.final_residuals().unwrap();
         assert!(res.position < 0.02 && res.velocity < 0.02, "{res:?}");
         // It must beat not thrusting at all, by the spec's reward.
-        let off = fly_transfer(
-            &Off,
-            &s,
-            &sc,
-            &Tolerances::default(),
-            &RewardWeights::default(),
-            &Dispersions::NONE,
-            0,
-        )
-        .unwrap();
+        let off = fly(&Off, &s, &Dispersions::NONE, 0);
         assert!(flight.total_reward() > off.total_reward());
     }
 
-    fn fly(law: &ProxyTracking, s: &Scenario, d: &Dispersions, seed: u64) -> Flight {
+    fn fly(law: &impl Actor<TRANSFER_FEATURES>, s: &Scenario, d: &Dispersions, seed: u64) -> Flight {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         fly_transfer(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
     }

@@ -21,7 +21,7 @@ use shared::scenario::{ProblemKind, ScenarioKind};
 
 use crate::charts::{line_chart, Series};
 use crate::config::{ConfigError, ExperimentConfig};
-use crate::demo::{default_tolerances, demonstrations};
+use crate::demo::{default_tolerances, demonstrations, Demonstrations};
 use crate::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
 use crate::env::{EnvConfig, Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::generate::read_dataset;
@@ -586,16 +586,17 @@ pub struct PhaseSummary {
     pub demonstration_tuples: usize,
 }
 
-/// The demonstration tuples of the config's dataset as replay transitions.
-pub fn demonstration_buffer<P: Problem>(
+/// The demonstration tuples of the config's dataset (refused when the dataset is of another
+/// problem), with the dataset file and its record count.
+pub fn load_demonstrations<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
-) -> Result<(ReplayBuffer, usize), ExperimentError> {
+) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
     let file = config.dataset_file(config_dir)?;
     let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
     if dataset.manifest.scenario.problem() != P::KIND {
         return Err(ExperimentError::Mismatch(format!(
-            "dataset {} holds {} trajectories, the config trains {}",
+            "dataset {} holds {} trajectories, the config is for {}",
             file.display(),
             dataset.manifest.scenario.name(),
             config.scenario.name()
@@ -603,11 +604,20 @@ pub fn demonstration_buffer<P: Problem>(
     }
     let filter = config.pretrain.records;
     let demos = demonstrations::<P>(&dataset.records, &config.env, filter, &default_tolerances());
+    Ok((demos, file, dataset.records.len()))
+}
+
+/// The demonstration tuples of the config's dataset as replay transitions.
+pub fn demonstration_buffer<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+) -> Result<(ReplayBuffer, usize), ExperimentError> {
+    let (demos, file, records) = load_demonstrations::<P>(config, config_dir)?;
     if demos.transitions.is_empty() {
         return Err(ExperimentError::Dataset(format!(
             "{} gave no demonstration tuples ({} records, {} failed, {} filtered out)",
             file.display(),
-            dataset.records.len(),
+            records,
             demos.failed.len(),
             demos.filtered_out
         )));

@@ -18,12 +18,10 @@ use shared::quantize::{DenseWeights, MlpWeights};
 use shared::scenario::Scenario;
 
 use crate::config::ExperimentConfig;
-use crate::demo::{default_tolerances, demonstrations};
 use crate::env::batch::{draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
 use crate::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::eval::load_agent;
-use crate::experiment::{policy_batch, ExperimentError};
-use crate::generate::read_dataset;
+use crate::experiment::{load_demonstrations, policy_batch, ExperimentError};
 use crate::io::atomic_write;
 use crate::sac::agent::Sac;
 
@@ -263,22 +261,7 @@ fn demonstration_inputs<P: Problem>(
     if config.pretrain.dataset.is_none() {
         return Ok(Vec::new());
     }
-    let file = config.dataset_file(config_dir)?;
-    let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
-    if dataset.manifest.scenario.problem() != P::KIND {
-        return Err(ExperimentError::Mismatch(format!(
-            "dataset {} holds {} trajectories, the checkpoint flies {}",
-            file.display(),
-            dataset.manifest.scenario.name(),
-            config.scenario.name()
-        )));
-    }
-    let demos = demonstrations::<P>(
-        &dataset.records,
-        &config.env,
-        config.pretrain.records,
-        &default_tolerances(),
-    );
+    let (demos, _, _) = load_demonstrations::<P>(config, config_dir)?;
     Ok(demos
         .transitions
         .iter()
