@@ -23,7 +23,7 @@ use crate::charts::{line_chart, Series};
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::demo::{default_tolerances, demonstrations, Demonstrations};
 use crate::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
-use crate::env::{EnvConfig, Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use crate::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::generate::read_dataset;
 use crate::io::{atomic_write, decode_container, encode_container};
 use crate::sac::agent::{CheckpointError, Sac, UpdateStats};
@@ -46,6 +46,8 @@ pub enum ExperimentError {
     Evaluation(EvalError),
     /// A file in the run folder belongs to another experiment (problem, shapes).
     Mismatch(String),
+    /// The environment refused to start an episode.
+    Environment(EnvError),
 }
 
 impl std::fmt::Display for ExperimentError {
@@ -57,6 +59,7 @@ impl std::fmt::Display for ExperimentError {
             Self::Io(p, e) => write!(f, "{}: {e}", p.display()),
             Self::Evaluation(e) => write!(f, "evaluation: {e}"),
             Self::Mismatch(e) => write!(f, "{e}"),
+            Self::Environment(e) => write!(f, "environment: {e}"),
         }
     }
 }
@@ -254,12 +257,12 @@ impl<E: Environment> Episodic for ScenarioTask<E> {
         3
     }
 
-    fn reset(&mut self, episode: u64) -> Vec<f32> {
-        match self.env.reset_drawn(self.kind, self.seed, episode) {
-            Ok(o) => o.as_ref().to_vec(),
-            // Scenario draws are valid by construction; an all-zero observation would be noticed.
-            Err(_) => vec![0.0; E::OBS],
-        }
+    type Error = EnvError;
+
+    fn reset(&mut self, episode: u64) -> Result<Vec<f32>, EnvError> {
+        self.env
+            .reset_drawn(self.kind, self.seed, episode)
+            .map(|o| o.as_ref().to_vec())
     }
 
     fn step(&mut self, action: &[f32]) -> StepOutcome {
@@ -784,7 +787,8 @@ where
             &mut rng,
             &options,
             &mut observer,
-        );
+        )
+        .map_err(ExperimentError::Environment)?;
         if let Some(e) = observer.error.take() {
             return Err(e);
         }

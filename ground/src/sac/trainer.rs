@@ -9,10 +9,12 @@ use super::replay::{ReplayBuffer, Transition};
 
 /// An episodic task as the learner sees it: flat f32 observations and actions in [-1, 1].
 pub trait Episodic {
+    /// Why an episode could not start.
+    type Error;
     fn obs_dim(&self) -> usize;
     fn act_dim(&self) -> usize;
     /// Starts episode number `episode` (deterministic per task seed and episode number).
-    fn reset(&mut self, episode: u64) -> Vec<f32>;
+    fn reset(&mut self, episode: u64) -> Result<Vec<f32>, Self::Error>;
     /// One step under `action`.
     fn step(&mut self, action: &[f32]) -> StepOutcome;
 }
@@ -88,14 +90,14 @@ pub fn run<T: Episodic>(
     rng: &mut ChaCha8Rng,
     options: &LoopOptions,
     observer: &mut dyn TrainObserver,
-) {
+) -> Result<(), T::Error> {
     let act_dim = task.act_dim();
     let warmup_steps = agent.config.warmup_steps;
     let batch_size = agent.config.batch_size;
     let updates_per_step = agent.config.updates_per_step;
     // A resumed run restarts the interrupted episode from its beginning (its partial reward is
     // dropped); the transitions it had stored stay in the buffer.
-    let mut obs = task.reset(state.episodes);
+    let mut obs = task.reset(state.episodes)?;
     state.episode_reward = 0.0;
     while state.env_steps < options.total_steps && !observer.stop() {
         let action = if state.env_steps < warmup_steps && options.warmup == WarmupPolicy::Random {
@@ -118,7 +120,7 @@ pub fn run<T: Episodic>(
             observer.on_episode(state.env_steps, state.episode_reward);
             state.episodes += 1;
             state.episode_reward = 0.0;
-            obs = task.reset(state.episodes);
+            obs = task.reset(state.episodes)?;
         } else {
             obs = out.obs;
         }
@@ -136,6 +138,7 @@ pub fn run<T: Episodic>(
         }
     }
     observer.checkpoint(agent, buffer, state, rng);
+    Ok(())
 }
 
 /// Mean and standard deviation of `values`.
