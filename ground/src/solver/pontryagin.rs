@@ -193,6 +193,42 @@ fn switch_events(y: &[f64; Y_LEN], p: &OptimalControlParams) -> [f64; MAX_EVENTS
     [rho - p.eps, rho + p.eps]
 }
 
+/// Time derivative of the switching function: d rho / dt = -(c / m) lambda_v . lambda_r / |lambda_v|
+/// (the mass terms of lambda_m' and of (c |lambda_v| / m)' cancel, so it does not depend on u).
+pub fn switching_rate(y: &[f64; Y_LEN], exhaust_speed: f64) -> f64 {
+    let lv = y[idx::LV].hypot(y[idx::LV + 1]);
+    let dot = y[idx::LV] * y[idx::LR] + y[idx::LV + 1] * y[idx::LR + 1];
+    -exhaust_speed * dot / (y[idx::M] * lv)
+}
+
+/// The event functions of the modal propagation in branch `regime`. On the ramp they are the two
+/// switches rho -+ eps. On a coast only rho + eps can be crossed, so the other slot watches
+/// d rho / dt instead: a rise of rho above -eps and back that fits inside one integration step
+/// (a short burn where rho peaks near eps, common on these nearly singular transfers at small
+/// eps) changes the sign of no switch function at the step's ends and would be stepped over,
+/// but it puts a maximum of rho inside the step, which the derivative's sign change reveals;
+/// the step then lands on the maximum and the crossing shows. Full thrust likewise watches the
+/// minima. (The integrator offers two event slots.) The rate is watched as -d rho / dt: the
+/// integrator keeps the last sign of each slot, and a slot that becomes a switch on entering the
+/// ramp must have that switch's sign there (rho - eps < 0 on a rise from a coast, rho + eps > 0
+/// on a fall from full thrust), or a crossing right after the entry would go unseen. Leaving the
+/// ramp, the slot's sign may flip; the next step then reports a rate event at its start, which
+/// keeps the branch.
+fn modal_events(y: &[f64; Y_LEN], p: &OptimalControlParams, regime: Regime) -> [f64; MAX_EVENTS] {
+    let c = p.spacecraft.exhaust_speed;
+    let rho = switching_function(y, c);
+    match regime {
+        Regime::Ramp => [rho - p.eps, rho + p.eps],
+        Regime::Coast => [-switching_rate(y, c), rho + p.eps],
+        Regime::Full => [rho - p.eps, -switching_rate(y, c)],
+    }
+}
+
+/// Whether event slot `index` watches d rho / dt (not a switch) in branch `regime`.
+fn is_rate_event(index: usize, regime: Regime) -> bool {
+    matches!((index, regime), (0, Regime::Coast) | (1, Regime::Full))
+}
+
 /// State-costate plus the sensitivity matrix d y / d lambda_0 (10 x 5), by forward-mode duals.
 #[derive(Debug, Clone, Copy)]
 pub struct StateCostateSensitivity(pub OptimalControlParams);
@@ -260,7 +296,7 @@ impl OdeSystem<Y_LEN> for Modal<'_> {
     }
 
     fn events(&self, _t: f64, y: &[f64; Y_LEN]) -> [f64; MAX_EVENTS] {
-        switch_events(y, &self.params)
+        modal_events(y, &self.params, self.regime.get())
     }
 }
 
@@ -277,7 +313,7 @@ impl OdeSystem<YS_LEN> for ModalSensitivity<'_> {
 
     fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; MAX_EVENTS] {
         let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
-        switch_events(&y, &self.params)
+        modal_events(&y, &self.params, self.regime.get())
     }
 }
 
@@ -285,11 +321,72 @@ impl OdeSystem<YS_LEN> for ModalSensitivity<'_> {
 struct RegimeSwitch<'a> {
     regime: &'a Cell<Regime>,
     eps: f64,
+    exhaust_speed: f64,
+    /// Set by [`Observer::on_step`] at the first step that ended off the held branch.
+    broken: Cell<Option<f64>>,
 }
 
+impl RegimeSwitch<'_> {
+    /// A propagation whose mode lost track of rho (see [`Observer::on_step`]) fails; the error
+    /// reads as a non-finite trajectory, which every caller already treats as a failed trial.
+    fn check(&self) -> Result<(), IntegrationError> {
+        match self.broken.get() {
+            Some(t) => Err(IntegrationError::NonFinite { t }),
+            None => Ok(()),
+        }
+    }
+}
+
+/// How far (in rho) a landing point may lie on the wrong side of the branch an event selects
+/// before the branch is taken from rho instead (see [`RegimeSwitch`]).
+const EVENT_SIDE_TOLERANCE: f64 = 1e-10;
+
 impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
-    fn on_event(&mut self, index: usize, _t: f64, _y: &[f64; N], rising: bool) {
-        self.regime.set(Regime::after_event(index, rising, self.eps));
+    /// The branch the crossed switch leads to; a maximum or minimum of rho (a rate event, see
+    /// [`modal_events`]) keeps the branch. Safety net: where rho at the landing point contradicts
+    /// that branch, the branch is taken from rho. (An event slot changes meaning with the branch,
+    /// so the first step after a switch may report that slot's sign change as a crossing at its
+    /// start; the rule above maps it to the branch already held.)
+    fn on_event(&mut self, index: usize, _t: f64, y: &[f64; N], rising: bool) {
+        let current = self.regime.get();
+        // A maximum or minimum of rho (see [`modal_events`]) keeps the branch.
+        let next = if is_rate_event(index, current) {
+            current
+        } else {
+            Regime::after_event(index, rising, self.eps)
+        };
+        let state: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
+        let rho = switching_function(&state, self.exhaust_speed);
+        let tol = EVENT_SIDE_TOLERANCE;
+        let consistent = match next {
+            Regime::Coast => rho <= -self.eps + tol,
+            Regime::Full => rho >= self.eps - tol,
+            Regime::Ramp => rho.abs() <= self.eps + tol,
+        };
+        self.regime
+            .set(if consistent { next } else { Regime::of(rho, self.eps) });
+    }
+
+    /// Safety net: a step that ends with rho outside the held branch (a crossing the integrator
+    /// did not see) marks the propagation as broken; [`propagate`] and
+    /// [`propagate_sensitivity`] then fail instead of returning a trajectory flown on the
+    /// wrong branch (on the extended ramp u leaves [0, 1]).
+    fn on_step(&mut self, t: f64, y: &[f64; N]) {
+        if self.broken.get().is_some() {
+            return;
+        }
+        let state: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
+        let rho = switching_function(&state, self.exhaust_speed);
+
+        let tol = EVENT_SIDE_TOLERANCE;
+        let consistent = match self.regime.get() {
+            Regime::Coast => rho <= -self.eps + tol,
+            Regime::Full => rho >= self.eps - tol,
+            Regime::Ramp => rho.abs() <= self.eps + tol,
+        };
+        if !consistent {
+            self.broken.set(Some(t));
+        }
     }
 }
 
@@ -311,7 +408,17 @@ pub fn work_done() -> u64 {
 
 fn add_work(stats: &IntegrationStats, weight: u64) {
     let steps = u64::from(stats.accepted_steps) + u64::from(stats.rejected_steps);
-    WORK.with(|w| w.set(w.get().saturating_add(steps * weight)));
+    charge_work(steps * weight);
+}
+
+/// Adds `work` to this thread's count (see [`work_done`]): for propagations done elsewhere.
+pub(crate) fn charge_work(work: u64) {
+    WORK.with(|w| w.set(w.get().saturating_add(work)));
+}
+
+/// Charges the steps of an integration at `weight` per step (see [`work_done`]).
+pub(crate) fn charge_stats(stats: &IntegrationStats, weight: u64) {
+    add_work(stats, weight);
 }
 
 /// Propagates the state-costate system from (t0, y0) to t1, stepping onto every switch and
@@ -334,13 +441,34 @@ pub fn propagate(
     let mut observer = RegimeSwitch {
         regime: &regime,
         eps: params.eps,
+        exhaust_speed: params.spacecraft.exhaust_speed,
+        broken: Cell::new(None),
     };
-    let (y, stats) = integrate_observed(&system, t0, y0, t1, tolerances, &mut observer).inspect_err(|_| {
+    let (y, stats) = integrate_observed(&system, t0 + time_offset(), y0, t1 + time_offset(), tolerances, &mut observer).inspect_err(|_| {
         // A failed propagation spent at most its step budget.
         WORK.with(|w| w.set(w.get().saturating_add(u64::from(tolerances.max_steps))));
     })?;
     add_work(&stats, 1);
+    observer.check()?;
     Ok(y)
+}
+
+/// Every modal propagation runs on the clock t + [`TIME_OFFSET`] (the dynamics are autonomous).
+///
+/// Why: where a step lands on a switch rho = -+eps, the event function is evaluated on the
+/// step's end state and on the dense output, and the two disagree in sign within the
+/// round-off of rho (~2e-16: rho = lambda_m + c |lambda_v| / m - 1 subtracts O(1) terms). The
+/// integrator then locates the zero "at the start" of each next step and moves past it by a few
+/// ulps of t only; near t = 0.01 that is ~1e-17, which changes rho by ~1e-20, so it never
+/// escapes and spends its whole step budget there (seen as `StepBudgetExhausted` at t < 0.2 on
+/// the transfer-circular homotopy: every corrector at eps 6.6e-3 to 7.6e-3 of seed 7 #0). On a
+/// clock near 1024 the few ulps are ~1e-12, enough to leave the round-off band whenever
+/// |d rho / dt| > ~1e-4. The cost: times carry an absolute resolution of ~2e-13 (the end state
+/// moves by < 1e-11 over a flight), far inside the 1e-8 terminal accuracy.
+pub const TIME_OFFSET: f64 = 1024.0;
+
+fn time_offset() -> f64 {
+    TIME_OFFSET
 }
 
 /// Records the time spent on the ramp (0 < u < 1) of the throttle law.
@@ -357,6 +485,10 @@ impl<const N: usize> Observer<N> for RampClock<'_> {
         }
         self.since = t;
         Observer::<N>::on_event(&mut self.switch, index, t, y, rising);
+    }
+
+    fn on_step(&mut self, t: f64, y: &[f64; N]) {
+        Observer::<N>::on_step(&mut self.switch, t, y);
     }
 }
 
@@ -381,14 +513,17 @@ pub fn ramp_fraction(
         switch: RegimeSwitch {
             regime: &regime,
             eps: params.eps,
+            exhaust_speed: params.spacecraft.exhaust_speed,
+            broken: Cell::new(None),
         },
-        since: 0.0,
+        since: time_offset(),
         on_ramp: 0.0,
     };
-    let (_, stats) = integrate_observed(&system, 0.0, y0, t1, tolerances, &mut clock)?;
+    let (_, stats) = integrate_observed(&system, time_offset(), y0, t1 + time_offset(), tolerances, &mut clock)?;
     add_work(&stats, 1);
+    clock.switch.check()?;
     if regime.get() == Regime::Ramp {
-        clock.on_ramp += t1 - clock.since;
+        clock.on_ramp += t1 + time_offset() - clock.since;
     }
     Ok(clock.on_ramp / t1)
 }
@@ -412,9 +547,11 @@ pub fn propagate_sensitivity(
     let mut observer = RegimeSwitch {
         regime: &regime,
         eps: params.eps,
+        exhaust_speed: params.spacecraft.exhaust_speed,
+        broken: Cell::new(None),
     };
     let ys0 = StateCostateSensitivity::initial(y0);
-    let (y, stats) = integrate_observed(&system, 0.0, &ys0, t1, tolerances, &mut observer).inspect_err(|_| {
+    let (y, stats) = integrate_observed(&system, time_offset(), &ys0, t1 + time_offset(), tolerances, &mut observer).inspect_err(|_| {
         WORK.with(|w| {
             w.set(
                 w.get()
@@ -423,6 +560,7 @@ pub fn propagate_sensitivity(
         });
     })?;
     add_work(&stats, SENSITIVITY_STEP_WORK);
+    observer.check()?;
     Ok(y)
 }
 
