@@ -2,6 +2,7 @@
 //! ([`pontryagin`]), single shooting with exact sensitivities and the energy-to-fuel homotopy
 //! ([`shooting`]), and the driver that turns a scenario into a [`TrajectoryRecord`].
 
+pub mod bangbang;
 pub mod direct;
 pub mod pontryagin;
 pub mod shooting;
