@@ -140,6 +140,69 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferShooting<'_> {
     }
 }
 
+/// The transfer with its final anomaly pinned: unknowns lambda_0, equations r, v on the target
+/// orbit at the given nu_f and lambda_m(tf) = 0 (the transversality condition left out). Between
+/// nearly circular orbits the free problem's weakest direction is almost exactly nu_f (the shift
+/// of the burn pattern along the circles); with it pinned the system is well conditioned, and
+/// the transversality residual [`TransferShooting`] leaves out is a smooth function of nu_f
+/// whose zero a 1-D search finds.
+#[derive(Debug, Clone, Copy)]
+pub struct PinnedAnomalyTransfer<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+    pub nu_f: f64,
+}
+
+impl PinnedAnomalyTransfer<'_> {
+    fn full(&self, z: &RendezvousVector) -> TransferVector {
+        TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], self.nu_f])
+    }
+
+    fn params(&self, eps: f64) -> OptimalControlParams {
+        OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        }
+    }
+
+    /// The free problem's residual (all six conditions, transversality in row 4) at costates `z`.
+    pub fn free_residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<TransferVector, IntegrationError> {
+        transfer_residual_only(self.scenario, &self.params(eps), &self.full(z), tolerances)
+    }
+}
+
+const PINNED_ROWS: [usize; 5] = [0, 1, 2, 3, 5];
+
+impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for PinnedAnomalyTransfer<'_> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<RendezvousVector, IntegrationError> {
+        let f = self.free_residual(eps, z, tolerances)?;
+        Ok(RendezvousVector::from_fn(|i, _| f[PINNED_ROWS[i]]))
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<(RendezvousVector, SMatrix<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>), IntegrationError> {
+        let (f, jac) = transfer_residual(self.scenario, &self.params(eps), &self.full(z), tolerances)?;
+        Ok((
+            RendezvousVector::from_fn(|i, _| f[PINNED_ROWS[i]]),
+            SMatrix::from_fn(|i, k| jac[(PINNED_ROWS[i], k)]),
+        ))
+    }
+}
+
 /// Settings of the Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonSettings {
@@ -386,7 +449,7 @@ pub fn homotopy_schedule(final_eps: f64) -> impl Iterator<Item = f64> {
 
 /// Tangent of the solution path: dz/d(eps) = -J^-1 dF/d(eps), with dF/d(eps) by a central
 /// difference in eps (the propagations are smooth in eps for eps > 0).
-fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
+pub fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z: &SVector<f64, K>,
     eps: f64,
@@ -493,6 +556,9 @@ where
                 iterations: 0,
                 converged: false,
             });
+            if std::env::var_os("DEBUG_HOMO").is_some() {
+                eprintln!("  corrector eps {next:.4e} conv {} it {} res {:.1e} |dz| {:.1e}", step.converged, step.iterations, step.residual, (step.z - predicted).amax());
+            }
             if step.converged {
                 (eps, z, last) = (next, step.z, step);
                 ratio = (ratio * ratio).max(0.5); // grow the step back after a success
