@@ -468,7 +468,7 @@ pub fn propagate(
 pub const TIME_OFFSET: f64 = 1024.0;
 
 fn time_offset() -> f64 {
-    TIME_OFFSET
+    std::env::var("TOFF").ok().and_then(|s| s.parse().ok()).unwrap_or(TIME_OFFSET)
 }
 
 /// Records the time spent on the ramp (0 < u < 1) of the throttle law.
@@ -562,6 +562,93 @@ pub fn propagate_sensitivity(
     add_work(&stats, SENSITIVITY_STEP_WORK);
     observer.check()?;
     Ok(y)
+}
+
+/// State-costate + its full 10 x 10 transition matrix (column-major after the first 10).
+pub const STM_LEN: usize = Y_LEN + Y_LEN * Y_LEN;
+
+/// Work of one transition-matrix step relative to a plain one (see [`work_done`]).
+pub const STM_STEP_WORK: u64 = 10;
+
+type Dual10 = DualVec64<Const<Y_LEN>>;
+
+/// The state-costate derivatives and the variational equations of the full transition matrix on
+/// one throttle branch.
+pub(crate) fn stm_rhs(ys: &[f64; STM_LEN], params: &OptimalControlParams, regime: Regime, dydt: &mut [f64; STM_LEN]) {
+    let y: [Dual10; Y_LEN] = core::array::from_fn(|i| {
+        let row = SVector::<f64, Y_LEN>::from_fn(|k, _| ys[Y_LEN + k * Y_LEN + i]);
+        Dual10::new(ys[i], Derivative::some(row))
+    });
+    let f = state_costate_rhs_in(&y, params, regime);
+    for (i, fi) in f.iter().enumerate() {
+        dydt[i] = fi.re;
+        let d = fi.eps.unwrap_generic(Const::<Y_LEN>, Const::<1>);
+        for k in 0..Y_LEN {
+            dydt[Y_LEN + k * Y_LEN + i] = d[k];
+        }
+    }
+}
+
+/// [`ModalSensitivity`] with the full transition matrix.
+struct ModalStm<'a> {
+    params: OptimalControlParams,
+    regime: &'a Cell<Regime>,
+}
+
+impl OdeSystem<STM_LEN> for ModalStm<'_> {
+    fn derivatives(&self, _t: f64, ys: &[f64; STM_LEN], dydt: &mut [f64; STM_LEN]) {
+        stm_rhs(ys, &self.params, self.regime.get(), dydt);
+    }
+
+    fn events(&self, _t: f64, ys: &[f64; STM_LEN]) -> [f64; MAX_EVENTS] {
+        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+        modal_events(&y, &self.params, self.regime.get())
+    }
+}
+
+/// [`propagate`] from (t0, y0) to t1 with the transition matrix d y(t1) / d y(t0): returns y(t1)
+/// and the matrix, `stm[i][k]` = d y_i(t1) / d y_k(t0). For eps > 0 (at eps = 0 the jumps of the
+/// throttle at the switches would need saltation terms, which this does not add).
+pub fn propagate_stm(
+    params: &OptimalControlParams,
+    t0: f64,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<([f64; Y_LEN], [[f64; Y_LEN]; Y_LEN]), IntegrationError> {
+    let regime = Cell::new(Regime::of(
+        switching_function(y0, params.spacecraft.exhaust_speed),
+        params.eps,
+    ));
+    let system = ModalStm {
+        params: *params,
+        regime: &regime,
+    };
+    let mut observer = RegimeSwitch {
+        regime: &regime,
+        eps: params.eps,
+        exhaust_speed: params.spacecraft.exhaust_speed,
+        broken: Cell::new(None),
+    };
+    let mut ys0 = [0.0; STM_LEN];
+    ys0[..Y_LEN].copy_from_slice(y0);
+    for k in 0..Y_LEN {
+        ys0[Y_LEN + k * Y_LEN + k] = 1.0;
+    }
+    let (ys, stats) = integrate_observed(
+        &system,
+        t0 + time_offset(),
+        &ys0,
+        t1 + time_offset(),
+        tolerances,
+        &mut observer,
+    )
+    .inspect_err(|_| charge_work(u64::from(tolerances.max_steps) * STM_STEP_WORK))?;
+    add_work(&stats, STM_STEP_WORK);
+    observer.check()?;
+    let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+    let stm = core::array::from_fn(|i| core::array::from_fn(|k| ys[Y_LEN + k * Y_LEN + i]));
+    Ok((y, stm))
 }
 
 #[cfg(test)]
