@@ -16,7 +16,11 @@ fn main() {
         return diag();
     }
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-    let opts = SolveOptions::default();
+    let mut opts = SolveOptions::default();
+    if let Some(r) = std::env::var("RTOL").ok().and_then(|s| s.parse::<f64>().ok()) {
+        opts.tolerances.relative = r;
+        opts.tolerances.absolute = 0.1 * r;
+    }
     let get = |k: &str, d: u64| std::env::var(k).ok().and_then(|s| s.parse().ok()).unwrap_or(d);
     let (seed, i0, n) = (get("SEED", 7), get("IDX", 0), get("N", 10));
     let (mut ok, mut total) = (0, 0.0);

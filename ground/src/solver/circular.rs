@@ -37,13 +37,13 @@ use shared::spacecraft::CanonicalSpacecraft;
 use num_dual::Dual2_64;
 
 use super::bangbang::{BangBangTransfer, Hohmann, Structure};
-use super::multiple::{MsVector, MultipleShootingTransfer};
+use super::multiple::{MsVector, MultipleShootingFree, MultipleShootingTransfer, MS_UNKNOWNS};
 use super::pontryagin::{idx, propagate, work_done, OptimalControlParams, Regime};
 use super::shooting::{
-    continue_eps, initial_state_costate, newton, orbit_state, transfer_residual_only, NewtonSettings, ShootingProblem,
-    TransferVector,
+    continue_eps, homotopy_until, initial_state_costate, newton, orbit_state, transfer_residual_only, NewtonSettings,
+    PinnedAnomalyTransfer, RendezvousVector, ShootingProblem, TransferVector,
 };
-use super::{Budgeted, SolveOptions};
+use super::{transfer_guesses, Budgeted, SolveOptions};
 
 /// Largest eccentricity of both orbits for which this path is used.
 pub const NEAR_CIRCULAR_ECCENTRICITY: f64 = 0.02;
@@ -54,8 +54,15 @@ const SHIFT_SAMPLES: usize = 6;
 /// Convergence of the structured solves, and of the transversality residual in the shift search.
 const STRUCTURED_TOLERANCE: f64 = 1e-11;
 const TRANSVERSALITY_TOLERANCE: f64 = 1e-10;
+/// The nu_f search stops at this transversality residual: well inside the 1e-8 of the acceptance
+/// test, since the smoothed problem at the final eps can be almost flat along nu_f (a spread
+/// throttle on small transfers is nearly shift invariant again) and an exact zero far.
+const SEARCH_TOLERANCE: f64 = 2e-9;
 /// Convergence of the multiple-shooting solves in the nu_f search.
 const INNER_TOLERANCE: f64 = 1e-10;
+
+/// Replays whose residual is above this get a single-shooting polish.
+const POLISH_ABOVE: f64 = 2e-9;
 
 /// A solved near-circular transfer.
 #[derive(Debug, Clone, PartialEq)]
@@ -259,8 +266,42 @@ pub fn final_level(final_eps: f64) -> f64 {
 }
 
 /// The start of the upward continuation: small enough that the smoothed extremal is the
-/// bang-bang one (ramps of ~1e-8 / |d rho / dt|).
+/// bang-bang one (ramps of ~1e-8 / |d rho / dt|), and at most 1/64 of the smallest burn peak of
+/// rho (at eps near that peak a ramp spans the burn's flat top, where the variational equations,
+/// whose coefficients grow like 1/eps, make the integration stiff).
 const UPWARD_START_EPS: f64 = 1.0 / (1u64 << 26) as f64;
+
+/// The smallest, over the burns of a bang-bang candidate, of the largest rho on the burn.
+fn smallest_burn_peak(scenario: &Scenario, sc: &CanonicalSpacecraft, c: &Candidate, tol: &Tolerances) -> f64 {
+    let bb = c.problem(scenario, sc);
+    let mut bounds = vec![0.0];
+    bounds.extend_from_slice(&c.z[6..]);
+    bounds.push(scenario.time_of_flight());
+    let mut smallest = f64::INFINITY;
+    for j in 0..bounds.len() - 1 {
+        if c.structure.regime(j) != Regime::Full {
+            continue;
+        }
+        let mut peak = f64::NEG_INFINITY;
+        for k in 1..8 {
+            let t = bounds[j] + (bounds[j + 1] - bounds[j]) * f64::from(k) / 8.0;
+            if let Ok(y) = bb.state_at(&c.z, t, tol) {
+                peak = peak.max(super::pontryagin::switching_function(&y, sc.exhaust_speed));
+            }
+        }
+        smallest = smallest.min(peak);
+    }
+    smallest
+}
+
+/// The start eps of the upward continuation for a candidate (a power of 2).
+fn upward_start(peak: f64) -> f64 {
+    let mut eps = UPWARD_START_EPS;
+    while eps > peak / 64.0 && eps > 1e-15 {
+        eps *= 0.5;
+    }
+    eps
+}
 
 /// The bang-bang candidates of a scenario (see the module notes), best final mass first.
 fn candidates(scenario: &Scenario, sc: &CanonicalSpacecraft, tol: &Tolerances, budget: u64) -> Result<Vec<Candidate>, String> {
@@ -463,7 +504,7 @@ fn transversality_search(
     let mut pos: Option<(f64, f64, MsVector)> = None;
     let mut side = 0i8;
     for _ in 0..40 {
-        if f.abs() < TRANSVERSALITY_TOLERANCE {
+        if f.abs() < SEARCH_TOLERANCE {
             return Ok((x, nu));
         }
         if spent() {
@@ -476,6 +517,9 @@ fn transversality_search(
         }
         let (t, slope) = nu_tangent(scenario, sc, &x, nu, eps, tol).ok_or_else(|| fail("tangent failed"))?;
         let mut target = nu - f / slope;
+        if std::env::var_os("DEBUG_CIRC").is_some() {
+            eprintln!("  search nu {nu:.10} F5 {f:+.3e} slope {slope:+.3e} -> {target:.10} work {}", work_done() - start);
+        }
         // Inside a bracket, stay inside it (regula falsi with Illinois weights if Newton leaves).
         if let (Some(a), Some(b)) = (&neg, &pos) {
             let (lo, hi) = (a.0.min(b.0), a.0.max(b.0));
@@ -514,7 +558,7 @@ fn transversality_search(
 pub fn solve(scenario: &Scenario, sc: &CanonicalSpacecraft, options: &SolveOptions) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
     let target = final_level(options.final_eps);
-    let list = candidates(scenario, sc, &tol, options.max_start_work)?;
+    let list = candidates(scenario, sc, &tol, options.max_start_work / 4)?;
     let mut last_error = String::new();
     for c in list.iter().take(2) {
         match solve_candidate(scenario, sc, c, target, options) {
@@ -522,7 +566,145 @@ pub fn solve(scenario: &Scenario, sc: &CanonicalSpacecraft, options: &SolveOptio
             Err(e) => last_error = e,
         }
     }
-    Err(last_error)
+    // Down the SPEC schedule from the energy-optimal solution instead, at the best candidate's
+    // nu_f.
+    match solve_downward(scenario, sc, &list[0], target, options) {
+        Ok(s) => Ok(s),
+        Err(e) => Err(format!("{last_error}; downward: {e}")),
+    }
+}
+
+/// The SPEC's downward homotopy (eps = 1, 1/2, ..) by multiple shooting at the candidate's nu_f,
+/// from the energy-optimal solution, then the nu_f search and the replay.
+fn solve_downward(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let nu = c.z[5];
+    let single = PinnedAnomalyTransfer {
+        scenario,
+        spacecraft: *sc,
+        nu_f: nu,
+    };
+    let start = Budgeted::new(&single, options.max_start_work / 4);
+    let mut lambda = None;
+    for g in transfer_guesses(scenario) {
+        let z0 = RendezvousVector::from_column_slice(&g.as_slice()[..5]);
+        if let Ok(o) = newton(&start, 1.0, &z0, &tol, &options.start_newton) {
+            if o.converged {
+                lambda = Some(o.z);
+                break;
+            }
+        }
+        if start.exhausted() {
+            break;
+        }
+    }
+    let lambda = lambda.ok_or("no energy-optimal start")?;
+    let ms = MultipleShootingTransfer {
+        scenario,
+        spacecraft: *sc,
+        nu_f: nu,
+    };
+    let x0 = ms
+        .unknowns_from_costates(&[lambda[0], lambda[1], lambda[2], lambda[3], lambda[4]], 1.0, &tol)
+        .ok_or("energy-optimal propagation failed")?;
+    let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 2);
+    let levels = homotopy_until(
+        &budgeted,
+        &x0,
+        &tol,
+        &ms_settings(1e-9),
+        options.final_eps,
+        options.max_homotopy_solves,
+        |_, _| false,
+    )
+    .map_err(|e| format!("{e:?}"))?;
+    let last = levels.last().ok_or("empty homotopy")?;
+    if !(last.outcome.converged && last.eps <= target) {
+        let deepest = levels.iter().rev().find(|l| l.outcome.converged).map_or(1.0, |l| l.eps);
+        return Err(format!("stalled below eps = {deepest:.3e}"));
+    }
+    finish(scenario, sc, c, &last.outcome.z, nu, target, options)
+}
+
+/// The nu_f search at the final eps from a multiple-shooting solution, then the replay.
+fn finish(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    x: &MsVector,
+    nu: f64,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, options.max_homotopy_work / 6) {
+        Ok(r) => r,
+        Err(e) => {
+            // nu_f free as a Newton unknown instead (its direction is not weak at the final eps
+            // when the throttle is spread).
+            let free = MultipleShootingFree {
+                scenario,
+                spacecraft: *sc,
+            };
+            let budgeted = Budgeted::new(&free, options.max_homotopy_work / 6);
+            let settings = NewtonSettings {
+                max_iterations: 20,
+                tolerance: SEARCH_TOLERANCE,
+            };
+            let o = newton(&budgeted, target, &MultipleShootingFree::join(x, nu), &tol, &settings)
+                .map_err(|f| format!("{e}; free nu_f: {f:?}"))?;
+            if std::env::var_os("DEBUG_CIRC").is_some() {
+                eprintln!("free MS: conv {} it {} res {:.1e} nu {:.6} (from {nu:.6})", o.converged, o.iterations, o.residual, o.z[MS_UNKNOWNS]);
+            }
+            if !o.converged {
+                return Err(format!("{e}; free nu_f: residual {:.1e}", o.residual));
+            }
+            (MsVector::from_column_slice(&o.z.as_slice()[..MS_UNKNOWNS]), o.z[MS_UNKNOWNS])
+        }
+    };
+    let z = TransferVector::from_column_slice(&[x[0], x[1], x[2], x[3], x[4], nu]);
+    let (mut residual, mut final_mass) = replay(scenario, sc, &z, target, &tol).ok_or("replay: propagation failed")?;
+    let mut z = z;
+    if residual >= POLISH_ABOVE {
+        // The multiple-shooting costates are exact to round-off, but a single propagation over the
+        // whole flight amplifies its own integration error by the single-shooting Jacobian (up to
+        // ~1e7 here): a few single-shooting Newton steps at the pinned nu_f absorb it.
+        let single = PinnedAnomalyTransfer {
+            scenario,
+            spacecraft: *sc,
+            nu_f: nu,
+        };
+        let settings = NewtonSettings {
+            max_iterations: 4,
+            tolerance: 1e-10,
+        };
+        let z0 = RendezvousVector::from_column_slice(&z.as_slice()[..5]);
+        if let Ok(o) = newton(&single, target, &z0, &tol, &settings) {
+            let polished = TransferVector::from_column_slice(&[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4], nu]);
+            if let Some((r, m)) = replay(scenario, sc, &polished, target, &tol) {
+                if r < residual {
+                    (z, residual, final_mass) = (polished, r, m);
+                }
+            }
+        }
+    }
+    if residual >= options.newton.tolerance {
+        return Err(format!("replay: terminal residual {residual:.1e} from the initial costates alone"));
+    }
+    Ok(CircularSolution {
+        z,
+        eps: target,
+        switches: c.z[6..].to_vec(),
+        initial_coast: c.structure.first == Regime::Coast,
+        residual,
+        final_mass,
+    })
 }
 
 fn solve_candidate(
@@ -543,28 +725,16 @@ fn solve_candidate(
     let x0 = ms
         .unknowns_from(|t| bb.state_at(&c.z, t, &tol).ok())
         .ok_or("bang-bang candidate: propagation failed")?;
-    let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 2);
-    let first = newton(&budgeted, UPWARD_START_EPS, &x0, &tol, &ms_settings(INNER_TOLERANCE))
+    let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 3);
+    let start = upward_start(smallest_burn_peak(scenario, sc, c, &tol));
+    let first = newton(&budgeted, start, &x0, &tol, &ms_settings(INNER_TOLERANCE))
         .map_err(|e| format!("upward start: {e:?}"))?;
     if first.residual > 10.0 * INNER_TOLERANCE {
         return Err(format!("upward start: residual {:.1e}", first.residual));
     }
-    let (eps, x) = continue_eps(&budgeted, &first.z, UPWARD_START_EPS, target, &tol, &ms_settings(1e-9), 4.0, 40);
+    let (eps, x) = continue_eps(&budgeted, &first.z, start, target, &tol, &ms_settings(1e-9), 4.0, 40);
     if eps < target {
         return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
     }
-    let (x, nu) = transversality_search(scenario, sc, &x, nu, target, &tol, options.max_homotopy_work / 2)?;
-    let z = TransferVector::from_column_slice(&[x[0], x[1], x[2], x[3], x[4], nu]);
-    let (residual, final_mass) = replay(scenario, sc, &z, target, &tol).ok_or("replay: propagation failed")?;
-    if residual >= options.newton.tolerance {
-        return Err(format!("replay: terminal residual {residual:.1e} from the initial costates alone"));
-    }
-    Ok(CircularSolution {
-        z,
-        eps: target,
-        switches: c.z[6..].to_vec(),
-        initial_coast: c.structure.first == Regime::Coast,
-        residual,
-        final_mass,
-    })
+    finish(scenario, sc, c, &x, nu, target, options)
 }

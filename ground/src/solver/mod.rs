@@ -51,12 +51,13 @@ impl Default for SolveOptions {
     fn default() -> Self {
         Self {
             // Tighter than the SPEC's 1e-11: near the final eps the shooting Jacobian reaches
-            // ~1e6 (the throttle ramps make F depend on the costates through 1/eps), which
-            // lifts the integration error to ~1e-8 in F at rtol 1e-12, the size of the
-            // acceptance test itself; at 1e-13 it is ~1e-9.
+            // 1e6 to 1e7 (the throttle ramps make F depend on the costates through 1/eps), which
+            // lifts the integration error of one propagation over the flight to ~1e-8 in F at
+            // rtol 1e-12, the size of the acceptance test itself; at 3e-14 it is ~2e-9
+            // (transfer-circular seed 7 #39: 1.2e-8 at 1e-13, 4e-9 at 3e-14).
             tolerances: Tolerances {
-                relative: 1e-13,
-                absolute: 1e-14,
+                relative: 3e-14,
+                absolute: 3e-15,
                 max_steps: 5_000,
                 initial_step: 0.0,
             },
@@ -150,6 +151,22 @@ pub fn solve_scenario(
         record.failure = Some(format!("invalid scenario: {e}"));
         return record;
     }
+    let circular_only = kind == ScenarioKind::TransferCircular;
+    if circular::applies(scenario) {
+        match circular::solve(scenario, spacecraft, options) {
+            Ok(s) => {
+                record.distinct_energy_optima = 0;
+                return finish_record(record, scenario, spacecraft, options, start, s.z, Some(s.z[5]), s.eps, s.residual, true);
+            }
+            Err(e) if circular_only => {
+                record.failure = Some(format!("near-circular transfer: {e}"));
+                record.seconds = start.elapsed().as_secs_f64();
+                return record;
+            }
+            // A near-circular draw of another distribution falls back to the general path.
+            Err(_) => {}
+        }
+    }
     let solved = match scenario.problem {
         ProblemKind::Transfer => {
             let problem = TransferShooting {
@@ -213,6 +230,35 @@ pub fn solve_scenario(
         };
         record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
+    finish_record(
+        record,
+        scenario,
+        spacecraft,
+        options,
+        start,
+        z,
+        final_anomaly,
+        final_eps,
+        residual,
+        reached_final,
+    )
+}
+
+/// Fills a record with a solution (costates in `z[..5]`) and samples its trajectory; the record
+/// counts as converged when `reached_final` and the sampling succeeded.
+#[allow(clippy::too_many_arguments)]
+fn finish_record(
+    mut record: TrajectoryRecord,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    start: Instant,
+    z: TransferVector,
+    final_anomaly: Option<f64>,
+    final_eps: f64,
+    residual: f64,
+    reached_final: bool,
+) -> TrajectoryRecord {
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
     record.final_anomaly = final_anomaly;
     record.final_eps = final_eps;

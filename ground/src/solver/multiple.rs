@@ -213,3 +213,83 @@ mod tests {
         }
     }
 }
+
+/// Unknowns of the free-anomaly multiple shooting: [`MS_UNKNOWNS`] and nu_f last.
+pub const MS_FREE_UNKNOWNS: usize = MS_UNKNOWNS + 1;
+pub type MsFreeVector = SVector<f64, MS_FREE_UNKNOWNS>;
+
+/// The free-anomaly transfer by multiple shooting: [`MultipleShootingTransfer`]'s unknowns plus
+/// nu_f, its residual plus the transversality condition (last row).
+#[derive(Debug, Clone, Copy)]
+pub struct MultipleShootingFree<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+}
+
+impl MultipleShootingFree<'_> {
+    fn pinned(&self, nu: f64) -> MultipleShootingTransfer<'_> {
+        MultipleShootingTransfer {
+            scenario: self.scenario,
+            spacecraft: self.spacecraft,
+            nu_f: nu,
+        }
+    }
+
+    fn split(x: &MsFreeVector) -> (MsVector, f64) {
+        (MsVector::from_column_slice(&x.as_slice()[..MS_UNKNOWNS]), x[MS_UNKNOWNS])
+    }
+
+    /// Joins pinned unknowns and nu_f.
+    pub fn join(x: &MsVector, nu: f64) -> MsFreeVector {
+        let mut v = MsFreeVector::zeros();
+        v.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(x.as_slice());
+        v[MS_UNKNOWNS] = nu;
+        v
+    }
+}
+
+impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
+    fn residual_only(&self, eps: f64, x: &MsFreeVector, tol: &Tolerances) -> Result<MsFreeVector, IntegrationError> {
+        let (xp, nu) = Self::split(x);
+        let p = self.pinned(nu);
+        let f = p.residual_only(eps, &xp, tol)?;
+        let t = p.transversality(eps, &xp, tol)?;
+        let mut out = MsFreeVector::zeros();
+        out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());
+        out[MS_UNKNOWNS] = t;
+        Ok(out)
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        x: &MsFreeVector,
+        tol: &Tolerances,
+    ) -> Result<(MsFreeVector, SMatrix<f64, MS_FREE_UNKNOWNS, MS_FREE_UNKNOWNS>), IntegrationError> {
+        let (xp, nu) = Self::split(x);
+        let p = self.pinned(nu);
+        let (f, jac) = p.residual(eps, &xp, tol)?;
+        // The last segment again, for the transversality row.
+        let k = SEGMENTS - 1;
+        let params = OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        };
+        let (y, stm) = propagate_stm(&params, p.node(k), &p.start(k, &xp), p.node(k + 1), tol)?;
+        let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu).derivative());
+        let mut out = MsFreeVector::zeros();
+        out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());
+        out[MS_UNKNOWNS] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
+        let mut j = SMatrix::<f64, MS_FREE_UNKNOWNS, MS_FREE_UNKNOWNS>::zeros();
+        j.view_mut((0, 0), (MS_UNKNOWNS, MS_UNKNOWNS)).copy_from(&jac);
+        for i in 0..4 {
+            j[(i, MS_UNKNOWNS)] = -orbit[i].v1;
+        }
+        let o = 5 + Y_LEN * (k - 1);
+        for jj in 0..Y_LEN {
+            j[(MS_UNKNOWNS, o + jj)] = (0..4).map(|i| stm[idx::LR + i][jj] * orbit[i].v1).sum();
+        }
+        j[(MS_UNKNOWNS, MS_UNKNOWNS)] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v2).sum();
+        Ok((out, j))
+    }
+}

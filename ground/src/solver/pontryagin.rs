@@ -283,48 +283,93 @@ impl OdeSystem<YS_LEN> for StateCostateSensitivity {
     }
 }
 
-/// The state-costate ODE with the throttle branch held in a discrete mode that only the located
-/// switches change (see [`state_costate_rhs_in`]).
-struct Modal<'a> {
+/// A right-hand side on one throttle branch: the state-costate, with or without variational
+/// columns, of N components whose first 10 are y.
+trait BranchRhs<const N: usize> {
+    fn rhs(&self, ys: &[f64; N], regime: Regime, dydt: &mut [f64; N]);
+}
+
+/// The state-costate alone.
+struct PlainRhs(OptimalControlParams);
+
+impl BranchRhs<Y_LEN> for PlainRhs {
+    fn rhs(&self, y: &[f64; Y_LEN], regime: Regime, dydt: &mut [f64; Y_LEN]) {
+        *dydt = state_costate_rhs_in(y, &self.0, regime);
+    }
+}
+
+/// With the 10 x 5 sensitivity to the initial costates.
+struct SensitivityRhs(OptimalControlParams);
+
+impl BranchRhs<YS_LEN> for SensitivityRhs {
+    fn rhs(&self, ys: &[f64; YS_LEN], regime: Regime, dydt: &mut [f64; YS_LEN]) {
+        sensitivity_rhs(ys, &self.0, regime, dydt);
+    }
+}
+
+/// With the full 10 x 10 transition matrix.
+struct StmRhs(OptimalControlParams);
+
+impl BranchRhs<STM_LEN> for StmRhs {
+    fn rhs(&self, ys: &[f64; STM_LEN], regime: Regime, dydt: &mut [f64; STM_LEN]) {
+        stm_rhs(ys, &self.0, regime, dydt);
+    }
+}
+
+/// The ODE with the throttle branch held in a discrete mode that only the located switches
+/// change (see [`state_costate_rhs_in`]). When `abort` is set (a stuck integration, see
+/// [`RegimeSwitch`]) the derivatives turn non-finite so that the integrator gives up at once.
+struct ModalSystem<'a, R> {
+    rhs: R,
     params: OptimalControlParams,
     regime: &'a Cell<Regime>,
+    abort: &'a Cell<bool>,
 }
 
-impl OdeSystem<Y_LEN> for Modal<'_> {
-    fn derivatives(&self, _t: f64, y: &[f64; Y_LEN], dydt: &mut [f64; Y_LEN]) {
-        *dydt = state_costate_rhs_in(y, &self.params, self.regime.get());
+impl<const N: usize, R: BranchRhs<N>> OdeSystem<N> for ModalSystem<'_, R> {
+    fn derivatives(&self, _t: f64, ys: &[f64; N], dydt: &mut [f64; N]) {
+        if self.abort.get() {
+            dydt.fill(f64::NAN);
+            return;
+        }
+        self.rhs.rhs(ys, self.regime.get(), dydt);
     }
 
-    fn events(&self, _t: f64, y: &[f64; Y_LEN]) -> [f64; MAX_EVENTS] {
-        modal_events(y, &self.params, self.regime.get())
-    }
-}
-
-/// [`StateCostateSensitivity`] with the branch held in a discrete mode.
-struct ModalSensitivity<'a> {
-    params: OptimalControlParams,
-    regime: &'a Cell<Regime>,
-}
-
-impl OdeSystem<YS_LEN> for ModalSensitivity<'_> {
-    fn derivatives(&self, _t: f64, ys: &[f64; YS_LEN], dydt: &mut [f64; YS_LEN]) {
-        sensitivity_rhs(ys, &self.params, self.regime.get(), dydt);
-    }
-
-    fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, ys: &[f64; N]) -> [f64; MAX_EVENTS] {
         let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
         modal_events(&y, &self.params, self.regime.get())
     }
 }
 
 /// Switches the mode at every located switch.
+///
+/// It also watches for a stuck integration: where a step lands on a switch, the switch function
+/// on the step's end state and on the dense output can disagree in sign within the round-off of
+/// rho (~2e-16: rho = lambda_m + c |lambda_v| / m - 1 subtracts O(1) terms). The integrator then
+/// locates the zero "at the start" of every next step and moves on by a few ulps of t only, which
+/// changes rho by less than its round-off when |d rho / dt| is small: it would spend its whole
+/// step budget there (seen as `StepBudgetExhausted` on transfer-circular, every corrector at eps
+/// 6.6e-3 to 7.6e-3 of seed 7 #0). After [`STUCK_STEPS`] accepted steps shorter than
+/// [`STUCK_STEP`] in a row the observer aborts the integration; the propagation restarts from
+/// the first of them on the branch beyond the switch (see [`run_modal`]).
 struct RegimeSwitch<'a> {
     regime: &'a Cell<Regime>,
     eps: f64,
     exhaust_speed: f64,
     /// Set by [`Observer::on_step`] at the first step that ended off the held branch.
     broken: Cell<Option<f64>>,
+    abort: &'a Cell<bool>,
+    last_t: f64,
+    tiny_steps: u32,
+    /// Where the tiny steps began (time, state), and whether the integration was aborted there.
+    stuck_at: Option<(f64, Vec<f64>)>,
+    stuck: bool,
 }
+
+/// A step shorter than this (time units) counts towards a stuck integration.
+const STUCK_STEP: f64 = 1e-10;
+/// This many such steps in a row abort the integration.
+const STUCK_STEPS: u32 = 24;
 
 impl RegimeSwitch<'_> {
     /// A propagation whose mode lost track of rho (see [`Observer::on_step`]) fails; the error
@@ -372,6 +417,26 @@ impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
     /// [`propagate_sensitivity`] then fail instead of returning a trajectory flown on the
     /// wrong branch (on the extended ramp u leaves [0, 1]).
     fn on_step(&mut self, t: f64, y: &[f64; N]) {
+        if let Some(w) = std::env::var("DEBUG_WINDOW").ok().and_then(|s| s.parse::<f64>().ok()) {
+            if (t - 1024.0 - w).abs() < 0.01 {
+                let yy: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
+                eprintln!("step t {:.15} dt {:.2e} rho {:.6e} rate {:.3e} {:?} eps {:.2e}", t - 1024.0, t - self.last_t, switching_function(&yy, self.exhaust_speed), switching_rate(&yy, self.exhaust_speed), self.regime.get(), self.eps);
+            }
+        }
+        if (t - self.last_t).abs() < STUCK_STEP {
+            if self.tiny_steps == 0 {
+                self.stuck_at = Some((t, y.to_vec()));
+            }
+            self.tiny_steps += 1;
+            if self.tiny_steps >= STUCK_STEPS && !self.stuck {
+                self.stuck = true;
+                self.abort.set(true);
+            }
+        } else {
+            self.tiny_steps = 0;
+            self.stuck_at = None;
+        }
+        self.last_t = t;
         if self.broken.get().is_some() {
             return;
         }
@@ -430,27 +495,114 @@ pub fn propagate(
     t1: f64,
     tolerances: &Tolerances,
 ) -> Result<[f64; Y_LEN], IntegrationError> {
-    let regime = Cell::new(Regime::of(
-        switching_function(y0, params.spacecraft.exhaust_speed),
-        params.eps,
-    ));
-    let system = Modal {
+    run_modal(PlainRhs(*params), params, t0, y0, t1, tolerances, 1, &mut NoClock)
+}
+
+/// Something that watches a modal propagation besides its [`RegimeSwitch`].
+trait ModalWatch {
+    fn on_event(&mut self, _t: f64, _regime_before: Regime) {}
+}
+
+struct NoClock;
+
+impl ModalWatch for NoClock {}
+
+/// [`RegimeSwitch`] plus a [`ModalWatch`], as one observer.
+struct Watched<'a, 'w, W> {
+    switch: RegimeSwitch<'a>,
+    watch: &'w mut W,
+}
+
+impl<const N: usize, W: ModalWatch> Observer<N> for Watched<'_, '_, W> {
+    fn on_event(&mut self, index: usize, t: f64, y: &[f64; N], rising: bool) {
+        self.watch.on_event(t, self.switch.regime.get());
+        Observer::<N>::on_event(&mut self.switch, index, t, y, rising);
+    }
+
+    fn on_step(&mut self, t: f64, y: &[f64; N]) {
+        Observer::<N>::on_step(&mut self.switch, t, y);
+    }
+}
+
+/// Restarts allowed past stuck switches in one propagation.
+const MAX_RESTARTS: u32 = 32;
+
+/// The modal propagation of `rhs` from (t0, ys0) to t1 on the offset clock (see [`TIME_OFFSET`]),
+/// restarting past a switch where the integration got stuck (see [`RegimeSwitch`]): from the
+/// stuck point, on the branch beyond the switch that rho sits on (by the sign of d rho / dt).
+/// Work is charged at `weight` per step.
+fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
+    rhs: R,
+    params: &OptimalControlParams,
+    t0: f64,
+    ys0: &[f64; N],
+    t1: f64,
+    tolerances: &Tolerances,
+    weight: u64,
+    watch: &mut W,
+) -> Result<[f64; N], IntegrationError> {
+    let c = params.spacecraft.exhaust_speed;
+    let y_of = |ys: &[f64]| -> [f64; Y_LEN] { core::array::from_fn(|i| ys[i]) };
+    let regime = Cell::new(Regime::of(switching_function(&y_of(ys0), c), params.eps));
+    let abort = Cell::new(false);
+    let system = ModalSystem {
+        rhs,
         params: *params,
         regime: &regime,
+        abort: &abort,
     };
-    let mut observer = RegimeSwitch {
-        regime: &regime,
-        eps: params.eps,
-        exhaust_speed: params.spacecraft.exhaust_speed,
-        broken: Cell::new(None),
-    };
-    let (y, stats) = integrate_observed(&system, t0 + time_offset(), y0, t1 + time_offset(), tolerances, &mut observer).inspect_err(|_| {
-        // A failed propagation spent at most its step budget.
-        WORK.with(|w| w.set(w.get().saturating_add(u64::from(tolerances.max_steps))));
-    })?;
-    add_work(&stats, 1);
-    observer.check()?;
-    Ok(y)
+    let (mut t, mut ys) = (t0 + time_offset(), *ys0);
+    let end = t1 + time_offset();
+    let mut restarts = 0;
+    loop {
+        let mut observer = Watched {
+            switch: RegimeSwitch {
+                regime: &regime,
+                eps: params.eps,
+                exhaust_speed: c,
+                broken: Cell::new(None),
+                abort: &abort,
+                last_t: t,
+                tiny_steps: 0,
+                stuck_at: None,
+                stuck: false,
+            },
+            watch: &mut *watch,
+        };
+        match integrate_observed(&system, t, &ys, end, tolerances, &mut observer) {
+            Ok((y, stats)) => {
+                add_work(&stats, weight);
+                observer.switch.check()?;
+                return Ok(y);
+            }
+            Err(e) => {
+                let switch = observer.switch;
+                let restart = match (switch.stuck, switch.stuck_at) {
+                    (true, Some((ts, state))) if state.len() == N && restarts < MAX_RESTARTS => Some((ts, state)),
+                    _ => None,
+                };
+                // A failed integration spent at most its step budget.
+                charge_work(u64::from(tolerances.max_steps) * weight);
+                let Some((ts, state)) = restart else {
+                    return Err(e);
+                };
+                restarts += 1;
+                abort.set(false);
+                ys = core::array::from_fn(|i| state[i]);
+                t = ts;
+                let y = y_of(&ys);
+                let (rho, rate) = (switching_function(&y, c), switching_rate(&y, c));
+                let eps = params.eps;
+                let near = |v: f64| (rho - v).abs() < 1e-12;
+                // Beyond the switch rho sits on; elsewhere (a rate event) the branch stays.
+                if near(-eps) || near(eps) {
+                    let beyond = if rate > 0.0 { rho + 1e-12 } else { rho - 1e-12 };
+                    let level = if near(eps) { eps } else { -eps };
+                    regime.set(Regime::of(beyond + (level - rho), eps));
+                }
+            }
+        }
+    }
 }
 
 /// Every modal propagation runs on the clock t + [`TIME_OFFSET`] (the dynamics are autonomous).
@@ -472,23 +624,17 @@ fn time_offset() -> f64 {
 }
 
 /// Records the time spent on the ramp (0 < u < 1) of the throttle law.
-struct RampClock<'a> {
-    switch: RegimeSwitch<'a>,
+struct RampClock {
     since: f64,
     on_ramp: f64,
 }
 
-impl<const N: usize> Observer<N> for RampClock<'_> {
-    fn on_event(&mut self, index: usize, t: f64, y: &[f64; N], rising: bool) {
-        if self.switch.regime.get() == Regime::Ramp {
+impl ModalWatch for RampClock {
+    fn on_event(&mut self, t: f64, regime_before: Regime) {
+        if regime_before == Regime::Ramp {
             self.on_ramp += t - self.since;
         }
         self.since = t;
-        Observer::<N>::on_event(&mut self.switch, index, t, y, rising);
-    }
-
-    fn on_step(&mut self, t: f64, y: &[f64; N]) {
-        Observer::<N>::on_step(&mut self.switch, t, y);
     }
 }
 
@@ -501,28 +647,12 @@ pub fn ramp_fraction(
     t1: f64,
     tolerances: &Tolerances,
 ) -> Result<f64, IntegrationError> {
-    let regime = Cell::new(Regime::of(
-        switching_function(y0, params.spacecraft.exhaust_speed),
-        params.eps,
-    ));
-    let system = Modal {
-        params: *params,
-        regime: &regime,
-    };
     let mut clock = RampClock {
-        switch: RegimeSwitch {
-            regime: &regime,
-            eps: params.eps,
-            exhaust_speed: params.spacecraft.exhaust_speed,
-            broken: Cell::new(None),
-        },
         since: time_offset(),
         on_ramp: 0.0,
     };
-    let (_, stats) = integrate_observed(&system, time_offset(), y0, t1 + time_offset(), tolerances, &mut clock)?;
-    add_work(&stats, 1);
-    clock.switch.check()?;
-    if regime.get() == Regime::Ramp {
+    let y = run_modal(PlainRhs(*params), params, 0.0, y0, t1, tolerances, 1, &mut clock)?;
+    if Regime::of(switching_function(&y, params.spacecraft.exhaust_speed), params.eps) == Regime::Ramp {
         clock.on_ramp += t1 + time_offset() - clock.since;
     }
     Ok(clock.on_ramp / t1)
@@ -536,32 +666,17 @@ pub fn propagate_sensitivity(
     t1: f64,
     tolerances: &Tolerances,
 ) -> Result<[f64; YS_LEN], IntegrationError> {
-    let regime = Cell::new(Regime::of(
-        switching_function(y0, params.spacecraft.exhaust_speed),
-        params.eps,
-    ));
-    let system = ModalSensitivity {
-        params: *params,
-        regime: &regime,
-    };
-    let mut observer = RegimeSwitch {
-        regime: &regime,
-        eps: params.eps,
-        exhaust_speed: params.spacecraft.exhaust_speed,
-        broken: Cell::new(None),
-    };
     let ys0 = StateCostateSensitivity::initial(y0);
-    let (y, stats) = integrate_observed(&system, time_offset(), &ys0, t1 + time_offset(), tolerances, &mut observer).inspect_err(|_| {
-        WORK.with(|w| {
-            w.set(
-                w.get()
-                    .saturating_add(u64::from(tolerances.max_steps) * SENSITIVITY_STEP_WORK),
-            )
-        });
-    })?;
-    add_work(&stats, SENSITIVITY_STEP_WORK);
-    observer.check()?;
-    Ok(y)
+    run_modal(
+        SensitivityRhs(*params),
+        params,
+        0.0,
+        &ys0,
+        t1,
+        tolerances,
+        SENSITIVITY_STEP_WORK,
+        &mut NoClock,
+    )
 }
 
 /// State-costate + its full 10 x 10 transition matrix (column-major after the first 10).
@@ -589,23 +704,6 @@ pub(crate) fn stm_rhs(ys: &[f64; STM_LEN], params: &OptimalControlParams, regime
     }
 }
 
-/// [`ModalSensitivity`] with the full transition matrix.
-struct ModalStm<'a> {
-    params: OptimalControlParams,
-    regime: &'a Cell<Regime>,
-}
-
-impl OdeSystem<STM_LEN> for ModalStm<'_> {
-    fn derivatives(&self, _t: f64, ys: &[f64; STM_LEN], dydt: &mut [f64; STM_LEN]) {
-        stm_rhs(ys, &self.params, self.regime.get(), dydt);
-    }
-
-    fn events(&self, _t: f64, ys: &[f64; STM_LEN]) -> [f64; MAX_EVENTS] {
-        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
-        modal_events(&y, &self.params, self.regime.get())
-    }
-}
-
 /// [`propagate`] from (t0, y0) to t1 with the transition matrix d y(t1) / d y(t0): returns y(t1)
 /// and the matrix, `stm[i][k]` = d y_i(t1) / d y_k(t0). For eps > 0 (at eps = 0 the jumps of the
 /// throttle at the switches would need saltation terms, which this does not add).
@@ -616,36 +714,12 @@ pub fn propagate_stm(
     t1: f64,
     tolerances: &Tolerances,
 ) -> Result<([f64; Y_LEN], [[f64; Y_LEN]; Y_LEN]), IntegrationError> {
-    let regime = Cell::new(Regime::of(
-        switching_function(y0, params.spacecraft.exhaust_speed),
-        params.eps,
-    ));
-    let system = ModalStm {
-        params: *params,
-        regime: &regime,
-    };
-    let mut observer = RegimeSwitch {
-        regime: &regime,
-        eps: params.eps,
-        exhaust_speed: params.spacecraft.exhaust_speed,
-        broken: Cell::new(None),
-    };
     let mut ys0 = [0.0; STM_LEN];
     ys0[..Y_LEN].copy_from_slice(y0);
     for k in 0..Y_LEN {
         ys0[Y_LEN + k * Y_LEN + k] = 1.0;
     }
-    let (ys, stats) = integrate_observed(
-        &system,
-        t0 + time_offset(),
-        &ys0,
-        t1 + time_offset(),
-        tolerances,
-        &mut observer,
-    )
-    .inspect_err(|_| charge_work(u64::from(tolerances.max_steps) * STM_STEP_WORK))?;
-    add_work(&stats, STM_STEP_WORK);
-    observer.check()?;
+    let ys = run_modal(StmRhs(*params), params, t0, &ys0, t1, tolerances, STM_STEP_WORK, &mut NoClock)?;
     let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
     let stm = core::array::from_fn(|i| core::array::from_fn(|k| ys[Y_LEN + k * Y_LEN + i]));
     Ok((y, stm))
