@@ -12,6 +12,9 @@ use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
 fn main() {
+    if std::env::var_os("TIMING").is_some() {
+        return timing();
+    }
     if std::env::var_os("DIAG").is_some() {
         return diag();
     }
@@ -152,5 +155,52 @@ pub fn diag() {
             a *= 0.5;
         }
         x += step * a;
+    }
+}
+
+/// TIMING=1: cost of the building blocks on one case.
+pub fn timing() {
+    use lowthrust_ground::solver::multiple::MultipleShootingTransfer;
+    use lowthrust_ground::solver::shooting::ShootingProblem;
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let opts = SolveOptions::default();
+    let tol = opts.tolerances;
+    let scenario = ScenarioKind::TransferCircular.draw(7, 0);
+    let lambda0 = [0.096120, 0.638573, -0.719115, 0.103375, 0.066940];
+    let ms = MultipleShootingTransfer { scenario: &scenario, spacecraft: sc, nu_f: 11.809 };
+    for eps in [1.0, 1e-2, 6.1e-5] {
+        let x = ms.unknowns_from_costates(&lambda0, eps, &tol).unwrap();
+        let n = 20;
+        let (w0, t0) = (work_done(), Instant::now());
+        for _ in 0..n {
+            let _ = ms.residual_only(eps, &x, &tol);
+        }
+        let (w1, t1) = (work_done(), Instant::now());
+        for _ in 0..n {
+            let _ = ms.residual(eps, &x, &tol);
+        }
+        let (w2, t2) = (work_done(), Instant::now());
+        let (_, j) = ms.residual(eps, &x, &tol).unwrap();
+        let t3 = Instant::now();
+        for _ in 0..n {
+            let _ = nalgebra::DMatrix::from_column_slice(55, 55, j.as_slice()).svd(true, true);
+        }
+        let t4 = Instant::now();
+        let params = OptimalControlParams { spacecraft: sc, eps };
+        let y0 = initial_state_costate(&scenario, &lambda0);
+        let t5 = Instant::now();
+        for _ in 0..n {
+            let _ = lowthrust_ground::solver::pontryagin::propagate_sensitivity(&params, &y0, scenario.time_of_flight(), &tol);
+        }
+        let t6 = Instant::now();
+        println!(
+            "eps {eps:.1e}: MS plain {:.2} ms ({} steps), MS STM {:.2} ms ({} steps), SVD55 {:.2} ms, single sens {:.2} ms",
+            (t1 - t0).as_secs_f64() * 1e3 / n as f64,
+            (w1 - w0) / n,
+            (t2 - t1).as_secs_f64() * 1e3 / n as f64,
+            (w2 - w1) / n / 10,
+            (t4 - t3).as_secs_f64() * 1e3 / n as f64,
+            (t6 - t5).as_secs_f64() * 1e3 / n as f64,
+        );
     }
 }

@@ -517,9 +517,6 @@ fn transversality_search(
         }
         let (t, slope) = nu_tangent(scenario, sc, &x, nu, eps, tol).ok_or_else(|| fail("tangent failed"))?;
         let mut target = nu - f / slope;
-        if std::env::var_os("DEBUG_CIRC").is_some() {
-            eprintln!("  search nu {nu:.10} F5 {f:+.3e} slope {slope:+.3e} -> {target:.10} work {}", work_done() - start);
-        }
         // Inside a bracket, stay inside it (regula falsi with Illinois weights if Newton leaves).
         if let (Some(a), Some(b)) = (&neg, &pos) {
             let (lo, hi) = (a.0.min(b.0), a.0.max(b.0));
@@ -558,25 +555,37 @@ fn transversality_search(
 pub fn solve(scenario: &Scenario, sc: &CanonicalSpacecraft, options: &SolveOptions) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
     let target = final_level(options.final_eps);
+    let t0 = std::time::Instant::now();
     let list = candidates(scenario, sc, &tol, options.max_start_work / 4)?;
-    let mut last_error = String::new();
-    for c in list.iter().take(2) {
-        match solve_candidate(scenario, sc, c, target, options) {
-            Ok(s) => return Ok(s),
-            Err(e) => last_error = e,
+    if std::env::var_os("DEBUG_TIME").is_some() {
+        eprintln!("candidates {} in {:.1} ms", list.len(), t0.elapsed().as_secs_f64() * 1e3);
+    }
+    let best = &list[0];
+    let peak = smallest_burn_peak(scenario, sc, best, &tol);
+    let up = || {
+        let mut last = String::new();
+        for c in list.iter().take(2) {
+            match solve_candidate(scenario, sc, c, target, options) {
+                Ok(s) => return Ok(s),
+                Err(e) => last = format!("upward: {e}"),
+            }
         }
-    }
-    // Down the SPEC schedule from the energy-optimal solution instead, at the best candidate's
-    // nu_f.
-    match solve_downward(scenario, sc, &list[0], target, options) {
-        Ok(s) => Ok(s),
-        Err(e) => Err(format!("{last_error}; downward: {e}")),
-    }
+        Err(last)
+    };
+    let down = || solve_downward_free(scenario, sc, best, target, options).map_err(|e| format!("downward: {e}"));
+    // Burns whose switching function peaks this low are spread over most of the flight at the
+    // final eps: far from the bang-bang extremal the upward path starts from.
+    let (first, second): (&dyn Fn() -> Result<CircularSolution, String>, &dyn Fn() -> Result<CircularSolution, String>) =
+        if peak > UPWARD_MIN_PEAK { (&up, &down) } else { (&down, &up) };
+    first().or_else(|e1| second().map_err(|e2| format!("{e1}; {e2}")))
 }
 
-/// The SPEC's downward homotopy (eps = 1, 1/2, ..) by multiple shooting at the candidate's nu_f,
-/// from the energy-optimal solution, then the nu_f search and the replay.
-fn solve_downward(
+/// Below this smallest burn peak of rho the downward path is tried first.
+const UPWARD_MIN_PEAK: f64 = 1e-6;
+
+/// The SPEC's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
+/// free-anomaly solution nearest the candidate's nu_f.
+fn solve_downward_free(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
     c: &Candidate,
@@ -584,19 +593,18 @@ fn solve_downward(
     options: &SolveOptions,
 ) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
-    let nu = c.z[5];
-    let single = PinnedAnomalyTransfer {
+    let single = super::shooting::TransferShooting {
         scenario,
         spacecraft: *sc,
-        nu_f: nu,
     };
     let start = Budgeted::new(&single, options.max_start_work / 4);
-    let mut lambda = None;
+    let mut z = None;
     for g in transfer_guesses(scenario) {
-        let z0 = RendezvousVector::from_column_slice(&g.as_slice()[..5]);
-        if let Ok(o) = newton(&start, 1.0, &z0, &tol, &options.start_newton) {
+        let mut g = g;
+        g[5] = c.z[5];
+        if let Ok(o) = newton(&start, 1.0, &g, &tol, &options.start_newton) {
             if o.converged {
-                lambda = Some(o.z);
+                z = Some(o.z);
                 break;
             }
         }
@@ -604,32 +612,43 @@ fn solve_downward(
             break;
         }
     }
-    let lambda = lambda.ok_or("no energy-optimal start")?;
+    let z = z.ok_or("no energy-optimal start")?;
+    let nu = z[5];
     let ms = MultipleShootingTransfer {
         scenario,
         spacecraft: *sc,
         nu_f: nu,
     };
     let x0 = ms
-        .unknowns_from_costates(&[lambda[0], lambda[1], lambda[2], lambda[3], lambda[4]], 1.0, &tol)
+        .unknowns_from_costates(&[z[0], z[1], z[2], z[3], z[4]], 1.0, &tol)
         .ok_or("energy-optimal propagation failed")?;
-    let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 2);
+    let free = MultipleShootingFree {
+        scenario,
+        spacecraft: *sc,
+    };
+    let budgeted = Budgeted::new(&free, options.max_homotopy_work);
     let levels = homotopy_until(
         &budgeted,
-        &x0,
+        &MultipleShootingFree::join(&x0, nu),
         &tol,
-        &ms_settings(1e-9),
+        &ms_settings(SEARCH_TOLERANCE),
         options.final_eps,
-        options.max_homotopy_solves,
+        3 * options.max_homotopy_solves,
         |_, _| false,
     )
     .map_err(|e| format!("{e:?}"))?;
+    if std::env::var_os("DEBUG_CIRC").is_some() {
+        for l in &levels {
+            eprintln!("  free level eps {:.3e} conv {} res {:.1e} nu {:.6}", l.eps, l.outcome.converged, l.outcome.residual, l.outcome.z[MS_UNKNOWNS]);
+        }
+    }
     let last = levels.last().ok_or("empty homotopy")?;
     if !(last.outcome.converged && last.eps <= target) {
         let deepest = levels.iter().rev().find(|l| l.outcome.converged).map_or(1.0, |l| l.eps);
         return Err(format!("stalled below eps = {deepest:.3e}"));
     }
-    finish(scenario, sc, c, &last.outcome.z, nu, target, options)
+    let x = MsVector::from_column_slice(&last.outcome.z.as_slice()[..MS_UNKNOWNS]);
+    finish(scenario, sc, c, &x, last.outcome.z[MS_UNKNOWNS], target, options)
 }
 
 /// The nu_f search at the final eps from a multiple-shooting solution, then the replay.
@@ -643,11 +662,29 @@ fn finish(
     options: &SolveOptions,
 ) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
+    let t0 = std::time::Instant::now();
+    let result = finish_inner(scenario, sc, c, x, nu, target, options);
+    if std::env::var_os("DEBUG_TIME").is_some() {
+        eprintln!("finish in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
+    }
+    let _ = tol;
+    result
+}
+
+fn finish_inner(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    x: &MsVector,
+    nu: f64,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
     let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, options.max_homotopy_work / 6) {
         Ok(r) => r,
         Err(e) => {
-            // nu_f free as a Newton unknown instead (its direction is not weak at the final eps
-            // when the throttle is spread).
+            // nu_f free as a Newton unknown instead.
             let free = MultipleShootingFree {
                 scenario,
                 spacecraft: *sc,
@@ -659,9 +696,6 @@ fn finish(
             };
             let o = newton(&budgeted, target, &MultipleShootingFree::join(x, nu), &tol, &settings)
                 .map_err(|f| format!("{e}; free nu_f: {f:?}"))?;
-            if std::env::var_os("DEBUG_CIRC").is_some() {
-                eprintln!("free MS: conv {} it {} res {:.1e} nu {:.6} (from {nu:.6})", o.converged, o.iterations, o.residual, o.z[MS_UNKNOWNS]);
-            }
             if !o.converged {
                 return Err(format!("{e}; free nu_f: residual {:.1e}", o.residual));
             }
@@ -732,7 +766,11 @@ fn solve_candidate(
     if first.residual > 10.0 * INNER_TOLERANCE {
         return Err(format!("upward start: residual {:.1e}", first.residual));
     }
+    let t0 = std::time::Instant::now();
     let (eps, x) = continue_eps(&budgeted, &first.z, start, target, &tol, &ms_settings(1e-9), 4.0, 40);
+    if std::env::var_os("DEBUG_TIME").is_some() {
+        eprintln!("upward continuation in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
+    }
     if eps < target {
         return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
     }

@@ -360,6 +360,8 @@ struct RegimeSwitch<'a> {
     broken: Cell<Option<f64>>,
     abort: &'a Cell<bool>,
     last_t: f64,
+    /// Accepted steps seen (to charge the work of a failed integration).
+    steps: u64,
     tiny_steps: u32,
     /// Where the tiny steps began (time, state), and whether the integration was aborted there.
     stuck_at: Option<(f64, Vec<f64>)>,
@@ -417,6 +419,7 @@ impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
     /// [`propagate_sensitivity`] then fail instead of returning a trajectory flown on the
     /// wrong branch (on the extended ramp u leaves [0, 1]).
     fn on_step(&mut self, t: f64, y: &[f64; N]) {
+        self.steps += 1;
         if let Some(w) = std::env::var("DEBUG_WINDOW").ok().and_then(|s| s.parse::<f64>().ok()) {
             if (t - 1024.0 - w).abs() < 0.01 {
                 let yy: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
@@ -563,6 +566,7 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
                 broken: Cell::new(None),
                 abort: &abort,
                 last_t: t,
+                steps: 0,
                 tiny_steps: 0,
                 stuck_at: None,
                 stuck: false,
@@ -581,8 +585,13 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
                     (true, Some((ts, state))) if state.len() == N && restarts < MAX_RESTARTS => Some((ts, state)),
                     _ => None,
                 };
-                // A failed integration spent at most its step budget.
-                charge_work(u64::from(tolerances.max_steps) * weight);
+                // A stuck integration is charged the steps it took (twice, for the rejected
+                // ones); any other failure at most its step budget.
+                if switch.stuck {
+                    charge_work(2 * switch.steps * weight);
+                } else {
+                    charge_work(u64::from(tolerances.max_steps) * weight);
+                }
                 let Some((ts, state)) = restart else {
                     return Err(e);
                 };
