@@ -920,4 +920,41 @@ mod tests {
             }
         }
     }
+
+    /// Short burns at a tiny eps (transfer-circular seed 7 #5, its bang-bang costates at
+    /// eps = 2^-25; the switching function peaks at ~1e-7 on the burns): one plain propagation,
+    /// one with sensitivities and one cut into 400 pieces (no step can span a burn) agree on the
+    /// final state. Before the rate events, the plain propagation stepped over both burns.
+    #[test]
+    fn short_burns_are_not_stepped_over() {
+        use crate::solver::shooting::initial_state_costate;
+        use shared::scenario::ScenarioKind;
+        let p = params(1.0 / f64::from(1u32 << 25));
+        let scenario = ScenarioKind::TransferCircular.draw(7, 5);
+        let lambda = [
+            -4.67135411751775587e-1,
+            1.34526422199533868e-1,
+            -2.12858814526087792e-1,
+            -7.39789635983229998e-1,
+            1.85614979093332196e-2,
+        ];
+        let y0 = initial_state_costate(&scenario, &lambda);
+        let tf = scenario.time_of_flight();
+        let tol = Tolerances {
+            relative: 3e-14,
+            absolute: 3e-15,
+            ..Tolerances::default()
+        };
+        let plain = propagate(&p, 0.0, &y0, tf, &tol).unwrap();
+        let sens = propagate_sensitivity(&p, &y0, tf, &tol).unwrap();
+        let (mut y, n) = (y0, 400);
+        for k in 0..n {
+            y = propagate(&p, tf * f64::from(k) / f64::from(n), &y, tf * f64::from(k + 1) / f64::from(n), &tol).unwrap();
+        }
+        // Both burns flown: about 1.9 % of the mass spent.
+        assert!((plain[idx::M] - 0.98144).abs() < 1e-4, "m_f {}", plain[idx::M]);
+        for i in 0..5 {
+            assert!((plain[i] - y[i]).abs() < 1e-7 && (sens[i] - y[i]).abs() < 1e-7, "y{i}: {} {} {}", plain[i], sens[i], y[i]);
+        }
+    }
 }
