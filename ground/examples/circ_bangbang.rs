@@ -8,12 +8,12 @@ use std::time::Instant;
 
 use lowthrust_ground::solver::bangbang::{BangBangTransfer, Hohmann, Structure};
 use lowthrust_ground::solver::pontryagin::{idx, Regime};
+use lowthrust_ground::solver::pontryagin::{propagate, ramp_fraction, OptimalControlParams};
+use lowthrust_ground::solver::shooting::initial_state_costate;
+use lowthrust_ground::solver::shooting::{homotopy_tangent, PinnedAnomalyTransfer, RendezvousVector};
 use lowthrust_ground::solver::shooting::{newton, NewtonSettings, ShootingProblem, TransferShooting, TransferVector};
 use lowthrust_ground::solver::SolveOptions;
 use nalgebra::SVector;
-use lowthrust_ground::solver::shooting::{PinnedAnomalyTransfer, RendezvousVector, homotopy_tangent};
-use lowthrust_ground::solver::pontryagin::{propagate, ramp_fraction, OptimalControlParams};
-use lowthrust_ground::solver::shooting::initial_state_costate;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
@@ -144,16 +144,28 @@ fn main() {
         let o = newton(&shoot, next, &pred, &tol, &opts.newton).unwrap();
         newtons += 1;
         let mf = lowthrust_ground::solver::pontryagin::propagate(
-            &lowthrust_ground::solver::pontryagin::OptimalControlParams { spacecraft: sc, eps: next },
+            &lowthrust_ground::solver::pontryagin::OptimalControlParams {
+                spacecraft: sc,
+                eps: next,
+            },
             0.0,
-            &lowthrust_ground::solver::shooting::initial_state_costate(&scenario, &[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4]]),
+            &lowthrust_ground::solver::shooting::initial_state_costate(
+                &scenario,
+                &[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4]],
+            ),
             tof,
             &tol,
         )
         .map_or(f64::NAN, |y| y[idx::M]);
         let ramp = lowthrust_ground::solver::pontryagin::ramp_fraction(
-            &lowthrust_ground::solver::pontryagin::OptimalControlParams { spacecraft: sc, eps: next },
-            &lowthrust_ground::solver::shooting::initial_state_costate(&scenario, &[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4]]),
+            &lowthrust_ground::solver::pontryagin::OptimalControlParams {
+                spacecraft: sc,
+                eps: next,
+            },
+            &lowthrust_ground::solver::shooting::initial_state_costate(
+                &scenario,
+                &[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4]],
+            ),
             tof,
             &tol,
         )
@@ -248,7 +260,10 @@ fn pinned(
     let mut eps = 2f64.powi(-27);
     let target = 2f64.powi(-14);
     let o = newton(&problem(nu), eps, &z, tol, &opts.newton).unwrap();
-    println!("pinned eps {eps:.3e}: conv {} it {} res {:.1e}", o.converged, o.iterations, o.residual);
+    println!(
+        "pinned eps {eps:.3e}: conv {} it {} res {:.1e}",
+        o.converged, o.iterations, o.residual
+    );
     z = o.z;
     let mut factor = maxf;
     let mut solves = 0;
@@ -261,7 +276,10 @@ fn pinned(
         };
         let o = newton(&p, next, &pred, tol, &opts.newton).unwrap();
         solves += 1;
-        let params = OptimalControlParams { spacecraft: *sc, eps: next };
+        let params = OptimalControlParams {
+            spacecraft: *sc,
+            eps: next,
+        };
         let y0 = initial_state_costate(scenario, &[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4]]);
         let mf = propagate(&params, 0.0, &y0, tof, tol).map_or(f64::NAN, |y| y[idx::M]);
         let ramp = ramp_fraction(&params, &y0, tof, tol).unwrap_or(f64::NAN);
@@ -275,7 +293,11 @@ fn pinned(
         );
         if o.converged {
             if std::env::var_os("PRINTZ").is_some() {
-                println!("Z={},{}", o.z.iter().map(|x| format!("{x:.17e}")).collect::<Vec<_>>().join(","), nu);
+                println!(
+                    "Z={},{}",
+                    o.z.iter().map(|x| format!("{x:.17e}")).collect::<Vec<_>>().join(","),
+                    nu
+                );
             }
             eps = next;
             z = o.z;
@@ -288,13 +310,29 @@ fn pinned(
             }
         }
     }
-    println!("pinned continuation: {solves} solves, {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
+    println!(
+        "pinned continuation: {solves} solves, {:.0} ms",
+        t.elapsed().as_secs_f64() * 1e3
+    );
     // Secant on nu_f for the transversality residual.
     let f5 = |nu: f64, z: &RendezvousVector| -> Option<(f64, RendezvousVector)> {
         let p = problem(nu);
-        let o = newton(&p, eps, z, tol, &NewtonSettings { max_iterations: 10, tolerance: 1e-10 }).ok()?;
+        let o = newton(
+            &p,
+            eps,
+            z,
+            tol,
+            &NewtonSettings {
+                max_iterations: 10,
+                tolerance: 1e-10,
+            },
+        )
+        .ok()?;
         if !o.converged {
-            println!("    inner at nu {nu:.6} not converged: res {:.1e} it {}", o.residual, o.iterations);
+            println!(
+                "    inner at nu {nu:.6} not converged: res {:.1e} it {}",
+                o.residual, o.iterations
+            );
             return None;
         }
         Some((p.free_residual(eps, &o.z, tol).ok()?[4], o.z))
@@ -319,7 +357,10 @@ fn pinned(
     let _ = z_a;
     nu = nu_b;
     let full = TransferVector::from_column_slice(&[z_b[0], z_b[1], z_b[2], z_b[3], z_b[4], nu]);
-    let shoot = TransferShooting { scenario, spacecraft: *sc };
+    let shoot = TransferShooting {
+        scenario,
+        spacecraft: *sc,
+    };
     let f = shoot.residual_only(eps, &full, tol).unwrap();
     let params = OptimalControlParams { spacecraft: *sc, eps };
     let y0 = initial_state_costate(scenario, &[z_b[0], z_b[1], z_b[2], z_b[3], z_b[4]]);
@@ -339,25 +380,44 @@ pub fn check() {
     let tol = SolveOptions::default().tolerances;
     let index: u64 = std::env::var("IDX").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
     let scenario = ScenarioKind::TransferCircular.draw(7, index);
-    let z: Vec<f64> = std::env::var("Z").unwrap().split(',').map(|s| s.parse().unwrap()).collect();
+    let z: Vec<f64> = std::env::var("Z")
+        .unwrap()
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
     let eps: f64 = std::env::var("EPS").unwrap().parse().unwrap();
     let params = OptimalControlParams { spacecraft: sc, eps };
     let y0 = initial_state_costate(&scenario, &[z[0], z[1], z[2], z[3], z[4]]);
     let tof = scenario.time_of_flight();
-    let shoot = TransferShooting { scenario: &scenario, spacecraft: sc };
-    let f = shoot.residual_only(eps, &TransferVector::from_column_slice(&z), &tol).unwrap();
+    let shoot = TransferShooting {
+        scenario: &scenario,
+        spacecraft: sc,
+    };
+    let f = shoot
+        .residual_only(eps, &TransferVector::from_column_slice(&z), &tol)
+        .unwrap();
     println!("F {:?}", f.iter().map(|x| format!("{x:.2e}")).collect::<Vec<_>>());
     for _ in 0..3 {
         let mf = propagate(&params, 0.0, &y0, tof, &tol).unwrap()[idx::M];
-        let p = PinnedAnomalyTransfer { scenario: &scenario, spacecraft: sc, nu_f: z[5] };
-        let f5 = p.free_residual(eps, &RendezvousVector::from_column_slice(&z[..5]), &tol).unwrap()[4];
+        let p = PinnedAnomalyTransfer {
+            scenario: &scenario,
+            spacecraft: sc,
+            nu_f: z[5],
+        };
+        let f5 = p
+            .free_residual(eps, &RendezvousVector::from_column_slice(&z[..5]), &tol)
+            .unwrap()[4];
         let ramp = ramp_fraction(&params, &y0, tof, &tol).unwrap();
         let w0 = lowthrust_ground::solver::pontryagin::work_done();
         let _ = propagate(&params, 0.0, &y0, tof, &tol).unwrap();
         let w1 = lowthrust_ground::solver::pontryagin::work_done();
         let _ = lowthrust_ground::solver::pontryagin::propagate_sensitivity(&params, &y0, tof, &tol).unwrap();
         let w2 = lowthrust_ground::solver::pontryagin::work_done();
-        println!("single propagate m_f {mf:.9} F5 {f5:.3e} ramp {ramp} steps plain {} sens {}", w1 - w0, (w2 - w1) / 6);
+        println!(
+            "single propagate m_f {mf:.9} F5 {f5:.3e} ramp {ramp} steps plain {} sens {}",
+            w1 - w0,
+            (w2 - w1) / 6
+        );
     }
     let n = 60;
     let mut y = y0;
@@ -393,14 +453,20 @@ fn down(
     let mut start = None;
     for (k, g) in lowthrust_ground::solver::transfer_guesses(scenario).iter().enumerate() {
         let z0 = RendezvousVector::from_column_slice(&g.as_slice()[..5]);
-        let o = newton(&p, 1.0, &z0, tol, &opts.start_newton).unwrap_or(lowthrust_ground::solver::shooting::NewtonOutcome {
-            z: z0,
-            residual: f64::INFINITY,
-            iterations: 0,
-            converged: false,
-        });
+        let o = newton(&p, 1.0, &z0, tol, &opts.start_newton).unwrap_or(
+            lowthrust_ground::solver::shooting::NewtonOutcome {
+                z: z0,
+                residual: f64::INFINITY,
+                iterations: 0,
+                converged: false,
+            },
+        );
         if o.converged {
-            println!("energy start from guess {k} ({} it), {:.0} ms", o.iterations, t.elapsed().as_secs_f64() * 1e3);
+            println!(
+                "energy start from guess {k} ({} it), {:.0} ms",
+                o.iterations,
+                t.elapsed().as_secs_f64() * 1e3
+            );
             start = Some(o.z);
             break;
         }
@@ -411,8 +477,20 @@ fn down(
     };
     let levels = lowthrust_ground::solver::shooting::homotopy(&p, &z, tol, &opts.newton, 1e-4, 200).unwrap();
     for l in &levels {
-        let params = OptimalControlParams { spacecraft: *sc, eps: l.eps };
-        let y0 = initial_state_costate(scenario, &[l.outcome.z[0], l.outcome.z[1], l.outcome.z[2], l.outcome.z[3], l.outcome.z[4]]);
+        let params = OptimalControlParams {
+            spacecraft: *sc,
+            eps: l.eps,
+        };
+        let y0 = initial_state_costate(
+            scenario,
+            &[
+                l.outcome.z[0],
+                l.outcome.z[1],
+                l.outcome.z[2],
+                l.outcome.z[3],
+                l.outcome.z[4],
+            ],
+        );
         let tof = scenario.time_of_flight();
         let mf = propagate(&params, 0.0, &y0, tof, tol).map_or(f64::NAN, |y| y[idx::M]);
         let ramp = ramp_fraction(&params, &y0, tof, tol).unwrap_or(f64::NAN);
@@ -422,7 +500,11 @@ fn down(
             l.eps, l.outcome.converged, l.outcome.iterations, l.outcome.residual
         );
     }
-    println!("down: {:.0} ms, work {}", t.elapsed().as_secs_f64() * 1e3, lowthrust_ground::solver::pontryagin::work_done());
+    println!(
+        "down: {:.0} ms, work {}",
+        t.elapsed().as_secs_f64() * 1e3,
+        lowthrust_ground::solver::pontryagin::work_done()
+    );
     let l = levels.iter().rev().find(|l| l.outcome.converged).unwrap();
     let t2 = Instant::now();
     for _ in 0..20 {
@@ -435,5 +517,10 @@ fn down(
         let _ = lowthrust_ground::solver::shooting::ShootingProblem::residual(&p, l.eps, &l.outcome.z, tol);
     }
     let w1 = lowthrust_ground::solver::pontryagin::work_done();
-    println!("at eps {:.3e}: plain {plain:.2} ms, sens {:.2} ms ({} steps)", l.eps, t2.elapsed().as_secs_f64() * 1e3 / 20.0, (w1 - w0) / 20 / 6);
+    println!(
+        "at eps {:.3e}: plain {plain:.2} ms, sens {:.2} ms ({} steps)",
+        l.eps,
+        t2.elapsed().as_secs_f64() * 1e3 / 20.0,
+        (w1 - w0) / 20 / 6
+    );
 }

@@ -12,6 +12,18 @@ use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
 fn main() {
+    if let Ok(list) = std::env::var("LIST") {
+        for i in list.split(',') {
+            let sc = ScenarioKind::TransferCircular.draw(7, i.parse().unwrap());
+            println!(
+                "{i}: a0 {:.4} af {:.4} da {:+.4}",
+                sc.initial.shape.a,
+                sc.target.a,
+                sc.target.a - sc.initial.shape.a
+            );
+        }
+        return;
+    }
     if std::env::var_os("TIMING").is_some() {
         return timing();
     }
@@ -20,6 +32,11 @@ fn main() {
     }
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let mut opts = SolveOptions::default();
+    if let Some(k) = std::env::var("WORK_SCALE").ok().and_then(|s| s.parse::<u64>().ok()) {
+        opts.max_homotopy_work *= k;
+        opts.max_start_work *= k;
+        opts.max_homotopy_solves *= k as u32;
+    }
     if let Some(r) = std::env::var("RTOL").ok().and_then(|s| s.parse::<f64>().ok()) {
         opts.tolerances.relative = r;
         opts.tolerances.absolute = 0.1 * r;
@@ -64,7 +81,9 @@ fn main() {
 
 /// DIAG=1: follow the pinned problem down to EPS_A, then probe Newton towards EPS_B.
 pub fn diag() {
-    use lowthrust_ground::solver::shooting::{homotopy_until, newton, predict, PinnedAnomalyTransfer, RendezvousVector, ShootingProblem};
+    use lowthrust_ground::solver::shooting::{
+        homotopy_until, newton, predict, PinnedAnomalyTransfer, RendezvousVector, ShootingProblem,
+    };
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let opts = SolveOptions::default();
     let mut tol = opts.tolerances;
@@ -78,10 +97,21 @@ pub fn diag() {
     let nu: f64 = std::env::var("NU").unwrap().parse().unwrap();
     let eps_a: f64 = std::env::var("EPS_A").unwrap().parse().unwrap();
     let eps_b: f64 = std::env::var("EPS_B").unwrap().parse().unwrap();
-    let p = PinnedAnomalyTransfer { scenario: &scenario, spacecraft: sc, nu_f: nu };
+    let p = PinnedAnomalyTransfer {
+        scenario: &scenario,
+        spacecraft: sc,
+        nu_f: nu,
+    };
     let mut z0 = None;
     for g in lowthrust_ground::solver::transfer_guesses(&scenario) {
-        let o = newton(&p, 1.0, &RendezvousVector::from_column_slice(&g.as_slice()[..5]), &tol, &opts.start_newton).unwrap();
+        let o = newton(
+            &p,
+            1.0,
+            &RendezvousVector::from_column_slice(&g.as_slice()[..5]),
+            &tol,
+            &opts.start_newton,
+        )
+        .unwrap();
         if o.converged {
             z0 = Some(o.z);
             break;
@@ -112,7 +142,10 @@ pub fn diag() {
     }
     let pred = predict(&p, &z, eps, eps_b, None, &tol);
     let o = newton(&p, eps_b, &pred, &tol, &opts.newton).unwrap();
-    println!("library newton: conv {} it {} res {:.1e} z0 {:.17e} pred0 {:.17e} eps {eps:.6e}", o.converged, o.iterations, o.residual, z[0], pred[0]);
+    println!(
+        "library newton: conv {} it {} res {:.1e} z0 {:.17e} pred0 {:.17e} eps {eps:.6e}",
+        o.converged, o.iterations, o.residual, z[0], pred[0]
+    );
     let mut x = pred;
     for it in 0..12 {
         let (f, j) = p.residual(eps_b, &x, &tol).unwrap();
@@ -122,18 +155,30 @@ pub fn diag() {
         let step = j.lu().solve(&(-f)).unwrap();
         let mut line = String::new();
         for a in [1.0, 0.5, 0.25, 0.125, 1e-2, 1e-3, 1e-4] {
-            let ft = p.residual_only(eps_b, &(x + step * a), &tol).map_or(f64::NAN, |f| f.norm());
+            let ft = p
+                .residual_only(eps_b, &(x + step * a), &tol)
+                .map_or(f64::NAN, |f| f.norm());
             let lin = (f + j * step * a).norm();
             line.push_str(&format!(" a={a}:{ft:.2e}(lin {lin:.2e})"));
         }
-        println!("it {it}: |F| {:.2e} |step| {:.1e} sv {:?}\n   {line}", f.norm(), step.amax(), sv.iter().map(|s| format!("{s:.1e}")).collect::<Vec<_>>());
+        println!(
+            "it {it}: |F| {:.2e} |step| {:.1e} sv {:?}\n   {line}",
+            f.norm(),
+            step.amax(),
+            sv.iter().map(|s| format!("{s:.1e}")).collect::<Vec<_>>()
+        );
         // Plain vs sensitivity residual at x.
         let fp = p.residual_only(eps_b, &x, &tol).unwrap();
         println!("   plain-sens |dF| {:.1e}", (fp - f).amax());
         // Finite-difference check of J along the step.
         let h = 1e-7 / step.amax().max(1e-300);
-        let fd = (p.residual_only(eps_b, &(x + step * h), &tol).unwrap() - p.residual_only(eps_b, &(x - step * h), &tol).unwrap()) / (2.0 * h);
-        println!("   J*step vs FD: {:.2e} rel", (fd - j * step).norm() / (j * step).norm());
+        let fd = (p.residual_only(eps_b, &(x + step * h), &tol).unwrap()
+            - p.residual_only(eps_b, &(x - step * h), &tol).unwrap())
+            / (2.0 * h);
+        println!(
+            "   J*step vs FD: {:.2e} rel",
+            (fd - j * step).norm() / (j * step).norm()
+        );
         if std::env::var_os("LOOKAHEAD").is_some() {
             let x1 = x + step;
             let (f1, j1) = p.residual(eps_b, &x1, &tol).unwrap();
@@ -148,7 +193,9 @@ pub fn diag() {
         let mut a = 1.0;
         let f2 = f.norm_squared();
         loop {
-            let ft = p.residual_only(eps_b, &(x + step * a), &tol).map_or(f64::INFINITY, |f| f.norm_squared());
+            let ft = p
+                .residual_only(eps_b, &(x + step * a), &tol)
+                .map_or(f64::INFINITY, |f| f.norm_squared());
             if ft < f2 || a < 1e-4 {
                 break;
             }
@@ -167,7 +214,11 @@ pub fn timing() {
     let tol = opts.tolerances;
     let scenario = ScenarioKind::TransferCircular.draw(7, 0);
     let lambda0 = [0.096120, 0.638573, -0.719115, 0.103375, 0.066940];
-    let ms = MultipleShootingTransfer { scenario: &scenario, spacecraft: sc, nu_f: 11.809 };
+    let ms = MultipleShootingTransfer {
+        scenario: &scenario,
+        spacecraft: sc,
+        nu_f: 11.809,
+    };
     for eps in [1.0, 1e-2, 6.1e-5] {
         let x = ms.unknowns_from_costates(&lambda0, eps, &tol).unwrap();
         let n = 20;
@@ -190,7 +241,12 @@ pub fn timing() {
         let y0 = initial_state_costate(&scenario, &lambda0);
         let t5 = Instant::now();
         for _ in 0..n {
-            let _ = lowthrust_ground::solver::pontryagin::propagate_sensitivity(&params, &y0, scenario.time_of_flight(), &tol);
+            let _ = lowthrust_ground::solver::pontryagin::propagate_sensitivity(
+                &params,
+                &y0,
+                scenario.time_of_flight(),
+                &tol,
+            );
         }
         let t6 = Instant::now();
         println!(

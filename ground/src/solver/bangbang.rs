@@ -11,7 +11,7 @@
 //! solver uses), and the Jacobian is assembled exactly, switching times included.
 
 use nalgebra::{Const, SMatrix, SVector};
-use num_dual::{Derivative, DualVec64, Dual2_64};
+use num_dual::{Derivative, Dual2_64, DualVec64};
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
 use shared::scenario::Scenario;
 use shared::spacecraft::CanonicalSpacecraft;
@@ -78,7 +78,7 @@ impl Structure {
         } else {
             Regime::Full
         };
-        if j % 2 == 0 {
+        if j.is_multiple_of(2) {
             self.first
         } else {
             other
@@ -140,7 +140,7 @@ impl BangBangTransfer<'_> {
         b.push(0.0);
         b.extend_from_slice(&z[6..6 + self.structure.switches]);
         b.push(tf);
-        if b.windows(2).any(|w| !(w[1] - w[0] >= MIN_ARC)) {
+        if b.windows(2).any(|w| w[1] - w[0] < MIN_ARC || (w[1] - w[0]).is_nan()) {
             return Err(IntegrationError::InvalidInput);
         }
         Ok(b)
@@ -320,10 +320,7 @@ impl<const K: usize> ShootingProblem<K> for BangBangTransfer<'_> {
         tolerances: &Tolerances,
     ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError> {
         let (f, jac) = self.evaluate(z.as_slice(), tolerances, true)?;
-        Ok((
-            SVector::from_column_slice(&f),
-            SMatrix::from_fn(|i, k| jac[i][k]),
-        ))
+        Ok((SVector::from_column_slice(&f), SMatrix::from_fn(|i, k| jac[i][k])))
     }
 }
 

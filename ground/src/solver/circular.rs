@@ -58,6 +58,9 @@ const TRANSVERSALITY_TOLERANCE: f64 = 1e-10;
 /// test, since the smoothed problem at the final eps can be almost flat along nu_f (a spread
 /// throttle on small transfers is nearly shift invariant again) and an exact zero far.
 const SEARCH_TOLERANCE: f64 = 2e-9;
+/// Convergence of the homotopy correctors of the downward path: above the ~1e-9 noise of the
+/// multiple-shooting residual near the final eps (the final level is checked by the replay).
+const CORRECTOR_TOLERANCE: f64 = 5e-9;
 /// Convergence of the multiple-shooting solves in the nu_f search.
 const INNER_TOLERANCE: f64 = 1e-10;
 
@@ -172,7 +175,11 @@ fn refine_shift(
     let mut side = 0i8;
     for _ in 0..40 {
         let pin = (a.pin() * fb - b.pin() * fa) / (fb - fa);
-        let from = if (pin - a.pin()).abs() < (pin - b.pin()).abs() { a } else { b };
+        let from = if (pin - a.pin()).abs() < (pin - b.pin()).abs() {
+            a
+        } else {
+            b
+        };
         let m = solve_pinned(scenario, sc, &shifted(&from, pin, dnu), pin, tol, budget / 8)?;
         if m.transversality.abs() < TRANSVERSALITY_TOLERANCE {
             return Some(m);
@@ -262,7 +269,9 @@ impl Candidate {
 
 /// The final eps of the SPEC schedule (the first halving of 1 below `final_eps`).
 pub fn final_level(final_eps: f64) -> f64 {
-    super::shooting::homotopy_schedule(final_eps).last().unwrap_or(final_eps)
+    super::shooting::homotopy_schedule(final_eps)
+        .last()
+        .unwrap_or(final_eps)
 }
 
 /// The start of the upward continuation: small enough that the smoothed extremal is the
@@ -304,11 +313,16 @@ fn upward_start(peak: f64) -> f64 {
 }
 
 /// The bang-bang candidates of a scenario (see the module notes), best final mass first.
-fn candidates(scenario: &Scenario, sc: &CanonicalSpacecraft, tol: &Tolerances, budget: u64) -> Result<Vec<Candidate>, String> {
+fn candidates(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    tol: &Tolerances,
+    budget: u64,
+) -> Result<Vec<Candidate>, String> {
     let tof = scenario.time_of_flight();
     let h = Hohmann::of(scenario, sc);
     let (lo, hi) = h.centre_range(tof);
-    if !(hi > lo) {
+    if hi <= lo || hi.is_nan() {
         return Err("the flight is shorter than the Hohmann transfer".into());
     }
     let mut shifts: Vec<Shift> = Vec::new();
@@ -320,7 +334,10 @@ fn candidates(scenario: &Scenario, sc: &CanonicalSpacecraft, tol: &Tolerances, b
         }
     }
     if shifts.len() < 2 {
-        return Err(format!("bang-bang shift scan: {} of {SHIFT_SAMPLES} shifts solved", shifts.len()));
+        return Err(format!(
+            "bang-bang shift scan: {} of {SHIFT_SAMPLES} shifts solved",
+            shifts.len()
+        ));
     }
     // nu_f moves with the pin at the rate of the relative motion of the two circles.
     let dnu = {
@@ -371,7 +388,13 @@ fn candidates(scenario: &Scenario, sc: &CanonicalSpacecraft, tol: &Tolerances, b
 
 /// Replays costates and nu_f at `eps`: the terminal residual of a fresh single propagation from
 /// the initial costates, and the final mass.
-fn replay(scenario: &Scenario, sc: &CanonicalSpacecraft, z: &TransferVector, eps: f64, tol: &Tolerances) -> Option<(f64, f64)> {
+fn replay(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    z: &TransferVector,
+    eps: f64,
+    tol: &Tolerances,
+) -> Option<(f64, f64)> {
     let params = OptimalControlParams { spacecraft: *sc, eps };
     let f = transfer_residual_only(scenario, &params, z, tol).ok()?;
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
@@ -385,55 +408,6 @@ fn ms_settings(tolerance: f64) -> NewtonSettings {
         max_iterations: 12,
         tolerance,
     }
-}
-
-/// The multiple-shooting solution at `nu` and `eps` from `x` (predicted along nu from `from_nu`
-/// with the tangent dx/dnu), with its transversality residual.
-#[allow(dead_code)]
-fn ms_at(
-    scenario: &Scenario,
-    sc: &CanonicalSpacecraft,
-    x: &MsVector,
-    from_nu: f64,
-    nu: f64,
-    eps: f64,
-    tol: &Tolerances,
-    budget: u64,
-) -> Option<(f64, MsVector)> {
-    let old = MultipleShootingTransfer {
-        scenario,
-        spacecraft: *sc,
-        nu_f: from_nu,
-    };
-    let problem = MultipleShootingTransfer { nu_f: nu, ..old };
-    let budgeted = Budgeted::new(&problem, budget);
-    // Tangent in nu: only the terminal position and velocity rows depend on nu_f.
-    let mut guess = *x;
-    if nu != from_nu {
-        if let Ok((_, jac)) = old.residual(eps, x, tol) {
-            let orbit = orbit_state(&scenario.target, Dual2_64::from_re(from_nu).derivative());
-            let mut df = MsVector::zeros();
-            for i in 0..4 {
-                df[i] = -orbit[i].v1;
-            }
-            if let Some(t) = jac.lu().solve(&(-df)) {
-                guess += t * (nu - from_nu);
-            }
-        }
-    }
-    let o = newton(&budgeted, eps, &guess, tol, &ms_settings(INNER_TOLERANCE));
-    if std::env::var_os("DEBUG_CIRC").is_some() {
-        eprintln!("  ms_at nu {nu:.9} (from {from_nu:.9}): {:?} budget {}", o.as_ref().map(|o| (o.converged, o.iterations, o.residual)), budgeted.exhausted());
-    }
-    let o = o.ok()?;
-    if o.residual > 10.0 * INNER_TOLERANCE {
-        return None;
-    }
-    let f5 = problem.transversality(eps, &o.z, tol).ok()?;
-    if std::env::var_os("DEBUG_CIRC").is_some() {
-        eprintln!("     F5 {f5:+.3e}");
-    }
-    Some((f5, o.z))
 }
 
 /// d x / d nu_f along the multiple-shooting solution `x` at `nu` (only the terminal position and
@@ -459,11 +433,17 @@ fn nu_tangent(
     }
     let t = jac.lu().solve(&(-df))?;
     let h = 1e-6;
-    let moved = MultipleShootingTransfer { nu_f: nu + h, ..problem };
+    let moved = MultipleShootingTransfer {
+        nu_f: nu + h,
+        ..problem
+    };
     let f_plus = moved.transversality(eps, &(x + t * h), tol).ok()?;
-    let f_minus = MultipleShootingTransfer { nu_f: nu - h, ..problem }
-        .transversality(eps, &(x - t * h), tol)
-        .ok()?;
+    let f_minus = MultipleShootingTransfer {
+        nu_f: nu - h,
+        ..problem
+    }
+    .transversality(eps, &(x - t * h), tol)
+    .ok()?;
     Some((t, (f_plus - f_minus) / (2.0 * h)))
 }
 
@@ -520,7 +500,7 @@ fn transversality_search(
         // Inside a bracket, stay inside it (regula falsi with Illinois weights if Newton leaves).
         if let (Some(a), Some(b)) = (&neg, &pos) {
             let (lo, hi) = (a.0.min(b.0), a.0.max(b.0));
-            if !(target > lo && target < hi) || !target.is_finite() {
+            if target <= lo || target >= hi || !target.is_finite() {
                 let (fa, fb) = match side {
                     -1 => (a.1, 0.5 * b.1),
                     1 => (0.5 * a.1, b.1),
@@ -552,14 +532,14 @@ fn transversality_search(
 
 /// Solves a near-circular transfer at the SPEC's final eps (see the module notes). Errors say
 /// where it stopped.
-pub fn solve(scenario: &Scenario, sc: &CanonicalSpacecraft, options: &SolveOptions) -> Result<CircularSolution, String> {
+pub fn solve(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
     let target = final_level(options.final_eps);
-    let t0 = std::time::Instant::now();
     let list = candidates(scenario, sc, &tol, options.max_start_work / 4)?;
-    if std::env::var_os("DEBUG_TIME").is_some() {
-        eprintln!("candidates {} in {:.1} ms", list.len(), t0.elapsed().as_secs_f64() * 1e3);
-    }
     let best = &list[0];
     let peak = smallest_burn_peak(scenario, sc, best, &tol);
     let up = || {
@@ -575,13 +555,19 @@ pub fn solve(scenario: &Scenario, sc: &CanonicalSpacecraft, options: &SolveOptio
     let down = || solve_downward_free(scenario, sc, best, target, options).map_err(|e| format!("downward: {e}"));
     // Burns whose switching function peaks this low are spread over most of the flight at the
     // final eps: far from the bang-bang extremal the upward path starts from.
-    let (first, second): (&dyn Fn() -> Result<CircularSolution, String>, &dyn Fn() -> Result<CircularSolution, String>) =
-        if peak > UPWARD_MIN_PEAK { (&up, &down) } else { (&down, &up) };
+    let (first, second): (&Path, &Path) = if peak > UPWARD_MIN_PEAK {
+        (&up, &down)
+    } else {
+        (&down, &up)
+    };
     first().or_else(|e1| second().map_err(|e2| format!("{e1}; {e2}")))
 }
 
+/// One way to the final eps.
+type Path<'a> = dyn Fn() -> Result<CircularSolution, String> + 'a;
+
 /// Below this smallest burn peak of rho the downward path is tried first.
-const UPWARD_MIN_PEAK: f64 = 1e-6;
+const UPWARD_MIN_PEAK: f64 = 1e-8;
 
 /// The SPEC's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
 /// free-anomaly solution nearest the candidate's nu_f.
@@ -631,17 +617,12 @@ fn solve_downward_free(
         &budgeted,
         &MultipleShootingFree::join(&x0, nu),
         &tol,
-        &ms_settings(SEARCH_TOLERANCE),
+        &ms_settings(CORRECTOR_TOLERANCE),
         options.final_eps,
         3 * options.max_homotopy_solves,
         |_, _| false,
     )
     .map_err(|e| format!("{e:?}"))?;
-    if std::env::var_os("DEBUG_CIRC").is_some() {
-        for l in &levels {
-            eprintln!("  free level eps {:.3e} conv {} res {:.1e} nu {:.6}", l.eps, l.outcome.converged, l.outcome.residual, l.outcome.z[MS_UNKNOWNS]);
-        }
-    }
     let last = levels.last().ok_or("empty homotopy")?;
     if !(last.outcome.converged && last.eps <= target) {
         let deepest = levels.iter().rev().find(|l| l.outcome.converged).map_or(1.0, |l| l.eps);
@@ -653,25 +634,6 @@ fn solve_downward_free(
 
 /// The nu_f search at the final eps from a multiple-shooting solution, then the replay.
 fn finish(
-    scenario: &Scenario,
-    sc: &CanonicalSpacecraft,
-    c: &Candidate,
-    x: &MsVector,
-    nu: f64,
-    target: f64,
-    options: &SolveOptions,
-) -> Result<CircularSolution, String> {
-    let tol = options.tolerances;
-    let t0 = std::time::Instant::now();
-    let result = finish_inner(scenario, sc, c, x, nu, target, options);
-    if std::env::var_os("DEBUG_TIME").is_some() {
-        eprintln!("finish in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
-    }
-    let _ = tol;
-    result
-}
-
-fn finish_inner(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
     c: &Candidate,
@@ -699,7 +661,10 @@ fn finish_inner(
             if !o.converged {
                 return Err(format!("{e}; free nu_f: residual {:.1e}", o.residual));
             }
-            (MsVector::from_column_slice(&o.z.as_slice()[..MS_UNKNOWNS]), o.z[MS_UNKNOWNS])
+            (
+                MsVector::from_column_slice(&o.z.as_slice()[..MS_UNKNOWNS]),
+                o.z[MS_UNKNOWNS],
+            )
         }
     };
     let z = TransferVector::from_column_slice(&[x[0], x[1], x[2], x[3], x[4], nu]);
@@ -729,7 +694,9 @@ fn finish_inner(
         }
     }
     if residual >= options.newton.tolerance {
-        return Err(format!("replay: terminal residual {residual:.1e} from the initial costates alone"));
+        return Err(format!(
+            "replay: terminal residual {residual:.1e} from the initial costates alone"
+        ));
     }
     Ok(CircularSolution {
         z,
@@ -766,11 +733,7 @@ fn solve_candidate(
     if first.residual > 10.0 * INNER_TOLERANCE {
         return Err(format!("upward start: residual {:.1e}", first.residual));
     }
-    let t0 = std::time::Instant::now();
     let (eps, x) = continue_eps(&budgeted, &first.z, start, target, &tol, &ms_settings(1e-9), 4.0, 40);
-    if std::env::var_os("DEBUG_TIME").is_some() {
-        eprintln!("upward continuation in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
-    }
     if eps < target {
         return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
     }

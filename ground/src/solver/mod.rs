@@ -156,7 +156,18 @@ pub fn solve_scenario(
         match circular::solve(scenario, spacecraft, options) {
             Ok(s) => {
                 record.distinct_energy_optima = 0;
-                return finish_record(record, scenario, spacecraft, options, start, s.z, Some(s.z[5]), s.eps, s.residual, true);
+                return finish_record(
+                    record,
+                    scenario,
+                    spacecraft,
+                    options,
+                    start,
+                    s.z,
+                    Some(s.z[5]),
+                    s.eps,
+                    s.residual,
+                    true,
+                );
             }
             Err(e) if circular_only => {
                 record.failure = Some(format!("near-circular transfer: {e}"));
@@ -684,5 +695,4 @@ mod tests {
             record.final_mass
         );
     }
-
 }

@@ -98,7 +98,13 @@ impl MultipleShootingTransfer<'_> {
     /// The final state-costate of the last segment.
     pub fn final_state(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<[f64; Y_LEN], IntegrationError> {
         let k = SEGMENTS - 1;
-        propagate(&self.params(eps), self.node(k), &self.start(k, x), self.node(k + 1), tol)
+        propagate(
+            &self.params(eps),
+            self.node(k),
+            &self.start(k, x),
+            self.node(k + 1),
+            tol,
+        )
     }
 
     /// The transversality residual (the free problem's condition this one leaves out).
@@ -236,7 +242,10 @@ impl MultipleShootingFree<'_> {
     }
 
     fn split(x: &MsFreeVector) -> (MsVector, f64) {
-        (MsVector::from_column_slice(&x.as_slice()[..MS_UNKNOWNS]), x[MS_UNKNOWNS])
+        (
+            MsVector::from_column_slice(&x.as_slice()[..MS_UNKNOWNS]),
+            x[MS_UNKNOWNS],
+        )
     }
 
     /// Joins pinned unknowns and nu_f.

@@ -420,12 +420,6 @@ impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
     /// wrong branch (on the extended ramp u leaves [0, 1]).
     fn on_step(&mut self, t: f64, y: &[f64; N]) {
         self.steps += 1;
-        if let Some(w) = std::env::var("DEBUG_WINDOW").ok().and_then(|s| s.parse::<f64>().ok()) {
-            if (t - 1024.0 - w).abs() < 0.01 {
-                let yy: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
-                eprintln!("step t {:.15} dt {:.2e} rho {:.6e} rate {:.3e} {:?} eps {:.2e}", t - 1024.0, t - self.last_t, switching_function(&yy, self.exhaust_speed), switching_rate(&yy, self.exhaust_speed), self.regime.get(), self.eps);
-            }
-        }
         if (t - self.last_t).abs() < STUCK_STEP {
             if self.tiny_steps == 0 {
                 self.stuck_at = Some((t, y.to_vec()));
@@ -534,6 +528,7 @@ const MAX_RESTARTS: u32 = 32;
 /// restarting past a switch where the integration got stuck (see [`RegimeSwitch`]): from the
 /// stuck point, on the branch beyond the switch that rho sits on (by the sign of d rho / dt).
 /// Work is charged at `weight` per step.
+#[allow(clippy::too_many_arguments)]
 fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
     rhs: R,
     params: &OptimalControlParams,
@@ -629,7 +624,7 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
 pub const TIME_OFFSET: f64 = 1024.0;
 
 fn time_offset() -> f64 {
-    std::env::var("TOFF").ok().and_then(|s| s.parse().ok()).unwrap_or(TIME_OFFSET)
+    TIME_OFFSET
 }
 
 /// Records the time spent on the ramp (0 < u < 1) of the throttle law.
@@ -728,7 +723,16 @@ pub fn propagate_stm(
     for k in 0..Y_LEN {
         ys0[Y_LEN + k * Y_LEN + k] = 1.0;
     }
-    let ys = run_modal(StmRhs(*params), params, t0, &ys0, t1, tolerances, STM_STEP_WORK, &mut NoClock)?;
+    let ys = run_modal(
+        StmRhs(*params),
+        params,
+        t0,
+        &ys0,
+        t1,
+        tolerances,
+        STM_STEP_WORK,
+        &mut NoClock,
+    )?;
     let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
     let stm = core::array::from_fn(|i| core::array::from_fn(|k| ys[Y_LEN + k * Y_LEN + i]));
     Ok((y, stm))
@@ -932,11 +936,11 @@ mod tests {
         let p = params(1.0 / f64::from(1u32 << 25));
         let scenario = ScenarioKind::TransferCircular.draw(7, 5);
         let lambda = [
-            -4.67135411751775587e-1,
-            1.34526422199533868e-1,
-            -2.12858814526087792e-1,
-            -7.39789635983229998e-1,
-            1.85614979093332196e-2,
+            -4.671_354_117_517_756e-1,
+            1.345_264_221_995_338_7e-1,
+            -2.128_588_145_260_878e-1,
+            -7.397_896_359_832_3e-1,
+            1.856_149_790_933_322e-2,
         ];
         let y0 = initial_state_costate(&scenario, &lambda);
         let tf = scenario.time_of_flight();
@@ -949,12 +953,25 @@ mod tests {
         let sens = propagate_sensitivity(&p, &y0, tf, &tol).unwrap();
         let (mut y, n) = (y0, 400);
         for k in 0..n {
-            y = propagate(&p, tf * f64::from(k) / f64::from(n), &y, tf * f64::from(k + 1) / f64::from(n), &tol).unwrap();
+            y = propagate(
+                &p,
+                tf * f64::from(k) / f64::from(n),
+                &y,
+                tf * f64::from(k + 1) / f64::from(n),
+                &tol,
+            )
+            .unwrap();
         }
         // Both burns flown: about 1.9 % of the mass spent.
         assert!((plain[idx::M] - 0.98144).abs() < 1e-4, "m_f {}", plain[idx::M]);
         for i in 0..5 {
-            assert!((plain[i] - y[i]).abs() < 1e-7 && (sens[i] - y[i]).abs() < 1e-7, "y{i}: {} {} {}", plain[i], sens[i], y[i]);
+            assert!(
+                (plain[i] - y[i]).abs() < 1e-7 && (sens[i] - y[i]).abs() < 1e-7,
+                "y{i}: {} {} {}",
+                plain[i],
+                sens[i],
+                y[i]
+            );
         }
     }
 }

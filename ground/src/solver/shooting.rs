@@ -525,7 +525,7 @@ where
     let d = next - eps;
     let linear = t * d;
     match previous {
-        Some((e_p, z_p)) if (e_p - eps).abs() > 0.0 && std::env::var_os("NOQUAD").is_none() => {
+        Some((e_p, z_p)) if (e_p - eps).abs() > 0.0 => {
             let dp = e_p - eps;
             let c = (z_p - z - t * dp) / (dp * dp);
             let quadratic = c * (d * d);
@@ -545,6 +545,7 @@ where
 /// corrector; the step ratio shrinks after a failed corrector and grows after a success. Returns
 /// the last solved point (eps and outcome), which is at `eps1` unless the step ratio fell below
 /// `min_ratio` or `max_solves` correctors were spent.
+#[allow(clippy::too_many_arguments)]
 pub fn continue_eps<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z0: &SVector<f64, K>,
@@ -566,12 +567,13 @@ where
         if (up && eps >= eps1) || (!up && eps <= eps1) {
             break;
         }
-        let next = if up { (eps * factor).min(eps1) } else { (eps / factor).max(eps1) };
+        let next = if up {
+            (eps * factor).min(eps1)
+        } else {
+            (eps / factor).max(eps1)
+        };
         let predicted = predict(problem, &z, eps, next, previous, tolerances);
         let step = newton(problem, next, &predicted, tolerances, settings);
-        if std::env::var_os("DEBUG_HOMO").is_some() {
-            eprintln!("  continue eps {next:.4e}: {:?}", step.as_ref().map(|o| (o.converged, o.iterations, o.residual)));
-        }
         match step {
             Ok(o) if o.converged => {
                 previous = Some((eps, z));
@@ -677,9 +679,6 @@ where
                 iterations: 0,
                 converged: false,
             });
-            if std::env::var_os("DEBUG_HOMO").is_some() {
-                eprintln!("  corrector eps {next:.4e} conv {} it {} res {:.1e} |dz| {:.1e} from eps {eps:.6e} z0 {:.17e} pred0 {:.17e}", step.converged, step.iterations, step.residual, (step.z - predicted).amax(), z[0], predicted[0]);
-            }
             if step.converged {
                 previous = Some((eps, z));
                 (eps, z, last) = (next, step.z, step);
