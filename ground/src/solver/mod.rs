@@ -151,8 +151,11 @@ pub fn solve_scenario(
         record.failure = Some(format!("invalid scenario: {e}"));
         return record;
     }
+    // Near-circular transfers go through `circular` when the homotopy is to reach the small eps
+    // where the general path meets the spread throttle (see `degenerate`); a short homotopy
+    // (tests, figures) stays on the general path, which handles it.
     let circular_only = kind == ScenarioKind::TransferCircular;
-    if circular::applies(scenario) {
+    if circular::applies(scenario) && circular::final_level(options.final_eps) < DEGENERATE_EPS {
         match circular::solve(scenario, spacecraft, options) {
             Ok(s) => {
                 record.distinct_energy_optima = 0;

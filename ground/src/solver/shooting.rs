@@ -543,8 +543,8 @@ where
 /// Follows the solution path of a shooting problem from (`eps0`, `z0`, solved) to `eps1` (up or
 /// down) in geometric steps, with the curvature-corrected predictor ([`predict`]) and a Newton
 /// corrector; the step ratio shrinks after a failed corrector and grows after a success. Returns
-/// the last solved point (eps and outcome), which is at `eps1` unless the step ratio fell below
-/// `min_ratio` or `max_solves` correctors were spent.
+/// the last solved point (eps and unknowns), which is at `eps1` unless the step ratio (at most
+/// `max_ratio` per step) shrank to ~1 or `max_solves` correctors were spent.
 #[allow(clippy::too_many_arguments)]
 pub fn continue_eps<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
