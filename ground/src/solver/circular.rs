@@ -58,9 +58,10 @@ const TRANSVERSALITY_TOLERANCE: f64 = 1e-10;
 /// test, since the smoothed problem at the final eps can be almost flat along nu_f (a spread
 /// throttle on small transfers is nearly shift invariant again) and an exact zero far.
 const SEARCH_TOLERANCE: f64 = 2e-9;
-/// Convergence of the homotopy correctors of the downward path: above the ~1e-9 noise of the
-/// multiple-shooting residual near the final eps (the final level is checked by the replay).
-const CORRECTOR_TOLERANCE: f64 = 5e-9;
+/// Convergence of the homotopy correctors of the downward path, at the ~1e-9 noise of the
+/// multiple-shooting residual near the final eps: every level this accurate keeps nu_f (a weak
+/// direction) on the path; at 5e-9, 7 more draws in 1000 stalled.
+const CORRECTOR_TOLERANCE: f64 = 1e-9;
 /// Convergence of the multiple-shooting solves in the nu_f search.
 const INNER_TOLERANCE: f64 = 1e-10;
 
@@ -567,7 +568,7 @@ pub fn solve(
 type Path<'a> = dyn Fn() -> Result<CircularSolution, String> + 'a;
 
 /// Below this smallest burn peak of rho the downward path is tried first.
-const UPWARD_MIN_PEAK: f64 = 1e-8;
+const UPWARD_MIN_PEAK: f64 = 1e-6;
 
 /// The SPEC's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
 /// free-anomaly solution nearest the candidate's nu_f.
