@@ -2,7 +2,10 @@
 //! ([`pontryagin`]), single shooting with exact sensitivities and the energy-to-fuel homotopy
 //! ([`shooting`]), and the driver that turns a scenario into a [`TrajectoryRecord`].
 
+pub mod bangbang;
+pub mod circular;
 pub mod direct;
+pub mod multiple;
 pub mod pontryagin;
 pub mod shooting;
 
@@ -47,9 +50,14 @@ pub struct SolveOptions {
 impl Default for SolveOptions {
     fn default() -> Self {
         Self {
+            // Tighter than the SPEC's 1e-11: near the final eps the shooting Jacobian reaches
+            // 1e6 to 1e7 (the throttle ramps make F depend on the costates through 1/eps), which
+            // lifts the integration error of one propagation over the flight to ~1e-8 in F at
+            // rtol 1e-12, the size of the acceptance test itself; at 3e-14 it is ~2e-9
+            // (transfer-circular seed 7 #39: 1.2e-8 at 1e-13, 4e-9 at 3e-14).
             tolerances: Tolerances {
-                relative: 1e-12,
-                absolute: 1e-13,
+                relative: 3e-14,
+                absolute: 3e-15,
                 max_steps: 5_000,
                 initial_step: 0.0,
             },
@@ -143,6 +151,36 @@ pub fn solve_scenario(
         record.failure = Some(format!("invalid scenario: {e}"));
         return record;
     }
+    // Near-circular transfers go through `circular` when the homotopy is to reach the small eps
+    // where the general path meets the spread throttle (see `degenerate`); a short homotopy
+    // (tests, figures) stays on the general path, which handles it.
+    let circular_only = kind == ScenarioKind::TransferCircular;
+    if circular::applies(scenario) && circular::final_level(options.final_eps) < DEGENERATE_EPS {
+        match circular::solve(scenario, spacecraft, options) {
+            Ok(s) => {
+                record.distinct_energy_optima = 0;
+                return finish_record(
+                    record,
+                    scenario,
+                    spacecraft,
+                    options,
+                    start,
+                    s.z,
+                    Some(s.z[5]),
+                    s.eps,
+                    s.residual,
+                    true,
+                );
+            }
+            Err(e) if circular_only => {
+                record.failure = Some(format!("near-circular transfer: {e}"));
+                record.seconds = start.elapsed().as_secs_f64();
+                return record;
+            }
+            // A near-circular draw of another distribution falls back to the general path.
+            Err(_) => {}
+        }
+    }
     let solved = match scenario.problem {
         ProblemKind::Transfer => {
             let problem = TransferShooting {
@@ -206,6 +244,35 @@ pub fn solve_scenario(
         };
         record.failure = Some(format!("homotopy stalled below eps = {final_eps:.3e}{budget}"));
     }
+    finish_record(
+        record,
+        scenario,
+        spacecraft,
+        options,
+        start,
+        z,
+        final_anomaly,
+        final_eps,
+        residual,
+        reached_final,
+    )
+}
+
+/// Fills a record with a solution (costates in `z[..5]`) and samples its trajectory; the record
+/// counts as converged when `reached_final` and the sampling succeeded.
+#[allow(clippy::too_many_arguments)]
+fn finish_record(
+    mut record: TrajectoryRecord,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    start: Instant,
+    z: TransferVector,
+    final_anomaly: Option<f64>,
+    final_eps: f64,
+    residual: f64,
+    reached_final: bool,
+) -> TrajectoryRecord {
     record.costates = [z[0], z[1], z[2], z[3], z[4]];
     record.final_anomaly = final_anomaly;
     record.final_eps = final_eps;
@@ -517,17 +584,118 @@ mod tests {
         assert!(record.final_mass > 0.5 && record.final_mass < 1.0 && record.thrust_arcs >= 1);
     }
 
-    /// Transfer-circular heads for a singular arc (see `degenerate`): the solve stops early with
-    /// that reason instead of crawling, and the level it stopped at is a solved one.
+    /// The general single-shooting path on a transfer-circular draw heads for a spread,
+    /// singular-looking throttle (see `degenerate`) and stops there with that reason instead of
+    /// crawling; the level it stopped at is a solved one. (Transfer-circular draws now go through
+    /// `circular`; this keeps the stop, which other near-circular draws still reach, tested.)
     #[test]
-    fn circular_transfer_stops_on_the_degenerate_singular_arc_with_the_reason() {
+    fn general_path_stops_on_the_degenerate_spread_throttle_of_a_circular_transfer() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let scenario = ScenarioKind::TransferCircular.draw(7, 3);
+        let problem = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let options = SolveOptions::default();
+        let solved = solve_problem(&problem, &scenario, &sc, transfer_guesses(&scenario), &options)
+            .unwrap_or_else(|(e, _)| panic!("{e}"));
+        assert!(!solved.reached_final && solved.degenerate);
+        assert!(solved.level.eps <= DEGENERATE_EPS && solved.level.outcome.residual < 1e-8);
+    }
+
+    /// The optimal impulsive transfer between the two coaxial orbits (both omega = 0): apse to
+    /// opposite apse, the better of the two pairings. With e = 0 this is Hohmann's transfer; the
+    /// eccentricity of 1e-4 moves it by ~1e-5 in delta-v. Its mass exp(-dv / c) bounds the final
+    /// mass of any finite-thrust transfer from above.
+    fn impulsive_mass_bound(scenario: &Scenario, exhaust_speed: f64) -> f64 {
+        let (o, t) = (scenario.initial.shape, scenario.target);
+        let dv = |r1: f64, a1: f64, r2: f64, a2: f64| {
+            let at = 0.5 * (r1 + r2);
+            let vis = |r: f64, a: f64| (2.0 / r - 1.0 / a).sqrt();
+            (vis(r1, at) - vis(r1, a1)).abs() + (vis(r2, a2) - vis(r2, at)).abs()
+        };
+        let a = dv(o.a * (1.0 - o.e), o.a, t.a * (1.0 + t.e), t.a);
+        let b = dv(o.a * (1.0 + o.e), o.a, t.a * (1.0 - t.e), t.a);
+        (-a.min(b) / exhaust_speed).exp()
+    }
+
+    /// Transfer-circular draws reach the SPEC's final eps (2^-14) through `circular`, by the
+    /// upward path (#0: long burns) and the downward one (#5: short burns, spread at that eps):
+    /// fresh propagations of the recorded costates (plain and with sensitivities) meet all six
+    /// terminal conditions to 1e-8, and the final mass respects the impulsive bound and comes
+    /// within 1e-4 of it (these transfers are close to impulsive).
+    #[test]
+    fn circular_transfers_meet_the_terminal_conditions_at_the_final_eps_below_the_impulsive_bound() {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let kind = ScenarioKind::TransferCircular;
-        let scenario = kind.draw(7, 3);
-        let record = solve_scenario(kind, 7, 3, &scenario, &sc, &SolveOptions::default());
-        assert!(!record.converged);
-        let failure = record.failure.unwrap_or_default();
-        assert!(failure.contains("degenerate"), "{failure}");
-        assert!(record.final_eps <= DEGENERATE_EPS && record.residual < 1e-8);
+        let options = SolveOptions::default();
+        for index in [0, 5] {
+            let scenario = kind.draw(7, index);
+            let record = solve_scenario(kind, 7, index, &scenario, &sc, &options);
+            assert!(record.converged, "#{index}: {:?}", record.failure);
+            assert_eq!(record.final_eps, 1.0 / f64::from(1u32 << 14), "#{index}");
+            let mut z = TransferVector::zeros();
+            z.as_mut_slice()[..5].copy_from_slice(&record.costates);
+            z[5] = record.final_anomaly.unwrap();
+            let params = OptimalControlParams {
+                spacecraft: sc,
+                eps: record.final_eps,
+            };
+            let plain = shooting::transfer_residual_only(&scenario, &params, &z, &options.tolerances).unwrap();
+            let (sens, _) = shooting::transfer_residual(&scenario, &params, &z, &options.tolerances).unwrap();
+            assert!(plain.amax() < 1e-8 && sens.amax() < 1e-8, "#{index}: {plain} {sens}");
+            let bound = impulsive_mass_bound(&scenario, sc.exhaust_speed);
+            assert!(
+                record.final_mass <= bound && record.final_mass > bound - 1e-4,
+                "#{index}: m_f {} against the impulsive bound {bound}",
+                record.final_mass
+            );
+        }
+    }
+
+    /// The direct transcription (`direct`, its own NLP on piecewise-constant controls) finds the
+    /// same final mass as the indirect record to 1e-4 relative, on the same cost functional (the
+    /// record's final eps), for a transfer-circular draw; started from the record's sampled
+    /// control, which it must re-optimise on its own mesh.
+    #[test]
+    fn circular_transfer_final_mass_agrees_with_the_direct_transcription() {
+        use direct::{solve_direct, DirectGuess, DirectOptions};
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferCircular;
+        let options = SolveOptions::default();
+        let scenario = kind.draw(7, 0);
+        let record = solve_scenario(kind, 7, 0, &scenario, &sc, &options);
+        assert!(record.converged, "{:?}", record.failure);
+        let segments = 2 * scenario.steps as usize;
+        let h = scenario.time_of_flight() / segments as f64;
+        let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
+        let params = OptimalControlParams {
+            spacecraft: sc,
+            eps: record.final_eps,
+        };
+        let y0 = initial_state_costate(&scenario, &record.costates);
+        let samples = sample_at(&y0, &params, &times, &options.tolerances).unwrap();
+        let guess = DirectGuess {
+            controls: samples
+                .iter()
+                .map(|s| {
+                    [
+                        s.throttle * s.direction_polar[0],
+                        s.throttle * s.direction_polar[1],
+                        s.throttle,
+                    ]
+                })
+                .collect(),
+            nu_f: record.final_anomaly.unwrap(),
+        };
+        let sol = solve_direct(&scenario, &sc, &guess, record.final_eps, &DirectOptions::default()).unwrap();
+        assert!(sol.converged && sol.infeasibility < 1e-9, "{sol:?}");
+        let rel = (sol.final_mass - record.final_mass).abs() / record.final_mass;
+        assert!(
+            rel < 1e-4,
+            "direct {} against indirect {} (rel {rel:.1e})",
+            sol.final_mass,
+            record.final_mass
+        );
     }
 }

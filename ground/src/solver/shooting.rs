@@ -140,6 +140,69 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferShooting<'_> {
     }
 }
 
+/// The transfer with its final anomaly pinned: unknowns lambda_0, equations r, v on the target
+/// orbit at the given nu_f and lambda_m(tf) = 0 (the transversality condition left out). Between
+/// nearly circular orbits the free problem's weakest direction is almost exactly nu_f (the shift
+/// of the burn pattern along the circles); with it pinned the system is well conditioned, and
+/// the transversality residual [`TransferShooting`] leaves out is a smooth function of nu_f
+/// whose zero a 1-D search finds.
+#[derive(Debug, Clone, Copy)]
+pub struct PinnedAnomalyTransfer<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+    pub nu_f: f64,
+}
+
+impl PinnedAnomalyTransfer<'_> {
+    fn full(&self, z: &RendezvousVector) -> TransferVector {
+        TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], self.nu_f])
+    }
+
+    fn params(&self, eps: f64) -> OptimalControlParams {
+        OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        }
+    }
+
+    /// The free problem's residual (all six conditions, transversality in row 4) at costates `z`.
+    pub fn free_residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<TransferVector, IntegrationError> {
+        transfer_residual_only(self.scenario, &self.params(eps), &self.full(z), tolerances)
+    }
+}
+
+const PINNED_ROWS: [usize; 5] = [0, 1, 2, 3, 5];
+
+impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for PinnedAnomalyTransfer<'_> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<RendezvousVector, IntegrationError> {
+        let f = self.free_residual(eps, z, tolerances)?;
+        Ok(RendezvousVector::from_fn(|i, _| f[PINNED_ROWS[i]]))
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<(RendezvousVector, SMatrix<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>), IntegrationError> {
+        let (f, jac) = transfer_residual(self.scenario, &self.params(eps), &self.full(z), tolerances)?;
+        Ok((
+            RendezvousVector::from_fn(|i, _| f[PINNED_ROWS[i]]),
+            SMatrix::from_fn(|i, k| jac[(PINNED_ROWS[i], k)]),
+        ))
+    }
+}
+
 /// Settings of the Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonSettings {
@@ -251,7 +314,7 @@ where
         if let Some((step, _)) = full {
             let mut alpha = 1.0;
             let mut accepted = None;
-            for _ in 0..8 {
+            for k in 0..8 {
                 let trial = z + step * alpha;
                 // Trials need F only; the Jacobian is computed once a trial is accepted.
                 if let Ok(ft) = problem.residual_only(eps, &trial, tolerances) {
@@ -259,6 +322,12 @@ where
                         if let Ok((ft, jt)) = eval(&trial) {
                             accepted = Some((trial, ft, jt));
                         }
+                        break;
+                    }
+                }
+                if k == 0 {
+                    if let Some(two) = look_ahead(problem, eps, &trial, f2, tolerances) {
+                        accepted = Some(two);
                         break;
                     }
                 }
@@ -312,6 +381,36 @@ where
 }
 
 type Evaluated<const K: usize> = (SVector<f64, K>, SVector<f64, K>, SMatrix<f64, K, K>);
+
+/// Two Newton steps without a descent test in between: the full step to `trial` (which raised
+/// |F|), then the Newton step from there; accepted when that lands below |F|^2 = `f2`.
+///
+/// Why: the smoothed throttle is piecewise linear in rho, so where a maximum of rho touches +eps
+/// (or a minimum -eps) a full-thrust (or coast) sub-arc is born, and F picks up a term
+/// ~ (rho_max - eps)^(3/2): continuous with its first derivative, but with unbounded curvature.
+/// A Newton step from the side without the sub-arc cannot see it and overshoots, and halving the
+/// step only crawls (seen on transfer-circular near eps ~ 1e-4: 15 iterations at |F| ~ 1e-5);
+/// the Jacobian taken on the far side includes the sub-arc, and the next step converges.
+fn look_ahead<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    eps: f64,
+    trial: &SVector<f64, K>,
+    f2: f64,
+    tolerances: &Tolerances,
+) -> Option<Evaluated<K>>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let (f1, j1) = problem.residual(eps, trial, tolerances).ok()?;
+    let (step, _) = svd_step(&j1, &f1, RCOND, 0)?;
+    let next = trial + step;
+    let f_next = problem.residual_only(eps, &next, tolerances).ok()?;
+    if f_next.norm_squared() > (1.0 - 1e-4) * f2 {
+        return None;
+    }
+    let (f, j) = problem.residual(eps, &next, tolerances).ok()?;
+    Some((next, f, j))
+}
 
 /// Moves a fraction of the Newton step along the valley, then projects back onto its floor by up
 /// to four Gauss-Newton steps without the weakest direction; accepted when |F|^2 fell.
@@ -386,7 +485,7 @@ pub fn homotopy_schedule(final_eps: f64) -> impl Iterator<Item = f64> {
 
 /// Tangent of the solution path: dz/d(eps) = -J^-1 dF/d(eps), with dF/d(eps) by a central
 /// difference in eps (the propagations are smooth in eps for eps > 0).
-fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
+pub fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z: &SVector<f64, K>,
     eps: f64,
@@ -395,12 +494,101 @@ fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
-    let h = eps * 1e-4;
+    // Not smaller: the propagations carry ~1e-11 of round-off (see pontryagin::TIME_OFFSET).
+    let h = eps * 1e-3;
     let (_, jac) = problem.residual(eps, z, tolerances)?;
     let fp = problem.residual_only(eps + h, z, tolerances)?;
     let fm = problem.residual_only(eps - h, z, tolerances)?;
     let df_de = (fp - fm) / (2.0 * h);
     Ok(jac.lu().solve(&(-df_de)))
+}
+
+/// The predicted solution at `next` from the solution `z` at `eps`: the tangent step, plus the
+/// quadratic term that makes the prediction pass through the previous solution `previous`
+/// (at another eps) when there is one. Near eps -> 0 the path bends on the scale of eps itself
+/// (the throttle ramps narrow like eps), and Newton's basin shrinks with it, so the curvature term
+/// is what lets the corrector converge at the schedule's step.
+pub fn predict<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z: &SVector<f64, K>,
+    eps: f64,
+    next: f64,
+    previous: Option<(f64, SVector<f64, K>)>,
+    tolerances: &Tolerances,
+) -> SVector<f64, K>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let Ok(Some(t)) = homotopy_tangent(problem, z, eps, tolerances) else {
+        return *z;
+    };
+    let d = next - eps;
+    let linear = t * d;
+    match previous {
+        Some((e_p, z_p)) if (e_p - eps).abs() > 0.0 => {
+            let dp = e_p - eps;
+            let c = (z_p - z - t * dp) / (dp * dp);
+            let quadratic = c * (d * d);
+            // Only as a correction: a curvature term larger than the tangent step is not trusted.
+            if quadratic.amax() <= linear.amax() {
+                z + linear + quadratic
+            } else {
+                z + linear
+            }
+        }
+        _ => z + linear,
+    }
+}
+
+/// Follows the solution path of a shooting problem from (`eps0`, `z0`, solved) to `eps1` (up or
+/// down) in geometric steps, with the curvature-corrected predictor ([`predict`]) and a Newton
+/// corrector; the step ratio shrinks after a failed corrector and grows after a success. Returns
+/// the last solved point (eps and unknowns), which is at `eps1` unless the step ratio (at most
+/// `max_ratio` per step) shrank to ~1 or `max_solves` correctors were spent.
+#[allow(clippy::too_many_arguments)]
+pub fn continue_eps<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z0: &SVector<f64, K>,
+    eps0: f64,
+    eps1: f64,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
+    max_ratio: f64,
+    max_solves: u32,
+) -> (f64, SVector<f64, K>)
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let up = eps1 > eps0;
+    let mut factor: f64 = max_ratio;
+    let (mut eps, mut z) = (eps0, *z0);
+    let mut previous: Option<(f64, SVector<f64, K>)> = None;
+    for _ in 0..max_solves {
+        if (up && eps >= eps1) || (!up && eps <= eps1) {
+            break;
+        }
+        let next = if up {
+            (eps * factor).min(eps1)
+        } else {
+            (eps / factor).max(eps1)
+        };
+        let predicted = predict(problem, &z, eps, next, previous, tolerances);
+        let step = newton(problem, next, &predicted, tolerances, settings);
+        match step {
+            Ok(o) if o.converged => {
+                previous = Some((eps, z));
+                (eps, z) = (next, o.z);
+                factor = (factor * factor).min(max_ratio);
+            }
+            _ => {
+                factor = factor.sqrt();
+                if factor < 1.01 {
+                    break;
+                }
+            }
+        }
+    }
+    (eps, z)
 }
 
 /// Solves a shooting problem along the homotopy schedule. Between levels it follows the
@@ -454,6 +642,7 @@ where
         return Ok(levels);
     }
     let (mut eps, mut z) = (first, outcome.z);
+    let mut previous: Option<(f64, SVector<f64, K>)> = None;
     let mut ratio: f64 = 0.5;
     let mut solves = 0u32;
     for target in schedule {
@@ -482,10 +671,7 @@ where
                 return Ok(levels);
             }
             let next = (eps * ratio).max(target);
-            let predicted = match homotopy_tangent(problem, &z, eps, tolerances) {
-                Ok(Some(t)) => z + t * (next - eps),
-                _ => z,
-            };
+            let predicted = predict(problem, &z, eps, next, previous, tolerances);
             // A propagation that fails from a predicted point is a failed corrector, not an error.
             let step = newton(problem, next, &predicted, tolerances, settings).unwrap_or(NewtonOutcome {
                 z: predicted,
@@ -494,6 +680,7 @@ where
                 converged: false,
             });
             if step.converged {
+                previous = Some((eps, z));
                 (eps, z, last) = (next, step.z, step);
                 ratio = (ratio * ratio).max(0.5); // grow the step back after a success
             } else {

@@ -1,0 +1,742 @@
+//! Fuel-optimal transfers between nearly circular orbits (transfer-circular, SPEC section 4),
+//! solved at eps = 0 by structure-fixed shooting (see docs/notes/issue3-solver-convergence.md for
+//! the measurements behind every choice here).
+//!
+//! Why not the SPEC's homotopy: between circular orbits with a free final anomaly and a flight
+//! longer than the transfer needs, the burn pattern can be shifted along the circles at no cost
+//! (exactly for e = 0; e = 1e-4 changes the final mass by ~1e-6 relative over the whole shift
+//! range). And the switching function of the fuel-optimal extremal stays tiny: its peaks on the
+//! burns are 1e-7 to 3e-4 (the smaller the change of radius, the smaller), so at the SPEC's final
+//! eps = 2^-14 = 6.1e-5 the smoothed extremal of most draws is not near bang-bang at all: it
+//! spreads a low throttle over much of the flight with rho hugging -eps, where single shooting has
+//! Jacobians of ~1e6 and a Newton basin of ~1e-8. The eps = 0 problem itself is well posed once
+//! the throttle structure is fixed (coast, burn, coast, burn, coast) and the switching times are
+//! unknowns, with the shift pinned: it converges in 2 to 4 Newton iterations from a Hohmann guess.
+//!
+//! The solve:
+//! 1. Shift scan: the Hohmann transfer made of finite burns, its first burn centred at a few
+//!    times across the flight, each solved with its first switching time pinned (the
+//!    transversality condition left out).
+//! 2. The transversality residual of each scanned solution is proportional to d m_f / d nu_f.
+//!    Where it changes sign between neighbours (a maximum of the final mass along the shift), a
+//!    regula falsi on the pinned time zeroes it. Where the mass keeps rising to an end of the
+//!    scan, the optimum has no coast at that end: the structure without it (burn first, or burn
+//!    last) is solved free.
+//! 3. Each candidate is replayed: a fresh modal propagation of its initial costates with the
+//!    bang-bang law (eps = 0, stepping onto rho = 0) must meet all six terminal conditions to
+//!    the solver's tolerance. Of those that do, the one with the largest final mass is returned.
+//!
+//! So the result is an extremal of the SPEC section 3 problem at eps = 0 (the fuel-optimal
+//! problem the homotopy aims at), with its final eps recorded as 0.
+
+use nalgebra::SVector;
+use onboard::integrator::Tolerances;
+use shared::scenario::{ProblemKind, Scenario};
+use shared::spacecraft::CanonicalSpacecraft;
+
+use num_dual::Dual2_64;
+
+use super::bangbang::{BangBangTransfer, Hohmann, Structure};
+use super::multiple::{MsVector, MultipleShootingFree, MultipleShootingTransfer, MS_UNKNOWNS};
+use super::pontryagin::{idx, propagate, work_done, OptimalControlParams, Regime};
+use super::shooting::{
+    continue_eps, homotopy_until, initial_state_costate, newton, orbit_state, transfer_residual_only, NewtonSettings,
+    PinnedAnomalyTransfer, RendezvousVector, ShootingProblem, TransferVector,
+};
+use super::{transfer_guesses, Budgeted, SolveOptions};
+
+/// Largest eccentricity of both orbits for which this path is used.
+pub const NEAR_CIRCULAR_ECCENTRICITY: f64 = 0.02;
+
+/// Number of shifts the scan solves.
+const SHIFT_SAMPLES: usize = 6;
+
+/// Convergence of the structured solves, and of the transversality residual in the shift search.
+const STRUCTURED_TOLERANCE: f64 = 1e-11;
+const TRANSVERSALITY_TOLERANCE: f64 = 1e-10;
+/// The nu_f search stops at this transversality residual: well inside the 1e-8 of the acceptance
+/// test, since the smoothed problem at the final eps can be almost flat along nu_f (a spread
+/// throttle on small transfers is nearly shift invariant again) and an exact zero far.
+const SEARCH_TOLERANCE: f64 = 2e-9;
+/// Convergence of the homotopy correctors of the downward path, at the ~1e-9 noise of the
+/// multiple-shooting residual near the final eps: every level this accurate keeps nu_f (a weak
+/// direction) on the path; at 5e-9, 7 more draws in 1000 stalled.
+const CORRECTOR_TOLERANCE: f64 = 1e-9;
+/// Convergence of the multiple-shooting solves in the nu_f search.
+const INNER_TOLERANCE: f64 = 1e-10;
+
+/// Replays whose residual is above this get a single-shooting polish.
+const POLISH_ABOVE: f64 = 2e-9;
+
+/// A solved near-circular transfer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CircularSolution {
+    /// Initial costates and nu_f.
+    pub z: TransferVector,
+    /// The eps they solve (the SPEC schedule's final level).
+    pub eps: f64,
+    /// The switching times of the bang-bang structure.
+    pub switches: Vec<f64>,
+    /// Whether the flight starts with a coast.
+    pub initial_coast: bool,
+    /// Largest terminal residual of the replay (fresh propagation of the costates at `eps`).
+    pub residual: f64,
+    pub final_mass: f64,
+}
+
+/// Whether the scenario is a transfer this path handles.
+pub fn applies(scenario: &Scenario) -> bool {
+    scenario.problem == ProblemKind::Transfer
+        && scenario.initial.shape.e <= NEAR_CIRCULAR_ECCENTRICITY
+        && scenario.target.e <= NEAR_CIRCULAR_ECCENTRICITY
+}
+
+const FULL_STRUCTURE: Structure = Structure {
+    first: Regime::Coast,
+    switches: 4,
+};
+
+fn settings() -> NewtonSettings {
+    NewtonSettings {
+        max_iterations: 12,
+        tolerance: STRUCTURED_TOLERANCE,
+    }
+}
+
+/// One solved shift: the structured solution with its first switching time pinned.
+#[derive(Debug, Clone, Copy)]
+struct Shift {
+    z: SVector<f64, 10>,
+    /// Transversality residual of the free problem.
+    transversality: f64,
+    mass: f64,
+}
+
+impl Shift {
+    fn pin(&self) -> f64 {
+        self.z[6]
+    }
+}
+
+/// Solves the 4-switch structure with t_1 pinned at `pin`, from `z0`.
+fn solve_pinned(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    z0: &SVector<f64, 10>,
+    pin: f64,
+    tol: &Tolerances,
+    budget: u64,
+) -> Option<Shift> {
+    let pinned = BangBangTransfer {
+        scenario,
+        spacecraft: *sc,
+        structure: FULL_STRUCTURE,
+        pin: Some(pin),
+    };
+    let budgeted = Budgeted::new(&pinned, budget);
+    let out = newton(&budgeted, 0.0, z0, tol, &settings()).ok()?;
+    if !out.converged {
+        return None;
+    }
+    let free = BangBangTransfer { pin: None, ..pinned };
+    let (f, _) = free.evaluate(out.z.as_slice(), tol, false).ok()?;
+    let flight = free.fly(out.z.as_slice(), tol, false).ok()?;
+    Some(Shift {
+        z: out.z,
+        transversality: f[4],
+        mass: flight.y_final[idx::M],
+    })
+}
+
+/// The guess for pin `pin` from a solved shift: every switching time moved by the same amount,
+/// nu_f by the slope `dnu` (rad per unit of pin), costates kept.
+fn shifted(from: &Shift, pin: f64, dnu: f64) -> SVector<f64, 10> {
+    let d = pin - from.pin();
+    let mut z = from.z;
+    z[5] += dnu * d;
+    for k in 6..10 {
+        z[k] += d;
+    }
+    z
+}
+
+/// Regula falsi (Illinois) on the pinned time between two shifts whose (oriented) transversality
+/// residuals have opposite signs.
+fn refine_shift(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    a: Shift,
+    b: Shift,
+    dnu: f64,
+    tol: &Tolerances,
+    budget: u64,
+) -> Option<Shift> {
+    let (mut a, mut b) = (a, b);
+    let (mut fa, mut fb) = (a.transversality, b.transversality);
+    let mut side = 0i8;
+    for _ in 0..40 {
+        let pin = (a.pin() * fb - b.pin() * fa) / (fb - fa);
+        let from = if (pin - a.pin()).abs() < (pin - b.pin()).abs() {
+            a
+        } else {
+            b
+        };
+        let m = solve_pinned(scenario, sc, &shifted(&from, pin, dnu), pin, tol, budget / 8)?;
+        if m.transversality.abs() < TRANSVERSALITY_TOLERANCE {
+            return Some(m);
+        }
+        if m.transversality.signum() == a.transversality.signum() {
+            a = m;
+            fa = m.transversality;
+            if side == -1 {
+                fb *= 0.5;
+            }
+            side = -1;
+        } else {
+            b = m;
+            fb = m.transversality;
+            if side == 1 {
+                fa *= 0.5;
+            }
+            side = 1;
+        }
+    }
+    None
+}
+
+/// Solves the structure without the coast at one end (`first` Full: no initial coast; Coast with
+/// 3 switches: no final coast) free, from a 4-switch solution.
+fn solve_end(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    from: &Shift,
+    no_initial_coast: bool,
+    dnu: f64,
+    tol: &Tolerances,
+    budget: u64,
+) -> Option<(SVector<f64, 9>, Structure)> {
+    let structure = Structure {
+        first: if no_initial_coast { Regime::Full } else { Regime::Coast },
+        switches: 3,
+    };
+    // Move the pattern to the end: the first burn starting at 0, or the last one ending at tf.
+    let d = if no_initial_coast {
+        -from.z[6]
+    } else {
+        scenario.time_of_flight() - from.z[9]
+    };
+    let mut z0 = SVector::<f64, 9>::zeros();
+    z0.as_mut_slice()[..6].copy_from_slice(&from.z.as_slice()[..6]);
+    z0[5] += dnu * d;
+    let times: [f64; 3] = if no_initial_coast {
+        [from.z[7] + d, from.z[8] + d, from.z[9] + d]
+    } else {
+        [from.z[6] + d, from.z[7] + d, from.z[8] + d]
+    };
+    z0.as_mut_slice()[6..].copy_from_slice(&times);
+    let problem = BangBangTransfer {
+        scenario,
+        spacecraft: *sc,
+        structure,
+        pin: None,
+    };
+    let budgeted = Budgeted::new(&problem, budget);
+    let settings = NewtonSettings {
+        max_iterations: 20,
+        ..settings()
+    };
+    let out = newton(&budgeted, 0.0, &z0, tol, &settings).ok()?;
+    out.converged.then_some((out.z, structure))
+}
+
+/// A bang-bang (eps = 0) stationary shift: initial costates, nu_f and switching times.
+#[derive(Debug, Clone)]
+struct Candidate {
+    z: Vec<f64>,
+    structure: Structure,
+    mass: f64,
+}
+
+impl Candidate {
+    fn problem<'a>(&self, scenario: &'a Scenario, sc: &CanonicalSpacecraft) -> BangBangTransfer<'a> {
+        BangBangTransfer {
+            scenario,
+            spacecraft: *sc,
+            structure: self.structure,
+            pin: None,
+        }
+    }
+}
+
+/// The final eps of the SPEC schedule (the first halving of 1 below `final_eps`).
+pub fn final_level(final_eps: f64) -> f64 {
+    super::shooting::homotopy_schedule(final_eps)
+        .last()
+        .unwrap_or(final_eps)
+}
+
+/// The start of the upward continuation: small enough that the smoothed extremal is the
+/// bang-bang one (ramps of ~1e-8 / |d rho / dt|), and at most 1/64 of the smallest burn peak of
+/// rho (at eps near that peak a ramp spans the burn's flat top, where the variational equations,
+/// whose coefficients grow like 1/eps, make the integration stiff).
+const UPWARD_START_EPS: f64 = 1.0 / (1u64 << 26) as f64;
+
+/// The smallest, over the burns of a bang-bang candidate, of the largest rho on the burn.
+fn smallest_burn_peak(scenario: &Scenario, sc: &CanonicalSpacecraft, c: &Candidate, tol: &Tolerances) -> f64 {
+    let bb = c.problem(scenario, sc);
+    let mut bounds = vec![0.0];
+    bounds.extend_from_slice(&c.z[6..]);
+    bounds.push(scenario.time_of_flight());
+    let mut smallest = f64::INFINITY;
+    for j in 0..bounds.len() - 1 {
+        if c.structure.regime(j) != Regime::Full {
+            continue;
+        }
+        let mut peak = f64::NEG_INFINITY;
+        for k in 1..8 {
+            let t = bounds[j] + (bounds[j + 1] - bounds[j]) * f64::from(k) / 8.0;
+            if let Ok(y) = bb.state_at(&c.z, t, tol) {
+                peak = peak.max(super::pontryagin::switching_function(&y, sc.exhaust_speed));
+            }
+        }
+        smallest = smallest.min(peak);
+    }
+    smallest
+}
+
+/// The start eps of the upward continuation for a candidate (a power of 2).
+fn upward_start(peak: f64) -> f64 {
+    let mut eps = UPWARD_START_EPS;
+    while eps > peak / 64.0 && eps > 1e-15 {
+        eps *= 0.5;
+    }
+    eps
+}
+
+/// The bang-bang candidates of a scenario (see the module notes), best final mass first.
+fn candidates(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    tol: &Tolerances,
+    budget: u64,
+) -> Result<Vec<Candidate>, String> {
+    let tof = scenario.time_of_flight();
+    let h = Hohmann::of(scenario, sc);
+    let (lo, hi) = h.centre_range(tof);
+    if hi <= lo || hi.is_nan() {
+        return Err("the flight is shorter than the Hohmann transfer".into());
+    }
+    let mut shifts: Vec<Shift> = Vec::new();
+    for k in 0..SHIFT_SAMPLES {
+        let centre = lo + (hi - lo) * (k as f64 + 0.5) / SHIFT_SAMPLES as f64;
+        let g = SVector::<f64, 10>::from_column_slice(&h.guess(scenario, centre));
+        if let Some(s) = solve_pinned(scenario, sc, &g, g[6], tol, budget / (2 * SHIFT_SAMPLES as u64)) {
+            shifts.push(s);
+        }
+    }
+    if shifts.len() < 2 {
+        return Err(format!(
+            "bang-bang shift scan: {} of {SHIFT_SAMPLES} shifts solved",
+            shifts.len()
+        ));
+    }
+    // nu_f moves with the pin at the rate of the relative motion of the two circles.
+    let dnu = {
+        let (f, l) = (shifts[0], shifts[shifts.len() - 1]);
+        (l.z[5] - f.z[5]) / (l.pin() - f.pin())
+    };
+    // Transversality is proportional to d m / d nu_f; oriented along the pin it is d m / d pin.
+    let orient = dnu.signum();
+    let mut found: Vec<Candidate> = Vec::new();
+    for w in shifts.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if orient * a.transversality > 0.0 && orient * b.transversality <= 0.0 {
+            if let Some(s) = refine_shift(scenario, sc, a, b, dnu, tol, budget / 4) {
+                found.push(Candidate {
+                    z: s.z.as_slice().to_vec(),
+                    structure: FULL_STRUCTURE,
+                    mass: s.mass,
+                });
+            }
+        }
+    }
+    let (first, last) = (shifts[0], shifts[shifts.len() - 1]);
+    for (end, no_initial_coast) in [(first, true), (last, false)] {
+        let outward = if no_initial_coast { -1.0 } else { 1.0 };
+        if outward * orient * end.transversality <= 0.0 {
+            continue;
+        }
+        if let Some((z, structure)) = solve_end(scenario, sc, &end, no_initial_coast, dnu, tol, budget / 8) {
+            let c = Candidate {
+                z: z.as_slice().to_vec(),
+                structure,
+                mass: 0.0,
+            };
+            if let Ok(flight) = c.problem(scenario, sc).fly(&c.z, tol, false) {
+                found.push(Candidate {
+                    mass: flight.y_final[idx::M],
+                    ..c
+                });
+            }
+        }
+    }
+    if found.is_empty() {
+        return Err("bang-bang: no stationary shift solved".into());
+    }
+    found.sort_by(|a, b| b.mass.total_cmp(&a.mass));
+    Ok(found)
+}
+
+/// Replays costates and nu_f at `eps`: the terminal residual of a fresh single propagation from
+/// the initial costates, and the final mass.
+fn replay(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    z: &TransferVector,
+    eps: f64,
+    tol: &Tolerances,
+) -> Option<(f64, f64)> {
+    let params = OptimalControlParams { spacecraft: *sc, eps };
+    let f = transfer_residual_only(scenario, &params, z, tol).ok()?;
+    let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
+    let yf = propagate(&params, 0.0, &y0, scenario.time_of_flight(), tol).ok()?;
+    Some((f.amax(), yf[idx::M]))
+}
+
+/// Newton settings of the multiple-shooting solves.
+fn ms_settings(tolerance: f64) -> NewtonSettings {
+    NewtonSettings {
+        max_iterations: 12,
+        tolerance,
+    }
+}
+
+/// d x / d nu_f along the multiple-shooting solution `x` at `nu` (only the terminal position and
+/// velocity rows depend on nu_f), and the slope of the transversality residual along it.
+fn nu_tangent(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    x: &MsVector,
+    nu: f64,
+    eps: f64,
+    tol: &Tolerances,
+) -> Option<(MsVector, f64)> {
+    let problem = MultipleShootingTransfer {
+        scenario,
+        spacecraft: *sc,
+        nu_f: nu,
+    };
+    let (_, jac) = problem.residual(eps, x, tol).ok()?;
+    let orbit = orbit_state(&scenario.target, Dual2_64::from_re(nu).derivative());
+    let mut df = MsVector::zeros();
+    for i in 0..4 {
+        df[i] = -orbit[i].v1;
+    }
+    let t = jac.lu().solve(&(-df))?;
+    let h = 1e-6;
+    let moved = MultipleShootingTransfer {
+        nu_f: nu + h,
+        ..problem
+    };
+    let f_plus = moved.transversality(eps, &(x + t * h), tol).ok()?;
+    let f_minus = MultipleShootingTransfer {
+        nu_f: nu - h,
+        ..problem
+    }
+    .transversality(eps, &(x - t * h), tol)
+    .ok()?;
+    Some((t, (f_plus - f_minus) / (2.0 * h)))
+}
+
+/// Zeroes the transversality residual over nu_f at `eps` by multiple shooting: Newton in nu_f
+/// with the implicit slope (each trial solved from the tangent prediction, the step halved when
+/// that fails), regula falsi (Illinois) once the zero is bracketed.
+fn transversality_search(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    x0: &MsVector,
+    nu0: f64,
+    eps: f64,
+    tol: &Tolerances,
+    budget: u64,
+) -> Result<(MsVector, f64), String> {
+    let start = work_done();
+    let spent = || work_done().saturating_sub(start) >= budget;
+    let per = budget / 6;
+    let fail = |what: &str| format!("transversality search: {what}");
+    let solve_at = |x: &MsVector, t: Option<&MsVector>, from: f64, nu: f64| -> Option<(f64, MsVector)> {
+        let guess = t.map_or(*x, |t| x + t * (nu - from));
+        let problem = MultipleShootingTransfer {
+            scenario,
+            spacecraft: *sc,
+            nu_f: nu,
+        };
+        let budgeted = Budgeted::new(&problem, per);
+        let o = newton(&budgeted, eps, &guess, tol, &ms_settings(INNER_TOLERANCE)).ok()?;
+        if o.residual > 10.0 * INNER_TOLERANCE {
+            return None;
+        }
+        Some((problem.transversality(eps, &o.z, tol).ok()?, o.z))
+    };
+    let (mut f, mut x) = solve_at(x0, None, nu0, nu0).ok_or_else(|| fail("inner solve failed at the start"))?;
+    let mut nu = nu0;
+    // Points on either side of the zero seen so far: (nu, F5, x).
+    let mut neg: Option<(f64, f64, MsVector)> = None;
+    let mut pos: Option<(f64, f64, MsVector)> = None;
+    let mut side = 0i8;
+    for _ in 0..40 {
+        if f.abs() < SEARCH_TOLERANCE {
+            return Ok((x, nu));
+        }
+        if spent() {
+            return Err(fail("work budget spent"));
+        }
+        if f < 0.0 {
+            neg = Some((nu, f, x));
+        } else {
+            pos = Some((nu, f, x));
+        }
+        let (t, slope) = nu_tangent(scenario, sc, &x, nu, eps, tol).ok_or_else(|| fail("tangent failed"))?;
+        let mut target = nu - f / slope;
+        // Inside a bracket, stay inside it (regula falsi with Illinois weights if Newton leaves).
+        if let (Some(a), Some(b)) = (&neg, &pos) {
+            let (lo, hi) = (a.0.min(b.0), a.0.max(b.0));
+            if target <= lo || target >= hi || !target.is_finite() {
+                let (fa, fb) = match side {
+                    -1 => (a.1, 0.5 * b.1),
+                    1 => (0.5 * a.1, b.1),
+                    _ => (a.1, b.1),
+                };
+                target = (a.0 * fb - b.0 * fa) / (fb - fa);
+            }
+        }
+        if !target.is_finite() {
+            return Err(fail("flat transversality residual"));
+        }
+        let mut step = target - nu;
+        let mut accepted = None;
+        for _ in 0..8 {
+            if let Some(r) = solve_at(&x, Some(&t), nu, nu + step) {
+                accepted = Some(r);
+                break;
+            }
+            step *= 0.5;
+        }
+        let Some((fn_, xn)) = accepted else {
+            return Err(fail("inner solve failed"));
+        };
+        side = if fn_ < 0.0 { -1 } else { 1 };
+        (nu, f, x) = (nu + step, fn_, xn);
+    }
+    Err(fail("no convergence"))
+}
+
+/// Solves a near-circular transfer at the SPEC's final eps (see the module notes). Errors say
+/// where it stopped.
+pub fn solve(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let target = final_level(options.final_eps);
+    let list = candidates(scenario, sc, &tol, options.max_start_work / 4)?;
+    let best = &list[0];
+    let peak = smallest_burn_peak(scenario, sc, best, &tol);
+    let up = || {
+        let mut last = String::new();
+        for c in list.iter().take(2) {
+            match solve_candidate(scenario, sc, c, target, options) {
+                Ok(s) => return Ok(s),
+                Err(e) => last = format!("upward: {e}"),
+            }
+        }
+        Err(last)
+    };
+    let down = || solve_downward_free(scenario, sc, best, target, options).map_err(|e| format!("downward: {e}"));
+    // Burns whose switching function peaks this low are spread over most of the flight at the
+    // final eps: far from the bang-bang extremal the upward path starts from.
+    let (first, second): (&Path, &Path) = if peak > UPWARD_MIN_PEAK {
+        (&up, &down)
+    } else {
+        (&down, &up)
+    };
+    first().or_else(|e1| second().map_err(|e2| format!("{e1}; {e2}")))
+}
+
+/// One way to the final eps.
+type Path<'a> = dyn Fn() -> Result<CircularSolution, String> + 'a;
+
+/// Below this smallest burn peak of rho the downward path is tried first.
+const UPWARD_MIN_PEAK: f64 = 1e-6;
+
+/// The SPEC's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
+/// free-anomaly solution nearest the candidate's nu_f.
+fn solve_downward_free(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let single = super::shooting::TransferShooting {
+        scenario,
+        spacecraft: *sc,
+    };
+    let start = Budgeted::new(&single, options.max_start_work / 4);
+    let mut z = None;
+    for g in transfer_guesses(scenario) {
+        let mut g = g;
+        g[5] = c.z[5];
+        if let Ok(o) = newton(&start, 1.0, &g, &tol, &options.start_newton) {
+            if o.converged {
+                z = Some(o.z);
+                break;
+            }
+        }
+        if start.exhausted() {
+            break;
+        }
+    }
+    let z = z.ok_or("no energy-optimal start")?;
+    let nu = z[5];
+    let ms = MultipleShootingTransfer {
+        scenario,
+        spacecraft: *sc,
+        nu_f: nu,
+    };
+    let x0 = ms
+        .unknowns_from_costates(&[z[0], z[1], z[2], z[3], z[4]], 1.0, &tol)
+        .ok_or("energy-optimal propagation failed")?;
+    let free = MultipleShootingFree {
+        scenario,
+        spacecraft: *sc,
+    };
+    let budgeted = Budgeted::new(&free, options.max_homotopy_work);
+    let levels = homotopy_until(
+        &budgeted,
+        &MultipleShootingFree::join(&x0, nu),
+        &tol,
+        &ms_settings(CORRECTOR_TOLERANCE),
+        options.final_eps,
+        3 * options.max_homotopy_solves,
+        |_, _| false,
+    )
+    .map_err(|e| format!("{e:?}"))?;
+    let last = levels.last().ok_or("empty homotopy")?;
+    if !(last.outcome.converged && last.eps <= target) {
+        let deepest = levels.iter().rev().find(|l| l.outcome.converged).map_or(1.0, |l| l.eps);
+        return Err(format!("stalled below eps = {deepest:.3e}"));
+    }
+    let x = MsVector::from_column_slice(&last.outcome.z.as_slice()[..MS_UNKNOWNS]);
+    finish(scenario, sc, c, &x, last.outcome.z[MS_UNKNOWNS], target, options)
+}
+
+/// The nu_f search at the final eps from a multiple-shooting solution, then the replay.
+fn finish(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    x: &MsVector,
+    nu: f64,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, options.max_homotopy_work / 6) {
+        Ok(r) => r,
+        Err(e) => {
+            // nu_f free as a Newton unknown instead.
+            let free = MultipleShootingFree {
+                scenario,
+                spacecraft: *sc,
+            };
+            let budgeted = Budgeted::new(&free, options.max_homotopy_work / 6);
+            let settings = NewtonSettings {
+                max_iterations: 20,
+                tolerance: SEARCH_TOLERANCE,
+            };
+            let o = newton(&budgeted, target, &MultipleShootingFree::join(x, nu), &tol, &settings)
+                .map_err(|f| format!("{e}; free nu_f: {f:?}"))?;
+            if !o.converged {
+                return Err(format!("{e}; free nu_f: residual {:.1e}", o.residual));
+            }
+            (
+                MsVector::from_column_slice(&o.z.as_slice()[..MS_UNKNOWNS]),
+                o.z[MS_UNKNOWNS],
+            )
+        }
+    };
+    let z = TransferVector::from_column_slice(&[x[0], x[1], x[2], x[3], x[4], nu]);
+    let (mut residual, mut final_mass) = replay(scenario, sc, &z, target, &tol).ok_or("replay: propagation failed")?;
+    let mut z = z;
+    if residual >= POLISH_ABOVE {
+        // The multiple-shooting costates are exact to round-off, but a single propagation over the
+        // whole flight amplifies its own integration error by the single-shooting Jacobian (up to
+        // ~1e7 here): a few single-shooting Newton steps at the pinned nu_f absorb it.
+        let single = PinnedAnomalyTransfer {
+            scenario,
+            spacecraft: *sc,
+            nu_f: nu,
+        };
+        let settings = NewtonSettings {
+            max_iterations: 4,
+            tolerance: 1e-10,
+        };
+        let z0 = RendezvousVector::from_column_slice(&z.as_slice()[..5]);
+        if let Ok(o) = newton(&single, target, &z0, &tol, &settings) {
+            let polished = TransferVector::from_column_slice(&[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4], nu]);
+            if let Some((r, m)) = replay(scenario, sc, &polished, target, &tol) {
+                if r < residual {
+                    (z, residual, final_mass) = (polished, r, m);
+                }
+            }
+        }
+    }
+    if residual >= options.newton.tolerance {
+        return Err(format!(
+            "replay: terminal residual {residual:.1e} from the initial costates alone"
+        ));
+    }
+    Ok(CircularSolution {
+        z,
+        eps: target,
+        switches: c.z[6..].to_vec(),
+        initial_coast: c.structure.first == Regime::Coast,
+        residual,
+        final_mass,
+    })
+}
+
+fn solve_candidate(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    target: f64,
+    options: &SolveOptions,
+) -> Result<CircularSolution, String> {
+    let tol = options.tolerances;
+    let bb = c.problem(scenario, sc);
+    let nu = c.z[5];
+    let ms = MultipleShootingTransfer {
+        scenario,
+        spacecraft: *sc,
+        nu_f: nu,
+    };
+    let x0 = ms
+        .unknowns_from(|t| bb.state_at(&c.z, t, &tol).ok())
+        .ok_or("bang-bang candidate: propagation failed")?;
+    let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 3);
+    let start = upward_start(smallest_burn_peak(scenario, sc, c, &tol));
+    let first = newton(&budgeted, start, &x0, &tol, &ms_settings(INNER_TOLERANCE))
+        .map_err(|e| format!("upward start: {e:?}"))?;
+    if first.residual > 10.0 * INNER_TOLERANCE {
+        return Err(format!("upward start: residual {:.1e}", first.residual));
+    }
+    let (eps, x) = continue_eps(&budgeted, &first.z, start, target, &tol, &ms_settings(1e-9), 4.0, 40);
+    if eps < target {
+        return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
+    }
+    finish(scenario, sc, c, &x, nu, target, options)
+}
