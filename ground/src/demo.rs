@@ -762,7 +762,12 @@ mod tests {
         assert_eq!(converged.problem, ProblemKind::Rendezvous);
         assert_eq!((converged.records_used, converged.records_filtered_out), (1, 1));
         assert_eq!((all.records_used, all.tuples), (2, 2 * converged.tuples));
-        assert!(converged.unclipped_position.max < converged.position.max + 1e-12);
+        // The hold error dominates: the action's f32 narrowing moves the one-step position by
+        // far less than 1e-8 AU (an f32 rounding of a command whose displacement over one step
+        // is ~1e-3 AU), in either direction, so the two maxima agree to that.
+        assert!(converged.position.max > 0.0);
+        assert!((converged.unclipped_position.max - converged.position.max).abs() < 1e-8);
+        assert!((converged.unclipped_position.mean - converged.position.mean).abs() < 1e-8);
         assert!(matches!(
             mismatch_report(&dir.join("missing.ltds"), &config, RecordFilter::All),
             Err(DemoError::Dataset(_))
