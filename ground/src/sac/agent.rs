@@ -6,7 +6,7 @@ use std::path::Path;
 use tch::nn::{self, VarStore};
 use tch::{Device, Kind, Tensor};
 
-use super::adam::Adam;
+use super::adam::{flatten_parameters, Adam};
 use super::networks::{Actor, TwinCritic};
 use super::replay::Batch;
 use super::SacConfig;
@@ -56,8 +56,9 @@ pub struct Sac {
     critics: TwinCritic,
     target_store: VarStore,
     targets: TwinCritic,
-    /// (target, online) pairs sharing storage with the stores, for Polyak averaging.
-    target_pairs: Vec<(Tensor, Tensor)>,
+    /// The target critics' parameters as one buffer, laid out as the online critics' optimiser
+    /// buffer, for Polyak averaging in one kernel.
+    target_flat: Tensor,
     temperature_store: VarStore,
     log_temperature: Tensor,
     actor_optimizer: Adam,
@@ -97,18 +98,16 @@ impl Sac {
         let mut target_store = VarStore::new(device);
         let targets = TwinCritic::new(&(target_store.root() / "critic"), obs_dim, act_dim, &config.hidden);
         target_store.freeze();
-        let online = critic_store.variables();
-        let target_pairs: Vec<(Tensor, Tensor)> = target_store
-            .variables()
-            .into_iter()
-            .map(|(name, t)| (t, online[&name].shallow_clone()))
-            .collect();
-        tch::no_grad(|| {
-            for (t, s) in &target_pairs {
-                let mut t = t.shallow_clone();
-                t.copy_(s);
-            }
-        });
+        let critic_optimizer = Adam::new(critic_store.trainable_variables(), config.learning_rate);
+        // Both stores were built by the same constructor, so their creation orders (and the
+        // flat layouts) correspond parameter for parameter.
+        let target_params = target_store.trainable_variables();
+        debug_assert!(target_params
+            .iter()
+            .zip(critic_store.trainable_variables())
+            .all(|(t, s)| t.size() == s.size()));
+        let mut target_flat = flatten_parameters(&target_params);
+        tch::no_grad(|| target_flat.copy_(critic_optimizer.flat_parameters()));
         let temperature_store = VarStore::new(device);
         let log_temperature =
             temperature_store
@@ -116,7 +115,6 @@ impl Sac {
                 .var("log_temperature", &[1], nn::Init::Const(config.initial_log_temperature));
         let lr = config.learning_rate;
         let actor_optimizer = Adam::new(actor_store.trainable_variables(), lr);
-        let critic_optimizer = Adam::new(critic_store.trainable_variables(), lr);
         let temperature_optimizer = Adam::new(vec![log_temperature.shallow_clone()], lr);
         let target_entropy = config.target_entropy.unwrap_or(-(act_dim as f64));
         Self {
@@ -130,7 +128,7 @@ impl Sac {
             critics,
             target_store,
             targets,
-            target_pairs,
+            target_flat,
             temperature_store,
             log_temperature,
             actor_optimizer,
@@ -249,10 +247,7 @@ impl Sac {
     fn polyak_update(&mut self) {
         let tau = self.config.target_smoothing;
         tch::no_grad(|| {
-            for (t, s) in &self.target_pairs {
-                let mut t = t.shallow_clone();
-                let _ = t.lerp_(s, tau);
-            }
+            let _ = self.target_flat.lerp_(self.critic_optimizer.flat_parameters(), tau);
         });
     }
 
@@ -352,9 +347,16 @@ impl Sac {
         (count(&self.actor_store), count(&self.critic_store))
     }
 
-    /// (target, online) critic parameter pairs, for inspection.
-    pub fn target_pairs(&self) -> &[(Tensor, Tensor)] {
-        &self.target_pairs
+    /// (target, online) critic parameter pairs matched by name (independently of the flat
+    /// layouts Polyak averaging runs on), for inspection.
+    pub fn target_pairs(&self) -> Vec<(Tensor, Tensor)> {
+        let online = self.critic_store.variables();
+        let mut targets: Vec<_> = self.target_store.variables().into_iter().collect();
+        targets.sort_by(|a, b| a.0.cmp(&b.0));
+        targets
+            .into_iter()
+            .filter_map(|(name, t)| online.get(&name).map(|s| (t, s.shallow_clone())))
+            .collect()
     }
 
     /// The temperature's variable store (one scalar, log alpha).
@@ -481,6 +483,7 @@ mod tests {
             sac.target_pairs().iter().map(|(t, s)| (t.copy(), s.copy())).collect()
         };
         let initial = snapshot(&sac);
+        assert_eq!(initial.len(), sac.critic_store.trainable_variables().len());
         for (t, s) in &initial {
             assert_eq!(t.size(), s.size());
             assert!(
