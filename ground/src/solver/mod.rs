@@ -350,6 +350,10 @@ impl<P: ShootingProblem<K>, const K: usize> ShootingProblem<K> for Budgeted<'_, 
         self.take()?;
         self.inner.residual(eps, z, tolerances)
     }
+
+    fn stall_limit(&self) -> u32 {
+        self.inner.stall_limit()
+    }
 }
 
 /// The last converged homotopy level of a solve, how many distinct energy-optimal starts

@@ -115,10 +115,28 @@ impl MultipleShootingTransfer<'_> {
     }
 }
 
-impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
-    fn residual_only(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<MsVector, IntegrationError> {
+/// Consecutive stagnating Newton iterations after which a multiple-shooting solve gives up
+/// (see [`ShootingProblem::stall_limit`]). Why: a stagnating homotopy corrector here rarely
+/// recovers (measured on transfer-circular: residuals stuck at 2.5e-8 or 1.4e-5 for 6 to 9
+/// iterations, then failed), and each of those iterations costs a line search, a look-ahead
+/// and a valley step, 10 to 15 Jacobians; a shorter continuation step is cheaper. 3, not 2: a
+/// corrector that crawls for two iterations and then converges was seen too.
+pub const STALL_ITERATIONS: u32 = 3;
+
+/// The final state-costate and its transition matrix over the last segment.
+type LastSegment = ([f64; Y_LEN], [[f64; Y_LEN]; Y_LEN]);
+
+impl MultipleShootingTransfer<'_> {
+    /// The residual and the final state-costate.
+    fn residual_and_final(
+        &self,
+        eps: f64,
+        x: &MsVector,
+        tol: &Tolerances,
+    ) -> Result<(MsVector, [f64; Y_LEN]), IntegrationError> {
         let params = self.params(eps);
         let mut f = MsVector::zeros();
+        let mut last = [0.0; Y_LEN];
         for k in 0..SEGMENTS {
             let y = propagate(&params, self.node(k), &self.start(k, x), self.node(k + 1), tol)?;
             if k + 1 < SEGMENTS {
@@ -129,15 +147,24 @@ impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
                 }
             } else {
                 self.terminal(&y, &mut f);
+                last = y;
             }
         }
-        Ok(f)
+        Ok((f, last))
     }
 
-    fn residual(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<(MsVector, MsJacobian), IntegrationError> {
+    /// The residual, its Jacobian, and the last segment's final state-costate and transition
+    /// matrix (the free-anomaly problem's transversality row needs them).
+    fn residual_and_last(
+        &self,
+        eps: f64,
+        x: &MsVector,
+        tol: &Tolerances,
+    ) -> Result<(MsVector, MsJacobian, LastSegment), IntegrationError> {
         let params = self.params(eps);
         let mut f = MsVector::zeros();
         let mut jac = MsJacobian::zeros();
+        let mut last = ([0.0; Y_LEN], [[0.0; Y_LEN]; Y_LEN]);
         for k in 0..SEGMENTS {
             let (y, stm) = propagate_stm(&params, self.node(k), &self.start(k, x), self.node(k + 1), tol)?;
             // Columns of this segment's start: the costates (k = 0) or the whole node.
@@ -165,9 +192,24 @@ impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
                         jac[(r, col)] = stm[i][j];
                     }
                 }
+                last = (y, stm);
             }
         }
-        Ok((f, jac))
+        Ok((f, jac, last))
+    }
+}
+
+impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
+    fn residual_only(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<MsVector, IntegrationError> {
+        self.residual_and_final(eps, x, tol).map(|(f, _)| f)
+    }
+
+    fn residual(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<(MsVector, MsJacobian), IntegrationError> {
+        self.residual_and_last(eps, x, tol).map(|(f, j, _)| (f, j))
+    }
+
+    fn stall_limit(&self) -> u32 {
+        STALL_ITERATIONS
     }
 }
 
@@ -261,12 +303,16 @@ impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
     fn residual_only(&self, eps: f64, x: &MsFreeVector, tol: &Tolerances) -> Result<MsFreeVector, IntegrationError> {
         let (xp, nu) = Self::split(x);
         let p = self.pinned(nu);
-        let f = p.residual_only(eps, &xp, tol)?;
-        let t = p.transversality(eps, &xp, tol)?;
+        let (f, y) = p.residual_and_final(eps, &xp, tol)?;
+        let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu).derivative());
         let mut out = MsFreeVector::zeros();
         out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());
-        out[MS_UNKNOWNS] = t;
+        out[MS_UNKNOWNS] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
         Ok(out)
+    }
+
+    fn stall_limit(&self) -> u32 {
+        STALL_ITERATIONS
     }
 
     fn residual(
@@ -277,14 +323,8 @@ impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
     ) -> Result<(MsFreeVector, SMatrix<f64, MS_FREE_UNKNOWNS, MS_FREE_UNKNOWNS>), IntegrationError> {
         let (xp, nu) = Self::split(x);
         let p = self.pinned(nu);
-        let (f, jac) = p.residual(eps, &xp, tol)?;
-        // The last segment again, for the transversality row.
+        let (f, jac, (y, stm)) = p.residual_and_last(eps, &xp, tol)?;
         let k = SEGMENTS - 1;
-        let params = OptimalControlParams {
-            spacecraft: self.spacecraft,
-            eps,
-        };
-        let (y, stm) = propagate_stm(&params, p.node(k), &p.start(k, &xp), p.node(k + 1), tol)?;
         let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu).derivative());
         let mut out = MsFreeVector::zeros();
         out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());

@@ -112,6 +112,12 @@ pub trait ShootingProblem<const K: usize> {
         z: &SVector<f64, K>,
         tolerances: &Tolerances,
     ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError>;
+
+    /// [`newton`] gives up after this many consecutive iterations that each reduced the residual
+    /// (2-norm) by less than half; by default it never does.
+    fn stall_limit(&self) -> u32 {
+        u32::MAX
+    }
 }
 
 /// The free-anomaly transfer (6 unknowns: lambda_0 and nu_f).
@@ -292,6 +298,10 @@ pub fn newton<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
+    // See ShootingProblem::stall_limit.
+    let stall = problem.stall_limit();
+    let mut stalled = 0u32;
+    let mut last_norm = f64::INFINITY;
     let eval = |z: &SVector<f64, K>| problem.residual(eps, z, tolerances);
     let mut z = *z0;
     let (mut f, mut jac) = eval(&z)?;
@@ -308,6 +318,17 @@ where
                 converged: true,
             });
         }
+        // The 2-norm, which the line search decreases (the max norm can stay put while it falls).
+        let norm = f.norm();
+        if norm > 0.5 * last_norm {
+            stalled += 1;
+            if stalled >= stall {
+                break;
+            }
+        } else {
+            stalled = 0;
+        }
+        last_norm = norm;
         iterations += 1;
         let f2 = f.norm_squared();
         let full = svd_step(&jac, &f, RCOND, 0);
