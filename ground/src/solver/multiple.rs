@@ -260,6 +260,60 @@ mod tests {
             }
         }
     }
+
+    /// The free-anomaly Jacobian (its transversality row and nu_f column built from the last
+    /// segment's transition matrix and the orbit's derivatives) against central differences of
+    /// its residual, and that residual's rows against the pinned problem's.
+    #[test]
+    fn free_anomaly_jacobian_matches_finite_differences() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let scenario = ScenarioKind::TransferCircular.draw(7, 0);
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let eps = 0.05;
+        let nu = 11.8;
+        let pinned = MultipleShootingTransfer {
+            scenario: &scenario,
+            spacecraft: sc,
+            nu_f: nu,
+        };
+        let lambda0 = [0.096, 0.638, -0.719, 0.103, 0.067];
+        let x = pinned.unknowns_from_costates(&lambda0, eps, &tol).unwrap();
+        let x = x + MsVector::from_fn(|i, _| 1e-4 * ((i as f64) * 0.3).cos());
+        let free = MultipleShootingFree {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let z = MultipleShootingFree::join(&x, nu);
+        let (f, jac) = free.residual(eps, &z, &tol).unwrap();
+        let f_only = free.residual_only(eps, &z, &tol).unwrap();
+        let f_pinned = pinned.residual_only(eps, &x, &tol).unwrap();
+        let t = pinned.transversality(eps, &x, &tol).unwrap();
+        assert!((f - f_only).amax() < 1e-9, "{}", (f - f_only).amax());
+        for i in 0..MS_UNKNOWNS {
+            assert!((f[i] - f_pinned[i]).abs() < 1e-9, "row {i}");
+        }
+        assert!((f[MS_UNKNOWNS] - t).abs() < 1e-9);
+        let h = 1e-6;
+        for k in 0..MS_FREE_UNKNOWNS {
+            let (mut zp, mut zm) = (z, z);
+            zp[k] += h;
+            zm[k] -= h;
+            let fd =
+                (free.residual_only(eps, &zp, &tol).unwrap() - free.residual_only(eps, &zm, &tol).unwrap()) / (2.0 * h);
+            for i in 0..MS_FREE_UNKNOWNS {
+                assert!(
+                    (jac[(i, k)] - fd[i]).abs() < 1e-5 * (1.0 + fd[i].abs()),
+                    "dF{i}/dz{k}: {} vs {}",
+                    jac[(i, k)],
+                    fd[i]
+                );
+            }
+        }
+    }
 }
 
 /// Unknowns of the free-anomaly multiple shooting: [`MS_UNKNOWNS`] and nu_f last.

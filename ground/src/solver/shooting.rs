@@ -824,6 +824,73 @@ mod tests {
     use shared::scenario::ProblemKind;
     use shared::spacecraft::Spacecraft;
 
+    /// F(z) = (z0^2 + 1e-2, z1): no root, its |F| only creeps towards 1e-2 under Newton (z0 halves
+    /// per step); `stall` is its stall limit.
+    struct NoRoot {
+        stall: u32,
+    }
+
+    impl ShootingProblem<2> for NoRoot {
+        fn residual(
+            &self,
+            _eps: f64,
+            z: &SVector<f64, 2>,
+            _tolerances: &Tolerances,
+        ) -> Result<(SVector<f64, 2>, SMatrix<f64, 2, 2>), IntegrationError> {
+            Ok((
+                SVector::<f64, 2>::new(z[0] * z[0] + 1e-2, z[1]),
+                SMatrix::<f64, 2, 2>::new(2.0 * z[0], 0.0, 0.0, 1.0),
+            ))
+        }
+
+        fn stall_limit(&self) -> u32 {
+            self.stall
+        }
+    }
+
+    /// Newton with a stall limit stops after that many consecutive iterations that did not halve
+    /// |F|, not converged, where the default runs to its iteration cap; and a stall limit does
+    /// not stop an iteration that converges (the same problem with a root).
+    #[test]
+    fn newton_gives_up_after_the_stall_limit() {
+        let settings = NewtonSettings {
+            max_iterations: 40,
+            tolerance: 1e-12,
+        };
+        let z0 = SVector::<f64, 2>::new(1.0, 1.0);
+        let capped = newton(&NoRoot { stall: u32::MAX }, 0.0, &z0, &tight(), &settings).unwrap();
+        assert!(!capped.converged);
+        assert_eq!(capped.iterations, 40);
+        let stalled = newton(&NoRoot { stall: 3 }, 0.0, &z0, &tight(), &settings).unwrap();
+        assert!(!stalled.converged);
+        // |F| halves while z0^2 dominates 1e-2 (a few steps), then creeps: 3 stagnating ones later
+        // it stops, far below the cap.
+        assert!(stalled.iterations < 12, "{}", stalled.iterations);
+        assert!((stalled.residual - 1e-2).abs() < 1e-3, "{}", stalled.residual);
+
+        /// z0^2 - 1e-2: a root at z0 = 0.1, converging quadratically.
+        struct Root;
+        impl ShootingProblem<1> for Root {
+            fn residual(
+                &self,
+                _eps: f64,
+                z: &SVector<f64, 1>,
+                _tolerances: &Tolerances,
+            ) -> Result<(SVector<f64, 1>, SMatrix<f64, 1, 1>), IntegrationError> {
+                Ok((
+                    SVector::<f64, 1>::new(z[0] * z[0] - 1e-2),
+                    SMatrix::<f64, 1, 1>::new(2.0 * z[0]),
+                ))
+            }
+
+            fn stall_limit(&self) -> u32 {
+                1
+            }
+        }
+        let root = newton(&Root, 0.0, &SVector::<f64, 1>::new(0.3), &tight(), &settings).unwrap();
+        assert!(root.converged && (root.z[0] - 0.1).abs() < 1e-10, "{root:?}");
+    }
+
     /// The integration accuracy every shooting test uses (SPEC: rtol 1e-11 or tighter).
     fn tight() -> Tolerances {
         Tolerances {
