@@ -29,8 +29,8 @@
 //! So the result is an extremal of the SPEC section 3 problem at eps = 0 (the fuel-optimal
 //! problem the homotopy aims at), with its final eps recorded as 0.
 
-use nalgebra::SVector;
-use onboard::integrator::Tolerances;
+use nalgebra::{SMatrix, SVector};
+use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -78,6 +78,42 @@ fn continuation_tolerances(tol: &Tolerances) -> Tolerances {
         relative: CONTINUATION_RTOL.max(tol.relative),
         absolute: (0.1 * CONTINUATION_RTOL).max(tol.absolute),
         ..*tol
+    }
+}
+
+/// Consecutive stagnating Newton iterations after which a continuation corrector gives up (see
+/// [`ShootingProblem::stall_limit`]). Why: a stagnating corrector of these continuations rarely
+/// recovers (measured: residuals stuck at 2.5e-8 or 1.4e-5 for 6 to 9 iterations, then failed),
+/// and each of those iterations costs a line search, a look-ahead and a valley step, 10 to 15
+/// Jacobians; the continuation's shorter step is cheaper. 3, not 2: correctors that crawl for two
+/// iterations and then converge are common (2 lost 5 of 100 draws). Only correctors: a start
+/// from a guess (the upward start, the nu_f search) may crawl long and converge (seed 7 #527).
+const STALL_ITERATIONS: u32 = 3;
+
+/// A shooting problem whose Newton solves are continuation correctors ([`STALL_ITERATIONS`]).
+struct Correctors<'a, P>(&'a P);
+
+impl<P: ShootingProblem<K>, const K: usize> ShootingProblem<K> for Correctors<'_, P> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<SVector<f64, K>, IntegrationError> {
+        self.0.residual_only(eps, z, tolerances)
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError> {
+        self.0.residual(eps, z, tolerances)
+    }
+
+    fn stall_limit(&self) -> u32 {
+        STALL_ITERATIONS
     }
 }
 
@@ -466,7 +502,9 @@ fn nu_tangent(
 
 /// Zeroes the transversality residual over nu_f at `eps` by multiple shooting: Newton in nu_f
 /// with the implicit slope (each trial solved from the tangent prediction, the step halved when
-/// that fails), regula falsi (Illinois) once the zero is bracketed.
+/// that fails), regula falsi (Illinois) once the zero is bracketed. With `stall`, the inner solves
+/// give up when they stagnate ([`STALL_ITERATIONS`]).
+#[allow(clippy::too_many_arguments)]
 fn transversality_search(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
@@ -475,6 +513,7 @@ fn transversality_search(
     eps: f64,
     tol: &Tolerances,
     budget: u64,
+    stall: bool,
 ) -> Result<(MsVector, f64), String> {
     let start = work_done();
     let spent = || work_done().saturating_sub(start) >= budget;
@@ -488,7 +527,13 @@ fn transversality_search(
             nu_f: nu,
         };
         let budgeted = Budgeted::new(&problem, per);
-        let o = newton(&budgeted, eps, &guess, tol, &ms_settings(INNER_TOLERANCE)).ok()?;
+        let settings = ms_settings(INNER_TOLERANCE);
+        let o = if stall {
+            newton(&Correctors(&budgeted), eps, &guess, tol, &settings)
+        } else {
+            newton(&budgeted, eps, &guess, tol, &settings)
+        }
+        .ok()?;
         if o.residual > 10.0 * INNER_TOLERANCE {
             return None;
         }
@@ -631,7 +676,7 @@ fn solve_downward_free(
     };
     let budgeted = Budgeted::new(&free, options.max_homotopy_work);
     let levels = homotopy_until(
-        &budgeted,
+        &Correctors(&budgeted),
         &MultipleShootingFree::join(&x0, nu),
         &continuation_tolerances(&tol),
         &ms_settings(CORRECTOR_TOLERANCE),
@@ -663,7 +708,16 @@ fn solve_downward_free(
             .map_err(|e| format!("stalled below eps = {:.3e}; pinned: {e}", deepest.eps));
     }
     let x = MsVector::from_column_slice(&last.outcome.z.as_slice()[..MS_UNKNOWNS]);
-    finish(scenario, sc, c, &x, last.outcome.z[MS_UNKNOWNS], target, options)
+    finish(
+        scenario,
+        sc,
+        c,
+        &x,
+        last.outcome.z[MS_UNKNOWNS],
+        target,
+        options,
+        options.max_homotopy_work / 6,
+    )
 }
 
 /// The rest of the downward path with nu_f pinned, from a free-anomaly solution `z` at `eps`.
@@ -691,7 +745,7 @@ fn pinned_downward(
     let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 3);
     let x0 = MsVector::from_column_slice(&z.as_slice()[..MS_UNKNOWNS]);
     let (reached, x) = continue_eps(
-        &budgeted,
+        &Correctors(&budgeted),
         &x0,
         eps,
         target,
@@ -703,10 +757,13 @@ fn pinned_downward(
     if reached > target {
         return Err(format!("stalled at eps = {reached:.3e}"));
     }
-    finish(scenario, sc, c, &x, nu, target, options)
+    // nu_f was pinned where the free path stalled, farther from its zero than on the other
+    // paths: the search gets the whole homotopy budget (seed 7 #260 and #308 need ~1/3 of it).
+    finish(scenario, sc, c, &x, nu, target, options, options.max_homotopy_work)
 }
 
 /// The nu_f search at the final eps from a multiple-shooting solution, then the replay.
+#[allow(clippy::too_many_arguments)]
 fn finish(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
@@ -715,9 +772,32 @@ fn finish(
     nu: f64,
     target: f64,
     options: &SolveOptions,
+    search_budget: u64,
+) -> Result<CircularSolution, String> {
+    // Stagnating inner solves cut short first (cheaper; seed 7 #260 and #308 need it to finish
+    // within the budget), then run to their iteration cap (#149 and #356 need that: their
+    // stall-limited search ends on costates whose replay misses by 1.3e-8 and 4e-8).
+    finish_with(scenario, sc, c, x, nu, target, options, search_budget, true).or_else(|e| {
+        finish_with(scenario, sc, c, x, nu, target, options, search_budget, false)
+            .map_err(|f| format!("{e}; without the stall limit: {f}"))
+    })
+}
+
+/// [`finish`] with the nu_f search's inner solves stall-limited or not.
+#[allow(clippy::too_many_arguments)]
+fn finish_with(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    c: &Candidate,
+    x: &MsVector,
+    nu: f64,
+    target: f64,
+    options: &SolveOptions,
+    search_budget: u64,
+    stall: bool,
 ) -> Result<CircularSolution, String> {
     let tol = options.tolerances;
-    let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, options.max_homotopy_work / 6) {
+    let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, search_budget, stall) {
         Ok(r) => r,
         Err(e) => {
             // nu_f free as a Newton unknown instead.
@@ -810,7 +890,7 @@ fn solve_candidate(
         return Err(format!("upward start: residual {:.1e}", first.residual));
     }
     let (eps, x) = continue_eps(
-        &budgeted,
+        &Correctors(&budgeted),
         &first.z,
         start,
         target,
@@ -822,5 +902,5 @@ fn solve_candidate(
     if eps < target {
         return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
     }
-    finish(scenario, sc, c, &x, nu, target, options)
+    finish(scenario, sc, c, &x, nu, target, options, options.max_homotopy_work / 6)
 }

@@ -115,14 +115,6 @@ impl MultipleShootingTransfer<'_> {
     }
 }
 
-/// Consecutive stagnating Newton iterations after which a multiple-shooting solve gives up
-/// (see [`ShootingProblem::stall_limit`]). Why: a stagnating homotopy corrector here rarely
-/// recovers (measured on transfer-circular: residuals stuck at 2.5e-8 or 1.4e-5 for 6 to 9
-/// iterations, then failed), and each of those iterations costs a line search, a look-ahead
-/// and a valley step, 10 to 15 Jacobians; a shorter continuation step is cheaper. 3, not 2: a
-/// corrector that crawls for two iterations and then converges was seen too.
-pub const STALL_ITERATIONS: u32 = 3;
-
 /// The final state-costate and its transition matrix over the last segment.
 type LastSegment = ([f64; Y_LEN], [[f64; Y_LEN]; Y_LEN]);
 
@@ -206,10 +198,6 @@ impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
 
     fn residual(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<(MsVector, MsJacobian), IntegrationError> {
         self.residual_and_last(eps, x, tol).map(|(f, j, _)| (f, j))
-    }
-
-    fn stall_limit(&self) -> u32 {
-        STALL_ITERATIONS
     }
 }
 
@@ -363,10 +351,6 @@ impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
         out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());
         out[MS_UNKNOWNS] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
         Ok(out)
-    }
-
-    fn stall_limit(&self) -> u32 {
-        STALL_ITERATIONS
     }
 
     fn residual(
