@@ -2,6 +2,7 @@
 //! the outcome, the path taken, the effort and the final mass against the Hohmann bound.
 //!
 //! SEED=7 IDX=0 N=20 cargo run --release -p lowthrust-ground --example circ_solve
+//! (CASES=37,59 for a list of indices)
 use std::time::Instant;
 
 use lowthrust_ground::solver::bangbang::Hohmann;
@@ -43,8 +44,14 @@ fn main() {
     }
     let get = |k: &str, d: u64| std::env::var(k).ok().and_then(|s| s.parse().ok()).unwrap_or(d);
     let (seed, i0, n) = (get("SEED", 7), get("IDX", 0), get("N", 10));
+    // CASES=37,59,..: those indices instead of IDX..IDX+N.
+    let indices: Vec<u64> = std::env::var("CASES").map_or_else(
+        |_| (i0..i0 + n).collect(),
+        |list| list.split(',').filter_map(|i| i.trim().parse().ok()).collect(),
+    );
+    let n = indices.len() as u64;
     let (mut ok, mut total) = (0, 0.0);
-    for index in i0..i0 + n {
+    for index in indices {
         let scenario = ScenarioKind::TransferCircular.draw(seed, index);
         let t = Instant::now();
         let w = work_done();

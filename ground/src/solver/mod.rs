@@ -350,6 +350,10 @@ impl<P: ShootingProblem<K>, const K: usize> ShootingProblem<K> for Budgeted<'_, 
         self.take()?;
         self.inner.residual(eps, z, tolerances)
     }
+
+    fn stall_limit(&self) -> u32 {
+        self.inner.stall_limit()
+    }
 }
 
 /// The last converged homotopy level of a solve, how many distinct energy-optimal starts
@@ -620,8 +624,9 @@ mod tests {
     }
 
     /// Transfer-circular draws reach the SPEC's final eps (2^-14) through `circular`, by the
-    /// upward path (#0: long burns) and the downward one (#5: short burns, spread at that eps):
-    /// fresh propagations of the recorded costates (plain and with sensitivities) meet all six
+    /// upward path (#0: long burns), the downward one (#5: short burns, spread at that eps) and
+    /// the downward one finished with nu_f pinned (#471: |da| = 0.007 AU, whose free-anomaly
+    /// path stalls at 2.4e-4): fresh propagations of the recorded costates (plain and with sensitivities) meet all six
     /// terminal conditions to 1e-8, and the final mass respects the impulsive bound and comes
     /// within 1e-4 of it (these transfers are close to impulsive).
     #[test]
@@ -629,7 +634,7 @@ mod tests {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let kind = ScenarioKind::TransferCircular;
         let options = SolveOptions::default();
-        for index in [0, 5] {
+        for index in [0, 5, 471] {
             let scenario = kind.draw(7, index);
             let record = solve_scenario(kind, 7, index, &scenario, &sc, &options);
             assert!(record.converged, "#{index}: {:?}", record.failure);

@@ -115,10 +115,20 @@ impl MultipleShootingTransfer<'_> {
     }
 }
 
-impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
-    fn residual_only(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<MsVector, IntegrationError> {
+/// The final state-costate and its transition matrix over the last segment.
+type LastSegment = ([f64; Y_LEN], [[f64; Y_LEN]; Y_LEN]);
+
+impl MultipleShootingTransfer<'_> {
+    /// The residual and the final state-costate.
+    fn residual_and_final(
+        &self,
+        eps: f64,
+        x: &MsVector,
+        tol: &Tolerances,
+    ) -> Result<(MsVector, [f64; Y_LEN]), IntegrationError> {
         let params = self.params(eps);
         let mut f = MsVector::zeros();
+        let mut last = [0.0; Y_LEN];
         for k in 0..SEGMENTS {
             let y = propagate(&params, self.node(k), &self.start(k, x), self.node(k + 1), tol)?;
             if k + 1 < SEGMENTS {
@@ -129,15 +139,24 @@ impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
                 }
             } else {
                 self.terminal(&y, &mut f);
+                last = y;
             }
         }
-        Ok(f)
+        Ok((f, last))
     }
 
-    fn residual(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<(MsVector, MsJacobian), IntegrationError> {
+    /// The residual, its Jacobian, and the last segment's final state-costate and transition
+    /// matrix (the free-anomaly problem's transversality row needs them).
+    fn residual_and_last(
+        &self,
+        eps: f64,
+        x: &MsVector,
+        tol: &Tolerances,
+    ) -> Result<(MsVector, MsJacobian, LastSegment), IntegrationError> {
         let params = self.params(eps);
         let mut f = MsVector::zeros();
         let mut jac = MsJacobian::zeros();
+        let mut last = ([0.0; Y_LEN], [[0.0; Y_LEN]; Y_LEN]);
         for k in 0..SEGMENTS {
             let (y, stm) = propagate_stm(&params, self.node(k), &self.start(k, x), self.node(k + 1), tol)?;
             // Columns of this segment's start: the costates (k = 0) or the whole node.
@@ -165,9 +184,20 @@ impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
                         jac[(r, col)] = stm[i][j];
                     }
                 }
+                last = (y, stm);
             }
         }
-        Ok((f, jac))
+        Ok((f, jac, last))
+    }
+}
+
+impl ShootingProblem<MS_UNKNOWNS> for MultipleShootingTransfer<'_> {
+    fn residual_only(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<MsVector, IntegrationError> {
+        self.residual_and_final(eps, x, tol).map(|(f, _)| f)
+    }
+
+    fn residual(&self, eps: f64, x: &MsVector, tol: &Tolerances) -> Result<(MsVector, MsJacobian), IntegrationError> {
+        self.residual_and_last(eps, x, tol).map(|(f, j, _)| (f, j))
     }
 }
 
@@ -218,6 +248,60 @@ mod tests {
             }
         }
     }
+
+    /// The free-anomaly Jacobian (its transversality row and nu_f column built from the last
+    /// segment's transition matrix and the orbit's derivatives) against central differences of
+    /// its residual, and that residual's rows against the pinned problem's.
+    #[test]
+    fn free_anomaly_jacobian_matches_finite_differences() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let scenario = ScenarioKind::TransferCircular.draw(7, 0);
+        let tol = Tolerances {
+            relative: 1e-12,
+            absolute: 1e-13,
+            ..Tolerances::default()
+        };
+        let eps = 0.05;
+        let nu = 11.8;
+        let pinned = MultipleShootingTransfer {
+            scenario: &scenario,
+            spacecraft: sc,
+            nu_f: nu,
+        };
+        let lambda0 = [0.096, 0.638, -0.719, 0.103, 0.067];
+        let x = pinned.unknowns_from_costates(&lambda0, eps, &tol).unwrap();
+        let x = x + MsVector::from_fn(|i, _| 1e-4 * ((i as f64) * 0.3).cos());
+        let free = MultipleShootingFree {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let z = MultipleShootingFree::join(&x, nu);
+        let (f, jac) = free.residual(eps, &z, &tol).unwrap();
+        let f_only = free.residual_only(eps, &z, &tol).unwrap();
+        let f_pinned = pinned.residual_only(eps, &x, &tol).unwrap();
+        let t = pinned.transversality(eps, &x, &tol).unwrap();
+        assert!((f - f_only).amax() < 1e-9, "{}", (f - f_only).amax());
+        for i in 0..MS_UNKNOWNS {
+            assert!((f[i] - f_pinned[i]).abs() < 1e-9, "row {i}");
+        }
+        assert!((f[MS_UNKNOWNS] - t).abs() < 1e-9);
+        let h = 1e-6;
+        for k in 0..MS_FREE_UNKNOWNS {
+            let (mut zp, mut zm) = (z, z);
+            zp[k] += h;
+            zm[k] -= h;
+            let fd =
+                (free.residual_only(eps, &zp, &tol).unwrap() - free.residual_only(eps, &zm, &tol).unwrap()) / (2.0 * h);
+            for i in 0..MS_FREE_UNKNOWNS {
+                assert!(
+                    (jac[(i, k)] - fd[i]).abs() < 1e-5 * (1.0 + fd[i].abs()),
+                    "dF{i}/dz{k}: {} vs {}",
+                    jac[(i, k)],
+                    fd[i]
+                );
+            }
+        }
+    }
 }
 
 /// Unknowns of the free-anomaly multiple shooting: [`MS_UNKNOWNS`] and nu_f last.
@@ -261,11 +345,11 @@ impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
     fn residual_only(&self, eps: f64, x: &MsFreeVector, tol: &Tolerances) -> Result<MsFreeVector, IntegrationError> {
         let (xp, nu) = Self::split(x);
         let p = self.pinned(nu);
-        let f = p.residual_only(eps, &xp, tol)?;
-        let t = p.transversality(eps, &xp, tol)?;
+        let (f, y) = p.residual_and_final(eps, &xp, tol)?;
+        let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu).derivative());
         let mut out = MsFreeVector::zeros();
         out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());
-        out[MS_UNKNOWNS] = t;
+        out[MS_UNKNOWNS] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
         Ok(out)
     }
 
@@ -277,14 +361,8 @@ impl ShootingProblem<MS_FREE_UNKNOWNS> for MultipleShootingFree<'_> {
     ) -> Result<(MsFreeVector, SMatrix<f64, MS_FREE_UNKNOWNS, MS_FREE_UNKNOWNS>), IntegrationError> {
         let (xp, nu) = Self::split(x);
         let p = self.pinned(nu);
-        let (f, jac) = p.residual(eps, &xp, tol)?;
-        // The last segment again, for the transversality row.
+        let (f, jac, (y, stm)) = p.residual_and_last(eps, &xp, tol)?;
         let k = SEGMENTS - 1;
-        let params = OptimalControlParams {
-            spacecraft: self.spacecraft,
-            eps,
-        };
-        let (y, stm) = propagate_stm(&params, p.node(k), &p.start(k, &xp), p.node(k + 1), tol)?;
         let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu).derivative());
         let mut out = MsFreeVector::zeros();
         out.as_mut_slice()[..MS_UNKNOWNS].copy_from_slice(f.as_slice());

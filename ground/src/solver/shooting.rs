@@ -112,6 +112,12 @@ pub trait ShootingProblem<const K: usize> {
         z: &SVector<f64, K>,
         tolerances: &Tolerances,
     ) -> Result<(SVector<f64, K>, SMatrix<f64, K, K>), IntegrationError>;
+
+    /// [`newton`] gives up after this many consecutive iterations that each reduced the residual
+    /// (2-norm) by less than half; by default it never does.
+    fn stall_limit(&self) -> u32 {
+        u32::MAX
+    }
 }
 
 /// The free-anomaly transfer (6 unknowns: lambda_0 and nu_f).
@@ -292,6 +298,10 @@ pub fn newton<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
+    // See ShootingProblem::stall_limit.
+    let stall = problem.stall_limit();
+    let mut stalled = 0u32;
+    let mut last_norm = f64::INFINITY;
     let eval = |z: &SVector<f64, K>| problem.residual(eps, z, tolerances);
     let mut z = *z0;
     let (mut f, mut jac) = eval(&z)?;
@@ -308,6 +318,17 @@ where
                 converged: true,
             });
         }
+        // The 2-norm, which the line search decreases (the max norm can stay put while it falls).
+        let norm = f.norm();
+        if norm > 0.5 * last_norm {
+            stalled += 1;
+            if stalled >= stall {
+                break;
+            }
+        } else {
+            stalled = 0;
+        }
+        last_norm = norm;
         iterations += 1;
         let f2 = f.norm_squared();
         let full = svd_step(&jac, &f, RCOND, 0);
@@ -802,6 +823,73 @@ mod tests {
     use shared::orbit::OrbitElements;
     use shared::scenario::ProblemKind;
     use shared::spacecraft::Spacecraft;
+
+    /// F(z) = (z0^2 + 1e-2, z1): no root, its |F| only creeps towards 1e-2 under Newton (z0 halves
+    /// per step); `stall` is its stall limit.
+    struct NoRoot {
+        stall: u32,
+    }
+
+    impl ShootingProblem<2> for NoRoot {
+        fn residual(
+            &self,
+            _eps: f64,
+            z: &SVector<f64, 2>,
+            _tolerances: &Tolerances,
+        ) -> Result<(SVector<f64, 2>, SMatrix<f64, 2, 2>), IntegrationError> {
+            Ok((
+                SVector::<f64, 2>::new(z[0] * z[0] + 1e-2, z[1]),
+                SMatrix::<f64, 2, 2>::new(2.0 * z[0], 0.0, 0.0, 1.0),
+            ))
+        }
+
+        fn stall_limit(&self) -> u32 {
+            self.stall
+        }
+    }
+
+    /// Newton with a stall limit stops after that many consecutive iterations that did not halve
+    /// |F|, not converged, where the default runs to its iteration cap; and a stall limit does
+    /// not stop an iteration that converges (the same problem with a root).
+    #[test]
+    fn newton_gives_up_after_the_stall_limit() {
+        let settings = NewtonSettings {
+            max_iterations: 40,
+            tolerance: 1e-12,
+        };
+        let z0 = SVector::<f64, 2>::new(1.0, 1.0);
+        let capped = newton(&NoRoot { stall: u32::MAX }, 0.0, &z0, &tight(), &settings).unwrap();
+        assert!(!capped.converged);
+        assert_eq!(capped.iterations, 40);
+        let stalled = newton(&NoRoot { stall: 3 }, 0.0, &z0, &tight(), &settings).unwrap();
+        assert!(!stalled.converged);
+        // |F| halves while z0^2 dominates 1e-2 (a few steps), then creeps: 3 stagnating ones later
+        // it stops, far below the cap.
+        assert!(stalled.iterations < 12, "{}", stalled.iterations);
+        assert!((stalled.residual - 1e-2).abs() < 1e-3, "{}", stalled.residual);
+
+        /// z0^2 - 1e-2: a root at z0 = 0.1, converging quadratically.
+        struct Root;
+        impl ShootingProblem<1> for Root {
+            fn residual(
+                &self,
+                _eps: f64,
+                z: &SVector<f64, 1>,
+                _tolerances: &Tolerances,
+            ) -> Result<(SVector<f64, 1>, SMatrix<f64, 1, 1>), IntegrationError> {
+                Ok((
+                    SVector::<f64, 1>::new(z[0] * z[0] - 1e-2),
+                    SMatrix::<f64, 1, 1>::new(2.0 * z[0]),
+                ))
+            }
+
+            fn stall_limit(&self) -> u32 {
+                1
+            }
+        }
+        let root = newton(&Root, 0.0, &SVector::<f64, 1>::new(0.3), &tight(), &settings).unwrap();
+        assert!(root.converged && (root.z[0] - 0.1).abs() < 1e-10, "{root:?}");
+    }
 
     /// The integration accuracy every shooting test uses (SPEC: rtol 1e-11 or tighter).
     fn tight() -> Tolerances {
