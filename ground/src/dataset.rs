@@ -98,12 +98,38 @@ pub fn sample_at(
     let mut out = Vec::with_capacity(times.len());
     for &ti in times {
         if ti > t {
-            y = propagate(params, t, &y, ti, tolerances)?;
+            y = propagate_split(params, t, &y, ti, tolerances, SPLITS)?;
             t = ti;
         }
         out.push(sample(t, &y, params));
     }
     Ok(out)
+}
+
+/// Halvings of a sampling interval tried after a failed propagation.
+const SPLITS: u32 = 4;
+
+/// [`propagate`], retried over the two halves of the interval (recursively, `splits` deep) when it
+/// fails. Transfer-circular seed 7 #492: where rho grazes -eps near the end of an interval
+/// (enters the ramp by 3e-8) the modal propagation from the grid point loses its regime and fails
+/// (`NonFinite`, at rtol 1e-12 and 1e-13, not at 1e-11), while the same flight propagated from
+/// t = 0, or from the interval's midpoint, passes.
+fn propagate_split(
+    params: &OptimalControlParams,
+    t0: f64,
+    y0: &[f64; Y_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+    splits: u32,
+) -> Result<[f64; Y_LEN], IntegrationError> {
+    match propagate(params, t0, y0, t1, tolerances) {
+        Err(_) if splits > 0 => {
+            let mid = 0.5 * (t0 + t1);
+            let y_mid = propagate_split(params, t0, y0, mid, tolerances, splits - 1)?;
+            propagate_split(params, mid, &y_mid, t1, tolerances, splits - 1)
+        }
+        result => result,
+    }
 }
 
 /// The ephemeris and environment-step grids of a scenario.
@@ -161,6 +187,33 @@ mod tests {
             assert!((s.direction[0].hypot(s.direction[1]) - 1.0).abs() < 1e-12);
             assert!((s.direction_polar[0].hypot(s.direction_polar[1]) - 1.0).abs() < 1e-12);
             assert!((0.0..=1.0).contains(&s.throttle));
+        }
+    }
+
+    /// Transfer-circular seed 7 #492: its solution's step-grid sampling failed (rho grazes -eps
+    /// near the end of the interval 5.06 -> 5.30, see [`propagate_split`]); it now samples, and
+    /// every sample agrees with one propagation from t = 0 to its time.
+    #[test]
+    fn a_grazing_ramp_entry_near_a_grid_point_samples() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let options = crate::solver::SolveOptions::default();
+        let scenario = ScenarioKind::TransferCircular.draw(7, 492);
+        let solution = crate::solver::circular::solve(&scenario, &sc, &options).unwrap();
+        let params = OptimalControlParams {
+            spacecraft: sc,
+            eps: solution.eps,
+        };
+        let z = solution.z;
+        let y0 = crate::solver::shooting::initial_state_costate(&scenario, &[z[0], z[1], z[2], z[3], z[4]]);
+        let (_, steps) = sample_grids(&scenario);
+        let samples = sample_at(&y0, &params, &steps, &options.tolerances).unwrap();
+        for (&t, s) in steps.iter().zip(&samples).skip(1) {
+            let y = propagate(&params, 0.0, &y0, t, &options.tolerances).unwrap();
+            let d = (s.r[0] - y[idx::R])
+                .abs()
+                .max((s.v[1] - y[idx::R + 3]).abs())
+                .max((s.m - y[idx::M]).abs());
+            assert!(d < 1e-9, "t = {t}: sample off the direct propagation by {d}");
         }
     }
 

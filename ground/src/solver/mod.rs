@@ -4,6 +4,7 @@
 
 pub mod bangbang;
 pub mod circular;
+pub mod continuation;
 pub mod direct;
 pub mod multiple;
 pub mod pontryagin;
@@ -187,7 +188,19 @@ pub fn solve_scenario(
                 scenario,
                 spacecraft: *spacecraft,
             };
-            solve_problem(&problem, scenario, spacecraft, transfer_guesses(scenario), options).map(|s| {
+            let mut solved = solve_problem(&problem, scenario, spacecraft, transfer_guesses(scenario), options);
+            // No guess converged at eps = 1: continuation in the target orbit from the coast.
+            if matches!(solved, Err((_, 0))) {
+                match continuation::transfer_start(scenario, spacecraft, options) {
+                    Ok(z) => solved = solve_problem(&problem, scenario, spacecraft, vec![z], options),
+                    Err(s) => {
+                        if let Err((why, _)) = &mut solved {
+                            why.push_str(&format!("; continuation in the target stopped at s = {s:.3}"));
+                        }
+                    }
+                }
+            }
+            solved.map(|s| {
                 let z = s.level.outcome.z;
                 let summary = (
                     s.level.eps,
@@ -212,7 +225,18 @@ pub fn solve_scenario(
                     guesses.push(r);
                 }
             }
-            solve_problem(&problem, scenario, spacecraft, guesses, options).map(|s| {
+            let mut solved = solve_problem(&problem, scenario, spacecraft, guesses, options);
+            if matches!(solved, Err((_, 0))) {
+                match continuation::rendezvous_start(scenario, spacecraft, options) {
+                    Ok(z) => solved = solve_problem(&problem, scenario, spacecraft, vec![z], options),
+                    Err(s) => {
+                        if let Err((why, _)) = &mut solved {
+                            why.push_str(&format!("; continuation in the target stopped at s = {s:.3}"));
+                        }
+                    }
+                }
+            }
+            solved.map(|s| {
                 let z = s.level.outcome.z;
                 let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
                 let summary = (
