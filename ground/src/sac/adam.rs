@@ -11,13 +11,8 @@ pub fn flatten_parameters(params: &[Tensor]) -> Tensor {
         let pieces: Vec<Tensor> = params.iter().map(|p| p.detach().reshape([-1])).collect();
         Tensor::cat(&pieces, 0)
     });
-    let mut offset = 0;
-    for p in params {
-        let n = p.numel() as i64;
-        let mut p = p.shallow_clone();
-        let view = flat.narrow(0, offset, n).view(p.size().as_slice());
-        p.set_data(&view);
-        offset += n;
+    for (p, view) in params.iter().zip(views_like(&flat, params)) {
+        p.shallow_clone().set_data(&view);
     }
     flat
 }
@@ -163,25 +158,34 @@ impl Adam {
     /// parameter and moment buffers. As tensor kernels it is six passes over ~4 MB at the thesis
     /// sizes (perf: 15 % of an update on one thread); fused, one.
     fn fused_cpu_step(&mut self, c: &StepCoefficients) {
-        let total = self.flat_params.numel();
+        let grads: Vec<Tensor> = self
+            .params
+            .iter()
+            .map(|p| {
+                let g = p.grad();
+                if g.defined() {
+                    g.to_kind(Kind::Float).contiguous()
+                } else {
+                    p.zeros_like()
+                }
+            })
+            .collect();
+        // Check the whole layout before touching memory, so a mismatch (impossible for buffers
+        // built by `new`) falls back to the tensor kernels without a half-applied step.
+        let sizes: Vec<usize> = self.params.iter().map(Tensor::numel).collect();
+        let fits = sizes.iter().sum::<usize>() == self.flat_params.numel()
+            && grads.iter().zip(&sizes).all(|(g, &n)| g.numel() == n);
+        if !fits {
+            return self.tensor_step(c);
+        }
         let mut offset = 0usize;
-        for p in &self.params {
-            let n = p.numel();
-            let g = p.grad();
-            let g = if g.defined() {
-                g.to_kind(Kind::Float).contiguous()
-            } else {
-                p.zeros_like()
-            };
-            if offset + n > total || g.numel() != n {
-                // Cannot happen for buffers built by `new`; refuse rather than touch memory.
-                return self.tensor_step(c);
-            }
-            // SAFETY: the three flat buffers are contiguous f32 CPU tensors of `total` elements
-            // created by `new` and owned by this optimiser; [offset, offset + n) lies inside them
-            // (checked above); `g` is a contiguous f32 CPU tensor of n elements that outlives the
-            // slices. Nothing else reads or writes these buffers during the step (no_grad, one
-            // thread, `&mut self`), and the four regions do not overlap (distinct allocations).
+        for (g, n) in grads.iter().zip(sizes) {
+            // SAFETY: the three flat buffers are contiguous f32 CPU tensors created by `new` and
+            // owned by this optimiser, and [offset, offset + n) lies inside them (the sizes sum
+            // to their length, checked above); `g` is a contiguous f32 CPU tensor of n elements
+            // that outlives the slices. Nothing else reads or writes these buffers during the
+            // step (no_grad, one thread, `&mut self`), and the four regions do not overlap
+            // (distinct allocations).
             let (params, m, v, g) = unsafe {
                 (
                     std::slice::from_raw_parts_mut((self.flat_params.data_ptr() as *mut f32).add(offset), n),
