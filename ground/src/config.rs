@@ -9,7 +9,7 @@ use shared::scenario::ScenarioKind;
 
 use crate::demo::RecordFilter;
 use crate::env::EnvConfig;
-use crate::sac::SacConfig;
+use crate::sac::{CloningTarget, SacConfig};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -102,6 +102,9 @@ pub struct PretrainConfig {
     /// Behaviour-cloning weight for `mode = "behaviour-cloning"` (and kept during RL if
     /// `train.keep_behaviour_cloning`).
     pub behaviour_cloning: f64,
+    /// What the behaviour-cloning term compares: "action" (the raw actions, default) or
+    /// "thrust" (the decoded thrust vectors, see `sac::CloningTarget`).
+    pub cloning_target: CloningTarget,
     /// Which trajectory records become demonstrations: "converged" (homotopy reached the final
     /// eps) or "all" (also those stopped at a larger eps, with that eps's smoothed control).
     pub records: RecordFilter,
@@ -115,6 +118,7 @@ impl Default for PretrainConfig {
             eval_every: 10_000,
             mode: PretrainMode::Sac,
             behaviour_cloning: 2.5,
+            cloning_target: CloningTarget::Action,
             records: RecordFilter::Converged,
         }
     }
@@ -315,6 +319,7 @@ impl ExperimentConfig {
         };
         SacConfig {
             behaviour_cloning: bc,
+            cloning_target: self.pretrain.cloning_target,
             ..self.sac.clone()
         }
     }

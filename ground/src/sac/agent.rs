@@ -9,7 +9,7 @@ use tch::{Device, Kind, Tensor};
 use super::adam::{flatten_parameters, Adam};
 use super::networks::{Actor, TwinCritic};
 use super::replay::Batch;
-use super::SacConfig;
+use super::{CloningTarget, SacConfig};
 
 /// What one gradient update measured (means over the batch).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -65,8 +65,18 @@ pub struct Sac {
     critic_optimizer: Adam,
     temperature_optimizer: Adam,
     target_entropy: f64,
+    /// The averaged actor of `config.actor_averaging` (None when 0).
+    average: Option<AveragedActor>,
     /// Gradient updates done so far.
     pub updates: u64,
+}
+
+/// A Polyak-averaged copy of the actor: its own store (names `actor.*`, as the online one) and
+/// its parameters as one buffer laid out as the actor optimiser's, so averaging is one lerp.
+struct AveragedActor {
+    store: VarStore,
+    actor: Actor,
+    flat: Tensor,
 }
 
 fn tensor_2d(data: &[f32], rows: usize, cols: usize, device: Device) -> Tensor {
@@ -87,6 +97,17 @@ pub fn soft_bellman_target(
 ) -> Tensor {
     let soft_value = q_next - temperature * log_prob_next;
     rewards + (1.0 - dones) * discount * soft_value
+}
+
+/// The thrust vector u (alpha_r, alpha_theta) the environment decodes from actions [batch, 3]
+/// (`onboard::features::decode_action`): u = (a0 + 1)/2, direction (a1, a2) normalised. The norm
+/// is softened by 1e-6 in quadrature, the decoder's thrust-off threshold, so the gradient stays
+/// finite where a demonstration coasts with a zero direction (its thrust vector is then zero).
+pub fn thrust_vector(actions: &Tensor) -> Tensor {
+    let throttle = (actions.narrow(-1, 0, 1) + 1.0) * 0.5;
+    let direction = actions.narrow(-1, 1, 2);
+    let norm = (direction.square().sum_dim_intlist(-1, true, Kind::Float) + 1e-12).sqrt();
+    throttle * direction / norm
 }
 
 impl Sac {
@@ -117,6 +138,15 @@ impl Sac {
         let actor_optimizer = Adam::new(actor_store.trainable_variables(), lr);
         let temperature_optimizer = Adam::new(vec![log_temperature.shallow_clone()], lr);
         let target_entropy = config.target_entropy.unwrap_or(-(act_dim as f64));
+        let average = (config.actor_averaging > 0.0).then(|| {
+            let mut store = VarStore::new(device);
+            let actor = Actor::new(&(store.root() / "actor"), obs_dim, act_dim, &config.hidden);
+            store.freeze();
+            // Same constructor as the online actor, so the flat layouts correspond.
+            let mut flat = flatten_parameters(&store.trainable_variables());
+            tch::no_grad(|| flat.copy_(actor_optimizer.flat_parameters()));
+            AveragedActor { store, actor, flat }
+        });
         Self {
             config,
             obs_dim,
@@ -135,6 +165,7 @@ impl Sac {
             critic_optimizer,
             temperature_optimizer,
             target_entropy,
+            average,
             updates: 0,
         }
     }
@@ -151,13 +182,19 @@ impl Sac {
         self.log_temperature.exp().double_value(&[0])
     }
 
-    /// Actions for `rows` observations laid out row-major: deterministic (tanh of the mean, what
-    /// is flown and evaluated) or sampled (exploration).
+    /// The actor that is evaluated and flown: the averaged one when averaging is on.
+    fn flown_actor(&self) -> &Actor {
+        self.average.as_ref().map_or(&self.actor, |a| &a.actor)
+    }
+
+    /// Actions for `rows` observations laid out row-major: deterministic (tanh of the mean of
+    /// the flown actor, see [`SacConfig::actor_averaging`]: what is evaluated and flown) or
+    /// sampled from the online actor (exploration).
     pub fn act(&self, obs: &[f32], rows: usize, deterministic: bool) -> Vec<f32> {
         tch::no_grad(|| {
             let o = tensor_2d(obs, rows, self.obs_dim, self.device);
             let a = if deterministic {
-                self.actor.deterministic(&o)
+                self.flown_actor().deterministic(&o)
             } else {
                 self.actor.sample(&o).action
             };
@@ -211,9 +248,14 @@ impl Sac {
         let q_pi = self.critics.min_q(&obs, &sample.action);
         let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
         let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
-        let bc_error = (&sample.mean_action - &actions)
-            .square()
-            .sum_dim_intlist(-1, true, Kind::Float);
+        let bc_error = match self.config.cloning_target {
+            CloningTarget::Action => (&sample.mean_action - &actions)
+                .square()
+                .sum_dim_intlist(-1, true, Kind::Float),
+            CloningTarget::Thrust => (thrust_vector(&sample.mean_action) - thrust_vector(&actions))
+                .square()
+                .sum_dim_intlist(-1, true, Kind::Float),
+        };
         let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
         let actor_loss = if self.config.behaviour_cloning > 0.0 {
             let lambda = 1.0 / q_pi.abs().mean(Kind::Float).detach().clamp_min(1e-6);
@@ -223,6 +265,12 @@ impl Sac {
         };
         self.actor_optimizer.backward_step(&actor_loss);
         self.critic_store.unfreeze();
+        if let Some(average) = &mut self.average {
+            let tau = self.config.actor_averaging;
+            tch::no_grad(|| {
+                let _ = average.flat.lerp_(self.actor_optimizer.flat_parameters(), tau);
+            });
+        }
 
         // 3. Temperature: raise alpha when the entropy is below target, lower it when above.
         let log_prob = sample.log_prob.detach();
@@ -263,6 +311,11 @@ impl Sac {
             vars.sort_by(|a, b| a.0.cmp(&b.0));
             out.extend(vars.into_iter().map(|(n, t)| (format!("{prefix}.{n}"), t)));
         }
+        if let Some(average) = &self.average {
+            let mut vars: Vec<_> = average.store.variables().into_iter().collect();
+            vars.sort_by(|a, b| a.0.cmp(&b.0));
+            out.extend(vars.into_iter().map(|(n, t)| (format!("average.{n}"), t)));
+        }
         out.push(("online.log_temperature".into(), self.log_temperature.shallow_clone()));
         out.extend(self.actor_optimizer.state("adam.actor"));
         out.extend(self.critic_optimizer.state("adam.critic"));
@@ -301,6 +354,12 @@ impl Sac {
             .collect();
         let get = |name: &str| tensors.get(name).map(|t| t.to_device(self.device));
         // Check everything before touching anything, so a mismatch leaves the agent intact.
+        if self.average.is_none() && tensors.keys().any(|n| n.starts_with("average.")) {
+            // Loading it would silently fly the online actor instead of the averaged one.
+            return Err(CheckpointError::Mismatch(
+                "the checkpoint has an averaged actor (sac.actor_averaging > 0), this agent has none".into(),
+            ));
+        }
         for (name, dst) in self.named_state() {
             let src = get(&name).ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
             if src.size() != dst.size() {
@@ -327,10 +386,12 @@ impl Sac {
         Ok(())
     }
 
-    /// The actor's weights by layer name (`l0`, `l1`, `mean`, `log_std`; weight [out, in]) for
-    /// the onboard exporter.
+    /// The flown actor's weights (the averaged one when averaging is on) by layer name (`l0`,
+    /// `l1`, `mean`, `log_std`; weight [out, in]) for the onboard exporter.
     pub fn actor_weights(&self) -> HashMap<String, (Vec<i64>, Vec<f32>)> {
-        self.actor_store
+        self.average
+            .as_ref()
+            .map_or(&self.actor_store, |a| &a.store)
             .variables()
             .into_iter()
             .map(|(name, t)| {
@@ -497,6 +558,132 @@ mod tests {
             let expected = t_old * 0.9 + &s_new * 0.1;
             assert!(t_new.allclose(&expected, 1e-6, 1e-7, false));
         }
+    }
+
+    #[test]
+    fn the_thrust_vector_is_what_the_onboard_decoder_flies() {
+        use onboard::features::decode_action;
+        let actions: [[f32; 3]; 6] = [
+            [0.3, 0.2, -0.9],
+            [-0.5, -3e-3, 4e-3],
+            [0.999, 0.0, 0.7],
+            [-0.999, 0.0, 0.0], // a coasting demonstration: no direction
+            [1.0, -0.6, -0.8],
+            [-1.0, 0.5, 0.1], // throttle 0 with a direction
+        ];
+        let flat: Vec<f32> = actions.iter().flatten().copied().collect();
+        let t = thrust_vector(&Tensor::from_slice(&flat).view([6, 3]));
+        let got = Vec::<f32>::try_from(t.view([-1])).unwrap();
+        for (k, a) in actions.iter().enumerate() {
+            let c = decode_action(a);
+            let expected = [c.throttle * c.alpha_r, c.throttle * c.alpha_theta];
+            for (g, e) in got[2 * k..2 * k + 2].iter().zip(expected) {
+                assert!((f64::from(*g) - e).abs() < 1e-6, "{a:?}: {g} vs {e}");
+            }
+        }
+        // Actions that fly the same thrust clone each other exactly: a longer direction, and any
+        // direction at zero throttle.
+        let same = |x: [f32; 3], y: [f32; 3]| {
+            let v = |a: [f32; 3]| thrust_vector(&Tensor::from_slice(&a).view([1, 3]));
+            f64::try_from((v(x) - v(y)).square().sum(Kind::Float)).unwrap()
+        };
+        assert!(same([0.2, 0.3, 0.4], [0.2, 0.6, 0.8]) < 1e-12);
+        assert!(same([-1.0, 0.9, -0.2], [-1.0, 0.0, 0.0]) < 1e-12);
+        assert!(same([0.2, 0.3, 0.4], [0.2, 0.4, 0.3]) > 1e-3);
+        // The gradient at a zero direction is finite.
+        let a = Tensor::from_slice(&[0.1f32, 0.0, 0.0])
+            .view([1, 3])
+            .set_requires_grad(true);
+        thrust_vector(&a).sum(Kind::Float).backward();
+        assert!(bool::try_from(a.grad().isfinite().all()).unwrap());
+    }
+
+    #[test]
+    fn the_averaged_actor_trails_the_online_one_by_name_and_is_what_flies() {
+        let _torch = torch_lock();
+        let tau = 0.25;
+        let mut sac = tiny(SacConfig {
+            actor_averaging: tau,
+            learning_rate: 1e-2,
+            ..SacConfig::default()
+        });
+        // By name, independently of the flat buffers the averaging runs on.
+        let pairs = |sac: &Sac| -> Vec<(String, Tensor, Tensor)> {
+            let online = sac.actor_store.variables();
+            let average = sac.average.as_ref().expect("averaging is on").store.variables();
+            let mut names: Vec<_> = online.keys().cloned().collect();
+            names.sort();
+            assert_eq!(names.len(), average.len());
+            names
+                .into_iter()
+                .map(|n| {
+                    let (a, o) = (average[&n].copy(), online[&n].copy());
+                    (n, a, o)
+                })
+                .collect()
+        };
+        for (name, a, o) in pairs(&sac) {
+            assert!(
+                a.allclose(&o, 0.0, 0.0, false),
+                "{name}: the average starts at the actor"
+            );
+        }
+        let before = pairs(&sac);
+        let buf = bandit_buffer(64);
+        let mut rng = sampler(6);
+        for _ in 0..3 {
+            let previous = pairs(&sac);
+            sac.update(&buf.sample(64, &mut rng));
+            for ((name, a_old, _), (_, a_new, o_new)) in previous.iter().zip(pairs(&sac)) {
+                let expected = a_old * (1.0 - tau) + &o_new * tau;
+                assert!(a_new.allclose(&expected, 1e-6, 1e-7, false), "{name}");
+            }
+        }
+        // The online actor moved away from the average, and the flown actor is the average:
+        // deterministic actions and the exported weights both come from it.
+        let obs = Tensor::from_slice(&[0.3f32, -0.7, 1.0]).view([3, 1]);
+        let averaged = sac.average.as_ref().unwrap().actor.deterministic(&obs);
+        let online = sac.actor.deterministic(&obs);
+        assert!(!averaged.allclose(&online, 1e-6, 1e-6, false));
+        let flown = Tensor::from_slice(&sac.act(&[0.3, -0.7, 1.0], 3, true)).view([3, 1]);
+        assert!(flown.allclose(&averaged, 0.0, 0.0, false));
+        let exported = sac.actor_weights();
+        for (name, a, o) in pairs(&sac) {
+            let (_, data) = &exported[name.trim_start_matches("actor.")];
+            assert_eq!(data, &Vec::<f32>::try_from(a.view([-1])).unwrap(), "{name}");
+            let unchanged = before.iter().find(|(n, ..)| *n == name).unwrap();
+            assert!(
+                !o.allclose(&unchanged.2, 0.0, 0.0, false),
+                "{name}: the online actor trains"
+            );
+        }
+        // A checkpoint carries the average.
+        let dir = std::env::temp_dir().join(format!("sac-average-{}", std::process::id()));
+        let path = dir.join("agent.safetensors");
+        sac.save(&path).unwrap();
+        let mut restored = tiny(SacConfig {
+            actor_averaging: tau,
+            ..SacConfig::default()
+        });
+        restored.load(&path).unwrap();
+        assert_eq!(
+            restored.act(&[0.3, -0.7, 1.0], 3, true),
+            sac.act(&[0.3, -0.7, 1.0], 3, true)
+        );
+        // Either way round, averaging on one side only is refused.
+        let plain = tiny(SacConfig::default());
+        assert!(matches!(
+            tiny(SacConfig::default()).load(&path),
+            Err(CheckpointError::Mismatch(_))
+        ));
+        let mut averaging = tiny(SacConfig {
+            actor_averaging: tau,
+            ..SacConfig::default()
+        });
+        let plain_path = dir.join("plain.safetensors");
+        plain.save(&plain_path).unwrap();
+        assert!(matches!(averaging.load(&plain_path), Err(CheckpointError::Mismatch(_))));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

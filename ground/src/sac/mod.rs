@@ -24,6 +24,21 @@ pub fn tune_allocator() {
     }
 }
 
+/// What the behaviour-cloning term compares between the policy's deterministic action and the
+/// demonstrated one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CloningTarget {
+    /// The raw action vectors: |tanh(mean) - a_demo|^2.
+    #[default]
+    Action,
+    /// The thrust vectors the environment decodes from them, u (alpha_r, alpha_theta) with
+    /// u = (a0 + 1)/2 and the direction (a1, a2) normalised: |T(tanh(mean)) - T(a_demo)|^2.
+    /// A coasting demonstration then fixes no direction, and the direction's length, which the
+    /// decoder ignores, is free: the network's capacity goes to what is flown.
+    Thrust,
+}
+
 /// The learner's hyper-parameters (SPEC section 8); defaults are the thesis's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -47,6 +62,14 @@ pub struct SacConfig {
     /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
     /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free.
     pub behaviour_cloning: f64,
+    /// Polyak factor of an averaged copy of the actor's weights, updated after every actor step
+    /// (0 = none, the thesis). When set, the average is what deterministic actions, evaluations,
+    /// best checkpoints and the onboard export use: at a fixed learning rate the iterates wander
+    /// around the optimum of the behaviour-cloning loss, and their average sits closer to it
+    /// (Polyak-Ruppert averaging). Exploration keeps the online actor.
+    pub actor_averaging: f64,
+    /// What the behaviour-cloning term compares (see [`CloningTarget`]).
+    pub cloning_target: CloningTarget,
 }
 
 impl Default for SacConfig {
@@ -63,6 +86,8 @@ impl Default for SacConfig {
             target_entropy: None,
             initial_log_temperature: 0.0,
             behaviour_cloning: 0.0,
+            actor_averaging: 0.0,
+            cloning_target: CloningTarget::Action,
         }
     }
 }
@@ -97,6 +122,12 @@ impl SacConfig {
             return Err(format!(
                 "sac.behaviour_cloning must be >= 0, got {}",
                 self.behaviour_cloning
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.actor_averaging) {
+            return Err(format!(
+                "sac.actor_averaging must be in [0, 1] (0 = off), got {}",
+                self.actor_averaging
             ));
         }
         if !self.initial_log_temperature.is_finite() || self.target_entropy.is_some_and(|t| !t.is_finite()) {
