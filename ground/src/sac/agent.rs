@@ -99,6 +99,13 @@ pub fn soft_bellman_target(
     rewards + (1.0 - dones) * discount * soft_value
 }
 
+/// Weight of the raw-action error next to the thrust-vector error in [`CloningTarget::Thrust`].
+/// The thrust vector leaves the direction's length free; without an anchor the actor term
+/// pushed it into tanh saturation, the entropy estimate fell to -12 and the offline critics
+/// diverged (Q ~ 2e3 after 18k pretraining updates, measured). 0.1 keeps the raw-action term
+/// at the weight that was stable with `behaviour_cloning = 2.5` when the thrust term has 25.
+pub const THRUST_CLONING_ACTION_ANCHOR: f64 = 0.1;
+
 /// The thrust vector u (alpha_r, alpha_theta) the environment decodes from actions [batch, 3]
 /// (`onboard::features::decode_action`): u = (a0 + 1)/2, direction (a1, a2) normalised. The norm
 /// is softened by 1e-6 in quadrature, the decoder's thrust-off threshold, so the gradient stays
@@ -252,9 +259,15 @@ impl Sac {
             CloningTarget::Action => (&sample.mean_action - &actions)
                 .square()
                 .sum_dim_intlist(-1, true, Kind::Float),
-            CloningTarget::Thrust => (thrust_vector(&sample.mean_action) - thrust_vector(&actions))
-                .square()
-                .sum_dim_intlist(-1, true, Kind::Float),
+            CloningTarget::Thrust => {
+                let thrust = (thrust_vector(&sample.mean_action) - thrust_vector(&actions))
+                    .square()
+                    .sum_dim_intlist(-1, true, Kind::Float);
+                let anchor = (&sample.mean_action - &actions)
+                    .square()
+                    .sum_dim_intlist(-1, true, Kind::Float);
+                thrust + anchor * THRUST_CLONING_ACTION_ANCHOR
+            }
         };
         let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
         let actor_loss = if self.config.behaviour_cloning > 0.0 {
@@ -276,6 +289,11 @@ impl Sac {
         let log_prob = sample.log_prob.detach();
         let temperature_loss = -(&self.log_temperature * (&log_prob + self.target_entropy)).mean(Kind::Float);
         self.temperature_optimizer.backward_step(&temperature_loss);
+        if let Some(cap) = self.config.max_log_temperature {
+            tch::no_grad(|| {
+                let _ = self.log_temperature.clamp_max_(cap);
+            });
+        }
 
         // 4. Targets trail the online critics: theta' <- (1 - tau) theta' + tau theta.
         self.polyak_update();
@@ -531,6 +549,23 @@ mod tests {
             let after = sac.temperature();
             assert_eq!(after > before, should_rise, "target {target}: {before} -> {after}");
         }
+        // An unreachable entropy target raises alpha at every update; a cap stops it there and
+        // leaves the lowering direction alone.
+        let mut capped = tiny(SacConfig {
+            target_entropy: Some(5.0),
+            initial_log_temperature: -0.1,
+            max_log_temperature: Some(0.0),
+            learning_rate: 1e-2,
+            ..SacConfig::default()
+        });
+        let mut rng = sampler(2);
+        for _ in 0..50 {
+            capped.update(&buf.sample(64, &mut rng));
+        }
+        assert_eq!(capped.temperature(), 1.0, "alpha rose to the cap and stays there");
+        capped.target_entropy = -50.0;
+        capped.update(&buf.sample(64, &mut rng));
+        assert!(capped.temperature() < 1.0);
     }
 
     #[test]

@@ -35,7 +35,8 @@ pub enum CloningTarget {
     /// The thrust vectors the environment decodes from them, u (alpha_r, alpha_theta) with
     /// u = (a0 + 1)/2 and the direction (a1, a2) normalised: |T(tanh(mean)) - T(a_demo)|^2.
     /// A coasting demonstration then fixes no direction, and the direction's length, which the
-    /// decoder ignores, is free: the network's capacity goes to what is flown.
+    /// decoder ignores, matters little: the network's capacity goes to what is flown. A small
+    /// raw-action term (`agent::THRUST_CLONING_ACTION_ANCHOR`) keeps the actions anchored.
     Thrust,
 }
 
@@ -58,6 +59,12 @@ pub struct SacConfig {
     /// Entropy target; `None` means minus the action dimension (-3 here).
     pub target_entropy: Option<f64>,
     pub initial_log_temperature: f64,
+    /// Upper bound on log alpha (None = unbounded, the thesis). Behaviour cloning pins the mean
+    /// action at the demonstrations' clipped extremes (+-0.999), where the tanh squash makes the
+    /// entropy target unreachable; Adam then raises log alpha by about the learning rate every
+    /// update, without end (alpha 44 after 20k pretraining updates, measured), and the critics'
+    /// soft targets diverge with it (Q ~ 2e3). Bounding it keeps the critics usable for RL.
+    pub max_log_temperature: Option<f64>,
     /// Weight of the behaviour-cloning term on demonstration tuples (0 = plain SAC, the thesis).
     /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
     /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free.
@@ -85,6 +92,7 @@ impl Default for SacConfig {
             updates_per_step: 1,
             target_entropy: None,
             initial_log_temperature: 0.0,
+            max_log_temperature: None,
             behaviour_cloning: 0.0,
             actor_averaging: 0.0,
             cloning_target: CloningTarget::Action,
@@ -130,8 +138,13 @@ impl SacConfig {
                 self.actor_averaging
             ));
         }
-        if !self.initial_log_temperature.is_finite() || self.target_entropy.is_some_and(|t| !t.is_finite()) {
-            return Err("sac.initial_log_temperature and sac.target_entropy must be finite".into());
+        if !self.initial_log_temperature.is_finite()
+            || self.target_entropy.is_some_and(|t| !t.is_finite())
+            || self.max_log_temperature.is_some_and(|t| !t.is_finite())
+        {
+            return Err(
+                "sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite".into(),
+            );
         }
         Ok(())
     }
