@@ -34,6 +34,12 @@ const CONTINUATION_WORK: u64 = 3;
 /// The intermediate scenario at s in [0, 1] (s = 0: the target is the departure orbit and, for a
 /// rendezvous, the body sits on the spacecraft; s = 1: the real scenario).
 pub fn intermediate(scenario: &Scenario, s: f64) -> Scenario {
+    intermediate_turning(scenario, s, 0)
+}
+
+/// [`intermediate`] with the body's polar angle at t = 0 moved the shorter way round plus
+/// `turns` whole turns (the same s = 1 scenario, another path to it).
+pub fn intermediate_turning(scenario: &Scenario, s: f64, turns: i32) -> Scenario {
     let (o, t) = (scenario.initial.shape, scenario.target);
     let ex = (1.0 - s) * o.e * o.omega.cos() + s * t.e * t.omega.cos();
     let ey = (1.0 - s) * o.e * o.omega.sin() + s * t.e * t.omega.sin();
@@ -43,7 +49,8 @@ pub fn intermediate(scenario: &Scenario, s: f64) -> Scenario {
         omega: ey.atan2(ex),
     };
     let theta0 = o.omega + scenario.initial.nu;
-    let theta_body = theta0 + s * wrap(t.omega + scenario.target_nu0 - theta0);
+    let sweep = wrap(t.omega + scenario.target_nu0 - theta0) + 2.0 * PI * f64::from(turns);
+    let theta_body = theta0 + s * sweep;
     Scenario {
         target,
         target_nu0: theta_body - target.omega,
@@ -192,11 +199,48 @@ pub fn rendezvous_start(
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> Result<RendezvousVector, f64> {
+    rendezvous_start_turning(scenario, spacecraft, options, 0)
+}
+
+/// [`rendezvous_start`], and where that path stops, the same continuation with the body's phase
+/// moved the longer way round ([`intermediate_turning`] with one turn against the shorter
+/// sweep), on a budget of its own. Err: the last s reached on each path.
+///
+/// Where the body is nearly opposite the spacecraft the shorter sweep may pass through
+/// intermediate targets that the engine cannot reach in the time of flight (the energy-optimal
+/// throttle saturates over most of the flight, the path stops), while the longer one does not:
+/// of the 10 rendezvous-circular draws of seeds 7 and 8 whose shorter path stops (all with the
+/// body behind, by 110-180 degrees), the longer one reaches s = 1 on 7, each within 50 k steps.
+pub fn rendezvous_start_either_way(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<RendezvousVector, (f64, f64)> {
+    let shorter = match rendezvous_start(scenario, spacecraft, options) {
+        Ok(z) => return Ok(z),
+        Err(s) => s,
+    };
+    let theta0 = scenario.initial.shape.omega + scenario.initial.nu;
+    let turns = if wrap(scenario.target.omega + scenario.target_nu0 - theta0) < 0.0 {
+        1
+    } else {
+        -1
+    };
+    rendezvous_start_turning(scenario, spacecraft, options, turns).map_err(|longer| (shorter, longer))
+}
+
+/// [`rendezvous_start`] along the path of [`intermediate_turning`] with `turns`.
+pub fn rendezvous_start_turning(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    turns: i32,
+) -> Result<RendezvousVector, f64> {
     let p = small_primer(scenario);
     let first = RendezvousVector::from_column_slice(&[p[0], p[1], p[2], p[3], 0.0]);
     let start = pontryagin::work_done();
     follow::<RENDEZVOUS_UNKNOWNS>(RendezvousVector::zeros(), first, |s, guess| {
-        let sc = intermediate(scenario, s);
+        let sc = intermediate_turning(scenario, s, turns);
         let problem = RendezvousShooting {
             scenario: &sc,
             spacecraft: *spacecraft,
@@ -268,6 +312,33 @@ mod tests {
 
         let scenario = ScenarioKind::RendezvousCircular.draw(7, 0);
         let z = rendezvous_start(&scenario, &sc, &options).expect("continuation reaches s = 1");
+        let problem = RendezvousShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let f = problem.residual_only(1.0, &z, &options.tolerances).unwrap();
+        assert!(f.amax() < 1e-8, "rendezvous residual {f}");
+    }
+
+    /// Rendezvous-circular seed 7 #5 (the body 123 degrees behind the spacecraft): the path that
+    /// moves the body's phase the shorter way stops short of s = 1, the longer way round reaches
+    /// it, and its solution meets every terminal condition of the real scenario to 1e-8 (fresh
+    /// plain propagation).
+    #[test]
+    fn the_longer_way_round_reaches_a_rendezvous_the_shorter_one_does_not() {
+        use shared::spacecraft::Spacecraft;
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let options = SolveOptions::default();
+        let scenario = ScenarioKind::RendezvousCircular.draw(7, 5);
+        let stopped = rendezvous_start(&scenario, &sc, &options).expect_err("the shorter way stops");
+        assert!(stopped < 1.0);
+        let end = intermediate_turning(&scenario, 1.0, 1);
+        let (a, b) = (
+            end.target.cartesian_at(end.target_nu0),
+            scenario.target.cartesian_at(scenario.target_nu0),
+        );
+        assert!((a.r[0] - b.r[0]).hypot(a.r[1] - b.r[1]) < 1e-12);
+        let z = rendezvous_start_either_way(&scenario, &sc, &options).expect("the longer way reaches s = 1");
         let problem = RendezvousShooting {
             scenario: &scenario,
             spacecraft: sc,
