@@ -270,6 +270,17 @@ impl ExperimentConfig {
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
             return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
         }
+        if self.sac.cloning_target != CloningTarget::Action {
+            return Err(ConfigError::Invalid(
+                "set the behaviour-cloning target as pretrain.cloning_target, not sac.cloning_target".into(),
+            ));
+        }
+        if self.pretrain.cloning_target != CloningTarget::Action && self.pretrain.mode != PretrainMode::BehaviourCloning
+        {
+            return Err(ConfigError::Invalid(
+                "pretrain.cloning_target applies to mode = \"behaviour-cloning\" only".into(),
+            ));
+        }
         positive("generate.count", self.generate.count)?;
         if !(self.generate.final_eps > 0.0 && self.generate.final_eps <= 1.0) {
             return Err(ConfigError::Invalid("generate.final_eps must be in (0, 1]".into()));

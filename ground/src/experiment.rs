@@ -328,10 +328,11 @@ pub fn prepare_run(config: &ExperimentConfig, run: &Path) -> Result<(), Experime
     match std::fs::read_to_string(&path) {
         Ok(existing) => {
             let previous = ExperimentConfig::from_toml(&existing)?;
-            let same = |c: &ExperimentConfig| (c.scenario, c.sac.hidden.clone(), c.seeds);
+            // What the folder's checkpoints depend on (an averaged actor is part of them).
+            let same = |c: &ExperimentConfig| (c.scenario, c.sac.hidden.clone(), c.seeds, c.sac.actor_averaging > 0.0);
             if same(&previous) != same(config) {
                 return Err(ExperimentError::Mismatch(format!(
-                    "{} holds a run of another experiment (scenario, network or seeds differ); use a new folder",
+                    "{} holds a run of another experiment (scenario, network, seeds or actor averaging differ); use a new folder",
                     run.display()
                 )));
             }

@@ -106,14 +106,21 @@ pub fn soft_bellman_target(
 /// at the weight that was stable with `behaviour_cloning = 2.5` when the thrust term has 25.
 pub const THRUST_CLONING_ACTION_ANCHOR: f64 = 0.1;
 
+/// Softening of the direction's norm in [`thrust_vector`]: the gradient near a zero direction is
+/// at most about u / 1e-2 (with 1e-6, the decoder's threshold, one such sample's 1e6 gradient
+/// would inflate Adam's second moments for ~1000 updates). Directions actually flown have norms
+/// ~1, where the softening changes the thrust by 5e-5 relative.
+pub const THRUST_NORM_SOFTENING: f64 = 1e-2;
+
 /// The thrust vector u (alpha_r, alpha_theta) the environment decodes from actions [batch, 3]
 /// (`onboard::features::decode_action`): u = (a0 + 1)/2, direction (a1, a2) normalised. The norm
-/// is softened by 1e-6 in quadrature, the decoder's thrust-off threshold, so the gradient stays
-/// finite where a demonstration coasts with a zero direction (its thrust vector is then zero).
+/// is softened by [`THRUST_NORM_SOFTENING`] in quadrature, so a demonstration that coasts with a
+/// zero direction has a zero thrust vector and the gradient stays bounded near it.
 pub fn thrust_vector(actions: &Tensor) -> Tensor {
     let throttle = (actions.narrow(-1, 0, 1) + 1.0) * 0.5;
     let direction = actions.narrow(-1, 1, 2);
-    let norm = (direction.square().sum_dim_intlist(-1, true, Kind::Float) + 1e-12).sqrt();
+    let softening = THRUST_NORM_SOFTENING * THRUST_NORM_SOFTENING;
+    let norm = (direction.square().sum_dim_intlist(-1, true, Kind::Float) + softening).sqrt();
     throttle * direction / norm
 }
 
@@ -144,10 +151,14 @@ impl Sac {
         let lr = config.learning_rate;
         let actor_optimizer = Adam::new(actor_store.trainable_variables(), lr);
         let temperature_optimizer = Adam::new(vec![log_temperature.shallow_clone()], lr);
+        assert!(
+            config.cloning_target == CloningTarget::Action || act_dim == 3,
+            "cloning_target = thrust needs the 3-component guidance action, this agent has {act_dim}"
+        );
         let target_entropy = config.target_entropy.unwrap_or(-(act_dim as f64));
         let average = (config.actor_averaging > 0.0).then(|| {
             let mut store = VarStore::new(device);
-            let actor = Actor::new(&(store.root() / "actor"), obs_dim, act_dim, &config.hidden);
+            let actor = Actor::zeroed(&(store.root() / "actor"), obs_dim, act_dim, &config.hidden);
             store.freeze();
             // Same constructor as the online actor, so the flat layouts correspond.
             let mut flat = flatten_parameters(&store.trainable_variables());
@@ -279,7 +290,9 @@ impl Sac {
         self.actor_optimizer.backward_step(&actor_loss);
         self.critic_store.unfreeze();
         if let Some(average) = &mut self.average {
-            let tau = self.config.actor_averaging;
+            // A plain running mean until it would weigh the newest iterate less than tau, then the
+            // exponential average: the random initial weights do not linger in it.
+            let tau = self.config.actor_averaging.max(1.0 / (self.updates as f64 + 2.0));
             tch::no_grad(|| {
                 let _ = average.flat.lerp_(self.actor_optimizer.flat_parameters(), tau);
             });
@@ -289,11 +302,7 @@ impl Sac {
         let log_prob = sample.log_prob.detach();
         let temperature_loss = -(&self.log_temperature * (&log_prob + self.target_entropy)).mean(Kind::Float);
         self.temperature_optimizer.backward_step(&temperature_loss);
-        if let Some(cap) = self.config.max_log_temperature {
-            tch::no_grad(|| {
-                let _ = self.log_temperature.clamp_max_(cap);
-            });
-        }
+        self.clamp_temperature();
 
         // 4. Targets trail the online critics: theta' <- (1 - tau) theta' + tau theta.
         self.polyak_update();
@@ -307,6 +316,16 @@ impl Sac {
             entropy: -log_prob.mean(Kind::Float).double_value(&[]),
             q_mean: q.get(0).mean(Kind::Float).double_value(&[]),
             behaviour_cloning_loss: bc_loss.double_value(&[]),
+        }
+    }
+
+    /// Applies `max_log_temperature` (after each temperature step and after a load, so a
+    /// checkpoint from an uncapped phase does not fly one update above the cap).
+    fn clamp_temperature(&mut self) {
+        if let Some(cap) = self.config.max_log_temperature {
+            tch::no_grad(|| {
+                let _ = self.log_temperature.clamp_max_(cap);
+            });
         }
     }
 
@@ -343,7 +362,8 @@ impl Sac {
     }
 
     /// Writes the full learner state as one safetensors file (PyTorch users open it with
-    /// `safetensors.torch.load_file`; the actor is under `online.actor.*`), atomically.
+    /// `safetensors.torch.load_file`; the actor is under `online.actor.*`, and the averaged actor
+    /// that is flown when `actor_averaging` is on under `average.actor.*`), atomically.
     pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(CheckpointError::Io)?;
@@ -401,6 +421,7 @@ impl Sac {
         adam(&mut self.critic_optimizer, "adam.critic")?;
         adam(&mut self.temperature_optimizer, "adam.temperature")?;
         self.updates = get("updates").map(|t| t.int64_value(&[0]) as u64).unwrap_or(0);
+        self.clamp_temperature();
         Ok(())
     }
 
@@ -612,8 +633,17 @@ mod tests {
         for (k, a) in actions.iter().enumerate() {
             let c = decode_action(a);
             let expected = [c.throttle * c.alpha_r, c.throttle * c.alpha_theta];
+            // The softening scales the thrust by 1/sqrt(1 + s^2/n^2) for a direction of norm
+            // n: off by at most u s^2 / (2 n^2) (5e-5 for a unit direction).
+            let norm = f64::from(a[1].hypot(a[2]));
+            let s2 = THRUST_NORM_SOFTENING * THRUST_NORM_SOFTENING;
+            let tolerance = if norm > 0.0 {
+                s2 / (2.0 * norm * norm) + 1e-6
+            } else {
+                1e-6
+            };
             for (g, e) in got[2 * k..2 * k + 2].iter().zip(expected) {
-                assert!((f64::from(*g) - e).abs() < 1e-6, "{a:?}: {g} vs {e}");
+                assert!((f64::from(*g) - e).abs() < tolerance, "{a:?}: {g} vs {e}");
             }
         }
         // Actions that fly the same thrust clone each other exactly: a longer direction, and any
@@ -622,15 +652,87 @@ mod tests {
             let v = |a: [f32; 3]| thrust_vector(&Tensor::from_slice(&a).view([1, 3]));
             f64::try_from((v(x) - v(y)).square().sum(Kind::Float)).unwrap()
         };
-        assert!(same([0.2, 0.3, 0.4], [0.2, 0.6, 0.8]) < 1e-12);
+        // (to the softening's effect on the shorter one, (0.6 * 2e-4)^2)
+        assert!(same([0.2, 0.3, 0.4], [0.2, 0.6, 0.8]) < 1e-7);
         assert!(same([-1.0, 0.9, -0.2], [-1.0, 0.0, 0.0]) < 1e-12);
         assert!(same([0.2, 0.3, 0.4], [0.2, 0.4, 0.3]) > 1e-3);
-        // The gradient at a zero direction is finite.
-        let a = Tensor::from_slice(&[0.1f32, 0.0, 0.0])
-            .view([1, 3])
-            .set_requires_grad(true);
-        thrust_vector(&a).sum(Kind::Float).backward();
-        assert!(bool::try_from(a.grad().isfinite().all()).unwrap());
+        // The gradient stays of order u / softening everywhere, zero direction included.
+        for d in [[0.0f32, 0.0], [1e-4, 0.0], [3e-3, -2e-3], [0.6, 0.8]] {
+            let a = Tensor::from_slice(&[1.0f32, d[0], d[1]])
+                .view([1, 3])
+                .set_requires_grad(true);
+            thrust_vector(&a).square().sum(Kind::Float).backward();
+            let largest = f64::try_from(a.grad().abs().max()).unwrap();
+            assert!(
+                largest.is_finite() && largest <= 2.0 / THRUST_NORM_SOFTENING,
+                "{d:?}: {largest}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_thrust_cloning_loss_of_an_update_is_the_decoded_thrust_error_plus_the_anchor() {
+        use onboard::features::decode_action;
+        let _torch = torch_lock();
+        tch::manual_seed(13);
+        let mut sac = Sac::new(
+            SacConfig {
+                hidden: vec![16],
+                batch_size: 32,
+                behaviour_cloning: 1.0,
+                cloning_target: CloningTarget::Thrust,
+                ..SacConfig::default()
+            },
+            2,
+            3,
+            Device::Cpu,
+        );
+        // Demonstrations that thrust, coast (zero direction) and one agent transition.
+        let mut buf = ReplayBuffer::new(2, 3, 64);
+        for k in 0..48 {
+            let x = k as f32 / 48.0;
+            let action = match k % 3 {
+                0 => [0.8 - x, (3.0 * x).sin(), (3.0 * x).cos()],
+                1 => [-0.999, 0.0, 0.0],
+                _ => [x - 0.5, -0.6, 0.8],
+            };
+            buf.push(&Transition {
+                obs: &[x, 1.0 - x],
+                action: &action,
+                reward: -x,
+                next_obs: &[x, 0.5],
+                done: false,
+                demonstration: k % 4 != 3,
+            });
+        }
+        let batch = buf.sample(32, &mut sampler(14));
+        let flown = sac.act(&batch.obs, batch.size, true);
+        let (mut sum, mut demos) = (0.0, 0.0);
+        for row in 0..batch.size {
+            if batch.demonstrations[row] == 0.0 {
+                continue;
+            }
+            let pi: [f32; 3] = flown[3 * row..3 * row + 3].try_into().unwrap();
+            let demo: [f32; 3] = batch.actions[3 * row..3 * row + 3].try_into().unwrap();
+            let thrust = |a: &[f32; 3]| {
+                let c = decode_action(a);
+                [c.throttle * c.alpha_r, c.throttle * c.alpha_theta]
+            };
+            let (tp, td) = (thrust(&pi), thrust(&demo));
+            let thrust_error = (tp[0] - td[0]).powi(2) + (tp[1] - td[1]).powi(2);
+            let anchor: f64 = pi.iter().zip(demo).map(|(p, d)| f64::from(p - d).powi(2)).sum();
+            sum += thrust_error + THRUST_CLONING_ACTION_ANCHOR * anchor;
+            demos += 1.0;
+        }
+        assert!(demos > 0.0);
+        let stats = sac.update(&batch);
+        let expected = sum / demos;
+        // Against the decoder (exact norms): the softening's share on the policy's directions.
+        assert!(
+            (stats.behaviour_cloning_loss - expected).abs() < 1e-3 * expected + 1e-6,
+            "{} vs {expected}",
+            stats.behaviour_cloning_loss
+        );
     }
 
     #[test]
@@ -668,9 +770,11 @@ mod tests {
         let mut rng = sampler(6);
         for _ in 0..3 {
             let previous = pairs(&sac);
+            // A running mean first (1/2, 1/3, ...), tau once that falls below it.
+            let weight = tau.max(1.0 / (sac.updates as f64 + 2.0));
             sac.update(&buf.sample(64, &mut rng));
             for ((name, a_old, _), (_, a_new, o_new)) in previous.iter().zip(pairs(&sac)) {
-                let expected = a_old * (1.0 - tau) + &o_new * tau;
+                let expected = a_old * (1.0 - weight) + &o_new * weight;
                 assert!(a_new.allclose(&expected, 1e-6, 1e-7, false), "{name}");
             }
         }
@@ -698,9 +802,20 @@ mod tests {
         sac.save(&path).unwrap();
         let mut restored = tiny(SacConfig {
             actor_averaging: tau,
+            learning_rate: 1e-2,
             ..SacConfig::default()
         });
         restored.load(&path).unwrap();
+        assert_eq!(
+            restored.act(&[0.3, -0.7, 1.0], 3, true),
+            sac.act(&[0.3, -0.7, 1.0], 3, true)
+        );
+        // ... and keeps averaging in place after the load: one more identical update on both.
+        let batch = buf.sample(64, &mut sampler(8));
+        tch::manual_seed(5);
+        sac.update(&batch);
+        tch::manual_seed(5);
+        restored.update(&batch);
         assert_eq!(
             restored.act(&[0.3, -0.7, 1.0], 3, true),
             sac.act(&[0.3, -0.7, 1.0], 3, true)

@@ -75,7 +75,9 @@ pub struct SacConfig {
     /// around the optimum of the behaviour-cloning loss, and their average sits closer to it
     /// (Polyak-Ruppert averaging). Exploration keeps the online actor.
     pub actor_averaging: f64,
-    /// What the behaviour-cloning term compares (see [`CloningTarget`]).
+    /// What the behaviour-cloning term compares (see [`CloningTarget`]); experiments set it from
+    /// `pretrain.cloning_target`, so it is not written to their configs.
+    #[serde(skip_serializing)]
     pub cloning_target: CloningTarget,
 }
 
@@ -136,6 +138,15 @@ impl SacConfig {
             return Err(format!(
                 "sac.actor_averaging must be in [0, 1] (0 = off), got {}",
                 self.actor_averaging
+            ));
+        }
+        if self
+            .max_log_temperature
+            .is_some_and(|cap| self.initial_log_temperature > cap)
+        {
+            return Err(format!(
+                "sac.initial_log_temperature ({}) is above sac.max_log_temperature ({:?})",
+                self.initial_log_temperature, self.max_log_temperature
             ));
         }
         if !self.initial_log_temperature.is_finite()

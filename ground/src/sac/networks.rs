@@ -9,12 +9,12 @@ use tch::Tensor;
 pub const LOG_STD_MIN: f64 = -20.0;
 pub const LOG_STD_MAX: f64 = 2.0;
 
-fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize]) -> nn::Sequential {
+fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize], init: nn::LinearConfig) -> nn::Sequential {
     let mut seq = nn::seq();
     let mut width = input as i64;
     for (i, &h) in hidden.iter().enumerate() {
         seq = seq
-            .add(nn::linear(path / format!("l{i}"), width, h as i64, Default::default()))
+            .add(nn::linear(path / format!("l{i}"), width, h as i64, init))
             .add_fn(|x| x.relu());
         width = h as i64;
     }
@@ -38,11 +38,27 @@ pub struct ActionSample {
 
 impl Actor {
     pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
+        Self::with_init(path, obs_dim, act_dim, hidden, Default::default())
+    }
+
+    /// An actor whose weights start at zero, for copies that are overwritten at once (the
+    /// averaged actor): it draws nothing from the random generator, so switching such a copy
+    /// on leaves every other network's initial weights and samples unchanged.
+    pub fn zeroed(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
+        let zero = nn::LinearConfig {
+            ws_init: nn::Init::Const(0.0),
+            bs_init: Some(nn::Init::Const(0.0)),
+            bias: true,
+        };
+        Self::with_init(path, obs_dim, act_dim, hidden, zero)
+    }
+
+    fn with_init(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize], init: nn::LinearConfig) -> Self {
         let last = *hidden.last().unwrap_or(&obs_dim) as i64;
         Self {
-            trunk: hidden_stack(path, obs_dim, hidden),
-            mean: nn::linear(path / "mean", last, act_dim as i64, Default::default()),
-            log_std: nn::linear(path / "log_std", last, act_dim as i64, Default::default()),
+            trunk: hidden_stack(path, obs_dim, hidden, init),
+            mean: nn::linear(path / "mean", last, act_dim as i64, init),
+            log_std: nn::linear(path / "log_std", last, act_dim as i64, init),
         }
     }
 
