@@ -46,12 +46,13 @@ fn main() {
                     "feasible-unsolved"
                 };
                 println!(
-                    "{index},{:.1},{class},{:.1},{:.4},{:.4},{err:.1e},{h:.1e},{seconds:.1},m_f {:.4}",
+                    "{index},{:.1},{class},{:.1},{:.4},{:.4},{err:.1e},{h:.1e},{seconds:.1},m_f {:.4} z {:?}",
                     days(tof),
                     days(tf_min),
                     tf_min / tof,
                     stopped_at / tof,
-                    y[4]
+                    y[4],
+                    z.as_slice()
                 );
             }
             Feasibility::Unknown(why) => println!("{index},{:.1},unknown,,,,,,{seconds:.1},{why}", days(tof)),
