@@ -16,11 +16,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::ScenarioKind;
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::dataset::TrajectoryRecord;
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError};
+use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::{solve_scenario, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
@@ -121,6 +122,12 @@ pub struct Summary {
     pub records: usize,
     pub converged: usize,
     pub convergence_rate: f64,
+    /// Records classified infeasible (failure reason "infeasible: minimum time ..."), and
+    /// converged / (records - infeasible).
+    #[serde(default)]
+    pub infeasible: usize,
+    #[serde(default)]
+    pub feasible_convergence_rate: f64,
     /// Solve wall time per record: sum (CPU-seconds across threads), mean, median, max.
     pub seconds_sum: f64,
     pub seconds_mean: f64,
@@ -149,6 +156,10 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
     };
     let m_mean = mean(&masses);
     let m_var = mean(&masses.iter().map(|m| (m - m_mean).powi(2)).collect::<Vec<_>>());
+    let infeasible = records
+        .iter()
+        .filter(|r| !r.converged && r.failure.as_deref().is_some_and(|f| f.starts_with(INFEASIBLE)))
+        .count();
     Summary {
         scenario: manifest.scenario.name().to_string(),
         seed: manifest.seed,
@@ -156,6 +167,8 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
         records: records.len(),
         converged: masses.len(),
         convergence_rate: masses.len() as f64 / n,
+        infeasible,
+        feasible_convergence_rate: masses.len() as f64 / (records.len() - infeasible).max(1) as f64,
         seconds_sum: seconds.iter().sum(),
         seconds_mean: mean(&seconds),
         seconds_median: seconds.get(seconds.len() / 2).copied().unwrap_or(f64::NAN),
@@ -170,6 +183,90 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
             .map(|r| (r.index, r.failure.clone().unwrap_or_else(|| "unknown".into())))
             .collect(),
     }
+}
+
+/// The failure reason of a draw shown infeasible starts with this.
+pub const INFEASIBLE: &str = "infeasible:";
+
+/// A transfer that found no energy-optimal start: its minimum time of flight decides whether it
+/// is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`); the reason is
+/// prefixed with the verdict and the record's `seconds` include the classification. Other
+/// records are left as they are. Returns whether the record was classified.
+pub fn classify_failure(
+    record: &mut TrajectoryRecord,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> bool {
+    let Some(why) = record.failure.clone() else {
+        return false;
+    };
+    if record.converged || scenario.problem != ProblemKind::Transfer || !why.starts_with("no energy-optimal start") {
+        return false;
+    }
+    let clock = std::time::Instant::now();
+    let tof = scenario.time_of_flight();
+    let days = |t: f64| t * DAYS_PER_TIME_UNIT;
+    let verdict = match classify_transfer(scenario, spacecraft, options) {
+        Feasibility::MinTime { tf_min, .. } if tf_min > tof => format!(
+            "{INFEASIBLE} minimum time {:.1} d > TOF {:.1} d (ratio {:.3}, local minimum-time extremal)",
+            days(tf_min),
+            days(tof),
+            tf_min / tof
+        ),
+        Feasibility::MinTime { tf_min, .. } => format!(
+            "feasible: minimum time {:.1} d <= TOF {:.1} d (ratio {:.3})",
+            days(tf_min),
+            days(tof),
+            tf_min / tof
+        ),
+        Feasibility::Recovered { .. } => {
+            "feasible: energy-optimal solution found by continuation in the time of flight".to_string()
+        }
+        Feasibility::Unknown(w) => format!("feasibility unknown ({w})"),
+    };
+    record.failure = Some(format!("{verdict}; {why}"));
+    record.seconds += clock.elapsed().as_secs_f64();
+    true
+}
+
+/// Opt-in after a (whole) run in `out`: classifies every transfer record without an
+/// energy-optimal start by its minimum time of flight ([`classify_failure`], ~1 min of work per
+/// record, in parallel), rewrites those records and the dataset and summaries, whose
+/// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
+/// touched; records classified before are kept as they are.
+pub fn classify_run(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<Summary, GenerateError> {
+    let manifest_path = out.join("manifest.json");
+    let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
+    let manifest: Manifest =
+        serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+    let results: Vec<Result<TrajectoryRecord, GenerateError>> = (0..manifest.count)
+        .into_par_iter()
+        .map(|index| {
+            let path = record_path(out, index);
+            let mut record = read_record(&path)?;
+            let scenario = manifest.scenario.draw(manifest.seed, index);
+            if classify_failure(&mut record, &scenario, spacecraft, options) {
+                let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
+                    .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+                atomic_write(&path, &bytes).map_err(io_err(&path))?;
+            }
+            Ok(record)
+        })
+        .collect();
+    let records = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    write_outputs(
+        out,
+        &DatasetFile {
+            manifest,
+            shard: Shard::WHOLE,
+            records,
+        },
+    )
 }
 
 fn record_path(out: &Path, index: u64) -> PathBuf {
@@ -368,5 +465,48 @@ mod tests {
         for i in 0..1000u64 {
             assert_eq!(shards.iter().filter(|s| s.contains(i)).count(), 1);
         }
+    }
+
+    /// The summary counts the records classified infeasible and leaves them out of the
+    /// converged / feasible ratio; a record that was not classified is not counted.
+    #[test]
+    fn the_summary_counts_infeasible_records() {
+        let manifest = Manifest {
+            scenario: ScenarioKind::TransferHard,
+            seed: 7,
+            count: 4,
+        };
+        let record = |index: u64, converged: bool, failure: Option<&str>| TrajectoryRecord {
+            kind: manifest.scenario,
+            seed: 7,
+            index,
+            scenario: manifest.scenario.draw(7, index),
+            converged,
+            failure: failure.map(String::from),
+            costates: [0.0; 5],
+            final_anomaly: None,
+            final_eps: 1.0,
+            final_mass: 0.8,
+            thrust_arcs: 1,
+            residual: 0.0,
+            seconds: 1.0,
+            ephemeris: Vec::new(),
+            steps: Vec::new(),
+            distinct_energy_optima: 1,
+        };
+        let records = [
+            record(0, true, None),
+            record(
+                1,
+                false,
+                Some("infeasible: minimum time 400.0 d > TOF 300.0 d (ratio 1.333)"),
+            ),
+            record(2, false, Some("feasibility unknown (...); no energy-optimal start")),
+            record(3, true, None),
+        ];
+        let s = summarize(&manifest, Shard::WHOLE, &records);
+        assert_eq!((s.converged, s.infeasible), (2, 1));
+        assert!((s.convergence_rate - 0.5).abs() < 1e-15);
+        assert!((s.feasible_convergence_rate - 2.0 / 3.0).abs() < 1e-15);
     }
 }

@@ -6,6 +6,7 @@ pub mod bangbang;
 pub mod circular;
 pub mod continuation;
 pub mod direct;
+pub mod min_time;
 pub mod multiple;
 pub mod pontryagin;
 pub mod shooting;
