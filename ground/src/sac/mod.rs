@@ -63,7 +63,9 @@ pub struct SacConfig {
     /// action at the demonstrations' clipped extremes (+-0.999), where the tanh squash makes the
     /// entropy target unreachable; Adam then raises log alpha by about the learning rate every
     /// update, without end (alpha 44 after 20k pretraining updates, measured), and the critics'
-    /// soft targets diverge with it (Q ~ 2e3). Bounding it keeps the critics usable for RL.
+    /// soft targets diverge with it (Q ~ 2e3). A low bound (log alpha <= -5, with the initial
+    /// value there too) keeps them on the data and lets RL improve the pretrained actor; 0 only
+    /// slows the divergence (measured, README).
     pub max_log_temperature: Option<f64>,
     /// Weight of the behaviour-cloning term on demonstration tuples (0 = plain SAC, the thesis).
     /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
