@@ -29,12 +29,11 @@ use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::TIME_UNIT_S;
 
 use super::pontryagin::{
-    charge_stats, idx, propagate, propagate_sensitivity, state_costate_rhs_in, stm_rhs, OptimalControlParams, Regime,
-    StateCostateSensitivity, STM_LEN, STM_STEP_WORK, Y_LEN,
+    charge_stats, idx, state_costate_rhs_in, stm_rhs, OptimalControlParams, Regime, STM_LEN, STM_STEP_WORK, Y_LEN,
 };
 use super::shooting::{
-    initial_state_costate, newton, orbit_state, NewtonSettings, ShootingProblem, TransferShooting, TransferVector,
-    TRANSFER_UNKNOWNS,
+    initial_state_costate, newton, orbit_state, transfer_residual_at, transfer_residual_only_at, NewtonSettings,
+    ShootingProblem, TransferShooting, TransferVector, TRANSFER_UNKNOWNS,
 };
 use super::{continuation, transfer_guesses, Budgeted, SolveOptions};
 
@@ -237,17 +236,6 @@ impl TransferAtTime<'_> {
             eps,
         }
     }
-
-    fn terminal(&self, y: &[f64], nu_f: f64) -> (TransferVector, [Dual2_64; 4]) {
-        let orbit = orbit_state(&self.scenario.target, Dual2_64::from_re(nu_f).derivative());
-        let mut f = TransferVector::zeros();
-        for i in 0..4 {
-            f[i] = y[idx::R + i] - orbit[i].re;
-        }
-        f[4] = (0..4).map(|i| y[idx::LR + i] * orbit[i].v1).sum();
-        f[5] = y[idx::LM];
-        (f, orbit)
-    }
 }
 
 impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferAtTime<'_> {
@@ -257,9 +245,7 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferAtTime<'_> {
         z: &TransferVector,
         tolerances: &Tolerances,
     ) -> Result<TransferVector, IntegrationError> {
-        let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let y = propagate(&self.params(eps), 0.0, &y0, self.tof, tolerances)?;
-        Ok(self.terminal(&y, z[5]).0)
+        transfer_residual_only_at(self.scenario, self.tof, &self.params(eps), z, tolerances)
     }
 
     fn residual(
@@ -268,23 +254,7 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferAtTime<'_> {
         z: &TransferVector,
         tolerances: &Tolerances,
     ) -> Result<(TransferVector, SMatrix<f64, TRANSFER_UNKNOWNS, TRANSFER_UNKNOWNS>), IntegrationError> {
-        let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let ys = propagate_sensitivity(&self.params(eps), &y0, self.tof, tolerances)?;
-        let (f, orbit) = self.terminal(&ys, z[5]);
-        let mut jac = SMatrix::<f64, TRANSFER_UNKNOWNS, TRANSFER_UNKNOWNS>::zeros();
-        for k in 0..5 {
-            let s = |row: usize| StateCostateSensitivity::sensitivity(&ys, row, k);
-            for i in 0..4 {
-                jac[(i, k)] = s(idx::R + i);
-            }
-            jac[(4, k)] = (0..4).map(|i| s(idx::LR + i) * orbit[i].v1).sum();
-            jac[(5, k)] = s(idx::LM);
-        }
-        for i in 0..4 {
-            jac[(i, 5)] = -orbit[i].v1;
-        }
-        jac[(4, 5)] = (0..4).map(|i| ys[idx::LR + i] * orbit[i].v2).sum();
-        Ok((f, jac))
+        transfer_residual_at(self.scenario, self.tof, &self.params(eps), z, tolerances)
     }
 }
 
@@ -584,6 +554,7 @@ pub fn full_thrust_fraction(
 mod tests {
     use super::*;
     use crate::solver::pontryagin::hamiltonian;
+    use crate::solver::pontryagin::propagate;
     use shared::orbit::OrbitElements;
     use shared::spacecraft::Spacecraft;
 

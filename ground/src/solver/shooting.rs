@@ -61,8 +61,20 @@ pub fn transfer_residual(
     z: &TransferVector,
     tolerances: &Tolerances,
 ) -> Result<(TransferVector, TransferJacobian), IntegrationError> {
+    transfer_residual_at(scenario, scenario.time_of_flight(), params, z, tolerances)
+}
+
+/// [`transfer_residual`] at a time of flight other than the scenario's own (the minimum-time
+/// search's continuation in the time of flight).
+pub fn transfer_residual_at(
+    scenario: &Scenario,
+    time_of_flight: f64,
+    params: &OptimalControlParams,
+    z: &TransferVector,
+    tolerances: &Tolerances,
+) -> Result<(TransferVector, TransferJacobian), IntegrationError> {
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-    let ys = propagate_sensitivity(params, &y0, scenario.time_of_flight(), tolerances)?;
+    let ys = propagate_sensitivity(params, &y0, time_of_flight, tolerances)?;
     let (f, orbit) = transfer_terminal(scenario, &ys, z[5]);
     let mut jac = TransferJacobian::zeros();
     for k in 0..5 {
@@ -88,8 +100,19 @@ pub fn transfer_residual_only(
     z: &TransferVector,
     tolerances: &Tolerances,
 ) -> Result<TransferVector, IntegrationError> {
+    transfer_residual_only_at(scenario, scenario.time_of_flight(), params, z, tolerances)
+}
+
+/// [`transfer_residual_only`] at a time of flight other than the scenario's own.
+pub fn transfer_residual_only_at(
+    scenario: &Scenario,
+    time_of_flight: f64,
+    params: &OptimalControlParams,
+    z: &TransferVector,
+    tolerances: &Tolerances,
+) -> Result<TransferVector, IntegrationError> {
     let y0 = initial_state_costate(scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-    let y = propagate(params, 0.0, &y0, scenario.time_of_flight(), tolerances)?;
+    let y = propagate(params, 0.0, &y0, time_of_flight, tolerances)?;
     Ok(transfer_terminal(scenario, &y, z[5]).0)
 }
 
