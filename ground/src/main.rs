@@ -31,8 +31,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Solve one mass-optimal transfer by the indirect method (Pontryagin, energy-to-fuel
-    /// homotopy, shooting). Rendezvous is not implemented yet.
+    /// Solve one mass-optimal transfer or rendezvous (--rendezvous) by the indirect method
+    /// (Pontryagin, energy-to-fuel homotopy, shooting).
     Solve(SolveArgs),
     /// Solve every scenario of a distribution into a dataset folder: parallel, resumable,
     /// shardable (see the README for a Slurm job array).
