@@ -22,7 +22,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::dataset::TrajectoryRecord;
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError};
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
-use crate::solver::{solve_scenario, SolveOptions};
+use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
 const DATASET_MAGIC: [u8; 4] = *b"LTDS";
@@ -190,8 +190,9 @@ pub const INFEASIBLE: &str = "infeasible:";
 
 /// A transfer that found no energy-optimal start: its minimum time of flight decides whether it
 /// is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`); the reason is
-/// prefixed with the verdict and the record's `seconds` include the classification. Other
-/// records are left as they are. Returns whether the record was classified.
+/// prefixed with the verdict and the record's `seconds` include the classification. A draw whose
+/// energy-optimal start the classification recovers is solved from it, and a converged solution
+/// replaces the record. Other records are left as they are. Returns whether the record changed.
 pub fn classify_failure(
     record: &mut TrajectoryRecord,
     scenario: &Scenario,
@@ -220,8 +221,19 @@ pub fn classify_failure(
             days(tof),
             tf_min / tof
         ),
-        Feasibility::Recovered { .. } => {
-            "feasible: energy-optimal solution found by continuation in the time of flight".to_string()
+        Feasibility::Recovered { z } => {
+            // The homotopy from the recovered start: a converged record replaces the failure.
+            let solved =
+                solve_transfer_from_start(record.kind, record.seed, record.index, scenario, spacecraft, options, z);
+            if solved.converged {
+                let seconds = record.seconds + clock.elapsed().as_secs_f64();
+                *record = TrajectoryRecord { seconds, ..solved };
+                return true;
+            }
+            format!(
+                "feasible: energy-optimal solution found by continuation in the time of flight, its homotopy failed ({})",
+                solved.failure.as_deref().unwrap_or("")
+            )
         }
         Feasibility::Unknown(w) => format!("feasibility unknown ({w})"),
     };

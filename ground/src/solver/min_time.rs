@@ -18,7 +18,9 @@
 //! the usual Newton from linear extrapolations. Reaching TOF gives an energy-optimal start of
 //! the real draw (a recovered draw). Where the continuation stops at tau > TOF, the throttle
 //! saturates (the costates grow without bound as tau approaches tf_min): the last solutions,
-//! scaled so that H = 0 at their end, start the minimum-time Newton.
+//! scaled so that H = 0 at their end, start the minimum-time Newton. A second pass with larger
+//! factors (4 to 12) runs when the first finds no extremal, and a direct multi-start of the
+//! minimum-time Newton from primer guesses when neither does.
 
 use nalgebra::{SMatrix, SVector};
 use num_dual::Dual2_64;
@@ -265,7 +267,8 @@ pub enum Feasibility {
     /// homotopy (z: costates and nu_f), so the draw is feasible.
     Recovered { z: TransferVector },
     /// A minimum-time extremal: tf_min (canonical) and its unknowns; `stopped_at` is where the
-    /// time-of-flight continuation stopped (canonical). Infeasible when tf_min > TOF.
+    /// time-of-flight continuation stopped (canonical; NaN for an extremal of the direct
+    /// multi-start). Infeasible when tf_min > TOF.
     MinTime {
         tf_min: f64,
         z: MinTimeVector,
@@ -288,8 +291,15 @@ const TOF_FACTORS: [f64; 6] = [1.25, 1.5, 2.0, 3.0, 4.0, 6.0];
 const FIRST_STEP: f64 = 1.0 / 8.0;
 const MAX_STEP: f64 = 0.25;
 const MIN_STEP: f64 = 1.0 / 1024.0;
-/// Work budget of the whole classification, in multi-start budgets.
+/// Larger multiples, tried with a budget of their own when the first pass found no extremal.
+/// On transfer-hard seed 7 the first pass left 10 draws undecided, mostly short flights whose
+/// stretched problems at 1.25-3 TOF are themselves infeasible and used up its budget; this pass
+/// finds extremals for 5 of them at 3.2-5.0 TOF (docs/notes/issue3-infeasibility.md).
+const WIDE_TOF_FACTORS: [f64; 4] = [4.0, 6.0, 8.0, 12.0];
+/// Work budget of each pass of the classification, in multi-start budgets.
 const CLASSIFY_WORK: u64 = 12;
+/// Final-time multiples of the direct minimum-time multi-start, the last resort.
+const MULTISTART_TOF_FACTORS: [f64; 6] = [1.0, 1.5, 2.5, 4.0, 6.0, 8.0];
 
 /// Newton at eps = 1 on `problem` from `guess` within what is left of `work` since `start`.
 fn energy_solve<P: ShootingProblem<TRANSFER_UNKNOWNS>>(
@@ -458,17 +468,47 @@ pub fn solve_min_time(
 }
 
 /// Classifies a transfer that has no energy-optimal start at its time of flight (see the
-/// module notes).
+/// module notes): the time-of-flight continuation from [`TOF_FACTORS`], then, if it found no
+/// extremal, from [`WIDE_TOF_FACTORS`], then the direct [`multistart_extremal`].
 pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, options: &SolveOptions) -> Feasibility {
     if scenario.problem != ProblemKind::Transfer {
         return Feasibility::Unknown("not a transfer".into());
     }
+    let mut why = Vec::new();
+    for factors in [&TOF_FACTORS[..], &WIDE_TOF_FACTORS[..]] {
+        if let Some(found) = time_continuation_pass(scenario, spacecraft, options, factors, &mut why) {
+            return found;
+        }
+    }
+    match multistart_extremal(scenario, spacecraft, &options.tolerances) {
+        Some(z) => Feasibility::MinTime {
+            tf_min: z[4],
+            z,
+            stopped_at: f64::NAN,
+        },
+        None => {
+            why.push("minimum-time multi-start: no extremal".into());
+            Feasibility::Unknown(why.join("; "))
+        }
+    }
+}
+
+/// One pass of the time-of-flight continuation: for each factor k, the energy-optimal problem at
+/// k TOF continued down towards TOF, and where it stops, the minimum-time Newton from its last
+/// solutions; within [`CLASSIFY_WORK`] multi-start budgets. Some: a recovered start or the
+/// smallest extremal found; None: nothing, with the reasons pushed onto `why`.
+fn time_continuation_pass(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    factors: &[f64],
+    why: &mut Vec<String>,
+) -> Option<Feasibility> {
     let start = super::pontryagin::work_done();
     let work = CLASSIFY_WORK * options.max_start_work;
     let tof = scenario.time_of_flight();
-    let mut why = Vec::new();
     let mut best: Option<Feasibility> = None;
-    for k in TOF_FACTORS {
+    for &k in factors {
         if super::pontryagin::work_done().saturating_sub(start) >= work {
             why.push("work budget spent".into());
             break;
@@ -482,7 +522,7 @@ pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, 
         let followed = follow_time(scenario, spacecraft, tau0, z0, options, start, work);
         let trace = std::env::var_os("MIN_TIME_TRACE").is_some();
         let stops = match followed {
-            Ok(z) => return Feasibility::Recovered { z },
+            Ok(z) => return Some(Feasibility::Recovered { z }),
             Err(stops) => stops,
         };
         let full = full_thrust_fraction(scenario, spacecraft, &stops[0], &options.tolerances);
@@ -529,10 +569,50 @@ pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, 
             ));
         }
     }
-    if let Some(best) = best {
-        return best;
+    best
+}
+
+/// Every minimum-time extremal the direct multi-start finds, smallest tf first: the primer
+/// guesses of the fuel problem (every other one of [`transfer_guesses`]) at final times of
+/// [`MULTISTART_TOF_FACTORS`] x TOF (their final anomaly moved on at the guess's rate), scaled to
+/// H = 0, each solved by the minimum-time Newton. No energy-optimal problem is involved, so it
+/// reaches draws whose stretched problems were never solved; but it has no upper bound from a
+/// feasible time either, and finds different local extremals than the continuation does (seed 7
+/// #24: 1.222 TOF, the continuation's 1.305). Each extremal met its Newton tolerance (1e-10).
+pub fn multistart_extremals(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+) -> Vec<MinTimeVector> {
+    let tof = scenario.time_of_flight();
+    let theta0 = scenario.initial.polar().theta;
+    let mut found: Vec<MinTimeVector> = Vec::new();
+    for k in MULTISTART_TOF_FACTORS {
+        for g in transfer_guesses(scenario).iter().step_by(2) {
+            // The guesses' nu_f is theta0 + rate TOF - omega_f: the same rate over k TOF.
+            let nu_f = theta0 + k * (g[5] - theta0 + scenario.target.omega) - scenario.target.omega;
+            let guess = MinTimeVector::from_column_slice(&[g[0], g[1], g[2], g[3], k * tof, nu_f]);
+            let Some(scaled) = scaled_to_zero_hamiltonian(scenario, spacecraft, &guess, tolerances) else {
+                continue;
+            };
+            if let Some(z) = solve_min_time(scenario, spacecraft, &scaled, tolerances) {
+                found.push(z);
+            }
+        }
     }
-    Feasibility::Unknown(why.join("; "))
+    found.sort_by(|a, b| a[4].total_cmp(&b[4]));
+    found
+}
+
+/// The extremal of [`multistart_extremals`] with the smallest tf.
+pub fn multistart_extremal(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+) -> Option<MinTimeVector> {
+    multistart_extremals(scenario, spacecraft, tolerances)
+        .into_iter()
+        .next()
 }
 
 /// The fraction of the flight an energy-optimal solution spends at full thrust (u > 0.99).
@@ -583,6 +663,16 @@ mod tests {
         }
     }
 
+    /// The time the circle raise's impulsive Hohmann delta-v (a lower bound for any thrust
+    /// program) takes at full thrust: a lower bound on its minimum time.
+    fn circle_raise_hohmann_time(sc: &CanonicalSpacecraft) -> f64 {
+        let (a0, af) = (1.0f64, 1.52f64);
+        let at = 0.5 * (a0 + af);
+        let hohmann =
+            ((2.0 / a0 - 1.0 / at).sqrt() - a0.powf(-0.5)).abs() + (af.powf(-0.5) - (2.0 / af - 1.0 / at).sqrt()).abs();
+        time_for(hohmann, sc)
+    }
+
     /// Time to spend a delta-v at full thrust (rocket equation, m0 = 1).
     fn time_for(dv: f64, sc: &CanonicalSpacecraft) -> f64 {
         sc.exhaust_speed / sc.thrust * (1.0 - (-dv / sc.exhaust_speed).exp())
@@ -613,11 +703,7 @@ mod tests {
         let sc = sc();
         let scenario = circle_raise();
         let options = SolveOptions::default();
-        let (a0, af) = (1.0f64, 1.52f64);
-        let at = 0.5 * (a0 + af);
-        let hohmann =
-            ((2.0 / a0 - 1.0 / at).sqrt() - a0.powf(-0.5)).abs() + (af.powf(-0.5) - (2.0 / af - 1.0 / at).sqrt()).abs();
-        let t_low = time_for(hohmann, &sc);
+        let t_low = circle_raise_hohmann_time(&sc);
         let tof = scenario.time_of_flight();
         assert!(tof < t_low, "the test draw must be infeasible by the bound");
         let result = classify_transfer(&scenario, &sc, &options);
@@ -631,6 +717,31 @@ mod tests {
             "{tf_min} {stopped_at}"
         );
         check_extremal(&scenario, &sc, &z, &options.tolerances);
+    }
+
+    /// The direct multi-start, a second method, on the same circle raise: every extremal it
+    /// finds passes the fresh-propagation checks and lies above the Hohmann bound, and its
+    /// smallest is the continuation's tf_min (to 1e-6 relative): two routes, one minimum time.
+    #[test]
+    fn multistart_finds_the_circle_raise_minimum_time_of_the_continuation() {
+        let sc = sc();
+        let scenario = circle_raise();
+        let options = SolveOptions::default();
+        let Feasibility::MinTime { tf_min, .. } = classify_transfer(&scenario, &sc, &options) else {
+            panic!("no extremal from the continuation");
+        };
+        let found = multistart_extremals(&scenario, &sc, &options.tolerances);
+        assert!(!found.is_empty());
+        let t_low = circle_raise_hohmann_time(&sc);
+        for z in &found {
+            assert!(z[4] > t_low, "extremal at {} below the Hohmann bound {t_low}", z[4]);
+            check_extremal(&scenario, &sc, z, &options.tolerances);
+        }
+        let smallest = found[0][4];
+        assert!(
+            (smallest - tf_min).abs() < 1e-6 * tf_min,
+            "multi-start {smallest}, continuation {tf_min}"
+        );
     }
 
     /// A fresh propagation of a minimum-time extremal on the fuel problem's modal path: rho =
