@@ -106,7 +106,7 @@ fn follow<const K: usize>(
 
 /// One Newton solve at eps = 1 on the start budgets, within what is left of `work` integration
 /// steps counted from `start`.
-fn solve_at<P: ShootingProblem<K>, const K: usize>(
+pub(super) fn solve_at<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     guess: &SVector<f64, K>,
     options: &SolveOptions,

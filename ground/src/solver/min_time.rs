@@ -37,7 +37,7 @@ use super::shooting::{
     initial_state_costate, newton, orbit_state, transfer_residual_at, transfer_residual_only_at, NewtonSettings,
     ShootingProblem, TransferShooting, TransferVector, TRANSFER_UNKNOWNS,
 };
-use super::{continuation, transfer_guesses, Budgeted, SolveOptions};
+use super::{continuation, transfer_guesses, SolveOptions};
 
 /// Unknowns of the minimum-time transfer: lambda_r(0), lambda_v(0), tf, nu_f.
 pub const MIN_TIME_UNKNOWNS: usize = 6;
@@ -301,7 +301,8 @@ const CLASSIFY_WORK: u64 = 12;
 /// Final-time multiples of the direct minimum-time multi-start, the last resort.
 const MULTISTART_TOF_FACTORS: [f64; 6] = [1.0, 1.5, 2.5, 4.0, 6.0, 8.0];
 
-/// Newton at eps = 1 on `problem` from `guess` within what is left of `work` since `start`.
+/// Newton at eps = 1 on `problem` from `guess` within what is left of `work` since `start`, and
+/// at most one multi-start budget.
 fn energy_solve<P: ShootingProblem<TRANSFER_UNKNOWNS>>(
     problem: &P,
     guess: &TransferVector,
@@ -310,18 +311,7 @@ fn energy_solve<P: ShootingProblem<TRANSFER_UNKNOWNS>>(
     work: u64,
 ) -> Option<TransferVector> {
     let spent = super::pontryagin::work_done().saturating_sub(start);
-    if spent >= work {
-        return None;
-    }
-    let budgeted = Budgeted::new(problem, (work - spent).min(options.max_start_work));
-    let tolerances = Tolerances {
-        max_steps: options.start_max_steps,
-        ..options.tolerances
-    };
-    newton(&budgeted, 1.0, guess, &tolerances, &options.start_newton)
-        .ok()
-        .filter(|o| o.converged)
-        .map(|o| o.z)
+    continuation::solve_at(problem, guess, options, start, work.min(spent + options.max_start_work))
 }
 
 /// An energy-optimal solution of the scenario with its time of flight stretched to `steps`: the
