@@ -267,18 +267,16 @@ impl Sac {
         let q_pi = self.critics.min_q(&obs, &sample.action);
         let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
         let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
+        let action_error = (&sample.mean_action - &actions)
+            .square()
+            .sum_dim_intlist(-1, true, Kind::Float);
         let bc_error = match self.config.cloning_target {
-            CloningTarget::Action => (&sample.mean_action - &actions)
-                .square()
-                .sum_dim_intlist(-1, true, Kind::Float),
+            CloningTarget::Action => action_error,
             CloningTarget::Thrust => {
                 let thrust = (thrust_vector(&sample.mean_action) - thrust_vector(&actions))
                     .square()
                     .sum_dim_intlist(-1, true, Kind::Float);
-                let anchor = (&sample.mean_action - &actions)
-                    .square()
-                    .sum_dim_intlist(-1, true, Kind::Float);
-                thrust + anchor * THRUST_CLONING_ACTION_ANCHOR
+                thrust + action_error * THRUST_CLONING_ACTION_ANCHOR
             }
         };
         let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
