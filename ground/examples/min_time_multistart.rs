@@ -40,7 +40,9 @@ fn main() {
                 format!("{:.4} {err:.0e} {:.0e}", z[4] / tof, reduced_hamiltonian(&y, &sc))
             })
             .collect();
-        let smallest = found.first().map_or(String::new(), |z| format!("{:.4}", z[4] / tof));
+        let smallest = found
+            .first()
+            .map_or(String::new(), |z| format!("{:.4} z {:?}", z[4] / tof, z.as_slice()));
         println!(
             "{index},{:.1},{},{smallest},{seconds:.1},{}",
             tof * DAYS_PER_TIME_UNIT,
