@@ -356,8 +356,8 @@ pub struct Stopped {
     pub z: TransferVector,
 }
 
-/// Follows the time of flight from tau0 (solution z0) down to `tof`. Ok: the solution at
-/// `tof`; Err: the last solutions reached, latest first.
+/// Follows the time of flight from tau0 (solution z0) to `tof` (down, or up from a short
+/// extremal). Ok: the solution at `tof`; Err: the last solutions reached, latest first.
 fn follow_time(
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -486,7 +486,7 @@ pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, 
         z,
         stopped_at: f64::NAN,
     });
-    match (continued, direct) {
+    let verdict = match (continued, direct) {
         (Some(a @ Feasibility::MinTime { tf_min: ta, .. }), Some(b @ Feasibility::MinTime { tf_min: tb, .. })) => {
             // A tie (the same extremal found both ways) keeps the continuation's, which carries
             // where it stopped.
@@ -501,7 +501,52 @@ pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, 
             why.push("minimum-time multi-start: no extremal".into());
             Feasibility::Unknown(why.join("; "))
         }
+    };
+    // Feasible: the energy-optimal family folds onto the short extremal, so it starts there.
+    if let Feasibility::MinTime { tf_min, z, .. } = &verdict {
+        if *tf_min < scenario.time_of_flight() {
+            if let Some(z) = start_from_short_extremal(scenario, spacecraft, z, options) {
+                return Feasibility::Recovered { z };
+            }
+        }
     }
+    verdict
+}
+
+/// An energy-optimal start at the TOF from a minimum-time extremal shorter than it: the
+/// energy-optimal problem at tau slightly above tf_min (where its family folds onto the
+/// extremal, the throttle saturated) from the extremal's costates (scaled by k, lambda_m(0)
+/// guessed), then the time of flight continued up to the TOF. Seed 7 #47: tau = 1.01 tf_min,
+/// k = 1, lambda_m(0) = 1 converges, the continuation reaches the TOF, and the homotopy from
+/// there converges (m_f = 0.6006).
+fn start_from_short_extremal(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &MinTimeVector,
+    options: &SolveOptions,
+) -> Option<TransferVector> {
+    let start = super::pontryagin::work_done();
+    let work = CLASSIFY_WORK * options.max_start_work;
+    for margin in [0.01, 0.002, 0.03] {
+        let tau = z[4] * (1.0 + margin);
+        let problem = TransferAtTime {
+            scenario,
+            spacecraft: *spacecraft,
+            tof: tau,
+        };
+        for k in [1.0, 3.0, 10.0] {
+            for lambda_m in [1.0, 0.0] {
+                let guess =
+                    TransferVector::from_column_slice(&[k * z[0], k * z[1], k * z[2], k * z[3], lambda_m, z[5]]);
+                if let Some(at_tau) = energy_solve(&problem, &guess, options, start, work) {
+                    if let Ok(at_tof) = follow_time(scenario, spacecraft, tau, at_tau, options, start, work) {
+                        return Some(at_tof);
+                    }
+                }
+            }
+        }
+    }
+    None
 }
 
 /// One pass of the time-of-flight continuation: for each factor k, the energy-optimal problem at
@@ -802,7 +847,8 @@ mod tests {
     /// in session 6. The direct multi-start finds z2 on another branch (about 10 more
     /// revolutions of the final anomaly) at tf = 0.8907 TOF: a full-thrust trajectory that meets
     /// the target orbit before the TOF, so the draw is feasible. Here: the Newton from each
-    /// rounded to 6 digits returns to it, and both pass the fresh-propagation checks.
+    /// rounded to 6 digits returns to it, both pass the fresh-propagation checks, and z2 leads
+    /// to an energy-optimal solution at the TOF, from which the homotopy converges (m_f 0.6006).
     #[test]
     fn transfer_hard_47_is_feasible_although_a_local_minimum_time_exceeds_its_tof() {
         use shared::scenario::ScenarioKind;
@@ -823,6 +869,23 @@ mod tests {
             z2[4] / tof
         );
         check_extremal(&scenario, &sc, &z2, &options.tolerances);
+        // From z2, an energy-optimal start at the TOF: it solves the eps = 1 problem there.
+        let start = start_from_short_extremal(&scenario, &sc, &z2, &options).expect("a start at the TOF");
+        let problem = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let f = problem.residual_only(1.0, &start, &options.tolerances).unwrap();
+        assert!(f.amax() < 1e-8, "eps = 1 residual at the TOF {f}");
+        // And the homotopy from it reaches the final eps: the draw converges.
+        let kind = ScenarioKind::TransferHard;
+        let record = crate::solver::solve_transfer_from_start(kind, 7, 47, &scenario, &sc, &options, start);
+        assert!(record.converged, "{:?}", record.failure);
+        assert!(
+            record.final_mass > 0.55 && record.final_mass < 0.65,
+            "m_f {}",
+            record.final_mass
+        );
     }
 
     /// The minimum-time Jacobian against central differences of the residual.
