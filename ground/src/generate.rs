@@ -243,7 +243,7 @@ pub fn classify_failure(
 }
 
 /// Opt-in after a (whole) run in `out`: classifies every transfer record without an
-/// energy-optimal start by its minimum time of flight ([`classify_failure`], ~1 min of work per
+/// energy-optimal start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
 /// record, in parallel), rewrites those records and the dataset and summaries, whose
 /// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
 /// touched; records classified before are kept as they are.

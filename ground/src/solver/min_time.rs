@@ -300,7 +300,7 @@ const MIN_STEP: f64 = 1.0 / 1024.0;
 const WIDE_TOF_FACTORS: [f64; 4] = [4.0, 6.0, 8.0, 12.0];
 /// Work budget of each pass of the classification, in multi-start budgets.
 const CLASSIFY_WORK: u64 = 12;
-/// Final-time multiples of the direct minimum-time multi-start, the last resort.
+/// Final-time multiples of the direct minimum-time multi-start.
 const MULTISTART_TOF_FACTORS: [f64; 6] = [1.0, 1.5, 2.5, 4.0, 6.0, 8.0];
 
 /// Newton at eps = 1 on `problem` from `guess` within what is left of `work` since `start`, and
