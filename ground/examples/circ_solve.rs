@@ -89,7 +89,7 @@ fn main() {
 /// DIAG=1: follow the pinned problem down to EPS_A, then probe Newton towards EPS_B.
 pub fn diag() {
     use lowthrust_ground::solver::shooting::{
-        homotopy_until, newton, predict, PinnedAnomalyTransfer, RendezvousVector, ShootingProblem,
+        homotopy, newton, predict, PinnedAnomalyTransfer, RendezvousVector, ShootingProblem,
     };
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let opts = SolveOptions::default();
@@ -124,7 +124,7 @@ pub fn diag() {
             break;
         }
     }
-    let levels = homotopy_until(&p, &z0.unwrap(), &tol, &opts.newton, eps_a * 1.01, 200, |_, _| false).unwrap();
+    let levels = homotopy(&p, &z0.unwrap(), &tol, &opts.newton, eps_a * 1.01, 200).unwrap();
     let l = levels.last().unwrap();
     println!("reached eps {:.4e} conv {}", l.eps, l.outcome.converged);
     let (eps, z) = (l.eps, l.outcome.z);

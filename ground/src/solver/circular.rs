@@ -40,7 +40,7 @@ use super::bangbang::{BangBangTransfer, Hohmann, Structure};
 use super::multiple::{MsVector, MultipleShootingFree, MultipleShootingTransfer, MS_UNKNOWNS};
 use super::pontryagin::{idx, propagate, work_done, OptimalControlParams, Regime};
 use super::shooting::{
-    continue_eps, homotopy_until, initial_state_costate, newton, orbit_state, transfer_residual_only, NewtonSettings,
+    continue_eps, homotopy, initial_state_costate, newton, orbit_state, transfer_residual_only, NewtonSettings,
     PinnedAnomalyTransfer, RendezvousVector, ShootingProblem, TransferVector,
 };
 use super::{transfer_guesses, Budgeted, SolveOptions};
@@ -675,14 +675,13 @@ fn solve_downward_free(
         spacecraft: *sc,
     };
     let budgeted = Budgeted::new(&free, options.max_homotopy_work);
-    let levels = homotopy_until(
+    let levels = homotopy(
         &Correctors(&budgeted),
         &MultipleShootingFree::join(&x0, nu),
         &continuation_tolerances(&tol),
         &ms_settings(CORRECTOR_TOLERANCE),
         options.final_eps,
         3 * options.max_homotopy_solves,
-        |_, _| false,
     )
     .map_err(|e| format!("{e:?}"))?;
     let mut last = *levels.last().ok_or("empty homotopy")?;

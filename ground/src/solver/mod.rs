@@ -21,7 +21,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::dataset::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    homotopy_until, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
+    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
     RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
 };
 
@@ -511,14 +511,13 @@ where
             ProblemKind::Rendezvous => options.max_homotopy_work,
         };
         let homotopy_problem = Budgeted::new(problem, homotopy_work);
-        let levels = match homotopy_until(
+        let levels = match homotopy(
             &homotopy_problem,
             z_energy,
             &options.tolerances,
             &options.newton,
             options.final_eps,
             options.max_homotopy_solves,
-            |_, _| false,
         ) {
             Ok(levels) => levels,
             Err(e) => {

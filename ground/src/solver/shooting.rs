@@ -651,31 +651,6 @@ pub fn homotopy<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
-    homotopy_until(
-        problem,
-        z0,
-        tolerances,
-        settings,
-        final_eps,
-        max_corrector_solves,
-        |_, _| false,
-    )
-}
-
-/// [`homotopy`] that also gives up after a schedule level at which `give_up(eps, z)` holds
-/// (the level is returned, then a failed copy of it at the next level).
-pub fn homotopy_until<P: ShootingProblem<K>, const K: usize>(
-    problem: &P,
-    z0: &SVector<f64, K>,
-    tolerances: &Tolerances,
-    settings: &NewtonSettings,
-    final_eps: f64,
-    max_corrector_solves: u32,
-    give_up: impl Fn(f64, &SVector<f64, K>) -> bool,
-) -> Result<Vec<HomotopyLevel<K>>, IntegrationError>
-where
-    Const<K>: DimMin<Const<K>, Output = Const<K>>,
-{
     let mut schedule = homotopy_schedule(final_eps);
     let Some(first) = schedule.next() else {
         return Ok(Vec::new());
@@ -691,17 +666,6 @@ where
     let mut solves = 0u32;
     for target in schedule {
         let mut last = outcome;
-        if give_up(eps, &z) {
-            levels.push(HomotopyLevel {
-                eps: target,
-                outcome: NewtonOutcome {
-                    z,
-                    converged: false,
-                    ..last
-                },
-            });
-            return Ok(levels);
-        }
         while eps > target {
             solves += 1;
             if solves > max_corrector_solves {
