@@ -241,6 +241,27 @@ fn solve_scenario_from(
                     }
                 }
             }
+            // Still none: the direct transcription at eps = 1, whose multipliers give costates.
+            if matches!(solved, Err((_, 0))) && energy_start.is_none() {
+                match direct::indirect_start(scenario, spacecraft) {
+                    Ok((l, nu_f)) => {
+                        let z = TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap_or(0.0)]);
+                        match solve_problem(&problem, scenario, spacecraft, vec![z], options) {
+                            Err((direct_why, 0)) => {
+                                if let Err((why, _)) = &mut solved {
+                                    why.push_str(&format!("; from the direct transcription's costates: {direct_why}"));
+                                }
+                            }
+                            from_direct => solved = from_direct,
+                        }
+                    }
+                    Err(direct_why) => {
+                        if let Err((why, _)) = &mut solved {
+                            why.push_str(&format!("; {direct_why}"));
+                        }
+                    }
+                }
+            }
             solved.map(|s| {
                 let z = s.level.outcome.z;
                 let summary = (
@@ -276,6 +297,26 @@ fn solve_scenario_from(
                                 "; continuation in the target stopped at s = {shorter:.3} \
                                  (the body's phase the longer way round: {longer:.3})"
                             ));
+                        }
+                    }
+                }
+            }
+            if matches!(solved, Err((_, 0))) {
+                match direct::indirect_start(scenario, spacecraft) {
+                    Ok((l, _)) => {
+                        let z = RendezvousVector::from_column_slice(&l);
+                        match solve_problem(&problem, scenario, spacecraft, vec![z], options) {
+                            Err((direct_why, 0)) => {
+                                if let Err((why, _)) = &mut solved {
+                                    why.push_str(&format!("; from the direct transcription's costates: {direct_why}"));
+                                }
+                            }
+                            from_direct => solved = from_direct,
+                        }
+                    }
+                    Err(direct_why) => {
+                        if let Err((why, _)) = &mut solved {
+                            why.push_str(&format!("; {direct_why}"));
                         }
                     }
                 }
