@@ -163,6 +163,13 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Piped into `head`, the CLI should stop quietly like other Unix tools: Rust ignores SIGPIPE,
+    // so println! on the closed pipe would panic with a backtrace instead.
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of one signal before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     lowthrust_ground::sac::tune_allocator();
     let result = match cli.command {

@@ -54,3 +54,23 @@ fn json_output_has_the_documented_fields_and_a_physical_solution() {
     let m = v["final_mass"].as_f64().unwrap();
     assert!(m > 0.85 && m < 0.908443, "{v}");
 }
+
+/// `ground solve ... | head -c 1`: the reader goes away before the output is written; the CLI
+/// ends by SIGPIPE like other Unix tools, not by a panic on the broken pipe.
+#[cfg(unix)]
+#[test]
+fn a_closed_output_pipe_ends_the_cli_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ground"))
+        .args(["solve", "--a0", "1", "--af", "1.3", "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.signal(), Some(libc::SIGPIPE), "{:?}: {err}", out.status);
+}
