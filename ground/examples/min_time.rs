@@ -6,10 +6,7 @@
 //! SEED=7 CASES=47,50,62 cargo run --release -p lowthrust-ground --example min_time
 use std::time::Instant;
 
-use lowthrust_ground::solver::min_time::{
-    classify_transfer, propagate_full_thrust, reduced_hamiltonian, Feasibility, DAYS_PER_TIME_UNIT,
-};
-use lowthrust_ground::solver::shooting::orbit_state;
+use lowthrust_ground::solver::min_time::{classify_transfer, reflown_extremal, Feasibility, DAYS_PER_TIME_UNIT};
 use lowthrust_ground::solver::SolveOptions;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
@@ -36,10 +33,7 @@ fn main() {
                 println!("{index},{:.1},recovered,,,,,,{seconds:.1},nu_f {:.4}", days(tof), z[5])
             }
             Feasibility::MinTime { tf_min, z, stopped_at } => {
-                let y = propagate_full_thrust(&s, &sc, &z, &options.tolerances).unwrap();
-                let orbit = orbit_state(&s.target, z[5]);
-                let err = (0..4).map(|i| (y[i] - orbit[i]).abs()).fold(0.0, f64::max);
-                let h = reduced_hamiltonian(&y, &sc);
+                let (y, err, h) = reflown_extremal(&s, &sc, &z, &options.tolerances).unwrap();
                 let class = if tf_min > tof {
                     "infeasible"
                 } else {

@@ -127,6 +127,21 @@ pub fn reduced_hamiltonian(y: &[f64; Y_LEN], spacecraft: &CanonicalSpacecraft) -
         - spacecraft.thrust * lv / y[idx::M]
 }
 
+/// A minimum-time extremal re-flown by the plain full-thrust propagation (no sensitivities, no
+/// Newton): the state-costate at tf, its largest orbit-condition error and H(tf), both zero at
+/// an extremal.
+pub fn reflown_extremal(
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    z: &MinTimeVector,
+    tolerances: &Tolerances,
+) -> Result<([f64; Y_LEN], f64, f64), IntegrationError> {
+    let y = propagate_full_thrust(scenario, spacecraft, z, tolerances)?;
+    let orbit = orbit_state(&scenario.target, z[5]);
+    let error = (0..4).map(|i| (y[i] - orbit[i]).abs()).fold(0.0, f64::max);
+    Ok((y, error, reduced_hamiltonian(&y, spacecraft)))
+}
+
 /// The gradient of [`reduced_hamiltonian`] in y, from Hamilton's equations: dH/dx = -dlambda/dt,
 /// dH/dlambda = dx/dt (lambda_m excluded), dH/dm = T |lambda_v| / m^2.
 fn hamiltonian_gradient(y: &[f64; Y_LEN], spacecraft: &CanonicalSpacecraft) -> [f64; Y_LEN] {
