@@ -18,7 +18,10 @@ fn main() {
         let (seed, index): (u64, u64) = (seed.parse().unwrap(), index.parse().unwrap());
         let kind = ScenarioKind::TransferHard;
         let scenario = kind.draw(seed, index);
-        let options = DirectOptions::default();
+        let options = DirectOptions {
+            verbose: std::env::var("DIRECT_VERBOSE").is_ok(),
+            ..DirectOptions::default()
+        };
         let guess = DirectGuess::tangential(
             &scenario,
             &sc,
