@@ -31,7 +31,7 @@ use onboard::features::{decode_action, ACTION_LEN};
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances, MAX_EVENTS};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::ProblemKind;
+use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
@@ -157,6 +157,8 @@ pub enum DemoError {
     },
     /// The record holds no step samples (failed solve) or not N + 1 of them.
     NoSolution,
+    /// A placement whose steps do not add up to the episode's, or a mass outside (0, 1].
+    Placement,
     Env(EnvError),
     Integration {
         step: u32,
@@ -176,6 +178,7 @@ impl core::fmt::Display for DemoError {
             Self::Dataset(m) => write!(f, "dataset: {m}"),
             Self::WrongProblem { expected, found } => write!(f, "a {found:?} record where {expected:?} was asked"),
             Self::NoSolution => f.write_str("record has no (complete) step samples"),
+            Self::Placement => f.write_str("record does not fit its place in the episode (steps or mass)"),
             Self::Env(e) => write!(f, "{e}"),
             Self::Integration { step, error } => write!(f, "re-integration over step {step} failed: {error:?}"),
             Self::Inconsistent { step, deviation } => write!(
@@ -207,14 +210,26 @@ pub fn zoh_controls(
     config: &EnvConfig,
     tolerances: &Tolerances,
 ) -> Result<Vec<ZohControl>, DemoError> {
+    zoh_controls_from_mass(record, 1.0, config, tolerances)
+}
+
+/// [`zoh_controls`] of a record solved from mass `start_mass` (see [`Placement`]): the
+/// spacecraft's thrust per unit mass is T / start_mass.
+fn zoh_controls_from_mass(
+    record: &TrajectoryRecord,
+    start_mass: f64,
+    config: &EnvConfig,
+    tolerances: &Tolerances,
+) -> Result<Vec<ZohControl>, DemoError> {
     let n = record.scenario.steps;
     if record.steps.len() != n as usize + 1 {
         return Err(DemoError::NoSolution);
     }
-    let spacecraft = config
+    let mut spacecraft = config
         .spacecraft
         .canonical()
         .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
+    spacecraft.thrust /= start_mass;
     let params = OptimalControlParams {
         spacecraft,
         eps: record.final_eps,
@@ -281,28 +296,72 @@ pub struct RecordDemonstration<O> {
     pub mismatch: Vec<StepMismatch>,
 }
 
+/// Where a record's flight sits in an episode. A record from departure fills the whole episode
+/// of its own scenario ([`Placement::whole`]). A relabelled record (DAgger-style: the transfer
+/// re-solved from a state a policy visited) starts at step `start_step` of `episode` with mass
+/// `start_mass`; it was solved for a scenario of N - start_step steps departing from that state
+/// and a spacecraft of thrust T / start_mass (the same dynamics with the mass counted in units
+/// of start_mass), so its masses are multiplied by start_mass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placement {
+    pub episode: Scenario,
+    pub start_step: u32,
+    pub start_mass: f64,
+}
+
+impl Placement {
+    pub fn whole(record: &TrajectoryRecord) -> Self {
+        Self {
+            episode: record.scenario,
+            start_step: 0,
+            start_mass: 1.0,
+        }
+    }
+}
+
 /// The tuples of one record for problem `P` (transfer or rendezvous).
 pub fn record_demonstration<P: Problem>(
     record: &TrajectoryRecord,
     config: &EnvConfig,
     tolerances: &Tolerances,
 ) -> Result<RecordDemonstration<P::Obs>, DemoError> {
-    if record.scenario.problem != P::KIND {
+    placed_demonstration::<P>(record, &Placement::whole(record), config, tolerances)
+}
+
+/// The tuples of a record placed in an episode (see [`Placement`]): observations, rewards and
+/// done flags are the episode's at steps start_step.., the actions the record's ZOH controls.
+pub fn placed_demonstration<P: Problem>(
+    record: &TrajectoryRecord,
+    placement: &Placement,
+    config: &EnvConfig,
+    tolerances: &Tolerances,
+) -> Result<RecordDemonstration<P::Obs>, DemoError> {
+    if record.scenario.problem != P::KIND || placement.episode.problem != P::KIND {
         return Err(DemoError::WrongProblem {
             expected: P::KIND,
             found: record.scenario.problem,
         });
     }
-    let controls = zoh_controls(record, config, tolerances)?;
-    let scenario = &record.scenario;
+    if placement.start_step + record.scenario.steps != placement.episode.steps
+        || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
+    {
+        return Err(DemoError::Placement);
+    }
+    let controls = zoh_controls_from_mass(record, placement.start_mass, config, tolerances)?;
+    let scenario = &placement.episode;
     let mut env = MdpEnv::<P>::new(config).map_err(DemoError::Env)?;
     let mut transitions = Vec::with_capacity(controls.len());
     let mut mismatch = Vec::with_capacity(controls.len());
-    for ((k, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
+    let placed = |s: &TrajectorySample| SpacecraftState {
+        m: s.m * placement.start_mass,
+        ..state_of(s)
+    };
+    for ((j, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
         let [now, next] = pair else {
             return Err(DemoError::NoSolution);
         };
-        let (s_k, s_next) = (state_of(now), state_of(next));
+        let k = placement.start_step + j;
+        let (s_k, s_next) = (placed(now), placed(next));
         let action = control.action();
         let command: ThrustCommand = decode_action(&action);
         // s_k and the environment's own step from it.
@@ -616,6 +675,67 @@ mod tests {
         for m in &demo.mismatch {
             assert!(m.position < 5e-3 && m.velocity < 2e-2 && m.mass < 1e-3, "{m:?}");
         }
+    }
+
+    /// Bellman's principle of optimality as a check of [`placed_demonstration`]: re-solved from
+    /// the optimal state at mid-flight (mass m, a spacecraft of thrust T / m, the steps left),
+    /// the transfer's optimal tail is the tail of the whole optimal flight, so the relabelled
+    /// record placed at that step gives the whole record's tuples from there on.
+    #[test]
+    fn a_record_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+        use shared::orbit::CartesianState;
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferHard;
+        let whole_record = solve_scenario(kind, 7, 0, &kind.draw(7, 0), &sc, &quick_options());
+        assert!(whole_record.converged, "{:?}", whole_record.failure);
+        let n = whole_record.scenario.steps;
+        let k = n / 2;
+        let mid = &whole_record.steps[k as usize];
+        let rest = Scenario {
+            initial: CartesianState { r: mid.r, v: mid.v }.elements().unwrap(),
+            steps: n - k,
+            ..whole_record.scenario
+        };
+        let scaled = shared::spacecraft::CanonicalSpacecraft {
+            thrust: sc.thrust / mid.m,
+            ..sc
+        };
+        let tail_record = solve_scenario(kind, 7, 0, &rest, &scaled, &quick_options());
+        assert!(tail_record.converged, "{:?}", tail_record.failure);
+        assert_eq!(tail_record.final_eps, whole_record.final_eps);
+        let placement = Placement {
+            episode: whole_record.scenario,
+            start_step: k,
+            start_mass: mid.m,
+        };
+        let config = EnvConfig::default();
+        let tol = default_tolerances();
+        let whole = record_demonstration::<Transfer>(&whole_record, &config, &tol).unwrap();
+        let tail = placed_demonstration::<Transfer>(&tail_record, &placement, &config, &tol).unwrap();
+        assert_eq!(tail.transitions.len(), (n - k) as usize);
+        let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        for (t, w) in tail.transitions.iter().zip(&whole.transitions[k as usize..]) {
+            assert_eq!((t.step, t.done), (w.step, w.done));
+            assert!(
+                worst(t.observation.as_ref(), w.observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(
+                worst(t.next_observation.as_ref(), w.next_observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(worst(&t.action, &w.action) < 1e-4, "{t:?}\n{w:?}");
+            assert!((t.reward - w.reward).abs() < 1e-6, "{t:?}\n{w:?}");
+        }
+        // A placement whose steps do not add up is refused.
+        let wrong = Placement {
+            start_step: k + 1,
+            ..placement
+        };
+        assert_eq!(
+            placed_demonstration::<Transfer>(&tail_record, &wrong, &config, &tol).err(),
+            Some(DemoError::Placement)
+        );
     }
 
     /// The re-integrated integral against a fine composite Simpson rule on states sampled by
