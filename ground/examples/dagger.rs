@@ -8,7 +8,8 @@
 //!
 //! cargo run --release -p lowthrust-ground --example dagger -- CONFIG CHECKPOINT OUT_DIR \
 //!     [ROUNDS=2] [EPISODES=100] [UPDATES=10000] [MC=1000]
-//! Writes OUT_DIR/round-R.safetensors and OUT_DIR/rounds.csv.
+//! Writes OUT_DIR/round-R.safetensors and OUT_DIR/rounds.csv. EPISODES = 0 is the control: the
+//! same updates on the original demonstrations alone.
 use std::io::Write as _;
 use std::path::Path;
 
@@ -58,7 +59,12 @@ fn main() {
     let (mut buffer, records) = demonstration_buffer::<Transfer>(&config, config_dir).unwrap();
     println!("{records} demonstration records, {} tuples", buffer.len());
     let sc = config.env.spacecraft.canonical().unwrap();
-    let options = SolveOptions::default();
+    // Relabels end at the eps the config's demonstrations were generated with (smoothed
+    // demonstrations clone better than bang-bang ones, session 4).
+    let options = SolveOptions {
+        final_eps: config.generate.final_eps,
+        ..SolveOptions::default()
+    };
     let tolerances = default_tolerances();
     let mc_scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, mc);
     let evaluate = |agent: &Sac| {
