@@ -53,7 +53,12 @@ fn main() {
     std::fs::create_dir_all(out).unwrap();
     tch::set_num_threads(config.compute.threads);
     tch::manual_seed(config.seeds.train as i64);
-    let mut agent = Sac::new(config.sac_for(true), <TransferEnv as Environment>::OBS, 3, config.device());
+    let mut agent = Sac::new(
+        config.sac_for(true),
+        <TransferEnv as Environment>::OBS,
+        3,
+        config.device(),
+    );
     agent.load(checkpoint).unwrap();
     let config_dir = config_path.parent().unwrap_or(Path::new("."));
     let (mut buffer, records) = demonstration_buffer::<Transfer>(&config, config_dir).unwrap();
@@ -68,7 +73,9 @@ fn main() {
     let tolerances = default_tolerances();
     let mc_scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, mc);
     let evaluate = |agent: &Sac| {
-        score(&evaluate_batched::<TransferEnv, _>(&config.env, &mc_scenarios, |o| policy_batch(agent, o), false).unwrap())
+        score(
+            &evaluate_batched::<TransferEnv, _>(&config.env, &mc_scenarios, |o| policy_batch(agent, o), false).unwrap(),
+        )
     };
     let mut csv = std::fs::File::create(out.join("rounds.csv")).unwrap();
     writeln!(csv, "round,relabels,relabels_converged,tuples_added,buffer,updates,within_0.01,median_miss_au,mean_final_mass,seconds").unwrap();
@@ -80,8 +87,9 @@ fn main() {
         let clock = std::time::Instant::now();
         // Fresh training scenarios each round (the training stream, past the ones RL saw first).
         let first = 1_000_000 * round;
-        let scenarios: Vec<Scenario> =
-            (first..first + episodes).map(|i| config.scenario.draw(config.seeds.train, i)).collect();
+        let scenarios: Vec<Scenario> = (first..first + episodes)
+            .map(|i| config.scenario.draw(config.seeds.train, i))
+            .collect();
         let flown =
             evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true).unwrap();
         let jobs: Vec<(usize, u32)> = flown
@@ -106,7 +114,14 @@ fn main() {
                     thrust: sc.thrust / state.m,
                     ..sc
                 };
-                let record = solve_scenario(config.scenario, config.seeds.train, episode as u64, &rest, &scaled, &options);
+                let record = solve_scenario(
+                    config.scenario,
+                    config.seeds.train,
+                    episode as u64,
+                    &rest,
+                    &scaled,
+                    &options,
+                );
                 if !record.converged {
                     return None;
                 }
@@ -144,7 +159,9 @@ fn main() {
         agent.save(&out.join(format!("round-{round}.safetensors"))).unwrap();
         let (within, median, mass) = evaluate(&agent);
         let seconds = clock.elapsed().as_secs_f64();
-        println!("round {round}: within 0.01 {within:.3}, median miss {median:.4} AU, final mass {mass:.4} ({seconds:.0} s)");
+        println!(
+            "round {round}: within 0.01 {within:.3}, median miss {median:.4} AU, final mass {mass:.4} ({seconds:.0} s)"
+        );
         writeln!(
             csv,
             "{round},{},{},{added},{},{updates},{within},{median},{mass},{seconds:.0}",
