@@ -241,26 +241,10 @@ fn solve_scenario_from(
                     }
                 }
             }
-            // Still none: the direct transcription at eps = 1, whose multipliers give costates.
-            if matches!(solved, Err((_, 0))) && energy_start.is_none() {
-                match direct::indirect_start(scenario, spacecraft) {
-                    Ok((l, nu_f)) => {
-                        let z = TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap_or(0.0)]);
-                        match solve_problem(&problem, scenario, spacecraft, vec![z], options) {
-                            Err((direct_why, 0)) => {
-                                if let Err((why, _)) = &mut solved {
-                                    why.push_str(&format!("; from the direct transcription's costates: {direct_why}"));
-                                }
-                            }
-                            from_direct => solved = from_direct,
-                        }
-                    }
-                    Err(direct_why) => {
-                        if let Err((why, _)) = &mut solved {
-                            why.push_str(&format!("; {direct_why}"));
-                        }
-                    }
-                }
+            if energy_start.is_none() {
+                solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, nu_f| {
+                    TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap_or(0.0)])
+                });
             }
             solved.map(|s| {
                 let z = s.level.outcome.z;
@@ -301,26 +285,9 @@ fn solve_scenario_from(
                     }
                 }
             }
-            if matches!(solved, Err((_, 0))) {
-                match direct::indirect_start(scenario, spacecraft) {
-                    Ok((l, _)) => {
-                        let z = RendezvousVector::from_column_slice(&l);
-                        match solve_problem(&problem, scenario, spacecraft, vec![z], options) {
-                            Err((direct_why, 0)) => {
-                                if let Err((why, _)) = &mut solved {
-                                    why.push_str(&format!("; from the direct transcription's costates: {direct_why}"));
-                                }
-                            }
-                            from_direct => solved = from_direct,
-                        }
-                    }
-                    Err(direct_why) => {
-                        if let Err((why, _)) = &mut solved {
-                            why.push_str(&format!("; {direct_why}"));
-                        }
-                    }
-                }
-            }
+            solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, _| {
+                RendezvousVector::from_column_slice(&l)
+            });
             solved.map(|s| {
                 let z = s.level.outcome.z;
                 let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
@@ -473,6 +440,34 @@ struct Solved<const K: usize> {
 
 /// Multi-start at eps = 1 (the distinct solution with the largest final mass is continued),
 /// then the homotopy. Errors carry the reason and the number of distinct starts found.
+/// The last start, when no other start converged at eps = 1 (`solved` is `Err((_, 0))`): the
+/// direct transcription's costates ([`direct::indirect_start`]), turned into the problem's
+/// unknowns by `unknowns` (initial costates, final anomaly). A start that converges replaces
+/// `solved`; otherwise the reason is appended to its failure.
+fn solve_from_direct<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    solved: &mut Result<Solved<K>, (String, u32)>,
+    unknowns: impl Fn([f64; 5], Option<f64>) -> SVector<f64, K>,
+) where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let Err((why, 0)) = solved else { return };
+    match direct::indirect_start(scenario, spacecraft) {
+        Ok((costates, nu_f)) => {
+            match solve_problem(problem, scenario, spacecraft, vec![unknowns(costates, nu_f)], options) {
+                Err((direct_why, 0)) => {
+                    why.push_str(&format!("; from the direct transcription's costates: {direct_why}"))
+                }
+                from_direct => *solved = from_direct,
+            }
+        }
+        Err(direct_why) => why.push_str(&format!("; {direct_why}")),
+    }
+}
+
 fn solve_problem<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     scenario: &Scenario,
