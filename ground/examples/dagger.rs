@@ -14,17 +14,15 @@ use std::io::Write as _;
 use std::path::Path;
 
 use lowthrust_ground::config::ExperimentConfig;
-use lowthrust_ground::demo::{default_tolerances, placed_demonstration, Placement};
+use lowthrust_ground::demo::{default_tolerances, placed_demonstration, relabel};
 use lowthrust_ground::env::batch::{draw_scenarios, evaluate_batched, EpisodeOutcome};
 use lowthrust_ground::env::{Environment, Transfer, TransferEnv};
 use lowthrust_ground::experiment::{demonstration_buffer, policy_batch};
 use lowthrust_ground::sac::agent::Sac;
 use lowthrust_ground::sac::replay::{sampler, Transition};
-use lowthrust_ground::solver::{solve_scenario, SolveOptions};
+use lowthrust_ground::solver::SolveOptions;
 use rayon::prelude::*;
-use shared::orbit::CartesianState;
 use shared::scenario::{ProblemKind, Scenario};
-use shared::spacecraft::CanonicalSpacecraft;
 
 /// Where along each flown episode the policy's state is relabelled.
 const FRACTIONS: [f64; 4] = [0.2, 0.4, 0.6, 0.8];
@@ -105,31 +103,11 @@ fn main() {
             .filter_map(|&(episode, k)| {
                 let scenario = &scenarios[episode];
                 let state = flown[episode].trajectory.as_ref()?[k as usize].state;
-                let rest = Scenario {
-                    initial: CartesianState { r: state.r, v: state.v }.elements()?,
-                    steps: scenario.steps - k,
-                    ..*scenario
-                };
-                let scaled = CanonicalSpacecraft {
-                    thrust: sc.thrust / state.m,
-                    ..sc
-                };
-                let record = solve_scenario(
-                    config.scenario,
-                    config.seeds.train,
-                    episode as u64,
-                    &rest,
-                    &scaled,
-                    &options,
-                );
+                let trace = (config.seeds.train, episode as u64);
+                let (record, placement) = relabel(trace, scenario, &state, k, &sc, &options)?;
                 if !record.converged {
                     return None;
                 }
-                let placement = Placement {
-                    episode: *scenario,
-                    start_step: k,
-                    start_mass: state.m,
-                };
                 placed_demonstration::<Transfer>(&record, &placement, &config.env, &tolerances).ok()
             })
             .collect();

@@ -10,15 +10,14 @@
 //!
 //! cargo run --release -p lowthrust-ground --example relabel_visited -- CONFIG CHECKPOINT [EPISODES] [FRACTIONS]
 use lowthrust_ground::config::ExperimentConfig;
+use lowthrust_ground::demo::relabel;
 use lowthrust_ground::env::batch::{draw_scenarios, evaluate_batched};
 use lowthrust_ground::env::{Environment, TransferEnv};
 use lowthrust_ground::eval::load_agent;
 use lowthrust_ground::experiment::policy_batch;
 use lowthrust_ground::solver::{solve_scenario, SolveOptions};
 use rayon::prelude::*;
-use shared::orbit::CartesianState;
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
-use shared::spacecraft::CanonicalSpacecraft;
+use shared::scenario::ProblemKind;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -60,18 +59,15 @@ fn main() {
                 let trajectory = outcome.trajectory.as_ref().unwrap();
                 let k = ((fraction * scenario.steps as f64).round() as u32).clamp(1, scenario.steps - 1);
                 let state = trajectory[k as usize].state;
-                let rest = Scenario {
-                    problem: ProblemKind::Transfer,
-                    initial: CartesianState { r: state.r, v: state.v }.elements().unwrap(),
-                    target: scenario.target,
-                    target_nu0: 0.0,
-                    steps: scenario.steps - k,
-                };
-                let scaled = CanonicalSpacecraft {
-                    thrust: sc.thrust / state.m,
-                    exhaust_speed: sc.exhaust_speed,
-                };
-                let rec = solve_scenario(ScenarioKind::TransferHard, 0, 0, &rest, &scaled, &options);
+                let (rec, _) = relabel(
+                    (config.seeds.monte_carlo, outcome.episode as u64),
+                    scenario,
+                    &state,
+                    k,
+                    &sc,
+                    &options,
+                )
+                .expect("a bound state");
                 format!(
                     "{},{fraction},{k},{},{:.6},{:.6},{:.5},{:.6},{},{:.6},{:.2},\"{}\"",
                     outcome.episode,

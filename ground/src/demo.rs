@@ -31,7 +31,9 @@ use onboard::features::{decode_action, ACTION_LEN};
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances, MAX_EVENTS};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::{ProblemKind, Scenario};
+use shared::orbit::CartesianState;
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
@@ -41,6 +43,7 @@ use crate::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, 
 use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, Y_LEN};
 use crate::solver::shooting::initial_state_costate;
+use crate::solver::{solve_scenario, SolveOptions};
 
 /// Actions are clipped to [-ACTION_BOUND, ACTION_BOUND] so a squashed-Gaussian log-probability
 /// stays finite (SPEC section 7).
@@ -317,6 +320,40 @@ impl Placement {
             start_mass: 1.0,
         }
     }
+}
+
+/// Relabels a transfer state (DAgger-style): the fuel-optimal rest of `episode` re-solved by the
+/// indirect method from `state` at step `step`, as a record and its [`Placement`]. `None` when
+/// the state has no orbit (not bound) or the step leaves no flight. The rest is solved as a
+/// general transfer (kind transfer-hard: a near-circular rest that the near-circular path cannot
+/// solve falls back to the general one); seed and index are the caller's, for tracing.
+pub fn relabel(
+    (seed, index): (u64, u64),
+    episode: &Scenario,
+    state: &SpacecraftState,
+    step: u32,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Option<(TrajectoryRecord, Placement)> {
+    if episode.problem != ProblemKind::Transfer || step >= episode.steps {
+        return None;
+    }
+    let rest = Scenario {
+        initial: CartesianState { r: state.r, v: state.v }.elements()?,
+        steps: episode.steps - step,
+        ..*episode
+    };
+    let scaled = CanonicalSpacecraft {
+        thrust: spacecraft.thrust / state.m,
+        ..*spacecraft
+    };
+    let record = solve_scenario(ScenarioKind::TransferHard, seed, index, &rest, &scaled, options);
+    let placement = Placement {
+        episode: *episode,
+        start_step: step,
+        start_mass: state.m,
+    };
+    Some((record, placement))
 }
 
 /// The tuples of one record for problem `P` (transfer or rendezvous).
@@ -683,31 +720,17 @@ mod tests {
     /// record placed at that step gives the whole record's tuples from there on.
     #[test]
     fn a_record_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
-        use shared::orbit::CartesianState;
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let kind = ScenarioKind::TransferHard;
         let whole_record = solve_scenario(kind, 7, 0, &kind.draw(7, 0), &sc, &quick_options());
         assert!(whole_record.converged, "{:?}", whole_record.failure);
         let n = whole_record.scenario.steps;
         let k = n / 2;
-        let mid = &whole_record.steps[k as usize];
-        let rest = Scenario {
-            initial: CartesianState { r: mid.r, v: mid.v }.elements().unwrap(),
-            steps: n - k,
-            ..whole_record.scenario
-        };
-        let scaled = shared::spacecraft::CanonicalSpacecraft {
-            thrust: sc.thrust / mid.m,
-            ..sc
-        };
-        let tail_record = solve_scenario(kind, 7, 0, &rest, &scaled, &quick_options());
+        let mid = state_of(&whole_record.steps[k as usize]);
+        let (tail_record, placement) = relabel((7, 0), &whole_record.scenario, &mid, k, &sc, &quick_options()).unwrap();
         assert!(tail_record.converged, "{:?}", tail_record.failure);
         assert_eq!(tail_record.final_eps, whole_record.final_eps);
-        let placement = Placement {
-            episode: whole_record.scenario,
-            start_step: k,
-            start_mass: mid.m,
-        };
+        assert_eq!((placement.start_step, placement.start_mass), (k, mid.m));
         let config = EnvConfig::default();
         let tol = default_tolerances();
         let whole = record_demonstration::<Transfer>(&whole_record, &config, &tol).unwrap();
