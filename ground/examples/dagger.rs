@@ -17,9 +17,9 @@ use lowthrust_ground::config::ExperimentConfig;
 use lowthrust_ground::demo::{default_tolerances, placed_demonstration, relabel};
 use lowthrust_ground::env::batch::{draw_scenarios, evaluate_batched, EpisodeOutcome};
 use lowthrust_ground::env::{Environment, Transfer, TransferEnv};
-use lowthrust_ground::experiment::{demonstration_buffer, policy_batch};
+use lowthrust_ground::experiment::{demonstration_buffer, policy_batch, push_demonstrations};
 use lowthrust_ground::sac::agent::Sac;
-use lowthrust_ground::sac::replay::{sampler, Transition};
+use lowthrust_ground::sac::replay::sampler;
 use lowthrust_ground::solver::SolveOptions;
 use rayon::prelude::*;
 use shared::scenario::{ProblemKind, Scenario};
@@ -113,17 +113,8 @@ fn main() {
             .collect();
         let mut added = 0;
         for demo in &relabelled {
-            for t in &demo.transitions {
-                buffer.push(&Transition {
-                    obs: t.observation.as_ref(),
-                    action: &t.action,
-                    reward: t.reward as f32,
-                    next_obs: t.next_observation.as_ref(),
-                    done: t.done,
-                    demonstration: true,
-                });
-                added += 1;
-            }
+            push_demonstrations(&mut buffer, &demo.transitions);
+            added += demo.transitions.len();
         }
         println!(
             "round {round}: {} of {} relabels converged, {added} tuples added ({:.0} s)",

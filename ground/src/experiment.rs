@@ -627,7 +627,13 @@ pub fn demonstration_buffer<P: Problem>(
         )));
     }
     let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity.max(demos.transitions.len()));
-    for t in &demos.transitions {
+    push_demonstrations(&mut buffer, &demos.transitions);
+    Ok((buffer, demos.used))
+}
+
+/// Appends demonstration tuples to a replay buffer, flagged as demonstrations.
+pub fn push_demonstrations<O: AsRef<[f32]>>(buffer: &mut ReplayBuffer, transitions: &[crate::demo::Transition<O>]) {
+    for t in transitions {
         buffer.push(&Transition {
             obs: t.observation.as_ref(),
             action: &t.action,
@@ -637,7 +643,6 @@ pub fn demonstration_buffer<P: Problem>(
             demonstration: true,
         });
     }
-    Ok((buffer, demos.used))
 }
 
 fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
