@@ -15,8 +15,9 @@ use std::path::Path;
 
 use lowthrust_ground::config::ExperimentConfig;
 use lowthrust_ground::demo::{default_tolerances, placed_demonstration, relabel};
-use lowthrust_ground::env::batch::{draw_scenarios, evaluate_batched, EpisodeOutcome};
+use lowthrust_ground::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome};
 use lowthrust_ground::env::{Environment, Transfer, TransferEnv};
+use lowthrust_ground::eval::within_accuracy_goal;
 use lowthrust_ground::experiment::{demonstration_buffer, policy_batch, push_demonstrations};
 use lowthrust_ground::sac::agent::Sac;
 use lowthrust_ground::sac::replay::sampler;
@@ -27,16 +28,14 @@ use shared::scenario::{ProblemKind, Scenario};
 /// Where along each flown episode the policy's state is relabelled.
 const FRACTIONS: [f64; 4] = [0.2, 0.4, 0.6, 0.8];
 
+/// Issue 4's figure, the median miss (AU) and the mean final mass, over the completed episodes.
 fn score(outcomes: &[EpisodeOutcome]) -> (f64, f64, f64) {
-    let n = outcomes.len() as f64;
-    let within = outcomes
-        .iter()
-        .filter(|o| o.completed && o.terminal.position <= 0.01 && o.terminal.velocity <= 0.01)
-        .count() as f64;
-    let mut misses: Vec<f64> = outcomes.iter().map(|o| o.terminal.position).collect();
-    misses.sort_by(f64::total_cmp);
-    let mass = outcomes.iter().map(|o| o.final_mass).sum::<f64>() / n;
-    (within / n, misses[misses.len() / 2], mass)
+    let summary = summarize(outcomes);
+    (
+        within_accuracy_goal(outcomes),
+        summary.terminal_position.p50,
+        summary.final_mass.mean,
+    )
 }
 
 fn main() {

@@ -60,6 +60,16 @@ pub struct MonteCarloReport {
     pub overspend: Option<Stats>,
 }
 
+/// Fraction of the completed episodes that end with |dr| <= 0.01 AU and |dv| <= 0.01
+/// ([`ACCURACY_GOAL`], issue 4's figure).
+pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
+    outcomes
+        .iter()
+        .filter(|o| o.completed && o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL)
+        .count() as f64
+        / outcomes.iter().filter(|o| o.completed).count().max(1) as f64
+}
+
 /// `ground evaluate`: the Monte Carlo of SPEC section 9 for the agent in `checkpoint`, written
 /// to `out` (mc.csv, summary.json, histograms.svg, trajectories.svg).
 pub fn monte_carlo(
@@ -166,11 +176,7 @@ where
 
     let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
     let gap = optimality_gap(config, &scenarios[..k], &policy[..k.min(policy.len())]);
-    let within = policy
-        .iter()
-        .filter(|o| o.completed && o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL)
-        .count() as f64
-        / policy.iter().filter(|o| o.completed).count().max(1) as f64;
+    let within = within_accuracy_goal(policy);
     let usable: Vec<&GapRow> = gap
         .iter()
         .filter(|g| g.optimal_converged || g.optimal_mass.is_finite())
