@@ -84,7 +84,7 @@ impl From<EvalError> for ExperimentError {
     }
 }
 
-fn write_file(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
+pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<(), ExperimentError> {
     atomic_write(path, bytes).map_err(|e| ExperimentError::Io(path.to_path_buf(), e))
 }
 
@@ -291,13 +291,13 @@ impl<E: Environment> Episodic for ScenarioTask<E> {
     }
 }
 
-fn save_replay(path: &Path, buffer: &ReplayBuffer) -> Result<(), ExperimentError> {
+pub(crate) fn save_replay(path: &Path, buffer: &ReplayBuffer) -> Result<(), ExperimentError> {
     let bytes = encode_container(REPLAY_MAGIC, REPLAY_VERSION, buffer)
         .map_err(|e| ExperimentError::Io(path.to_path_buf(), std::io::Error::other(e.to_string())))?;
     write_file(path, &bytes)
 }
 
-fn load_replay(path: &Path, obs_dim: usize) -> Result<ReplayBuffer, ExperimentError> {
+pub(crate) fn load_replay(path: &Path, obs_dim: usize) -> Result<ReplayBuffer, ExperimentError> {
     let bytes = std::fs::read(path).map_err(|e| ExperimentError::Io(path.to_path_buf(), e))?;
     let buffer: ReplayBuffer = decode_container(REPLAY_MAGIC, REPLAY_VERSION, &bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("replay buffer {}: {e}", path.display())))?;
@@ -645,7 +645,7 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(buffer: &mut ReplayBuffer, transitio
     }
 }
 
-fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
+pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
     tch::set_num_threads(config.compute.threads);
     tch::manual_seed(config.seeds.train as i64);
     Sac::new(config.sac_for(pretraining), obs_dim, 3, config.device())

@@ -2,6 +2,7 @@
 
 pub mod charts;
 pub mod config;
+pub mod dagger;
 pub mod dataset;
 pub mod demo;
 pub mod env;

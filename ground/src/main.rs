@@ -73,6 +73,17 @@ enum Command {
         #[arg(long)]
         from_pretrained: bool,
     },
+    /// DAgger-style rounds (transfers): fly the policy, re-solve the optimal rest of each flight
+    /// from the states it visited, add those tuples to the demonstrations, update; the config's
+    /// [dagger] section. Resumable; writes OUT/dagger.
+    Dagger {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Learner checkpoint the first round starts from (default: OUT/pretrain/best.safetensors;
+        /// ignored when OUT/dagger already holds a start).
+        #[arg(long)]
+        from: Option<PathBuf>,
+    },
     /// Monte Carlo evaluation (SPEC section 9) of a checkpoint against zero-thrust and random
     /// policies, with the optimality gap against the indirect solution on a subset.
     Evaluate {
@@ -187,6 +198,7 @@ fn main() -> ExitCode {
             experiment,
             from_pretrained,
         } => train_command(&experiment, from_pretrained),
+        Command::Dagger { experiment, from } => dagger_command(&experiment, from.as_deref()),
         Command::Evaluate {
             experiment,
             checkpoint,
@@ -610,6 +622,30 @@ fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box
     };
     let summary = train(&config, &args.out, start)?;
     print_phase(&summary);
+    Ok(())
+}
+
+fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let start = from.map_or_else(|| args.out.join("pretrain").join("best.safetensors"), Path::to_path_buf);
+    let summary = lowthrust_ground::dagger::dagger(&config, &base, &args.out, &start)?;
+    for row in &summary.rows {
+        println!(
+            "round {:>3}: {:>5.1} % within 0.01 AU and 0.01 (dr p95 {:.4} AU, dv p95 {:.4}, final mass {:.4}), {} tuples in the buffer",
+            row.round,
+            100.0 * row.within_goal,
+            row.summary.terminal_position.p95,
+            row.summary.terminal_velocity.p95,
+            row.summary.final_mass.mean,
+            row.buffer
+        );
+    }
+    println!(
+        "best: round {} ({}); written to {}",
+        summary.best_round,
+        summary.folder.join("best.safetensors").display(),
+        summary.folder.display()
+    );
     Ok(())
 }
 

@@ -2,71 +2,16 @@
 //! pretraining, RL from the pretrained model (interrupted and resumed), Monte Carlo evaluation.
 //! Checks that every artifact exists, loads and is consistent.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
+use common::{scratch_dir, toy_config, toy_dataset};
 use lowthrust_ground::config::ExperimentConfig;
 use lowthrust_ground::eval::monte_carlo;
 use lowthrust_ground::experiment::{pretrain, train, ExperimentError, PhaseState, Start};
-use lowthrust_ground::generate::{generate, Manifest, Shard};
 use lowthrust_ground::sac::agent::Sac;
-use lowthrust_ground::solver::SolveOptions;
 use shared::scenario::ScenarioKind;
-use shared::spacecraft::Spacecraft;
-
-fn scratch_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-/// Two transfer-circular trajectories, homotopy stopped early (eps 0.3) so the solve is quick:
-/// demonstrations are built the same way at any eps.
-fn toy_dataset(dir: &Path) -> PathBuf {
-    let out = dir.join("dataset");
-    let manifest = Manifest {
-        scenario: ScenarioKind::TransferCircular,
-        seed: 9,
-        count: 2,
-    };
-    let options = SolveOptions {
-        final_eps: 0.3,
-        ..SolveOptions::default()
-    };
-    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-    let summary = generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
-    assert_eq!(summary.converged, 2, "toy dataset did not solve");
-    out
-}
-
-fn toy_config(dataset: &Path) -> ExperimentConfig {
-    ExperimentConfig::from_toml(&format!(
-        r#"
-scenario = "transfer-circular"
-[sac]
-hidden = [32, 32]
-batch_size = 32
-warmup_steps = 60
-replay_capacity = 5000
-[pretrain]
-dataset = "{}"
-updates = 120
-eval_every = 40
-mode = "behaviour-cloning"
-records = "all"
-[train]
-env_steps = 150
-eval_every = 50
-eval_episodes = 4
-checkpoint_every = 50
-[evaluate]
-episodes = 16
-optimality_gap_cases = 0
-"#,
-        dataset.display()
-    ))
-    .unwrap()
-}
 
 /// `path` (absolute) written relative to the current directory: "../" up to the root, then down.
 fn relative_to_cwd(path: &Path) -> PathBuf {
