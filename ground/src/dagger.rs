@@ -34,8 +34,8 @@ use crate::env::batch::{evaluate_batched, summarize, OutcomeSummary};
 use crate::env::{Environment, Transfer, TransferEnv};
 use crate::eval::within_accuracy_goal;
 use crate::experiment::{
-    demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations, write_file,
-    ExperimentError,
+    demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations, residual_chart,
+    write_file, ExperimentError,
 };
 use crate::io::{decode_container, encode_container};
 use crate::sac::agent::Sac;
@@ -392,18 +392,12 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
         &[series("within the goal", &|r| r.within_goal)],
         false,
     );
-    let _ = line_chart(
+    let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(|r| (r.round as f64, r.summary)).collect();
+    residual_chart(
         &dir.join("rounds-residuals.svg"),
-        "DAgger-style rounds: terminal residuals",
+        "DAgger-style rounds: terminal residuals (scoring episodes)",
         "round",
-        "AU or canonical velocity",
-        &[
-            series("dr median (AU)", &|r| r.summary.terminal_position.p50),
-            series("dr 95th percentile (AU)", &|r| r.summary.terminal_position.p95),
-            series("dv median", &|r| r.summary.terminal_velocity.p50),
-            series("dv 95th percentile", &|r| r.summary.terminal_velocity.p95),
-        ],
-        true,
+        &points,
     );
     Ok(())
 }

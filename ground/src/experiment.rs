@@ -513,23 +513,12 @@ impl<'a> Phase<'a> {
             &[reward],
             false,
         );
-        let residual = |name: &str, f: &dyn Fn(&EvalRow) -> f64| Series {
-            name: name.into(),
-            points: evals.iter().map(|r| (x_eval(r), f(r))).collect(),
-            band: None,
-        };
-        let _ = line_chart(
+        let points: Vec<(f64, OutcomeSummary)> = evals.iter().map(|r| (x_eval(r), r.summary)).collect();
+        residual_chart(
             &self.dir.join("eval-residuals.svg"),
             "Terminal residuals (evaluation episodes)",
             x_label,
-            "AU or canonical velocity",
-            &[
-                residual("dr median (AU)", &|r| r.summary.terminal_position.p50),
-                residual("dr 95th percentile (AU)", &|r| r.summary.terminal_position.p95),
-                residual("dv median", &|r| r.summary.terminal_velocity.p50),
-                residual("dv 95th percentile", &|r| r.summary.terminal_velocity.p95),
-            ],
-            true,
+            &points,
         );
         let log = &self.state.update_log;
         let loss = |name: &str, f: &dyn Fn(&UpdateRow) -> f64| Series {
@@ -565,6 +554,29 @@ impl<'a> Phase<'a> {
             false,
         );
     }
+}
+
+/// Terminal residual medians and 95th percentiles (log scale) against `x`. Not drawn while
+/// there is too little to draw: the CSV files next to it hold the same numbers.
+pub(crate) fn residual_chart(path: &Path, title: &str, x_label: &str, points: &[(f64, OutcomeSummary)]) {
+    let series = |name: &str, f: &dyn Fn(&OutcomeSummary) -> f64| Series {
+        name: name.into(),
+        points: points.iter().map(|(x, s)| (*x, f(s))).collect(),
+        band: None,
+    };
+    let _ = line_chart(
+        path,
+        title,
+        x_label,
+        "AU or canonical velocity",
+        &[
+            series("dr median (AU)", &|s| s.terminal_position.p50),
+            series("dr 95th percentile (AU)", &|s| s.terminal_position.p95),
+            series("dv median", &|s| s.terminal_velocity.p50),
+            series("dv 95th percentile", &|s| s.terminal_velocity.p95),
+        ],
+        true,
+    );
 }
 
 /// `ground pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
