@@ -58,6 +58,48 @@ pub struct MonteCarloReport {
     pub gap: Vec<GapRow>,
     pub mass_ratio: Option<Stats>,
     pub overspend: Option<Stats>,
+    /// The accuracy goal's share by transfer size: quintiles of the zero-thrust miss.
+    #[serde(default)]
+    pub accuracy_by_coast_miss: Vec<AccuracyBand>,
+}
+
+/// Episodes grouped by how far coasting (zero thrust) would miss the target: the transfer's
+/// size, since the target proxy is the same orbit at the spacecraft's own anomaly.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyBand {
+    /// Zero-thrust terminal |dr| (AU) of the band's first and last episode.
+    pub coast_miss_min: f64,
+    pub coast_miss_max: f64,
+    pub episodes: usize,
+    /// Share of the band's episodes within 0.01 AU and 0.01.
+    pub within_goal: f64,
+    pub final_mass_mean: f64,
+}
+
+/// The goal's share in `bands` equal groups of the policy's completed episodes, ordered by the
+/// zero-thrust miss of the same scenario (`zero[i]` flew `policy[i]`'s scenario).
+pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome], bands: usize) -> Vec<AccuracyBand> {
+    let mut paired: Vec<(f64, &EpisodeOutcome)> = policy
+        .iter()
+        .zip(zero)
+        .filter(|(p, z)| p.completed && z.completed)
+        .map(|(p, z)| (z.terminal.position, p))
+        .collect();
+    paired.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n = paired.len();
+    (0..bands.min(n))
+        .map(|b| {
+            let band = &paired[b * n / bands..(b + 1) * n / bands];
+            let outcomes: Vec<EpisodeOutcome> = band.iter().map(|(_, p)| (*p).clone()).collect();
+            AccuracyBand {
+                coast_miss_min: band[0].0,
+                coast_miss_max: band[band.len() - 1].0,
+                episodes: band.len(),
+                within_goal: within_accuracy_goal(&outcomes),
+                final_mass_mean: band.iter().map(|(_, p)| p.final_mass).sum::<f64>() / band.len() as f64,
+            }
+        })
+        .collect()
 }
 
 /// Fraction of the completed episodes that end with |dr| <= 0.01 AU and |dv| <= 0.01
@@ -194,6 +236,7 @@ where
         mass_ratio: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.mass_ratio))),
         overspend: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.overspend))),
         gap,
+        accuracy_by_coast_miss: accuracy_by_coast_miss(policy, &zero, 5),
     };
     write_outputs(out, &report, policy, &zero, &random, scenarios, plotted)?;
     Ok(report)
@@ -376,6 +419,17 @@ pub fn describe(report: &MonteCarloReport) -> String {
     row(&mut s, "zero thrust", &report.zero_thrust);
     row(&mut s, "random", &report.random);
     let _ = writeln!(s, "{}", accuracy_line(report));
+    for band in &report.accuracy_by_coast_miss {
+        let _ = writeln!(
+            s,
+            "  coasting would miss by {:.3}-{:.3} AU: {:>5.1}% within the goal, final mass {:.4} ({} episodes)",
+            band.coast_miss_min,
+            band.coast_miss_max,
+            100.0 * band.within_goal,
+            band.final_mass_mean,
+            band.episodes
+        );
+    }
     if let Some(gap) = gap_line(report) {
         let _ = writeln!(s, "{gap}");
     }
@@ -400,4 +454,57 @@ pub fn gap_line(report: &MonteCarloReport) -> Option<String> {
         ratio.min,
         100.0 * over.p50
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use onboard::features::Residuals;
+
+    fn outcome(episode: usize, dr: f64, mass: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            episode,
+            total_reward: 0.0,
+            final_mass: mass,
+            terminal: Residuals {
+                position: dr,
+                velocity: 0.0,
+            },
+            steps: 1,
+            completed: true,
+            error: None,
+            non_finite_actions: 0,
+            trajectory: None,
+        }
+    }
+
+    #[test]
+    fn bands_follow_the_coasting_miss_whatever_the_episode_order() {
+        // Episode i coasts to a miss of (i * 7 % 10) / 10 AU; the policy meets the goal on
+        // the episodes whose coasting miss is below 0.5 AU, and ends with mass 1 - miss.
+        let coast: Vec<f64> = (0..10).map(|i| f64::from(i * 7 % 10) / 10.0).collect();
+        let zero: Vec<EpisodeOutcome> = coast.iter().enumerate().map(|(i, &m)| outcome(i, m, 1.0)).collect();
+        let policy: Vec<EpisodeOutcome> = coast
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| outcome(i, if m < 0.5 { 0.001 } else { 0.1 }, 1.0 - m))
+            .collect();
+        let bands = accuracy_by_coast_miss(&policy, &zero, 5);
+        let shares: Vec<f64> = bands.iter().map(|b| b.within_goal).collect();
+        assert_eq!(shares, vec![1.0, 1.0, 0.5, 0.0, 0.0]);
+        assert_eq!(bands[2].coast_miss_min, 0.4);
+        assert_eq!(bands[2].coast_miss_max, 0.5);
+        assert!((bands[4].final_mass_mean - (1.0 - 0.85)).abs() < 1e-12);
+        assert_eq!(bands.iter().map(|b| b.episodes).sum::<usize>(), 10);
+        // An incomplete policy episode leaves its band.
+        let mut cut = policy.clone();
+        cut[0].completed = false;
+        assert_eq!(
+            accuracy_by_coast_miss(&cut, &zero, 5)
+                .iter()
+                .map(|b| b.episodes)
+                .sum::<usize>(),
+            9
+        );
+    }
 }
