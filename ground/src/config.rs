@@ -106,7 +106,8 @@ pub struct PretrainConfig {
     /// `train.keep_behaviour_cloning`).
     pub behaviour_cloning: f64,
     /// What the behaviour-cloning term compares: "action" (the raw actions, default) or
-    /// "thrust" (the decoded thrust vectors, see `sac::CloningTarget`).
+    /// "thrust" (the decoded thrust vectors) or "thrust-log-throttle" (plus the relative
+    /// throttle error), see `sac::CloningTarget`.
     pub cloning_target: CloningTarget,
     /// Which trajectory records become demonstrations: "converged" (homotopy reached the final
     /// eps) or "all" (also those stopped at a larger eps, with that eps's smoothed control).
