@@ -165,7 +165,8 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
     let flown = evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?;
     let jobs: Vec<(usize, u32)> = flown
         .iter()
-        .filter(|o| o.completed)
+        // A relabel needs a step strictly inside the flight.
+        .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
         .flat_map(|o| {
             let steps = scenarios[o.episode].steps;
             dagger
@@ -259,6 +260,9 @@ pub fn dagger(
         // A state left by an earlier start belongs to another learner.
         let _ = std::fs::remove_file(&state_path);
     }
+    // The learner counts its updates since its first; this command's start at round 0.
+    agent.load(&round_file(&dir, 0))?;
+    let updates_before = agent.updates;
     let mut done = 0;
     while round_file(&dir, done + 1).exists() {
         done += 1;
@@ -276,7 +280,7 @@ pub fn dagger(
         append(&mut buffer, &relabels.tuples);
         last_relabels = (relabels.attempted, relabels.converged, relabels.tuples.len() as u64);
     }
-    let mut updates = done * config.dagger.updates;
+    let updates = |agent: &Sac| agent.updates - updates_before;
     if rows.last().is_none_or(|r| r.round != done) {
         // Stopped between a round's checkpoint and its score.
         let clock = Instant::now();
@@ -287,7 +291,7 @@ pub fn dagger(
             relabels_converged: last_relabels.1,
             tuples_added: last_relabels.2,
             buffer: buffer.len() as u64,
-            updates,
+            updates: updates(&agent),
             within_goal,
             summary,
             seconds: clock.elapsed().as_secs_f64(),
@@ -316,7 +320,6 @@ pub fn dagger(
             }
         }
         bar.finish_and_clear();
-        updates += config.dagger.updates;
         agent.save(&round_file(&dir, round))?;
         let (within_goal, summary) = score(config, &agent)?;
         rows.push(RoundRow {
@@ -325,7 +328,7 @@ pub fn dagger(
             relabels_converged: relabels.converged,
             tuples_added: relabels.tuples.len() as u64,
             buffer: buffer.len() as u64,
-            updates,
+            updates: updates(&agent),
             within_goal,
             summary,
             seconds: clock.elapsed().as_secs_f64(),
