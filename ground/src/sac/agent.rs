@@ -108,9 +108,15 @@ pub fn soft_bellman_target(
 pub const THRUST_CLONING_ACTION_ANCHOR: f64 = 0.1;
 
 /// Throttles below about this are one to [`CloningTarget::ThrustLogThrottle`]'s log-throttle
-/// error: the demonstrations' actions are clipped to a0 >= -1 + 1e-3 (u >= 5e-4), so coasting
-/// demonstrations sit at the floor instead of at ln 0.
-pub const LOG_THROTTLE_FLOOR: f64 = 1e-3;
+/// error (coasting demonstrations, clipped to u = 5e-4, sit near the floor instead of at ln 0);
+/// the smallest throttle that flies a small transfer optimally is ~4e-3.
+pub const LOG_THROTTLE_FLOOR: f64 = 5e-3;
+
+/// Weight of the log-throttle error next to the thrust-vector error. Its gradient per unit of
+/// the pre-squash mean is ~2 at any throttle against the thrust term's 0.5 (1 - a0^2) du, so at
+/// full weight it drowned the thrust error: from a 75.9 % checkpoint one DAgger round with weight
+/// 1 (floor 1e-3) fell to 39.6 % within the goal.
+pub const LOG_THROTTLE_WEIGHT: f64 = 0.03;
 
 /// ln(u + [`LOG_THROTTLE_FLOOR`]) of actions [batch, 3], u = (a0 + 1)/2.
 pub fn log_throttle(actions: &Tensor) -> Tensor {
@@ -290,7 +296,8 @@ impl Sac {
             CloningTarget::Action => action_error.shallow_clone(),
             CloningTarget::Thrust => thrust_error(),
             CloningTarget::ThrustLogThrottle => {
-                thrust_error() + (log_throttle(&sample.mean_action) - log_throttle(&actions)).square()
+                thrust_error()
+                    + (log_throttle(&sample.mean_action) - log_throttle(&actions)).square() * LOG_THROTTLE_WEIGHT
             }
         };
         let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
@@ -762,7 +769,7 @@ mod tests {
     fn the_log_throttle_cloning_loss_adds_the_relative_throttle_error() {
         let log_u = |a: &[f32; 3]| (f64::from(a[0] + 1.0) / 2.0 + LOG_THROTTLE_FLOOR).ln();
         check_cloning_loss(CloningTarget::ThrustLogThrottle, |pi, demo| {
-            thrust_error(pi, demo) + (log_u(pi) - log_u(demo)).powi(2)
+            thrust_error(pi, demo) + LOG_THROTTLE_WEIGHT * (log_u(pi) - log_u(demo)).powi(2)
         });
     }
 
@@ -789,14 +796,14 @@ mod tests {
             f64::try_from(mean.grad().get(0).get(0)).unwrap()
         };
         let (thrust, log) = (gradient(false), gradient(true));
-        // d/dm (u - u_d)^2 = 2 (u - u_d) u (1 - a0) ~ 2 * 0.016 * 0.02 * 1.96; the log term:
-        // 2 ln((u + f)/(u_d + f)) u (1 - a0) / (u + f) ~ 2 * 1.43 * 1.87.
+        // d/dm (u - u_d)^2 = 2 (u - u_d) u (1 - a0) with u (1 - a0) = 0.02 * 1.96; the log term:
+        // 2 ln((u + f)/(u_d + f)) u (1 - a0) / (u + f).
+        let f = LOG_THROTTLE_FLOOR;
         assert!((thrust - 2.0 * 0.016 * 0.02 * 1.96).abs() < 5e-5, "{thrust}");
-        assert!(
-            (log - 2.0 * (0.021f64 / 0.005).ln() * 0.02 * 1.96 / 0.021).abs() < 1e-2,
-            "{log}"
-        );
-        assert!(log > 3000.0 * thrust, "{log} vs {thrust}");
+        let expected = 2.0 * ((0.02 + f) / (0.004 + f)).ln() * 0.02 * 1.96 / (0.02 + f);
+        assert!((log - expected).abs() < 1e-2 * expected, "{log} vs {expected}");
+        // Weighted, it still leads the thrust term by far where the thrust term has let go.
+        assert!(LOG_THROTTLE_WEIGHT * log > 50.0 * thrust, "{log} vs {thrust}");
     }
 
     #[test]

@@ -38,12 +38,12 @@ pub enum CloningTarget {
     /// decoder ignores, matters little: the network's capacity goes to what is flown. A small
     /// raw-action term (`agent::THRUST_CLONING_ACTION_ANCHOR`) keeps the actions anchored.
     Thrust,
-    /// [`Self::Thrust`] plus the squared error of the log throttles, ln(u + 1e-3)
-    /// (`agent::LOG_THROTTLE_FLOOR`): a relative throttle error. Through tanh the thrust
-    /// vector's gradient vanishes at small throttles (at u = 0.02 it is 0.04 of its value at
-    /// u = 0.5), and a policy cloned on it kept a floor of ~2 % throttle where the optimum
-    /// asks for 0.4 % on small transfers, missing them; ln u = ln sigmoid(2 mean) keeps its
-    /// gradient (about 2 per unit of the pre-squash mean) however small u is.
+    /// [`Self::Thrust`] plus the squared error of the log throttles, ln(u + 5e-3)
+    /// (`agent::LOG_THROTTLE_FLOOR`, weight `agent::LOG_THROTTLE_WEIGHT`): a relative throttle
+    /// error. Through tanh the thrust vector's gradient vanishes at small throttles (at u = 0.02
+    /// it is 0.08 of its value at u = 0.5), and a policy cloned on it kept a floor of ~2 %
+    /// throttle where the optimum asks for 0.4 % on small transfers, missing them; ln u =
+    /// ln sigmoid(2 mean) keeps its gradient however small u is.
     ThrustLogThrottle,
 }
 
