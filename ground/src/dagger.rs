@@ -216,12 +216,6 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
     })
 }
 
-fn append(buffer: &mut ReplayBuffer, tuples: &ReplayBuffer) {
-    for i in 0..tuples.len() {
-        buffer.push(&tuples.get(i));
-    }
-}
-
 /// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios.
 fn score(config: &ExperimentConfig, agent: &Sac) -> Result<(f64, OutcomeSummary), ExperimentError> {
     let outcomes = evaluate_agent::<TransferEnv>(
@@ -277,7 +271,7 @@ pub fn dagger(
     let mut last_relabels = (0, 0, 0);
     for round in 1..=done {
         let relabels = load_relabels(&relabels_file(&dir, round), round, TransferEnv::OBS)?;
-        append(&mut buffer, &relabels.tuples);
+        buffer.extend_from(&relabels.tuples);
         last_relabels = (relabels.attempted, relabels.converged, relabels.tuples.len() as u64);
     }
     let updates = |agent: &Sac| agent.updates - updates_before;
@@ -308,7 +302,7 @@ pub fn dagger(
             save_relabels(&path, &relabels)?;
             relabels
         };
-        append(&mut buffer, &relabels.tuples);
+        buffer.extend_from(&relabels.tuples);
         // Streams seeded by the round, so a resumed round repeats exactly.
         let mut rng = sampler(config.seeds.train ^ SAMPLER_STREAM ^ round);
         tch::manual_seed(config.seeds.train.wrapping_add(round) as i64);

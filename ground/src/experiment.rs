@@ -762,9 +762,7 @@ where
             // Demonstrations stay in the buffer (SPEC section 8), followed by the agent's own
             // experience in FIFO order.
             let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity);
-            for i in 0..demo_buffer.len() {
-                buffer.push(&demo_buffer.get(i));
-            }
+            buffer.extend_from(&demo_buffer);
             let demos = buffer.demonstration_count();
             (buffer, PhaseState::default(), demos)
         }

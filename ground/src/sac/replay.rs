@@ -128,6 +128,13 @@ impl ReplayBuffer {
         }
     }
 
+    /// Appends every transition of `other` in its storage order (FIFO eviction as for `push`).
+    pub fn extend_from(&mut self, other: &ReplayBuffer) {
+        for i in 0..other.len() {
+            self.push(&other.get(i));
+        }
+    }
+
     /// Uniform sample with replacement.
     pub fn sample(&self, size: usize, rng: &mut ChaCha8Rng) -> Batch {
         assert!(!self.is_empty(), "cannot sample an empty replay buffer");
