@@ -180,8 +180,12 @@ impl Default for EvaluateConfig {
 pub struct DaggerConfig {
     /// Rounds in all (a finished run asked for more continues).
     pub rounds: u64,
-    /// Training episodes flown per round (0: updates only, the control arm).
+    /// Training episodes relabelled per round (0: updates only, the control arm).
     pub episodes: u64,
+    /// Episodes flown per round to choose the relabelled ones from: the `episodes` that miss
+    /// issue 4's goal the most (max(dr / 0.01 AU, dv / 0.01)). Unset: the first `episodes`
+    /// flown, every one relabelled.
+    pub candidates: Option<u64>,
     /// Where along each flown episode its state is relabelled (fractions of the steps).
     pub fractions: Vec<f64>,
     /// Gradient updates per round.
@@ -198,6 +202,7 @@ impl Default for DaggerConfig {
         Self {
             rounds: 10,
             episodes: 200,
+            candidates: None,
             fractions: vec![0.2, 0.4, 0.6, 0.8],
             updates: 10_000,
             score_episodes: 1_000,
@@ -319,6 +324,14 @@ impl ExperimentConfig {
             ));
         }
         positive("generate.count", self.generate.count)?;
+        if let Some(candidates) = self.dagger.candidates {
+            // 1e6: the stride between rounds' scenario streams (dagger::ROUND_STRIDE).
+            if candidates < self.dagger.episodes || candidates > 1_000_000 {
+                return Err(ConfigError::Invalid(
+                    "dagger.candidates must be between dagger.episodes and 1,000,000".into(),
+                ));
+            }
+        }
         positive("dagger.updates", self.dagger.updates)?;
         positive("dagger.score_episodes", self.dagger.score_episodes)?;
         if self.dagger.fractions.is_empty() || !self.dagger.fractions.iter().all(|f| *f > 0.0 && *f < 1.0) {
@@ -424,6 +437,7 @@ mod tests {
             "scenario = \"transfer-circular\"\n[dagger]\nfractions = [0.5, 1.0]",
             "scenario = \"transfer-circular\"\n[dagger]\nfractions = []",
             "scenario = \"transfer-circular\"\n[dagger]\nupdates = 0",
+            "scenario = \"transfer-circular\"\n[dagger]\nepisodes = 200\ncandidates = 100",
         ];
         for text in bad {
             assert!(ExperimentConfig::from_toml(text).is_err(), "accepted: {text}");

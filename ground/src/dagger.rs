@@ -30,9 +30,9 @@ use shared::scenario::{ProblemKind, Scenario};
 use crate::charts::{line_chart, Series};
 use crate::config::ExperimentConfig;
 use crate::demo::{default_tolerances, placed_demonstration, relabel};
-use crate::env::batch::{evaluate_batched, summarize, OutcomeSummary};
+use crate::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
 use crate::env::{Environment, Transfer, TransferEnv};
-use crate::eval::within_accuracy_goal;
+use crate::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use crate::experiment::{
     demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations, residual_chart,
     write_file, ExperimentError,
@@ -159,14 +159,18 @@ fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<Relabels, ExperimentError> {
     let dagger = &config.dagger;
     let first = ROUND_STRIDE * round;
-    let scenarios: Vec<Scenario> = (first..first + dagger.episodes)
+    let candidates = dagger.candidates.unwrap_or(dagger.episodes);
+    let scenarios: Vec<Scenario> = (first..first + candidates)
         .map(|i| config.scenario.draw(config.seeds.train, i))
         .collect();
     let flown = evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?;
-    let jobs: Vec<(usize, u32)> = flown
+    // A relabel needs a step strictly inside the flight.
+    let eligible: Vec<&EpisodeOutcome> = flown
         .iter()
-        // A relabel needs a step strictly inside the flight.
         .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
+        .collect();
+    let jobs: Vec<(usize, u32)> = largest_misses(eligible, dagger.episodes as usize)
+        .into_iter()
         .flat_map(|o| {
             let steps = scenarios[o.episode].steps;
             dagger
@@ -214,6 +218,19 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
         converged: solved.len() as u64,
         tuples,
     })
+}
+
+/// The `count` outcomes that miss issue 4's goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
+/// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
+/// all of them.
+fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {
+    if outcomes.len() > count {
+        let miss = |o: &EpisodeOutcome| o.terminal.position.max(o.terminal.velocity) / ACCURACY_GOAL;
+        outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
+        outcomes.truncate(count);
+        outcomes.sort_by_key(|o| o.episode);
+    }
+    outcomes
 }
 
 /// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios.
@@ -397,4 +414,51 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
         &points,
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use onboard::features::Residuals;
+
+    fn outcome(episode: usize, dr: f64, dv: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            episode,
+            total_reward: 0.0,
+            final_mass: 1.0,
+            terminal: Residuals {
+                position: dr,
+                velocity: dv,
+            },
+            steps: 10,
+            completed: true,
+            error: None,
+            non_finite_actions: 0,
+            trajectory: None,
+        }
+    }
+
+    #[test]
+    fn the_relabelled_episodes_are_the_largest_misses_in_episode_order() {
+        // Misses in goal units: 0.5, 3 (velocity), 2, 0.1, 2 (tie with 2: the earlier wins), 4.
+        let flown = [
+            outcome(0, 0.005, 0.001),
+            outcome(1, 0.002, 0.03),
+            outcome(2, 0.02, 0.0),
+            outcome(3, 0.001, 0.001),
+            outcome(4, 0.0, 0.02),
+            outcome(5, 0.04, 0.04),
+        ];
+        let chosen = |count| -> Vec<usize> {
+            largest_misses(flown.iter().collect(), count)
+                .iter()
+                .map(|o| o.episode)
+                .collect()
+        };
+        assert_eq!(chosen(3), vec![1, 2, 5]);
+        assert_eq!(chosen(4), vec![1, 2, 4, 5]);
+        // As many as flown (the default: candidates = episodes): every one, in order.
+        assert_eq!(chosen(6), vec![0, 1, 2, 3, 4, 5]);
+        assert_eq!(chosen(9), vec![0, 1, 2, 3, 4, 5]);
+    }
 }
