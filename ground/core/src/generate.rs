@@ -1,0 +1,524 @@
+//! Dataset generation at scale (issue 3): every scenario of a distribution solved by the
+//! indirect method, in parallel, resumable, in disjoint reproducible shards.
+//!
+//! Layout of an output folder:
+//! - `manifest.json`: scenario, seed, count (a resumed run must match it);
+//! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
+//!   soon as it is solved, so a killed run loses at most the cases in flight;
+//! - `dataset.ltds` (or `dataset-I-of-N.ltds` for a shard): all records of the run, sorted;
+//! - `summary.json`, `summary.csv`: convergence, timing, final-mass statistics, failures.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::spacecraft::CanonicalSpacecraft;
+
+use crate::io::{atomic_write, decode_container, encode_container, ContainerError};
+use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
+use crate::solver::record::TrajectoryRecord;
+use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
+
+const RECORD_MAGIC: [u8; 4] = *b"LTRC";
+const DATASET_MAGIC: [u8; 4] = *b"LTDS";
+const FORMAT_VERSION: u16 = 1;
+
+/// Shard I of N: the indices i with i mod N == I. Disjoint, reproducible, and together all.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Shard {
+    pub const WHOLE: Self = Self { index: 0, count: 1 };
+
+    pub fn contains(&self, i: u64) -> bool {
+        i % u64::from(self.count) == u64::from(self.index)
+    }
+}
+
+impl FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (i, n) = s
+            .split_once('/')
+            .ok_or_else(|| format!("shard must look like I/N, got '{s}'"))?;
+        let index: u32 = i.trim().parse().map_err(|_| format!("bad shard index '{i}'"))?;
+        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count '{n}'"))?;
+        if count == 0 || index >= count {
+            return Err(format!("shard {index}/{count}: need 0 <= I < N"));
+        }
+        Ok(Self { index, count })
+    }
+}
+
+/// What a run generates; stored as `manifest.json` and checked on resume and merge.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub scenario: ScenarioKind,
+    pub seed: u64,
+    pub count: u64,
+}
+
+/// A dataset file: the records of a run (a shard or a whole set).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DatasetFile {
+    pub manifest: Manifest,
+    pub shard: Shard,
+    pub records: Vec<TrajectoryRecord>,
+}
+
+#[derive(Debug)]
+pub enum GenerateError {
+    Io(PathBuf, std::io::Error),
+    /// The folder holds a run of another scenario, seed or count.
+    ManifestMismatch {
+        found: Manifest,
+        wanted: Manifest,
+    },
+    Corrupt(PathBuf, ContainerError),
+    /// Shards to merge disagree, overlap, or leave indices out.
+    Merge(String),
+}
+
+impl std::fmt::Display for GenerateError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Io(p, e) => write!(f, "{}: {e}", p.display()),
+            Self::ManifestMismatch { found, wanted } => write!(
+                f,
+                "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
+                found.scenario.name(),
+                found.seed,
+                found.count,
+                wanted.scenario.name(),
+                wanted.seed,
+                wanted.count
+            ),
+            Self::Corrupt(p, e) => write!(f, "{}: {e}", p.display()),
+            Self::Merge(m) => write!(f, "cannot merge: {m}"),
+        }
+    }
+}
+
+impl std::error::Error for GenerateError {}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
+    move |e| GenerateError::Io(path.to_path_buf(), e)
+}
+
+/// Aggregate figures of a record set (written as summary.json).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub scenario: String,
+    pub seed: u64,
+    pub shard: Shard,
+    pub records: usize,
+    pub converged: usize,
+    pub convergence_rate: f64,
+    /// Records classified infeasible (failure reason "infeasible: minimum time ..."), and
+    /// converged / (records - infeasible).
+    #[serde(default)]
+    pub infeasible: usize,
+    #[serde(default)]
+    pub feasible_convergence_rate: f64,
+    /// Solve wall time per record: sum (CPU-seconds across threads), mean, median, max.
+    pub seconds_sum: f64,
+    pub seconds_mean: f64,
+    pub seconds_median: f64,
+    pub seconds_max: f64,
+    /// Over converged records.
+    pub final_mass_mean: f64,
+    pub final_mass_std: f64,
+    pub final_mass_min: f64,
+    pub final_mass_max: f64,
+    /// (index, reason) of every record that did not converge.
+    pub failures: Vec<(u64, String)>,
+}
+
+pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]) -> Summary {
+    let mut seconds: Vec<f64> = records.iter().map(|r| r.seconds).collect();
+    seconds.sort_by(f64::total_cmp);
+    let masses: Vec<f64> = records.iter().filter(|r| r.converged).map(|r| r.final_mass).collect();
+    let n = records.len().max(1) as f64;
+    let mean = |v: &[f64]| {
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    let m_mean = mean(&masses);
+    let m_var = mean(&masses.iter().map(|m| (m - m_mean).powi(2)).collect::<Vec<_>>());
+    let infeasible = records
+        .iter()
+        .filter(|r| !r.converged && r.failure.as_deref().is_some_and(|f| f.starts_with(INFEASIBLE)))
+        .count();
+    Summary {
+        scenario: manifest.scenario.name().to_string(),
+        seed: manifest.seed,
+        shard,
+        records: records.len(),
+        converged: masses.len(),
+        convergence_rate: masses.len() as f64 / n,
+        infeasible,
+        feasible_convergence_rate: masses.len() as f64 / (records.len() - infeasible).max(1) as f64,
+        seconds_sum: seconds.iter().sum(),
+        seconds_mean: mean(&seconds),
+        seconds_median: seconds.get(seconds.len() / 2).copied().unwrap_or(f64::NAN),
+        seconds_max: seconds.last().copied().unwrap_or(f64::NAN),
+        final_mass_mean: m_mean,
+        final_mass_std: m_var.sqrt(),
+        final_mass_min: masses.iter().copied().fold(f64::NAN, f64::min),
+        final_mass_max: masses.iter().copied().fold(f64::NAN, f64::max),
+        failures: records
+            .iter()
+            .filter(|r| !r.converged)
+            .map(|r| (r.index, r.failure.clone().unwrap_or_else(|| "unknown".into())))
+            .collect(),
+    }
+}
+
+/// The failure reason of a draw shown infeasible starts with this.
+pub const INFEASIBLE: &str = "infeasible:";
+
+/// A transfer that found no energy-optimal start: its minimum time of flight decides whether it
+/// is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`); the reason is
+/// prefixed with the verdict and the record's `seconds` include the classification. A draw whose
+/// energy-optimal start the classification recovers is solved from it, and a converged solution
+/// replaces the record. Other records are left as they are. Returns whether the record changed.
+pub fn classify_failure(
+    record: &mut TrajectoryRecord,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> bool {
+    let Some(why) = record.failure.clone() else {
+        return false;
+    };
+    if record.converged || scenario.problem != ProblemKind::Transfer || !why.starts_with("no energy-optimal start") {
+        return false;
+    }
+    let clock = std::time::Instant::now();
+    let tof = scenario.time_of_flight();
+    let days = |t: f64| t * DAYS_PER_TIME_UNIT;
+    let verdict = match classify_transfer(scenario, spacecraft, options) {
+        Feasibility::MinTime { tf_min, .. } if tf_min > tof => format!(
+            "{INFEASIBLE} minimum time {:.1} d > TOF {:.1} d (ratio {:.3}, local minimum-time extremal)",
+            days(tf_min),
+            days(tof),
+            tf_min / tof
+        ),
+        Feasibility::MinTime { tf_min, .. } => format!(
+            "feasible: minimum time {:.1} d <= TOF {:.1} d (ratio {:.3})",
+            days(tf_min),
+            days(tof),
+            tf_min / tof
+        ),
+        Feasibility::Recovered { z } => {
+            // The homotopy from the recovered start: a converged record replaces the failure.
+            let solved =
+                solve_transfer_from_start(record.kind, record.seed, record.index, scenario, spacecraft, options, z);
+            if solved.converged {
+                let seconds = record.seconds + clock.elapsed().as_secs_f64();
+                *record = TrajectoryRecord { seconds, ..solved };
+                return true;
+            }
+            format!(
+                "feasible: energy-optimal solution found by continuation in the time of flight, its homotopy failed ({})",
+                solved.failure.as_deref().unwrap_or("")
+            )
+        }
+        Feasibility::Unknown(w) => format!("feasibility unknown ({w})"),
+    };
+    record.failure = Some(format!("{verdict}; {why}"));
+    record.seconds += clock.elapsed().as_secs_f64();
+    true
+}
+
+/// Opt-in after a (whole) run in `out`: classifies every transfer record without an
+/// energy-optimal start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
+/// record, in parallel), rewrites those records and the dataset and summaries, whose
+/// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
+/// touched; records classified before are kept as they are.
+pub fn classify_run(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<Summary, GenerateError> {
+    let manifest_path = out.join("manifest.json");
+    let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
+    let manifest: Manifest =
+        serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+    let results: Vec<Result<TrajectoryRecord, GenerateError>> = (0..manifest.count)
+        .into_par_iter()
+        .map(|index| {
+            let path = record_path(out, index);
+            let mut record = read_record(&path)?;
+            let scenario = manifest.scenario.draw(manifest.seed, index);
+            if classify_failure(&mut record, &scenario, spacecraft, options) {
+                let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
+                    .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+                atomic_write(&path, &bytes).map_err(io_err(&path))?;
+            }
+            Ok(record)
+        })
+        .collect();
+    let records = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    write_outputs(
+        out,
+        &DatasetFile {
+            manifest,
+            shard: Shard::WHOLE,
+            records,
+        },
+    )
+}
+
+fn record_path(out: &Path, index: u64) -> PathBuf {
+    out.join("records").join(format!("{index:08}.rec"))
+}
+
+fn read_record(path: &Path) -> Result<TrajectoryRecord, GenerateError> {
+    let bytes = fs::read(path).map_err(io_err(path))?;
+    decode_container(RECORD_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+}
+
+/// Reads a dataset file, refusing anything corrupt or of another format.
+pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
+    let bytes = fs::read(path).map_err(io_err(path))?;
+    decode_container(DATASET_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+}
+
+/// Where the dataset file of a run (whole or shard) lives in its output folder.
+pub fn dataset_path(out: &Path, shard: Shard) -> PathBuf {
+    if shard == Shard::WHOLE {
+        out.join("dataset.ltds")
+    } else {
+        out.join(format!("dataset-{}-of-{}.ltds", shard.index, shard.count))
+    }
+}
+
+/// Writes the dataset file and the summaries of a record set into `out`.
+pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, GenerateError> {
+    let path = dataset_path(out, file.shard);
+    let bytes =
+        encode_container(DATASET_MAGIC, FORMAT_VERSION, file).map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+    atomic_write(&path, &bytes).map_err(io_err(&path))?;
+    let summary = summarize(&file.manifest, file.shard, &file.records);
+    let json =
+        serde_json::to_vec_pretty(&summary).map_err(|e| GenerateError::Io(out.join("summary.json"), e.into()))?;
+    let path = out.join("summary.json");
+    atomic_write(&path, &json).map_err(io_err(&path))?;
+    let mut csv = String::from("index,converged,final_mass,final_eps,residual,thrust_arcs,seconds,steps,failure\n");
+    for r in &file.records {
+        csv.push_str(&format!(
+            "{},{},{},{},{},{},{},{},\"{}\"\n",
+            r.index,
+            r.converged,
+            r.final_mass,
+            r.final_eps,
+            r.residual,
+            r.thrust_arcs,
+            r.seconds,
+            r.scenario.steps,
+            r.failure.as_deref().unwrap_or("").replace('"', "'")
+        ));
+    }
+    let path = out.join("summary.csv");
+    atomic_write(&path, csv.as_bytes()).map_err(io_err(&path))?;
+    Ok(summary)
+}
+
+/// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`.
+pub fn generate(
+    manifest: Manifest,
+    shard: Shard,
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    show_progress: bool,
+) -> Result<Summary, GenerateError> {
+    fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
+    let manifest_path = out.join("manifest.json");
+    if manifest_path.exists() {
+        let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
+        let found: Manifest =
+            serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+        if found != manifest {
+            return Err(GenerateError::ManifestMismatch {
+                found,
+                wanted: manifest,
+            });
+        }
+    } else {
+        let json =
+            serde_json::to_vec_pretty(&manifest).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+        atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
+    }
+    let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
+    let bar = if show_progress {
+        ProgressBar::new(indices.len() as u64)
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} solved, {msg} [{elapsed_precise} < {eta_precise}]")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let resumed = AtomicUsize::new(0);
+    let converged = AtomicUsize::new(0);
+    let results: Vec<Result<TrajectoryRecord, GenerateError>> = indices
+        .par_iter()
+        .map(|&index| {
+            let path = record_path(out, index);
+            // Resume: a readable record of this run is kept; a corrupt one is solved again.
+            if let Ok(r) = read_record(&path) {
+                if r.kind == manifest.scenario && r.seed == manifest.seed && r.index == index {
+                    resumed.fetch_add(1, Ordering::Relaxed);
+                    bar.inc(1);
+                    return Ok(r);
+                }
+            }
+            let scenario = manifest.scenario.draw(manifest.seed, index);
+            let record = solve_scenario(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
+            let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
+                .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+            atomic_write(&path, &bytes).map_err(io_err(&path))?;
+            if record.converged {
+                converged.fetch_add(1, Ordering::Relaxed);
+            }
+            bar.set_message(format!("{} converged", converged.load(Ordering::Relaxed)));
+            bar.inc(1);
+            Ok(record)
+        })
+        .collect();
+    bar.finish();
+    let mut records = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    records.sort_by_key(|r| r.index);
+    if show_progress {
+        eprintln!(
+            "{} records resumed from an earlier run",
+            resumed.load(Ordering::Relaxed)
+        );
+    }
+    write_outputs(
+        out,
+        &DatasetFile {
+            manifest,
+            shard,
+            records,
+        },
+    )
+}
+
+/// Combines shard dataset files into one dataset in `out`: all must come from one manifest,
+/// be disjoint, and together cover every index.
+pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
+    let mut files = Vec::new();
+    for p in inputs {
+        files.push(read_dataset(p)?);
+    }
+    let Some(first) = files.first() else {
+        return Err(GenerateError::Merge("no input files".into()));
+    };
+    let manifest = first.manifest;
+    let mut records = Vec::new();
+    for f in files {
+        if f.manifest != manifest {
+            return Err(GenerateError::Merge(
+                "inputs come from different scenarios, seeds or counts".into(),
+            ));
+        }
+        records.extend(f.records);
+    }
+    records.sort_by_key(|r| r.index);
+    for (expected, r) in (0..manifest.count).zip(&records) {
+        if r.index != expected {
+            return Err(GenerateError::Merge(format!(
+                "index {expected} is missing or duplicated"
+            )));
+        }
+    }
+    if records.len() as u64 != manifest.count {
+        return Err(GenerateError::Merge(format!(
+            "{} records for a count of {}",
+            records.len(),
+            manifest.count
+        )));
+    }
+    write_outputs(
+        out,
+        &DatasetFile {
+            manifest,
+            shard: Shard::WHOLE,
+            records,
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shards_parse_and_partition_the_indices() {
+        assert_eq!("2/5".parse::<Shard>(), Ok(Shard { index: 2, count: 5 }));
+        for bad in ["5/5", "1/0", "a/2", "3", "-1/2"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+        let shards: Vec<Shard> = (0..4).map(|i| Shard { index: i, count: 4 }).collect();
+        for i in 0..1000u64 {
+            assert_eq!(shards.iter().filter(|s| s.contains(i)).count(), 1);
+        }
+    }
+
+    /// The summary counts the records classified infeasible and leaves them out of the
+    /// converged / feasible ratio; a record that was not classified is not counted.
+    #[test]
+    fn the_summary_counts_infeasible_records() {
+        let manifest = Manifest {
+            scenario: ScenarioKind::TransferHard,
+            seed: 7,
+            count: 4,
+        };
+        let record = |index: u64, converged: bool, failure: Option<&str>| TrajectoryRecord {
+            kind: manifest.scenario,
+            seed: 7,
+            index,
+            scenario: manifest.scenario.draw(7, index),
+            converged,
+            failure: failure.map(String::from),
+            costates: [0.0; 5],
+            final_anomaly: None,
+            final_eps: 1.0,
+            final_mass: 0.8,
+            thrust_arcs: 1,
+            residual: 0.0,
+            seconds: 1.0,
+            ephemeris: Vec::new(),
+            steps: Vec::new(),
+            distinct_energy_optima: 1,
+        };
+        let records = [
+            record(0, true, None),
+            record(
+                1,
+                false,
+                Some("infeasible: minimum time 400.0 d > TOF 300.0 d (ratio 1.333)"),
+            ),
+            record(2, false, Some("feasibility unknown (...); no energy-optimal start")),
+            record(3, true, None),
+        ];
+        let s = summarize(&manifest, Shard::WHOLE, &records);
+        assert_eq!((s.converged, s.infeasible), (2, 1));
+        assert!((s.convergence_rate - 0.5).abs() < 1e-15);
+        assert!((s.feasible_convergence_rate - 2.0 / 3.0).abs() < 1e-15);
+    }
+}

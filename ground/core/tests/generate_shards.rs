@@ -1,0 +1,110 @@
+//! Dataset generation: shards are disjoint and together identical to a single run, a restarted
+//! run skips finished work, a corrupt record is solved again, mismatched folders are refused.
+
+use std::path::PathBuf;
+
+use ground_core::generate::{generate, merge, read_dataset, GenerateError, Manifest, Shard};
+use ground_core::solver::record::TrajectoryRecord;
+use ground_core::solver::SolveOptions;
+use shared::scenario::ScenarioKind;
+use shared::spacecraft::Spacecraft;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lowthrust-gen-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// A short homotopy keeps the test quick; the machinery is the same at any final eps.
+fn options() -> SolveOptions {
+    SolveOptions {
+        final_eps: 0.3,
+        ..SolveOptions::default()
+    }
+}
+
+fn without_timing(mut records: Vec<TrajectoryRecord>) -> Vec<TrajectoryRecord> {
+    for r in &mut records {
+        r.seconds = 0.0;
+    }
+    records
+}
+
+#[test]
+fn shards_merge_into_the_single_run_and_restarts_resume() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let manifest = Manifest {
+        scenario: ScenarioKind::TransferCircular,
+        seed: 9,
+        count: 5,
+    };
+    let whole = temp_dir("whole");
+    let summary = generate(manifest, Shard::WHOLE, &whole, &sc, &options(), false).unwrap();
+    assert_eq!(summary.records, 5);
+    let single = read_dataset(&whole.join("dataset.ltds")).unwrap();
+    assert_eq!(
+        single.records.iter().map(|r| r.index).collect::<Vec<_>>(),
+        vec![0, 1, 2, 3, 4]
+    );
+    for r in &single.records {
+        assert_eq!(r.scenario, ScenarioKind::TransferCircular.draw(9, r.index));
+        if r.converged {
+            assert!(r.residual < 1e-8 && r.ephemeris.len() == 100 && r.steps.len() == r.scenario.steps as usize + 1);
+        }
+    }
+
+    let (a, b) = (temp_dir("shard0"), temp_dir("shard1"));
+    generate(manifest, "0/2".parse().unwrap(), &a, &sc, &options(), false).unwrap();
+    generate(manifest, "1/2".parse().unwrap(), &b, &sc, &options(), false).unwrap();
+    let shard_a = read_dataset(&a.join("dataset-0-of-2.ltds")).unwrap();
+    let shard_b = read_dataset(&b.join("dataset-1-of-2.ltds")).unwrap();
+    assert_eq!(
+        shard_a.records.iter().map(|r| r.index).collect::<Vec<_>>(),
+        vec![0, 2, 4]
+    );
+    assert_eq!(shard_b.records.iter().map(|r| r.index).collect::<Vec<_>>(), vec![1, 3]);
+    let merged_dir = temp_dir("merged");
+    merge(
+        &[a.join("dataset-0-of-2.ltds"), b.join("dataset-1-of-2.ltds")],
+        &merged_dir,
+    )
+    .unwrap();
+    let merged = read_dataset(&merged_dir.join("dataset.ltds")).unwrap();
+    assert_eq!(without_timing(merged.records), without_timing(single.records.clone()));
+    // A shard alone is not a dataset.
+    assert!(matches!(
+        merge(&[a.join("dataset-0-of-2.ltds")], &temp_dir("partial")),
+        Err(GenerateError::Merge(_))
+    ));
+
+    // Restart: every record is resumed, byte for byte the same set.
+    let again = generate(manifest, Shard::WHOLE, &whole, &sc, &options(), false).unwrap();
+    assert_eq!(again.records, 5);
+    assert_eq!(
+        read_dataset(&whole.join("dataset.ltds")).unwrap().records,
+        single.records
+    );
+    // A corrupt record is solved again rather than half-read.
+    let rec = whole.join("records").join("00000002.rec");
+    let mut bytes = std::fs::read(&rec).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0xff;
+    std::fs::write(&rec, &bytes).unwrap();
+    generate(manifest, Shard::WHOLE, &whole, &sc, &options(), false).unwrap();
+    let redone = read_dataset(&whole.join("dataset.ltds")).unwrap();
+    assert_eq!(without_timing(redone.records), without_timing(single.records));
+    // Another seed into the same folder is refused before any work.
+    let other = Manifest { seed: 10, ..manifest };
+    assert!(matches!(
+        generate(other, Shard::WHOLE, &whole, &sc, &options(), false),
+        Err(GenerateError::ManifestMismatch { .. })
+    ));
+    // A truncated dataset file is refused.
+    let ds = whole.join("dataset.ltds");
+    let bytes = std::fs::read(&ds).unwrap();
+    std::fs::write(&ds, &bytes[..bytes.len() - 7]).unwrap();
+    assert!(matches!(read_dataset(&ds), Err(GenerateError::Corrupt(..))));
+    for d in [whole, a, b, merged_dir] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}

@@ -1,0 +1,10 @@
+//! Lets the learning tests and examples find libtorch at run time without LD_LIBRARY_PATH:
+//! the libtorch folder tch linked against (LIBTORCH, set in .cargo/config.toml) goes into the rpath.
+fn main() {
+    println!("cargo:rerun-if-env-changed=LIBTORCH");
+    if let Ok(dir) = std::env::var("LIBTORCH") {
+        let lib = std::path::Path::new(&dir).join("lib");
+        let lib = lib.canonicalize().unwrap_or(lib);
+        println!("cargo:rustc-link-arg=-Wl,-rpath,{}", lib.display());
+    }
+}

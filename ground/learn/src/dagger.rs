@@ -1,0 +1,464 @@
+//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (issue 4, transfers).
+//!
+//! Each round flies the deterministic policy on fresh training scenarios, re-solves the
+//! fuel-optimal rest of each flight by the indirect method from the states it visited
+//! ([`ground_core::demo::relabel`]), adds those tuples to the demonstration buffer, and runs
+//! behaviour-cloning-regularised updates on the grown buffer. The policy then learns what to do
+//! in the states its own errors lead to, which demonstrations of optimal flights never show.
+//!
+//! ```text
+//! RUN/dagger/round-0.safetensors   the starting learner (copied from --from)
+//! RUN/dagger/relabels-R.ltrl       round R's relabelled tuples
+//! RUN/dagger/round-R.safetensors   the learner after round R
+//! RUN/dagger/best.safetensors      the round with the largest share within the goal
+//! RUN/dagger/rounds.{csv,svg}      per-round scores, state.json the same for machines
+//! ```
+//!
+//! Every file is written atomically and is complete when it exists, so a run resumes from
+//! them alone: the buffer is the demonstrations plus every round's relabels in order, and each
+//! round's sampler and torch streams are seeded from the round number. A run stopped anywhere
+//! and resumed ends with the same weights as one that never stopped.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared::scenario::{ProblemKind, Scenario};
+
+use crate::config::ExperimentConfig;
+use crate::eval::{within_accuracy_goal, ACCURACY_GOAL};
+use crate::experiment::{
+    demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations, residual_chart,
+    write_file, ExperimentError,
+};
+use crate::sac::agent::Sac;
+use crate::sac::replay::{sampler, ReplayBuffer};
+use ground_core::charts::{line_chart, Series};
+use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
+use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
+use ground_core::env::{Environment, Transfer, TransferEnv};
+use ground_core::io::{decode_container, encode_container};
+use ground_core::solver::SolveOptions;
+
+const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
+const RELABELS_VERSION: u16 = 1;
+/// Round r flies training scenarios `r * ROUND_STRIDE ..`: past any the RL phase draws.
+const ROUND_STRIDE: u64 = 1_000_000;
+/// Mixed into the training seed for the rounds' replay samplers (apart from RL's streams).
+const SAMPLER_STREAM: u64 = 0xDA66E5;
+
+/// One round's relabelled tuples, as saved in `relabels-R.ltrl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Relabels {
+    pub round: u64,
+    /// States sent to the solver.
+    pub attempted: u64,
+    /// Of those, solved to the final eps and turned into tuples.
+    pub converged: u64,
+    /// The tuples, flagged as demonstrations.
+    pub tuples: ReplayBuffer,
+}
+
+/// The score of the learner after a round (round 0: the starting checkpoint).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RoundRow {
+    pub round: u64,
+    pub relabels_attempted: u64,
+    pub relabels_converged: u64,
+    pub tuples_added: u64,
+    pub buffer: u64,
+    /// Gradient updates of this command so far.
+    pub updates: u64,
+    /// Share of the completed scoring episodes within 0.01 AU and 0.01 (issue 4's figure).
+    pub within_goal: f64,
+    pub summary: OutcomeSummary,
+    /// Wall time of the round (relabels, updates, scoring).
+    pub seconds: f64,
+}
+
+impl RoundRow {
+    const HEADER: &'static str = "round,relabels_attempted,relabels_converged,tuples_added,buffer,updates,\
+within_goal,completed,reward_mean,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,seconds\n";
+
+    fn csv(&self) -> String {
+        let s = &self.summary;
+        format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
+            self.round,
+            self.relabels_attempted,
+            self.relabels_converged,
+            self.tuples_added,
+            self.buffer,
+            self.updates,
+            self.within_goal,
+            s.completed,
+            s.total_reward.mean,
+            s.final_mass.mean,
+            s.terminal_position.p50,
+            s.terminal_position.p95,
+            s.terminal_velocity.p50,
+            s.terminal_velocity.p95,
+            self.seconds
+        )
+    }
+}
+
+/// What `ground dagger` ended with.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DaggerSummary {
+    pub folder: PathBuf,
+    /// Round 0 (the start) and every round done.
+    pub rows: Vec<RoundRow>,
+    /// The round kept as best.safetensors.
+    pub best_round: u64,
+}
+
+fn round_file(dir: &Path, round: u64) -> PathBuf {
+    dir.join(format!("round-{round}.safetensors"))
+}
+
+fn relabels_file(dir: &Path, round: u64) -> PathBuf {
+    dir.join(format!("relabels-{round}.ltrl"))
+}
+
+/// Reads a round's relabels, refusing a corrupt file or one of another round or problem.
+pub fn load_relabels(path: &Path, round: u64, obs_dim: usize) -> Result<Relabels, ExperimentError> {
+    let bytes = std::fs::read(path).map_err(|e| ExperimentError::Io(path.to_path_buf(), e))?;
+    let relabels: Relabels = decode_container(RELABELS_MAGIC, RELABELS_VERSION, &bytes)
+        .map_err(|e| ExperimentError::Mismatch(format!("relabels {}: {e}", path.display())))?;
+    if relabels.round != round || relabels.tuples.obs_dim() != obs_dim || relabels.tuples.act_dim() != 3 {
+        return Err(ExperimentError::Mismatch(format!(
+            "relabels {} hold round {} with {}-feature observations, expected round {round} with {obs_dim}",
+            path.display(),
+            relabels.round,
+            relabels.tuples.obs_dim()
+        )));
+    }
+    Ok(relabels)
+}
+
+fn save_relabels(path: &Path, relabels: &Relabels) -> Result<(), ExperimentError> {
+    let bytes = encode_container(RELABELS_MAGIC, RELABELS_VERSION, relabels)
+        .map_err(|e| ExperimentError::Io(path.to_path_buf(), std::io::Error::other(e.to_string())))?;
+    write_file(path, &bytes)
+}
+
+fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
+    indicatif::ProgressBar::new(total).with_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{what:>16} {{bar:36}} {{pos}}/{{len}} {{msg}} [{{elapsed}}<{{eta}}]"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    )
+}
+
+/// Flies the policy on round `round`'s training scenarios and relabels the visited states at
+/// the config's fractions of each flight, solved to the demonstrations' eps.
+fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<Relabels, ExperimentError> {
+    let dagger = &config.dagger;
+    let first = ROUND_STRIDE * round;
+    let candidates = dagger.candidates.unwrap_or(dagger.episodes);
+    let scenarios: Vec<Scenario> = (first..first + candidates)
+        .map(|i| config.scenario.draw(config.seeds.train, i))
+        .collect();
+    let flown = evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?;
+    // A relabel needs a step strictly inside the flight.
+    let eligible: Vec<&EpisodeOutcome> = flown
+        .iter()
+        .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
+        .collect();
+    let jobs: Vec<(usize, u32)> = largest_misses(eligible, dagger.episodes as usize)
+        .into_iter()
+        .flat_map(|o| {
+            let steps = scenarios[o.episode].steps;
+            dagger
+                .fractions
+                .iter()
+                .map(move |f| (o.episode, ((f * f64::from(steps)).round() as u32).clamp(1, steps - 1)))
+        })
+        .collect();
+    let sc = config
+        .env
+        .spacecraft
+        .canonical()
+        .map_err(|e| ExperimentError::Mismatch(format!("env.spacecraft: {e:?}")))?;
+    // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
+    // to 10.9 % within the goal (docs/notes/issue4-dagger.md).
+    let options = SolveOptions {
+        final_eps: config.generate.final_eps,
+        ..SolveOptions::default()
+    };
+    let tolerances = default_tolerances();
+    let bar = progress_bar(jobs.len() as u64, &format!("round {round} relabel"));
+    let solved: Vec<_> = jobs
+        .par_iter()
+        .filter_map(|&(episode, step)| {
+            let state = flown[episode].trajectory.as_ref()?[step as usize].state;
+            let trace = (config.seeds.train, first + episode as u64);
+            let relabelled = relabel(trace, &scenarios[episode], &state, step, &sc, &options);
+            bar.inc(1);
+            let (record, placement) = relabelled?;
+            if !record.converged {
+                return None;
+            }
+            placed_demonstration::<Transfer>(&record, &placement, &config.env, &tolerances).ok()
+        })
+        .collect();
+    bar.finish_and_clear();
+    let count: usize = solved.iter().map(|d| d.transitions.len()).sum();
+    let mut tuples = ReplayBuffer::new(TransferEnv::OBS, 3, count.max(1));
+    for demo in &solved {
+        push_demonstrations(&mut tuples, &demo.transitions);
+    }
+    Ok(Relabels {
+        round,
+        attempted: jobs.len() as u64,
+        converged: solved.len() as u64,
+        tuples,
+    })
+}
+
+/// The `count` outcomes that miss issue 4's goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
+/// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
+/// all of them.
+fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {
+    if outcomes.len() > count {
+        let miss = |o: &EpisodeOutcome| o.terminal.position.max(o.terminal.velocity) / ACCURACY_GOAL;
+        outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
+        outcomes.truncate(count);
+        outcomes.sort_by_key(|o| o.episode);
+    }
+    outcomes
+}
+
+/// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios.
+fn score(config: &ExperimentConfig, agent: &Sac) -> Result<(f64, OutcomeSummary), ExperimentError> {
+    let outcomes = evaluate_agent::<TransferEnv>(
+        agent,
+        &config.env,
+        config.scenario,
+        config.seeds.evaluation,
+        config.dagger.score_episodes,
+        false,
+    )?;
+    Ok((within_accuracy_goal(&outcomes), summarize(&outcomes)))
+}
+
+/// `ground dagger`: `config.dagger.rounds` rounds from `start` (a learner checkpoint, e.g.
+/// RUN/pretrain/best.safetensors) in RUN/dagger, resuming whatever rounds are already there.
+pub fn dagger(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    run: &Path,
+    start: &Path,
+) -> Result<DaggerSummary, ExperimentError> {
+    if config.scenario.problem() != ProblemKind::Transfer {
+        return Err(ExperimentError::Mismatch(format!(
+            "ground dagger relabels transfers only; the config is for {}",
+            config.scenario.name()
+        )));
+    }
+    let (mut buffer, _) = demonstration_buffer::<Transfer>(config, config_dir)?;
+    prepare_run(config, run)?;
+    let dir = run.join("dagger");
+    let mut agent = new_agent(config, true, TransferEnv::OBS);
+    let state_path = dir.join("state.json");
+    if !round_file(&dir, 0).exists() {
+        agent.load(start)?;
+        agent.save(&round_file(&dir, 0))?;
+        // A state left by an earlier start belongs to another learner.
+        let _ = std::fs::remove_file(&state_path);
+    }
+    // The learner counts its updates since its first; this command's start at round 0.
+    agent.load(&round_file(&dir, 0))?;
+    let updates_before = agent.updates;
+    let mut done = 0;
+    while round_file(&dir, done + 1).exists() {
+        done += 1;
+    }
+    agent.load(&round_file(&dir, done))?;
+    let mut rows: Vec<RoundRow> = match std::fs::read(&state_path) {
+        Ok(bytes) => serde_json::from_slice(&bytes)
+            .map_err(|e| ExperimentError::Mismatch(format!("{} does not parse: {e}", state_path.display())))?,
+        Err(_) => Vec::new(),
+    };
+    rows.retain(|r| r.round <= done);
+    let mut last_relabels = (0, 0, 0);
+    for round in 1..=done {
+        let relabels = load_relabels(&relabels_file(&dir, round), round, TransferEnv::OBS)?;
+        buffer.extend_from(&relabels.tuples);
+        last_relabels = (relabels.attempted, relabels.converged, relabels.tuples.len() as u64);
+    }
+    let updates = |agent: &Sac| agent.updates - updates_before;
+    if rows.last().is_none_or(|r| r.round != done) {
+        // Stopped between a round's checkpoint and its score.
+        let clock = Instant::now();
+        let (within_goal, summary) = score(config, &agent)?;
+        rows.push(RoundRow {
+            round: done,
+            relabels_attempted: last_relabels.0,
+            relabels_converged: last_relabels.1,
+            tuples_added: last_relabels.2,
+            buffer: buffer.len() as u64,
+            updates: updates(&agent),
+            within_goal,
+            summary,
+            seconds: clock.elapsed().as_secs_f64(),
+        });
+        write_logs(&dir, &rows, &agent, is_best(&rows))?;
+    }
+    for round in done + 1..=config.dagger.rounds {
+        let clock = Instant::now();
+        let path = relabels_file(&dir, round);
+        let relabels = if path.exists() {
+            load_relabels(&path, round, TransferEnv::OBS)?
+        } else {
+            let relabels = solve_relabels(config, &agent, round)?;
+            save_relabels(&path, &relabels)?;
+            relabels
+        };
+        buffer.extend_from(&relabels.tuples);
+        // Streams seeded by the round, so a resumed round repeats exactly.
+        let mut rng = sampler(config.seeds.train ^ SAMPLER_STREAM ^ round);
+        tch::manual_seed(config.seeds.train.wrapping_add(round) as i64);
+        let bar = progress_bar(config.dagger.updates, &format!("round {round} update"));
+        for i in 0..config.dagger.updates {
+            agent.update(&buffer.sample(config.sac.batch_size, &mut rng));
+            if i % 100 == 0 {
+                bar.set_position(i);
+            }
+        }
+        bar.finish_and_clear();
+        agent.save(&round_file(&dir, round))?;
+        let (within_goal, summary) = score(config, &agent)?;
+        rows.push(RoundRow {
+            round,
+            relabels_attempted: relabels.attempted,
+            relabels_converged: relabels.converged,
+            tuples_added: relabels.tuples.len() as u64,
+            buffer: buffer.len() as u64,
+            updates: updates(&agent),
+            within_goal,
+            summary,
+            seconds: clock.elapsed().as_secs_f64(),
+        });
+        println!(
+            "round {round}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} % \
+             (dr p50 {:.4} AU, p95 {:.4}; dv p50 {:.4}, p95 {:.4}) [{:.0} s]",
+            relabels.converged,
+            relabels.attempted,
+            relabels.tuples.len(),
+            100.0 * within_goal,
+            summary.terminal_position.p50,
+            summary.terminal_position.p95,
+            summary.terminal_velocity.p50,
+            summary.terminal_velocity.p95,
+            clock.elapsed().as_secs_f64()
+        );
+        write_logs(&dir, &rows, &agent, is_best(&rows))?;
+    }
+    let best_round = best_row(&rows).map_or(0, |r| r.round);
+    Ok(DaggerSummary {
+        folder: dir,
+        rows,
+        best_round,
+    })
+}
+
+/// The row with the largest share within the goal (the earliest of equals).
+fn best_row(rows: &[RoundRow]) -> Option<&RoundRow> {
+    rows.iter().rev().max_by(|a, b| a.within_goal.total_cmp(&b.within_goal))
+}
+
+/// Is the last row the best so far?
+fn is_best(rows: &[RoundRow]) -> bool {
+    match (rows.last(), best_row(rows)) {
+        (Some(last), Some(best)) => last.round == best.round,
+        _ => false,
+    }
+}
+
+/// state.json, rounds.csv and rounds.svg, and best.safetensors when `agent` is the best.
+fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<(), ExperimentError> {
+    if best {
+        agent.save(&dir.join("best.safetensors"))?;
+    }
+    let json = serde_json::to_vec_pretty(rows).unwrap_or_default();
+    write_file(&dir.join("state.json"), &json)?;
+    let mut csv = String::from(RoundRow::HEADER);
+    for row in rows {
+        let _ = write!(csv, "{}", row.csv());
+    }
+    write_file(&dir.join("rounds.csv"), csv.as_bytes())?;
+    let series = |name: &str, f: &dyn Fn(&RoundRow) -> f64| Series {
+        name: name.into(),
+        points: rows.iter().map(|r| (r.round as f64, f(r))).collect(),
+        band: None,
+    };
+    // A chart that cannot be drawn yet (one point) is skipped: the CSV holds the numbers.
+    let _ = line_chart(
+        &dir.join("rounds.svg"),
+        "DAgger-style rounds: scoring episodes within 0.01 AU and 0.01",
+        "round",
+        "share",
+        &[series("within the goal", &|r| r.within_goal)],
+        false,
+    );
+    let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(|r| (r.round as f64, r.summary)).collect();
+    residual_chart(
+        &dir.join("rounds-residuals.svg"),
+        "DAgger-style rounds: terminal residuals (scoring episodes)",
+        "round",
+        &points,
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use onboard::features::Residuals;
+
+    fn outcome(episode: usize, dr: f64, dv: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            episode,
+            total_reward: 0.0,
+            final_mass: 1.0,
+            terminal: Residuals {
+                position: dr,
+                velocity: dv,
+            },
+            steps: 10,
+            completed: true,
+            error: None,
+            non_finite_actions: 0,
+            trajectory: None,
+        }
+    }
+
+    #[test]
+    fn the_relabelled_episodes_are_the_largest_misses_in_episode_order() {
+        // Misses in goal units: 0.5, 3 (velocity), 2, 0.1, 2 (tie with 2: the earlier wins), 4.
+        let flown = [
+            outcome(0, 0.005, 0.001),
+            outcome(1, 0.002, 0.03),
+            outcome(2, 0.02, 0.0),
+            outcome(3, 0.001, 0.001),
+            outcome(4, 0.0, 0.02),
+            outcome(5, 0.04, 0.04),
+        ];
+        let chosen = |count| -> Vec<usize> {
+            largest_misses(flown.iter().collect(), count)
+                .iter()
+                .map(|o| o.episode)
+                .collect()
+        };
+        assert_eq!(chosen(3), vec![1, 2, 5]);
+        assert_eq!(chosen(4), vec![1, 2, 4, 5]);
+        // As many as flown (the default: candidates = episodes): every one, in order.
+        assert_eq!(chosen(6), vec![0, 1, 2, 3, 4, 5]);
+        assert_eq!(chosen(9), vec![0, 1, 2, 3, 4, 5]);
+    }
+}

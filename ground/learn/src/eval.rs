@@ -1,0 +1,510 @@
+//! Monte Carlo evaluation (SPEC section 9): N episodes of the deterministic policy from a seed
+//! disjoint from training, against two baselines (zero thrust, uniform random actions) on the
+//! same scenarios, and the optimality gap against the indirect solution of the first scenarios.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand_chacha::ChaCha8Rng;
+use rand_core::SeedableRng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared::scenario::{ProblemKind, Scenario};
+
+use crate::config::ExperimentConfig;
+use crate::experiment::{policy_batch, ExperimentError};
+use crate::sac::agent::Sac;
+use crate::sac::trainer::uniform_action;
+use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
+use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
+use ground_core::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::io::atomic_write;
+use ground_core::solver::{solve_scenario, SolveOptions};
+
+/// Episodes whose flown path is drawn.
+const PLOTTED_TRAJECTORIES: usize = 6;
+/// Terminal accuracy goal of the issue: |dr| <= 0.01 AU and |dv| <= 0.01 in 95% of episodes.
+pub const ACCURACY_GOAL: f64 = 0.01;
+
+/// One scenario's indirect optimum next to what the policy flew.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GapRow {
+    pub episode: usize,
+    pub policy_mass: f64,
+    pub optimal_mass: f64,
+    pub optimal_converged: bool,
+    pub optimal_eps: f64,
+    /// m_policy / m_optimal (SPEC section 9).
+    pub mass_ratio: f64,
+    /// Propellant used / optimal propellant - 1.
+    pub overspend: f64,
+    pub policy_dr: f64,
+    pub policy_dv: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MonteCarloReport {
+    pub scenario: String,
+    pub checkpoint: PathBuf,
+    pub episodes: usize,
+    pub seed: u64,
+    pub seconds: f64,
+    pub policy: OutcomeSummary,
+    pub zero_thrust: OutcomeSummary,
+    pub random: OutcomeSummary,
+    /// Fraction of completed episodes with |dr| <= 0.01 AU and |dv| <= 0.01.
+    pub within_accuracy_goal: f64,
+    pub gap: Vec<GapRow>,
+    pub mass_ratio: Option<Stats>,
+    pub overspend: Option<Stats>,
+    /// The accuracy goal's share by transfer size: quintiles of the zero-thrust miss.
+    #[serde(default)]
+    pub accuracy_by_coast_miss: Vec<AccuracyBand>,
+}
+
+/// Episodes grouped by how far coasting (zero thrust) would miss the target: the transfer's
+/// size, since the target proxy is the same orbit at the spacecraft's own anomaly.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyBand {
+    /// Zero-thrust terminal |dr| (AU) of the band's first and last episode.
+    pub coast_miss_min: f64,
+    pub coast_miss_max: f64,
+    pub episodes: usize,
+    /// Share of the band's episodes within 0.01 AU and 0.01.
+    pub within_goal: f64,
+    pub final_mass_mean: f64,
+}
+
+/// The goal's share in `bands` equal groups of the policy's completed episodes, ordered by the
+/// zero-thrust miss of the same scenario (`zero[i]` flew `policy[i]`'s scenario).
+pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome], bands: usize) -> Vec<AccuracyBand> {
+    let mut paired: Vec<(f64, &EpisodeOutcome)> = policy
+        .iter()
+        .zip(zero)
+        .filter(|(p, z)| p.completed && z.completed)
+        .map(|(p, z)| (z.terminal.position, p))
+        .collect();
+    paired.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n = paired.len();
+    (0..bands.min(n))
+        .map(|b| {
+            let band = &paired[b * n / bands..(b + 1) * n / bands];
+            let outcomes: Vec<EpisodeOutcome> = band.iter().map(|(_, p)| (*p).clone()).collect();
+            AccuracyBand {
+                coast_miss_min: band[0].0,
+                coast_miss_max: band[band.len() - 1].0,
+                episodes: band.len(),
+                within_goal: within_accuracy_goal(&outcomes),
+                final_mass_mean: band.iter().map(|(_, p)| p.final_mass).sum::<f64>() / band.len() as f64,
+            }
+        })
+        .collect()
+}
+
+/// Fraction of the completed episodes that end with |dr| <= 0.01 AU and |dv| <= 0.01
+/// ([`ACCURACY_GOAL`], issue 4's figure).
+pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
+    outcomes
+        .iter()
+        .filter(|o| o.completed && o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL)
+        .count() as f64
+        / outcomes.iter().filter(|o| o.completed).count().max(1) as f64
+}
+
+/// `ground evaluate`: the Monte Carlo of SPEC section 9 for the agent in `checkpoint`, written
+/// to `out` (mc.csv, summary.json, histograms.svg, trajectories.svg).
+pub fn monte_carlo(
+    config: &ExperimentConfig,
+    checkpoint: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<MonteCarloReport, ExperimentError> {
+    match config.scenario.problem() {
+        ProblemKind::Transfer => monte_carlo_for::<Transfer>(config, checkpoint, out, episodes, gap_cases),
+        ProblemKind::Rendezvous => monte_carlo_for::<Rendezvous>(config, checkpoint, out, episodes, gap_cases),
+    }
+}
+
+/// Loads the actor of a checkpoint for the config's problem.
+pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) -> Result<Sac, ExperimentError> {
+    tch::set_num_threads(config.compute.threads);
+    let mut agent = Sac::new(config.sac.clone(), obs_dim, 3, config.device());
+    agent.load(checkpoint)?;
+    Ok(agent)
+}
+
+fn fly<P: Problem>(
+    config: &ExperimentConfig,
+    scenarios: &[Scenario],
+    policy: impl FnMut(&[P::Obs]) -> Vec<[f32; 3]>,
+    record: bool,
+) -> Result<Vec<EpisodeOutcome>, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    Ok(evaluate_batched::<MdpEnv<P>, _>(
+        &config.env,
+        scenarios,
+        policy,
+        record,
+    )?)
+}
+
+fn monte_carlo_for<P: Problem>(
+    config: &ExperimentConfig,
+    checkpoint: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<MonteCarloReport, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    let start = Instant::now();
+    let agent = load_agent(config, P::OBS, checkpoint)?;
+    let n = episodes.unwrap_or(config.evaluate.episodes);
+    let seed = config.seeds.monte_carlo;
+    let scenarios = draw_scenarios(config.scenario, seed, n);
+    let bar = indicatif::ProgressBar::new_spinner().with_message(format!("Monte Carlo: {n} episodes"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
+    let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
+    let plotted = fly::<P>(
+        config,
+        &scenarios[..scenarios.len().min(PLOTTED_TRAJECTORIES)],
+        |obs| policy_batch(&agent, obs),
+        true,
+    )?;
+    bar.finish_and_clear();
+    report_and_write::<P>(config, checkpoint, &scenarios, &policy, &plotted, out, gap_cases, start)
+}
+
+/// The Monte Carlo report of a policy's `outcomes` on `scenarios` (flown by whatever flew it:
+/// the tch actor here, the SIL loop in [`crate::sil`]): the zero-thrust and random baselines on
+/// the same scenarios, the optimality gap on the first ones, the files in `out`.
+#[allow(clippy::too_many_arguments)] // the report's inputs, each needed once
+pub fn report_and_write<P: Problem>(
+    config: &ExperimentConfig,
+    source: &Path,
+    scenarios: &[Scenario],
+    policy: &[EpisodeOutcome],
+    plotted: &[EpisodeOutcome],
+    out: &Path,
+    gap_cases: Option<u64>,
+    start: Instant,
+) -> Result<MonteCarloReport, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    let seed = config.seeds.monte_carlo;
+    let n = scenarios.len() as u64;
+    let zero = fly::<P>(config, scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a6e_646f);
+    let random = fly::<P>(
+        config,
+        scenarios,
+        |obs| {
+            obs.iter()
+                .map(|_| {
+                    let a = uniform_action(&mut rng, 3);
+                    [a[0], a[1], a[2]]
+                })
+                .collect()
+        },
+        false,
+    )?;
+
+    let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
+    let gap = optimality_gap(config, &scenarios[..k], &policy[..k.min(policy.len())]);
+    let within = within_accuracy_goal(policy);
+    let usable: Vec<&GapRow> = gap
+        .iter()
+        .filter(|g| g.optimal_converged || g.optimal_mass.is_finite())
+        .collect();
+    let report = MonteCarloReport {
+        scenario: config.scenario.name().to_string(),
+        checkpoint: source.to_path_buf(),
+        episodes: policy.len(),
+        seed,
+        seconds: start.elapsed().as_secs_f64(),
+        policy: summarize(policy),
+        zero_thrust: summarize(&zero),
+        random: summarize(&random),
+        within_accuracy_goal: within,
+        mass_ratio: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.mass_ratio))),
+        overspend: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.overspend))),
+        gap,
+        accuracy_by_coast_miss: accuracy_by_coast_miss(policy, &zero, 5),
+    };
+    write_outputs(out, &report, policy, &zero, &random, scenarios, plotted)?;
+    Ok(report)
+}
+
+/// Indirect solutions of `scenarios` (in parallel) against the policy's final masses.
+fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[EpisodeOutcome]) -> Vec<GapRow> {
+    let Ok(spacecraft) = config.env.spacecraft.canonical() else {
+        return Vec::new();
+    };
+    let options = SolveOptions::default();
+    let bar = indicatif::ProgressBar::new(scenarios.len() as u64).with_style(
+        indicatif::ProgressStyle::with_template(
+            "optimality gap {bar:30} {pos}/{len} indirect solves [{elapsed}<{eta}]",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let rows = scenarios
+        .par_iter()
+        .zip(policy.par_iter())
+        .enumerate()
+        .map(|(i, (scenario, flown))| {
+            let record = solve_scenario(
+                config.scenario,
+                config.seeds.monte_carlo,
+                i as u64,
+                scenario,
+                &spacecraft,
+                &options,
+            );
+            bar.inc(1);
+            let optimal = record.final_mass;
+            GapRow {
+                episode: i,
+                policy_mass: flown.final_mass,
+                optimal_mass: optimal,
+                optimal_converged: record.converged,
+                optimal_eps: record.final_eps,
+                mass_ratio: flown.final_mass / optimal,
+                overspend: (1.0 - flown.final_mass) / (1.0 - optimal) - 1.0,
+                policy_dr: flown.terminal.position,
+                policy_dv: flown.terminal.velocity,
+            }
+        })
+        .collect();
+    bar.finish_and_clear();
+    rows
+}
+
+fn write_outputs(
+    out: &Path,
+    report: &MonteCarloReport,
+    policy: &[EpisodeOutcome],
+    zero: &[EpisodeOutcome],
+    random: &[EpisodeOutcome],
+    scenarios: &[Scenario],
+    plotted: &[EpisodeOutcome],
+) -> Result<(), ExperimentError> {
+    let write = |name: &str, bytes: &[u8]| {
+        let path = out.join(name);
+        atomic_write(&path, bytes).map_err(|e| ExperimentError::Io(path, e))
+    };
+    let mut csv = String::from(
+        "episode,completed,reward,final_mass,dr,dv,zero_thrust_reward,zero_thrust_dr,random_reward,random_dr\n",
+    );
+    for ((p, z), r) in policy.iter().zip(zero).zip(random) {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{},{},{},{}",
+            p.episode,
+            p.completed,
+            p.total_reward,
+            p.final_mass,
+            p.terminal.position,
+            p.terminal.velocity,
+            z.total_reward,
+            z.terminal.position,
+            r.total_reward,
+            r.terminal.position
+        );
+    }
+    write("mc.csv", csv.as_bytes())?;
+    let mut gap = String::from(
+        "episode,policy_mass,optimal_mass,optimal_converged,optimal_eps,mass_ratio,overspend,policy_dr,policy_dv\n",
+    );
+    for g in &report.gap {
+        let _ = writeln!(
+            gap,
+            "{},{},{},{},{},{},{},{},{}",
+            g.episode,
+            g.policy_mass,
+            g.optimal_mass,
+            g.optimal_converged,
+            g.optimal_eps,
+            g.mass_ratio,
+            g.overspend,
+            g.policy_dr,
+            g.policy_dv
+        );
+    }
+    write("optimality-gap.csv", gap.as_bytes())?;
+    write("summary.json", &serde_json::to_vec_pretty(report).unwrap_or_default())?;
+
+    let done = || policy.iter().filter(|o| o.completed);
+    let dr_median = report.policy.terminal_position.p50;
+    let panels = vec![
+        Panel {
+            title: "Episode reward".into(),
+            x_label: "total reward".into(),
+            values: done().map(|o| o.total_reward).collect(),
+            markers: vec![("zero thrust mean".into(), report.zero_thrust.total_reward.mean)],
+        },
+        Panel {
+            title: "Final mass".into(),
+            x_label: "m_f / m_0".into(),
+            values: done().map(|o| o.final_mass).collect(),
+            markers: vec![],
+        },
+        Panel {
+            title: "Terminal position residual".into(),
+            x_label: "|dr| (AU)".into(),
+            values: done().map(|o| o.terminal.position).collect(),
+            markers: vec![("goal 0.01 AU".into(), ACCURACY_GOAL), ("median".into(), dr_median)],
+        },
+        Panel {
+            title: "Terminal velocity residual".into(),
+            x_label: "|dv| (canonical)".into(),
+            values: done().map(|o| o.terminal.velocity).collect(),
+            markers: vec![("goal 0.01".into(), ACCURACY_GOAL)],
+        },
+    ];
+    let _ = histogram_grid(
+        &out.join("histograms.svg"),
+        &format!("Monte Carlo, {} episodes", report.episodes),
+        &panels,
+        40,
+    );
+    let paths: Vec<FlownPath> = plotted
+        .iter()
+        .filter_map(|o| {
+            let t = o.trajectory.as_ref()?;
+            let s = scenarios.get(o.episode)?;
+            Some(FlownPath {
+                label: format!(
+                    "#{}: m_f {:.4}, dr {:.4} AU",
+                    o.episode, o.final_mass, o.terminal.position
+                ),
+                initial: s.initial.shape,
+                target: s.target,
+                points: t
+                    .iter()
+                    .map(|p| (p.state.r[0], p.state.r[1], p.command.map_or(0.0, |c| c.throttle)))
+                    .collect(),
+            })
+        })
+        .collect();
+    let _ = flown_trajectories(&out.join("trajectories.svg"), "Flown by the policy", &paths);
+    Ok(())
+}
+
+/// A short human-readable summary of a Monte Carlo report.
+pub fn describe(report: &MonteCarloReport) -> String {
+    let mut s = String::new();
+    let row = |s: &mut String, name: &str, o: &OutcomeSummary| {
+        let _ = writeln!(
+            s,
+            "{name:<12} reward {:>8.4} +- {:<7.4} final mass {:.4}  dr p50 {:.4} p95 {:.4} AU  dv p50 {:.4} p95 {:.4}  ({} of {} completed)",
+            o.total_reward.mean,
+            o.total_reward.std,
+            o.final_mass.mean,
+            o.terminal_position.p50,
+            o.terminal_position.p95,
+            o.terminal_velocity.p50,
+            o.terminal_velocity.p95,
+            o.completed,
+            o.episodes
+        );
+    };
+    row(&mut s, "policy", &report.policy);
+    row(&mut s, "zero thrust", &report.zero_thrust);
+    row(&mut s, "random", &report.random);
+    let _ = writeln!(s, "{}", accuracy_line(report));
+    for band in &report.accuracy_by_coast_miss {
+        let _ = writeln!(
+            s,
+            "  coasting would miss by {:.3}-{:.3} AU: {:>5.1}% within the goal, final mass {:.4} ({} episodes)",
+            band.coast_miss_min,
+            band.coast_miss_max,
+            100.0 * band.within_goal,
+            band.final_mass_mean,
+            band.episodes
+        );
+    }
+    if let Some(gap) = gap_line(report) {
+        let _ = writeln!(s, "{gap}");
+    }
+    s
+}
+
+/// How many episodes met the terminal-accuracy goal, in words.
+pub fn accuracy_line(report: &MonteCarloReport) -> String {
+    format!(
+        "Within |dr| <= 0.01 AU and |dv| <= 0.01: {:.1}% of completed episodes.",
+        100.0 * report.within_accuracy_goal
+    )
+}
+
+/// The optimality gap in words, when the indirect solutions were computed.
+pub fn gap_line(report: &MonteCarloReport) -> Option<String> {
+    let (ratio, over) = (report.mass_ratio.as_ref()?, report.overspend.as_ref()?);
+    Some(format!(
+        "Optimality gap on {} scenarios solved by the indirect method: m_policy / m_optimal mean {:.4} (min {:.4}); propellant overspend median {:.1}%.",
+        ratio.count,
+        ratio.mean,
+        ratio.min,
+        100.0 * over.p50
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use onboard::features::Residuals;
+
+    fn outcome(episode: usize, dr: f64, mass: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            episode,
+            total_reward: 0.0,
+            final_mass: mass,
+            terminal: Residuals {
+                position: dr,
+                velocity: 0.0,
+            },
+            steps: 1,
+            completed: true,
+            error: None,
+            non_finite_actions: 0,
+            trajectory: None,
+        }
+    }
+
+    #[test]
+    fn bands_follow_the_coasting_miss_whatever_the_episode_order() {
+        // Episode i coasts to a miss of (i * 7 % 10) / 10 AU; the policy meets the goal on
+        // the episodes whose coasting miss is below 0.5 AU, and ends with mass 1 - miss.
+        let coast: Vec<f64> = (0..10).map(|i| f64::from(i * 7 % 10) / 10.0).collect();
+        let zero: Vec<EpisodeOutcome> = coast.iter().enumerate().map(|(i, &m)| outcome(i, m, 1.0)).collect();
+        let policy: Vec<EpisodeOutcome> = coast
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| outcome(i, if m < 0.5 { 0.001 } else { 0.1 }, 1.0 - m))
+            .collect();
+        let bands = accuracy_by_coast_miss(&policy, &zero, 5);
+        let shares: Vec<f64> = bands.iter().map(|b| b.within_goal).collect();
+        assert_eq!(shares, vec![1.0, 1.0, 0.5, 0.0, 0.0]);
+        assert_eq!(bands[2].coast_miss_min, 0.4);
+        assert_eq!(bands[2].coast_miss_max, 0.5);
+        assert!((bands[4].final_mass_mean - (1.0 - 0.85)).abs() < 1e-12);
+        assert_eq!(bands.iter().map(|b| b.episodes).sum::<usize>(), 10);
+        // An incomplete policy episode leaves its band.
+        let mut cut = policy.clone();
+        cut[0].completed = false;
+        assert_eq!(
+            accuracy_by_coast_miss(&cut, &zero, 5)
+                .iter()
+                .map(|b| b.episodes)
+                .sum::<usize>(),
+            9
+        );
+    }
+}

@@ -1,0 +1,301 @@
+//! `ground export`: a checkpoint's actor mean network to the onboard weight blobs, f32 and
+//! int8, with what each costs in accuracy.
+//!
+//! - Calibration states (int8 activation scales): the demonstration tuples of the config's
+//!   dataset, when it has one, and the states the trained policy visits on the periodic
+//!   evaluation scenarios.
+//! - Held-out states (the action error report): states the policy visits on scenarios of a
+//!   stream used for neither training, evaluation nor calibration.
+//! - Closed loop: both blobs fly the config's Monte Carlo scenarios in the ground environment
+//!   through the onboard crate, so the int8 blob's mean reward is compared with the f32 one's.
+
+use std::path::{Path, PathBuf};
+
+use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
+use serde::{Deserialize, Serialize};
+use shared::blob::{Activation, ProblemKind, Quantization};
+use shared::quantize::{DenseWeights, MlpWeights};
+use shared::scenario::Scenario;
+
+use crate::config::ExperimentConfig;
+use crate::eval::load_agent;
+use crate::experiment::{load_demonstrations, policy_batch, ExperimentError};
+use crate::sac::agent::Sac;
+use ground_core::env::batch::{
+    draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats,
+};
+use ground_core::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::io::atomic_write;
+
+/// Stream offsets that keep the export's scenarios apart from training and evaluation.
+const CALIBRATION_STREAM: u64 = 0x6361_6c69;
+const HELD_OUT_STREAM: u64 = 0x686f_6c64;
+/// Episodes flown for calibration states and for held-out states.
+const STATE_EPISODES: u64 = 100;
+/// Most demonstration states used for calibration.
+const MAX_DEMONSTRATION_STATES: usize = 20_000;
+
+/// The onboard policy of either problem, so one code path measures both.
+#[derive(Debug, Clone, Copy)]
+pub enum OnboardPolicy<'a> {
+    Transfer(TransferPolicy<'a>),
+    Rendezvous(RendezvousPolicy<'a>),
+}
+
+impl<'a> OnboardPolicy<'a> {
+    /// Loads a blob for `kind` (refused exactly as the flight computer refuses it).
+    pub fn load(bytes: &'a [u8], kind: ProblemKind) -> Result<Self, PolicyError> {
+        Ok(match kind {
+            ProblemKind::Transfer => Self::Transfer(TransferPolicy::from_bytes(bytes, kind)?),
+            ProblemKind::Rendezvous => Self::Rendezvous(RendezvousPolicy::from_bytes(bytes, kind)?),
+        })
+    }
+
+    /// The onboard action; NaN for an input of the wrong length (never flown: the
+    /// environment flies a non-finite action as thrust off).
+    pub fn act(&self, x: &[f32]) -> [f32; 3] {
+        match self {
+            Self::Transfer(p) => x.try_into().map_or([f32::NAN; 3], |a| p.forward(a)),
+            Self::Rendezvous(p) => x.try_into().map_or([f32::NAN; 3], |a| p.forward(a)),
+        }
+    }
+}
+
+/// Action error of a blob against the trained (tch) actor on the held-out states: per state,
+/// the largest of the three component errors.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct BlobReport {
+    pub file: PathBuf,
+    pub quantization: String,
+    pub bytes: usize,
+    pub action_error: Stats,
+    /// The closed-loop Monte Carlo of this blob in the ground environment.
+    pub closed_loop: OutcomeSummary,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExportReport {
+    pub checkpoint: PathBuf,
+    pub problem: String,
+    pub calibration_states: usize,
+    pub demonstration_states: usize,
+    pub held_out_states: usize,
+    pub f32: BlobReport,
+    pub int8: BlobReport,
+    /// Closed-loop episodes flown per blob (the config's Monte Carlo scenarios).
+    pub closed_loop_episodes: usize,
+    /// |int8 mean reward - f32 mean reward| / |f32 mean reward| (issue 5: at most 2 %).
+    pub int8_reward_difference: f64,
+}
+
+/// The actor mean network of an agent (`l0`, `l1`, ..., `mean`; tanh on the output).
+pub fn actor_network(agent: &Sac, kind: ProblemKind) -> Result<MlpWeights, ExperimentError> {
+    let weights = agent.actor_weights();
+    let mut names: Vec<String> = (0..)
+        .map(|i| format!("l{i}"))
+        .take_while(|n| weights.contains_key(&format!("{n}.weight")))
+        .collect();
+    names.push("mean".into());
+    let count = names.len();
+    let layers = names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let missing = || ExperimentError::Mismatch(format!("checkpoint actor has no {name} layer"));
+            let (shape, w) = weights.get(&format!("{name}.weight")).ok_or_else(missing)?;
+            let (_, b) = weights.get(&format!("{name}.bias")).ok_or_else(missing)?;
+            let [outputs, inputs] = shape[..] else {
+                return Err(ExperimentError::Mismatch(format!(
+                    "actor {name}.weight has shape {shape:?}"
+                )));
+            };
+            Ok(DenseWeights {
+                inputs: inputs as usize,
+                outputs: outputs as usize,
+                weights: w.clone(),
+                bias: b.clone(),
+                activation: if i + 1 == count {
+                    Activation::Tanh
+                } else {
+                    Activation::Relu
+                },
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(MlpWeights { kind, layers })
+}
+
+/// File names of the blobs in an export folder.
+pub fn blob_file(kind: ProblemKind, quantization: Quantization) -> String {
+    let problem = match kind {
+        ProblemKind::Transfer => "transfer",
+        ProblemKind::Rendezvous => "rendezvous",
+    };
+    let q = match quantization {
+        Quantization::F32 => "f32",
+        Quantization::Int8 => "int8",
+    };
+    format!("{problem}-{q}.blob")
+}
+
+/// `ground export`: writes `transfer-f32.blob` / `transfer-int8.blob` (or `rendezvous-*`) and
+/// `export.json` into `out`. `config_dir` resolves the config's relative dataset path.
+pub fn export(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    checkpoint: &Path,
+    out: &Path,
+) -> Result<ExportReport, ExperimentError> {
+    match config.scenario.problem() {
+        ProblemKind::Transfer => export_for::<Transfer>(config, config_dir, checkpoint, out),
+        ProblemKind::Rendezvous => export_for::<Rendezvous>(config, config_dir, checkpoint, out),
+    }
+}
+
+/// Network inputs at every state of `episodes` (recorded trajectories).
+fn visited_inputs<P: Problem>(scenarios: &[Scenario], episodes: &[EpisodeOutcome]) -> Vec<Vec<f32>> {
+    let mut inputs = Vec::new();
+    for o in episodes {
+        let (Some(trajectory), Some(scenario)) = (&o.trajectory, scenarios.get(o.episode)) else {
+            continue;
+        };
+        for point in trajectory {
+            if point.step < scenario.steps {
+                if let Ok(f) = P::features(scenario, &point.state, point.step) {
+                    inputs.push(P::observation(&f).as_ref().to_vec());
+                }
+            }
+        }
+    }
+    inputs
+}
+
+fn export_for<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    checkpoint: &Path,
+    out: &Path,
+) -> Result<ExportReport, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
+    let agent = load_agent(config, P::OBS, checkpoint)?;
+    let network = actor_network(&agent, P::KIND)?;
+    let fly_recorded = |seed: u64| -> Result<Vec<Vec<f32>>, ExperimentError> {
+        let scenarios = draw_scenarios(config.scenario, seed, STATE_EPISODES);
+        let flown = evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
+        Ok(visited_inputs::<P>(&scenarios, &flown))
+    };
+    let mut calibration = fly_recorded(config.seeds.evaluation ^ CALIBRATION_STREAM)?;
+    let demonstration = demonstration_inputs::<P>(config, config_dir)?;
+    let demonstration_states = demonstration.len();
+    calibration.extend(demonstration);
+    let held_out = fly_recorded(config.seeds.monte_carlo ^ HELD_OUT_STREAM)?;
+
+    let provenance = format!(
+        "{} actor from {} ({} updates)",
+        config.scenario.name(),
+        checkpoint.display(),
+        agent.updates
+    );
+    let f32_bytes = network
+        .f32_blob(&provenance)
+        .map_err(|e| ExperimentError::Mismatch(format!("f32 export: {e}")))?;
+    let (int8_bytes, _) = network
+        .int8_blob(&calibration, &provenance)
+        .map_err(|e| ExperimentError::Mismatch(format!("int8 export: {e}")))?;
+
+    // The trained actor's deterministic actions on the held-out states (one batch).
+    let reference = policy_batch(&agent, &held_out);
+    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, config.evaluate.episodes);
+    let mut reports = Vec::new();
+    for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
+        let policy = OnboardPolicy::load(bytes, P::KIND)
+            .map_err(|e| ExperimentError::Mismatch(format!("the exported blob does not load onboard: {e}")))?;
+        let errors = held_out.iter().zip(&reference).map(|(x, r)| {
+            let a = policy.act(x);
+            a.iter()
+                .zip(r)
+                .map(|(a, r)| f64::from((a - r).abs()))
+                .fold(0.0, f64::max)
+        });
+        let flown = evaluate::<MdpEnv<P>, _>(&config.env, &scenarios, |o: &P::Obs| policy.act(o.as_ref()), false)?;
+        let file = out.join(blob_file(P::KIND, quantization));
+        atomic_write(&file, bytes).map_err(|e| ExperimentError::Io(file.clone(), e))?;
+        reports.push(BlobReport {
+            file,
+            quantization: format!("{quantization:?}").to_lowercase(),
+            bytes: bytes.len(),
+            action_error: Stats::of(errors),
+            closed_loop: summarize(&flown),
+        });
+    }
+    let int8 = reports
+        .pop()
+        .ok_or_else(|| ExperimentError::Mismatch("no int8 report".into()))?;
+    let f32 = reports
+        .pop()
+        .ok_or_else(|| ExperimentError::Mismatch("no f32 report".into()))?;
+    let (rf, ri) = (f32.closed_loop.total_reward.mean, int8.closed_loop.total_reward.mean);
+    let report = ExportReport {
+        checkpoint: checkpoint.to_path_buf(),
+        problem: config.scenario.name().to_string(),
+        calibration_states: calibration.len(),
+        demonstration_states,
+        held_out_states: held_out.len(),
+        closed_loop_episodes: scenarios.len(),
+        int8_reward_difference: (ri - rf).abs() / rf.abs().max(f64::MIN_POSITIVE),
+        f32,
+        int8,
+    };
+    let path = out.join("export.json");
+    atomic_write(&path, &serde_json::to_vec_pretty(&report).unwrap_or_default())
+        .map_err(|e| ExperimentError::Io(path, e))?;
+    Ok(report)
+}
+
+/// Observations of the config's demonstration tuples (none when the config names no dataset).
+fn demonstration_inputs<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+) -> Result<Vec<Vec<f32>>, ExperimentError> {
+    if config.pretrain.dataset.is_none() {
+        return Ok(Vec::new());
+    }
+    let (demos, _, _) = load_demonstrations::<P>(config, config_dir)?;
+    Ok(demos
+        .transitions
+        .iter()
+        .take(MAX_DEMONSTRATION_STATES)
+        .map(|t| t.observation.as_ref().to_vec())
+        .collect())
+}
+
+/// A one-paragraph summary of an export.
+pub fn describe(report: &ExportReport) -> String {
+    let line = |b: &BlobReport| {
+        format!(
+            "{:>4}: {:>7} bytes, action error vs tch max {:.2e} (p50 {:.2e}, p95 {:.2e}); closed loop reward {:.4}, |dr| p50 {:.4} AU",
+            b.quantization,
+            b.bytes,
+            b.action_error.max,
+            b.action_error.p50,
+            b.action_error.p95,
+            b.closed_loop.total_reward.mean,
+            b.closed_loop.terminal_position.p50
+        )
+    };
+    format!(
+        "{} blobs from {} ({} calibration states, {} of them demonstrations; {} held-out states; {} closed-loop episodes)\n{}\n{}\nint8 mean reward differs from f32 by {:.2} % (issue 5: at most 2 %)",
+        report.problem,
+        report.checkpoint.display(),
+        report.calibration_states,
+        report.demonstration_states,
+        report.held_out_states,
+        report.closed_loop_episodes,
+        line(&report.f32),
+        line(&report.int8),
+        100.0 * report.int8_reward_difference
+    )
+}

@@ -1,0 +1,15 @@
+//! The learning stack on libtorch (through `tch`): SAC, experiments (pretraining, RL,
+//! DAgger-style relabelling rounds), Monte Carlo evaluation, export of onboard blobs from
+//! checkpoints, the SIL driver and the main job.
+//!
+//! The torch-free parts it builds on (solver, datasets, environments, figures) are in
+//! `lowthrust-ground-core`.
+
+pub mod config;
+pub mod dagger;
+pub mod eval;
+pub mod experiment;
+pub mod export;
+pub mod pipeline;
+pub mod sac;
+pub mod sil;

@@ -1,0 +1,222 @@
+//! `ground sil`: Monte Carlo of a weight blob flown by the software-in-the-loop guidance loop
+//! ([`firmware_sim`]) against the dispersed truth plant, reported with the same metrics and
+//! figures as the ground evaluation ([`crate::eval`]), plus what only SIL sees (guidance faults,
+//! missed thrust).
+//!
+//! Flight `i` flies scenario `i` of the Monte Carlo stream with dispersion seed
+//! `monte_carlo seed + i`, so a blob and its quantized twin meet the same dispersions.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use firmware_sim::{fly_transfer_observed, Controller, Dispersions, FlightStep, SilError};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared::scenario::{ProblemKind, Scenario};
+
+use crate::config::ExperimentConfig;
+use crate::eval::{report_and_write, MonteCarloReport};
+use crate::experiment::ExperimentError;
+use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
+use ground_core::env::{step_reward, EnvError, Transfer};
+use ground_core::io::atomic_write;
+
+/// Flights whose paths are drawn.
+const PLOTTED_FLIGHTS: usize = 6;
+
+/// What SIL adds to the Monte Carlo report.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SilReport {
+    pub blob: PathBuf,
+    /// "f32", "int8", or "safe mode: <why the blob was refused>".
+    pub controller: String,
+    pub dispersions: Dispersions,
+    pub flights: usize,
+    /// Flights that could not be completed (plant or feature errors), with their reasons.
+    pub failed: Vec<(usize, String)>,
+    /// Guidance cycles in which guidance refused its input and commanded thrust off.
+    pub guidance_faults: u64,
+    /// Fraction of the flown time spent in missed-thrust events.
+    pub missed_thrust_fraction: f64,
+    pub monte_carlo: MonteCarloReport,
+}
+
+/// One SIL flight as the evaluation's episode outcome, the reward re-summed with the
+/// environment's own step reward (terminal-accuracy term included) so the two compare.
+fn outcome(
+    config: &ExperimentConfig,
+    episode: usize,
+    scenario: &Scenario,
+    steps: &[FlightStep],
+    error: Option<SilError>,
+    record: bool,
+) -> EpisodeOutcome {
+    let initial = onboard::dynamics::SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
+    let reward = |k: &FlightStep| step_reward(&config.env, scenario, &k.residuals, k.command.throttle, k.index + 1).0;
+    let last = steps.last();
+    EpisodeOutcome {
+        episode,
+        total_reward: steps.iter().map(reward).sum(),
+        final_mass: last.map_or(initial.m, |k| k.state.m),
+        terminal: last.map_or(
+            onboard::features::Residuals {
+                position: f64::NAN,
+                velocity: f64::NAN,
+            },
+            |k| k.residuals,
+        ),
+        steps: steps.len() as u32,
+        completed: error.is_none() && steps.len() == scenario.steps as usize,
+        error: error.map(|e| match e {
+            SilError::Plant { index, error } => EnvError::Propagation { step: index, error },
+            SilError::Features { index, error } => EnvError::Features { step: index, error },
+            SilError::Scenario(e) => EnvError::Scenario(e),
+            SilError::Dispersion(_) | SilError::NotATransfer => EnvError::Config("not flyable in SIL"),
+        }),
+        non_finite_actions: steps
+            .iter()
+            .filter(|k| k.guidance_error == Some(onboard::guidance::GuidanceError::NonFiniteAction))
+            .count() as u32,
+        trajectory: record.then(|| {
+            std::iter::once(TrajectoryPoint {
+                step: 0,
+                state: initial,
+                command: None,
+                reward: 0.0,
+            })
+            .chain(steps.iter().map(|k| TrajectoryPoint {
+                step: k.index + 1,
+                state: k.state,
+                command: Some(k.command),
+                reward: reward(k),
+            }))
+            .collect()
+        }),
+    }
+}
+
+/// Flies `blob` on the first `episodes` Monte Carlo scenarios with `dispersions`; returns the
+/// per-flight outcomes (trajectories recorded for the first `record` flights), guidance faults
+/// and missed-thrust time, and the failures.
+pub fn fly_blob(
+    config: &ExperimentConfig,
+    blob: &[u8],
+    scenarios: &[Scenario],
+    dispersions: &Dispersions,
+    record: usize,
+) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+    let spacecraft = config
+        .env
+        .spacecraft
+        .canonical()
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+    let controller = Controller::load_transfer(blob);
+    let tolerances = config.env.integrator.tolerances();
+    let weights = config.env.reward.weights();
+    let seed = config.seeds.monte_carlo;
+    let flown: Vec<(EpisodeOutcome, u64, f64)> = scenarios
+        .par_iter()
+        .enumerate()
+        .map(|(i, scenario)| {
+            let mut steps = Vec::with_capacity(scenario.steps as usize);
+            let result = fly_transfer_observed(
+                &controller,
+                scenario,
+                &spacecraft,
+                &tolerances,
+                &weights,
+                dispersions,
+                seed.wrapping_add(i as u64),
+                |k| steps.push(*k),
+            );
+            let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
+            let missed: f64 = steps.iter().map(|k| k.missed_thrust).sum();
+            (
+                outcome(config, i, scenario, &steps, result.err(), i < record),
+                faults,
+                missed,
+            )
+        })
+        .collect();
+    let faults = flown.iter().map(|f| f.1).sum();
+    let missed = flown.iter().map(|f| f.2).sum();
+    Ok((flown.into_iter().map(|f| f.0).collect(), faults, missed))
+}
+
+/// `ground sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
+/// plus sil.json).
+pub fn sil_monte_carlo(
+    config: &ExperimentConfig,
+    blob_path: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    dispersions: &Dispersions,
+) -> Result<SilReport, ExperimentError> {
+    if config.scenario.problem() != ProblemKind::Transfer {
+        return Err(ExperimentError::Mismatch(
+            "the SIL loop flies transfers; rendezvous flight software is not built yet".into(),
+        ));
+    }
+    dispersions
+        .validate()
+        .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;
+    let start = Instant::now();
+    let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
+    std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
+    let controller = match Controller::load_transfer(&blob) {
+        Controller::Network(p) => format!("{:?}", p.quantization()).to_lowercase(),
+        Controller::SafeMode(e) => format!("safe mode: {e}"),
+    };
+    let n = episodes.unwrap_or(config.sil.episodes);
+    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
+    let bar = indicatif::ProgressBar::new_spinner().with_message(format!("SIL: {n} dispersed flights"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, dispersions, PLOTTED_FLIGHTS)?;
+    bar.finish_and_clear();
+    let flown_time: f64 = outcomes.iter().map(|o| f64::from(o.steps)).sum::<f64>() * shared::units::STEP;
+    let failed = outcomes
+        .iter()
+        .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
+        .collect();
+    let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
+    let monte_carlo =
+        report_and_write::<Transfer>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?;
+    let report = SilReport {
+        blob: blob_path.to_path_buf(),
+        controller,
+        dispersions: *dispersions,
+        flights: outcomes.len(),
+        failed,
+        guidance_faults,
+        missed_thrust_fraction: missed / flown_time.max(f64::MIN_POSITIVE),
+        monte_carlo,
+    };
+    let path = out.join("sil.json");
+    atomic_write(&path, &serde_json::to_vec_pretty(&report).unwrap_or_default())
+        .map_err(|e| ExperimentError::Io(path, e))?;
+    Ok(report)
+}
+
+/// A short summary of a SIL Monte Carlo.
+pub fn describe(report: &SilReport) -> String {
+    let p = &report.monte_carlo.policy;
+    format!(
+        "SIL: {} flights of {} ({}), {} failed, {} guidance faults, {:.2} % of the time in missed thrust\n\
+         reward {:.4} +- {:.4} (zero thrust {:.4}); final mass {:.4}; |dr| p50/p95 {:.4}/{:.4} AU; |dv| p50/p95 {:.4}/{:.4}; {:.1} % within 0.01 AU / 0.01",
+        report.flights,
+        report.blob.display(),
+        report.controller,
+        report.failed.len(),
+        report.guidance_faults,
+        100.0 * report.missed_thrust_fraction,
+        p.total_reward.mean,
+        p.total_reward.std,
+        report.monte_carlo.zero_thrust.total_reward.mean,
+        p.final_mass.mean,
+        p.terminal_position.p50,
+        p.terminal_position.p95,
+        p.terminal_velocity.p50,
+        p.terminal_velocity.p95,
+        100.0 * report.monte_carlo.within_accuracy_goal
+    )
+}

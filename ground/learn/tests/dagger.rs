@@ -1,0 +1,102 @@
+//! `ground dagger` at toy scale, in its own test binary: it compares weights byte for byte, and
+//! torch's global random stream is shared by every test of a process.
+
+mod common;
+
+use std::path::Path;
+
+use common::{scratch_dir, toy_config, toy_dataset};
+use learn::dagger::{dagger, load_relabels, RoundRow};
+use learn::experiment::{pretrain, ExperimentError};
+use shared::scenario::ScenarioKind;
+
+/// `ground dagger` at toy scale: rounds stopped and resumed (between rounds, and between a
+/// round's relabels and its updates) end with the same learner, byte for byte, as rounds run
+/// without a stop; saved relabels are reused, not solved again; a corrupt one is refused.
+#[test]
+fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
+    let dir = scratch_dir("dagger");
+    let dataset = toy_dataset(&dir);
+    let mut config = toy_config(&dataset);
+    // Relabels solved to the toy dataset's eps, so they are quick.
+    config.generate.final_eps = 0.3;
+    config.dagger.episodes = 3;
+    config.dagger.fractions = vec![0.5];
+    config.dagger.updates = 30;
+    config.dagger.score_episodes = 4;
+    config.dagger.rounds = 2;
+    let pre = dir.join("pre");
+    pretrain(&config, &dir, &pre).unwrap();
+    let start = pre.join("pretrain/best.safetensors");
+
+    // Two rounds in one sitting.
+    let straight = dir.join("straight");
+    let whole = dagger(&config, &dir, &straight, &start).unwrap();
+    let rounds: Vec<u64> = whole.rows.iter().map(|r| r.round).collect();
+    assert_eq!(rounds, vec![0, 1, 2]);
+    let demos: usize = (0..2)
+        .map(|i| ScenarioKind::TransferCircular.draw(9, i).steps as usize)
+        .sum();
+    let mut buffer = demos as u64;
+    for row in &whole.rows[1..] {
+        assert_eq!(row.relabels_attempted, 3, "one relabel per flown episode");
+        assert!(row.relabels_converged <= row.relabels_attempted);
+        let relabels = load_relabels(
+            &straight.join(format!("dagger/relabels-{}.ltrl", row.round)),
+            row.round,
+            10,
+        )
+        .unwrap();
+        assert_eq!(relabels.tuples.len() as u64, row.tuples_added);
+        assert_eq!(relabels.tuples.demonstration_count(), relabels.tuples.len());
+        buffer += row.tuples_added;
+        assert_eq!(
+            row.buffer, buffer,
+            "the buffer keeps the demonstrations and every round's relabels"
+        );
+        assert_eq!(row.updates, 30 * row.round);
+    }
+    assert!(
+        whole.rows.iter().map(|r| r.relabels_converged).sum::<u64>() > 0,
+        "no relabel converged: the test shows nothing"
+    );
+    let weights =
+        |run: &Path, round: u64| std::fs::read(run.join(format!("dagger/round-{round}.safetensors"))).unwrap();
+
+    // One round, then the second in a later sitting.
+    let resumed = dir.join("resumed");
+    config.dagger.rounds = 1;
+    dagger(&config, &dir, &resumed, &start).unwrap();
+    config.dagger.rounds = 2;
+    let later = dagger(&config, &dir, &resumed, &start).unwrap();
+    assert_eq!(later.rows.len(), 3);
+    assert_eq!(weights(&resumed, 2), weights(&straight, 2));
+
+    // Stopped after round 2's relabels were saved, before its updates ended: the relabels are
+    // reused (the file is not written again) and the learner is the same.
+    let relabels_2 = straight.join("dagger/relabels-2.ltrl");
+    let written = std::fs::metadata(&relabels_2).unwrap().modified().unwrap();
+    let expected = weights(&straight, 2);
+    std::fs::remove_file(straight.join("dagger/round-2.safetensors")).unwrap();
+    let again = dagger(&config, &dir, &straight, &start).unwrap();
+    assert_eq!(weights(&straight, 2), expected);
+    assert_eq!(std::fs::metadata(&relabels_2).unwrap().modified().unwrap(), written);
+    let without_seconds = |rows: &[RoundRow]| rows.iter().map(|r| RoundRow { seconds: 0.0, ..*r }).collect::<Vec<_>>();
+    assert_eq!(without_seconds(&again.rows), without_seconds(&whole.rows));
+
+    // A truncated relabels file is refused, not half-read.
+    let bytes = std::fs::read(&relabels_2).unwrap();
+    std::fs::write(&relabels_2, &bytes[..bytes.len() / 2]).unwrap();
+    std::fs::remove_file(straight.join("dagger/round-2.safetensors")).unwrap();
+    let err = dagger(&config, &dir, &straight, &start).unwrap_err();
+    assert!(matches!(err, ExperimentError::Mismatch(_)), "{err}");
+    assert!(err.to_string().contains("relabels-2.ltrl"), "{err}");
+
+    // Rendezvous has no relabelling solver: refused before any work.
+    let mut other = config.clone();
+    other.scenario = ScenarioKind::RendezvousCircular;
+    let err = dagger(&other, &dir, &dir.join("rendezvous"), &start).unwrap_err();
+    assert!(err.to_string().contains("transfers only"), "{err}");
+    assert!(!dir.join("rendezvous").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,0 +1,150 @@
+//! From a checkpoint to flight: `ground export` blobs against the tch actor, and the SIL loop
+//! against the ground environment.
+
+use std::path::PathBuf;
+
+use firmware_sim::Dispersions;
+use ground_core::env::batch::{draw_scenarios, evaluate};
+use ground_core::env::{MdpEnv, Transfer};
+use learn::config::ExperimentConfig;
+use learn::export::{export, OnboardPolicy};
+use learn::sac::agent::Sac;
+use learn::sil::{fly_blob, sil_monte_carlo};
+use onboard::policy::TransferPolicy;
+use shared::blob::{ProblemKind, Quantization};
+
+fn scratch_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The onboard contract's network (10-256-256-3), small evaluation sets, no dataset: the
+/// export calibrates on the states the policy visits.
+fn config() -> ExperimentConfig {
+    ExperimentConfig::from_toml(
+        r#"
+scenario = "transfer-circular"
+[sac]
+hidden = [256, 256]
+[evaluate]
+episodes = 24
+optimality_gap_cases = 0
+[sil]
+episodes = 12
+[compute]
+threads = 1
+"#,
+    )
+    .unwrap()
+}
+
+/// Features spread over what flight meets: radii 0.5-2 AU, speeds, mass, time to go.
+fn features(k: usize) -> [f32; 10] {
+    let u = |i: usize| ((k * 10 + i) as f32 * 0.618_034).fract();
+    [
+        0.5 + 1.5 * u(0),
+        2.0 * u(1) - 1.0,
+        2.0 * u(2) - 1.0,
+        0.4 * u(3) - 0.2,
+        0.6 + 0.8 * u(4),
+        0.7 + 0.3 * u(5),
+        1.0 + 0.5 * u(6),
+        0.2 * u(7) - 0.1,
+        0.7 + 0.4 * u(8),
+        12.0 * u(9),
+    ]
+}
+
+#[test]
+fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
+    let dir = scratch_dir("export-sil");
+    let config = config();
+    // A freshly initialised agent is a network like any other for the export.
+    tch::manual_seed(5);
+    let agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    let checkpoint = dir.join("agent.safetensors");
+    agent.save(&checkpoint).unwrap();
+
+    let report = export(&config, &dir, &checkpoint, &dir.join("export")).unwrap();
+    assert_eq!(report.closed_loop_episodes, 24);
+    assert_eq!(report.demonstration_states, 0);
+    assert!(report.calibration_states > 1000 && report.held_out_states > 1000);
+
+    // f32: the onboard network equals the tch actor's deterministic action within 1e-5, on
+    // states of its own choosing (not the exporter's).
+    let f32_bytes = std::fs::read(&report.f32.file).unwrap();
+    let f32_policy = TransferPolicy::from_bytes(&f32_bytes, ProblemKind::Transfer).unwrap();
+    assert_eq!(f32_policy.quantization(), Quantization::F32);
+    let inputs: Vec<[f32; 10]> = (0..500).map(features).collect();
+    let flat: Vec<f32> = inputs.iter().flatten().copied().collect();
+    let tch_actions = agent.act(&flat, inputs.len(), true);
+    let mut worst_f32 = 0.0f32;
+    let mut int8_errors = Vec::new();
+    let int8_bytes = std::fs::read(&report.int8.file).unwrap();
+    let int8_policy = TransferPolicy::from_bytes(&int8_bytes, ProblemKind::Transfer).unwrap();
+    assert_eq!(int8_policy.quantization(), Quantization::Int8);
+    for (x, want) in inputs.iter().zip(tch_actions.chunks_exact(3)) {
+        for ((a, b), w) in f32_policy.forward(x).iter().zip(int8_policy.forward(x)).zip(want) {
+            worst_f32 = worst_f32.max((a - w).abs());
+            int8_errors.push((b - w).abs());
+        }
+    }
+    assert!(worst_f32 <= 1e-5, "f32 blob vs tch actor: {worst_f32}");
+    assert!(report.f32.action_error.max <= 1e-5);
+    // int8 is an approximation, but a close one: median error well under 1 % of the range.
+    int8_errors.sort_by(f32::total_cmp);
+    let median = int8_errors[int8_errors.len() / 2];
+    assert!(median < 0.02 && median > 0.0, "int8 median action error {median}");
+    assert_eq!(report.int8.bytes, int8_bytes.len());
+    assert!(int8_bytes.len() * 3 < f32_bytes.len());
+
+    // SIL without dispersions flies exactly the ground environment's episodes (same onboard
+    // network through the environment's own step).
+    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, 12);
+    for bytes in [&f32_bytes, &int8_bytes] {
+        let policy = OnboardPolicy::load(bytes, ProblemKind::Transfer).unwrap();
+        let ground =
+            evaluate::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o: &[f32; 10]| policy.act(o), false).unwrap();
+        let (sil, faults, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+        assert_eq!((faults, missed), (0, 0.0));
+        for (g, s) in ground.iter().zip(&sil) {
+            assert!(g.completed && s.completed);
+            assert_eq!(
+                g.total_reward.to_bits(),
+                s.total_reward.to_bits(),
+                "episode {}",
+                g.episode
+            );
+            assert_eq!(g.final_mass.to_bits(), s.final_mass.to_bits());
+            assert_eq!(g.terminal, s.terminal);
+        }
+        // With dispersions the flights differ, and the dispersion is really flown.
+        let (dispersed, _, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
+        assert!(missed > 0.0);
+        assert!(dispersed.iter().zip(&sil).all(|(d, s)| d.final_mass != s.final_mass));
+    }
+
+    // The SIL Monte Carlo writes the evaluation's files, and a refused blob flies thrust off.
+    let sil_dir = dir.join("sil");
+    let sil = sil_monte_carlo(&config, &report.int8.file, &sil_dir, None, &config.sil.dispersions).unwrap();
+    assert_eq!((sil.flights, sil.controller.as_str()), (12, "int8"));
+    for file in [
+        "sil.json",
+        "mc.csv",
+        "summary.json",
+        "histograms.svg",
+        "trajectories.svg",
+    ] {
+        assert!(sil_dir.join(file).is_file(), "sil/{file} missing");
+    }
+    let mut altered = int8_bytes.clone();
+    altered[int8_bytes.len() / 2] ^= 0x10;
+    let bad = dir.join("altered.blob");
+    std::fs::write(&bad, &altered).unwrap();
+    let refused = sil_monte_carlo(&config, &bad, &dir.join("sil-bad"), None, &config.sil.dispersions).unwrap();
+    assert!(refused.controller.starts_with("safe mode"), "{}", refused.controller);
+    assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,0 +1,184 @@
+//! The learning pipeline at toy scale through the same code as the CLI: a tiny dataset,
+//! pretraining, RL from the pretrained model (interrupted and resumed), Monte Carlo evaluation.
+//! Checks that every artifact exists, loads and is consistent.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{scratch_dir, toy_config, toy_dataset};
+use learn::config::ExperimentConfig;
+use learn::eval::monte_carlo;
+use learn::experiment::{pretrain, train, ExperimentError, PhaseState, Start};
+use learn::sac::agent::Sac;
+use shared::scenario::ScenarioKind;
+
+/// `path` (absolute) written relative to the current directory: "../" up to the root, then down.
+fn relative_to_cwd(path: &Path) -> PathBuf {
+    let cwd = std::env::current_dir().unwrap();
+    let mut rel = PathBuf::new();
+    for _ in cwd.components().skip(1) {
+        rel.push("..");
+    }
+    rel.join(path.strip_prefix("/").unwrap())
+}
+
+fn state(path: &Path) -> PhaseState {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+#[test]
+fn pretrain_train_resume_and_evaluate_at_toy_scale() {
+    let dir = scratch_dir("pipeline");
+    let dataset = toy_dataset(&dir);
+    let mut config = toy_config(&dataset);
+    let run = dir.join("run");
+
+    // Pretraining: demonstrations of both records, evaluations at 0, 40, 80, 120 updates.
+    let pre = pretrain(&config, &dir, &run).unwrap();
+    assert_eq!(pre.updates, 120);
+    assert_eq!(pre.demonstration_records, 2);
+    let steps: usize = (0..2)
+        .map(|i| ScenarioKind::TransferCircular.draw(9, i).steps as usize)
+        .sum();
+    assert_eq!(
+        pre.demonstration_tuples, steps,
+        "one tuple per 14-day step of each record"
+    );
+    let pre_state = state(&run.join("pretrain/state.json"));
+    let eval_updates: Vec<u64> = pre_state.evaluations.iter().map(|r| r.updates).collect();
+    assert_eq!(eval_updates, vec![0, 40, 80, 120]);
+    let best = pre.best.unwrap();
+    let best_reward = pre_state
+        .evaluations
+        .iter()
+        .map(|r| r.summary.total_reward.mean)
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(
+        best.summary.total_reward.mean, best_reward,
+        "the best evaluation is the one kept"
+    );
+    for file in [
+        "best.safetensors",
+        "last.safetensors",
+        "replay.ltrb",
+        "eval.csv",
+        "updates.csv",
+        "state.json",
+    ] {
+        assert!(run.join("pretrain").join(file).is_file(), "pretrain/{file} missing");
+    }
+    let csv = std::fs::read_to_string(run.join("pretrain/eval.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4);
+
+    // RL from the pretrained model, interrupted after 100 steps and resumed to 150.
+    config.train.env_steps = 100;
+    let first = train(&config, &run, Start::Pretrained).unwrap();
+    assert_eq!(first.env_steps, 100);
+    assert_eq!(
+        first.demonstration_tuples, steps,
+        "demonstrations stay in the RL buffer"
+    );
+    config.train.env_steps = 150;
+    let resumed = train(&config, &run, Start::Pretrained).unwrap();
+    assert_eq!(resumed.env_steps, 150);
+    let rl_state = state(&run.join("train-pretrained/state.json"));
+    let eval_steps: Vec<u64> = rl_state.evaluations.iter().map(|r| r.env_steps).collect();
+    assert_eq!(eval_steps, vec![0, 50, 100, 150]);
+    // Updates: one per step once the buffer is past warm-up (60 steps), in both sittings.
+    assert_eq!(rl_state.updates, 150 - 60 + 1);
+
+    // The best RL checkpoint loads into a fresh agent with the config's shapes.
+    let best = run.join("train-pretrained/best.safetensors");
+    let mut agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    agent.load(&best).unwrap();
+
+    // Monte Carlo: every episode completes, baselines on the same scenarios, files written.
+    let mc_dir = run.join("mc");
+    let report = monte_carlo(&config, &best, &mc_dir, None, None).unwrap();
+    assert_eq!(report.episodes, 16);
+    assert_eq!(report.policy.completed, 16);
+    assert_eq!(report.zero_thrust.completed, 16);
+    // Zero thrust keeps all the mass: the final mass statistics say so exactly.
+    assert_eq!(report.zero_thrust.final_mass.min, 1.0);
+    for file in ["mc.csv", "summary.json", "optimality-gap.csv"] {
+        assert!(mc_dir.join(file).is_file(), "mc/{file} missing");
+    }
+    assert_eq!(
+        std::fs::read_to_string(mc_dir.join("mc.csv")).unwrap().lines().count(),
+        17
+    );
+
+    // A config of another problem is refused on the same run folder.
+    let other = ExperimentConfig::from_toml("scenario = \"rendezvous-circular\"").unwrap();
+    assert!(matches!(
+        train(&other, &run, Start::Scratch),
+        Err(ExperimentError::Mismatch(_))
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_missing_dataset_is_refused_before_any_work() {
+    let dir = scratch_dir("missing");
+    let config = toy_config(&dir.join("no-such-dataset"));
+    let err = pretrain(&config, &dir, &dir.join("run")).unwrap_err();
+    assert!(matches!(err, ExperimentError::Config(_)), "{err}");
+    assert!(!dir.join("run/pretrain").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The main job (`ground run`) end to end at toy scale: the same stages as the default run,
+/// and a report whose every link resolves.
+#[test]
+fn main_job_writes_a_report_whose_links_resolve() {
+    use learn::pipeline::{broken_links, run_main_job};
+    let dir = scratch_dir("main-job");
+    let mut config = toy_config(&dir.join("unused"));
+    config.pretrain.dataset = None;
+    config.generate.count = 2;
+    config.generate.seed = 9;
+    config.generate.final_eps = 0.3;
+    // The onboard contract's actor (10-256-256-3), so the export and SIL stages can fly it.
+    config.sac.hidden = vec![256, 256];
+    config.sil.episodes = 8;
+    // A relative run folder, as `ground run --out runs/quick` gives (the dataset path must not be
+    // resolved against it twice).
+    let run = relative_to_cwd(&dir.join("run"));
+    assert!(run.is_relative());
+    let job = run_main_job(&config, &run).unwrap();
+    assert_eq!(job.dataset.records, 2);
+    assert_eq!(job.pretrain.updates, 120);
+    assert_eq!(job.train.env_steps, 150);
+    assert_eq!(job.monte_carlo.episodes, 16);
+    let text = std::fs::read_to_string(&job.report).unwrap();
+    assert!(text.contains("| zero thrust |"), "{text}");
+    assert_eq!(broken_links(&job.report), Vec::<String>::new());
+    for figure in [
+        "pretrain/critic-loss.svg",
+        "train-pretrained/eval-reward.svg",
+        "mc/histograms.svg",
+        "mc/trajectories.svg",
+        "export/transfer-f32.blob",
+        "export/transfer-int8.blob",
+        "export/export.json",
+        "sil-f32/sil.json",
+        "sil-int8/histograms.svg",
+        "sil-int8/trajectories.svg",
+    ] {
+        assert!(run.join(figure).is_file(), "{figure} not drawn");
+    }
+    // The blobs load onboard and SIL flew them: f32 and int8, every flight completed.
+    for (sil, name) in job.sil.as_ref().unwrap().iter().zip(["f32", "int8"]) {
+        assert_eq!(sil.controller, name);
+        assert_eq!(sil.monte_carlo.policy.completed, 8);
+    }
+    assert!(job.export.f32.action_error.max <= 1e-5);
+    assert!(text.contains("SIL with dispersions"), "{text}");
+    // The best RL model is what the Monte Carlo evaluated.
+    assert_eq!(
+        job.monte_carlo.checkpoint,
+        run.join("train-pretrained/best.safetensors")
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

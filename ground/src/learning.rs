@@ -1,0 +1,350 @@
+//! The learning commands (the `learn` feature, on libtorch): pretraining, RL, relabelling rounds,
+//! Monte Carlo, export, SIL, the main job, and the learner's sanity check and benchmark.
+
+use std::path::{Path, PathBuf};
+
+use clap::Subcommand;
+use learn::config::{ExperimentConfig, EMBEDDED_DEFAULT};
+
+#[derive(Subcommand)]
+pub enum LearnCommand {
+    /// Pretraining (SPEC section 8): demonstration tuples from the config's dataset fill the
+    /// replay buffer, then N_pt SAC updates with evaluations; the best model is kept.
+    Pretrain(ExperimentArgs),
+    /// RL training (vanilla, or from the pretrained model and its buffer with
+    /// --from-pretrained), periodic evaluation, best model kept, resumable.
+    Train {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Start from RUN/pretrain (best model and demonstration buffer).
+        #[arg(long)]
+        from_pretrained: bool,
+    },
+    /// DAgger-style rounds (transfers): fly the policy, re-solve the optimal rest of each flight
+    /// from the states it visited, add those tuples to the demonstrations, update; the config's
+    /// [dagger] section. Resumable; writes OUT/dagger.
+    Dagger {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Learner checkpoint the first round starts from (default: OUT/pretrain/best.safetensors;
+        /// ignored when OUT/dagger already holds a start).
+        #[arg(long)]
+        from: Option<PathBuf>,
+    },
+    /// Monte Carlo evaluation (SPEC section 9) of a checkpoint against zero-thrust and random
+    /// policies, with the optimality gap against the indirect solution on a subset.
+    Evaluate {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Agent checkpoint (a best.safetensors of a phase).
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Episodes (default: the config's evaluate.episodes).
+        #[arg(long)]
+        episodes: Option<u64>,
+        /// Scenarios also solved by the indirect method (default: the config's).
+        #[arg(long)]
+        gap_cases: Option<u64>,
+    },
+    /// Onboard weight blobs (f32 and int8) from a checkpoint's actor, with the action error of
+    /// each against the trained actor and their closed-loop Monte Carlo (OUT/export.json).
+    Export {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Agent checkpoint (a best.safetensors of a phase).
+        #[arg(long)]
+        checkpoint: PathBuf,
+    },
+    /// Software-in-the-loop Monte Carlo: a blob flown by the onboard guidance loop against the
+    /// dispersed truth plant (the config's [sil] dispersions), with the evaluation's metrics.
+    Sil {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Weight blob (a `ground export` output).
+        #[arg(long)]
+        blob: PathBuf,
+        /// Flights (default: the config's sil.episodes).
+        #[arg(long)]
+        episodes: Option<u64>,
+        /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
+        #[arg(long)]
+        no_dispersions: bool,
+    },
+    /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
+    /// better mean episode reward within 20,000 steps); prints the learning curve.
+    Pendulum {
+        #[arg(long, default_value_t = 20_000)]
+        steps: u64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Random-action steps before the first update.
+        #[arg(long, default_value_t = 1_000)]
+        warmup: u64,
+        #[arg(long, default_value_t = 1_000)]
+        eval_every: u64,
+        /// Torch intra-op threads.
+        #[arg(long, default_value_t = 1)]
+        threads: i32,
+        /// Write the curve as CSV here.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
+    /// Learner throughput: SAC updates per second at the thesis settings (10 features, 3
+    /// actions, 2x256, batch 256) and the fraction of the measured GEMM rate reached.
+    BenchSac {
+        #[arg(long, default_value_t = 300)]
+        updates: usize,
+        /// Torch intra-op thread counts to measure.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        threads: Vec<i32>,
+    },
+    /// The main job: solve a small transfer dataset, pretrain, train, evaluate by Monte Carlo
+    /// and write RUN/report.md (embedded small default config unless --config is given).
+    Run {
+        /// Experiment config (TOML); the embedded default is configs/quick.toml.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Run folder (an existing one is resumed).
+        #[arg(long, default_value = "runs/quick")]
+        out: PathBuf,
+    },
+}
+
+/// Runs one learning command.
+pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
+    learn::sac::tune_allocator();
+    match command {
+        LearnCommand::Run { config, out } => main_job(config.as_deref(), &out),
+        LearnCommand::Pretrain(args) => pretrain_command(&args),
+        LearnCommand::Train {
+            experiment,
+            from_pretrained,
+        } => train_command(&experiment, from_pretrained),
+        LearnCommand::Dagger { experiment, from } => dagger_command(&experiment, from.as_deref()),
+        LearnCommand::Evaluate {
+            experiment,
+            checkpoint,
+            episodes,
+            gap_cases,
+        } => evaluate_command(&experiment, &checkpoint, episodes, gap_cases),
+        LearnCommand::Export { experiment, checkpoint } => export_command(&experiment, &checkpoint),
+        LearnCommand::Sil {
+            experiment,
+            blob,
+            episodes,
+            no_dispersions,
+        } => sil_command(&experiment, &blob, episodes, no_dispersions),
+        LearnCommand::Pendulum {
+            steps,
+            seed,
+            warmup,
+            eval_every,
+            threads,
+            csv,
+        } => pendulum_command(steps, seed, warmup, eval_every, threads, csv.as_deref()),
+        LearnCommand::BenchSac { updates, threads } => {
+            bench_sac(updates, &threads);
+            Ok(())
+        }
+    }
+}
+
+fn main_job(config: Option<&Path>, out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let config = match config {
+        Some(path) => ExperimentConfig::load(path)?,
+        None => ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?,
+    };
+    tch::set_num_threads(config.compute.threads);
+    let job = learn::pipeline::run_main_job(&config, out)?;
+    print!("{}", learn::eval::describe(&job.monte_carlo));
+    println!(
+        "total {:.1} min; report: {}",
+        job.stage_seconds.iter().sum::<f64>() / 60.0,
+        job.report.display()
+    );
+    Ok(())
+}
+
+fn pendulum_command(
+    steps: u64,
+    seed: u64,
+    warmup: u64,
+    eval_every: u64,
+    threads: i32,
+    csv: Option<&Path>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use learn::sac::{pendulum, SacConfig};
+    tch::set_num_threads(threads);
+    let config = SacConfig {
+        warmup_steps: warmup,
+        ..SacConfig::default()
+    };
+    let curve = pendulum::sanity_run(config, steps, eval_every, seed);
+    let mut text = String::from("env_steps,mean_reward,std_reward,seconds\n");
+    for p in &curve {
+        println!(
+            "step {:>6}  mean reward {:>8.1} +- {:>6.1}  ({:.0} s)",
+            p.env_steps, p.mean_reward, p.std_reward, p.seconds
+        );
+        text.push_str(&format!(
+            "{},{},{},{}\n",
+            p.env_steps, p.mean_reward, p.std_reward, p.seconds
+        ));
+    }
+    if let Some(path) = csv {
+        ground_core::io::atomic_write(path, text.as_bytes())?;
+    }
+    Ok(())
+}
+
+fn bench_sac(updates: usize, threads: &[i32]) {
+    use learn::sac::{bench, SacConfig};
+    let config = SacConfig::default();
+    let flops = bench::update_flops(10, 3, &config.hidden, config.batch_size);
+    for &n in threads {
+        tch::set_num_threads(n);
+        let gemm = bench::gemm_gflops(256, 51);
+        let seconds = bench::seconds_per_update(&config, 10, 3, updates);
+        println!(
+            "threads {n}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
+            1.0 / seconds,
+            seconds * 1e3,
+            flops / 1e9,
+            flops / seconds / 1e9,
+            100.0 * flops / seconds / 1e9 / gemm,
+            gemm
+        );
+    }
+}
+
+/// The experiment config and run folder shared by pretrain, train and evaluate.
+#[derive(clap::Args)]
+pub struct ExperimentArgs {
+    /// Experiment config (TOML); without it the embedded small default (configs/quick.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Run folder (created; an existing one is resumed).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+impl ExperimentArgs {
+    /// The config and the folder its relative paths start from.
+    fn load(&self) -> Result<(ExperimentConfig, PathBuf), Box<dyn std::error::Error>> {
+        match &self.config {
+            Some(path) => {
+                let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+                Ok((ExperimentConfig::load(path)?, base))
+            }
+            None => Ok((ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?, self.out.clone())),
+        }
+    }
+}
+
+fn print_phase(summary: &learn::experiment::PhaseSummary) {
+    println!(
+        "{}: {} updates, {} environment steps, {:.0} s, {} demonstration tuples in the buffer",
+        summary.folder.display(),
+        summary.updates,
+        summary.env_steps,
+        summary.seconds,
+        summary.demonstration_tuples
+    );
+    if let Some(best) = &summary.best {
+        let s = &best.summary;
+        println!(
+            "best evaluation (updates {}, steps {}): reward {:.4} +- {:.4}, dr p50 {:.4} AU p95 {:.4} AU, dv p50 {:.4}, final mass {:.4}",
+            best.updates,
+            best.env_steps,
+            s.total_reward.mean,
+            s.total_reward.std,
+            s.terminal_position.p50,
+            s.terminal_position.p95,
+            s.terminal_velocity.p50,
+            s.final_mass.mean
+        );
+    }
+}
+
+fn pretrain_command(args: &ExperimentArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let summary = learn::experiment::pretrain(&config, &base, &args.out)?;
+    print_phase(&summary);
+    Ok(())
+}
+
+fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box<dyn std::error::Error>> {
+    use learn::experiment::{train, Start};
+    let (config, _) = args.load()?;
+    let start = if from_pretrained {
+        Start::Pretrained
+    } else {
+        Start::Scratch
+    };
+    let summary = train(&config, &args.out, start)?;
+    print_phase(&summary);
+    Ok(())
+}
+
+fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let start = from.map_or_else(|| args.out.join("pretrain").join("best.safetensors"), Path::to_path_buf);
+    let summary = learn::dagger::dagger(&config, &base, &args.out, &start)?;
+    for row in &summary.rows {
+        println!(
+            "round {:>3}: {:>5.1} % within 0.01 AU and 0.01 (dr p95 {:.4} AU, dv p95 {:.4}, final mass {:.4}), {} tuples in the buffer",
+            row.round,
+            100.0 * row.within_goal,
+            row.summary.terminal_position.p95,
+            row.summary.terminal_velocity.p95,
+            row.summary.final_mass.mean,
+            row.buffer
+        );
+    }
+    println!(
+        "best: round {} ({}); written to {}",
+        summary.best_round,
+        summary.folder.join("best.safetensors").display(),
+        summary.folder.display()
+    );
+    Ok(())
+}
+
+fn evaluate_command(
+    args: &ExperimentArgs,
+    checkpoint: &Path,
+    episodes: Option<u64>,
+    gap_cases: Option<u64>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, _) = args.load()?;
+    let report = learn::eval::monte_carlo(&config, checkpoint, &args.out, episodes, gap_cases)?;
+    print!("{}", learn::eval::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}
+
+fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let report = learn::export::export(&config, &base, checkpoint, &args.out)?;
+    println!("{}", learn::export::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}
+
+fn sil_command(
+    args: &ExperimentArgs,
+    blob: &Path,
+    episodes: Option<u64>,
+    no_dispersions: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, _) = args.load()?;
+    let dispersions = if no_dispersions {
+        firmware_sim::Dispersions::NONE
+    } else {
+        config.sil.dispersions
+    };
+    let report = learn::sil::sil_monte_carlo(&config, blob, &args.out, episodes, &dispersions)?;
+    println!("{}", learn::sil::describe(&report));
+    println!("written to {}", args.out.display());
+    Ok(())
+}

@@ -1,0 +1,302 @@
+//! The commands that need no PyTorch: one solve, dataset generation and merge, OEM export,
+//! the demonstrations' one-step check.
+
+use std::path::{Path, PathBuf};
+
+use ground_core::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
+use ground_core::io::atomic_write;
+use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
+use ground_core::plot::{plot_dataset_sample, plot_trajectories};
+use ground_core::solver::shooting::FINAL_EPS;
+use ground_core::solver::{solve_scenario, SolveOptions};
+use shared::orbit::{OrbitElements, OrbitShape};
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::spacecraft::Spacecraft;
+use shared::units::canonical_to_days;
+
+/// `ground solve`: one fuel-optimal case from explicit orbits or from a scenario draw.
+#[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
+pub struct SolveArgs {
+    /// Draw the case from this scenario distribution (with --seed and --index) instead of
+    /// giving the orbits explicitly.
+    #[arg(long, value_parser = parse_scenario_kind)]
+    scenario: Option<ScenarioKind>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value_t = 0)]
+    index: u64,
+    /// Initial orbit: semi-major axis (AU), eccentricity, argument of periapsis and true anomaly (deg).
+    #[arg(long)]
+    a0: Option<f64>,
+    #[arg(long, default_value_t = 1e-4)]
+    e0: f64,
+    #[arg(long, default_value_t = 0.0)]
+    omega0: f64,
+    #[arg(long, default_value_t = 0.0)]
+    nu0: f64,
+    /// Target orbit: semi-major axis (AU), eccentricity, argument of periapsis (deg).
+    #[arg(long)]
+    af: Option<f64>,
+    #[arg(long, default_value_t = 1e-4)]
+    ef: f64,
+    #[arg(long, default_value_t = 0.0)]
+    omegaf: f64,
+    /// Rendezvous with a body starting at true anomaly --nuf0 (deg) on the target orbit.
+    #[arg(long)]
+    rendezvous: bool,
+    #[arg(long, default_value_t = 0.0)]
+    nuf0: f64,
+    /// Time of flight in days (default: SPEC section 4, max of the two periods rounded up to
+    /// whole 14-day steps). Must be a positive whole number of 14-day steps.
+    #[arg(long)]
+    tof_days: Option<f64>,
+    /// Print one JSON object instead of a summary.
+    #[arg(long)]
+    json: bool,
+    /// Also draw the trajectory with its initial and target orbits into this SVG file.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct GenerateArgs {
+    #[arg(long, value_parser = parse_scenario_kind)]
+    scenario: ScenarioKind,
+    #[arg(long)]
+    count: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long)]
+    out: PathBuf,
+    /// Solve only shard I of N (indices i with i mod N == I).
+    #[arg(long, default_value = "0/1")]
+    shard: Shard,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Stop the homotopy at the first level below this eps (SPEC: 1e-4).
+    #[arg(long, default_value_t = FINAL_EPS)]
+    final_eps: f64,
+}
+
+pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if !(args.final_eps.is_finite() && args.final_eps > 0.0 && args.final_eps <= 1.0) {
+        return Err(format!("--final-eps must be in (0, 1], got {}", args.final_eps).into());
+    }
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global()?;
+    }
+    let sc = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let manifest = Manifest {
+        scenario: args.scenario,
+        seed: args.seed,
+        count: args.count,
+    };
+    let options = SolveOptions {
+        final_eps: args.final_eps,
+        ..SolveOptions::default()
+    };
+    let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
+    print_summary(&summary);
+    // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
+    let shown = plot_dataset_sample(&args.out, args.shard)?;
+    if shown > 0 {
+        println!(
+            "plotted {shown} trajectories in {}",
+            args.out.join("trajectories.svg").display()
+        );
+    }
+    Ok(())
+}
+
+pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
+    let file = read_dataset(dataset)?;
+    let record = file
+        .records
+        .iter()
+        .find(|r| r.index == index)
+        .ok_or_else(|| format!("{} has no record with index {index}", dataset.display()))?;
+    let options = OemOptions::new(departure.parse::<CalendarEpoch>()?);
+    let oem = oem_string(record, &options)?;
+    let mut csv = Vec::new();
+    write_thrust_csv(record, &options, &mut csv)?;
+    let oem_path = out.join(format!("trajectory-{index}.oem"));
+    let csv_path = out.join(format!("trajectory-{index}-thrust.csv"));
+    atomic_write(&oem_path, oem.as_bytes()).map_err(|e| format!("{}: {e}", oem_path.display()))?;
+    atomic_write(&csv_path, &csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    println!("wrote {} and {}", oem_path.display(), csv_path.display());
+    Ok(())
+}
+
+pub fn print_summary(s: &Summary) {
+    println!(
+        "{} seed {} shard {}/{}: {} records, {} converged ({:.1} %), solve time mean {:.2} s median {:.2} s max {:.2} s",
+        s.scenario,
+        s.seed,
+        s.shard.index,
+        s.shard.count,
+        s.records,
+        s.converged,
+        100.0 * s.convergence_rate,
+        s.seconds_mean,
+        s.seconds_median,
+        s.seconds_max
+    );
+    if s.converged > 0 {
+        println!(
+            "final mass: mean {:.4} std {:.4} min {:.4} max {:.4}",
+            s.final_mass_mean, s.final_mass_std, s.final_mass_min, s.final_mass_max
+        );
+    }
+    for (index, reason) in s.failures.iter().take(10) {
+        println!("  failed #{index}: {reason}");
+    }
+}
+
+pub fn parse_scenario_kind(name: &str) -> Result<ScenarioKind, String> {
+    ScenarioKind::ALL.into_iter().find(|k| k.name() == name).ok_or_else(|| {
+        let names: Vec<_> = ScenarioKind::ALL.iter().map(|k| k.name()).collect();
+        format!("unknown scenario '{name}', expected one of: {}", names.join(", "))
+    })
+}
+
+fn scenario_from_args(args: &SolveArgs) -> Result<(ScenarioKind, Scenario), String> {
+    if let Some(kind) = args.scenario {
+        return Ok((kind, kind.draw(args.seed, args.index)));
+    }
+    let (Some(a0), Some(af)) = (args.a0, args.af) else {
+        return Err("give either --scenario NAME (with --seed/--index) or at least --a0 and --af".into());
+    };
+    let initial = OrbitElements {
+        shape: OrbitShape {
+            a: a0,
+            e: args.e0,
+            omega: args.omega0.to_radians(),
+        },
+        nu: args.nu0.to_radians(),
+    };
+    let target = OrbitShape {
+        a: af,
+        e: args.ef,
+        omega: args.omegaf.to_radians(),
+    };
+    initial.validate().map_err(|e| format!("initial orbit: {e}"))?;
+    target.validate().map_err(|e| format!("target orbit: {e}"))?;
+    let steps = match args.tof_days {
+        None => Scenario::steps_for(&initial.shape, &target),
+        Some(days) => {
+            let n = days / 14.0;
+            if !(days.is_finite() && days > 0.0) || (n - n.round()).abs() > 1e-9 || n.round() > f64::from(u32::MAX) {
+                return Err(format!(
+                    "--tof-days must be a positive whole number of 14-day steps, got {days}"
+                ));
+            }
+            n.round() as u32
+        }
+    };
+    let (problem, kind) = if args.rendezvous {
+        (ProblemKind::Rendezvous, ScenarioKind::RendezvousHard)
+    } else {
+        (ProblemKind::Transfer, ScenarioKind::TransferHard)
+    };
+    let scenario = Scenario {
+        problem,
+        initial,
+        target,
+        target_nu0: args.nuf0.to_radians(),
+        steps,
+    };
+    scenario.validate().map_err(|e| e.to_string())?;
+    Ok((kind, scenario))
+}
+
+pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let (kind, scenario) = scenario_from_args(args)?;
+    let sc = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let record = solve_scenario(kind, args.seed, args.index, &scenario, &sc, &SolveOptions::default());
+    if let Some(path) = &args.plot {
+        plot_trajectories(&[&record], path)?;
+    }
+    if args.json {
+        let summary = serde_json::json!({
+            "converged": record.converged,
+            "failure": record.failure,
+            "final_mass": record.final_mass,
+            "thrust_arcs": record.thrust_arcs,
+            "final_eps": record.final_eps,
+            "residual": record.residual,
+            "seconds": record.seconds,
+            "costates": record.costates,
+            "final_anomaly_deg": record.final_anomaly.map(f64::to_degrees),
+            "distinct_energy_optima": record.distinct_energy_optima,
+            "steps": scenario.steps,
+            "tof_days": canonical_to_days(scenario.time_of_flight()),
+        });
+        println!("{summary}");
+    } else {
+        println!(
+            "converged: {} ({})\nfinal mass: {:.6} m0\nthrust arcs: {}\nfinal eps: {:.3e}\nresidual: {:.2e}\nseconds: {:.3}\ncostates: {:?}",
+            record.converged,
+            record.failure.as_deref().unwrap_or("ok"),
+            record.final_mass,
+            record.thrust_arcs,
+            record.final_eps,
+            record.residual,
+            record.seconds,
+            record.costates
+        );
+        let profile: String = record
+            .ephemeris
+            .iter()
+            .map(|s| match s.throttle {
+                u if u > 0.99 => '#',
+                u if u > 0.01 => '+',
+                _ => '.',
+            })
+            .collect();
+        println!("throttle over the flight (100 epochs, # full, + partial, . off):\n{profile}");
+    }
+    Ok(())
+}
+
+pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let summary = merge(inputs, out)?;
+    print_summary(&summary);
+    Ok(())
+}
+
+pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error::Error>> {
+    use ground_core::demo::{print_mismatch_report, RecordFilter};
+    let filter = if all {
+        RecordFilter::All
+    } else {
+        RecordFilter::Converged
+    };
+    let file = if dataset.is_dir() {
+        dataset.join("dataset.ltds")
+    } else {
+        dataset.to_path_buf()
+    };
+    print_mismatch_report(&file, &shared::spacecraft::Spacecraft::MSR_ERO, filter)?;
+    Ok(())
+}
+
+pub fn feasibility_command(out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let sc = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let summary = ground_core::generate::classify_run(out, &sc, &SolveOptions::default())?;
+    for (index, why) in &summary.failures {
+        println!("#{index}: {why}");
+    }
+    println!(
+        "{}: {} records, {} converged, {} infeasible, converged / feasible = {:.3}",
+        summary.scenario, summary.records, summary.converged, summary.infeasible, summary.feasible_convergence_rate
+    );
+    Ok(())
+}
