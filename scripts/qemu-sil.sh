@@ -27,7 +27,7 @@ HOST_BIN="${CARGO_TARGET_DIR:-target}/release"
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 
-# Targets of issue 5 (Cortex-M4 image, transfer policy).
+# Instruction and footprint targets of the Cortex-M4 image (transfer policy).
 F32_MAX_INSN=250000
 INT8_MAX_INSN=120000
 FLASH_MAX=$((256 * 1024))

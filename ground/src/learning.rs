@@ -8,7 +8,7 @@ use learn::config::{ExperimentConfig, EMBEDDED_DEFAULT};
 
 #[derive(Subcommand)]
 pub enum LearnCommand {
-    /// Pretraining (SPEC section 8): demonstration tuples from the config's dataset fill the
+    /// Pretraining (docs/spec.md section 8): demonstration tuples from the config's dataset fill the
     /// replay buffer, then N_pt SAC updates with evaluations; the best model is kept.
     Pretrain(ExperimentArgs),
     /// RL training (vanilla, or from the pretrained model and its buffer with
@@ -31,7 +31,7 @@ pub enum LearnCommand {
         #[arg(long)]
         from: Option<PathBuf>,
     },
-    /// Monte Carlo evaluation (SPEC section 9) of a checkpoint against zero-thrust and random
+    /// Monte Carlo evaluation (docs/spec.md section 9) of a checkpoint against zero-thrust and random
     /// policies, with the optimality gap against the indirect solution on a subset.
     Evaluate {
         #[command(flatten)]

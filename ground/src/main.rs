@@ -58,7 +58,7 @@ enum Command {
         inputs: Vec<PathBuf>,
     },
     /// One-step mismatch between the environment and the optimal trajectories of a dataset
-    /// (SPEC section 7).
+    /// (docs/spec.md section 7).
     Demos {
         /// Dataset file or folder.
         #[arg(long)]

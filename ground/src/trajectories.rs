@@ -47,7 +47,7 @@ pub struct SolveArgs {
     rendezvous: bool,
     #[arg(long, default_value_t = 0.0)]
     nuf0: f64,
-    /// Time of flight in days (default: SPEC section 4, max of the two periods rounded up to
+    /// Time of flight in days (default: docs/spec.md section 4, max of the two periods rounded up to
     /// whole 14-day steps). Must be a positive whole number of 14-day steps.
     #[arg(long)]
     tof_days: Option<f64>,
@@ -75,7 +75,7 @@ pub struct GenerateArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
-    /// Stop the homotopy at the first level below this eps (SPEC: 1e-4).
+    /// Stop the homotopy at the first level below this eps (docs/spec.md: 1e-4).
     #[arg(long, default_value_t = FINAL_EPS)]
     final_eps: f64,
 }

@@ -1,4 +1,4 @@
-//! Demonstrations -> experience tuples (SPEC section 7, thesis Section 4.4).
+//! Demonstrations -> experience tuples (docs/spec.md section 7, thesis Section 4.4).
 //!
 //! For every 14-day step k of a solved trajectory record:
 //! - s_k is the environment's observation of the record's optimal state at t_k (step k), s_k+1
@@ -46,7 +46,7 @@ use crate::solver::shooting::initial_state_costate;
 use crate::solver::{solve_scenario, SolveOptions};
 
 /// Actions are clipped to [-ACTION_BOUND, ACTION_BOUND] so a squashed-Gaussian log-probability
-/// stays finite (SPEC section 7).
+/// stays finite (docs/spec.md section 7).
 pub const ACTION_BOUND: f64 = 1.0 - 1e-3;
 /// Below this ZOH throttle a step is encoded as thrust off (half the clipped throttle floor).
 pub const COAST_THROTTLE: f64 = 0.25e-3;

@@ -1,4 +1,4 @@
-//! Dataset generation at scale (issue 3): every scenario of a distribution solved by the
+//! Dataset generation at scale: every scenario of a distribution solved by the
 //! indirect method, in parallel, resumable, in disjoint reproducible shards.
 //!
 //! Layout of an output folder:

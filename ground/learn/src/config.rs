@@ -1,4 +1,4 @@
-//! The experiment config (TOML): every hyper-parameter of SPEC section 8 plus the scenario, the
+//! The experiment config (TOML): every hyper-parameter of docs/spec.md section 8 plus the scenario, the
 //! environment, the phases and the compute settings. Defaults equal the thesis; unknown keys and
 //! impossible values are refused before any work starts.
 
@@ -14,7 +14,7 @@ use ground_core::env::EnvConfig;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExperimentConfig {
-    /// Scenario distribution of SPEC section 4 (training, evaluation and Monte Carlo).
+    /// Scenario distribution of docs/spec.md section 4 (training, evaluation and Monte Carlo).
     pub scenario: ScenarioKind,
     #[serde(default)]
     pub seeds: Seeds,
@@ -48,7 +48,7 @@ pub struct Seeds {
     pub train: u64,
     /// The fixed scenarios of the periodic evaluations (100 episodes).
     pub evaluation: u64,
-    /// The Monte Carlo scenarios (SPEC section 9).
+    /// The Monte Carlo scenarios (docs/spec.md section 9).
     pub monte_carlo: u64,
 }
 
@@ -68,7 +68,7 @@ pub struct GenerateConfig {
     /// Trajectories solved (the thesis: 1,000 circular, 10,000 hard).
     pub count: u64,
     pub seed: u64,
-    /// Final eps of the energy-to-fuel homotopy (SPEC: below 1e-4).
+    /// Final eps of the energy-to-fuel homotopy (docs/spec.md: below 1e-4).
     pub final_eps: f64,
 }
 
@@ -156,7 +156,7 @@ impl Default for TrainConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EvaluateConfig {
-    /// Monte Carlo episodes (SPEC section 9).
+    /// Monte Carlo episodes (docs/spec.md section 9).
     pub episodes: u64,
     /// Scenarios of the Monte Carlo set also solved by the indirect method for the optimality
     /// gap (the first ones; 0 turns it off).
@@ -183,21 +183,21 @@ pub struct DaggerConfig {
     /// Training episodes relabelled per round (0: updates only, the control arm).
     pub episodes: u64,
     /// Episodes flown per round to choose the relabelled ones from: the `episodes` that miss
-    /// issue 4's goal the most (max(dr / 0.01 AU, dv / 0.01)). Unset: the first `episodes`
+    /// the accuracy goal the most (max(dr / 0.01 AU, dv / 0.01)). Unset: the first `episodes`
     /// flown, every one relabelled.
     pub candidates: Option<u64>,
     /// Where along each flown episode its state is relabelled (fractions of the steps).
     pub fractions: Vec<f64>,
     /// Gradient updates per round.
     pub updates: u64,
-    /// Deterministic episodes on the evaluation seed that score each round (issue 4's share
+    /// Deterministic episodes on the evaluation seed that score each round (the share
     /// within 0.01 AU and 0.01); the best round is kept.
     pub score_episodes: u64,
 }
 
 impl Default for DaggerConfig {
     fn default() -> Self {
-        // Measured (docs/notes/issue4-dagger.md): 100 episodes per round plateau near 54 %
+        // Measured (docs/results.md): 100 episodes per round plateau near 54 %
         // within the goal, 200 still climb.
         Self {
             rounds: 10,

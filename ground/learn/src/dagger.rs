@@ -1,4 +1,4 @@
-//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (issue 4, transfers).
+//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (transfers).
 //!
 //! Each round flies the deterministic policy on fresh training scenarios, re-solves the
 //! fuel-optimal rest of each flight by the indirect method from the states it visited
@@ -71,7 +71,7 @@ pub struct RoundRow {
     pub buffer: u64,
     /// Gradient updates of this command so far.
     pub updates: u64,
-    /// Share of the completed scoring episodes within 0.01 AU and 0.01 (issue 4's figure).
+    /// Share of the completed scoring episodes within 0.01 AU and 0.01 (the accuracy goal's figure).
     pub within_goal: f64,
     pub summary: OutcomeSummary,
     /// Wall time of the round (relabels, updates, scoring).
@@ -185,7 +185,7 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
         .canonical()
         .map_err(|e| ExperimentError::Mismatch(format!("env.spacecraft: {e:?}")))?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
-    // to 10.9 % within the goal (docs/notes/issue4-dagger.md).
+    // to 10.9 % within the goal (docs/results.md).
     let options = SolveOptions {
         final_eps: config.generate.final_eps,
         ..SolveOptions::default()
@@ -220,7 +220,7 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
     })
 }
 
-/// The `count` outcomes that miss issue 4's goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
+/// The `count` outcomes that miss the accuracy goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
 /// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
 /// all of them.
 fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {

@@ -1,4 +1,4 @@
-//! Monte Carlo evaluation (SPEC section 9): N episodes of the deterministic policy from a seed
+//! Monte Carlo evaluation (docs/spec.md section 9): N episodes of the deterministic policy from a seed
 //! disjoint from training, against two baselines (zero thrust, uniform random actions) on the
 //! same scenarios, and the optimality gap against the indirect solution of the first scenarios.
 
@@ -35,7 +35,7 @@ pub struct GapRow {
     pub optimal_mass: f64,
     pub optimal_converged: bool,
     pub optimal_eps: f64,
-    /// m_policy / m_optimal (SPEC section 9).
+    /// m_policy / m_optimal (docs/spec.md section 9).
     pub mass_ratio: f64,
     /// Propellant used / optimal propellant - 1.
     pub overspend: f64,
@@ -103,7 +103,7 @@ pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome]
 }
 
 /// Fraction of the completed episodes that end with |dr| <= 0.01 AU and |dv| <= 0.01
-/// ([`ACCURACY_GOAL`], issue 4's figure).
+/// ([`ACCURACY_GOAL`], the accuracy goal).
 pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
     outcomes
         .iter()
@@ -112,7 +112,7 @@ pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
         / outcomes.iter().filter(|o| o.completed).count().max(1) as f64
 }
 
-/// `ground evaluate`: the Monte Carlo of SPEC section 9 for the agent in `checkpoint`, written
+/// `ground evaluate`: the Monte Carlo of docs/spec.md section 9 for the agent in `checkpoint`, written
 /// to `out` (mc.csv, summary.json, histograms.svg, trajectories.svg).
 pub fn monte_carlo(
     config: &ExperimentConfig,

@@ -1,4 +1,4 @@
-//! The learning phases of an experiment (SPEC sections 7 and 8) in a run folder:
+//! The learning phases of an experiment (docs/spec.md sections 7 and 8) in a run folder:
 //!
 //! ```text
 //! RUN/config.toml                      the config that produced everything below
@@ -580,7 +580,7 @@ pub(crate) fn residual_chart(path: &Path, title: &str, x_label: &str, points: &[
 }
 
 /// `ground pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
-/// `pretrain.eval_every` updates, the best model kept (SPEC section 8).
+/// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
 pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
     match config.scenario.problem() {
         ProblemKind::Transfer => pretrain_for::<Transfer>(config, config_dir, run),
@@ -762,7 +762,7 @@ where
             let pre = run.join("pretrain");
             agent.load(&pre.join("best.safetensors"))?;
             let demo_buffer = load_replay(&pre.join("replay.ltrb"), P::OBS)?;
-            // Demonstrations stay in the buffer (SPEC section 8), followed by the agent's own
+            // Demonstrations stay in the buffer (docs/spec.md section 8), followed by the agent's own
             // experience in FIFO order.
             let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity);
             buffer.extend_from(&demo_buffer);

@@ -84,7 +84,7 @@ pub struct ExportReport {
     pub int8: BlobReport,
     /// Closed-loop episodes flown per blob (the config's Monte Carlo scenarios).
     pub closed_loop_episodes: usize,
-    /// |int8 mean reward - f32 mean reward| / |f32 mean reward| (issue 5: at most 2 %).
+    /// |int8 mean reward - f32 mean reward| / |f32 mean reward| (the goal: at most 2 %).
     pub int8_reward_difference: f64,
 }
 
@@ -287,7 +287,7 @@ pub fn describe(report: &ExportReport) -> String {
         )
     };
     format!(
-        "{} blobs from {} ({} calibration states, {} of them demonstrations; {} held-out states; {} closed-loop episodes)\n{}\n{}\nint8 mean reward differs from f32 by {:.2} % (issue 5: at most 2 %)",
+        "{} blobs from {} ({} calibration states, {} of them demonstrations; {} held-out states; {} closed-loop episodes)\n{}\n{}\nint8 mean reward differs from f32 by {:.2} % (the goal: at most 2 %)",
         report.problem,
         report.checkpoint.display(),
         report.calibration_states,

@@ -216,7 +216,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     s.push_str(&phase_line("RL from the pretrained model", rl));
     let _ = writeln!(
         s,
-        "\n{} trajectory records gave {} demonstration tuples (SPEC section 7); they stay in the RL buffer.\n",
+        "\n{} trajectory records gave {} demonstration tuples (docs/spec.md section 7); they stay in the RL buffer.\n",
         pre.demonstration_records, pre.demonstration_tuples
     );
     for (folder, title) in [("pretrain", "Pretraining"), ("train-pretrained", "RL")] {
@@ -289,7 +289,7 @@ fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport
     }
     let _ = writeln!(
         s,
-        "\nThe int8 blob's closed-loop mean reward differs from the f32 blob's by {:.2} % (issue 5 asks for at most 2 %).\n",
+        "\nThe int8 blob's closed-loop mean reward differs from the f32 blob's by {:.2} % (the goal: at most 2 %).\n",
         100.0 * export.int8_reward_difference
     );
     let Some(sil) = sil else {

@@ -1,4 +1,4 @@
-//! Many episodes at once (Monte Carlo evaluation, SPEC section 9): a policy flown from a list of
+//! Many episodes at once (Monte Carlo evaluation, docs/spec.md section 9): a policy flown from a list of
 //! scenarios, per-episode figures out.
 //!
 //! Two drivers, same results:

@@ -1,4 +1,4 @@
-//! The Markov decision processes of SPEC sections 4 to 6: the transfer (TBT) and rendezvous (TBR)
+//! The Markov decision processes of docs/spec.md sections 4 to 6: the transfer (TBT) and rendezvous (TBR)
 //! environments, built only on the onboard crate's dynamics and feature encoding so that
 //! training and flight share one implementation.
 //!
@@ -8,7 +8,7 @@
 //! - Features, residuals, reward, action decoding: [`onboard::features`]; the observation is
 //!   the f32 narrowing the onboard network sees ([`onboard::features::to_network_input`]).
 //! - Time: step k (0..=N) is at t = k STEP with time to go (N - k) STEP; the episode is done
-//!   after step N ([`Scenario::steps`], the SPEC section 4 rule).
+//!   after step N ([`Scenario::steps`], the docs/spec.md section 4 rule).
 //!
 //! Actions: `[a0, a1, a2]`, decoded by [`onboard::features::decode_action`]: components clamped to
 //! [-1, 1], u = (a0 + 1) / 2, direction (a1, a2) normalised, thrust off when |(a1, a2)| < 1e-6.
@@ -18,7 +18,7 @@
 //! typed error instead ([`EnvError::NonFiniteAction`]) and leaves the environment unchanged.
 //! Nothing here panics on any action or scenario.
 //!
-//! Reward: the printed SPEC section 5 form by default; [`TerminalAccuracy`] adds an optional term
+//! Reward: the printed docs/spec.md section 5 form by default; [`TerminalAccuracy`] adds an optional term
 //! that weighs the residuals more as time runs out. It is reported apart in [`StepInfo`].
 
 pub mod batch;
@@ -38,7 +38,7 @@ use shared::scenario::{ProblemKind, Scenario, ScenarioError, ScenarioKind};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
 use shared::units::STEP;
 
-/// Reward weights of thesis Eq. 4.7-4.8 (SPEC section 5), serialisable.
+/// Reward weights of thesis Eq. 4.7-4.8 (docs/spec.md section 5), serialisable.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RewardConfig {
@@ -71,7 +71,7 @@ impl RewardConfig {
     }
 }
 
-/// The optional terminal-accuracy term of SPEC section 5 (thesis Chapter 7, item i), added to
+/// The optional terminal-accuracy term of docs/spec.md section 5 (thesis Chapter 7, item i), added to
 /// the printed reward. With dr, dv the residuals after the step (same definitions as the
 /// reward) and j = N - (k + 1) the number of steps still to go after it:
 ///
@@ -282,11 +282,11 @@ pub trait Problem: Send + Sync + 'static {
     fn observation(features: &Self::Features) -> Self::Obs;
 }
 
-/// The transfer problem (SPEC section 5).
+/// The transfer problem (docs/spec.md section 5).
 #[derive(Debug, Clone, Copy)]
 pub struct Transfer;
 
-/// The rendezvous problem (SPEC section 6).
+/// The rendezvous problem (docs/spec.md section 6).
 #[derive(Debug, Clone, Copy)]
 pub struct Rendezvous;
 
@@ -364,7 +364,7 @@ pub fn step_reward(
 pub struct StepInfo {
     /// Step index after this step (1..=N).
     pub step: u32,
-    /// Residuals after the step (SPEC section 5/6 definitions).
+    /// Residuals after the step (docs/spec.md section 5/6 definitions).
     pub residuals: Residuals,
     /// The command flown (thrust off: throttle 0).
     pub command: ThrustCommand,
@@ -374,7 +374,7 @@ pub struct StepInfo {
     pub mass: f64,
     /// Spacecraft state after the step.
     pub state: SpacecraftState,
-    /// The printed reward (SPEC section 5), before the terminal-accuracy term.
+    /// The printed reward (docs/spec.md section 5), before the terminal-accuracy term.
     pub base_reward: f64,
     /// The terminal-accuracy term (0 by default).
     pub terminal_term: f64,
@@ -407,7 +407,7 @@ pub trait Environment: Send {
     fn config(&self) -> &EnvConfig;
     /// Starts an episode of `scenario` at its initial state (m = 1, step 0).
     fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError>;
-    /// Starts an episode of scenario `index` of the stream `seed` of `kind` (SPEC section 4).
+    /// Starts an episode of scenario `index` of the stream `seed` of `kind` (docs/spec.md section 4).
     fn reset_drawn(&mut self, kind: ScenarioKind, seed: u64, index: u64) -> Result<Self::Obs, EnvError> {
         self.reset(&kind.draw(seed, index))
     }
@@ -448,9 +448,9 @@ pub struct MdpEnv<P: Problem> {
     episode: Option<Episode<P>>,
 }
 
-/// The transfer MDP (SPEC section 5): 10 features.
+/// The transfer MDP (docs/spec.md section 5): 10 features.
 pub type TransferEnv = MdpEnv<Transfer>;
-/// The rendezvous MDP (SPEC section 6): 22 features.
+/// The rendezvous MDP (docs/spec.md section 6): 22 features.
 pub type RendezvousEnv = MdpEnv<Rendezvous>;
 
 impl<P: Problem> MdpEnv<P> {

@@ -1,5 +1,5 @@
 //! Environment tests: physics against Kepler and the rocket equation, rewards and features
-//! against hand computations from the SPEC formulas (not the onboard code), episode length,
+//! against hand computations from the specification formulas (docs/spec.md) (not the onboard code), episode length,
 //! determinism, errors.
 
 use super::batch::{draw_scenarios, evaluate, evaluate_batched, run_episode, summarize, EvalError, Stats};
@@ -44,7 +44,7 @@ fn rendezvous_env() -> RendezvousEnv {
     RendezvousEnv::new(&EnvConfig::default()).unwrap()
 }
 
-/// SPEC section 2 polar quantities, written out.
+/// docs/spec.md section 2 polar quantities, written out.
 fn polar(r: [f64; 2], v: [f64; 2]) -> (f64, f64, f64, f64) {
     let rr = (r[0] * r[0] + r[1] * r[1]).sqrt();
     (
@@ -55,7 +55,7 @@ fn polar(r: [f64; 2], v: [f64; 2]) -> (f64, f64, f64, f64) {
     )
 }
 
-/// SPEC section 5 target proxy at polar angle theta: (r_t, v_r_t, v_theta_t).
+/// docs/spec.md section 5 target proxy at polar angle theta: (r_t, v_r_t, v_theta_t).
 fn proxy(target: &OrbitShape, theta: f64) -> (f64, f64, f64) {
     let nu = theta - target.omega;
     let p = target.a * (1.0 - target.e * target.e);
@@ -67,7 +67,7 @@ fn proxy(target: &OrbitShape, theta: f64) -> (f64, f64, f64) {
     )
 }
 
-/// The printed reward of SPEC section 5 with w_p = w_v = 0.2, w_u = 0.02.
+/// The printed reward of docs/spec.md section 5 with w_p = w_v = 0.2, w_u = 0.02.
 fn spec_reward(dr: f64, dv: f64, u: f64) -> f64 {
     ((-0.2 * dr * dr).exp() - 1.0) + ((-0.2 * dv * dv).exp() - 1.0) - 0.02 * u
 }
@@ -92,7 +92,7 @@ fn zero_thrust_transfer_is_a_kepler_coast_with_the_spec_reward() {
         }
         assert_eq!(s.m, 1.0);
         assert_eq!(step.info.throttle, 0.0);
-        // Reward by hand from the SPEC formulas.
+        // Reward by hand from the specification formulas (docs/spec.md).
         let (r, theta, v_r, v_theta) = polar(s.r, s.v);
         let (r_t, v_r_t, v_theta_t) = proxy(&scenario.target, theta);
         let dr = (r_t - r).abs();
@@ -157,7 +157,7 @@ fn full_thrust_mass_follows_the_rocket_equation() {
             assert_eq!(step.throttle, 1.0);
             last = step.mass;
         }
-        // About 38 % of the wet mass left after 49 steps of full thrust (SPEC section 1 figures).
+        // About 38 % of the wet mass left after 49 steps of full thrust (docs/spec.md section 1 figures).
         assert!(close(
             last,
             1.0 - 0.066_631_1 / 1.274_861_2 * f64::from(n) * 0.240_829_39,

@@ -3,7 +3,7 @@
 //! function must vanish at each of them (rho(t_i) = 0). This is the well-posed way to reach the
 //! bang-bang extremal of a transfer between nearly circular orbits, whose single-shooting
 //! homotopy path heads for a spread, singular-looking throttle instead (see
-//! docs/notes/issue3-solver-convergence.md).
+//! docs/design/solver.md).
 //!
 //! Unknowns z = (lambda_0 (5), nu_f, t_1 .. t_S), equations F = (r, v - orbit(nu_f) (4),
 //! transversality (1), lambda_m(tf) (1), rho(t_1) .. rho(t_S)). Every arc is propagated with its

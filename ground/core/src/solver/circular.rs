@@ -1,12 +1,12 @@
-//! Fuel-optimal transfers between nearly circular orbits (transfer-circular, SPEC section 4),
-//! solved at eps = 0 by structure-fixed shooting (see docs/notes/issue3-solver-convergence.md for
+//! Fuel-optimal transfers between nearly circular orbits (transfer-circular, docs/spec.md section 4),
+//! solved at eps = 0 by structure-fixed shooting (see docs/design/solver.md for
 //! the measurements behind every choice here).
 //!
-//! Why not the SPEC's homotopy: between circular orbits with a free final anomaly and a flight
+//! Why not the specification's homotopy: between circular orbits with a free final anomaly and a flight
 //! longer than the transfer needs, the burn pattern can be shifted along the circles at no cost
 //! (exactly for e = 0; e = 1e-4 changes the final mass by ~1e-6 relative over the whole shift
 //! range). And the switching function of the fuel-optimal extremal stays tiny: its peaks on the
-//! burns are 1e-7 to 3e-4 (the smaller the change of radius, the smaller), so at the SPEC's final
+//! burns are 1e-7 to 3e-4 (the smaller the change of radius, the smaller), so at the specification's final
 //! eps = 2^-14 = 6.1e-5 the smoothed extremal of most draws is not near bang-bang at all: it
 //! spreads a low throttle over much of the flight with rho hugging -eps, where single shooting has
 //! Jacobians of ~1e6 and a Newton basin of ~1e-8. The eps = 0 problem itself is well posed once
@@ -26,7 +26,7 @@
 //!    bang-bang law (eps = 0, stepping onto rho = 0) must meet all six terminal conditions to
 //!    the solver's tolerance. Of those that do, the one with the largest final mass is returned.
 //!
-//! So the result is an extremal of the SPEC section 3 problem at eps = 0 (the fuel-optimal
+//! So the result is an extremal of the docs/spec.md section 3 problem at eps = 0 (the fuel-optimal
 //! problem the homotopy aims at), with its final eps recorded as 0.
 
 use nalgebra::{SMatrix, SVector};
@@ -66,7 +66,7 @@ const CORRECTOR_TOLERANCE: f64 = 1e-9;
 const INNER_TOLERANCE: f64 = 1e-10;
 
 /// Relative integration tolerance of the eps continuations (absolute: a tenth of it), the
-/// SPEC's loosest. Why: the levels before the final one are only starts for the next corrector;
+/// the specification's loosest. Why: the levels before the final one are only starts for the next corrector;
 /// at rtol 1e-11 instead of 3e-14 the DOP853 propagations take ~2x fewer steps (the downward
 /// homotopy was 60 % of the transfer-circular run time), and the measured final masses and
 /// convergence are unchanged because the final level's solves (the nu_f search, the replay) run
@@ -125,7 +125,7 @@ const POLISH_ABOVE: f64 = 2e-9;
 pub struct CircularSolution {
     /// Initial costates and nu_f.
     pub z: TransferVector,
-    /// The eps they solve (the SPEC schedule's final level).
+    /// The eps they solve (the specification schedule's final level).
     pub eps: f64,
     /// The switching times of the bang-bang structure.
     pub switches: Vec<f64>,
@@ -320,7 +320,7 @@ impl Candidate {
     }
 }
 
-/// The final eps of the SPEC schedule (the first halving of 1 below `final_eps`).
+/// The final eps of the specification schedule (the first halving of 1 below `final_eps`).
 pub fn final_level(final_eps: f64) -> f64 {
     super::shooting::homotopy_schedule(final_eps)
         .last()
@@ -592,7 +592,7 @@ fn transversality_search(
     Err(fail("no convergence"))
 }
 
-/// Solves a near-circular transfer at the SPEC's final eps (see the module notes). Errors say
+/// Solves a near-circular transfer at the specification's final eps (see the module notes). Errors say
 /// where it stopped.
 pub fn solve(
     scenario: &Scenario,
@@ -631,7 +631,7 @@ type Path<'a> = dyn Fn() -> Result<CircularSolution, String> + 'a;
 /// Below this smallest burn peak of rho the downward path is tried first.
 const UPWARD_MIN_PEAK: f64 = 1e-6;
 
-/// The SPEC's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
+/// The the specification's downward homotopy by multiple shooting with nu_f free, from the energy-optimal
 /// free-anomaly solution nearest the candidate's nu_f.
 fn solve_downward_free(
     scenario: &Scenario,

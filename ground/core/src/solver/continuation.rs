@@ -1,4 +1,4 @@
-//! Energy-optimal (eps = 1) starts by continuation in the target (issue 3): when no guess of the
+//! Energy-optimal (eps = 1) starts by continuation in the target: when no guess of the
 //! multi-start converges, the target is moved from the departure orbit (where coasting, zero
 //! costates, is the solution) to the real one, solving the eps = 1 problem at each intermediate
 //! target from the extrapolation of the previous solutions.

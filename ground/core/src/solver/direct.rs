@@ -1,8 +1,8 @@
-//! An independent cross-check of the indirect solver (issue 3): a direct method that never
+//! An independent cross-check of the indirect solver: a direct method that never
 //! uses costates.
 //!
 //! Transcription. The flight [0, TOF] is cut into K equal segments. On segment k the control is
-//! held constant **in the local polar frame** (like the environment's zero-order hold, SPEC
+//! held constant **in the local polar frame** (like the environment's zero-order hold, docs/spec.md
 //! section 5): a thrust vector w_k = (w_r, w_theta) in units of the maximum thrust and a
 //! throttle s_k that sets the mass flow, with |w_k| <= s_k <= 1. At an optimum s_k = |w_k|
 //! (spending propellant without thrust never helps), so (s_k, w_k/|w_k|) is exactly an
@@ -10,7 +10,7 @@
 //! convex (a second-order cone) where |w| has a kink at 0. The propellant used is then
 //! linear: 1 - m_f = (T/c) h sum s_k.
 //!
-//! Problem. Minimise (T/c) h sum s_k subject to the terminal conditions of SPEC section 3
+//! Problem. Minimise (T/c) h sum s_k subject to the terminal conditions of docs/spec.md section 3
 //! without costates: transfer r(tf), v(tf) = orbit(a_f, e_f, omega_f) at a free anomaly nu_f
 //! (an extra unknown); rendezvous r(tf), v(tf) = the target body's state at tf.
 //!
@@ -334,7 +334,7 @@ pub struct DirectSolution {
     pub iterations: u32,
     pub converged: bool,
     /// Converged solutions: the costates at t = 0 that the QP's multipliers imply, in the
-    /// indirect solver's convention (SPEC section 3: the same running cost, so the same scale).
+    /// indirect solver's convention (docs/spec.md section 3: the same running cost, so the same scale).
     /// See [`solve_direct`].
     pub initial_costates: Option<[f64; STATE]>,
     pub seconds: f64,
@@ -410,7 +410,7 @@ struct Problem<'a> {
     sc: CanonicalSpacecraft,
     target: Target,
     h: f64,
-    /// Homotopy parameter of the running cost (SPEC section 3): 0 for the fuel-optimal problem.
+    /// Homotopy parameter of the running cost (docs/spec.md section 3): 0 for the fuel-optimal problem.
     eps: f64,
     /// Number of free terminal unknowns: 1 (nu_f) for a transfer, 0 for a rendezvous.
     free: usize,
@@ -423,7 +423,7 @@ impl Problem<'_> {
         self.sc.thrust / self.sc.exhaust_speed * self.h
     }
 
-    /// The SPEC section 3 cost (T/c) integral of (u - eps u (1 - u)) dt with u = s_k per segment.
+    /// The docs/spec.md section 3 cost (T/c) integral of (u - eps u (1 - u)) dt with u = s_k per segment.
     fn cost(&self, controls: &[Control]) -> f64 {
         let running: f64 = controls.iter().map(|c| c[2] - self.eps * c[2] * (1.0 - c[2])).sum();
         self.segment_propellant() * running
@@ -906,7 +906,7 @@ mod tests {
         DirectOptions::default().tolerances
     }
 
-    /// Circular 1 -> 1.3 AU transfer with the SPEC section 4 time of flight.
+    /// Circular 1 -> 1.3 AU transfer with the docs/spec.md section 4 time of flight.
     fn circular_transfer() -> Scenario {
         let initial = OrbitElements {
             shape: OrbitShape {

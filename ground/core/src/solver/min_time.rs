@@ -1,4 +1,4 @@
-//! Minimum time of flight of a free-anomaly transfer (issue 3: which transfer-hard draws are
+//! Minimum time of flight of a free-anomaly transfer (which transfer-hard draws are
 //! infeasible in their time of flight).
 //!
 //! With the anomaly on the target orbit free, feasibility is monotone in the time of flight: a
@@ -311,7 +311,7 @@ const MIN_STEP: f64 = 1.0 / 1024.0;
 /// Larger multiples, tried with a budget of their own when the first pass found no extremal.
 /// On transfer-hard seed 7 the first pass left 10 draws undecided, mostly short flights whose
 /// stretched problems at 1.25-3 TOF are themselves infeasible and used up its budget; this pass
-/// finds extremals for 5 of them at 3.2-5.0 TOF (docs/notes/issue3-infeasibility.md).
+/// finds extremals for 5 of them at 3.2-5.0 TOF (docs/design/solver.md).
 const WIDE_TOF_FACTORS: [f64; 4] = [4.0, 6.0, 8.0, 12.0];
 /// Work budget of each pass of the classification, in multi-start budgets.
 const CLASSIFY_WORK: u64 = 12;
@@ -859,7 +859,7 @@ mod tests {
     /// although the extremal the time-of-flight continuation finds says otherwise: continued
     /// from 1.25 TOF, the energy-optimal problem folds at 1.0030 TOF onto the minimum-time
     /// extremal z1 (tf = 1.0028 TOF, a local minimum time), which classified the draw infeasible
-    /// in session 6. The direct multi-start finds z2 on another branch (about 10 more
+    /// before the direct multi-start. The direct multi-start finds z2 on another branch (about 10 more
     /// revolutions of the final anomaly) at tf = 0.8907 TOF: a full-thrust trajectory that meets
     /// the target orbit before the TOF, so the draw is feasible. Here: the Newton from each
     /// rounded to 6 digits returns to it, both pass the fresh-propagation checks, and z2 leads

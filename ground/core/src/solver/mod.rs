@@ -1,4 +1,4 @@
-//! The indirect fuel-optimal trajectory solver (SPEC section 3): Pontryagin's conditions
+//! The indirect fuel-optimal trajectory solver (docs/spec.md section 3): Pontryagin's conditions
 //! ([`pontryagin`]), single shooting with exact sensitivities and the energy-to-fuel homotopy
 //! ([`shooting`]), and the driver that turns a scenario into a [`TrajectoryRecord`].
 
@@ -29,10 +29,10 @@ use shooting::{
 /// Settings of one solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolveOptions {
-    /// Integration tolerances of every shooting propagation (SPEC: rtol 1e-11 or tighter).
+    /// Integration tolerances of every shooting propagation (docs/spec.md: rtol 1e-11 or tighter).
     pub tolerances: Tolerances,
     pub newton: NewtonSettings,
-    /// The homotopy stops at the first level below this (SPEC: 1e-4).
+    /// The homotopy stops at the first level below this (docs/spec.md: 1e-4).
     pub final_eps: f64,
     /// Budget of predictor-corrector Newton solves along the homotopy (bounds the time a hard
     /// case can take).
@@ -51,16 +51,16 @@ pub struct SolveOptions {
     /// The homotopy's budget on the general path of a transfer (transfer-hard): the spread
     /// throttle of its near-circular draws crawls down the eps schedule, and at 3e6 two of seed
     /// 8's draws (#5, #91) stopped at eps = 2e-3 that converge at 15e6 in 5-10 s. No other record
-    /// of seeds 7 and 8 changed, and the run time did not measurably (docs/notes/
-    /// issue3-solver-convergence.md, session 7). Rendezvous keep [`Self::max_homotopy_work`]: a
-    /// larger budget let a rendezvous converge from a poor start (session 6).
+    /// of seeds 7 and 8 changed, and the run time did not measurably (docs/design/
+    /// solver.md). Rendezvous keep [`Self::max_homotopy_work`]: a larger budget let a
+    /// rendezvous converge from a poor start.
     pub max_transfer_homotopy_work: u64,
 }
 
 impl Default for SolveOptions {
     fn default() -> Self {
         Self {
-            // Tighter than the SPEC's 1e-11: near the final eps the shooting Jacobian reaches
+            // Tighter than the specification's 1e-11: near the final eps the shooting Jacobian reaches
             // 1e6 to 1e7 (the throttle ramps make F depend on the costates through 1/eps), which
             // lifts the integration error of one propagation over the flight to ~1e-8 in F at
             // rtol 1e-12, the size of the acceptance test itself; at 3e-14 it is ~2e-9
@@ -597,9 +597,8 @@ where
 /// The general path used to stop any transfer there (more than half the flight on the throttle
 /// ramp at eps <= 2e-2, "degenerate"). It stopped only transfer-hard draws once transfer-circular
 /// took the `circular` path, and without it all 3 such draws of seed 7 (#11, #20, #93) and all 5
-/// of seed 8 go on to a bang-bang solution at the final eps in 2-4 s (docs/notes/
-/// issue3-solver-convergence.md, session 7), so it was removed; rendezvous had been exempted in
-/// session 6 for the same reason.
+/// of seed 8 go on to a bang-bang solution at the final eps in 2-4 s (docs/design/
+/// solver.md), so it was removed; rendezvous had been exempted before for the same reason.
 pub const SPREAD_THROTTLE_EPS: f64 = 0.02;
 
 /// Final mass of the trajectory of costates `z` at homotopy parameter `eps`.
@@ -637,7 +636,7 @@ mod tests {
     use shooting::{ShootingProblem, TransferShooting};
 
     /// Solves transfer-hard draw `index` of `seed` end to end and checks the record: it reaches
-    /// the SPEC's final eps, and an independent re-propagation of its costates meets every
+    /// the specification's final eps, and an independent re-propagation of its costates meets every
     /// terminal condition to 1e-8 at rtol 1e-12, with a bang-bang throttle (under 1 % of the
     /// flight on the ramp) and a mass that fell.
     fn solved_hard_transfer_is_bang_bang_to_1e_8(seed: u64, index: u64) -> TrajectoryRecord {
@@ -741,7 +740,7 @@ mod tests {
     /// Rendezvous-circular seed 7 #58: the old singular-arc stop (more than half the flight on
     /// the throttle ramp at eps <= 0.02) used to stop the homotopy of one of its energy-optimal
     /// starts, and the record came from another one at m_f = 0.6555. Without the test for a
-    /// rendezvous that start goes on to the SPEC's final eps, where a fresh plain propagation of
+    /// rendezvous that start goes on to the specification's final eps, where a fresh plain propagation of
     /// the recorded costates meets all five terminal conditions to 1e-8, the throttle is
     /// bang-bang (under 1 % of the flight on the ramp) and the final mass is 0.8794.
     #[test]
@@ -787,7 +786,7 @@ mod tests {
         (-a.min(b) / exhaust_speed).exp()
     }
 
-    /// Transfer-circular draws reach the SPEC's final eps (2^-14) through `circular`, by the
+    /// Transfer-circular draws reach the specification's final eps (2^-14) through `circular`, by the
     /// upward path (#0: long burns), the downward one (#5: short burns, spread at that eps) and
     /// the downward one finished with nu_f pinned (#471: |da| = 0.007 AU, whose free-anomaly
     /// path stalls at 2.4e-4): fresh propagations of the recorded costates (plain and with sensitivities) meet all six

@@ -6,7 +6,7 @@
 //! depend on the initial costates through 1/eps over every ramp arc, and single shooting then has
 //! Jacobians of ~1e6 and Newton basins of ~1e-8 (transfer-circular). Cut into segments, each map
 //! carries a fraction of that gain, and Newton converges from much farther away. The unknowns keep
-//! the initial costates, so the solution is still a set of SPEC initial costates; whether they
+//! the initial costates, so the solution is still a set of initial costates of docs/spec.md section 3; whether they
 //! meet the terminal conditions when propagated alone is checked separately (the replay).
 //!
 //! [`PinnedAnomalyTransfer`]: super::shooting::PinnedAnomalyTransfer

@@ -1,5 +1,5 @@
 //! Pontryagin's necessary conditions for the mass-optimal problem with the energy-to-fuel
-//! homotopy (SPEC section 3, thesis Chapter 3).
+//! homotopy (docs/spec.md section 3, thesis Chapter 3).
 //!
 //! State + costate y = (r, v, m, lambda_r, lambda_v, lambda_m), 10 components. The right-hand
 //! side is written once, generic over a dual-number type, so the variational equations
@@ -45,7 +45,7 @@ pub fn switching_function<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y_LEN], ex
     y[idx::LM] + lv * exhaust_speed / y[idx::M] - 1.0
 }
 
-/// Smoothed optimal throttle (SPEC section 3): 1 above +eps, 0 below -eps, linear between.
+/// Smoothed optimal throttle (docs/spec.md section 3): 1 above +eps, 0 below -eps, linear between.
 /// With eps = 0 it is the bang-bang law. Derivatives flow through the linear part only.
 pub fn optimal_throttle<D: DualNum<Primitive = f64> + Copy>(rho: D, eps: f64) -> D {
     let r = rho.re();

@@ -1,4 +1,4 @@
-//! Trajectory records (SPEC section 3): what one solved scenario keeps, sampled both at the
+//! Trajectory records (docs/spec.md section 3): what one solved scenario keeps, sampled both at the
 //! thesis's 100 ephemeris epochs and at every 14-day environment step.
 
 use onboard::integrator::{IntegrationError, Tolerances};

@@ -1,4 +1,4 @@
-//! Single shooting for the free-anomaly transfer (SPEC section 3): the residual of the terminal
+//! Single shooting for the free-anomaly transfer (docs/spec.md section 3): the residual of the terminal
 //! conditions and its exact Jacobian, and a damped Newton iteration on them.
 
 use nalgebra::{Const, DMatrix, DVector, DimMin, SMatrix, SVector};
@@ -40,7 +40,7 @@ pub fn initial_state_costate(scenario: &Scenario, lambda0: &[f64; 5]) -> [f64; Y
     ]
 }
 
-/// The transfer's terminal conditions F at the final state-costate `y` (SPEC section 3): r and v
+/// The transfer's terminal conditions F at the final state-costate `y` (docs/spec.md section 3): r and v
 /// on the target orbit at nu_f, transversality, lambda_m(tf) = 0. Also returns the orbit point
 /// with its first and second derivatives in nu_f, which the Jacobian needs.
 fn transfer_terminal(scenario: &Scenario, y: &[f64], nu_f: f64) -> (TransferVector, [Dual2_64; 4]) {
@@ -518,11 +518,11 @@ pub struct HomotopyLevel<const K: usize = TRANSFER_UNKNOWNS> {
     pub outcome: NewtonOutcome<K>,
 }
 
-/// The last level of the SPEC section 3 schedule is the first eps below this.
+/// The last level of the docs/spec.md section 3 schedule is the first eps below this.
 pub const FINAL_EPS: f64 = 1e-4;
 
 /// The homotopy schedule: eps = 1, halving, the last level the first one below `final_eps`
-/// (SPEC section 3: [`FINAL_EPS`]).
+/// (docs/spec.md section 3: [`FINAL_EPS`]).
 pub fn homotopy_schedule(final_eps: f64) -> impl Iterator<Item = f64> {
     core::iter::successors(Some(1.0f64), move |&e| (e >= final_eps).then_some(e * 0.5))
 }
@@ -734,7 +734,7 @@ pub fn solve_transfer_homotopy(
 pub const RENDEZVOUS_UNKNOWNS: usize = 5;
 pub type RendezvousVector = SVector<f64, RENDEZVOUS_UNKNOWNS>;
 
-/// The rendezvous (SPEC section 3, TBR): r(tf), v(tf) equal the body's state, lambda_m(tf) = 0.
+/// The rendezvous (docs/spec.md section 3, TBR): r(tf), v(tf) equal the body's state, lambda_m(tf) = 0.
 /// The body moves on its Keplerian orbit from anomaly nu_f0 at t = 0.
 #[derive(Debug, Clone, Copy)]
 pub struct RendezvousShooting<'a> {
@@ -878,7 +878,7 @@ mod tests {
         assert!(root.converged && (root.z[0] - 0.1).abs() < 1e-10, "{root:?}");
     }
 
-    /// The integration accuracy every shooting test uses (SPEC: rtol 1e-11 or tighter).
+    /// The integration accuracy every shooting test uses (docs/spec.md: rtol 1e-11 or tighter).
     fn tight() -> Tolerances {
         Tolerances {
             relative: 1e-12,

@@ -1,5 +1,5 @@
 //! Soft Actor-Critic (Haarnoja et al. 2018, automatic temperature), written to be read top to
-//! bottom in [`agent::Sac::update`]. Hyper-parameters default to the thesis (SPEC section 8).
+//! bottom in [`agent::Sac::update`]. Hyper-parameters default to the thesis (docs/spec.md section 8).
 
 pub mod adam;
 pub mod agent;
@@ -47,7 +47,7 @@ pub enum CloningTarget {
     ThrustLogThrottle,
 }
 
-/// The learner's hyper-parameters (SPEC section 8); defaults are the thesis's.
+/// The learner's hyper-parameters (docs/spec.md section 8); defaults are the thesis's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SacConfig {
