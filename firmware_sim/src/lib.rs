@@ -82,7 +82,7 @@ pub struct FlightStep {
     pub guidance_error: Option<GuidanceError>,
     /// True state at the end of the step.
     pub state: SpacecraftState,
-    /// Reward at the end of the step (SPEC section 5, printed reward).
+    /// Reward at the end of the step (docs/spec.md section 5, printed reward).
     pub reward: f64,
     /// Residuals of the true state against the target at the end of the step.
     pub residuals: Residuals,

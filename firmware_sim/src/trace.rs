@@ -54,7 +54,7 @@ const fn scenario() -> Scenario {
             omega: 0.0,
         },
         target_nu0: 0.0,
-        // Scenario::steps_for (SPEC section 4): ceil(2 pi 1.3^1.5 / STEP); a test checks it.
+        // Scenario::steps_for (docs/spec.md section 4): ceil(2 pi 1.3^1.5 / STEP); a test checks it.
         steps: 39,
     }
 }

@@ -52,7 +52,7 @@ fn he_layer(inputs: usize, outputs: usize, activation: Activation, rng: &mut Rng
     }
 }
 
-/// Transfer features of flight-like magnitude (SPEC section 5): radius 0.8-1.8 AU, unit
+/// Transfer features of flight-like magnitude (docs/spec.md section 5): radius 0.8-1.8 AU, unit
 /// direction, velocities of near-circular orbits, mass 0.6-1, time to go up to 12 t*.
 /// A rendezvous network gets O(1) inputs: it is only ever refused.
 fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
