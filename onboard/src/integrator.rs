@@ -24,19 +24,19 @@
 //! [`Observer`] (see [`Observer::on_event`]) rather than from the sign of the state, which
 //! the last stages of the landing step see either way.
 
-/// Most event functions a system may expose (the throttle switches rho = -eps and rho = +eps).
-pub const MAX_EVENTS: usize = 2;
-
-/// An ordinary differential equation dy/dt = f(t, y) with N states.
-pub trait OdeSystem<const N: usize> {
+/// An ordinary differential equation dy/dt = f(t, y) with N states and E event functions.
+///
+/// E is the system's own business: the flight dynamics have none (the default, E = 0), the
+/// ground solver's state-costate systems two (the throttle switches rho = -eps and rho = +eps).
+pub trait OdeSystem<const N: usize, const E: usize = 0> {
     /// Writes f(t, y) into `dydt`.
     fn derivatives(&self, t: f64, y: &[f64; N], dydt: &mut [f64; N]);
 
     /// Event functions whose sign changes the integrator steps exactly onto (for example the
     /// throttle switches of a bang-bang control). A step that crosses a zero is shortened so
-    /// that it ends on the zero. Default: no events (all values positive constants).
-    fn events(&self, _t: f64, _y: &[f64; N]) -> [f64; MAX_EVENTS] {
-        [1.0; MAX_EVENTS]
+    /// that it ends on the zero. Default: all values positive constants (never crossed).
+    fn events(&self, _t: f64, _y: &[f64; N]) -> [f64; E] {
+        [1.0; E]
     }
 }
 
@@ -109,7 +109,7 @@ pub trait Observer<const N: usize> {
 impl<const N: usize> Observer<N> for () {}
 
 /// Integrates `system` from (t0, y0) to t1 (t1 may be before t0), returning y(t1).
-pub fn integrate<S: OdeSystem<N>, const N: usize>(
+pub fn integrate<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t0: f64,
     y0: &[f64; N],
@@ -419,7 +419,7 @@ fn bump(counter: &mut u32, by: u32) {
 }
 
 /// Evaluates stage `s` (1..16) from the stages before it.
-fn stage<S: OdeSystem<N>, const N: usize>(
+fn stage<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -442,7 +442,7 @@ fn stage<S: OdeSystem<N>, const N: usize>(
 
 /// One DOP853 trial step from (t, y) with k[0] = f(t, y): fills k[1..12] and returns the new
 /// state and the scaled error norm (<= 1 means acceptable; NaN when something was not finite).
-fn trial_step<S: OdeSystem<N>, const N: usize>(
+fn trial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -490,7 +490,7 @@ struct Dense<const N: usize> {
 impl<const N: usize> Dense<N> {
     /// Builds the interpolant of the step (t, y) -> (t + h, y1); k[0..12] hold the step's
     /// stages and k[12] = f(t + h, y1). Evaluates the three extra stages.
-    fn new<S: OdeSystem<N>>(
+    fn new<S: OdeSystem<N, E>, const E: usize>(
         system: &S,
         t: f64,
         y: &[f64; N],
@@ -615,7 +615,7 @@ fn locate_zero(mut ta: f64, mut ga: f64, mut tb: f64, mut gb: f64, mut g: impl F
 
 /// Hairer's starting step (dop853.f HINIT) for an order-8 method.
 #[allow(clippy::too_many_arguments)]
-fn initial_step<S: OdeSystem<N>, const N: usize>(
+fn initial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -671,7 +671,7 @@ fn initial_step<S: OdeSystem<N>, const N: usize>(
 /// not finite and > 0, `max_steps` = 0 or a negative `initial_step`; then, while integrating,
 /// `NonFinite` (the derivative at an accepted point is not finite, or trial steps keep producing
 /// NaN/inf), `StepSizeUnderflow` (|h| below ~1e-15 |t|) or `StepBudgetExhausted`.
-pub fn integrate_observed<S: OdeSystem<N>, O: Observer<N>, const N: usize>(
+pub fn integrate_observed<S: OdeSystem<N, E>, O: Observer<N>, const N: usize, const E: usize>(
     system: &S,
     t0: f64,
     y0: &[f64; N],
