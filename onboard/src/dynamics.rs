@@ -70,6 +70,8 @@ impl core::fmt::Display for StateError {
     }
 }
 
+impl core::error::Error for StateError {}
+
 impl core::fmt::Display for PropagationError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
@@ -85,6 +87,8 @@ impl core::fmt::Display for PropagationError {
         }
     }
 }
+
+impl core::error::Error for PropagationError {}
 
 impl SpacecraftState {
     /// The state at departure from a point on an orbit, with m = 1.

@@ -63,6 +63,8 @@ impl core::fmt::Display for FeatureError {
     }
 }
 
+impl core::error::Error for FeatureError {}
+
 fn check_common(state: &SpacecraftState, time_to_go: f64) -> Result<(), FeatureError> {
     state.validate().map_err(FeatureError::State)?;
     if !(time_to_go.is_finite() && time_to_go >= 0.0) {

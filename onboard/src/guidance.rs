@@ -54,6 +54,8 @@ impl core::fmt::Display for GuidanceError {
     }
 }
 
+impl core::error::Error for GuidanceError {}
+
 /// Transfer guidance: features of SPEC section 5, actor, decoded command.
 pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     actor: &A,

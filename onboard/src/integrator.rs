@@ -78,6 +78,22 @@ pub enum IntegrationError {
     InvalidInput,
 }
 
+impl core::fmt::Display for IntegrationError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::StepBudgetExhausted { t } => write!(f, "step budget exhausted at t = {t}"),
+            Self::StepSizeUnderflow { t } => write!(f, "step size underflow at t = {t}"),
+            Self::NonFinite { t } => write!(f, "derivatives or state not finite at t = {t}"),
+            Self::InvalidInput => f.write_str(
+                "invalid input: times and state must be finite, tolerances finite and > 0, max_steps > 0, \
+                 initial_step finite and >= 0",
+            ),
+        }
+    }
+}
+
+impl core::error::Error for IntegrationError {}
+
 /// What an integration did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct IntegrationStats {

@@ -24,6 +24,8 @@ impl core::fmt::Display for OrbitError {
     }
 }
 
+impl core::error::Error for OrbitError {}
+
 /// Shape and orientation of a closed planar orbit: semi-major axis a (AU), eccentricity e,
 /// argument of periapsis omega (rad). A target orbit of a transfer is exactly this.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

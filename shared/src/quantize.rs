@@ -64,7 +64,7 @@ impl core::fmt::Display for QuantizeError {
     }
 }
 
-impl std::error::Error for QuantizeError {}
+impl core::error::Error for QuantizeError {}
 
 /// The int8 quantization chosen for each layer, for reports.
 #[derive(Debug, Clone, PartialEq)]

@@ -203,6 +203,8 @@ impl core::fmt::Display for ScenarioError {
     }
 }
 
+impl core::error::Error for ScenarioError {}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -37,6 +37,8 @@ impl core::fmt::Display for SpacecraftError {
     }
 }
 
+impl core::error::Error for SpacecraftError {}
+
 /// The spacecraft in canonical units, as the dynamics use it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CanonicalSpacecraft {

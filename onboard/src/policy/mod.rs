@@ -199,6 +199,8 @@ impl fmt::Display for PolicyError {
     }
 }
 
+impl core::error::Error for PolicyError {}
+
 fn check_shape<const IN: usize, const OUT: usize>(layer: &LayerBlob<'_>) -> Result<(), PolicyError> {
     let found = LayerShape {
         inputs: usize::from(layer.inputs),
