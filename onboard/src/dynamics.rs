@@ -1,8 +1,8 @@
-//! Planar two-body dynamics with thrust and mass flow (SPEC section 2), in canonical units.
+//! Planar two-body dynamics with thrust and mass flow (docs/spec.md section 2), in canonical units.
 //!
 //! The thrust command is held constant over a guidance step **in the local polar frame**
-//! (SPEC section 5): the components (alpha_r, alpha_theta) stay fixed while the spacecraft moves,
-//! so the inertial direction turns with the Sun line. Coasting arcs use the exact Kepler
+//! (docs/spec.md section 5): the components (alpha_r, alpha_theta) stay fixed while the spacecraft
+//! moves, so the inertial direction turns with the Sun line. Coasting arcs use the exact Kepler
 //! solution; thrusting arcs the adaptive integrator.
 
 use shared::orbit::{CartesianState, PolarState};
@@ -165,7 +165,7 @@ impl ThrustCommand {
     }
 }
 
-/// Gravitational plus thrust acceleration and mass flow (SPEC section 2, Eq. 3.1).
+/// Gravitational plus thrust acceleration and mass flow (docs/spec.md section 2, Eq. 3.1).
 ///
 /// Returned as (acceleration, dm/dt); shared by the polar-hold propagation here and by the
 /// ground's optimal-control dynamics (which supply an inertial direction instead).

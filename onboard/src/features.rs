@@ -1,4 +1,4 @@
-//! Polar feature encoding, reward terms and action decoding (SPEC sections 5 and 6).
+//! Polar feature encoding, reward terms and action decoding (docs/spec.md sections 5 and 6).
 //!
 //! One implementation serves the ground environment and the flight code, so what the network
 //! saw in training is exactly what it sees in flight.
@@ -13,7 +13,8 @@ pub const TRANSFER_FEATURES: usize = 10;
 pub const RENDEZVOUS_FEATURES: usize = 22;
 /// Network outputs: throttle and the two polar direction components, each in [-1, 1].
 pub const ACTION_LEN: usize = 3;
-/// Below this norm of (a1, a2) the direction is undefined and the thrust is off (SPEC section 5).
+/// Below this norm of (a1, a2) the direction is undefined and the thrust is off (docs/spec.md
+/// section 5).
 pub const MIN_DIRECTION_NORM: f64 = 1e-6;
 
 /// Reward weights (thesis Eq. 4.7-4.8).
@@ -73,7 +74,7 @@ fn check_common(state: &SpacecraftState, time_to_go: f64) -> Result<(), FeatureE
     Ok(())
 }
 
-/// The 10 transfer features (SPEC section 5):
+/// The 10 transfer features (docs/spec.md section 5):
 /// `[r, cos theta, sin theta, v_r, v_theta, m, r_t, v_r_t, v_theta_t, t_tg]`, where the target
 /// proxy is the polar state on the target orbit at the spacecraft's own polar angle.
 pub fn transfer_features(
@@ -99,7 +100,7 @@ pub fn transfer_features(
     ])
 }
 
-/// Residuals of a transfer state, read off its features (SPEC section 5).
+/// Residuals of a transfer state, read off its features (docs/spec.md section 5).
 pub fn transfer_residuals(f: &[f64; TRANSFER_FEATURES]) -> Residuals {
     let [r, _, _, v_r, v_theta, _, r_t, v_r_t, v_theta_t, _] = *f;
     Residuals {
@@ -108,7 +109,7 @@ pub fn transfer_residuals(f: &[f64; TRANSFER_FEATURES]) -> Residuals {
     }
 }
 
-/// The 22 rendezvous features (SPEC section 6):
+/// The 22 rendezvous features (docs/spec.md section 6):
 /// `[r_i, cos th_i, sin th_i, r_t, cos th_t, sin th_t, x_i, y_i, vx_i, vy_i, x_t, y_t, vx_t, vy_t,
 ///   dx, dy, dvx, dvy, |dr|, |dv|, t_tg, m]` with dr = r_t - r_i, dv = v_t - v_i.
 pub fn rendezvous_features(
@@ -148,7 +149,7 @@ pub fn rendezvous_features(
     ])
 }
 
-/// Residuals of a rendezvous state, read off its features (SPEC section 6).
+/// Residuals of a rendezvous state, read off its features (docs/spec.md section 6).
 pub fn rendezvous_residuals(f: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
     let [.., dr, dv, _, _] = *f;
     Residuals {
@@ -165,9 +166,9 @@ pub fn reward(residuals: &Residuals, throttle: f64, weights: &RewardWeights) -> 
     libm::expm1(-weights.position * dr2) + libm::expm1(-weights.velocity * dv2) - weights.throttle * throttle
 }
 
-/// Action -> thrust command (SPEC section 5): u = (a0 + 1) / 2, direction (a1, a2) normalised,
-/// thrust off below [`MIN_DIRECTION_NORM`]. Components are clamped to [-1, 1]; a non-finite
-/// action decodes to thrust off (a NaN never reaches the thrusters).
+/// Action -> thrust command (docs/spec.md section 5): u = (a0 + 1) / 2, direction (a1, a2)
+/// normalised, thrust off below [`MIN_DIRECTION_NORM`]. Components are clamped to [-1, 1]; a
+/// non-finite action decodes to thrust off (a NaN never reaches the thrusters).
 pub fn decode_action(action: &[f32; ACTION_LEN]) -> ThrustCommand {
     if !action.iter().all(|a| a.is_finite()) {
         return ThrustCommand::OFF;

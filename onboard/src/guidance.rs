@@ -56,7 +56,7 @@ impl core::fmt::Display for GuidanceError {
 
 impl core::error::Error for GuidanceError {}
 
-/// Transfer guidance: features of SPEC section 5, actor, decoded command.
+/// Transfer guidance: features of docs/spec.md section 5, actor, decoded command.
 pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     actor: &A,
     navigation: &SpacecraftState,
@@ -67,7 +67,7 @@ pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     command_from(actor.act(&to_network_input(&features)))
 }
 
-/// Rendezvous guidance: features of SPEC section 6, actor, decoded command.
+/// Rendezvous guidance: features of docs/spec.md section 6, actor, decoded command.
 pub fn rendezvous_step<A: Actor<RENDEZVOUS_FEATURES>>(
     actor: &A,
     navigation: &SpacecraftState,

@@ -1,11 +1,12 @@
 //! Flight code: no_std, no heap, no panics on any input.
 //!
-//! - [`dynamics`]: the planar two-body dynamics with thrust and mass flow (SPEC section 2), and
-//!   the 14-day zero-order-hold propagation the environment and the SIL plant use.
+//! - [`dynamics`]: the planar two-body dynamics with thrust and mass flow (docs/spec.md section 2),
+//!   and the 14-day zero-order-hold propagation the environment and the SIL plant use.
 //! - [`integrator`]: an adaptive embedded Runge-Kutta integrator, generic over the state size
 //!   so the ground solver reuses it for state + costate (+ sensitivity) propagation.
 //! - [`kepler`]: the universal-variable Kepler coast propagator.
-//! - [`features`]: polar feature encoding (SPEC sections 5, 6), reward terms, action decoding.
+//! - [`features`]: polar feature encoding (docs/spec.md sections 5, 6), reward terms, action
+//!   decoding.
 //! - [`policy`]: fixed-size MLP inference in f32 and int8 straight from a weight blob.
 //! - [`guidance`]: one guidance step: navigation state, target and time to go in, thrust out.
 #![no_std]

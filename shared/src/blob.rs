@@ -1,4 +1,4 @@
-//! The versioned weight-blob format (SPEC section 10): how a trained actor travels from the
+//! The versioned weight-blob format (docs/spec.md section 10): how a trained actor travels from the
 //! ground to the flight computer.
 //!
 //! Byte layout (all integers little-endian):
@@ -47,7 +47,7 @@ pub const ACTIVATION_LEVELS: i16 = 32_767;
 /// `inputs * 32767 * 128 < 2^31`.
 pub const MAX_INT8_INPUTS: usize = 512;
 
-/// The network's input encoding (SPEC sections 5 and 6).
+/// The network's input encoding (docs/spec.md sections 5 and 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FeatureLayout {
     /// The 10 transfer features with the target-orbit proxy.

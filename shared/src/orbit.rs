@@ -1,5 +1,5 @@
-//! Planar Keplerian orbits in canonical units (SPEC section 2): elements, polar and Cartesian
-//! states. Angles are radians here; the CLI takes degrees at the edge.
+//! Planar Keplerian orbits in canonical units (docs/spec.md section 2): elements, polar and
+//! Cartesian states. Angles are radians here; the CLI takes degrees at the edge.
 
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +42,7 @@ pub struct OrbitElements {
     pub nu: f64,
 }
 
-/// Polar state (SPEC section 2): radius, polar angle, radial and transverse velocity.
+/// Polar state (docs/spec.md section 2): radius, polar angle, radial and transverse velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PolarState {
     pub r: f64,
@@ -137,7 +137,7 @@ impl OrbitElements {
 }
 
 impl PolarState {
-    /// Cartesian state from the polar one (SPEC section 2 relations inverted).
+    /// Cartesian state from the polar one (docs/spec.md section 2 relations inverted).
     pub fn to_cartesian(&self) -> CartesianState {
         let (s, c) = (libm::sin(self.theta), libm::cos(self.theta));
         CartesianState {
@@ -148,7 +148,7 @@ impl PolarState {
 }
 
 impl CartesianState {
-    /// Polar state (SPEC section 2). The angle is atan2(y, x) in (-pi, pi].
+    /// Polar state (docs/spec.md section 2). The angle is atan2(y, x) in (-pi, pi].
     pub fn to_polar(&self) -> PolarState {
         let [x, y] = self.r;
         let [vx, vy] = self.v;

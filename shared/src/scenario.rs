@@ -1,5 +1,5 @@
-//! Scenario types (SPEC section 4): what a transfer or rendezvous problem is. The distributions
-//! are defined once here and used by both the data generator and the MDP reset.
+//! Scenario types (docs/spec.md section 4): what a transfer or rendezvous problem is. The
+//! distributions are defined once here and used by both the data generator and the MDP reset.
 
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
@@ -15,7 +15,7 @@ pub enum ProblemKind {
     Rendezvous,
 }
 
-/// The four scenario distributions of SPEC section 4.
+/// The four scenario distributions of docs/spec.md section 4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
@@ -63,8 +63,8 @@ pub struct Range {
     pub hi: f64,
 }
 
-/// The parameter ranges of a scenario distribution (SPEC section 4 table). Both orbits share
-/// them; angles in radians.
+/// The parameter ranges of a scenario distribution (docs/spec.md section 4 table). Both orbits
+/// share them; angles in radians.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ScenarioRanges {
     pub a: Range,
@@ -77,7 +77,7 @@ pub struct ScenarioRanges {
 const TWO_PI: f64 = 2.0 * core::f64::consts::PI;
 
 impl ScenarioKind {
-    /// The SPEC section 4 ranges.
+    /// The docs/spec.md section 4 ranges.
     pub fn ranges(self) -> ScenarioRanges {
         let full = Range { lo: 0.0, hi: TWO_PI };
         match self {
@@ -147,7 +147,8 @@ pub struct Scenario {
 }
 
 impl Scenario {
-    /// A transfer from `initial` to any point of `target`, with the SPEC section 4 time of flight.
+    /// A transfer from `initial` to any point of `target`, with the docs/spec.md section 4 time of
+    /// flight.
     pub fn transfer(initial: OrbitElements, target: OrbitShape) -> Self {
         Self {
             problem: ProblemKind::Transfer,
@@ -163,7 +164,7 @@ impl Scenario {
         f64::from(self.steps) * STEP
     }
 
-    /// The SPEC section 4 rule: TOF = max(P0, Pf) rounded up to whole steps.
+    /// The docs/spec.md section 4 rule: TOF = max(P0, Pf) rounded up to whole steps.
     pub fn steps_for(initial: &OrbitShape, target: &OrbitShape) -> u32 {
         let tof = libm::fmax(initial.period(), target.period());
         // Saturating float->int conversion: absurd periods cannot wrap around.

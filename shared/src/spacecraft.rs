@@ -1,4 +1,5 @@
-//! Spacecraft parameters (SPEC section 1). A parameter of every run, never a constant in code.
+//! Spacecraft parameters (docs/spec.md section 1). A parameter of every run, never a constant in
+//! code.
 
 use serde::{Deserialize, Serialize};
 

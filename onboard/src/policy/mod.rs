@@ -1,4 +1,4 @@
-//! Fixed-size MLP inference in f32 and int8, straight from a weight blob (SPEC section 10).
+//! Fixed-size MLP inference in f32 and int8, straight from a weight blob (docs/spec.md section 10).
 //!
 //! The deployed actor mean heads are 10-256-256-3 (transfer) and 22-256-256-3 (rendezvous):
 //! two ReLU hidden layers and a tanh output. Every size is a const generic, so activations live
