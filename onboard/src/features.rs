@@ -20,8 +20,11 @@ pub const MIN_DIRECTION_NORM: f64 = 1e-6;
 /// Reward weights (thesis Eq. 4.7-4.8).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RewardWeights {
+    /// w_p (1 / AU^2): how sharply the position term rewards closing the position gap.
     pub position: f64,
+    /// w_v ((t* / AU)^2): how sharply the velocity term rewards closing the velocity gap.
     pub velocity: f64,
+    /// w_u: the cost of throttle, a proxy for propellant.
     pub throttle: f64,
 }
 
@@ -38,13 +41,16 @@ impl Default for RewardWeights {
 /// Distance to the target in position (AU) and velocity (AU/t*).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Residuals {
+    /// Position residual (AU).
     pub position: f64,
+    /// Velocity residual (AU / t*).
     pub velocity: f64,
 }
 
 /// Why features could not be computed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FeatureError {
+    /// The spacecraft state is unusable.
     State(StateError),
     /// The target orbit or body state is not finite or not a closed orbit.
     Target,

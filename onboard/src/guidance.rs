@@ -16,6 +16,8 @@ use crate::features::{
 /// A deterministic actor: features in, action in [-1, 1]^3 out. Implemented by the onboard MLPs
 /// (f32 and int8) and by anything else that can fly (tests, baselines).
 pub trait Actor<const IN: usize> {
+    /// The action for `features` (already narrowed to f32): throttle and the two polar direction
+    /// components, each in [-1, 1], as [`crate::features::decode_action`] reads them.
     fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN];
 }
 

@@ -68,11 +68,20 @@ impl Default for Tolerances {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum IntegrationError {
     /// The step budget ran out at time `t`.
-    StepBudgetExhausted { t: f64 },
+    StepBudgetExhausted {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// The step size fell below what f64 can resolve at time `t` (a singularity?).
-    StepSizeUnderflow { t: f64 },
+    StepSizeUnderflow {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// The derivatives or the state became NaN or infinite at time `t`.
-    NonFinite { t: f64 },
+    NonFinite {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// Bad arguments: non-finite times or state, tolerances that are not finite and positive,
     /// `max_steps` = 0, or a negative or non-finite `initial_step`.
     InvalidInput,
@@ -102,6 +111,7 @@ pub struct IntegrationStats {
     /// Trial steps not kept: error too large, non-finite values, or cut short at an event
     /// (the shortened redo is then counted as accepted or rejected on its own).
     pub rejected_steps: u32,
+    /// Evaluations of the right-hand side f(t, y).
     pub derivative_evaluations: u32,
     /// Steps that were shortened to end on an event (switch).
     pub events_located: u32,

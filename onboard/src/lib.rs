@@ -13,6 +13,7 @@
 // `unsafe` is denied everywhere but in `policy::arm`, the Cortex-M4F `asm!` kernels, the one
 // module that allows it.
 #![deny(unsafe_code)]
+#![deny(missing_docs)]
 // Panic-freedom is enforced by the linter, not hoped for: CI runs clippy with -D warnings.
 #![cfg_attr(
     not(test),

@@ -30,31 +30,42 @@ impl core::error::Error for OrbitError {}
 /// argument of periapsis omega (rad). A target orbit of a transfer is exactly this.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OrbitShape {
+    /// Semi-major axis (AU), > 0.
     pub a: f64,
+    /// Eccentricity, in [0, 1).
     pub e: f64,
+    /// Argument of periapsis (rad): the polar angle of periapsis.
     pub omega: f64,
 }
 
 /// A point on an orbit: its shape plus the true anomaly nu (rad).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OrbitElements {
+    /// The orbit.
     pub shape: OrbitShape,
+    /// True anomaly (rad): the angle from periapsis, theta = omega + nu.
     pub nu: f64,
 }
 
 /// Polar state (docs/spec.md section 2): radius, polar angle, radial and transverse velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PolarState {
+    /// Distance from the Sun (AU).
     pub r: f64,
+    /// Polar angle from the x axis (rad).
     pub theta: f64,
+    /// Radial velocity (AU / t*), positive away from the Sun.
     pub v_r: f64,
+    /// Transverse (along-track) velocity (AU / t*), positive prograde.
     pub v_theta: f64,
 }
 
 /// Cartesian position and velocity in the orbit plane.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CartesianState {
+    /// Position (AU).
     pub r: [f64; 2],
+    /// Velocity (AU / t*).
     pub v: [f64; 2],
 }
 
@@ -127,10 +138,12 @@ impl OrbitElements {
         Ok(())
     }
 
+    /// The polar state at this point of the orbit (docs/spec.md section 2).
     pub fn polar(&self) -> PolarState {
         self.shape.polar_at(self.nu)
     }
 
+    /// The Cartesian state at this point of the orbit.
     pub fn cartesian(&self) -> CartesianState {
         self.shape.cartesian_at(self.nu)
     }

@@ -11,7 +11,9 @@ use crate::units::STEP;
 /// Which optimal-control / MDP problem: free-anomaly transfer (TBT) or rendezvous (TBR).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum ProblemKind {
+    /// Free-anomaly transfer (TBT, docs/spec.md section 5): reach the target orbit, anywhere on it.
     Transfer,
+    /// Rendezvous (TBR, docs/spec.md section 6): meet a body moving on the target orbit.
     Rendezvous,
 }
 
@@ -20,17 +22,22 @@ pub enum ProblemKind {
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
     // Aliases: manifests written before the kebab-case names still load.
+    /// Transfers between near-circular coplanar orbits of 1 to 1.52 AU (thesis Tables 4.1, 4.3).
     #[serde(alias = "TransferCircular")]
     TransferCircular,
+    /// Transfers between eccentric, rotated orbits of 0.39 to 1.52 AU (thesis Table 4.2).
     #[serde(alias = "TransferHard")]
     TransferHard,
+    /// Rendezvous between near-circular orbits of 1 to 1.52 AU (thesis Table 4.5).
     #[serde(alias = "RendezvousCircular")]
     RendezvousCircular,
+    /// Rendezvous between eccentric, rotated orbits of 0.39 to 1.52 AU (thesis Fig. 7.2).
     #[serde(alias = "RendezvousHard")]
     RendezvousHard,
 }
 
 impl ScenarioKind {
+    /// Every distribution, in the order of docs/spec.md section 4.
     pub const ALL: [Self; 4] = [
         Self::TransferCircular,
         Self::TransferHard,
@@ -48,6 +55,7 @@ impl ScenarioKind {
         }
     }
 
+    /// The problem the distribution's scenarios pose.
     pub fn problem(self) -> ProblemKind {
         match self {
             Self::TransferCircular | Self::TransferHard => ProblemKind::Transfer,
@@ -59,7 +67,9 @@ impl ScenarioKind {
 /// Closed interval [lo, hi] a parameter is drawn from uniformly (lo == hi: fixed).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Range {
+    /// Lower bound.
     pub lo: f64,
+    /// Upper bound.
     pub hi: f64,
 }
 
@@ -67,8 +77,11 @@ pub struct Range {
 /// share them; angles in radians.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ScenarioRanges {
+    /// Semi-major axis (AU), both orbits.
     pub a: Range,
+    /// Eccentricity, both orbits.
     pub e: Range,
+    /// Argument of periapsis (rad), both orbits.
     pub omega: Range,
     /// Initial anomaly nu0 and, for rendezvous, the target's nuf0.
     pub nu: Range,
@@ -135,6 +148,7 @@ impl ScenarioKind {
 /// 14-day steps.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Scenario {
+    /// Transfer or rendezvous.
     pub problem: ProblemKind,
     /// Departure orbit and anomaly at t = 0; the spacecraft starts there with m = 1.
     pub initial: OrbitElements,
@@ -188,7 +202,9 @@ impl Scenario {
 /// Why a scenario is unusable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ScenarioError {
+    /// The departure orbit is unusable.
     Initial(OrbitError),
+    /// The target orbit is unusable.
     Target(OrbitError),
     /// The time of flight must be at least one step.
     TimeOfFlight,

@@ -81,15 +81,20 @@ pub const MLP_LAYERS: usize = 3;
 /// Inputs and outputs of a dense layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LayerShape {
+    /// Inputs of the layer.
     pub inputs: usize,
+    /// Outputs of the layer.
     pub outputs: usize,
 }
 
 /// Which array of a layer has the wrong length.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LayerArray {
+    /// The weight matrix.
     Weights,
+    /// The bias vector.
     Bias,
+    /// The int8 per-output-channel weight scales.
     WeightScales,
 }
 
@@ -99,38 +104,68 @@ pub enum PolicyError {
     /// The bytes are not a valid blob.
     Blob(BlobError),
     /// The blob is for the other problem.
-    WrongKind { expected: ProblemKind, found: ProblemKind },
+    WrongKind {
+        /// The problem the caller flies.
+        expected: ProblemKind,
+        /// The blob's problem.
+        found: ProblemKind,
+    },
     /// The blob's feature layout does not have the network's input count.
     WrongFeatures {
+        /// Inputs of the compiled network.
         expected_inputs: usize,
+        /// The blob's feature layout.
         found: FeatureLayout,
     },
     /// The network does not have [`MLP_LAYERS`] layers.
-    WrongLayerCount { expected: usize, found: usize },
+    WrongLayerCount {
+        /// [`MLP_LAYERS`].
+        expected: usize,
+        /// Layers in the blob.
+        found: usize,
+    },
     /// A layer's declared size differs from the compiled network's (`layer` counts from 0).
     WrongShape {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// The compiled network's layer shape.
         expected: LayerShape,
+        /// The blob's layer shape.
         found: LayerShape,
     },
     /// A layer's array has the wrong number of bytes for its declared size and quantization.
     WrongArrayLength {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Which array.
         array: LayerArray,
+        /// Bytes the shape and quantization need.
         expected: usize,
+        /// Bytes in the blob.
         found: usize,
     },
     /// A layer's activation is not the contract's (ReLU hidden, tanh output).
     WrongActivation {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// The contract's activation there.
         expected: Activation,
+        /// The blob's activation.
         found: Activation,
     },
     /// An int8 layer's input scale is not finite and positive, or a weight scale is not finite.
-    BadScale { layer: usize },
+    BadScale {
+        /// Index of the layer (from 0).
+        layer: usize,
+    },
     /// An int8 layer has more inputs than its i32 accumulator sums exactly
     /// ([`blob::MAX_INT8_INPUTS`]).
-    TooWideForInt8 { layer: usize, inputs: usize },
+    TooWideForInt8 {
+        /// Index of the layer (from 0).
+        layer: usize,
+        /// Its inputs.
+        inputs: usize,
+    },
 }
 
 impl PolicyError {
@@ -261,7 +296,9 @@ fn relu(x: f32) -> f32 {
 /// The three layers of an [`Mlp`], in one precision.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum MlpLayers<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> {
+    /// f32 weights read in place: host and Cortex-M4F give the same bits.
     F32(DenseF32<'a, IN, H1>, DenseF32<'a, H1, H2>, DenseF32<'a, H2, OUT>),
+    /// int8 weights with 16-bit activations: a quarter of the f32 flash, integer dot products.
     Int8(DenseInt8<'a, IN, H1>, DenseInt8<'a, H1, H2>, DenseInt8<'a, H2, OUT>),
 }
 
