@@ -1,8 +1,8 @@
-//! Planar two-body dynamics with thrust and mass flow (SPEC section 2), in canonical units.
+//! Planar two-body dynamics with thrust and mass flow (docs/spec.md section 2), in canonical units.
 //!
 //! The thrust command is held constant over a guidance step **in the local polar frame**
-//! (SPEC section 5): the components (alpha_r, alpha_theta) stay fixed while the spacecraft moves,
-//! so the inertial direction turns with the Sun line. Coasting arcs use the exact Kepler
+//! (docs/spec.md section 5): the components (alpha_r, alpha_theta) stay fixed while the spacecraft
+//! moves, so the inertial direction turns with the Sun line. Coasting arcs use the exact Kepler
 //! solution; thrusting arcs the adaptive integrator.
 
 use shared::orbit::{CartesianState, PolarState};
@@ -17,8 +17,11 @@ pub const STATE_LEN: usize = 5;
 /// Spacecraft state: position and velocity in the ecliptic plane (AU, AU/t*) and mass (m0 units).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpacecraftState {
+    /// Position (AU).
     pub r: [f64; 2],
+    /// Velocity (AU / t*).
     pub v: [f64; 2],
+    /// Mass (m0 units: 1 at departure, falling as propellant is spent).
     pub m: f64,
 }
 
@@ -47,6 +50,7 @@ pub struct ThrustCommand {
 /// Why a propagation was refused or failed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PropagationError {
+    /// The state is unusable.
     State(StateError),
     /// Throttle outside [0, 1], non-finite, or a direction that is not a unit vector.
     Command,
@@ -56,7 +60,9 @@ pub enum PropagationError {
     Duration,
     /// The propellant would run out during the step (m would reach 0).
     MassDepleted,
+    /// The adaptive integrator failed on a thrust arc.
     Integration(IntegrationError),
+    /// The Kepler coast failed.
     Kepler(KeplerError),
 }
 
@@ -69,6 +75,8 @@ impl core::fmt::Display for StateError {
         })
     }
 }
+
+impl core::error::Error for StateError {}
 
 impl core::fmt::Display for PropagationError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -86,20 +94,25 @@ impl core::fmt::Display for PropagationError {
     }
 }
 
+impl core::error::Error for PropagationError {}
+
 impl SpacecraftState {
     /// The state at departure from a point on an orbit, with m = 1.
     pub fn from_cartesian(c: &CartesianState, m: f64) -> Self {
         Self { r: c.r, v: c.v, m }
     }
 
+    /// Position and velocity, without the mass.
     pub fn cartesian(&self) -> CartesianState {
         CartesianState { r: self.r, v: self.v }
     }
 
+    /// The polar state (docs/spec.md section 2): r, theta, v_r, v_theta.
     pub fn polar(&self) -> PolarState {
         self.cartesian().to_polar()
     }
 
+    /// Distance from the Sun (AU).
     pub fn radius(&self) -> f64 {
         libm::hypot(self.r[0], self.r[1])
     }
@@ -120,10 +133,12 @@ impl SpacecraftState {
         Ok(())
     }
 
+    /// The integrator's state vector `[x, y, vx, vy, m]`.
     pub fn to_array(&self) -> [f64; STATE_LEN] {
         [self.r[0], self.r[1], self.v[0], self.v[1], self.m]
     }
 
+    /// The state from the integrator's vector `[x, y, vx, vy, m]`.
     pub fn from_array(y: &[f64; STATE_LEN]) -> Self {
         let [x, yy, vx, vy, m] = *y;
         Self {
@@ -161,7 +176,7 @@ impl ThrustCommand {
     }
 }
 
-/// Gravitational plus thrust acceleration and mass flow (SPEC section 2, Eq. 3.1).
+/// Gravitational plus thrust acceleration and mass flow (docs/spec.md section 2, Eq. 3.1).
 ///
 /// Returned as (acceleration, dm/dt); shared by the polar-hold propagation here and by the
 /// ground's optimal-control dynamics (which supply an inertial direction instead).
@@ -187,7 +202,9 @@ pub fn acceleration(
 /// The ODE of a zero-order-hold step: a command fixed in the local polar frame.
 #[derive(Debug, Clone, Copy)]
 pub struct PolarHoldDynamics {
+    /// Thrust and exhaust speed in canonical units.
     pub spacecraft: CanonicalSpacecraft,
+    /// The command held in the polar frame over the step.
     pub command: ThrustCommand,
 }
 

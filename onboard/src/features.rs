@@ -1,4 +1,4 @@
-//! Polar feature encoding, reward terms and action decoding (SPEC sections 5 and 6).
+//! Polar feature encoding, reward terms and action decoding (docs/spec.md sections 5 and 6).
 //!
 //! One implementation serves the ground environment and the flight code, so what the network
 //! saw in training is exactly what it sees in flight.
@@ -13,14 +13,18 @@ pub const TRANSFER_FEATURES: usize = 10;
 pub const RENDEZVOUS_FEATURES: usize = 22;
 /// Network outputs: throttle and the two polar direction components, each in [-1, 1].
 pub const ACTION_LEN: usize = 3;
-/// Below this norm of (a1, a2) the direction is undefined and the thrust is off (SPEC section 5).
+/// Below this norm of (a1, a2) the direction is undefined and the thrust is off (docs/spec.md
+/// section 5).
 pub const MIN_DIRECTION_NORM: f64 = 1e-6;
 
 /// Reward weights (thesis Eq. 4.7-4.8).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RewardWeights {
+    /// w_p (1 / AU^2): how sharply the position term rewards closing the position gap.
     pub position: f64,
+    /// w_v ((t* / AU)^2): how sharply the velocity term rewards closing the velocity gap.
     pub velocity: f64,
+    /// w_u: the cost of throttle, a proxy for propellant.
     pub throttle: f64,
 }
 
@@ -37,13 +41,16 @@ impl Default for RewardWeights {
 /// Distance to the target in position (AU) and velocity (AU/t*).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Residuals {
+    /// Position residual (AU).
     pub position: f64,
+    /// Velocity residual (AU / t*).
     pub velocity: f64,
 }
 
 /// Why features could not be computed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FeatureError {
+    /// The spacecraft state is unusable.
     State(StateError),
     /// The target orbit or body state is not finite or not a closed orbit.
     Target,
@@ -63,6 +70,8 @@ impl core::fmt::Display for FeatureError {
     }
 }
 
+impl core::error::Error for FeatureError {}
+
 fn check_common(state: &SpacecraftState, time_to_go: f64) -> Result<(), FeatureError> {
     state.validate().map_err(FeatureError::State)?;
     if !(time_to_go.is_finite() && time_to_go >= 0.0) {
@@ -71,7 +80,7 @@ fn check_common(state: &SpacecraftState, time_to_go: f64) -> Result<(), FeatureE
     Ok(())
 }
 
-/// The 10 transfer features (SPEC section 5):
+/// The 10 transfer features (docs/spec.md section 5):
 /// `[r, cos theta, sin theta, v_r, v_theta, m, r_t, v_r_t, v_theta_t, t_tg]`, where the target
 /// proxy is the polar state on the target orbit at the spacecraft's own polar angle.
 pub fn transfer_features(
@@ -97,7 +106,7 @@ pub fn transfer_features(
     ])
 }
 
-/// Residuals of a transfer state, read off its features (SPEC section 5).
+/// Residuals of a transfer state, read off its features (docs/spec.md section 5).
 pub fn transfer_residuals(f: &[f64; TRANSFER_FEATURES]) -> Residuals {
     let [r, _, _, v_r, v_theta, _, r_t, v_r_t, v_theta_t, _] = *f;
     Residuals {
@@ -106,7 +115,7 @@ pub fn transfer_residuals(f: &[f64; TRANSFER_FEATURES]) -> Residuals {
     }
 }
 
-/// The 22 rendezvous features (SPEC section 6):
+/// The 22 rendezvous features (docs/spec.md section 6):
 /// `[r_i, cos th_i, sin th_i, r_t, cos th_t, sin th_t, x_i, y_i, vx_i, vy_i, x_t, y_t, vx_t, vy_t,
 ///   dx, dy, dvx, dvy, |dr|, |dv|, t_tg, m]` with dr = r_t - r_i, dv = v_t - v_i.
 pub fn rendezvous_features(
@@ -146,7 +155,7 @@ pub fn rendezvous_features(
     ])
 }
 
-/// Residuals of a rendezvous state, read off its features (SPEC section 6).
+/// Residuals of a rendezvous state, read off its features (docs/spec.md section 6).
 pub fn rendezvous_residuals(f: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
     let [.., dr, dv, _, _] = *f;
     Residuals {
@@ -163,9 +172,9 @@ pub fn reward(residuals: &Residuals, throttle: f64, weights: &RewardWeights) -> 
     libm::expm1(-weights.position * dr2) + libm::expm1(-weights.velocity * dv2) - weights.throttle * throttle
 }
 
-/// Action -> thrust command (SPEC section 5): u = (a0 + 1) / 2, direction (a1, a2) normalised,
-/// thrust off below [`MIN_DIRECTION_NORM`]. Components are clamped to [-1, 1]; a non-finite
-/// action decodes to thrust off (a NaN never reaches the thrusters).
+/// Action -> thrust command (docs/spec.md section 5): u = (a0 + 1) / 2, direction (a1, a2)
+/// normalised, thrust off below [`MIN_DIRECTION_NORM`]. Components are clamped to [-1, 1]; a
+/// non-finite action decodes to thrust off (a NaN never reaches the thrusters).
 pub fn decode_action(action: &[f32; ACTION_LEN]) -> ThrustCommand {
     if !action.iter().all(|a| a.is_finite()) {
         return ThrustCommand::OFF;

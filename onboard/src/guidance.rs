@@ -16,6 +16,8 @@ use crate::features::{
 /// A deterministic actor: features in, action in [-1, 1]^3 out. Implemented by the onboard MLPs
 /// (f32 and int8) and by anything else that can fly (tests, baselines).
 pub trait Actor<const IN: usize> {
+    /// The action for `features` (already narrowed to f32): throttle and the two polar direction
+    /// components, each in [-1, 1], as [`crate::features::decode_action`] reads them.
     fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN];
 }
 
@@ -54,7 +56,9 @@ impl core::fmt::Display for GuidanceError {
     }
 }
 
-/// Transfer guidance: features of SPEC section 5, actor, decoded command.
+impl core::error::Error for GuidanceError {}
+
+/// Transfer guidance: features of docs/spec.md section 5, actor, decoded command.
 pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     actor: &A,
     navigation: &SpacecraftState,
@@ -65,7 +69,7 @@ pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     command_from(actor.act(&to_network_input(&features)))
 }
 
-/// Rendezvous guidance: features of SPEC section 6, actor, decoded command.
+/// Rendezvous guidance: features of docs/spec.md section 6, actor, decoded command.
 pub fn rendezvous_step<A: Actor<RENDEZVOUS_FEATURES>>(
     actor: &A,
     navigation: &SpacecraftState,

@@ -24,19 +24,19 @@
 //! [`Observer`] (see [`Observer::on_event`]) rather than from the sign of the state, which
 //! the last stages of the landing step see either way.
 
-/// Most event functions a system may expose (the throttle switches rho = -eps and rho = +eps).
-pub const MAX_EVENTS: usize = 2;
-
-/// An ordinary differential equation dy/dt = f(t, y) with N states.
-pub trait OdeSystem<const N: usize> {
+/// An ordinary differential equation dy/dt = f(t, y) with N states and E event functions.
+///
+/// E is the system's own business: the flight dynamics have none (the default, E = 0), the
+/// ground solver's state-costate systems two (the throttle switches rho = -eps and rho = +eps).
+pub trait OdeSystem<const N: usize, const E: usize = 0> {
     /// Writes f(t, y) into `dydt`.
     fn derivatives(&self, t: f64, y: &[f64; N], dydt: &mut [f64; N]);
 
     /// Event functions whose sign changes the integrator steps exactly onto (for example the
     /// throttle switches of a bang-bang control). A step that crosses a zero is shortened so
-    /// that it ends on the zero. Default: no events (all values positive constants).
-    fn events(&self, _t: f64, _y: &[f64; N]) -> [f64; MAX_EVENTS] {
-        [1.0; MAX_EVENTS]
+    /// that it ends on the zero. Default: all values positive constants (never crossed).
+    fn events(&self, _t: f64, _y: &[f64; N]) -> [f64; E] {
+        [1.0; E]
     }
 }
 
@@ -68,15 +68,40 @@ impl Default for Tolerances {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum IntegrationError {
     /// The step budget ran out at time `t`.
-    StepBudgetExhausted { t: f64 },
+    StepBudgetExhausted {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// The step size fell below what f64 can resolve at time `t` (a singularity?).
-    StepSizeUnderflow { t: f64 },
+    StepSizeUnderflow {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// The derivatives or the state became NaN or infinite at time `t`.
-    NonFinite { t: f64 },
+    NonFinite {
+        /// Where it stopped (t units).
+        t: f64,
+    },
     /// Bad arguments: non-finite times or state, tolerances that are not finite and positive,
     /// `max_steps` = 0, or a negative or non-finite `initial_step`.
     InvalidInput,
 }
+
+impl core::fmt::Display for IntegrationError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::StepBudgetExhausted { t } => write!(f, "step budget exhausted at t = {t}"),
+            Self::StepSizeUnderflow { t } => write!(f, "step size underflow at t = {t}"),
+            Self::NonFinite { t } => write!(f, "derivatives or state not finite at t = {t}"),
+            Self::InvalidInput => f.write_str(
+                "invalid input: times and state must be finite, tolerances finite and > 0, max_steps > 0, \
+                 initial_step finite and >= 0",
+            ),
+        }
+    }
+}
+
+impl core::error::Error for IntegrationError {}
 
 /// What an integration did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -86,6 +111,7 @@ pub struct IntegrationStats {
     /// Trial steps not kept: error too large, non-finite values, or cut short at an event
     /// (the shortened redo is then counted as accepted or rejected on its own).
     pub rejected_steps: u32,
+    /// Evaluations of the right-hand side f(t, y).
     pub derivative_evaluations: u32,
     /// Steps that were shortened to end on an event (switch).
     pub events_located: u32,
@@ -109,7 +135,7 @@ pub trait Observer<const N: usize> {
 impl<const N: usize> Observer<N> for () {}
 
 /// Integrates `system` from (t0, y0) to t1 (t1 may be before t0), returning y(t1).
-pub fn integrate<S: OdeSystem<N>, const N: usize>(
+pub fn integrate<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t0: f64,
     y0: &[f64; N],
@@ -419,7 +445,7 @@ fn bump(counter: &mut u32, by: u32) {
 }
 
 /// Evaluates stage `s` (1..16) from the stages before it.
-fn stage<S: OdeSystem<N>, const N: usize>(
+fn stage<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -442,7 +468,7 @@ fn stage<S: OdeSystem<N>, const N: usize>(
 
 /// One DOP853 trial step from (t, y) with k[0] = f(t, y): fills k[1..12] and returns the new
 /// state and the scaled error norm (<= 1 means acceptable; NaN when something was not finite).
-fn trial_step<S: OdeSystem<N>, const N: usize>(
+fn trial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -490,7 +516,7 @@ struct Dense<const N: usize> {
 impl<const N: usize> Dense<N> {
     /// Builds the interpolant of the step (t, y) -> (t + h, y1); k[0..12] hold the step's
     /// stages and k[12] = f(t + h, y1). Evaluates the three extra stages.
-    fn new<S: OdeSystem<N>>(
+    fn new<S: OdeSystem<N, E>, const E: usize>(
         system: &S,
         t: f64,
         y: &[f64; N],
@@ -615,7 +641,7 @@ fn locate_zero(mut ta: f64, mut ga: f64, mut tb: f64, mut gb: f64, mut g: impl F
 
 /// Hairer's starting step (dop853.f HINIT) for an order-8 method.
 #[allow(clippy::too_many_arguments)]
-fn initial_step<S: OdeSystem<N>, const N: usize>(
+fn initial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system: &S,
     t: f64,
     y: &[f64; N],
@@ -671,7 +697,7 @@ fn initial_step<S: OdeSystem<N>, const N: usize>(
 /// not finite and > 0, `max_steps` = 0 or a negative `initial_step`; then, while integrating,
 /// `NonFinite` (the derivative at an accepted point is not finite, or trial steps keep producing
 /// NaN/inf), `StepSizeUnderflow` (|h| below ~1e-15 |t|) or `StepBudgetExhausted`.
-pub fn integrate_observed<S: OdeSystem<N>, O: Observer<N>, const N: usize>(
+pub fn integrate_observed<S: OdeSystem<N, E>, O: Observer<N>, const N: usize, const E: usize>(
     system: &S,
     t0: f64,
     y0: &[f64; N],

@@ -35,6 +35,8 @@ impl core::fmt::Display for KeplerError {
     }
 }
 
+impl core::error::Error for KeplerError {}
+
 /// Most iterations of the universal Kepler equation solver.
 const MAX_ITERATIONS: u32 = 100;
 /// Laguerre-Conway order parameter (the usual n = 5).

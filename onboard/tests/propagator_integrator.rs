@@ -6,8 +6,11 @@ use std::f64::consts::PI;
 use std::rc::Rc;
 
 use onboard::integrator::{
-    integrate, integrate_observed, IntegrationError, IntegrationStats, Observer, OdeSystem, Tolerances, MAX_EVENTS,
+    integrate, integrate_observed, IntegrationError, IntegrationStats, Observer, OdeSystem, Tolerances,
 };
+
+/// Event functions of the test systems that have events (unused ones are held at 1).
+const EVENTS: usize = 2;
 
 fn tol(rtol: f64, atol: f64) -> Tolerances {
     Tolerances {
@@ -38,11 +41,11 @@ struct Oscillator {
     events: bool,
     velocity_event: bool,
 }
-impl OdeSystem<2> for Oscillator {
+impl OdeSystem<2, EVENTS> for Oscillator {
     fn derivatives(&self, _t: f64, y: &[f64; 2], d: &mut [f64; 2]) {
         *d = [y[1], -y[0]];
     }
-    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; EVENTS] {
         match (self.events, self.velocity_event) {
             (false, _) => [1.0, 1.0],
             (true, false) => [y[0], 1.0],
@@ -77,7 +80,7 @@ impl OdeSystem<4> for Circular {
 
 /// The error of one step of length h: t1 = t0 + h, initial_step = h, tolerances so loose that
 /// the step is accepted as it is.
-fn one_step<S: OdeSystem<N>, const N: usize>(system: &S, y0: [f64; N], h: f64) -> [f64; N] {
+fn one_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(system: &S, y0: [f64; N], h: f64) -> [f64; N] {
     let single = Tolerances {
         relative: 1.0,
         absolute: 1.0,
@@ -240,11 +243,11 @@ fn stats_count_steps_and_evaluations_consistently() {
 
 /// y' = 1 with the event y - 0.3 (and y - 0.7 as the second event).
 struct Ramp;
-impl OdeSystem<1> for Ramp {
+impl OdeSystem<1, EVENTS> for Ramp {
     fn derivatives(&self, _t: f64, _y: &[f64; 1], d: &mut [f64; 1]) {
         d[0] = 1.0;
     }
-    fn events(&self, _t: f64, y: &[f64; 1]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, y: &[f64; 1]) -> [f64; EVENTS] {
         [y[0] - 0.3, y[0] - 0.7]
     }
 }
@@ -400,7 +403,7 @@ struct BangBang {
     events: bool,
     mode: Option<Rc<Cell<f64>>>,
 }
-impl OdeSystem<2> for BangBang {
+impl OdeSystem<2, EVENTS> for BangBang {
     fn derivatives(&self, _t: f64, y: &[f64; 2], d: &mut [f64; 2]) {
         let u = match &self.mode {
             Some(m) => m.get(),
@@ -409,7 +412,7 @@ impl OdeSystem<2> for BangBang {
         };
         *d = [y[1], -u];
     }
-    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; EVENTS] {
         if self.events {
             [y[0], 1.0]
         } else {
@@ -492,11 +495,11 @@ struct Smoothed {
     eps: f64,
     events: bool,
 }
-impl OdeSystem<2> for Smoothed {
+impl OdeSystem<2, EVENTS> for Smoothed {
     fn derivatives(&self, _t: f64, y: &[f64; 2], d: &mut [f64; 2]) {
         *d = [y[1], -(y[0] / self.eps).clamp(-1.0, 1.0)];
     }
-    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, y: &[f64; 2]) -> [f64; EVENTS] {
         if self.events {
             [y[0] - self.eps, y[0] + self.eps]
         } else {

@@ -1,6 +1,6 @@
 //! Thrusting arcs of `onboard::dynamics::propagate` against an independent reference: the
-//! classical fixed-step RK4 with 2^k steps, Richardson-extrapolated, on the equations of SPEC
-//! section 2 written out again here. Also the mass law and the refusal of bad states.
+//! classical fixed-step RK4 with 2^k steps, Richardson-extrapolated, on the equations of
+//! docs/spec.md section 2 written out again here. Also the mass law and the refusal of bad states.
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, StateError, ThrustCommand};
 use onboard::integrator::{IntegrationError, Tolerances};
@@ -28,7 +28,7 @@ const ALONG_TRACK: ThrustCommand = ThrustCommand {
 };
 
 /// dr/dt = v, dv/dt = -r/r^3 + (T u / m) alpha, dm/dt = -T u / c with alpha held in the local
-/// polar frame (SPEC section 2).
+/// polar frame (docs/spec.md section 2).
 fn rhs(y: &[f64; 5], sc: &CanonicalSpacecraft, cmd: &ThrustCommand) -> [f64; 5] {
     let [x, yy, vx, vy, m] = *y;
     let r = (x * x + yy * yy).sqrt();

@@ -1,4 +1,4 @@
-//! The versioned weight-blob format (SPEC section 10): how a trained actor travels from the
+//! The versioned weight-blob format (docs/spec.md section 10): how a trained actor travels from the
 //! ground to the flight computer.
 //!
 //! Byte layout (all integers little-endian):
@@ -47,7 +47,7 @@ pub const ACTIVATION_LEVELS: i16 = 32_767;
 /// `inputs * 32767 * 128 < 2^31`.
 pub const MAX_INT8_INPUTS: usize = 512;
 
-/// The network's input encoding (SPEC sections 5 and 6).
+/// The network's input encoding (docs/spec.md sections 5 and 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FeatureLayout {
     /// The 10 transfer features with the target-orbit proxy.
@@ -88,15 +88,20 @@ pub enum Quantization {
 /// A layer's output non-linearity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Activation {
+    /// Rectified linear unit, `max(x, 0)`: the hidden layers.
     Relu,
+    /// Hyperbolic tangent: the output layer, so every action component lies in [-1, 1].
     Tanh,
 }
 
 /// One dense layer, borrowing its arrays from the blob bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LayerBlob<'a> {
+    /// Input width (1..=[`MAX_WIDTH`]).
     pub inputs: u16,
+    /// Output width (1..=[`MAX_WIDTH`]).
     pub outputs: u16,
+    /// The non-linearity applied to this layer's output.
     pub activation: Activation,
     /// F32: `inputs * outputs * 4` bytes input-major; Int8: `inputs * outputs` bytes output-major.
     #[serde(borrow)]
@@ -114,12 +119,16 @@ pub struct LayerBlob<'a> {
 /// The payload: a self-describing actor mean network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NetworkBlob<'a> {
+    /// The problem the network flies (transfer or rendezvous).
     pub kind: ProblemKind,
+    /// The input encoding the network was trained on.
     pub features: FeatureLayout,
+    /// How the weight arrays are stored.
     pub quantization: Quantization,
     /// Free text: config hash, training run, date. Never interpreted.
     #[serde(borrow)]
     pub provenance: &'a str,
+    /// The dense layers, input to output (1..=[`MAX_LAYERS`]).
     #[serde(borrow)]
     pub layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
 }
@@ -130,8 +139,11 @@ const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 /// Which array of a layer an error is about.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ArrayKind {
+    /// The weight matrix.
     Weights,
+    /// The bias vector.
     Bias,
+    /// The int8 per-output-channel weight scales.
     WeightScales,
 }
 
@@ -150,13 +162,19 @@ impl core::fmt::Display for ArrayKind {
 pub enum PayloadError {
     /// The payload ended inside a value.
     UnexpectedEnd,
+    /// A variable-length integer is malformed or overflows.
     BadVarint,
+    /// A bool byte is neither 0 nor 1.
     BadBool,
+    /// A char is not a Unicode scalar value.
     BadChar,
+    /// A string (the provenance) is not valid UTF-8.
     BadUtf8,
+    /// An option tag is neither 0 nor 1.
     BadOption,
     /// An enum discriminant out of range.
     BadEnum,
+    /// A value's encoding is invalid otherwise.
     BadEncoding,
     /// A serde-level refusal, e.g. an unknown enum variant or an over-long sequence.
     Invalid,
@@ -205,91 +223,134 @@ impl core::fmt::Display for PayloadError {
 pub enum BlobError {
     /// Fewer bytes than the header and trailer, or than the declared payload length needs.
     Truncated {
+        /// Bytes needed.
         needed: usize,
+        /// Bytes given.
         found: usize,
     },
     /// Bytes after the declared end of the blob.
     TrailingBytes {
+        /// Bytes the header declares (header + payload + trailer).
         expected: usize,
+        /// Bytes given.
         found: usize,
     },
+    /// The first four bytes are not [`MAGIC`].
     BadMagic {
+        /// The first four bytes.
         found: [u8; 4],
     },
+    /// The header's format version is not [`FORMAT_VERSION`].
     UnsupportedVersion {
+        /// The version in the header.
         found: u16,
+        /// The version this build reads.
         supported: u16,
     },
+    /// The payload's CRC-32 differs from the trailer's: the bytes were altered.
     CrcMismatch {
+        /// The CRC-32 in the trailer.
         stored: u32,
+        /// The CRC-32 of the payload as received.
         computed: u32,
     },
     /// postcard could not decode (or encode) the payload.
     Payload(PayloadError),
     /// postcard decoded a `NetworkBlob` but left bytes of the payload unread.
     PayloadNotConsumed {
+        /// Bytes left over.
         unused: usize,
     },
     /// The feature layout belongs to another problem than `kind`.
     KindMismatch {
+        /// The declared problem kind.
         kind: ProblemKind,
+        /// The declared feature layout.
         features: FeatureLayout,
     },
+    /// The network has no layers.
     NoLayers,
+    /// The network has more than [`MAX_LAYERS`] layers.
     TooManyLayers {
+        /// Layers in the blob.
         found: usize,
+        /// Most layers supported ([`MAX_LAYERS`]).
         max: usize,
     },
     /// The first layer's inputs differ from the feature count.
     InputMismatch {
+        /// Features of the declared layout.
         expected: usize,
+        /// Inputs of the first layer.
         found: u16,
     },
     /// Layer `layer`'s inputs differ from the previous layer's outputs.
     ChainBreak {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Outputs of the previous layer.
         expected: u16,
+        /// Inputs of this layer.
         found: u16,
     },
     /// A width is zero or above [`MAX_WIDTH`].
     BadWidth {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Declared input width.
         inputs: u16,
+        /// Declared output width.
         outputs: u16,
     },
     /// An array's byte length does not match the layer shape and quantization.
     ArrayLength {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Which array.
         array: ArrayKind,
+        /// Bytes the shape and quantization need.
         expected: usize,
+        /// Bytes in the blob.
         found: usize,
     },
     /// Hidden layers must be ReLU, the output layer Tanh.
     BadActivation {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// The activation the contract requires there.
         expected: Activation,
+        /// The activation in the blob.
         found: Activation,
     },
     /// A scale is non-finite or not positive; `channel` is `None` for `input_scale`, `bits` the
     /// raw f32 (kept as bits so the error stays `Eq`).
     BadScale {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Output channel of a weight scale, or `None` for the input scale.
         channel: Option<usize>,
+        /// The scale's f32 bits.
         bits: u32,
     },
     /// A non-finite f32 weight or bias, at element `index`.
     NonFiniteWeight {
+        /// Index of the layer (from 0).
         layer: usize,
+        /// Which array.
         array: ArrayKind,
+        /// Element index in the array.
         index: usize,
     },
     /// The output buffer given to [`encode`] is too small.
     BufferTooSmall {
+        /// Bytes the blob needs.
         needed: usize,
+        /// Bytes in the buffer.
         available: usize,
     },
     /// The payload does not fit the u32 length field.
     PayloadTooLarge {
+        /// Payload bytes.
         len: usize,
     },
 }

@@ -1,5 +1,5 @@
-//! Planar Keplerian orbits in canonical units (SPEC section 2): elements, polar and Cartesian
-//! states. Angles are radians here; the CLI takes degrees at the edge.
+//! Planar Keplerian orbits in canonical units (docs/spec.md section 2): elements, polar and
+//! Cartesian states. Angles are radians here; the CLI takes degrees at the edge.
 
 use serde::{Deserialize, Serialize};
 
@@ -24,35 +24,48 @@ impl core::fmt::Display for OrbitError {
     }
 }
 
+impl core::error::Error for OrbitError {}
+
 /// Shape and orientation of a closed planar orbit: semi-major axis a (AU), eccentricity e,
 /// argument of periapsis omega (rad). A target orbit of a transfer is exactly this.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OrbitShape {
+    /// Semi-major axis (AU), > 0.
     pub a: f64,
+    /// Eccentricity, in [0, 1).
     pub e: f64,
+    /// Argument of periapsis (rad): the polar angle of periapsis.
     pub omega: f64,
 }
 
 /// A point on an orbit: its shape plus the true anomaly nu (rad).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OrbitElements {
+    /// The orbit.
     pub shape: OrbitShape,
+    /// True anomaly (rad): the angle from periapsis, theta = omega + nu.
     pub nu: f64,
 }
 
-/// Polar state (SPEC section 2): radius, polar angle, radial and transverse velocity.
+/// Polar state (docs/spec.md section 2): radius, polar angle, radial and transverse velocity.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PolarState {
+    /// Distance from the Sun (AU).
     pub r: f64,
+    /// Polar angle from the x axis (rad).
     pub theta: f64,
+    /// Radial velocity (AU / t*), positive away from the Sun.
     pub v_r: f64,
+    /// Transverse (along-track) velocity (AU / t*), positive prograde.
     pub v_theta: f64,
 }
 
 /// Cartesian position and velocity in the orbit plane.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CartesianState {
+    /// Position (AU).
     pub r: [f64; 2],
+    /// Velocity (AU / t*).
     pub v: [f64; 2],
 }
 
@@ -125,17 +138,19 @@ impl OrbitElements {
         Ok(())
     }
 
+    /// The polar state at this point of the orbit (docs/spec.md section 2).
     pub fn polar(&self) -> PolarState {
         self.shape.polar_at(self.nu)
     }
 
+    /// The Cartesian state at this point of the orbit.
     pub fn cartesian(&self) -> CartesianState {
         self.shape.cartesian_at(self.nu)
     }
 }
 
 impl PolarState {
-    /// Cartesian state from the polar one (SPEC section 2 relations inverted).
+    /// Cartesian state from the polar one (docs/spec.md section 2 relations inverted).
     pub fn to_cartesian(&self) -> CartesianState {
         let (s, c) = (libm::sin(self.theta), libm::cos(self.theta));
         CartesianState {
@@ -146,7 +161,7 @@ impl PolarState {
 }
 
 impl CartesianState {
-    /// Polar state (SPEC section 2). The angle is atan2(y, x) in (-pi, pi].
+    /// Polar state (docs/spec.md section 2). The angle is atan2(y, x) in (-pi, pi].
     pub fn to_polar(&self) -> PolarState {
         let [x, y] = self.r;
         let [vx, vy] = self.v;

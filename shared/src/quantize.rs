@@ -26,17 +26,24 @@ use crate::blob::{
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DenseWeights {
+    /// Input width.
     pub inputs: usize,
+    /// Output width.
     pub outputs: usize,
+    /// `outputs * inputs` weights, output-major (`weights[j * inputs + i]`).
     pub weights: Vec<f32>,
+    /// `outputs` biases.
     pub bias: Vec<f32>,
+    /// The non-linearity after the layer (ReLU hidden, tanh last).
     pub activation: Activation,
 }
 
 /// A trained actor mean network.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MlpWeights {
+    /// The problem the network flies (fixes the feature layout).
     pub kind: ProblemKind,
+    /// The dense layers, input to output.
     pub layers: Vec<DenseWeights>,
 }
 
@@ -44,9 +51,17 @@ pub struct MlpWeights {
 #[derive(Debug, Clone, PartialEq)]
 pub enum QuantizeError {
     /// An array length does not match the layer's shape.
-    Shape { layer: usize, what: &'static str },
+    Shape {
+        /// Index of the layer (from 0).
+        layer: usize,
+        /// Which array.
+        what: &'static str,
+    },
     /// A weight or bias is NaN or infinite.
-    NonFinite { layer: usize },
+    NonFinite {
+        /// Index of the layer (from 0).
+        layer: usize,
+    },
     /// No calibration inputs, or one of the wrong length or not finite.
     Calibration(&'static str),
     /// The blob format refused the result (layer count, widths, chain).
@@ -64,7 +79,7 @@ impl core::fmt::Display for QuantizeError {
     }
 }
 
-impl std::error::Error for QuantizeError {}
+impl core::error::Error for QuantizeError {}
 
 /// The int8 quantization chosen for each layer, for reports.
 #[derive(Debug, Clone, PartialEq)]

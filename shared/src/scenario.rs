@@ -1,5 +1,5 @@
-//! Scenario types (SPEC section 4): what a transfer or rendezvous problem is. The distributions
-//! are defined once here and used by both the data generator and the MDP reset.
+//! Scenario types (docs/spec.md section 4): what a transfer or rendezvous problem is. The
+//! distributions are defined once here and used by both the data generator and the MDP reset.
 
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
@@ -11,26 +11,33 @@ use crate::units::STEP;
 /// Which optimal-control / MDP problem: free-anomaly transfer (TBT) or rendezvous (TBR).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum ProblemKind {
+    /// Free-anomaly transfer (TBT, docs/spec.md section 5): reach the target orbit, anywhere on it.
     Transfer,
+    /// Rendezvous (TBR, docs/spec.md section 6): meet a body moving on the target orbit.
     Rendezvous,
 }
 
-/// The four scenario distributions of SPEC section 4.
+/// The four scenario distributions of docs/spec.md section 4.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
     // Aliases: manifests written before the kebab-case names still load.
+    /// Transfers between near-circular coplanar orbits of 1 to 1.52 AU (thesis Tables 4.1, 4.3).
     #[serde(alias = "TransferCircular")]
     TransferCircular,
+    /// Transfers between eccentric, rotated orbits of 0.39 to 1.52 AU (thesis Table 4.2).
     #[serde(alias = "TransferHard")]
     TransferHard,
+    /// Rendezvous between near-circular orbits of 1 to 1.52 AU (thesis Table 4.5).
     #[serde(alias = "RendezvousCircular")]
     RendezvousCircular,
+    /// Rendezvous between eccentric, rotated orbits of 0.39 to 1.52 AU (thesis Fig. 7.2).
     #[serde(alias = "RendezvousHard")]
     RendezvousHard,
 }
 
 impl ScenarioKind {
+    /// Every distribution, in the order of docs/spec.md section 4.
     pub const ALL: [Self; 4] = [
         Self::TransferCircular,
         Self::TransferHard,
@@ -48,6 +55,7 @@ impl ScenarioKind {
         }
     }
 
+    /// The problem the distribution's scenarios pose.
     pub fn problem(self) -> ProblemKind {
         match self {
             Self::TransferCircular | Self::TransferHard => ProblemKind::Transfer,
@@ -59,16 +67,21 @@ impl ScenarioKind {
 /// Closed interval [lo, hi] a parameter is drawn from uniformly (lo == hi: fixed).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Range {
+    /// Lower bound.
     pub lo: f64,
+    /// Upper bound.
     pub hi: f64,
 }
 
-/// The parameter ranges of a scenario distribution (SPEC section 4 table). Both orbits share
-/// them; angles in radians.
+/// The parameter ranges of a scenario distribution (docs/spec.md section 4 table). Both orbits
+/// share them; angles in radians.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ScenarioRanges {
+    /// Semi-major axis (AU), both orbits.
     pub a: Range,
+    /// Eccentricity, both orbits.
     pub e: Range,
+    /// Argument of periapsis (rad), both orbits.
     pub omega: Range,
     /// Initial anomaly nu0 and, for rendezvous, the target's nuf0.
     pub nu: Range,
@@ -77,7 +90,7 @@ pub struct ScenarioRanges {
 const TWO_PI: f64 = 2.0 * core::f64::consts::PI;
 
 impl ScenarioKind {
-    /// The SPEC section 4 ranges.
+    /// The docs/spec.md section 4 ranges.
     pub fn ranges(self) -> ScenarioRanges {
         let full = Range { lo: 0.0, hi: TWO_PI };
         match self {
@@ -135,6 +148,7 @@ impl ScenarioKind {
 /// 14-day steps.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Scenario {
+    /// Transfer or rendezvous.
     pub problem: ProblemKind,
     /// Departure orbit and anomaly at t = 0; the spacecraft starts there with m = 1.
     pub initial: OrbitElements,
@@ -147,7 +161,8 @@ pub struct Scenario {
 }
 
 impl Scenario {
-    /// A transfer from `initial` to any point of `target`, with the SPEC section 4 time of flight.
+    /// A transfer from `initial` to any point of `target`, with the docs/spec.md section 4 time of
+    /// flight.
     pub fn transfer(initial: OrbitElements, target: OrbitShape) -> Self {
         Self {
             problem: ProblemKind::Transfer,
@@ -163,7 +178,7 @@ impl Scenario {
         f64::from(self.steps) * STEP
     }
 
-    /// The SPEC section 4 rule: TOF = max(P0, Pf) rounded up to whole steps.
+    /// The docs/spec.md section 4 rule: TOF = max(P0, Pf) rounded up to whole steps.
     pub fn steps_for(initial: &OrbitShape, target: &OrbitShape) -> u32 {
         let tof = libm::fmax(initial.period(), target.period());
         // Saturating float->int conversion: absurd periods cannot wrap around.
@@ -187,7 +202,9 @@ impl Scenario {
 /// Why a scenario is unusable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ScenarioError {
+    /// The departure orbit is unusable.
     Initial(OrbitError),
+    /// The target orbit is unusable.
     Target(OrbitError),
     /// The time of flight must be at least one step.
     TimeOfFlight,
@@ -202,6 +219,8 @@ impl core::fmt::Display for ScenarioError {
         }
     }
 }
+
+impl core::error::Error for ScenarioError {}
 
 #[cfg(test)]
 mod tests {

@@ -1,4 +1,5 @@
-//! Spacecraft parameters (SPEC section 1). A parameter of every run, never a constant in code.
+//! Spacecraft parameters (docs/spec.md section 1). A parameter of every run, never a constant in
+//! code.
 
 use serde::{Deserialize, Serialize};
 
@@ -36,6 +37,8 @@ impl core::fmt::Display for SpacecraftError {
         f.write_str(what)
     }
 }
+
+impl core::error::Error for SpacecraftError {}
 
 /// The spacecraft in canonical units, as the dynamics use it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

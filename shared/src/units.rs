@@ -1,4 +1,4 @@
-//! Canonical units (SPEC section 1): length 1 AU, mu_sun = 1, mass m0.
+//! Canonical units (docs/spec.md section 1): length 1 AU, mu_sun = 1, mass m0.
 //!
 //! Everything inside the flight code and every network feature is canonical; SI only appears
 //! at the edges (spacecraft parameters, reports).
@@ -43,7 +43,7 @@ mod tests {
     fn time_unit_matches_definition() {
         let t = libm::sqrt(AU_M * AU_M * AU_M / MU_SUN_M3_S2);
         assert!((t - TIME_UNIT_S).abs() / t < 1e-15, "t* = {t}");
-        // SPEC section 1 figures, to the digits printed there.
+        // docs/spec.md section 1 figures, to the digits printed there.
         assert!((TIME_UNIT_S - 5_022_642.89).abs() < 0.01);
         assert!((VELOCITY_UNIT_M_S - 29_784.69).abs() < 0.01);
         assert!((STEP - 0.240_829_39).abs() < 1e-8);

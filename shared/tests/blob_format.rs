@@ -1,5 +1,6 @@
-//! The weight-blob format (SPEC section 10): round trips, zero copy, and that every corrupt,
-//! truncated, foreign or mis-shaped blob is refused with its own typed error, never a panic.
+//! The weight-blob format (docs/spec.md section 10): round trips, zero copy, and that every
+//! corrupt, truncated, foreign or mis-shaped blob is refused with its own typed error, never a
+//! panic.
 
 use proptest::prelude::*;
 use serde::Serialize;

@@ -28,7 +28,7 @@ use std::path::Path;
 
 use onboard::dynamics::{propagate, SpacecraftState, ThrustCommand};
 use onboard::features::{decode_action, ACTION_LEN};
-use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances, MAX_EVENTS};
+use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::orbit::CartesianState;
@@ -40,7 +40,7 @@ use shared::units::STEP;
 use crate::env::batch::Stats;
 use crate::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::generate::{read_dataset, GenerateError};
-use crate::solver::pontryagin::{OptimalControlParams, StateCostate, Y_LEN};
+use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
 use crate::solver::shooting::initial_state_costate;
 use crate::solver::{solve_scenario, SolveOptions};
@@ -131,7 +131,7 @@ struct ControlIntegral(OptimalControlParams);
 
 const AUG_LEN: usize = Y_LEN + 3;
 
-impl OdeSystem<AUG_LEN> for ControlIntegral {
+impl OdeSystem<AUG_LEN, SWITCH_EVENTS> for ControlIntegral {
     fn derivatives(&self, t: f64, y: &[f64; AUG_LEN], dydt: &mut [f64; AUG_LEN]) {
         let core: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
         let mut f = [0.0; Y_LEN];
@@ -143,7 +143,7 @@ impl OdeSystem<AUG_LEN> for ControlIntegral {
         dydt[Y_LEN + 2] = s.throttle;
     }
 
-    fn events(&self, t: f64, y: &[f64; AUG_LEN]) -> [f64; MAX_EVENTS] {
+    fn events(&self, t: f64, y: &[f64; AUG_LEN]) -> [f64; SWITCH_EVENTS] {
         let core: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
         StateCostate(self.0).events(t, &core)
     }

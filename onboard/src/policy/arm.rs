@@ -15,7 +15,7 @@
 
 use core::arch::asm;
 
-use super::{dot1_pairs, Acts};
+use super::int8::{dot1_pairs, Acts};
 
 /// `acc + w0 * lo(xe) + w2 * hi(xe) + w1 * lo(xo) + w3 * hi(xo)` (wrapping), `w0..w3` the
 /// signed bytes of `w` (little endian), `lo`/`hi` the signed halves of a word; the portable

@@ -26,7 +26,7 @@
 
 use nalgebra::{SMatrix, SVector};
 use num_dual::Dual2_64;
-use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances, MAX_EVENTS};
+use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
 use shared::orbit::OrbitShape;
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
@@ -57,10 +57,6 @@ impl OdeSystem<STM_LEN> for FullThrustStm {
     fn derivatives(&self, _t: f64, ys: &[f64; STM_LEN], dydt: &mut [f64; STM_LEN]) {
         stm_rhs(ys, &self.0, Regime::Full, dydt);
     }
-
-    fn events(&self, _t: f64, _ys: &[f64; STM_LEN]) -> [f64; MAX_EVENTS] {
-        [1.0; MAX_EVENTS]
-    }
 }
 
 /// The state-costate system at full thrust, plain.
@@ -69,10 +65,6 @@ struct FullThrust(OptimalControlParams);
 impl OdeSystem<Y_LEN> for FullThrust {
     fn derivatives(&self, _t: f64, y: &[f64; Y_LEN], dydt: &mut [f64; Y_LEN]) {
         *dydt = state_costate_rhs_in(y, &self.0, Regime::Full);
-    }
-
-    fn events(&self, _t: f64, _y: &[f64; Y_LEN]) -> [f64; MAX_EVENTS] {
-        [1.0; MAX_EVENTS]
     }
 }
 

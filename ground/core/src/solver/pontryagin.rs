@@ -10,11 +10,12 @@ use nalgebra::{Const, SVector};
 use num_dual::{Derivative, DualNum, DualVec64};
 use std::cell::Cell;
 
-use onboard::integrator::{
-    integrate_observed, IntegrationError, IntegrationStats, Observer, OdeSystem, Tolerances, MAX_EVENTS,
-};
+use onboard::integrator::{integrate_observed, IntegrationError, IntegrationStats, Observer, OdeSystem, Tolerances};
 use shared::spacecraft::CanonicalSpacecraft;
 
+/// Event functions of the state-costate systems: the throttle switches rho = -eps and
+/// rho = +eps (or, in the modal propagation, a switch and the rate of rho).
+pub const SWITCH_EVENTS: usize = 2;
 /// State + costate length.
 pub const Y_LEN: usize = 10;
 /// Shooting variables that the sensitivity is taken against: the five initial costates.
@@ -178,17 +179,17 @@ pub fn hamiltonian(y: &[f64; Y_LEN], u: f64, alpha: [f64; 2], p: &OptimalControl
 #[derive(Debug, Clone, Copy)]
 pub struct StateCostate(pub OptimalControlParams);
 
-impl OdeSystem<Y_LEN> for StateCostate {
+impl OdeSystem<Y_LEN, SWITCH_EVENTS> for StateCostate {
     fn derivatives(&self, _t: f64, y: &[f64; Y_LEN], dydt: &mut [f64; Y_LEN]) {
         *dydt = state_costate_rhs(y, &self.0);
     }
 
-    fn events(&self, _t: f64, y: &[f64; Y_LEN]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, y: &[f64; Y_LEN]) -> [f64; SWITCH_EVENTS] {
         switch_events(y, &self.0)
     }
 }
 
-fn switch_events(y: &[f64; Y_LEN], p: &OptimalControlParams) -> [f64; MAX_EVENTS] {
+fn switch_events(y: &[f64; Y_LEN], p: &OptimalControlParams) -> [f64; SWITCH_EVENTS] {
     let rho = switching_function(y, p.spacecraft.exhaust_speed);
     [rho - p.eps, rho + p.eps]
 }
@@ -208,13 +209,13 @@ pub fn switching_rate(y: &[f64; Y_LEN], exhaust_speed: f64) -> f64 {
 /// eps) changes the sign of no switch function at the step's ends and would be stepped over,
 /// but it puts a maximum of rho inside the step, which the derivative's sign change reveals;
 /// the step then lands on the maximum and the crossing shows. Full thrust likewise watches the
-/// minima. (The integrator offers two event slots.) The rate is watched as -d rho / dt: the
+/// minima. (Two event slots, [`SWITCH_EVENTS`].) The rate is watched as -d rho / dt: the
 /// integrator keeps the last sign of each slot, and a slot that becomes a switch on entering the
 /// ramp must have that switch's sign there (rho - eps < 0 on a rise from a coast, rho + eps > 0
 /// on a fall from full thrust), or a crossing right after the entry would go unseen. Leaving the
 /// ramp, the slot's sign may flip; the next step then reports a rate event at its start, which
 /// keeps the branch.
-fn modal_events(y: &[f64; Y_LEN], p: &OptimalControlParams, regime: Regime) -> [f64; MAX_EVENTS] {
+fn modal_events(y: &[f64; Y_LEN], p: &OptimalControlParams, regime: Regime) -> [f64; SWITCH_EVENTS] {
     let c = p.spacecraft.exhaust_speed;
     let rho = switching_function(y, c);
     match regime {
@@ -270,14 +271,14 @@ impl StateCostateSensitivity {
     }
 }
 
-impl OdeSystem<YS_LEN> for StateCostateSensitivity {
+impl OdeSystem<YS_LEN, SWITCH_EVENTS> for StateCostateSensitivity {
     fn derivatives(&self, _t: f64, ys: &[f64; YS_LEN], dydt: &mut [f64; YS_LEN]) {
         let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
         let regime = Regime::of(switching_function(&y, self.0.spacecraft.exhaust_speed), self.0.eps);
         sensitivity_rhs(ys, &self.0, regime, dydt);
     }
 
-    fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, ys: &[f64; YS_LEN]) -> [f64; SWITCH_EVENTS] {
         let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
         switch_events(&y, &self.0)
     }
@@ -326,7 +327,7 @@ struct ModalSystem<'a, R> {
     abort: &'a Cell<bool>,
 }
 
-impl<const N: usize, R: BranchRhs<N>> OdeSystem<N> for ModalSystem<'_, R> {
+impl<const N: usize, R: BranchRhs<N>> OdeSystem<N, SWITCH_EVENTS> for ModalSystem<'_, R> {
     fn derivatives(&self, _t: f64, ys: &[f64; N], dydt: &mut [f64; N]) {
         if self.abort.get() {
             dydt.fill(f64::NAN);
@@ -335,7 +336,7 @@ impl<const N: usize, R: BranchRhs<N>> OdeSystem<N> for ModalSystem<'_, R> {
         self.rhs.rhs(ys, self.regime.get(), dydt);
     }
 
-    fn events(&self, _t: f64, ys: &[f64; N]) -> [f64; MAX_EVENTS] {
+    fn events(&self, _t: f64, ys: &[f64; N]) -> [f64; SWITCH_EVENTS] {
         let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
         modal_events(&y, &self.params, self.regime.get())
     }

@@ -1,257 +1,18 @@
-//! Fixed-size MLP inference in f32 and int8, straight from a weight blob (SPEC section 10).
-//!
-//! The deployed actor mean heads are 10-256-256-3 (transfer) and 22-256-256-3 (rendezvous):
-//! two ReLU hidden layers and a tanh output. Every size is a const generic, so activations live
-//! on the stack as fixed arrays and nothing is allocated.
-//!
-//! **Zero copy.** A layer view ([`DenseF32`], [`DenseInt8`]) keeps the byte slices of its
-//! [`LayerBlob`]; the weights are read in place (from flash on the flight computer) and never
-//! copied to RAM. Constructors check every size against the const shape, so `forward` has no
-//! failure path and cannot panic on any input.
-//!
-//! **Kernels** (safe Rust vectorized by LLVM, except two `asm!` loops for the Cortex-M4F in
-//! `policy/arm.rs`):
-//! - f32 (weights input-major, `w[i * OUT + j]`): each input adds `x[i] * row_i` to the output
-//!   vector (an axpy, which vectorizes without reassociating floating-point sums). Outputs are
-//!   processed in tiles of [`F32_TILE`] whose accumulators stay in registers across all inputs;
-//!   a layer narrower than a tile (the 3 action outputs) keeps 8 partial sums over interleaved
-//!   inputs instead. A product and a sum are two roundings: Rust never contracts `a * b + c`
-//!   into an FMA, and `f32::mul_add` needs `std`. On the Cortex-M4F the wide layers run in
-//!   tiles of 16 outputs held in `s0`-`s15` by an `asm!` loop (`vmla.f32`, also two roundings),
-//!   with the same products and sums in the same order per output, so the results are the same
-//!   bits.
-//! - int8 (weights output-major, `w[j * IN + i]`): the layer input is quantized once to 16-bit
-//!   levels held in i16, then each output is an exact i32 dot product with the i8 weights
-//!   (integer sums reassociate freely, so every kernel gives the same integers). The target
-//!   picks the kernel ([`INT8_KERNEL`]): [`DenseInt8::accumulate_lanes`] (x86 and other SIMD
-//!   targets: [`INT8_LANES`] independent lanes per row, `vpmovsxbw` + `vpmaddwd`);
-//!   [`DenseInt8::accumulate_pairs`] (Arm with the DSP extension, the Cortex-M4F: one word of 4
-//!   weights split into two i16 pairs by `sxtb16`, each multiplied against a pair of
-//!   activations and summed by one `smlad`, [`INT8_ROWS`] rows per pass; the activations are
-//!   kept in pair order between layers, see [`to_pair_order`]);
-//!   [`DenseInt8::accumulate_rows`] (other 32-bit Arm: scalar, [`INT8_ROWS`] rows per pass).
-//!   The sum plus the i32 bias is rescaled by `input_scale * weight_scale[j]`, the activation
-//!   is applied in f32 and the result is quantized with the next layer's `input_scale`:
-//!   `q = clamp(round(x / s), -L, L)`, `L` = [`ACTIVATION_LEVELS`], round half away from zero
-//!   ([`quantize`]; two exact implementations giving the same integers, one for Arm, one that
-//!   vectorizes for the others).
-//!
-//! **Non-finite inputs.** [`Mlp::forward`] never panics. If any input is NaN or infinite it
-//! returns `[f32::NAN; OUT]` in both precisions, so a corrupt state cannot turn into a plausible
-//! thrust command (the guidance step rejects non-finite states before inference anyway). Finite
-//! inputs give finite outputs in `[-1, 1]`, except in f32 when an intermediate sum overflows
-//! (inputs of order 1e30 and beyond): the output is then `±1` or NaN. The layer kernels
-//! themselves are total: NaN propagates through the f32 kernel (the ReLU keeps NaN) and is
-//! quantized to 0 by the int8 kernel (infinities saturate to ±`L`).
+//! The int8 kernels: a dense layer's exact i32 dot products against 16-bit quantized
+//! activations in three kernels giving the same integers ([`Int8Kernel`]), the requantization
+//! between layers ([`quantize`], [`quantize_relu`]) and the pair order of the Arm DSP kernel
+//! (see the module doc of [`super`]).
 
-use core::fmt;
+use shared::blob::{self, LayerBlob, ACTIVATION_LEVELS};
 
-use shared::blob::{
-    self, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization, ACTIVATION_LEVELS,
-};
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+use super::arm::{dot4_pairs, pair_mac};
+use super::{check_len, check_shape, f32_le, i32_le, relu, LayerArray, PolicyError, ARM_ASM};
 
-/// Outputs per register tile of the f32 kernel (a multiple of 16, the AVX-512 lane count).
-pub const F32_TILE: usize = 64;
 /// Output rows computed per pass over the input by [`DenseInt8::accumulate_rows`].
 pub const INT8_ROWS: usize = 4;
 /// Independent i32 lanes of [`DenseInt8::accumulate_lanes`] (two AVX-512 registers).
 pub const INT8_LANES: usize = 32;
-/// Whether this target runs the `asm!` kernels of `policy/arm.rs`: the int8 pair kernel (DSP
-/// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vmla.f32`). Arm target
-/// features are unstable in Rust, so on stable `target_feature = "dsp"` is never set; the
-/// bare-metal hard-float Arm targets stand in for it: `thumbv7em-none-eabihf` (Cortex-M4F and
-/// M7F: ARMv7E-M has DSP by definition, hard float has the FPU), and the v7-R, v8-R and v7-A
-/// ones (DSP is part of their A32/T32). The exception, `thumbv8m.main-none-eabihf` (DSP
-/// optional, off in the target), fails to assemble the kernel: a build error, never a wrong
-/// instruction.
-const ARM_ASM: bool = cfg!(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"));
-
-#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-#[allow(unsafe_code)]
-mod arm;
-#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-use arm::{dot4_pairs, pair_mac};
-
-/// Layers of an [`Mlp`].
-pub const MLP_LAYERS: usize = 3;
-
-/// Inputs and outputs of a dense layer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct LayerShape {
-    pub inputs: usize,
-    pub outputs: usize,
-}
-
-/// Which array of a layer has the wrong length.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LayerArray {
-    Weights,
-    Bias,
-    WeightScales,
-}
-
-/// Why a blob cannot be used as a policy.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum PolicyError {
-    /// The bytes are not a valid blob.
-    Blob(BlobError),
-    /// The blob is for the other problem.
-    WrongKind { expected: ProblemKind, found: ProblemKind },
-    /// The blob's feature layout does not have the network's input count.
-    WrongFeatures {
-        expected_inputs: usize,
-        found: FeatureLayout,
-    },
-    /// The network does not have [`MLP_LAYERS`] layers.
-    WrongLayerCount { expected: usize, found: usize },
-    /// A layer's declared size differs from the compiled network's (`layer` counts from 0).
-    WrongShape {
-        layer: usize,
-        expected: LayerShape,
-        found: LayerShape,
-    },
-    /// A layer's array has the wrong number of bytes for its declared size and quantization.
-    WrongArrayLength {
-        layer: usize,
-        array: LayerArray,
-        expected: usize,
-        found: usize,
-    },
-    /// A layer's activation is not the contract's (ReLU hidden, tanh output).
-    WrongActivation {
-        layer: usize,
-        expected: Activation,
-        found: Activation,
-    },
-    /// An int8 layer's input scale is not finite and positive, or a weight scale is not finite.
-    BadScale { layer: usize },
-    /// An int8 layer has more inputs than its i32 accumulator sums exactly
-    /// ([`blob::MAX_INT8_INPUTS`]).
-    TooWideForInt8 { layer: usize, inputs: usize },
-}
-
-impl PolicyError {
-    /// The same error, reported for layer `layer`.
-    fn at_layer(self, layer: usize) -> Self {
-        match self {
-            Self::WrongShape { expected, found, .. } => Self::WrongShape { layer, expected, found },
-            Self::WrongArrayLength {
-                array, expected, found, ..
-            } => Self::WrongArrayLength {
-                layer,
-                array,
-                expected,
-                found,
-            },
-            Self::WrongActivation { expected, found, .. } => Self::WrongActivation { layer, expected, found },
-            Self::BadScale { .. } => Self::BadScale { layer },
-            Self::TooWideForInt8 { inputs, .. } => Self::TooWideForInt8 { layer, inputs },
-            other => other,
-        }
-    }
-}
-
-impl From<BlobError> for PolicyError {
-    fn from(e: BlobError) -> Self {
-        Self::Blob(e)
-    }
-}
-
-impl fmt::Display for PolicyError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Blob(e) => write!(f, "invalid weight blob: {e}"),
-            Self::WrongKind { expected, found } => {
-                write!(f, "blob is for {found:?}, expected {expected:?}")
-            }
-            Self::WrongFeatures { expected_inputs, found } => write!(
-                f,
-                "feature layout {found:?} has {} inputs, network expects {expected_inputs}",
-                found.len()
-            ),
-            Self::WrongLayerCount { expected, found } => {
-                write!(f, "network has {found} layers, expected {expected}")
-            }
-            Self::WrongShape { layer, expected, found } => write!(
-                f,
-                "layer {layer} is {}x{}, expected {}x{}",
-                found.inputs, found.outputs, expected.inputs, expected.outputs
-            ),
-            Self::WrongArrayLength {
-                layer,
-                array,
-                expected,
-                found,
-            } => write!(f, "layer {layer} {array:?} has {found} bytes, expected {expected}"),
-            Self::WrongActivation { layer, expected, found } => {
-                write!(f, "layer {layer} activation is {found:?}, expected {expected:?}")
-            }
-            Self::BadScale { layer } => write!(f, "layer {layer} has an invalid scale"),
-            Self::TooWideForInt8 { layer, inputs } => write!(
-                f,
-                "int8 layer {layer} has {inputs} inputs, more than the {} an i32 accumulator sums exactly",
-                blob::MAX_INT8_INPUTS
-            ),
-        }
-    }
-}
-
-fn check_shape<const IN: usize, const OUT: usize>(layer: &LayerBlob<'_>) -> Result<(), PolicyError> {
-    let found = LayerShape {
-        inputs: usize::from(layer.inputs),
-        outputs: usize::from(layer.outputs),
-    };
-    let expected = LayerShape {
-        inputs: IN,
-        outputs: OUT,
-    };
-    // A zero width is refused even if the blob declares it, so no kernel ever runs on one.
-    if found == expected && IN > 0 && OUT > 0 {
-        Ok(())
-    } else {
-        Err(PolicyError::WrongShape {
-            layer: 0,
-            expected,
-            found,
-        })
-    }
-}
-
-fn check_len(array: LayerArray, bytes: &[u8], expected: usize) -> Result<(), PolicyError> {
-    if bytes.len() == expected {
-        Ok(())
-    } else {
-        Err(PolicyError::WrongArrayLength {
-            layer: 0,
-            array,
-            expected,
-            found: bytes.len(),
-        })
-    }
-}
-
-/// An f32 from 4 little-endian bytes (a plain load once inlined; 0 for a short chunk, which the
-/// `chunks_exact(4)` callers never produce).
-#[inline(always)]
-fn f32_le(c: &[u8]) -> f32 {
-    <[u8; 4]>::try_from(c).map_or(0.0, f32::from_le_bytes)
-}
-
-/// An i32 from 4 little-endian bytes.
-#[inline(always)]
-fn i32_le(c: &[u8]) -> i32 {
-    <[u8; 4]>::try_from(c).map_or(0, i32::from_le_bytes)
-}
-
-/// ReLU that keeps NaN (`max(x, 0)` would turn it into 0).
-#[inline(always)]
-fn relu(x: f32) -> f32 {
-    if x < 0.0 {
-        0.0
-    } else {
-        x
-    }
-}
 
 /// `round(v)`, half away from zero, saturating to the i32 range; NaN gives 0 (the Arm form
 /// of the quantizer's rounding).
@@ -332,156 +93,6 @@ pub fn quantize_relu(y: f32, scale: f32) -> i16 {
     }
 }
 
-/// A dense f32 layer `y = b + W x` viewing its blob arrays in place.
-///
-/// `weights`: `IN * OUT` f32 LE input-major (`w[i * OUT + j]`); `bias`: `OUT` f32 LE.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DenseF32<'a, const IN: usize, const OUT: usize> {
-    weights: &'a [u8],
-    bias: &'a [u8],
-}
-
-impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
-    /// Views an f32 layer; checks `inputs == IN`, `outputs == OUT` and the array lengths.
-    /// The activation is not checked here (see [`Mlp::from_blob`]). Errors report layer 0.
-    pub fn from_layer(layer: &LayerBlob<'a>) -> Result<Self, PolicyError> {
-        check_shape::<IN, OUT>(layer)?;
-        check_len(
-            LayerArray::Weights,
-            layer.weights,
-            IN.saturating_mul(OUT).saturating_mul(4),
-        )?;
-        check_len(LayerArray::Bias, layer.bias, OUT.saturating_mul(4))?;
-        check_len(LayerArray::WeightScales, layer.weight_scales, 0)?;
-        Ok(Self {
-            weights: layer.weights,
-            bias: layer.bias,
-        })
-    }
-
-    /// The weight bytes (borrowed from the blob).
-    pub fn weights(&self) -> &'a [u8] {
-        self.weights
-    }
-
-    /// The bias bytes (borrowed from the blob).
-    pub fn bias(&self) -> &'a [u8] {
-        self.bias
-    }
-
-    /// The pre-activation `b + W x`.
-    pub fn forward(&self, x: &[f32; IN]) -> [f32; OUT] {
-        let mut y = [0.0f32; OUT];
-        for (yj, c) in y.iter_mut().zip(self.bias.chunks_exact(4)) {
-            *yj = f32_le(c);
-        }
-        if OUT < F32_TILE {
-            axpy_narrow(self.weights, x, &mut y);
-            return y;
-        }
-        self.tiles(x, &mut y);
-        y
-    }
-
-    /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
-    /// outputs (the portable kernel), then the last `OUT % F32_TILE` outputs.
-    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
-    #[inline(always)]
-    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        let row_bytes = OUT * 4;
-        let mut col = 0usize;
-        let mut tiles = y.chunks_exact_mut(F32_TILE);
-        for tile in tiles.by_ref() {
-            let mut acc = [0.0f32; F32_TILE];
-            for (a, &v) in acc.iter_mut().zip(tile.iter()) {
-                *a = v;
-            }
-            let seg = col * 4..(col + F32_TILE) * 4;
-            for (row, &xi) in self.weights.chunks_exact(row_bytes).zip(x.iter()) {
-                if let Some(ws) = row.get(seg.clone()) {
-                    for (a, c) in acc.iter_mut().zip(ws.chunks_exact(4)) {
-                        *a += xi * f32_le(c);
-                    }
-                }
-            }
-            for (v, &a) in tile.iter_mut().zip(acc.iter()) {
-                *v = a;
-            }
-            col += F32_TILE;
-        }
-        let tail = tiles.into_remainder();
-        if !tail.is_empty() {
-            axpy_tail(self.weights, row_bytes, col, x, tail);
-        }
-    }
-
-    /// [`Self::tiles`] on the Cortex-M4F: tiles of 16 outputs held in `s0`-`s15` by an `asm!`
-    /// loop (`arm::f32_tile`, `policy/arm.rs`), the same products and sums in the same order
-    /// per output as the portable tiles; any tile it declines, and the last `OUT % 16`
-    /// outputs, take the portable sequential loop.
-    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-    #[inline(always)]
-    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        let row_bytes = OUT * 4;
-        let mut col = 0usize;
-        let mut tiles = y.chunks_exact_mut(arm::F32_ARM_TILE);
-        for tile in tiles.by_ref() {
-            let done = <&mut [f32; arm::F32_ARM_TILE]>::try_from(&mut *tile)
-                .is_ok_and(|acc| arm::f32_tile(self.weights, row_bytes, col, x, acc));
-            if !done {
-                axpy_tail(self.weights, row_bytes, col, x, tile);
-            }
-            col += arm::F32_ARM_TILE;
-        }
-        axpy_tail(self.weights, row_bytes, col, x, tiles.into_remainder());
-    }
-}
-
-/// Independent partial sums (over interleaved inputs) of the narrow-output kernels, so the
-/// additions into one output are not a single long latency chain.
-const SPLIT: usize = 8;
-
-/// `y += W x` for a layer narrower than a tile (the 3 action outputs): [`SPLIT`] partial sums
-/// of the whole (const-size) output vector over interleaved inputs.
-#[inline(always)]
-fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) {
-    let row_bytes = OUT * 4;
-    let mut part = [[0.0f32; OUT]; SPLIT];
-    let mut w = weights.chunks_exact(SPLIT * row_bytes);
-    let mut xs = x.chunks_exact(SPLIT);
-    for (wb, xb) in w.by_ref().zip(xs.by_ref()) {
-        for ((p, row), &xi) in part.iter_mut().zip(wb.chunks_exact(row_bytes)).zip(xb) {
-            for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
-                *a += xi * f32_le(c);
-            }
-        }
-    }
-    let rest = w.remainder().chunks_exact(row_bytes).zip(xs.remainder());
-    for (p, (row, &xi)) in part.iter_mut().zip(rest) {
-        for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
-            *a += xi * f32_le(c);
-        }
-    }
-    for p in part.iter() {
-        for (v, &a) in y.iter_mut().zip(p.iter()) {
-            *v += a;
-        }
-    }
-}
-
-/// `y[k] += sum_i x[i] * w[i][col + k]` for the last `y.len() < F32_TILE` outputs of a layer
-/// wider than a tile (odd widths only; the deployed 256 is a whole number of tiles).
-fn axpy_tail<const IN: usize>(weights: &[u8], row_bytes: usize, col: usize, x: &[f32; IN], y: &mut [f32]) {
-    let seg = col * 4..(col + y.len()) * 4;
-    for (row, &xi) in weights.chunks_exact(row_bytes).zip(x.iter()) {
-        if let Some(ws) = row.get(seg.clone()) {
-            for (v, c) in y.iter_mut().zip(ws.chunks_exact(4)) {
-                *v += xi * f32_le(c);
-            }
-        }
-    }
-}
-
 /// A dense int8 layer viewing its blob arrays in place.
 ///
 /// `weights`: `IN * OUT` i8 output-major (`w[j * IN + i]`); `bias`: `OUT` i32 LE in units of
@@ -497,7 +108,8 @@ pub struct DenseInt8<'a, const IN: usize, const OUT: usize> {
 impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// Views an int8 layer; checks `inputs == IN`, `outputs == OUT`, the array lengths, that
     /// `input_scale` is finite and positive and that the weight scales are finite.
-    /// The activation is not checked here (see [`Mlp::from_blob`]). Errors report layer 0.
+    /// The activation is not checked here (see [`Mlp::from_blob`](super::Mlp::from_blob)).
+    /// Errors report layer 0.
     pub fn from_layer(layer: &LayerBlob<'a>) -> Result<Self, PolicyError> {
         check_shape::<IN, OUT>(layer)?;
         if IN > blob::MAX_INT8_INPUTS {
@@ -541,7 +153,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
 
     /// `x` quantized like [`Self::quantize_input`], in `kernel`'s activation order.
     #[inline(always)]
-    fn quantize_input_for(&self, x: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
+    pub(super) fn quantize_input_for(&self, x: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
         let mut q = Acts(self.quantize_input(x));
         if kernel == Int8Kernel::Pairs {
             to_pair_order(&mut q.0);
@@ -695,7 +307,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// dequantization, ReLU and quantization fused per output ([`quantize_relu`]). Written
     /// into the caller's array, which spares a 512-byte copy of a returned one on the M4.
     #[inline(always)]
-    fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel, q: &mut Acts<OUT>) {
+    pub(super) fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel, q: &mut Acts<OUT>) {
         if kernel == Int8Kernel::Pairs {
             self.map_paired(xk, &mut q.0, true, |a, s| quantize_relu(a as f32 * s, next_scale));
             return;
@@ -708,7 +320,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
 
     /// [`Self::forward`], `xk` in `kernel`'s order.
     #[inline(always)]
-    fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
+    pub(super) fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
         if kernel == Int8Kernel::Pairs {
             let mut y = [0.0f32; OUT];
             self.map_paired(xk, &mut y, false, |a, s| a as f32 * s);
@@ -731,7 +343,8 @@ pub enum Int8Kernel {
     Pairs,
 }
 
-/// The kernel [`Mlp::forward`] and [`DenseInt8::accumulate`] use on this target.
+/// The kernel [`Mlp::forward`](super::Mlp::forward) and [`DenseInt8::accumulate`] use on this
+/// target.
 pub const INT8_KERNEL: Int8Kernel = if ARM_ASM {
     Int8Kernel::Pairs
 } else if cfg!(target_arch = "arm") {
@@ -756,7 +369,7 @@ pub fn to_pair_order(x: &mut [i16]) {
 /// words at a time (`ldrd` needs word alignment on the Cortex-M4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(C, align(8))]
-struct Acts<const N: usize>([i16; N]);
+pub(super) struct Acts<const N: usize>(pub(super) [i16; N]);
 
 /// Packs two i16 as the low and high halves of a word (a 32-bit load of two adjacent i16).
 #[inline(always)]
@@ -885,7 +498,7 @@ fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
 
 /// One row against activations in pair order (the `OUT % 4` last rows).
 #[inline(always)]
-fn dot1_pairs(xp: &[i16], row: &[u8]) -> i32 {
+pub(super) fn dot1_pairs(xp: &[i16], row: &[u8]) -> i32 {
     let mut s = 0i32;
     let wg = row.chunks_exact(4);
     let xg = xp.chunks_exact(4);
@@ -896,152 +509,6 @@ fn dot1_pairs(xp: &[i16], row: &[u8]) -> i32 {
         }
     }
     s.wrapping_add(tail)
-}
-
-/// The three layers of an [`Mlp`], in one precision.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum MlpLayers<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> {
-    F32(DenseF32<'a, IN, H1>, DenseF32<'a, H1, H2>, DenseF32<'a, H2, OUT>),
-    Int8(DenseInt8<'a, IN, H1>, DenseInt8<'a, H1, H2>, DenseInt8<'a, H2, OUT>),
-}
-
-/// An `IN`-`H1`-`H2`-`OUT` actor mean network: ReLU, ReLU, tanh.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Mlp<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> {
-    kind: ProblemKind,
-    features: FeatureLayout,
-    layers: MlpLayers<'a, IN, H1, H2, OUT>,
-}
-
-/// The transfer actor, 10-256-256-3.
-pub type TransferPolicy<'a> = Mlp<'a, 10, 256, 256, 3>;
-/// The rendezvous actor, 22-256-256-3.
-pub type RendezvousPolicy<'a> = Mlp<'a, 22, 256, 256, 3>;
-
-fn check_activation(layer: &LayerBlob<'_>, index: usize, expected: Activation) -> Result<(), PolicyError> {
-    if layer.activation == expected {
-        Ok(())
-    } else {
-        Err(PolicyError::WrongActivation {
-            layer: index,
-            expected,
-            found: layer.activation,
-        })
-    }
-}
-
-impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Mlp<'a, IN, H1, H2, OUT> {
-    /// Decodes a blob (magic, version, CRC, structure) and builds the policy from it, checking
-    /// it is for `expected` and has exactly this shape. The weights stay in `bytes`.
-    pub fn from_bytes(bytes: &'a [u8], expected: ProblemKind) -> Result<Self, PolicyError> {
-        let net = blob::decode(bytes)?;
-        Self::from_blob(&net, expected)
-    }
-
-    /// Builds the policy from a decoded blob: checks the problem kind, that the feature layout
-    /// has `IN` inputs, three layers of sizes `IN`-`H1`-`H2`-`OUT` with ReLU, ReLU, tanh, and
-    /// every array length for the blob's quantization.
-    pub fn from_blob(net: &NetworkBlob<'a>, expected: ProblemKind) -> Result<Self, PolicyError> {
-        if net.kind != expected {
-            return Err(PolicyError::WrongKind {
-                expected,
-                found: net.kind,
-            });
-        }
-        if net.features.len() != IN || net.features.problem() != expected {
-            return Err(PolicyError::WrongFeatures {
-                expected_inputs: IN,
-                found: net.features,
-            });
-        }
-        let [l1, l2, l3] = net.layers.as_slice() else {
-            return Err(PolicyError::WrongLayerCount {
-                expected: MLP_LAYERS,
-                found: net.layers.len(),
-            });
-        };
-        check_activation(l1, 0, Activation::Relu)?;
-        check_activation(l2, 1, Activation::Relu)?;
-        check_activation(l3, 2, Activation::Tanh)?;
-        let layers = match net.quantization {
-            Quantization::F32 => MlpLayers::F32(
-                DenseF32::from_layer(l1).map_err(|e| e.at_layer(0))?,
-                DenseF32::from_layer(l2).map_err(|e| e.at_layer(1))?,
-                DenseF32::from_layer(l3).map_err(|e| e.at_layer(2))?,
-            ),
-            Quantization::Int8 => MlpLayers::Int8(
-                DenseInt8::from_layer(l1).map_err(|e| e.at_layer(0))?,
-                DenseInt8::from_layer(l2).map_err(|e| e.at_layer(1))?,
-                DenseInt8::from_layer(l3).map_err(|e| e.at_layer(2))?,
-            ),
-        };
-        Ok(Self {
-            kind: net.kind,
-            features: net.features,
-            layers,
-        })
-    }
-
-    /// The problem this policy flies.
-    pub fn kind(&self) -> ProblemKind {
-        self.kind
-    }
-
-    /// The input encoding.
-    pub fn features(&self) -> FeatureLayout {
-        self.features
-    }
-
-    /// How the weights are stored.
-    pub fn quantization(&self) -> Quantization {
-        match self.layers {
-            MlpLayers::F32(..) => Quantization::F32,
-            MlpLayers::Int8(..) => Quantization::Int8,
-        }
-    }
-
-    /// The layer views.
-    pub fn layers(&self) -> &MlpLayers<'a, IN, H1, H2, OUT> {
-        &self.layers
-    }
-
-    /// The action mean in `[-1, 1]^OUT`: `tanh(L3(relu(L2(relu(L1(x))))))`.
-    ///
-    /// Never panics. Any non-finite input gives `[f32::NAN; OUT]` (see the module doc).
-    pub fn forward(&self, input: &[f32; IN]) -> [f32; OUT] {
-        self.forward_with(input, INT8_KERNEL)
-    }
-
-    /// [`Self::forward`] with the given int8 kernel (ignored by an f32 network); every kernel
-    /// gives the same result bit for bit, on every target.
-    #[inline(always)]
-    pub fn forward_with(&self, input: &[f32; IN], kernel: Int8Kernel) -> [f32; OUT] {
-        if !input.iter().all(|v| v.is_finite()) {
-            return [f32::NAN; OUT];
-        }
-        let pre = match &self.layers {
-            MlpLayers::F32(a, b, c) => {
-                let mut h1 = a.forward(input);
-                h1.iter_mut().for_each(|v| *v = relu(*v));
-                let mut h2 = b.forward(&h1);
-                h2.iter_mut().for_each(|v| *v = relu(*v));
-                c.forward(&h2)
-            }
-            MlpLayers::Int8(a, b, c) => {
-                let q0 = a.quantize_input_for(input, kernel);
-                let mut q1 = Acts([0i16; H1]);
-                a.forward_relu_quantized(&q0, b.input_scale, kernel, &mut q1);
-                let mut q2 = Acts([0i16; H2]);
-                b.forward_relu_quantized(&q1, c.input_scale, kernel, &mut q2);
-                c.forward_for(&q2, kernel)
-            }
-        };
-        let mut out = [0.0f32; OUT];
-        for (o, &v) in out.iter_mut().zip(pre.iter()) {
-            *o = libm::tanhf(v);
-        }
-        out
-    }
 }
 
 #[cfg(test)]

@@ -1,0 +1,162 @@
+//! The portable f32 kernel: a dense layer `y = b + W x` read in place from the blob, as
+//! axpys over register tiles of [`F32_TILE`] outputs (see the module doc of [`super`]).
+
+use shared::blob::LayerBlob;
+
+#[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+use super::arm;
+use super::{check_len, check_shape, f32_le, LayerArray, PolicyError};
+
+/// Outputs per register tile of the f32 kernel (a multiple of 16, the AVX-512 lane count).
+pub const F32_TILE: usize = 64;
+
+/// A dense f32 layer `y = b + W x` viewing its blob arrays in place.
+///
+/// `weights`: `IN * OUT` f32 LE input-major (`w[i * OUT + j]`); `bias`: `OUT` f32 LE.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DenseF32<'a, const IN: usize, const OUT: usize> {
+    weights: &'a [u8],
+    bias: &'a [u8],
+}
+
+impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
+    /// Views an f32 layer; checks `inputs == IN`, `outputs == OUT` and the array lengths.
+    /// The activation is not checked here (see [`Mlp::from_blob`](super::Mlp::from_blob)).
+    /// Errors report layer 0.
+    pub fn from_layer(layer: &LayerBlob<'a>) -> Result<Self, PolicyError> {
+        check_shape::<IN, OUT>(layer)?;
+        check_len(
+            LayerArray::Weights,
+            layer.weights,
+            IN.saturating_mul(OUT).saturating_mul(4),
+        )?;
+        check_len(LayerArray::Bias, layer.bias, OUT.saturating_mul(4))?;
+        check_len(LayerArray::WeightScales, layer.weight_scales, 0)?;
+        Ok(Self {
+            weights: layer.weights,
+            bias: layer.bias,
+        })
+    }
+
+    /// The weight bytes (borrowed from the blob).
+    pub fn weights(&self) -> &'a [u8] {
+        self.weights
+    }
+
+    /// The bias bytes (borrowed from the blob).
+    pub fn bias(&self) -> &'a [u8] {
+        self.bias
+    }
+
+    /// The pre-activation `b + W x`.
+    pub fn forward(&self, x: &[f32; IN]) -> [f32; OUT] {
+        let mut y = [0.0f32; OUT];
+        for (yj, c) in y.iter_mut().zip(self.bias.chunks_exact(4)) {
+            *yj = f32_le(c);
+        }
+        if OUT < F32_TILE {
+            axpy_narrow(self.weights, x, &mut y);
+            return y;
+        }
+        self.tiles(x, &mut y);
+        y
+    }
+
+    /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
+    /// outputs (the portable kernel), then the last `OUT % F32_TILE` outputs.
+    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        let row_bytes = OUT * 4;
+        let mut col = 0usize;
+        let mut tiles = y.chunks_exact_mut(F32_TILE);
+        for tile in tiles.by_ref() {
+            let mut acc = [0.0f32; F32_TILE];
+            for (a, &v) in acc.iter_mut().zip(tile.iter()) {
+                *a = v;
+            }
+            let seg = col * 4..(col + F32_TILE) * 4;
+            for (row, &xi) in self.weights.chunks_exact(row_bytes).zip(x.iter()) {
+                if let Some(ws) = row.get(seg.clone()) {
+                    for (a, c) in acc.iter_mut().zip(ws.chunks_exact(4)) {
+                        *a += xi * f32_le(c);
+                    }
+                }
+            }
+            for (v, &a) in tile.iter_mut().zip(acc.iter()) {
+                *v = a;
+            }
+            col += F32_TILE;
+        }
+        let tail = tiles.into_remainder();
+        if !tail.is_empty() {
+            axpy_tail(self.weights, row_bytes, col, x, tail);
+        }
+    }
+
+    /// [`Self::tiles`] on the Cortex-M4F: tiles of 16 outputs held in `s0`-`s15` by an `asm!`
+    /// loop (`arm::f32_tile`, `policy/arm.rs`), the same products and sums in the same order
+    /// per output as the portable tiles; any tile it declines, and the last `OUT % 16`
+    /// outputs, take the portable sequential loop.
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    #[inline(always)]
+    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        let row_bytes = OUT * 4;
+        let mut col = 0usize;
+        let mut tiles = y.chunks_exact_mut(arm::F32_ARM_TILE);
+        for tile in tiles.by_ref() {
+            let done = <&mut [f32; arm::F32_ARM_TILE]>::try_from(&mut *tile)
+                .is_ok_and(|acc| arm::f32_tile(self.weights, row_bytes, col, x, acc));
+            if !done {
+                axpy_tail(self.weights, row_bytes, col, x, tile);
+            }
+            col += arm::F32_ARM_TILE;
+        }
+        axpy_tail(self.weights, row_bytes, col, x, tiles.into_remainder());
+    }
+}
+
+/// Independent partial sums (over interleaved inputs) of the narrow-output kernels, so the
+/// additions into one output are not a single long latency chain.
+const SPLIT: usize = 8;
+
+/// `y += W x` for a layer narrower than a tile (the 3 action outputs): [`SPLIT`] partial sums
+/// of the whole (const-size) output vector over interleaved inputs.
+#[inline(always)]
+fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) {
+    let row_bytes = OUT * 4;
+    let mut part = [[0.0f32; OUT]; SPLIT];
+    let mut w = weights.chunks_exact(SPLIT * row_bytes);
+    let mut xs = x.chunks_exact(SPLIT);
+    for (wb, xb) in w.by_ref().zip(xs.by_ref()) {
+        for ((p, row), &xi) in part.iter_mut().zip(wb.chunks_exact(row_bytes)).zip(xb) {
+            for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
+                *a += xi * f32_le(c);
+            }
+        }
+    }
+    let rest = w.remainder().chunks_exact(row_bytes).zip(xs.remainder());
+    for (p, (row, &xi)) in part.iter_mut().zip(rest) {
+        for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
+            *a += xi * f32_le(c);
+        }
+    }
+    for p in part.iter() {
+        for (v, &a) in y.iter_mut().zip(p.iter()) {
+            *v += a;
+        }
+    }
+}
+
+/// `y[k] += sum_i x[i] * w[i][col + k]` for the last `y.len() < F32_TILE` outputs of a layer
+/// wider than a tile (odd widths only; the deployed 256 is a whole number of tiles).
+fn axpy_tail<const IN: usize>(weights: &[u8], row_bytes: usize, col: usize, x: &[f32; IN], y: &mut [f32]) {
+    let seg = col * 4..(col + y.len()) * 4;
+    for (row, &xi) in weights.chunks_exact(row_bytes).zip(x.iter()) {
+        if let Some(ws) = row.get(seg.clone()) {
+            for (v, c) in y.iter_mut().zip(ws.chunks_exact(4)) {
+                *v += xi * f32_le(c);
+            }
+        }
+    }
+}
