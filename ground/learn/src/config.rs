@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use shared::scenario::ScenarioKind;
 
-use crate::sac::{CloningTarget, SacConfig};
+use crate::cloning::CloningTarget;
+use crate::sac::agent::CloningLoss;
+use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
 
@@ -107,7 +109,7 @@ pub struct PretrainConfig {
     pub behaviour_cloning: f64,
     /// What the behaviour-cloning term compares: "action" (the raw actions, default) or
     /// "thrust" (the decoded thrust vectors) or "thrust-log-throttle" (plus the relative
-    /// throttle error), see `sac::CloningTarget`.
+    /// throttle error), see [`CloningTarget`].
     pub cloning_target: CloningTarget,
     /// Which trajectory records become demonstrations: "converged" (homotopy reached the final
     /// eps) or "all" (also those stopped at a larger eps, with that eps's smoothed control).
@@ -312,11 +314,6 @@ impl ExperimentConfig {
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
             return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
         }
-        if self.sac.cloning_target != CloningTarget::Action {
-            return Err(ConfigError::Invalid(
-                "set the behaviour-cloning target as pretrain.cloning_target, not sac.cloning_target".into(),
-            ));
-        }
         if self.pretrain.cloning_target != CloningTarget::Action && self.pretrain.mode != PretrainMode::BehaviourCloning
         {
             return Err(ConfigError::Invalid(
@@ -387,9 +384,14 @@ impl ExperimentConfig {
         };
         SacConfig {
             behaviour_cloning: bc,
-            cloning_target: self.pretrain.cloning_target,
             ..self.sac.clone()
         }
+    }
+
+    /// The behaviour-cloning error of the agents this experiment trains (`pretrain.cloning_target`,
+    /// in pretraining and, when kept, in RL).
+    pub fn cloning_loss(&self) -> Box<dyn CloningLoss> {
+        self.pretrain.cloning_target.loss()
     }
 
     pub fn device(&self) -> tch::Device {

@@ -663,7 +663,13 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
 pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
     tch::set_num_threads(config.compute.threads);
     tch::manual_seed(config.seeds.train as i64);
-    Sac::new(config.sac_for(pretraining), obs_dim, 3, config.device())
+    Sac::with_cloning_loss(
+        config.sac_for(pretraining),
+        obs_dim,
+        3,
+        config.device(),
+        config.cloning_loss(),
+    )
 }
 
 fn pretrain_for<P: Problem>(

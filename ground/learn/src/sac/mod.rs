@@ -11,6 +11,17 @@ pub mod trainer;
 
 use serde::{Deserialize, Serialize};
 
+/// libtorch's random generator and thread pool are process-wide: the unit tests that use them
+/// take turns (a parallel test would draw from the same stream and break determinism), and use
+/// one intra-op thread (OpenMP workers of parallel tests oversubscribe two cores).
+#[cfg(test)]
+pub(crate) fn torch_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    guard
+}
+
 /// Makes glibc keep freed large blocks for reuse. A SAC update allocates and frees tensors of
 /// 0.25-0.5 MB; above glibc's mmap threshold each one is a fresh mmap whose pages fault in on
 /// first touch and go back with munmap on free. Measured with perf: kernel page-fault handling
@@ -22,29 +33,6 @@ pub fn tune_allocator() {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
     }
-}
-
-/// What the behaviour-cloning term compares between the policy's deterministic action and the
-/// demonstrated one.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CloningTarget {
-    /// The raw action vectors: |tanh(mean) - a_demo|^2.
-    #[default]
-    Action,
-    /// The thrust vectors the environment decodes from them, u (alpha_r, alpha_theta) with
-    /// u = (a0 + 1)/2 and the direction (a1, a2) normalised: |T(tanh(mean)) - T(a_demo)|^2.
-    /// A coasting demonstration then fixes no direction, and the direction's length, which the
-    /// decoder ignores, matters little: the network's capacity goes to what is flown. A small
-    /// raw-action term (`agent::THRUST_CLONING_ACTION_ANCHOR`) keeps the actions anchored.
-    Thrust,
-    /// [`Self::Thrust`] plus the squared error of the log throttles, ln(u + 5e-3)
-    /// (`agent::LOG_THROTTLE_FLOOR`, weight `agent::LOG_THROTTLE_WEIGHT`): a relative throttle
-    /// error. Through tanh the thrust vector's gradient vanishes at small throttles (at u = 0.02
-    /// it is 0.08 of its value at u = 0.5), and a policy cloned on it kept a floor of ~2 %
-    /// throttle where the optimum asks for 0.4 % on small transfers, missing them; ln u =
-    /// ln sigmoid(2 mean) keeps its gradient however small u is.
-    ThrustLogThrottle,
 }
 
 /// The learner's hyper-parameters (docs/spec.md section 8); defaults are the thesis's.
@@ -75,8 +63,9 @@ pub struct SacConfig {
     /// slows the divergence (measured, README).
     pub max_log_temperature: Option<f64>,
     /// Weight of the behaviour-cloning term on demonstration tuples (0 = plain SAC, the thesis).
-    /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
-    /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free.
+    /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * E(tanh(mean), a_demo)  with
+    /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free, and E the agent's
+    /// cloning error (`agent::CloningLoss`; by default |tanh(mean) - a_demo|^2).
     pub behaviour_cloning: f64,
     /// Polyak factor of an averaged copy of the actor's weights, updated after every actor step
     /// (0 = none, the thesis). When set, the average is what deterministic actions, evaluations,
@@ -84,10 +73,6 @@ pub struct SacConfig {
     /// around the optimum of the behaviour-cloning loss, and their average sits closer to it
     /// (Polyak-Ruppert averaging). Exploration keeps the online actor.
     pub actor_averaging: f64,
-    /// What the behaviour-cloning term compares (see [`CloningTarget`]); experiments set it from
-    /// `pretrain.cloning_target`, so it is not written to their configs.
-    #[serde(skip_serializing)]
-    pub cloning_target: CloningTarget,
 }
 
 impl Default for SacConfig {
@@ -106,7 +91,6 @@ impl Default for SacConfig {
             max_log_temperature: None,
             behaviour_cloning: 0.0,
             actor_averaging: 0.0,
-            cloning_target: CloningTarget::Action,
         }
     }
 }
