@@ -251,24 +251,15 @@ impl Default for ComputeConfig {
 }
 
 /// Why a config was refused.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    #[error("cannot read config {}: {}", .0.display(), .1)]
     Read(PathBuf, std::io::Error),
+    #[error("config does not parse: {0}")]
     Parse(String),
+    #[error("config is invalid: {0}")]
     Invalid(String),
 }
-
-impl std::fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Read(p, e) => write!(f, "cannot read config {}: {e}", p.display()),
-            Self::Parse(e) => write!(f, "config does not parse: {e}"),
-            Self::Invalid(e) => write!(f, "config is invalid: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for ConfigError {}
 
 /// The small default experiment of the main job, embedded in the binary.
 pub const EMBEDDED_DEFAULT: &str = include_str!("../../../configs/quick.toml");

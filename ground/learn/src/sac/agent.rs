@@ -27,24 +27,15 @@ pub struct UpdateStats {
 }
 
 /// Why a checkpoint was refused.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
+    #[error("checkpoint I/O: {0}")]
     Io(std::io::Error),
+    #[error("checkpoint is not a readable safetensors file: {0}")]
     Format(String),
+    #[error("checkpoint does not match this agent: {0}")]
     Mismatch(String),
 }
-
-impl std::fmt::Display for CheckpointError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Io(e) => write!(f, "checkpoint I/O: {e}"),
-            Self::Format(e) => write!(f, "checkpoint is not a readable safetensors file: {e}"),
-            Self::Mismatch(e) => write!(f, "checkpoint does not match this agent: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for CheckpointError {}
 
 pub struct Sac {
     pub config: SacConfig,
