@@ -282,7 +282,7 @@ impl ExperimentConfig {
 
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.sac.validate().map_err(ConfigError::Invalid)?;
+        self.sac.validate().map_err(|e| ConfigError::Invalid(e.to_string()))?;
         self.sil
             .dispersions
             .validate()
@@ -435,6 +435,20 @@ mod tests {
         for text in bad {
             assert!(ExperimentConfig::from_toml(text).is_err(), "accepted: {text}");
         }
+        // The learner's own checks keep their messages.
+        let err = ExperimentConfig::from_toml("scenario = \"transfer-circular\"\n[sac]\ndiscount = 1.5").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: sac.discount must be in [0, 1), got 1.5"
+        );
+        let err = ExperimentConfig::from_toml(
+            "scenario = \"transfer-circular\"\n[sac]\ninitial_log_temperature = 1.0\nmax_log_temperature = 0.0",
+        )
+        .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: sac.initial_log_temperature (1) is above sac.max_log_temperature (Some(0.0))"
+        );
     }
 
     #[test]

@@ -413,8 +413,10 @@ impl Sac {
             let mut dst = dst;
             tch::no_grad(|| dst.copy_(&get(&name).unwrap_or_else(|| dst.shallow_clone())));
         }
-        let adam =
-            |opt: &mut Adam, prefix: &str| opt.load_state(prefix, &|n| get(n)).map_err(CheckpointError::Mismatch);
+        let adam = |opt: &mut Adam, prefix: &str| {
+            opt.load_state(prefix, &|n| get(n))
+                .map_err(|e| CheckpointError::Mismatch(e.to_string()))
+        };
         adam(&mut self.actor_optimizer, "adam.actor")?;
         adam(&mut self.critic_optimizer, "adam.critic")?;
         adam(&mut self.temperature_optimizer, "adam.temperature")?;

@@ -95,60 +95,72 @@ impl Default for SacConfig {
     }
 }
 
+/// Why [`SacConfig::validate`] refused a config.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SacConfigError {
+    #[error("sac.{name} must be positive and finite, got {value}")]
+    NotPositive { name: &'static str, value: f64 },
+    #[error("sac.discount must be in [0, 1), got {0}")]
+    Discount(f64),
+    #[error("sac.target_smoothing must be in (0, 1], got {0}")]
+    TargetSmoothing(f64),
+    #[error("sac.hidden must list positive widths, got {0:?}")]
+    Hidden(Vec<usize>),
+    #[error("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive")]
+    ZeroSize,
+    #[error("sac.behaviour_cloning must be >= 0, got {0}")]
+    BehaviourCloning(f64),
+    #[error("sac.actor_averaging must be in [0, 1] (0 = off), got {0}")]
+    ActorAveraging(f64),
+    #[error("sac.initial_log_temperature ({initial}) is above sac.max_log_temperature ({cap:?})")]
+    TemperatureAboveCap { initial: f64, cap: Option<f64> },
+    #[error("sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite")]
+    NotFinite,
+}
+
 impl SacConfig {
     /// Refuses values no run could use, before any work starts.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
+    pub fn validate(&self) -> Result<(), SacConfigError> {
+        let positive = |name: &'static str, value: f64| {
+            if value.is_finite() && value > 0.0 {
                 Ok(())
             } else {
-                Err(format!("sac.{name} must be positive and finite, got {v}"))
+                Err(SacConfigError::NotPositive { name, value })
             }
         };
         positive("learning_rate", self.learning_rate)?;
         if !(0.0..1.0).contains(&self.discount) {
-            return Err(format!("sac.discount must be in [0, 1), got {}", self.discount));
+            return Err(SacConfigError::Discount(self.discount));
         }
         if !(self.target_smoothing > 0.0 && self.target_smoothing <= 1.0) {
-            return Err(format!(
-                "sac.target_smoothing must be in (0, 1], got {}",
-                self.target_smoothing
-            ));
+            return Err(SacConfigError::TargetSmoothing(self.target_smoothing));
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
-            return Err(format!("sac.hidden must list positive widths, got {:?}", self.hidden));
+            return Err(SacConfigError::Hidden(self.hidden.clone()));
         }
         if self.batch_size == 0 || self.replay_capacity == 0 || self.updates_per_step == 0 {
-            return Err("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive".into());
+            return Err(SacConfigError::ZeroSize);
         }
         if !(self.behaviour_cloning.is_finite() && self.behaviour_cloning >= 0.0) {
-            return Err(format!(
-                "sac.behaviour_cloning must be >= 0, got {}",
-                self.behaviour_cloning
-            ));
+            return Err(SacConfigError::BehaviourCloning(self.behaviour_cloning));
         }
         if !(0.0..=1.0).contains(&self.actor_averaging) {
-            return Err(format!(
-                "sac.actor_averaging must be in [0, 1] (0 = off), got {}",
-                self.actor_averaging
-            ));
+            return Err(SacConfigError::ActorAveraging(self.actor_averaging));
         }
         if self
             .max_log_temperature
             .is_some_and(|cap| self.initial_log_temperature > cap)
         {
-            return Err(format!(
-                "sac.initial_log_temperature ({}) is above sac.max_log_temperature ({:?})",
-                self.initial_log_temperature, self.max_log_temperature
-            ));
+            return Err(SacConfigError::TemperatureAboveCap {
+                initial: self.initial_log_temperature,
+                cap: self.max_log_temperature,
+            });
         }
         if !self.initial_log_temperature.is_finite()
             || self.target_entropy.is_some_and(|t| !t.is_finite())
             || self.max_log_temperature.is_some_and(|t| !t.is_finite())
         {
-            return Err(
-                "sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite".into(),
-            );
+            return Err(SacConfigError::NotFinite);
         }
         Ok(())
     }
