@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use shared::scenario::ScenarioKind;
 
-use crate::sac::{CloningTarget, SacConfig};
+use crate::cloning::CloningTarget;
+use crate::sac::agent::CloningLoss;
+use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
 
@@ -107,7 +109,7 @@ pub struct PretrainConfig {
     pub behaviour_cloning: f64,
     /// What the behaviour-cloning term compares: "action" (the raw actions, default) or
     /// "thrust" (the decoded thrust vectors) or "thrust-log-throttle" (plus the relative
-    /// throttle error), see `sac::CloningTarget`.
+    /// throttle error), see [`CloningTarget`].
     pub cloning_target: CloningTarget,
     /// Which trajectory records become demonstrations: "converged" (homotopy reached the final
     /// eps) or "all" (also those stopped at a larger eps, with that eps's smoothed control).
@@ -249,24 +251,15 @@ impl Default for ComputeConfig {
 }
 
 /// Why a config was refused.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    #[error("cannot read config {}: {}", .0.display(), .1)]
     Read(PathBuf, std::io::Error),
+    #[error("config does not parse: {0}")]
     Parse(String),
+    #[error("config is invalid: {0}")]
     Invalid(String),
 }
-
-impl std::fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Read(p, e) => write!(f, "cannot read config {}: {e}", p.display()),
-            Self::Parse(e) => write!(f, "config does not parse: {e}"),
-            Self::Invalid(e) => write!(f, "config is invalid: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for ConfigError {}
 
 /// The small default experiment of the main job, embedded in the binary.
 pub const EMBEDDED_DEFAULT: &str = include_str!("../../../configs/quick.toml");
@@ -289,7 +282,7 @@ impl ExperimentConfig {
 
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.sac.validate().map_err(ConfigError::Invalid)?;
+        self.sac.validate().map_err(|e| ConfigError::Invalid(e.to_string()))?;
         self.sil
             .dispersions
             .validate()
@@ -311,11 +304,6 @@ impl ExperimentConfig {
         positive("evaluate.episodes", self.evaluate.episodes)?;
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
             return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
-        }
-        if self.sac.cloning_target != CloningTarget::Action {
-            return Err(ConfigError::Invalid(
-                "set the behaviour-cloning target as pretrain.cloning_target, not sac.cloning_target".into(),
-            ));
         }
         if self.pretrain.cloning_target != CloningTarget::Action && self.pretrain.mode != PretrainMode::BehaviourCloning
         {
@@ -387,9 +375,14 @@ impl ExperimentConfig {
         };
         SacConfig {
             behaviour_cloning: bc,
-            cloning_target: self.pretrain.cloning_target,
             ..self.sac.clone()
         }
+    }
+
+    /// The behaviour-cloning error of the agents this experiment trains (`pretrain.cloning_target`,
+    /// in pretraining and, when kept, in RL).
+    pub fn cloning_loss(&self) -> Box<dyn CloningLoss> {
+        self.pretrain.cloning_target.loss()
     }
 
     pub fn device(&self) -> tch::Device {
@@ -442,6 +435,20 @@ mod tests {
         for text in bad {
             assert!(ExperimentConfig::from_toml(text).is_err(), "accepted: {text}");
         }
+        // The learner's own checks keep their messages.
+        let err = ExperimentConfig::from_toml("scenario = \"transfer-circular\"\n[sac]\ndiscount = 1.5").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: sac.discount must be in [0, 1), got 1.5"
+        );
+        let err = ExperimentConfig::from_toml(
+            "scenario = \"transfer-circular\"\n[sac]\ninitial_log_temperature = 1.0\nmax_log_temperature = 0.0",
+        )
+        .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: sac.initial_log_temperature (1) is above sac.max_log_temperature (Some(0.0))"
+        );
     }
 
     #[test]

@@ -37,47 +37,27 @@ const REPLAY_VERSION: u16 = 1;
 const UPDATE_LOG_EVERY: u64 = 1_000;
 
 /// Why a phase could not run or stopped.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum ExperimentError {
-    Config(ConfigError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("dataset: {0}")]
     Dataset(String),
-    Checkpoint(CheckpointError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("{}: {}", .0.display(), .1)]
     Io(PathBuf, std::io::Error),
+    #[error("evaluation: {0}")]
     Evaluation(EvalError),
     /// A file in the run folder belongs to another experiment (problem, shapes).
+    #[error("{0}")]
     Mismatch(String),
     /// The environment refused to start an episode.
+    #[error("environment: {0}")]
     Environment(EnvError),
 }
 
-impl std::fmt::Display for ExperimentError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Config(e) => write!(f, "{e}"),
-            Self::Dataset(e) => write!(f, "dataset: {e}"),
-            Self::Checkpoint(e) => write!(f, "{e}"),
-            Self::Io(p, e) => write!(f, "{}: {e}", p.display()),
-            Self::Evaluation(e) => write!(f, "evaluation: {e}"),
-            Self::Mismatch(e) => write!(f, "{e}"),
-            Self::Environment(e) => write!(f, "environment: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for ExperimentError {}
-
-impl From<ConfigError> for ExperimentError {
-    fn from(e: ConfigError) -> Self {
-        Self::Config(e)
-    }
-}
-
-impl From<CheckpointError> for ExperimentError {
-    fn from(e: CheckpointError) -> Self {
-        Self::Checkpoint(e)
-    }
-}
-
+// Not `#[from]`: the message already carries the evaluation error, so it is no separate source.
 impl From<EvalError> for ExperimentError {
     fn from(e: EvalError) -> Self {
         Self::Evaluation(e)
@@ -663,7 +643,13 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
 pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
     tch::set_num_threads(config.compute.threads);
     tch::manual_seed(config.seeds.train as i64);
-    Sac::new(config.sac_for(pretraining), obs_dim, 3, config.device())
+    Sac::with_cloning_loss(
+        config.sac_for(pretraining),
+        obs_dim,
+        3,
+        config.device(),
+        config.cloning_loss(),
+    )
 }
 
 fn pretrain_for<P: Problem>(

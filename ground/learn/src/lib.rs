@@ -5,6 +5,7 @@
 //! The torch-free parts it builds on (solver, datasets, environments, figures) are in
 //! `lowthrust-ground-core`.
 
+pub mod cloning;
 pub mod config;
 pub mod dagger;
 pub mod eval;

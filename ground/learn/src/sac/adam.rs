@@ -56,6 +56,19 @@ impl StepCoefficients {
     }
 }
 
+/// Why [`Adam::load_state`] refused a checkpoint's optimiser state.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AdamStateError {
+    #[error("missing tensor {0}")]
+    Missing(String),
+    #[error("tensor {name} has shape {found:?}, expected {expected:?}")]
+    Shape {
+        name: String,
+        found: Vec<i64>,
+        expected: Vec<i64>,
+    },
+}
+
 /// Adam over a fixed list of parameters (the trainable tensors of one network), which it makes
 /// views of one flat buffer ([`flatten_parameters`]); moments are flat too.
 pub struct Adam {
@@ -213,23 +226,26 @@ impl Adam {
     }
 
     /// Restores the state written by [`Adam::state`]; shapes must match.
-    pub fn load_state(&mut self, prefix: &str, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<(), String> {
+    pub fn load_state(&mut self, prefix: &str, get: &dyn Fn(&str) -> Option<Tensor>) -> Result<(), AdamStateError> {
         let m = views_like(&self.first_moment, &self.params);
         let v = views_like(&self.second_moment, &self.params);
         for (i, (m, v)) in m.into_iter().zip(v).enumerate() {
             for (name, mut dst) in [(format!("{prefix}.m.{i}"), m), (format!("{prefix}.v.{i}"), v)] {
-                let src = get(&name).ok_or_else(|| format!("missing tensor {name}"))?;
+                let Some(src) = get(&name) else {
+                    return Err(AdamStateError::Missing(name));
+                };
                 if src.size() != dst.size() {
-                    return Err(format!(
-                        "tensor {name} has shape {:?}, expected {:?}",
-                        src.size(),
-                        dst.size()
-                    ));
+                    return Err(AdamStateError::Shape {
+                        name,
+                        found: src.size(),
+                        expected: dst.size(),
+                    });
                 }
                 tch::no_grad(|| dst.copy_(&src.to_kind(Kind::Float)));
             }
         }
-        let steps = get(&format!("{prefix}.steps")).ok_or_else(|| format!("missing tensor {prefix}.steps"))?;
+        let steps_name = format!("{prefix}.steps");
+        let steps = get(&steps_name).ok_or(AdamStateError::Missing(steps_name))?;
         self.steps = steps.int64_value(&[0]);
         Ok(())
     }

@@ -11,6 +11,17 @@ pub mod trainer;
 
 use serde::{Deserialize, Serialize};
 
+/// libtorch's random generator and thread pool are process-wide: the unit tests that use them
+/// take turns (a parallel test would draw from the same stream and break determinism), and use
+/// one intra-op thread (OpenMP workers of parallel tests oversubscribe two cores).
+#[cfg(test)]
+pub(crate) fn torch_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let guard = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    tch::set_num_threads(1);
+    guard
+}
+
 /// Makes glibc keep freed large blocks for reuse. A SAC update allocates and frees tensors of
 /// 0.25-0.5 MB; above glibc's mmap threshold each one is a fresh mmap whose pages fault in on
 /// first touch and go back with munmap on free. Measured with perf: kernel page-fault handling
@@ -22,29 +33,6 @@ pub fn tune_allocator() {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
         libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
     }
-}
-
-/// What the behaviour-cloning term compares between the policy's deterministic action and the
-/// demonstrated one.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CloningTarget {
-    /// The raw action vectors: |tanh(mean) - a_demo|^2.
-    #[default]
-    Action,
-    /// The thrust vectors the environment decodes from them, u (alpha_r, alpha_theta) with
-    /// u = (a0 + 1)/2 and the direction (a1, a2) normalised: |T(tanh(mean)) - T(a_demo)|^2.
-    /// A coasting demonstration then fixes no direction, and the direction's length, which the
-    /// decoder ignores, matters little: the network's capacity goes to what is flown. A small
-    /// raw-action term (`agent::THRUST_CLONING_ACTION_ANCHOR`) keeps the actions anchored.
-    Thrust,
-    /// [`Self::Thrust`] plus the squared error of the log throttles, ln(u + 5e-3)
-    /// (`agent::LOG_THROTTLE_FLOOR`, weight `agent::LOG_THROTTLE_WEIGHT`): a relative throttle
-    /// error. Through tanh the thrust vector's gradient vanishes at small throttles (at u = 0.02
-    /// it is 0.08 of its value at u = 0.5), and a policy cloned on it kept a floor of ~2 %
-    /// throttle where the optimum asks for 0.4 % on small transfers, missing them; ln u =
-    /// ln sigmoid(2 mean) keeps its gradient however small u is.
-    ThrustLogThrottle,
 }
 
 /// The learner's hyper-parameters (docs/spec.md section 8); defaults are the thesis's.
@@ -75,8 +63,9 @@ pub struct SacConfig {
     /// slows the divergence (measured, README).
     pub max_log_temperature: Option<f64>,
     /// Weight of the behaviour-cloning term on demonstration tuples (0 = plain SAC, the thesis).
-    /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * |tanh(mean) - a_demo|^2  with
-    /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free.
+    /// The actor loss becomes  lambda * (alpha log pi - Q) + bc * E(tanh(mean), a_demo)  with
+    /// lambda = 1 / mean|Q| (TD3+BC's normalisation), so `bc` is scale-free, and E the agent's
+    /// cloning error (`agent::CloningLoss`; by default |tanh(mean) - a_demo|^2).
     pub behaviour_cloning: f64,
     /// Polyak factor of an averaged copy of the actor's weights, updated after every actor step
     /// (0 = none, the thesis). When set, the average is what deterministic actions, evaluations,
@@ -84,10 +73,6 @@ pub struct SacConfig {
     /// around the optimum of the behaviour-cloning loss, and their average sits closer to it
     /// (Polyak-Ruppert averaging). Exploration keeps the online actor.
     pub actor_averaging: f64,
-    /// What the behaviour-cloning term compares (see [`CloningTarget`]); experiments set it from
-    /// `pretrain.cloning_target`, so it is not written to their configs.
-    #[serde(skip_serializing)]
-    pub cloning_target: CloningTarget,
 }
 
 impl Default for SacConfig {
@@ -106,65 +91,76 @@ impl Default for SacConfig {
             max_log_temperature: None,
             behaviour_cloning: 0.0,
             actor_averaging: 0.0,
-            cloning_target: CloningTarget::Action,
         }
     }
 }
 
+/// Why [`SacConfig::validate`] refused a config.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SacConfigError {
+    #[error("sac.{name} must be positive and finite, got {value}")]
+    NotPositive { name: &'static str, value: f64 },
+    #[error("sac.discount must be in [0, 1), got {0}")]
+    Discount(f64),
+    #[error("sac.target_smoothing must be in (0, 1], got {0}")]
+    TargetSmoothing(f64),
+    #[error("sac.hidden must list positive widths, got {0:?}")]
+    Hidden(Vec<usize>),
+    #[error("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive")]
+    ZeroSize,
+    #[error("sac.behaviour_cloning must be >= 0, got {0}")]
+    BehaviourCloning(f64),
+    #[error("sac.actor_averaging must be in [0, 1] (0 = off), got {0}")]
+    ActorAveraging(f64),
+    #[error("sac.initial_log_temperature ({initial}) is above sac.max_log_temperature ({cap:?})")]
+    TemperatureAboveCap { initial: f64, cap: Option<f64> },
+    #[error("sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite")]
+    NotFinite,
+}
+
 impl SacConfig {
     /// Refuses values no run could use, before any work starts.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
+    pub fn validate(&self) -> Result<(), SacConfigError> {
+        let positive = |name: &'static str, value: f64| {
+            if value.is_finite() && value > 0.0 {
                 Ok(())
             } else {
-                Err(format!("sac.{name} must be positive and finite, got {v}"))
+                Err(SacConfigError::NotPositive { name, value })
             }
         };
         positive("learning_rate", self.learning_rate)?;
         if !(0.0..1.0).contains(&self.discount) {
-            return Err(format!("sac.discount must be in [0, 1), got {}", self.discount));
+            return Err(SacConfigError::Discount(self.discount));
         }
         if !(self.target_smoothing > 0.0 && self.target_smoothing <= 1.0) {
-            return Err(format!(
-                "sac.target_smoothing must be in (0, 1], got {}",
-                self.target_smoothing
-            ));
+            return Err(SacConfigError::TargetSmoothing(self.target_smoothing));
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
-            return Err(format!("sac.hidden must list positive widths, got {:?}", self.hidden));
+            return Err(SacConfigError::Hidden(self.hidden.clone()));
         }
         if self.batch_size == 0 || self.replay_capacity == 0 || self.updates_per_step == 0 {
-            return Err("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive".into());
+            return Err(SacConfigError::ZeroSize);
         }
         if !(self.behaviour_cloning.is_finite() && self.behaviour_cloning >= 0.0) {
-            return Err(format!(
-                "sac.behaviour_cloning must be >= 0, got {}",
-                self.behaviour_cloning
-            ));
+            return Err(SacConfigError::BehaviourCloning(self.behaviour_cloning));
         }
         if !(0.0..=1.0).contains(&self.actor_averaging) {
-            return Err(format!(
-                "sac.actor_averaging must be in [0, 1] (0 = off), got {}",
-                self.actor_averaging
-            ));
+            return Err(SacConfigError::ActorAveraging(self.actor_averaging));
         }
         if self
             .max_log_temperature
             .is_some_and(|cap| self.initial_log_temperature > cap)
         {
-            return Err(format!(
-                "sac.initial_log_temperature ({}) is above sac.max_log_temperature ({:?})",
-                self.initial_log_temperature, self.max_log_temperature
-            ));
+            return Err(SacConfigError::TemperatureAboveCap {
+                initial: self.initial_log_temperature,
+                cap: self.max_log_temperature,
+            });
         }
         if !self.initial_log_temperature.is_finite()
             || self.target_entropy.is_some_and(|t| !t.is_finite())
             || self.max_log_temperature.is_some_and(|t| !t.is_finite())
         {
-            return Err(
-                "sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite".into(),
-            );
+            return Err(SacConfigError::NotFinite);
         }
         Ok(())
     }
