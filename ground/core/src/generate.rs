@@ -74,40 +74,27 @@ pub struct DatasetFile {
     pub records: Vec<TrajectoryRecord>,
 }
 
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum GenerateError {
+    #[error("{path}: {1}", path = .0.display())]
     Io(PathBuf, std::io::Error),
     /// The folder holds a run of another scenario, seed or count.
-    ManifestMismatch {
-        found: Manifest,
-        wanted: Manifest,
-    },
+    #[error(
+        "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
+        .found.scenario.name(),
+        .found.seed,
+        .found.count,
+        .wanted.scenario.name(),
+        .wanted.seed,
+        .wanted.count
+    )]
+    ManifestMismatch { found: Manifest, wanted: Manifest },
+    #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
     /// Shards to merge disagree, overlap, or leave indices out.
+    #[error("cannot merge: {0}")]
     Merge(String),
 }
-
-impl std::fmt::Display for GenerateError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Io(p, e) => write!(f, "{}: {e}", p.display()),
-            Self::ManifestMismatch { found, wanted } => write!(
-                f,
-                "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
-                found.scenario.name(),
-                found.seed,
-                found.count,
-                wanted.scenario.name(),
-                wanted.seed,
-                wanted.count
-            ),
-            Self::Corrupt(p, e) => write!(f, "{}: {e}", p.display()),
-            Self::Merge(m) => write!(f, "cannot merge: {m}"),
-        }
-    }
-}
-
-impl std::error::Error for GenerateError {}
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
     move |e| GenerateError::Io(path.to_path_buf(), e)

@@ -187,31 +187,19 @@ impl Target {
 }
 
 /// Why a direct solve could not run.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DirectError {
+    #[error("direct transcription: segment propagation failed ({0:?})")]
     Integration(IntegrationError),
+    #[error("direct transcription: the target body's coast failed")]
     Kepler,
     /// The QP solver could not even set up (bad data).
+    #[error("direct transcription: the QP could not be set up ({0})")]
     Qp(String),
     /// A guess of the wrong length.
+    #[error("direct transcription: guess of the wrong length or eps outside [0, 1]")]
     Guess,
 }
-
-impl std::fmt::Display for DirectError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Integration(e) => write!(f, "direct transcription: segment propagation failed ({e:?})"),
-            Self::Kepler => write!(f, "direct transcription: the target body's coast failed"),
-            Self::Qp(why) => write!(f, "direct transcription: the QP could not be set up ({why})"),
-            Self::Guess => write!(
-                f,
-                "direct transcription: guess of the wrong length or eps outside [0, 1]"
-            ),
-        }
-    }
-}
-
-impl std::error::Error for DirectError {}
 
 impl From<IntegrationError> for DirectError {
     fn from(e: IntegrationError) -> Self {
