@@ -43,16 +43,27 @@ impl Shard {
     }
 }
 
+/// Why a text is not a shard `I/N`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ShardError {
+    #[error("shard must look like I/N, got '{0}'")]
+    Form(String),
+    #[error("bad shard index '{0}'")]
+    Index(String),
+    #[error("bad shard count '{0}'")]
+    Count(String),
+    #[error("shard {index}/{count}: need 0 <= I < N")]
+    OutOfRange { index: u32, count: u32 },
+}
+
 impl FromStr for Shard {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (i, n) = s
-            .split_once('/')
-            .ok_or_else(|| format!("shard must look like I/N, got '{s}'"))?;
-        let index: u32 = i.trim().parse().map_err(|_| format!("bad shard index '{i}'"))?;
-        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count '{n}'"))?;
+    type Err = ShardError;
+    fn from_str(s: &str) -> Result<Self, ShardError> {
+        let (i, n) = s.split_once('/').ok_or_else(|| ShardError::Form(s.to_string()))?;
+        let index: u32 = i.trim().parse().map_err(|_| ShardError::Index(i.to_string()))?;
+        let count: u32 = n.trim().parse().map_err(|_| ShardError::Count(n.to_string()))?;
         if count == 0 || index >= count {
-            return Err(format!("shard {index}/{count}: need 0 <= I < N"));
+            return Err(ShardError::OutOfRange { index, count });
         }
         Ok(Self { index, count })
     }
