@@ -69,12 +69,15 @@ struct Args {
     solve: bool,
 }
 
-fn parse_kind(name: &str) -> Result<ScenarioKind, String> {
+/// A `--scenario` that names no transfer kind.
+#[derive(Debug, thiserror::Error)]
+#[error("expected transfer-circular or transfer-hard (minimum time is defined for transfers), got {0:?}")]
+struct NotATransfer(String);
+
+fn parse_kind(name: &str) -> Result<ScenarioKind, NotATransfer> {
     match ScenarioKind::ALL.into_iter().find(|k| k.name() == name) {
         Some(kind) if kind.problem() == ProblemKind::Transfer => Ok(kind),
-        _ => Err(format!(
-            "expected transfer-circular or transfer-hard (minimum time is defined for transfers), got {name:?}"
-        )),
+        _ => Err(NotATransfer(name.to_string())),
     }
 }
 

@@ -38,11 +38,16 @@ struct Args {
     index: u64,
 }
 
-fn parse_kind(name: &str) -> Result<ScenarioKind, String> {
-    ScenarioKind::ALL.into_iter().find(|k| k.name() == name).ok_or_else(|| {
-        let names: Vec<_> = ScenarioKind::ALL.iter().map(|k| k.name()).collect();
-        format!("unknown scenario kind {name:?} (one of {})", names.join(", "))
-    })
+/// A `--scenario` that names no scenario kind.
+#[derive(Debug, thiserror::Error)]
+#[error("unknown scenario kind {0:?} (one of {names})", names = ScenarioKind::ALL.map(|k| k.name()).join(", "))]
+struct UnknownKind(String);
+
+fn parse_kind(name: &str) -> Result<ScenarioKind, UnknownKind> {
+    ScenarioKind::ALL
+        .into_iter()
+        .find(|k| k.name() == name)
+        .ok_or_else(|| UnknownKind(name.to_string()))
 }
 
 /// AU to km, AU/t* to m/s.

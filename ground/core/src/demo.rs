@@ -150,50 +150,31 @@ impl OdeSystem<AUG_LEN, SWITCH_EVENTS> for ControlIntegral {
 }
 
 /// Why a record gave no tuples.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DemoError {
+    #[error("dataset: {0}")]
     Dataset(String),
     /// The record is of the other problem than the environment asked for.
-    WrongProblem {
-        expected: ProblemKind,
-        found: ProblemKind,
-    },
+    #[error("a {found:?} record where {expected:?} was asked")]
+    WrongProblem { expected: ProblemKind, found: ProblemKind },
     /// The record holds no step samples (failed solve) or not N + 1 of them.
+    #[error("record has no (complete) step samples")]
     NoSolution,
     /// A placement whose steps do not add up to the episode's, or a mass outside (0, 1].
+    #[error("record does not fit its place in the episode (steps or mass)")]
     Placement,
+    #[error("{0}")]
     Env(EnvError),
-    Integration {
-        step: u32,
-        error: IntegrationError,
-    },
+    #[error("re-integration over step {step} failed: {error:?}")]
+    Integration { step: u32, error: IntegrationError },
     /// The re-integrated optimal state differs from the record's sample at `step` by
     /// `deviation`: other spacecraft, other eps, or corrupt costates.
-    Inconsistent {
-        step: u32,
-        deviation: f64,
-    },
+    #[error(
+        "re-integrated optimal state departs from the record at step {step} by {deviation:.3e}: \
+         another spacecraft, eps or corrupt costates?"
+    )]
+    Inconsistent { step: u32, deviation: f64 },
 }
-
-impl core::fmt::Display for DemoError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            Self::Dataset(m) => write!(f, "dataset: {m}"),
-            Self::WrongProblem { expected, found } => write!(f, "a {found:?} record where {expected:?} was asked"),
-            Self::NoSolution => f.write_str("record has no (complete) step samples"),
-            Self::Placement => f.write_str("record does not fit its place in the episode (steps or mass)"),
-            Self::Env(e) => write!(f, "{e}"),
-            Self::Integration { step, error } => write!(f, "re-integration over step {step} failed: {error:?}"),
-            Self::Inconsistent { step, deviation } => write!(
-                f,
-                "re-integrated optimal state departs from the record at step {step} by {deviation:.3e}: \
-                 another spacecraft, eps or corrupt costates?"
-            ),
-        }
-    }
-}
-
-impl std::error::Error for DemoError {}
 
 impl From<GenerateError> for DemoError {
     fn from(e: GenerateError) -> Self {

@@ -43,16 +43,27 @@ impl Shard {
     }
 }
 
+/// Why a text is not a shard `I/N`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ShardError {
+    #[error("shard must look like I/N, got '{0}'")]
+    Form(String),
+    #[error("bad shard index '{0}'")]
+    Index(String),
+    #[error("bad shard count '{0}'")]
+    Count(String),
+    #[error("shard {index}/{count}: need 0 <= I < N")]
+    OutOfRange { index: u32, count: u32 },
+}
+
 impl FromStr for Shard {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (i, n) = s
-            .split_once('/')
-            .ok_or_else(|| format!("shard must look like I/N, got '{s}'"))?;
-        let index: u32 = i.trim().parse().map_err(|_| format!("bad shard index '{i}'"))?;
-        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count '{n}'"))?;
+    type Err = ShardError;
+    fn from_str(s: &str) -> Result<Self, ShardError> {
+        let (i, n) = s.split_once('/').ok_or_else(|| ShardError::Form(s.to_string()))?;
+        let index: u32 = i.trim().parse().map_err(|_| ShardError::Index(i.to_string()))?;
+        let count: u32 = n.trim().parse().map_err(|_| ShardError::Count(n.to_string()))?;
         if count == 0 || index >= count {
-            return Err(format!("shard {index}/{count}: need 0 <= I < N"));
+            return Err(ShardError::OutOfRange { index, count });
         }
         Ok(Self { index, count })
     }
@@ -74,40 +85,27 @@ pub struct DatasetFile {
     pub records: Vec<TrajectoryRecord>,
 }
 
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum GenerateError {
+    #[error("{path}: {1}", path = .0.display())]
     Io(PathBuf, std::io::Error),
     /// The folder holds a run of another scenario, seed or count.
-    ManifestMismatch {
-        found: Manifest,
-        wanted: Manifest,
-    },
+    #[error(
+        "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
+        .found.scenario.name(),
+        .found.seed,
+        .found.count,
+        .wanted.scenario.name(),
+        .wanted.seed,
+        .wanted.count
+    )]
+    ManifestMismatch { found: Manifest, wanted: Manifest },
+    #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
     /// Shards to merge disagree, overlap, or leave indices out.
+    #[error("cannot merge: {0}")]
     Merge(String),
 }
-
-impl std::fmt::Display for GenerateError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Io(p, e) => write!(f, "{}: {e}", p.display()),
-            Self::ManifestMismatch { found, wanted } => write!(
-                f,
-                "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
-                found.scenario.name(),
-                found.seed,
-                found.count,
-                wanted.scenario.name(),
-                wanted.seed,
-                wanted.count
-            ),
-            Self::Corrupt(p, e) => write!(f, "{}: {e}", p.display()),
-            Self::Merge(m) => write!(f, "cannot merge: {m}"),
-        }
-    }
-}
-
-impl std::error::Error for GenerateError {}
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
     move |e| GenerateError::Io(path.to_path_buf(), e)

@@ -28,28 +28,19 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
 }
 
 /// Why a container file was refused.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ContainerError {
+    #[error("file is truncated")]
     Truncated,
+    #[error("not a file of this kind (bad magic)")]
     BadMagic,
+    #[error("unsupported format version {0}")]
     UnsupportedVersion(u16),
+    #[error("checksum mismatch: the file is corrupt")]
     CrcMismatch,
+    #[error("payload does not decode: {0}")]
     Decode(String),
 }
-
-impl std::fmt::Display for ContainerError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Truncated => f.write_str("file is truncated"),
-            Self::BadMagic => f.write_str("not a file of this kind (bad magic)"),
-            Self::UnsupportedVersion(v) => write!(f, "unsupported format version {v}"),
-            Self::CrcMismatch => f.write_str("checksum mismatch: the file is corrupt"),
-            Self::Decode(e) => write!(f, "payload does not decode: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for ContainerError {}
 
 const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 

@@ -87,61 +87,44 @@ const NANOS_PER_DAY: i128 = 86_400 * NANOS_PER_SECOND;
 const MAX_NAME_LENGTH: usize = 80;
 
 /// Why a record could not be exported, or an OEM text could not be read.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum OemError {
     /// The record's solve did not converge; its samples are not a trajectory.
+    #[error(fmt = fmt_not_converged)]
     NotConverged { failure: Option<String> },
     /// The record has no ephemeris samples.
+    #[error("refusing to export a trajectory with no ephemeris samples")]
     NoSamples,
     /// Sample `index` has a NaN or infinite `field`.
+    #[error("ephemeris sample {index}: {field} is not finite")]
     NonFinite { index: usize, field: &'static str },
     /// Sample `index` is not later than the one before it.
+    #[error("ephemeris sample {index}: time is not later than the previous sample's")]
     TimeNotIncreasing { index: usize },
     /// Sample `index` is finite but not physical (mass <= 0, throttle outside [0, 1]).
+    #[error("ephemeris sample {index}: {reason}")]
     InvalidSample { index: usize, reason: &'static str },
     /// The spacecraft description is unusable.
+    #[error("spacecraft: {0}")]
     Spacecraft(SpacecraftError),
     /// An option is not a valid OEM value.
+    #[error("OEM option {field}: {reason}")]
     InvalidOption { field: &'static str, reason: String },
     /// A calendar epoch is malformed or out of range.
+    #[error("epoch: {0}")]
     Epoch(String),
     /// The OEM text breaks the standard or departs from what [`write_oem`] writes.
+    #[error("OEM line {line}: {message}")]
     Parse { line: usize, message: String },
     /// Writing to the output failed.
-    Io(std::io::Error),
+    #[error("writing OEM output: {0}")]
+    Io(#[source] std::io::Error),
 }
 
-impl fmt::Display for OemError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::NotConverged { failure: Some(why) } => {
-                write!(f, "refusing to export an unconverged trajectory ({why})")
-            }
-            Self::NotConverged { failure: None } => f.write_str("refusing to export an unconverged trajectory"),
-            Self::NoSamples => f.write_str("refusing to export a trajectory with no ephemeris samples"),
-            Self::NonFinite { index, field } => write!(f, "ephemeris sample {index}: {field} is not finite"),
-            Self::TimeNotIncreasing { index } => {
-                write!(
-                    f,
-                    "ephemeris sample {index}: time is not later than the previous sample's"
-                )
-            }
-            Self::InvalidSample { index, reason } => write!(f, "ephemeris sample {index}: {reason}"),
-            Self::Spacecraft(e) => write!(f, "spacecraft: {e}"),
-            Self::InvalidOption { field, reason } => write!(f, "OEM option {field}: {reason}"),
-            Self::Epoch(why) => write!(f, "epoch: {why}"),
-            Self::Parse { line, message } => write!(f, "OEM line {line}: {message}"),
-            Self::Io(e) => write!(f, "writing OEM output: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for OemError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            Self::Io(e) => Some(e),
-            _ => None,
-        }
+fn fmt_not_converged(failure: &Option<String>, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+    match failure {
+        Some(why) => write!(f, "refusing to export an unconverged trajectory ({why})"),
+        None => f.write_str("refusing to export an unconverged trajectory"),
     }
 }
 

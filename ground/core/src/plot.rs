@@ -7,7 +7,6 @@
 //! thesis. (A PNG would need glyphs rasterised from a font shipped with or found by the
 //! program.) Files are written atomically through [`atomic_write`].
 
-use std::fmt;
 use std::io;
 use std::path::Path;
 
@@ -61,74 +60,56 @@ pub(crate) const TICK_SIZE: f64 = 18.0;
 pub(crate) const LEGEND_SIZE: f64 = 19.0;
 
 /// Why a figure was not written.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum PlotError {
     /// The output path does not end in `.svg` (the only format written).
+    #[error("plots are written as SVG; the path must end in .svg: {0}")]
     UnsupportedFormat(String),
     /// No record was given.
+    #[error("no trajectory record to plot")]
     NoRecords,
     /// Record number `record` (position in the slice) has an empty ephemeris.
+    #[error("record {record} has no ephemeris samples")]
     NoSamples { record: usize },
     /// Record number `record` has a non-finite position or throttle.
+    #[error("record {record} has a non-finite position or throttle")]
     NonFinite { record: usize },
     /// Record number `record` has an initial or target orbit that is not a valid ellipse.
+    #[error("record {record} has an invalid {which} orbit")]
     InvalidOrbit { record: usize, which: &'static str },
     /// No throttle curve was given.
+    #[error("no throttle curve to plot")]
     NoCurves,
     /// Curve number `curve` has no points.
+    #[error("throttle curve {curve} has no points")]
     EmptyCurve { curve: usize },
     /// Curve number `curve` has a non-finite eps, time or throttle.
+    #[error("throttle curve {curve} has a non-finite value")]
     NonFiniteCurve { curve: usize },
     /// Fewer than two samples were asked for a throttle curve.
+    #[error("a throttle curve needs at least 2 samples, {0} asked")]
     TooFewSamples(usize),
     /// None of the homotopy levels converged.
+    #[error("no homotopy level converged")]
     NoConvergedLevel,
     /// Re-propagating the costates of the level at `eps` failed.
+    #[error("propagating the level eps = {eps:e} failed: {error:?}")]
     Propagation { eps: f64, error: IntegrationError },
     /// A chart ([`crate::charts`]) has no finite value to draw; names the chart.
+    #[error("{0}: no finite value to draw")]
     NothingToDraw(&'static str),
     /// A histogram was asked for zero bins.
+    #[error("a histogram needs at least one bin, {0} asked")]
     InvalidBins(usize),
     /// A histogram range that is not finite and increasing.
+    #[error("histogram range [{low}, {high}] is not finite and increasing")]
     InvalidRange { low: f64, high: f64 },
     /// The drawing library failed.
+    #[error("drawing the plot failed: {0}")]
     Render(String),
     /// Writing the file failed.
-    Io(io::Error),
-}
-
-impl fmt::Display for PlotError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::UnsupportedFormat(p) => write!(f, "plots are written as SVG; the path must end in .svg: {p}"),
-            Self::NoRecords => f.write_str("no trajectory record to plot"),
-            Self::NoSamples { record } => write!(f, "record {record} has no ephemeris samples"),
-            Self::NonFinite { record } => write!(f, "record {record} has a non-finite position or throttle"),
-            Self::InvalidOrbit { record, which } => write!(f, "record {record} has an invalid {which} orbit"),
-            Self::NoCurves => f.write_str("no throttle curve to plot"),
-            Self::EmptyCurve { curve } => write!(f, "throttle curve {curve} has no points"),
-            Self::NonFiniteCurve { curve } => write!(f, "throttle curve {curve} has a non-finite value"),
-            Self::TooFewSamples(n) => write!(f, "a throttle curve needs at least 2 samples, {n} asked"),
-            Self::NoConvergedLevel => f.write_str("no homotopy level converged"),
-            Self::Propagation { eps, error } => write!(f, "propagating the level eps = {eps:e} failed: {error:?}"),
-            Self::NothingToDraw(chart) => write!(f, "{chart}: no finite value to draw"),
-            Self::InvalidBins(n) => write!(f, "a histogram needs at least one bin, {n} asked"),
-            Self::InvalidRange { low, high } => {
-                write!(f, "histogram range [{low}, {high}] is not finite and increasing")
-            }
-            Self::Render(e) => write!(f, "drawing the plot failed: {e}"),
-            Self::Io(e) => write!(f, "writing the plot failed: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for PlotError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        match self {
-            Self::Io(e) => Some(e),
-            _ => None,
-        }
-    }
+    #[error("writing the plot failed: {0}")]
+    Io(#[source] io::Error),
 }
 
 impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for PlotError {

@@ -55,26 +55,15 @@ pub struct EpisodeOutcome {
 }
 
 /// Why a batch evaluation could not run at all.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum EvalError {
     /// The config is unusable (checked once, before any episode).
+    #[error("{0}")]
     Env(EnvError),
     /// The batched policy returned `got` actions for `expected` observations.
+    #[error("the policy returned {got} actions for {expected} observations")]
     PolicyBatch { expected: usize, got: usize },
 }
-
-impl core::fmt::Display for EvalError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            Self::Env(e) => write!(f, "{e}"),
-            Self::PolicyBatch { expected, got } => {
-                write!(f, "the policy returned {got} actions for {expected} observations")
-            }
-        }
-    }
-}
-
-impl std::error::Error for EvalError {}
 
 /// Scenarios 0..count of the stream `seed` of `kind`.
 pub fn draw_scenarios(kind: ScenarioKind, seed: u64, count: u64) -> Vec<Scenario> {

@@ -204,66 +204,40 @@ pub struct EnvConfig {
 }
 
 /// Why an environment call failed. Every failure is one of these, never a panic.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum EnvError {
+    #[error("invalid spacecraft: {0}")]
     Spacecraft(SpacecraftError),
+    #[error("invalid environment config: {0}")]
     Config(&'static str),
+    #[error("invalid scenario: {0}")]
     Scenario(ScenarioError),
     /// A transfer scenario given to the rendezvous environment or the other way round.
-    WrongProblem {
-        expected: ProblemKind,
-        found: ProblemKind,
-    },
+    #[error("a {found:?} scenario given to the {expected:?} environment")]
+    WrongProblem { expected: ProblemKind, found: ProblemKind },
     /// `step` before any `reset`.
+    #[error("step called before reset")]
     NotReset,
     /// `step` after the terminal step.
+    #[error("step called after the terminal step; reset first")]
     EpisodeOver,
     /// `reset_at` with a step index beyond N.
-    StepOutOfRange {
-        step: u32,
-        steps: u32,
-    },
+    #[error("step {step} is beyond the episode's {steps} steps")]
+    StepOutOfRange { step: u32, steps: u32 },
     /// The action had a NaN or infinite component and the config refuses such actions.
+    #[error("the action has a NaN or infinite component")]
     NonFiniteAction,
     /// The spacecraft state cannot be propagated over step `step` (tank empty, integrator
     /// failure, state at the Sun, ...).
-    Propagation {
-        step: u32,
-        error: PropagationError,
-    },
+    #[error("propagation over step {step} failed: {error}")]
+    Propagation { step: u32, error: PropagationError },
     /// The state or target at step `step` is outside the feature domain.
-    Features {
-        step: u32,
-        error: FeatureError,
-    },
+    #[error("features at step {step}: {error}")]
+    Features { step: u32, error: FeatureError },
     /// The rendezvous body could not be propagated to step `step`.
-    Body {
-        step: u32,
-        error: KeplerError,
-    },
+    #[error("target body at step {step}: {error:?}")]
+    Body { step: u32, error: KeplerError },
 }
-
-impl core::fmt::Display for EnvError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            Self::Spacecraft(e) => write!(f, "invalid spacecraft: {e}"),
-            Self::Config(m) => write!(f, "invalid environment config: {m}"),
-            Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
-            Self::WrongProblem { expected, found } => {
-                write!(f, "a {found:?} scenario given to the {expected:?} environment")
-            }
-            Self::NotReset => f.write_str("step called before reset"),
-            Self::EpisodeOver => f.write_str("step called after the terminal step; reset first"),
-            Self::StepOutOfRange { step, steps } => write!(f, "step {step} is beyond the episode's {steps} steps"),
-            Self::NonFiniteAction => f.write_str("the action has a NaN or infinite component"),
-            Self::Propagation { step, error } => write!(f, "propagation over step {step} failed: {error}"),
-            Self::Features { step, error } => write!(f, "features at step {step}: {error}"),
-            Self::Body { step, error } => write!(f, "target body at step {step}: {error:?}"),
-        }
-    }
-}
-
-impl std::error::Error for EnvError {}
 
 /// The two problems: how their features and residuals are computed. Implemented by
 /// [`Transfer`] and [`Rendezvous`]; [`MdpEnv`] is generic over it.

@@ -371,12 +371,12 @@ fn candidates(
     sc: &CanonicalSpacecraft,
     tol: &Tolerances,
     budget: u64,
-) -> Result<Vec<Candidate>, String> {
+) -> Result<Vec<Candidate>, CircularError> {
     let tof = scenario.time_of_flight();
     let h = Hohmann::of(scenario, sc);
     let (lo, hi) = h.centre_range(tof);
     if hi <= lo || hi.is_nan() {
-        return Err("the flight is shorter than the Hohmann transfer".into());
+        return Err(CircularError::ShorterThanHohmann);
     }
     let mut shifts: Vec<Shift> = Vec::new();
     for k in 0..SHIFT_SAMPLES {
@@ -387,10 +387,7 @@ fn candidates(
         }
     }
     if shifts.len() < 2 {
-        return Err(format!(
-            "bang-bang shift scan: {} of {SHIFT_SAMPLES} shifts solved",
-            shifts.len()
-        ));
+        return Err(CircularError::ShiftScan { solved: shifts.len() });
     }
     // nu_f moves with the pin at the rate of the relative motion of the two circles.
     let dnu = {
@@ -433,7 +430,7 @@ fn candidates(
         }
     }
     if found.is_empty() {
-        return Err("bang-bang: no stationary shift solved".into());
+        return Err(CircularError::NoStationaryShift);
     }
     found.sort_by(|a, b| b.mass.total_cmp(&a.mass));
     Ok(found)
@@ -514,11 +511,10 @@ fn transversality_search(
     tol: &Tolerances,
     budget: u64,
     stall: bool,
-) -> Result<(MsVector, f64), String> {
+) -> Result<(MsVector, f64), SearchFailure> {
     let start = work_done();
     let spent = || work_done().saturating_sub(start) >= budget;
     let per = budget / 6;
-    let fail = |what: &str| format!("transversality search: {what}");
     let solve_at = |x: &MsVector, t: Option<&MsVector>, from: f64, nu: f64| -> Option<(f64, MsVector)> {
         let guess = t.map_or(*x, |t| x + t * (nu - from));
         let problem = MultipleShootingTransfer {
@@ -539,7 +535,7 @@ fn transversality_search(
         }
         Some((problem.transversality(eps, &o.z, tol).ok()?, o.z))
     };
-    let (mut f, mut x) = solve_at(x0, None, nu0, nu0).ok_or_else(|| fail("inner solve failed at the start"))?;
+    let (mut f, mut x) = solve_at(x0, None, nu0, nu0).ok_or(SearchFailure::StartSolve)?;
     let mut nu = nu0;
     // Points on either side of the zero seen so far: (nu, F5, x).
     let mut neg: Option<(f64, f64, MsVector)> = None;
@@ -550,14 +546,14 @@ fn transversality_search(
             return Ok((x, nu));
         }
         if spent() {
-            return Err(fail("work budget spent"));
+            return Err(SearchFailure::Budget);
         }
         if f < 0.0 {
             neg = Some((nu, f, x));
         } else {
             pos = Some((nu, f, x));
         }
-        let (t, slope) = nu_tangent(scenario, sc, &x, nu, eps, tol).ok_or_else(|| fail("tangent failed"))?;
+        let (t, slope) = nu_tangent(scenario, sc, &x, nu, eps, tol).ok_or(SearchFailure::Tangent)?;
         let mut target = nu - f / slope;
         // Inside a bracket, stay inside it (regula falsi with Illinois weights if Newton leaves).
         if let (Some(a), Some(b)) = (&neg, &pos) {
@@ -572,7 +568,7 @@ fn transversality_search(
             }
         }
         if !target.is_finite() {
-            return Err(fail("flat transversality residual"));
+            return Err(SearchFailure::FlatResidual);
         }
         let mut step = target - nu;
         let mut accepted = None;
@@ -584,12 +580,110 @@ fn transversality_search(
             step *= 0.5;
         }
         let Some((fn_, xn)) = accepted else {
-            return Err(fail("inner solve failed"));
+            return Err(SearchFailure::InnerSolve);
         };
         side = if fn_ < 0.0 { -1 } else { 1 };
         (nu, f, x) = (nu + step, fn_, xn);
     }
-    Err(fail("no convergence"))
+    Err(SearchFailure::NoConvergence)
+}
+
+/// Why a near-circular transfer was not solved: where each path stopped. The messages are the
+/// text of a record's failure (after "near-circular transfer: "), so they must not change.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CircularError {
+    /// No bang-bang candidate: the time of flight is below the Hohmann transfer's.
+    #[error("the flight is shorter than the Hohmann transfer")]
+    ShorterThanHohmann,
+    /// Fewer than two shifts of the bang-bang scan solved.
+    #[error("bang-bang shift scan: {solved} of {samples} shifts solved", samples = SHIFT_SAMPLES)]
+    ShiftScan { solved: usize },
+    /// No shift of the scan led to a stationary bang-bang candidate.
+    #[error("bang-bang: no stationary shift solved")]
+    NoStationaryShift,
+    /// The upward path (from the bang-bang candidates) failed.
+    #[error("upward: {0}")]
+    Upward(Box<CircularError>),
+    /// The downward path (homotopy with nu_f free) failed.
+    #[error("downward: {0}")]
+    Downward(Box<CircularError>),
+    /// Both paths failed, in the order they were tried.
+    #[error("{first}; {second}")]
+    BothPaths {
+        first: Box<CircularError>,
+        second: Box<CircularError>,
+    },
+    /// No energy-optimal (eps = 1) solution to start the downward homotopy from.
+    #[error("no energy-optimal start")]
+    NoEnergyOptimalStart,
+    /// The energy-optimal solution could not be propagated to the multiple-shooting nodes.
+    #[error("energy-optimal propagation failed")]
+    EnergyOptimalPropagation,
+    /// The downward homotopy's first solve failed to propagate.
+    #[error("{0:?}")]
+    Homotopy(IntegrationError),
+    /// The downward homotopy returned no level.
+    #[error("empty homotopy")]
+    EmptyHomotopy,
+    /// The downward homotopy solved no level.
+    #[error("stalled at eps = 1")]
+    StalledAtStart,
+    /// The free-anomaly path stalled below `eps`, and the pinned path from there failed.
+    #[error("stalled below eps = {eps:.3e}; pinned: {pinned}")]
+    Pinned { eps: f64, pinned: Box<CircularError> },
+    /// The pinned path stalled at this eps.
+    #[error("stalled at eps = {0:.3e}")]
+    Stalled(f64),
+    /// The final nu_f search and replay failed with stall-limited inner solves, then without.
+    #[error("{limited}; without the stall limit: {unlimited}")]
+    Finish {
+        limited: Box<CircularError>,
+        unlimited: Box<CircularError>,
+    },
+    /// The nu_f search failed, and Newton with nu_f free failed to propagate.
+    #[error("{search}; free nu_f: {error:?}")]
+    FreeAnomaly {
+        search: SearchFailure,
+        error: IntegrationError,
+    },
+    /// The nu_f search failed, and Newton with nu_f free ended at this residual.
+    #[error("{search}; free nu_f: residual {residual:.1e}")]
+    FreeAnomalyResidual { search: SearchFailure, residual: f64 },
+    /// The single propagation from the initial costates failed.
+    #[error("replay: propagation failed")]
+    ReplayPropagation,
+    /// The single propagation from the initial costates misses by this residual.
+    #[error("replay: terminal residual {0:.1e} from the initial costates alone")]
+    ReplayResidual(f64),
+    /// A bang-bang candidate could not be propagated to the multiple-shooting nodes.
+    #[error("bang-bang candidate: propagation failed")]
+    CandidatePropagation,
+    /// The first solve of the upward path failed to propagate.
+    #[error("upward start: {0:?}")]
+    UpwardStart(IntegrationError),
+    /// The first solve of the upward path ended at this residual.
+    #[error("upward start: residual {0:.1e}")]
+    UpwardStartResidual(f64),
+    /// The upward continuation stopped at this eps.
+    #[error("upward continuation stalled at eps = {0:.3e}")]
+    UpwardStalled(f64),
+}
+
+/// Why the nu_f search at the final eps (`transversality_search`) stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum SearchFailure {
+    #[error("transversality search: inner solve failed at the start")]
+    StartSolve,
+    #[error("transversality search: work budget spent")]
+    Budget,
+    #[error("transversality search: tangent failed")]
+    Tangent,
+    #[error("transversality search: flat transversality residual")]
+    FlatResidual,
+    #[error("transversality search: inner solve failed")]
+    InnerSolve,
+    #[error("transversality search: no convergence")]
+    NoConvergence,
 }
 
 /// Solves a near-circular transfer at the specification's final eps (see the module notes). Errors say
@@ -598,23 +692,24 @@ pub fn solve(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
     options: &SolveOptions,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     let tol = options.tolerances;
     let target = final_level(options.final_eps);
     let list = candidates(scenario, sc, &tol, options.max_start_work / 4)?;
     let best = &list[0];
     let peak = smallest_burn_peak(scenario, sc, best, &tol);
+    // The best candidate, then the second best if there is one.
     let up = || {
-        let mut last = String::new();
-        for c in list.iter().take(2) {
-            match solve_candidate(scenario, sc, c, target, options) {
-                Ok(s) => return Ok(s),
-                Err(e) => last = format!("upward: {e}"),
+        let mut result = solve_candidate(scenario, sc, best, target, options);
+        if result.is_err() {
+            if let Some(second) = list.get(1) {
+                result = solve_candidate(scenario, sc, second, target, options);
             }
         }
-        Err(last)
+        result.map_err(|e| CircularError::Upward(Box::new(e)))
     };
-    let down = || solve_downward_free(scenario, sc, best, target, options).map_err(|e| format!("downward: {e}"));
+    let down =
+        || solve_downward_free(scenario, sc, best, target, options).map_err(|e| CircularError::Downward(Box::new(e)));
     // Burns whose switching function peaks this low are spread over most of the flight at the
     // final eps: far from the bang-bang extremal the upward path starts from.
     let (first, second): (&Path, &Path) = if peak > UPWARD_MIN_PEAK {
@@ -622,11 +717,16 @@ pub fn solve(
     } else {
         (&down, &up)
     };
-    first().or_else(|e1| second().map_err(|e2| format!("{e1}; {e2}")))
+    first().or_else(|e1| {
+        second().map_err(|e2| CircularError::BothPaths {
+            first: Box::new(e1),
+            second: Box::new(e2),
+        })
+    })
 }
 
 /// One way to the final eps.
-type Path<'a> = dyn Fn() -> Result<CircularSolution, String> + 'a;
+type Path<'a> = dyn Fn() -> Result<CircularSolution, CircularError> + 'a;
 
 /// Below this smallest burn peak of rho the downward path is tried first.
 const UPWARD_MIN_PEAK: f64 = 1e-6;
@@ -639,7 +739,7 @@ fn solve_downward_free(
     c: &Candidate,
     target: f64,
     options: &SolveOptions,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     let tol = options.tolerances;
     let single = super::shooting::TransferShooting {
         scenario,
@@ -660,7 +760,7 @@ fn solve_downward_free(
             break;
         }
     }
-    let z = z.ok_or("no energy-optimal start")?;
+    let z = z.ok_or(CircularError::NoEnergyOptimalStart)?;
     let nu = z[5];
     let ms = MultipleShootingTransfer {
         scenario,
@@ -669,7 +769,7 @@ fn solve_downward_free(
     };
     let x0 = ms
         .unknowns_from_costates(&[z[0], z[1], z[2], z[3], z[4]], 1.0, &tol)
-        .ok_or("energy-optimal propagation failed")?;
+        .ok_or(CircularError::EnergyOptimalPropagation)?;
     let free = MultipleShootingFree {
         scenario,
         spacecraft: *sc,
@@ -683,8 +783,8 @@ fn solve_downward_free(
         options.final_eps,
         3 * options.max_homotopy_solves,
     )
-    .map_err(|e| format!("{e:?}"))?;
-    let mut last = *levels.last().ok_or("empty homotopy")?;
+    .map_err(CircularError::Homotopy)?;
+    let mut last = *levels.last().ok_or(CircularError::EmptyHomotopy)?;
     if last.outcome.converged {
         // Again at the full tolerances (1-2 iterations); the nu_f search below starts from here.
         if let Ok(o) = newton(
@@ -701,10 +801,14 @@ fn solve_downward_free(
     }
     if !(last.outcome.converged && last.eps <= target) {
         let Some(deepest) = levels.iter().rev().find(|l| l.outcome.converged) else {
-            return Err("stalled at eps = 1".into());
+            return Err(CircularError::StalledAtStart);
         };
-        return pinned_downward(scenario, sc, c, &deepest.outcome.z, deepest.eps, target, options)
-            .map_err(|e| format!("stalled below eps = {:.3e}; pinned: {e}", deepest.eps));
+        return pinned_downward(scenario, sc, c, &deepest.outcome.z, deepest.eps, target, options).map_err(|e| {
+            CircularError::Pinned {
+                eps: deepest.eps,
+                pinned: Box::new(e),
+            }
+        });
     }
     let x = MsVector::from_column_slice(&last.outcome.z.as_slice()[..MS_UNKNOWNS]);
     finish(
@@ -733,7 +837,7 @@ fn pinned_downward(
     eps: f64,
     target: f64,
     options: &SolveOptions,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     let tol = options.tolerances;
     let nu = z[MS_UNKNOWNS];
     let ms = MultipleShootingTransfer {
@@ -754,7 +858,7 @@ fn pinned_downward(
         40,
     );
     if reached > target {
-        return Err(format!("stalled at eps = {reached:.3e}"));
+        return Err(CircularError::Stalled(reached));
     }
     // nu_f was pinned where the free path stalled, farther from its zero than on the other
     // paths: the search gets the whole homotopy budget (seed 7 #260 and #308 need ~1/3 of it).
@@ -772,13 +876,15 @@ fn finish(
     target: f64,
     options: &SolveOptions,
     search_budget: u64,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     // Stagnating inner solves cut short first (cheaper; seed 7 #260 and #308 need it to finish
     // within the budget), then run to their iteration cap (#149 and #356 need that: their
     // stall-limited search ends on costates whose replay misses by 1.3e-8 and 4e-8).
     finish_with(scenario, sc, c, x, nu, target, options, search_budget, true).or_else(|e| {
-        finish_with(scenario, sc, c, x, nu, target, options, search_budget, false)
-            .map_err(|f| format!("{e}; without the stall limit: {f}"))
+        finish_with(scenario, sc, c, x, nu, target, options, search_budget, false).map_err(|f| CircularError::Finish {
+            limited: Box::new(e),
+            unlimited: Box::new(f),
+        })
     })
 }
 
@@ -794,7 +900,7 @@ fn finish_with(
     options: &SolveOptions,
     search_budget: u64,
     stall: bool,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     let tol = options.tolerances;
     let (x, nu) = match transversality_search(scenario, sc, x, nu, target, &tol, search_budget, stall) {
         Ok(r) => r,
@@ -810,11 +916,14 @@ fn finish_with(
                 tolerance: SEARCH_TOLERANCE,
             };
             let o = newton(&budgeted, target, &MultipleShootingFree::join(x, nu), &tol, &settings)
-                .map_err(|f| format!("{e}; free nu_f: {f:?}"))?;
+                .map_err(|error| CircularError::FreeAnomaly { search: e, error })?;
             // Near the residual's noise floor (~1e-9 at the final eps) the replay below, not this
             // tolerance, decides: it is the acceptance test.
             if o.residual >= options.newton.tolerance {
-                return Err(format!("{e}; free nu_f: residual {:.1e}", o.residual));
+                return Err(CircularError::FreeAnomalyResidual {
+                    search: e,
+                    residual: o.residual,
+                });
             }
             (
                 MsVector::from_column_slice(&o.z.as_slice()[..MS_UNKNOWNS]),
@@ -823,7 +932,8 @@ fn finish_with(
         }
     };
     let z = TransferVector::from_column_slice(&[x[0], x[1], x[2], x[3], x[4], nu]);
-    let (mut residual, mut final_mass) = replay(scenario, sc, &z, target, &tol).ok_or("replay: propagation failed")?;
+    let (mut residual, mut final_mass) =
+        replay(scenario, sc, &z, target, &tol).ok_or(CircularError::ReplayPropagation)?;
     let mut z = z;
     if residual >= POLISH_ABOVE {
         // The multiple-shooting costates are exact to round-off, but a single propagation over the
@@ -849,9 +959,7 @@ fn finish_with(
         }
     }
     if residual >= options.newton.tolerance {
-        return Err(format!(
-            "replay: terminal residual {residual:.1e} from the initial costates alone"
-        ));
+        return Err(CircularError::ReplayResidual(residual));
     }
     Ok(CircularSolution {
         z,
@@ -869,7 +977,7 @@ fn solve_candidate(
     c: &Candidate,
     target: f64,
     options: &SolveOptions,
-) -> Result<CircularSolution, String> {
+) -> Result<CircularSolution, CircularError> {
     let tol = options.tolerances;
     let bb = c.problem(scenario, sc);
     let nu = c.z[5];
@@ -880,13 +988,13 @@ fn solve_candidate(
     };
     let x0 = ms
         .unknowns_from(|t| bb.state_at(&c.z, t, &tol).ok())
-        .ok_or("bang-bang candidate: propagation failed")?;
+        .ok_or(CircularError::CandidatePropagation)?;
     let budgeted = Budgeted::new(&ms, options.max_homotopy_work / 3);
     let start = upward_start(smallest_burn_peak(scenario, sc, c, &tol));
-    let first = newton(&budgeted, start, &x0, &tol, &ms_settings(INNER_TOLERANCE))
-        .map_err(|e| format!("upward start: {e:?}"))?;
+    let first =
+        newton(&budgeted, start, &x0, &tol, &ms_settings(INNER_TOLERANCE)).map_err(CircularError::UpwardStart)?;
     if first.residual > 10.0 * INNER_TOLERANCE {
-        return Err(format!("upward start: residual {:.1e}", first.residual));
+        return Err(CircularError::UpwardStartResidual(first.residual));
     }
     let (eps, x) = continue_eps(
         &Correctors(&budgeted),
@@ -899,7 +1007,101 @@ fn solve_candidate(
         40,
     );
     if eps < target {
-        return Err(format!("upward continuation stalled at eps = {eps:.3e}"));
+        return Err(CircularError::UpwardStalled(eps));
     }
     finish(scenario, sc, c, &x, nu, target, options, options.max_homotopy_work / 6)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The messages end up in records' failure texts: each is what the solver wrote before the
+    /// errors were typed, nested the way the paths nest them.
+    #[test]
+    fn error_messages_are_the_failure_texts() {
+        let leaves = [
+            (
+                CircularError::ShorterThanHohmann,
+                "the flight is shorter than the Hohmann transfer",
+            ),
+            (
+                CircularError::ShiftScan { solved: 1 },
+                "bang-bang shift scan: 1 of 6 shifts solved",
+            ),
+            (
+                CircularError::NoStationaryShift,
+                "bang-bang: no stationary shift solved",
+            ),
+            (CircularError::NoEnergyOptimalStart, "no energy-optimal start"),
+            (
+                CircularError::EnergyOptimalPropagation,
+                "energy-optimal propagation failed",
+            ),
+            (
+                CircularError::Homotopy(IntegrationError::NonFinite { t: 0.5 }),
+                "NonFinite { t: 0.5 }",
+            ),
+            (CircularError::EmptyHomotopy, "empty homotopy"),
+            (CircularError::StalledAtStart, "stalled at eps = 1"),
+            (CircularError::Stalled(2.5e-4), "stalled at eps = 2.500e-4"),
+            (CircularError::ReplayPropagation, "replay: propagation failed"),
+            (
+                CircularError::ReplayResidual(3.3e-8),
+                "replay: terminal residual 3.3e-8 from the initial costates alone",
+            ),
+            (
+                CircularError::CandidatePropagation,
+                "bang-bang candidate: propagation failed",
+            ),
+            (
+                CircularError::UpwardStart(IntegrationError::InvalidInput),
+                "upward start: InvalidInput",
+            ),
+            (
+                CircularError::UpwardStartResidual(1.7e-6),
+                "upward start: residual 1.7e-6",
+            ),
+            (
+                CircularError::UpwardStalled(6.1e-5),
+                "upward continuation stalled at eps = 6.100e-5",
+            ),
+        ];
+        for (e, text) in leaves {
+            assert_eq!(e.to_string(), text);
+        }
+        let searches = [
+            (SearchFailure::StartSolve, "inner solve failed at the start"),
+            (SearchFailure::Budget, "work budget spent"),
+            (SearchFailure::Tangent, "tangent failed"),
+            (SearchFailure::FlatResidual, "flat transversality residual"),
+            (SearchFailure::InnerSolve, "inner solve failed"),
+            (SearchFailure::NoConvergence, "no convergence"),
+        ];
+        for (e, what) in searches {
+            assert_eq!(e.to_string(), format!("transversality search: {what}"));
+        }
+        let nested = CircularError::BothPaths {
+            first: Box::new(CircularError::Upward(Box::new(CircularError::Finish {
+                limited: Box::new(CircularError::FreeAnomalyResidual {
+                    search: SearchFailure::Budget,
+                    residual: 3.3e-7,
+                }),
+                unlimited: Box::new(CircularError::FreeAnomaly {
+                    search: SearchFailure::Tangent,
+                    error: IntegrationError::InvalidInput,
+                }),
+            }))),
+            second: Box::new(CircularError::Downward(Box::new(CircularError::Pinned {
+                eps: 1.5e-4,
+                pinned: Box::new(CircularError::Stalled(2.5e-4)),
+            }))),
+        };
+        assert_eq!(
+            nested.to_string(),
+            "upward: transversality search: work budget spent; free nu_f: residual 3.3e-7; \
+             without the stall limit: transversality search: tangent failed; free nu_f: InvalidInput; \
+             downward: stalled below eps = 1.500e-4; pinned: stalled at eps = 2.500e-4"
+        );
+    }
 }

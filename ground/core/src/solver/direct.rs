@@ -187,31 +187,31 @@ impl Target {
 }
 
 /// Why a direct solve could not run.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DirectError {
+    #[error("direct transcription: segment propagation failed ({0:?})")]
     Integration(IntegrationError),
+    #[error("direct transcription: the target body's coast failed")]
     Kepler,
     /// The QP solver could not even set up (bad data).
+    #[error("direct transcription: the QP could not be set up ({0})")]
     Qp(String),
     /// A guess of the wrong length.
+    #[error("direct transcription: guess of the wrong length or eps outside [0, 1]")]
     Guess,
+    /// [`indirect_start`]: the direct problem at eps = 1 on `segments` segments stopped at
+    /// terminal violation `violation`, with `full_throttle` percent of the segments at full
+    /// throttle.
+    #[error(
+        "direct transcription at eps = 1 ({segments} segments) stopped at terminal violation {violation:.1e} \
+         with {full_throttle:.0} % of the segments at full throttle"
+    )]
+    NoStart {
+        segments: usize,
+        violation: f64,
+        full_throttle: f64,
+    },
 }
-
-impl std::fmt::Display for DirectError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Self::Integration(e) => write!(f, "direct transcription: segment propagation failed ({e:?})"),
-            Self::Kepler => write!(f, "direct transcription: the target body's coast failed"),
-            Self::Qp(why) => write!(f, "direct transcription: the QP could not be set up ({why})"),
-            Self::Guess => write!(
-                f,
-                "direct transcription: guess of the wrong length or eps outside [0, 1]"
-            ),
-        }
-    }
-}
-
-impl std::error::Error for DirectError {}
 
 impl From<IntegrationError> for DirectError {
     fn from(e: IntegrationError) -> Self {
@@ -867,27 +867,30 @@ pub const START_SEGMENTS_PER_STEP: usize = 2;
 /// A start for the indirect solver when its own starts fail: the direct problem at eps = 1 (the
 /// energy-optimal cost, where the homotopy begins) on the real time of flight, from tangential
 /// thrust. Ok: the initial costates its multipliers imply and, for transfers, the final anomaly.
-/// Err: why not, with the terminal violation it stopped at and the share of segments at full
-/// throttle (a violation that no longer falls at full throttle everywhere is evidence, not
-/// proof, that the time of flight is too short).
-pub fn indirect_start(scenario: &Scenario, sc: &CanonicalSpacecraft) -> Result<([f64; STATE], Option<f64>), String> {
+/// Err: why not; [`DirectError::NoStart`] carries the terminal violation it stopped at and the
+/// share of segments at full throttle (a violation that no longer falls at full throttle
+/// everywhere is evidence, not proof, that the time of flight is too short).
+pub fn indirect_start(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+) -> Result<([f64; STATE], Option<f64>), DirectError> {
     let options = DirectOptions {
         // A start needs the multipliers of a stationary point, not the last digits of the cost.
         optimality: 1e-7,
         ..DirectOptions::default()
     };
     let segments = START_SEGMENTS_PER_STEP * scenario.steps as usize;
-    let guess = DirectGuess::tangential(scenario, sc, segments, 0.5, &options.tolerances).map_err(|e| e.to_string())?;
-    let solution = solve_direct(scenario, sc, &guess, 1.0, &options).map_err(|e| e.to_string())?;
+    let guess = DirectGuess::tangential(scenario, sc, segments, 0.5, &options.tolerances)?;
+    let solution = solve_direct(scenario, sc, &guess, 1.0, &options)?;
     match solution.initial_costates {
         Some(costates) if solution.onboard_infeasibility < 1e-8 => Ok((costates, solution.nu_f)),
         _ => {
             let full = solution.controls.iter().filter(|c| c[2] > 1.0 - 1e-6).count();
-            Err(format!(
-                "direct transcription at eps = 1 ({segments} segments) stopped at terminal violation {:.1e} with {:.0} % of the segments at full throttle",
-                solution.infeasibility,
-                100.0 * full as f64 / segments as f64
-            ))
+            Err(DirectError::NoStart {
+                segments,
+                violation: solution.infeasibility,
+                full_throttle: 100.0 * full as f64 / segments as f64,
+            })
         }
     }
 }
@@ -900,6 +903,21 @@ mod tests {
 
     fn sc() -> CanonicalSpacecraft {
         Spacecraft::MSR_ERO.canonical().unwrap()
+    }
+
+    /// [`indirect_start`]'s refusal ends up in records' failure texts: the text it always had.
+    #[test]
+    fn no_start_message_is_the_failure_text() {
+        let e = DirectError::NoStart {
+            segments: 40,
+            violation: 0.2314,
+            full_throttle: 59.4,
+        };
+        assert_eq!(
+            e.to_string(),
+            "direct transcription at eps = 1 (40 segments) stopped at terminal violation 2.3e-1 \
+             with 59 % of the segments at full throttle"
+        );
     }
 
     fn tol() -> Tolerances {
