@@ -1,7 +1,7 @@
 //! One fuel-optimal low-thrust trajectory by the indirect method (`solver::solve_scenario`):
 //! Pontryagin's conditions, single shooting from a multi-start at the energy-optimal cost, then
 //! the energy-to-fuel homotopy down to the final eps. The orbits are given explicitly (AU, deg);
-//! the time of flight is the SPEC rule (the longer period, rounded up to whole 14-day steps)
+//! the time of flight is the rule of docs/spec.md section 4 (the longer period, rounded up to whole 14-day steps)
 //! unless `--steps` sets it. Prints the outcome, the thrust arcs and the throttle profile.
 //!
 //! Run (the default is a transfer from a 1.0 AU circle to a 1.5 AU circle, a few seconds):
@@ -51,10 +51,10 @@ struct Args {
     /// Rendezvous: the target body's true anomaly at departure (deg).
     #[arg(long, default_value_t = 45.0)]
     nuf0: f64,
-    /// Time of flight in 14-day steps (default: the SPEC rule).
+    /// Time of flight in 14-day steps (default: the rule of docs/spec.md section 4).
     #[arg(long)]
     steps: Option<u32>,
-    /// Stop the homotopy at the first eps below this (the SPEC's is 1e-4).
+    /// Stop the homotopy at the first eps below this (docs/spec.md: 1e-4).
     #[arg(long)]
     final_eps: Option<f64>,
 }
