@@ -25,8 +25,10 @@
 //! # Time
 //! `TIME_SYSTEM = TDB`: the canonical time of the dynamics is a dynamical time. The departure epoch
 //! is a TDB calendar epoch given by the caller; sample `k` is at departure + t_k * `TIME_UNIT_S`.
-//! TDB has no leap seconds, so the calendar arithmetic is plain 86,400-s days ([`CalendarEpoch`]).
-//! Epochs are written to the microsecond.
+//! TDB has no leap seconds, so the calendar arithmetic is plain 86,400-s days: hifitime's
+//! Gregorian calendar on TDB epochs, kept to the nanosecond ([`CalendarEpoch`], which parses and
+//! formats the CCSDS text and rounds to the microsecond itself). Epochs are written to the
+//! microsecond.
 //!
 //! # Thrust profile
 //! OEM data lines carry no mass or thrust, so the profile goes alongside, twice, from one source
@@ -39,7 +41,7 @@
 //! `ccsds-ndm` 0.0.9 parses and writes OEM KVN and it builds here, but it is not used to write:
 //! it depends on `fast-float` 0.2, which has open soundness advisories (RUSTSEC-2024-0379,
 //! RUSTSEC-2025-0003) and no maintainer; it is a 0.0.x API; it needs rustc 1.88 (via `bon`);
-//! and it does no epoch arithmetic, so the TDB calendar code would be needed anyway. Its parser
+//! and it does no epoch arithmetic, so a calendar (hifitime here) would be needed anyway. Its parser
 //! also accepts any `REF_FRAME` and epochs outside START/STOP or out of order, which the strict
 //! reader here refuses. It is used in the tests as an independent parser of what is written.
 //!
@@ -49,6 +51,7 @@
 use std::fmt::{self, Write as _};
 use std::io::Write;
 
+use hifitime::{Duration, Epoch, TimeScale, Unit};
 use shared::spacecraft::{Spacecraft, SpacecraftError};
 use shared::units::{AU_M, TIME_UNIT_S, VELOCITY_UNIT_M_S};
 
@@ -81,8 +84,6 @@ pub const MAX_LINE_LENGTH: usize = 254;
 
 const KM_PER_AU: f64 = AU_M / 1000.0;
 const KM_S_PER_VELOCITY_UNIT: f64 = VELOCITY_UNIT_M_S / 1000.0;
-const NANOS_PER_SECOND: i128 = 1_000_000_000;
-const NANOS_PER_DAY: i128 = 86_400 * NANOS_PER_SECOND;
 /// Longest value accepted for OBJECT_NAME, OBJECT_ID and ORIGINATOR.
 const MAX_NAME_LENGTH: usize = 80;
 
@@ -134,19 +135,27 @@ impl From<std::io::Error> for OemError {
     }
 }
 
+/// The time scale of every [`CalendarEpoch`]'s hifitime epoch. Only calendar readings and
+/// differences are asked of it, never a conversion to another scale, so a UTC reading kept in it
+/// (the creation date) stays the same reading.
+const SCALE: TimeScale = TimeScale::TDB;
+
 /// A calendar epoch in a uniform time scale (no leap seconds: TDB for ephemerides; the UTC
 /// creation date is taken as its calendar reading), to the nanosecond, years 1 to 9999.
 /// Displayed as ISO 8601 / CCSDS `YYYY-MM-DDThh:mm:ss.ffffff` (rounded to the microsecond).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+///
+/// The calendar arithmetic is hifitime's ([`Epoch`] in TDB); equality, order and hashing are
+/// those of the exact nanosecond count since J2000 (hifitime's own `Ord` and `Hash` go through
+/// TAI, which for TDB means its periodic TDB - TT series in floating point).
+#[derive(Debug, Clone, Copy)]
 pub struct CalendarEpoch {
-    /// Nanoseconds since 1970-01-01T00:00:00 of the same scale.
-    nanos: i128,
+    epoch: Epoch,
 }
 
 impl CalendarEpoch {
-    /// J2000.0 as a TDB epoch, 2000-01-01T12:00:00.
+    /// J2000.0 as a TDB epoch, 2000-01-01T12:00:00 (hifitime's TDB reference epoch).
     pub const J2000: Self = Self {
-        nanos: (10_957 * 86_400 + 43_200) * NANOS_PER_SECOND,
+        epoch: Epoch::from_duration(Duration::ZERO, SCALE),
     };
 
     /// An epoch from its calendar reading; `second` in [0, 60).
@@ -161,19 +170,19 @@ impl CalendarEpoch {
         if !(1..=9999).contains(&year) {
             return Err(OemError::Epoch(format!("year {year} outside 1..=9999")));
         }
-        if !(1..=12).contains(&month) || day < 1 || day > days_in_month(year, month) {
-            return Err(OemError::Epoch(format!("no day {year:04}-{month:02}-{day:02}")));
-        }
+        let midnight = u8::try_from(month)
+            .ok()
+            .zip(u8::try_from(day).ok())
+            .and_then(|(m, d)| Epoch::maybe_from_gregorian(year, m, d, 0, 0, 0, 0, SCALE).ok())
+            .ok_or_else(|| OemError::Epoch(format!("no day {year:04}-{month:02}-{day:02}")))?;
         if hour > 23 || minute > 59 || !(0.0..60.0).contains(&second) {
             return Err(OemError::Epoch(format!(
                 "no time of day {hour:02}:{minute:02}:{second}"
             )));
         }
-        let days = i128::from(days_from_civil(i64::from(year), month, day));
-        let whole = i128::from(hour * 3600 + minute * 60) * NANOS_PER_SECOND;
         // Below 60 s, so the rounded product is far inside i128.
-        let fraction = (second * 1e9).round() as i128;
-        Self::checked(days * NANOS_PER_DAY + whole + fraction)
+        let fraction = Duration::from_total_nanoseconds((second * 1e9).round() as i128);
+        Self::checked(midnight + Unit::Hour * i64::from(hour) + Unit::Minute * i64::from(minute) + fraction)
     }
 
     /// The UTC calendar reading of a Unix time (seconds since 1970-01-01T00:00:00 UTC).
@@ -181,7 +190,7 @@ impl CalendarEpoch {
         if !seconds.is_finite() {
             return Err(OemError::Epoch(format!("Unix time {seconds} is not finite")));
         }
-        Self::checked((seconds * 1e9).round() as i128)
+        Self::checked(unix_origin() + Duration::from_total_nanoseconds((seconds * 1e9).round() as i128))
     }
 
     /// The current UTC calendar reading of the system clock (for `CREATION_DATE`).
@@ -190,7 +199,7 @@ impl CalendarEpoch {
             .duration_since(std::time::UNIX_EPOCH)
             .unwrap_or_default();
         Self {
-            nanos: since.as_nanos() as i128,
+            epoch: unix_origin() + Duration::from_total_nanoseconds(since.as_nanos() as i128),
         }
     }
 
@@ -201,12 +210,12 @@ impl CalendarEpoch {
                 "time offset {seconds} s is not finite or out of range"
             )));
         }
-        Self::checked(self.nanos + (seconds * 1e9).round() as i128)
+        Self::checked(self.epoch + Duration::from_total_nanoseconds((seconds * 1e9).round() as i128))
     }
 
     /// Seconds from `earlier` to this epoch.
     pub fn seconds_since(self, earlier: Self) -> f64 {
-        (self.nanos - earlier.nanos) as f64 * 1e-9
+        (self.nanos() - earlier.nanos()) as f64 * 1e-9
     }
 
     /// Parses `YYYY-MM-DDThh:mm:ss` with an optional fraction of 1 to 9 digits (what
@@ -237,35 +246,67 @@ impl CalendarEpoch {
             fraction_nanos = value * 10i128.pow(9 - fraction.len() as u32);
         }
         let whole = Self::from_calendar(year as i32, month, day, hour, minute, f64::from(second))?;
-        Self::checked(whole.nanos + fraction_nanos)
+        Self::checked(whole.epoch + Duration::from_total_nanoseconds(fraction_nanos))
     }
 
-    fn checked(nanos: i128) -> Result<Self, OemError> {
-        let first = i128::from(days_from_civil(1, 1, 1)) * NANOS_PER_DAY;
-        let end = i128::from(days_from_civil(10_000, 1, 1)) * NANOS_PER_DAY;
-        if (first..end).contains(&nanos) {
-            Ok(Self { nanos })
+    /// Nanoseconds since J2000 (exact: the epoch is in [`SCALE`], no conversion).
+    fn nanos(self) -> i128 {
+        self.epoch.to_duration_in_time_scale(SCALE).total_nanoseconds()
+    }
+
+    fn checked(epoch: Epoch) -> Result<Self, OemError> {
+        let (year, ..) = epoch.to_gregorian(SCALE);
+        if (1..=9999).contains(&year) {
+            Ok(Self { epoch })
         } else {
             Err(OemError::Epoch("outside years 1..=9999".into()))
         }
     }
 }
 
+/// 1970-01-01T00:00:00 read in [`SCALE`]: where the calendar reading of Unix time starts.
+fn unix_origin() -> Epoch {
+    Epoch::from_gregorian_at_midnight(1970, 1, 1, SCALE)
+}
+
+impl PartialEq for CalendarEpoch {
+    fn eq(&self, other: &Self) -> bool {
+        self.nanos() == other.nanos()
+    }
+}
+
+impl Eq for CalendarEpoch {}
+
+impl PartialOrd for CalendarEpoch {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for CalendarEpoch {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.nanos().cmp(&other.nanos())
+    }
+}
+
+impl std::hash::Hash for CalendarEpoch {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.nanos().hash(state);
+    }
+}
+
 impl fmt::Display for CalendarEpoch {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Round to the microsecond first so a carry propagates into seconds, days and years.
-        let micros = (self.nanos + 500).div_euclid(1000);
-        let days = micros.div_euclid(86_400_000_000);
-        let of_day = micros.rem_euclid(86_400_000_000);
-        let (year, month, day) = civil_from_days(days as i64);
-        let seconds = of_day / 1_000_000;
+        // By hand: hifitime's `Duration::round` truncates below its reference epoch (J2000 for
+        // TDB). J2000 is a whole second, so rounding its offset rounds the time of day.
+        let micros = (self.nanos() + 500).div_euclid(1000);
+        let rounded = Epoch::from_duration(Duration::from_total_nanoseconds(micros * 1000), SCALE);
+        let (year, month, day, hour, minute, second, nanos) = rounded.to_gregorian(SCALE);
         write!(
             f,
-            "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}.{:06}",
-            seconds / 3600,
-            seconds / 60 % 60,
-            seconds % 60,
-            of_day % 1_000_000
+            "{year:04}-{month:02}-{day:02}T{hour:02}:{minute:02}:{second:02}.{:06}",
+            nanos / 1000
         )
     }
 }
@@ -275,44 +316,6 @@ impl std::str::FromStr for CalendarEpoch {
     fn from_str(text: &str) -> Result<Self, OemError> {
         Self::parse(text)
     }
-}
-
-fn is_leap(year: i32) -> bool {
-    (year % 4 == 0 && year % 100 != 0) || year % 400 == 0
-}
-
-fn days_in_month(year: i32, month: u32) -> u32 {
-    match month {
-        2 if is_leap(year) => 29,
-        2 => 28,
-        4 | 6 | 9 | 11 => 30,
-        _ => 31,
-    }
-}
-
-/// Days from 1970-01-01 to a proleptic Gregorian date (H. Hinnant's algorithm).
-fn days_from_civil(year: i64, month: u32, day: u32) -> i64 {
-    let y = if month <= 2 { year - 1 } else { year };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let mp = i64::from((month + 9) % 12);
-    let doy = (153 * mp + 2) / 5 + i64::from(day) - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
-}
-
-/// The proleptic Gregorian date `days` after 1970-01-01.
-fn civil_from_days(days: i64) -> (i64, u32, u32) {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    (year, month, day)
 }
 
 /// Rotates a vector from the J2000 ecliptic to EME2000 (about +X by the J2000 obliquity).
@@ -942,4 +945,31 @@ pub fn read_oem(text: &str) -> Result<OemEphemeris, OemError> {
         data_comments,
         states,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rounding to the microsecond is to the nearest (ties later) on both sides of J2000, the
+    /// reference of hifitime's TDB durations, where its own `Duration::round` would move
+    /// earlier epochs towards J2000 instead.
+    #[test]
+    fn epochs_round_to_the_nearest_microsecond_before_j2000_too() {
+        for (text, shown) in [
+            ("1999-12-31T23:59:59.9999993", "1999-12-31T23:59:59.999999"),
+            ("2000-01-01T00:00:00.0000013", "2000-01-01T00:00:00.000001"),
+            ("2000-01-01T11:59:59.9999995", "2000-01-01T12:00:00.000000"),
+            ("1899-12-31T23:59:59.9999995", "1900-01-01T00:00:00.000000"),
+            ("0001-01-01T00:00:00.0000004", "0001-01-01T00:00:00.000000"),
+            ("2030-01-01T00:00:00.0000013", "2030-01-01T00:00:00.000001"),
+        ] {
+            assert_eq!(CalendarEpoch::parse(text).unwrap().to_string(), shown, "{text}");
+        }
+        // Order and equality are those of the exact nanosecond count.
+        let a = CalendarEpoch::parse("1987-03-04T05:06:07.123456789").unwrap();
+        let b = a.plus_seconds(1e-9).unwrap();
+        assert!(a < b && a != b && b.plus_seconds(-1e-9).unwrap() == a);
+        assert_eq!(b.seconds_since(a), 1e-9);
+    }
 }
