@@ -20,7 +20,7 @@ use shared::units::canonical_to_days;
 pub struct SolveArgs {
     /// Draw the case from this scenario distribution (with --seed and --index) instead of
     /// giving the orbits explicitly.
-    #[arg(long, value_parser = parse_scenario_kind)]
+    #[arg(long)]
     scenario: Option<ScenarioKind>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -61,7 +61,7 @@ pub struct SolveArgs {
 
 #[derive(clap::Args)]
 pub struct GenerateArgs {
-    #[arg(long, value_parser = parse_scenario_kind)]
+    #[arg(long)]
     scenario: ScenarioKind,
     #[arg(long)]
     count: u64,
@@ -154,13 +154,6 @@ pub fn print_summary(s: &Summary) {
     for (index, reason) in s.failures.iter().take(10) {
         println!("  failed #{index}: {reason}");
     }
-}
-
-pub fn parse_scenario_kind(name: &str) -> Result<ScenarioKind, String> {
-    ScenarioKind::ALL.into_iter().find(|k| k.name() == name).ok_or_else(|| {
-        let names: Vec<_> = ScenarioKind::ALL.iter().map(|k| k.name()).collect();
-        format!("unknown scenario '{name}', expected one of: {}", names.join(", "))
-    })
 }
 
 fn scenario_from_args(args: &SolveArgs) -> Result<(ScenarioKind, Scenario), String> {

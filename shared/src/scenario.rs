@@ -199,6 +199,35 @@ impl Scenario {
     }
 }
 
+impl core::str::FromStr for ScenarioKind {
+    type Err = UnknownScenarioKind;
+
+    /// The distribution of a CLI / config name ([`ScenarioKind::name`]).
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or(UnknownScenarioKind)
+    }
+}
+
+/// A name that is none of [`ScenarioKind::ALL`]'s.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownScenarioKind;
+
+impl core::fmt::Display for UnknownScenarioKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("unknown scenario kind, expected one of:")?;
+        for (i, kind) in ScenarioKind::ALL.iter().enumerate() {
+            f.write_str(if i == 0 { " " } else { ", " })?;
+            f.write_str(kind.name())?;
+        }
+        Ok(())
+    }
+}
+
+impl core::error::Error for UnknownScenarioKind {}
+
 /// Why a scenario is unusable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ScenarioError {
@@ -225,6 +254,22 @@ impl core::error::Error for ScenarioError {}
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_name_parses_back_to_its_kind_and_others_are_refused() {
+        for kind in ScenarioKind::ALL {
+            assert_eq!(kind.name().parse::<ScenarioKind>(), Ok(kind));
+        }
+        for bad in [
+            "",
+            "transfer",
+            "Transfer-Circular",
+            "transfer-circular ",
+            "transfer-easy",
+        ] {
+            assert_eq!(bad.parse::<ScenarioKind>(), Err(UnknownScenarioKind));
+        }
+    }
 
     #[test]
     fn draws_are_reproducible_independent_per_index_and_inside_the_ranges() {

@@ -63,7 +63,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
     let scenario = scenario_of(&args)?;
     let spacecraft = Spacecraft::MSR_ERO;
-    let canonical = spacecraft.canonical().map_err(|e| e.to_string())?;
+    let canonical = spacecraft.canonical()?;
     let mut options = SolveOptions::default();
     if let Some(eps) = args.final_eps {
         if !(eps > 0.0 && eps <= 1.0) {
@@ -202,7 +202,7 @@ fn scenario_of(args: &Args) -> Result<Scenario, Box<dyn std::error::Error>> {
     if let Some(steps) = args.steps {
         scenario.steps = steps;
     }
-    scenario.validate().map_err(|e| e.to_string())?;
+    scenario.validate()?;
     Ok(scenario)
 }
 

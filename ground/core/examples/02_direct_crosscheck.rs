@@ -30,7 +30,7 @@ use shared::units::canonical_to_days;
 struct Args {
     /// Draw the scenario from this distribution (transfer-circular, transfer-hard,
     /// rendezvous-circular, rendezvous-hard) instead of the explicit orbits below.
-    #[arg(long, value_parser = parse_kind)]
+    #[arg(long)]
     scenario: Option<ScenarioKind>,
     /// Seed of the draw.
     #[arg(long, default_value_t = 7)]
@@ -70,18 +70,6 @@ enum Start {
     Indirect,
 }
 
-/// A `--scenario` that names no scenario kind.
-#[derive(Debug, thiserror::Error)]
-#[error("unknown scenario kind {0:?} (one of {names})", names = ScenarioKind::ALL.map(|k| k.name()).join(", "))]
-struct UnknownKind(String);
-
-fn parse_kind(name: &str) -> Result<ScenarioKind, UnknownKind> {
-    ScenarioKind::ALL
-        .into_iter()
-        .find(|k| k.name() == name)
-        .ok_or_else(|| UnknownKind(name.to_string()))
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
     if args.segments_per_step == 0 || args.levels == 0 {
@@ -91,7 +79,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some(kind) => (kind, kind.draw(args.seed, args.index)),
         None => (ScenarioKind::TransferHard, explicit_transfer(&args)?),
     };
-    let spacecraft = Spacecraft::MSR_ERO.canonical().map_err(|e| e.to_string())?;
+    let spacecraft = Spacecraft::MSR_ERO.canonical()?;
     println!(
         "{:?}: a {:.4} -> {:.4} AU, e {:.4} -> {:.4}, {} steps ({:.0} days)",
         scenario.problem,
@@ -188,7 +176,7 @@ fn explicit_transfer(args: &Args) -> Result<Scenario, Box<dyn std::error::Error>
         nu: 0.0,
     };
     let scenario = Scenario::transfer(initial, shape(args.af, args.ef));
-    scenario.validate().map_err(|e| e.to_string())?;
+    scenario.validate()?;
     Ok(scenario)
 }
 

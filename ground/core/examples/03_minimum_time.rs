@@ -75,8 +75,8 @@ struct Args {
 struct NotATransfer(String);
 
 fn parse_kind(name: &str) -> Result<ScenarioKind, NotATransfer> {
-    match ScenarioKind::ALL.into_iter().find(|k| k.name() == name) {
-        Some(kind) if kind.problem() == ProblemKind::Transfer => Ok(kind),
+    match name.parse::<ScenarioKind>() {
+        Ok(kind) if kind.problem() == ProblemKind::Transfer => Ok(kind),
         _ => Err(NotATransfer(name.to_string())),
     }
 }
@@ -87,7 +87,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some(kind) => (kind, kind.draw(args.seed, args.index)),
         None => (ScenarioKind::TransferHard, explicit_transfer(&args)?),
     };
-    let spacecraft = Spacecraft::MSR_ERO.canonical().map_err(|e| e.to_string())?;
+    let spacecraft = Spacecraft::MSR_ERO.canonical()?;
     let options = SolveOptions::default();
     let tof = scenario.time_of_flight();
     let days = canonical_to_days;
@@ -206,6 +206,6 @@ fn explicit_transfer(args: &Args) -> Result<Scenario, Box<dyn std::error::Error>
         steps: args.steps,
         ..Scenario::transfer(initial, shape(args.af, args.ef))
     };
-    scenario.validate().map_err(|e| e.to_string())?;
+    scenario.validate()?;
     Ok(scenario)
 }

@@ -28,7 +28,7 @@ use shared::units::{AU_M, VELOCITY_UNIT_M_S};
 struct Args {
     /// Distribution of the draw (transfer-circular, transfer-hard, rendezvous-circular,
     /// rendezvous-hard).
-    #[arg(long, value_parser = parse_kind, default_value = "transfer-circular")]
+    #[arg(long, default_value = "transfer-circular")]
     scenario: ScenarioKind,
     /// Seed of the draw.
     #[arg(long, default_value_t = 7)]
@@ -38,18 +38,6 @@ struct Args {
     index: u64,
 }
 
-/// A `--scenario` that names no scenario kind.
-#[derive(Debug, thiserror::Error)]
-#[error("unknown scenario kind {0:?} (one of {names})", names = ScenarioKind::ALL.map(|k| k.name()).join(", "))]
-struct UnknownKind(String);
-
-fn parse_kind(name: &str) -> Result<ScenarioKind, UnknownKind> {
-    ScenarioKind::ALL
-        .into_iter()
-        .find(|k| k.name() == name)
-        .ok_or_else(|| UnknownKind(name.to_string()))
-}
-
 /// AU to km, AU/t* to m/s.
 const KM: f64 = AU_M / 1e3;
 const M_S: f64 = VELOCITY_UNIT_M_S;
@@ -57,7 +45,7 @@ const M_S: f64 = VELOCITY_UNIT_M_S;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
     let config = EnvConfig::default();
-    let spacecraft = config.spacecraft.canonical().map_err(|e| e.to_string())?;
+    let spacecraft = config.spacecraft.canonical()?;
     let scenario = args.scenario.draw(args.seed, args.index);
     let record = solve_scenario(
         args.scenario,
