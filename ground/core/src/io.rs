@@ -1,5 +1,6 @@
 //! Files that are never half-written: atomic replace (temp file in the same folder, fsync,
-//! rename) and a checksummed container for record sets.
+//! rename), a checksummed container for record sets, and the lock that keeps a run folder to
+//! one process.
 
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -87,9 +88,104 @@ pub fn decode_container<T: serde::de::DeserializeOwned>(
     Ok(value)
 }
 
+/// The lock file of a run folder.
+pub const LOCK_FILE: &str = ".lock";
+
+/// Why a run folder could not be held.
+#[derive(Debug, thiserror::Error)]
+pub enum LockError {
+    #[error("{} is in use by another process ({holder}); wait for it or use another folder", .dir.display())]
+    Held { dir: PathBuf, holder: String },
+    #[error("cannot lock {}: {source}", .dir.display())]
+    Io { dir: PathBuf, source: io::Error },
+}
+
+/// An exclusive hold on a run folder for the life of the value: an OS advisory lock on
+/// `DIR/.lock` (flock on Unix), released when the value is dropped or the process dies, so a
+/// killed run never leaves a stale lock. The file itself stays; it names the last holder.
+#[derive(Debug)]
+pub struct RunLock {
+    file: File,
+    dir: PathBuf,
+}
+
+impl RunLock {
+    /// Holds `dir` (created if missing), or refuses if another holder has it. Two holds of one
+    /// folder conflict even inside one process.
+    pub fn acquire(dir: &Path) -> Result<Self, LockError> {
+        let io_err = |source| LockError::Io {
+            dir: dir.to_path_buf(),
+            source,
+        };
+        fs::create_dir_all(dir).map_err(io_err)?;
+        let path = dir.join(LOCK_FILE);
+        let mut file = fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io_err)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(fs::TryLockError::WouldBlock) => {
+                let holder = fs::read_to_string(&path).unwrap_or_default();
+                let holder = match holder.trim() {
+                    "" => "unknown process".to_string(),
+                    h => h.to_string(),
+                };
+                return Err(LockError::Held {
+                    dir: dir.to_path_buf(),
+                    holder,
+                });
+            }
+            Err(fs::TryLockError::Error(e)) => return Err(io_err(e)),
+        }
+        // Who holds it, for the refusal of the next one (best effort: the lock is what counts).
+        let _ = file.set_len(0).and_then(|()| {
+            use std::io::Seek;
+            file.seek(io::SeekFrom::Start(0))?;
+            write!(file, "pid {}", std::process::id())
+        });
+        Ok(Self {
+            file,
+            dir: dir.to_path_buf(),
+        })
+    }
+
+    /// The folder held.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+impl Drop for RunLock {
+    fn drop(&mut self) {
+        let _ = self.file.unlock();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_folder_is_held_by_one_holder_at_a_time() {
+        let dir = std::env::temp_dir().join(format!("lowthrust-lock-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let first = RunLock::acquire(&dir.join("run")).unwrap();
+        match RunLock::acquire(&dir.join("run")) {
+            Err(LockError::Held { holder, .. }) => assert_eq!(holder, format!("pid {}", std::process::id())),
+            other => panic!("second hold not refused: {other:?}"),
+        }
+        // Another folder is free; the first one is free again once released.
+        let other = RunLock::acquire(&dir.join("other")).unwrap();
+        drop(first);
+        let again = RunLock::acquire(&dir.join("run")).unwrap();
+        assert_eq!(again.dir(), dir.join("run"));
+        drop((other, again));
+        let _ = fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn container_round_trips_and_refuses_every_corruption() {
