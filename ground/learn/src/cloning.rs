@@ -225,7 +225,7 @@ mod tests {
             });
         }
         let batch = buf.sample(32, &mut sampler(14));
-        let flown = sac.act(&batch.obs, batch.size, true);
+        let flown = sac.act(&batch.obs, batch.size);
         let (mut sum, mut demos) = (0.0, 0.0);
         for row in 0..batch.size {
             if batch.demonstrations[row] == 0.0 {

@@ -130,6 +130,9 @@ pub struct PhaseState {
     pub best: Option<EvalRow>,
     /// Word position of the replay sampler stream (restored on resume).
     pub sampler_word_pos: u128,
+    /// Loss sums of the updates since the last log row, so a resumed phase logs the same rows.
+    #[serde(default)]
+    pub unlogged: UpdateAccumulator,
 }
 
 /// Loss averages over [`UPDATE_LOG_EVERY`] updates.
@@ -146,8 +149,9 @@ pub struct UpdateRow {
     pub behaviour_cloning_loss: f64,
 }
 
-#[derive(Default)]
-struct UpdateAccumulator {
+/// Loss sums of updates not yet averaged into an [`UpdateRow`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateAccumulator {
     sum: UpdateRow,
     count: u64,
 }
@@ -200,7 +204,7 @@ pub fn evaluate_agent<E: Environment>(
 pub fn policy_batch<O: AsRef<[f32]>>(agent: &Sac, obs: &[O]) -> Vec<[f32; 3]> {
     let flat: Vec<f32> = obs.iter().flat_map(|o| o.as_ref().iter().copied()).collect();
     agent
-        .act(&flat, obs.len(), true)
+        .act(&flat, obs.len())
         .chunks_exact(3)
         .map(|c| [c[0], c[1], c[2]])
         .collect()
@@ -301,25 +305,29 @@ fn load_state(path: &Path) -> Result<Option<PhaseState>, ExperimentError> {
     }
 }
 
-/// Writes the config next to the phase outputs, or refuses if the run folder holds another one.
-pub fn prepare_run(config: &ExperimentConfig, run: &Path) -> Result<(), ExperimentError> {
+/// Refuses a run folder that holds a run of another experiment (reads only).
+pub fn check_run(config: &ExperimentConfig, run: &Path) -> Result<(), ExperimentError> {
     let path = run.join("config.toml");
-    let text = config.to_toml();
-    match std::fs::read_to_string(&path) {
-        Ok(existing) => {
-            let previous = ExperimentConfig::from_toml(&existing)?;
-            // What the folder's checkpoints depend on (an averaged actor is part of them).
-            let same = |c: &ExperimentConfig| (c.scenario, c.sac.hidden.clone(), c.seeds, c.sac.actor_averaging > 0.0);
-            if same(&previous) != same(config) {
-                return Err(ExperimentError::Mismatch(format!(
-                    "{} holds a run of another experiment (scenario, network, seeds or actor averaging differ); use a new folder",
-                    run.display()
-                )));
-            }
-            write_file(&path, text.as_bytes())
-        }
-        Err(_) => write_file(&path, text.as_bytes()),
+    let Ok(existing) = std::fs::read_to_string(&path) else {
+        return Ok(());
+    };
+    let previous = ExperimentConfig::from_toml(&existing)?;
+    // What the folder's checkpoints depend on (an averaged actor is part of them).
+    let same = |c: &ExperimentConfig| (c.scenario, c.sac.hidden.clone(), c.seeds, c.sac.actor_averaging > 0.0);
+    if same(&previous) != same(config) {
+        return Err(ExperimentError::Mismatch(format!(
+            "{} holds a run of another experiment (scenario, network, seeds or actor averaging differ); use a new folder",
+            run.display()
+        )));
     }
+    Ok(())
+}
+
+/// Writes the config next to the phase outputs, or refuses if the run folder holds another one.
+/// Phases call it once their inputs have loaded, so a refused phase writes nothing.
+pub fn prepare_run(config: &ExperimentConfig, run: &Path) -> Result<(), ExperimentError> {
+    check_run(config, run)?;
+    write_file(&run.join("config.toml"), config.to_toml().as_bytes())
 }
 
 /// Phase bookkeeping shared by pretraining and RL: logs, evaluations, checkpoints, plots.
@@ -327,7 +335,6 @@ struct Phase<'a> {
     dir: PathBuf,
     config: &'a ExperimentConfig,
     state: PhaseState,
-    accumulator: UpdateAccumulator,
     started: Instant,
     seconds_before: f64,
     bar: indicatif::ProgressBar,
@@ -348,7 +355,6 @@ impl<'a> Phase<'a> {
             dir,
             config,
             state,
-            accumulator: UpdateAccumulator::default(),
             started: Instant::now(),
             seconds_before,
             bar,
@@ -363,9 +369,9 @@ impl<'a> Phase<'a> {
 
     fn record_update(&mut self, env_steps: u64, stats: &UpdateStats) {
         self.state.updates += 1;
-        self.accumulator.add(stats);
+        self.state.unlogged.add(stats);
         if self.state.updates.is_multiple_of(self.log_every) {
-            let row = self.accumulator.take(self.state.updates, env_steps);
+            let row = self.state.unlogged.take(self.state.updates, env_steps);
             self.state.update_log.push(row);
         }
         if !self.x_is_env_steps {
@@ -642,14 +648,17 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
 
 pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
     tch::set_num_threads(config.compute.threads);
+    // The initial weights; every later draw is seeded by the agent itself (`Sac::noise_seed`).
     tch::manual_seed(config.seeds.train as i64);
-    Sac::with_cloning_loss(
+    let mut agent = Sac::with_cloning_loss(
         config.sac_for(pretraining),
         obs_dim,
         3,
         config.device(),
         config.cloning_loss(),
-    )
+    );
+    agent.noise_seed = config.seeds.train;
+    agent
 }
 
 fn pretrain_for<P: Problem>(
@@ -721,7 +730,7 @@ fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) ->
 where
     MdpEnv<P>: Environment,
 {
-    prepare_run(config, run)?;
+    check_run(config, run)?;
     let dir = run.join(start.folder());
     let mut agent = new_agent(config, false, P::OBS);
     if start == Start::Scratch {
@@ -756,6 +765,7 @@ where
             (buffer, PhaseState::default(), demos)
         }
     };
+    prepare_run(config, run)?;
     // The pretrained agent's optimiser moments and update count carry over; the RL loop counts
     // its own updates from here.
     let warmup = match start {

@@ -79,7 +79,7 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     assert_eq!(f32_policy.quantization(), Quantization::F32);
     let inputs: Vec<[f32; 10]> = (0..500).map(features).collect();
     let flat: Vec<f32> = inputs.iter().flatten().copied().collect();
-    let tch_actions = agent.act(&flat, inputs.len(), true);
+    let tch_actions = agent.act(&flat, inputs.len());
     let mut worst_f32 = 0.0f32;
     let mut int8_errors = Vec::new();
     let int8_bytes = std::fs::read(&report.int8.file).unwrap();

@@ -35,6 +35,119 @@ pub enum CheckpointError {
     Format(String),
     #[error("checkpoint does not match this agent: {0}")]
     Mismatch(String),
+    /// The tensors do not match the checksum written with them (a flipped byte, a splice), or
+    /// the file carries none (not written by [`Sac::save`]).
+    #[error("checkpoint is corrupt: {0}")]
+    Corrupt(String),
+    /// A weight or optimiser moment is NaN or infinite: such a learner flies nothing sensible.
+    #[error("checkpoint holds a non-finite value in {0}")]
+    NonFinite(String),
+}
+
+/// The safetensors metadata key of a checkpoint's checksum.
+const CHECKSUM_KEY: &str = "crc32";
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// CRC-32 of every tensor's name, dtype, shape and bytes, in name order.
+fn tensors_checksum(tensors: &safetensors::SafeTensors) -> u32 {
+    let mut named = tensors.tensors();
+    named.sort_by(|a, b| a.0.cmp(&b.0));
+    let mut digest = CRC.digest();
+    for (name, view) in &named {
+        digest.update(name.as_bytes());
+        digest.update(format!("{:?}", view.dtype()).as_bytes());
+        for d in view.shape() {
+            digest.update(&(*d as u64).to_le_bytes());
+        }
+        digest.update(view.data());
+    }
+    digest.finalize()
+}
+
+/// Reads a file written by [`write_checked_safetensors`]: the tensors if the checksum matches
+/// and every float is finite.
+pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, CheckpointError> {
+    use safetensors::tensor::Dtype;
+    let bytes = std::fs::read(path)
+        .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))?;
+    let format = |e: safetensors::SafeTensorError| CheckpointError::Format(format!("{}: {e:?}", path.display()));
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(format)?;
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).map_err(format)?;
+    let recorded = header
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get(CHECKSUM_KEY))
+        .ok_or_else(|| CheckpointError::Corrupt(format!("{} carries no checksum", path.display())))?;
+    let found = format!("{:08x}", tensors_checksum(&tensors));
+    if *recorded != found {
+        return Err(CheckpointError::Corrupt(format!(
+            "{}: checksum {found}, recorded {recorded}",
+            path.display()
+        )));
+    }
+    let mut out = Vec::new();
+    for (name, view) in tensors.tensors() {
+        let kind = match view.dtype() {
+            Dtype::F32 => Kind::Float,
+            Dtype::I64 => Kind::Int64,
+            other => return Err(CheckpointError::Format(format!("tensor {name} has dtype {other:?}"))),
+        };
+        if kind == Kind::Float
+            && view
+                .data()
+                .chunks_exact(4)
+                .any(|b| !f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
+        {
+            return Err(CheckpointError::NonFinite(name));
+        }
+        let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
+        out.push((name, Tensor::from_data_size(view.data(), &shape, kind)));
+    }
+    Ok(out)
+}
+
+/// Writes CPU tensors as safetensors with their checksum in the metadata, atomically (PyTorch
+/// opens the file with `safetensors.torch.load_file` as any other).
+pub fn write_checked_safetensors(tensors: &[(String, Tensor)], path: &Path) -> Result<(), CheckpointError> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(CheckpointError::Io)?;
+    }
+    let tmp = path.with_extension("safetensors.tmp");
+    let cpu: Vec<(String, Tensor)> = tensors
+        .iter()
+        .map(|(n, t)| (n.clone(), t.to_device(Device::Cpu)))
+        .collect();
+    // tch writes the tensors; the checksum is then computed over what it wrote, and the file
+    // written again with it.
+    Tensor::write_safetensors(&cpu, &tmp).map_err(|e| CheckpointError::Format(e.to_string()))?;
+    let plain = std::fs::read(&tmp).map_err(CheckpointError::Io)?;
+    let parsed =
+        safetensors::SafeTensors::deserialize(&plain).map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
+    let metadata = HashMap::from([(CHECKSUM_KEY.to_string(), format!("{:08x}", tensors_checksum(&parsed)))]);
+    let checked = safetensors::serialize(parsed.tensors(), &Some(metadata))
+        .map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
+    let written = std::fs::File::create(&tmp).and_then(|mut f| {
+        use std::io::Write;
+        f.write_all(&checked)?;
+        f.sync_all()
+    });
+    written.and_then(|()| std::fs::rename(&tmp, path)).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        CheckpointError::Io(e)
+    })
+}
+
+/// Streams of the torch generator, one per use, so each draw is a function of the seed and a
+/// counter that checkpoints restore (see [`Sac::noise_seed`]).
+const UPDATE_NOISE: u64 = 0x5550_4441_5445;
+const EXPLORATION_NOISE: u64 = 0x4558_504c_4f52;
+
+/// splitmix64 of seed, stream and counter: well-mixed seeds for neighbouring counters.
+fn noise_seed(seed: u64, stream: u64, counter: u64) -> i64 {
+    let mut z = seed ^ stream.rotate_left(32) ^ counter.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (z ^ (z >> 31)) as i64
 }
 
 pub struct Sac {
@@ -63,6 +176,11 @@ pub struct Sac {
     average: Option<AveragedActor>,
     /// Gradient updates done so far.
     pub updates: u64,
+    /// Seed of the torch generator's draws: update `n` draws its noise from a generator seeded
+    /// by (seed, n), exploration step `k` from (seed, k). The draws are then a function of what a
+    /// checkpoint holds, so a resumed phase repeats an uninterrupted one exactly (a generator
+    /// state carried across a restart would need saving, and libtorch's is not exposed by tch).
+    pub noise_seed: u64,
 }
 
 /// A Polyak-averaged copy of the actor: its own store (names `actor.*`, as the online one) and
@@ -196,6 +314,7 @@ impl Sac {
             cloning,
             average,
             updates: 0,
+            noise_seed: 0,
         }
     }
 
@@ -216,17 +335,23 @@ impl Sac {
         self.average.as_ref().map_or(&self.actor, |a| &a.actor)
     }
 
-    /// Actions for `rows` observations laid out row-major: deterministic (tanh of the mean of
-    /// the flown actor, see [`SacConfig::actor_averaging`]: what is evaluated and flown) or
-    /// sampled from the online actor (exploration).
-    pub fn act(&self, obs: &[f32], rows: usize, deterministic: bool) -> Vec<f32> {
+    /// Deterministic actions for `rows` observations laid out row-major: tanh of the mean of
+    /// the flown actor (see [`SacConfig::actor_averaging`]), what is evaluated and flown.
+    pub fn act(&self, obs: &[f32], rows: usize) -> Vec<f32> {
         tch::no_grad(|| {
             let o = tensor_2d(obs, rows, self.obs_dim, self.device);
-            let a = if deterministic {
-                self.flown_actor().deterministic(&o)
-            } else {
-                self.actor.sample(&o).action
-            };
+            let a = self.flown_actor().deterministic(&o);
+            Vec::<f32>::try_from(a.to_device(Device::Cpu).view([-1])).unwrap_or_default()
+        })
+    }
+
+    /// Exploration actions sampled from the online actor at environment step `step` (the
+    /// noise is a function of [`Sac::noise_seed`] and `step`).
+    pub fn explore(&self, obs: &[f32], rows: usize, step: u64) -> Vec<f32> {
+        tch::manual_seed(noise_seed(self.noise_seed, EXPLORATION_NOISE, step));
+        tch::no_grad(|| {
+            let o = tensor_2d(obs, rows, self.obs_dim, self.device);
+            let a = self.actor.sample(&o).action;
             Vec::<f32>::try_from(a.to_device(Device::Cpu).view([-1])).unwrap_or_default()
         })
     }
@@ -243,6 +368,7 @@ impl Sac {
 
     /// One SAC gradient update on a mini-batch.
     pub fn update(&mut self, batch: &Batch) -> UpdateStats {
+        tch::manual_seed(noise_seed(self.noise_seed, UPDATE_NOISE, self.updates));
         let b = batch.size;
         let obs = tensor_2d(&batch.obs, b, self.obs_dim, self.device);
         let actions = tensor_2d(&batch.actions, b, self.act_dim, self.device);
@@ -363,31 +489,13 @@ impl Sac {
     /// `safetensors.torch.load_file`; the actor is under `online.actor.*`, and the averaged actor
     /// that is flown when `actor_averaging` is on under `average.actor.*`), atomically.
     pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(CheckpointError::Io)?;
-        }
-        let tmp = path.with_extension("safetensors.tmp");
-        let state = self.named_state();
-        let cpu: Vec<(String, Tensor)> = state.into_iter().map(|(n, t)| (n, t.to_device(Device::Cpu))).collect();
-        Tensor::write_safetensors(&cpu, &tmp).map_err(|e| CheckpointError::Format(e.to_string()))?;
-        std::fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(CheckpointError::Io)?;
-        std::fs::rename(&tmp, path).map_err(CheckpointError::Io)
+        write_checked_safetensors(&self.named_state(), path)
     }
 
-    /// Restores a state written by [`Sac::save`]; every tensor must be present with its shape.
+    /// Restores a state written by [`Sac::save`]; the checksum must match, every value be
+    /// finite and every tensor be present with its shape.
     pub fn load(&mut self, path: &Path) -> Result<(), CheckpointError> {
-        if !path.exists() {
-            return Err(CheckpointError::Io(std::io::Error::new(
-                std::io::ErrorKind::NotFound,
-                format!("{} does not exist", path.display()),
-            )));
-        }
-        let tensors: HashMap<String, Tensor> = Tensor::read_safetensors(path)
-            .map_err(|e| CheckpointError::Format(e.to_string()))?
-            .into_iter()
-            .collect();
+        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
         let get = |name: &str| tensors.get(name).map(|t| t.to_device(self.device));
         // Check everything before touching anything, so a mismatch leaves the agent intact.
         if self.average.is_none() && tensors.keys().any(|n| n.starts_with("average.")) {
@@ -521,7 +629,7 @@ mod tests {
             let expected = -(a - 0.5) * (a - 0.5);
             assert!((q - expected).abs() < 0.05, "Q({a}) = {q}, expected {expected}");
         }
-        let best = sac.act(&[1.0], 1, true)[0];
+        let best = sac.act(&[1.0], 1)[0];
         assert!((best - 0.5).abs() < 0.1, "deterministic action {best}");
     }
 
@@ -656,7 +764,7 @@ mod tests {
         let averaged = sac.average.as_ref().unwrap().actor.deterministic(&obs);
         let online = sac.actor.deterministic(&obs);
         assert!(!averaged.allclose(&online, 1e-6, 1e-6, false));
-        let flown = Tensor::from_slice(&sac.act(&[0.3, -0.7, 1.0], 3, true)).view([3, 1]);
+        let flown = Tensor::from_slice(&sac.act(&[0.3, -0.7, 1.0], 3)).view([3, 1]);
         assert!(flown.allclose(&averaged, 0.0, 0.0, false));
         let exported = sac.actor_weights();
         for (name, a, o) in pairs(&sac) {
@@ -678,20 +786,14 @@ mod tests {
             ..SacConfig::default()
         });
         restored.load(&path).unwrap();
-        assert_eq!(
-            restored.act(&[0.3, -0.7, 1.0], 3, true),
-            sac.act(&[0.3, -0.7, 1.0], 3, true)
-        );
+        assert_eq!(restored.act(&[0.3, -0.7, 1.0], 3), sac.act(&[0.3, -0.7, 1.0], 3));
         // ... and keeps averaging in place after the load: one more identical update on both.
         let batch = buf.sample(64, &mut sampler(8));
         tch::manual_seed(5);
         sac.update(&batch);
         tch::manual_seed(5);
         restored.update(&batch);
-        assert_eq!(
-            restored.act(&[0.3, -0.7, 1.0], 3, true),
-            sac.act(&[0.3, -0.7, 1.0], 3, true)
-        );
+        assert_eq!(restored.act(&[0.3, -0.7, 1.0], 3), sac.act(&[0.3, -0.7, 1.0], 3));
         // Either way round, averaging on one side only is refused.
         let plain = tiny(SacConfig::default());
         assert!(matches!(
@@ -726,9 +828,9 @@ mod tests {
             initial_log_temperature: 1.0,
             ..SacConfig::default()
         });
-        assert_ne!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
+        assert_ne!(other.act(&obs, 3), sac.act(&obs, 3));
         other.load(&path).unwrap();
-        assert_eq!(other.act(&obs, 3, true), sac.act(&obs, 3, true));
+        assert_eq!(other.act(&obs, 3), sac.act(&obs, 3));
         assert_eq!(other.temperature(), sac.temperature());
         assert_eq!(other.updates, 3);
         // Resumed training continues identically (same batches, same optimiser moments).

@@ -112,7 +112,7 @@ pub fn evaluate(agent: &Sac, episodes: u64, seed: u64) -> (f64, f64) {
             let Ok(mut obs) = Episodic::reset(&mut env, e);
             let mut total = 0.0;
             loop {
-                let out = Episodic::step(&mut env, &agent.act(&obs, 1, true));
+                let out = Episodic::step(&mut env, &agent.act(&obs, 1));
                 total += out.reward;
                 if out.truncated {
                     break total;
@@ -157,6 +157,7 @@ pub fn sanity_run(config: SacConfig, steps: u64, eval_every: u64, seed: u64) -> 
     }
     tch::manual_seed(seed as i64);
     let mut agent = Sac::new(config.clone(), OBS_DIM, ACT_DIM, tch::Device::Cpu);
+    agent.noise_seed = seed;
     let mut buffer = ReplayBuffer::new(OBS_DIM, ACT_DIM, config.replay_capacity);
     let mut env = Pendulum::new(seed);
     let bar = indicatif::ProgressBar::new(steps).with_style(

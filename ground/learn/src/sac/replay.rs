@@ -128,6 +128,11 @@ impl ReplayBuffer {
         }
     }
 
+    /// The `back`-th newest transition (1: the last pushed), if the buffer holds that many.
+    pub fn newest(&self, back: usize) -> Option<Transition<'_>> {
+        (back >= 1 && back <= self.len).then(|| self.get((self.cursor + self.capacity - back) % self.capacity))
+    }
+
     /// Appends every transition of `other` in its storage order (FIFO eviction as for `push`).
     pub fn extend_from(&mut self, other: &ReplayBuffer) {
         for i in 0..other.len() {

@@ -46,6 +46,9 @@ pub struct LoopState {
     pub episodes: u64,
     /// Sum of rewards of the episode in progress.
     pub episode_reward: f64,
+    /// Steps taken in the episode in progress (its newest transitions in the buffer).
+    #[serde(default)]
+    pub episode_steps: u64,
 }
 
 /// What the caller wants to hear about while the loop runs.
@@ -95,15 +98,12 @@ pub fn run<T: Episodic>(
     let warmup_steps = agent.config.warmup_steps;
     let batch_size = agent.config.batch_size;
     let updates_per_step = agent.config.updates_per_step;
-    // A resumed run restarts the interrupted episode from its beginning (its partial reward is
-    // dropped); the transitions it had stored stay in the buffer.
-    let mut obs = task.reset(state.episodes)?;
-    state.episode_reward = 0.0;
+    let mut obs = resume_episode(task, buffer, state)?;
     while state.env_steps < options.total_steps && !observer.stop() {
         let action = if state.env_steps < warmup_steps && options.warmup == WarmupPolicy::Random {
             uniform_action(rng, act_dim)
         } else {
-            agent.act(&obs, 1, false)
+            agent.explore(&obs, 1, state.env_steps)
         };
         let out = task.step(&action);
         buffer.push(&Transition {
@@ -116,10 +116,12 @@ pub fn run<T: Episodic>(
         });
         state.env_steps += 1;
         state.episode_reward += out.reward;
+        state.episode_steps += 1;
         if out.terminal || out.truncated {
             observer.on_episode(state.env_steps, state.episode_reward);
             state.episodes += 1;
             state.episode_reward = 0.0;
+            state.episode_steps = 0;
             obs = task.reset(state.episodes)?;
         } else {
             obs = out.obs;
@@ -139,6 +141,36 @@ pub fn run<T: Episodic>(
     }
     observer.checkpoint(agent, buffer, state, rng);
     Ok(())
+}
+
+/// The observation the loop continues from: episode `state.episodes` from its start, with the
+/// steps already taken in it replayed from their stored actions. The environment is
+/// deterministic given the actions, so a run resumed from a checkpoint taken mid-episode
+/// continues exactly as one that never stopped (its state is never saved itself).
+fn resume_episode<T: Episodic>(
+    task: &mut T,
+    buffer: &ReplayBuffer,
+    state: &mut LoopState,
+) -> Result<Vec<f32>, T::Error> {
+    let mut obs = task.reset(state.episodes)?;
+    state.episode_reward = 0.0;
+    let taken = state.episode_steps as usize;
+    let actions: Option<Vec<Vec<f32>>> = (1..=taken)
+        .rev()
+        .map(|back| buffer.newest(back).map(|t| t.action.to_vec()))
+        .collect();
+    match actions {
+        Some(actions) => {
+            for action in &actions {
+                let out = task.step(action);
+                state.episode_reward += out.reward;
+                obs = out.obs;
+            }
+        }
+        // Not in the buffer any more (a buffer shorter than an episode): restart the episode.
+        None => state.episode_steps = 0,
+    }
+    Ok(obs)
 }
 
 /// Mean and standard deviation of `values`.
