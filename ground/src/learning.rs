@@ -1,6 +1,7 @@
 //! The learning commands (the `learn` feature, on libtorch): pretraining, RL, relabelling rounds,
 //! Monte Carlo, export, SIL, the main job, and the learner's sanity check and benchmark.
 
+use std::num::NonZeroU64;
 use std::path::{Path, PathBuf};
 
 use clap::Subcommand;
@@ -41,7 +42,7 @@ pub enum LearnCommand {
         checkpoint: PathBuf,
         /// Episodes (default: the config's evaluate.episodes).
         #[arg(long)]
-        episodes: Option<u64>,
+        episodes: Option<NonZeroU64>,
         /// Scenarios also solved by the indirect method (default: the config's).
         #[arg(long)]
         gap_cases: Option<u64>,
@@ -65,7 +66,7 @@ pub enum LearnCommand {
         blob: PathBuf,
         /// Flights (default: the config's sil.episodes).
         #[arg(long)]
-        episodes: Option<u64>,
+        episodes: Option<NonZeroU64>,
         /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
         #[arg(long)]
         no_dispersions: bool,
@@ -73,7 +74,7 @@ pub enum LearnCommand {
     /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
     /// better mean episode reward within 20,000 steps); prints the learning curve.
     Pendulum {
-        #[arg(long, default_value_t = 20_000)]
+        #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..))]
         steps: u64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -83,7 +84,7 @@ pub enum LearnCommand {
         #[arg(long, default_value_t = 1_000)]
         eval_every: u64,
         /// Torch intra-op threads.
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(i32).range(1..))]
         threads: i32,
         /// Write the curve as CSV here.
         #[arg(long)]
@@ -92,10 +93,10 @@ pub enum LearnCommand {
     /// Learner throughput: SAC updates per second at the thesis settings (10 features, 3
     /// actions, 2x256, batch 256) and the fraction of the measured GEMM rate reached.
     BenchSac {
-        #[arg(long, default_value_t = 300)]
-        updates: usize,
+        #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(1..))]
+        updates: u64,
         /// Torch intra-op thread counts to measure.
-        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        #[arg(long, value_delimiter = ',', default_value = "1,2", value_parser = clap::value_parser!(i32).range(1..))]
         threads: Vec<i32>,
     },
     /// The main job: solve a small transfer dataset, pretrain, train, evaluate by Monte Carlo
@@ -149,13 +150,49 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
     }
 }
 
-fn main_job(config: Option<&Path>, out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+type CommandResult<T = ()> = Result<T, Box<dyn std::error::Error>>;
+
+/// Runs `work` holding the run folder `out` (created if missing) against other processes. When
+/// the command fails and the folders it created hold nothing but the lock, they are removed
+/// again: a refused command leaves nothing behind, and a failed one never loses work.
+fn in_run_folder<T>(out: &Path, work: impl FnOnce() -> CommandResult<T>) -> CommandResult<T> {
+    let first_created = out
+        .ancestors()
+        .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+        .last()
+        .map(Path::to_path_buf);
+    let lock = ground_core::io::RunLock::acquire(out)?;
+    let result = work();
+    drop(lock);
+    if let (Err(_), Some(created)) = (&result, first_created) {
+        if holds_only_the_lock(&created) {
+            let _ = std::fs::remove_dir_all(&created);
+        }
+    }
+    result
+}
+
+/// Does `dir` hold nothing but folders and lock files?
+fn holds_only_the_lock(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|entries| {
+        entries.flatten().all(|e| {
+            let path = e.path();
+            if path.is_dir() {
+                holds_only_the_lock(&path)
+            } else {
+                e.file_name() == ground_core::io::LOCK_FILE
+            }
+        })
+    })
+}
+
+fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
     let config = match config {
         Some(path) => ExperimentConfig::load(path)?,
         None => ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?,
     };
     tch::set_num_threads(config.compute.threads);
-    let job = learn::pipeline::run_main_job(&config, out)?;
+    let job = in_run_folder(out, || Ok(learn::pipeline::run_main_job(&config, out)?))?;
     print!("{}", learn::eval::describe(&job.monte_carlo));
     println!(
         "total {:.1} min; report: {}",
@@ -197,14 +234,14 @@ fn pendulum_command(
     Ok(())
 }
 
-fn bench_sac(updates: usize, threads: &[i32]) {
+fn bench_sac(updates: u64, threads: &[i32]) {
     use learn::sac::{bench, SacConfig};
     let config = SacConfig::default();
     let flops = bench::update_flops(10, 3, &config.hidden, config.batch_size);
     for &n in threads {
         tch::set_num_threads(n);
         let gemm = bench::gemm_gflops(256, 51);
-        let seconds = bench::seconds_per_update(&config, 10, 3, updates);
+        let seconds = bench::seconds_per_update(&config, 10, 3, updates as usize);
         println!(
             "threads {n}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
             1.0 / seconds,
@@ -268,7 +305,9 @@ fn print_phase(summary: &learn::experiment::PhaseSummary) {
 
 fn pretrain_command(args: &ExperimentArgs) -> Result<(), Box<dyn std::error::Error>> {
     let (config, base) = args.load()?;
-    let summary = learn::experiment::pretrain(&config, &base, &args.out)?;
+    let summary = in_run_folder(&args.out, || {
+        Ok(learn::experiment::pretrain(&config, &base, &args.out)?)
+    })?;
     print_phase(&summary);
     Ok(())
 }
@@ -281,7 +320,7 @@ fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box
     } else {
         Start::Scratch
     };
-    let summary = train(&config, &args.out, start)?;
+    let summary = in_run_folder(&args.out, || Ok(train(&config, &args.out, start)?))?;
     print_phase(&summary);
     Ok(())
 }
@@ -289,7 +328,9 @@ fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box
 fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<dyn std::error::Error>> {
     let (config, base) = args.load()?;
     let start = from.map_or_else(|| args.out.join("pretrain").join("best.safetensors"), Path::to_path_buf);
-    let summary = learn::dagger::dagger(&config, &base, &args.out, &start)?;
+    let summary = in_run_folder(&args.out, || {
+        Ok(learn::dagger::dagger(&config, &base, &args.out, &start)?)
+    })?;
     for row in &summary.rows {
         println!(
             "round {:>3}: {:>5.1} % within 0.01 AU and 0.01 (dr p95 {:.4} AU, dv p95 {:.4}, final mass {:.4}), {} tuples in the buffer",
@@ -313,11 +354,19 @@ fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<
 fn evaluate_command(
     args: &ExperimentArgs,
     checkpoint: &Path,
-    episodes: Option<u64>,
+    episodes: Option<NonZeroU64>,
     gap_cases: Option<u64>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let (config, _) = args.load()?;
-    let report = learn::eval::monte_carlo(&config, checkpoint, &args.out, episodes, gap_cases)?;
+    let report = in_run_folder(&args.out, || {
+        Ok(learn::eval::monte_carlo(
+            &config,
+            checkpoint,
+            &args.out,
+            episodes.map(NonZeroU64::get),
+            gap_cases,
+        )?)
+    })?;
     print!("{}", learn::eval::describe(&report));
     println!("written to {}", args.out.display());
     Ok(())
@@ -325,7 +374,9 @@ fn evaluate_command(
 
 fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dyn std::error::Error>> {
     let (config, base) = args.load()?;
-    let report = learn::export::export(&config, &base, checkpoint, &args.out)?;
+    let report = in_run_folder(&args.out, || {
+        Ok(learn::export::export(&config, &base, checkpoint, &args.out)?)
+    })?;
     println!("{}", learn::export::describe(&report));
     println!("written to {}", args.out.display());
     Ok(())
@@ -334,7 +385,7 @@ fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dy
 fn sil_command(
     args: &ExperimentArgs,
     blob: &Path,
-    episodes: Option<u64>,
+    episodes: Option<NonZeroU64>,
     no_dispersions: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let (config, _) = args.load()?;
@@ -343,7 +394,15 @@ fn sil_command(
     } else {
         config.sil.dispersions
     };
-    let report = learn::sil::sil_monte_carlo(&config, blob, &args.out, episodes, &dispersions)?;
+    let report = in_run_folder(&args.out, || {
+        Ok(learn::sil::sil_monte_carlo(
+            &config,
+            blob,
+            &args.out,
+            episodes.map(NonZeroU64::get),
+            &dispersions,
+        )?)
+    })?;
     println!("{}", learn::sil::describe(&report));
     println!("written to {}", args.out.display());
     Ok(())

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario};
 
-use crate::config::ExperimentConfig;
+use crate::config::{ConfigError, ExperimentConfig};
 use crate::eval::{report_and_write, MonteCarloReport};
 use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
@@ -160,6 +160,10 @@ pub fn sil_monte_carlo(
     dispersions
         .validate()
         .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;
+    let n = episodes.unwrap_or(config.sil.episodes);
+    if n == 0 {
+        return Err(ConfigError::Invalid("a SIL Monte Carlo needs at least one flight".into()).into());
+    }
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
@@ -167,7 +171,6 @@ pub fn sil_monte_carlo(
         Controller::Network(p) => format!("{:?}", p.quantization()).to_lowercase(),
         Controller::SafeMode(e) => format!("safe mode: {e}"),
     };
-    let n = episodes.unwrap_or(config.sil.episodes);
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
     let bar = indicatif::ProgressBar::new_spinner().with_message(format!("SIL: {n} dispersed flights"));
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
