@@ -196,7 +196,7 @@ fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
     print!("{}", learn::eval::describe(&job.monte_carlo));
     println!(
         "total {:.1} min; report: {}",
-        job.stage_seconds.iter().sum::<f64>() / 60.0,
+        job.stage_seconds.iter().map(|(_, t)| t).sum::<f64>() / 60.0,
         job.report.display()
     );
     Ok(())

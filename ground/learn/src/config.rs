@@ -169,7 +169,7 @@ impl Default for EvaluateConfig {
     fn default() -> Self {
         Self {
             episodes: 10_000,
-            optimality_gap_cases: 20,
+            optimality_gap_cases: 32,
         }
     }
 }
@@ -180,8 +180,12 @@ impl Default for EvaluateConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DaggerConfig {
-    /// Rounds in all (a finished run asked for more continues).
+    /// Rounds in all, at most (a finished run asked for more continues). 0: none, and `ground
+    /// run` skips the stage.
     pub rounds: u64,
+    /// Stop before the budget once a round scores at least this share within the goal on the
+    /// scoring episodes (unset: every round of the budget).
+    pub stop_at: Option<f64>,
     /// Training episodes relabelled per round (0: updates only, the control arm).
     pub episodes: u64,
     /// Episodes flown per round to choose the relabelled ones from: the `episodes` that miss
@@ -202,7 +206,8 @@ impl Default for DaggerConfig {
         // Measured (docs/results.md): 100 episodes per round plateau near 54 %
         // within the goal, 200 still climb.
         Self {
-            rounds: 10,
+            rounds: 0,
+            stop_at: None,
             episodes: 200,
             candidates: None,
             fractions: vec![0.2, 0.4, 0.6, 0.8],
@@ -302,6 +307,7 @@ impl ExperimentConfig {
         positive("train.eval_every", self.train.eval_every)?;
         positive("train.eval_episodes", self.train.eval_episodes)?;
         positive("evaluate.episodes", self.evaluate.episodes)?;
+        positive("sil.episodes", self.sil.episodes)?;
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
             return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
         }
@@ -321,6 +327,16 @@ impl ExperimentConfig {
             }
         }
         positive("dagger.updates", self.dagger.updates)?;
+        if let Some(goal) = self.dagger.stop_at {
+            if !(goal > 0.0 && goal <= 1.0) {
+                return Err(ConfigError::Invalid("dagger.stop_at must be a share in (0, 1]".into()));
+            }
+            if self.dagger.rounds == 0 {
+                return Err(ConfigError::Invalid(
+                    "dagger.stop_at is set but dagger.rounds is 0: no round could reach it".into(),
+                ));
+            }
+        }
         positive("dagger.score_episodes", self.dagger.score_episodes)?;
         if self.dagger.fractions.is_empty() || !self.dagger.fractions.iter().all(|f| *f > 0.0 && *f < 1.0) {
             return Err(ConfigError::Invalid(
@@ -431,6 +447,10 @@ mod tests {
             "scenario = \"transfer-circular\"\n[dagger]\nfractions = []",
             "scenario = \"transfer-circular\"\n[dagger]\nupdates = 0",
             "scenario = \"transfer-circular\"\n[dagger]\nepisodes = 200\ncandidates = 100",
+            "scenario = \"transfer-circular\"\n[dagger]\nstop_at = 0.95",
+            "scenario = \"transfer-circular\"\n[dagger]\nrounds = 5\nstop_at = 1.5",
+            "scenario = \"transfer-circular\"\n[sil]\nepisodes = 0",
+            "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
         ];
         for text in bad {
             assert!(ExperimentConfig::from_toml(text).is_err(), "accepted: {text}");

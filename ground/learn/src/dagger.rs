@@ -15,8 +15,8 @@
 //! ```
 //!
 //! Every file is written atomically and is complete when it exists, so a run resumes from
-//! them alone: the buffer is the demonstrations plus every round's relabels in order, and each
-//! round's sampler and torch streams are seeded from the round number. A run stopped anywhere
+//! them alone: the buffer is the demonstrations plus every round's relabels in order, each
+//! round's sampler is seeded from the round number and the agent's noise from its update count. A run stopped anywhere
 //! and resumed ends with the same weights as one that never stopped.
 
 use std::fmt::Write as _;
@@ -30,8 +30,8 @@ use shared::scenario::{ProblemKind, Scenario};
 use crate::config::ExperimentConfig;
 use crate::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use crate::experiment::{
-    demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations, residual_chart,
-    write_file, ExperimentError,
+    check_run, demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations,
+    residual_chart, write_file, ExperimentError,
 };
 use crate::sac::agent::Sac;
 use crate::sac::replay::{sampler, ReplayBuffer};
@@ -260,13 +260,17 @@ pub fn dagger(
             config.scenario.name()
         )));
     }
+    if config.dagger.rounds == 0 {
+        return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
+    }
     let (mut buffer, _) = demonstration_buffer::<Transfer>(config, config_dir)?;
-    prepare_run(config, run)?;
+    check_run(config, run)?;
     let dir = run.join("dagger");
     let mut agent = new_agent(config, true, TransferEnv::OBS);
     let state_path = dir.join("state.json");
     if !round_file(&dir, 0).exists() {
         agent.load(start)?;
+        prepare_run(config, run)?;
         agent.save(&round_file(&dir, 0))?;
         // A state left by an earlier start belongs to another learner.
         let _ = std::fs::remove_file(&state_path);
@@ -309,7 +313,16 @@ pub fn dagger(
         });
         write_logs(&dir, &rows, &agent, is_best(&rows))?;
     }
+    let reached = |rows: &[RoundRow]| {
+        config
+            .dagger
+            .stop_at
+            .is_some_and(|goal| rows.last().is_some_and(|r| r.within_goal >= goal))
+    };
     for round in done + 1..=config.dagger.rounds {
+        if reached(&rows) {
+            break;
+        }
         let clock = Instant::now();
         let path = relabels_file(&dir, round);
         let relabels = if path.exists() {
@@ -320,9 +333,9 @@ pub fn dagger(
             relabels
         };
         buffer.extend_from(&relabels.tuples);
-        // Streams seeded by the round, so a resumed round repeats exactly.
+        // The sampler is seeded by the round and the agent's noise by its update count, so a
+        // resumed round repeats exactly.
         let mut rng = sampler(config.seeds.train ^ SAMPLER_STREAM ^ round);
-        tch::manual_seed(config.seeds.train.wrapping_add(round) as i64);
         let bar = progress_bar(config.dagger.updates, &format!("round {round} update"));
         for i in 0..config.dagger.updates {
             agent.update(&buffer.sample(config.sac.batch_size, &mut rng));
@@ -344,9 +357,14 @@ pub fn dagger(
             summary,
             seconds: clock.elapsed().as_secs_f64(),
         });
+        // Time left: this command's mean round so far times the rounds left of the budget (an
+        // upper bound when a goal may stop the rounds early).
+        let timed: Vec<f64> = rows.iter().filter(|r| r.round > 0).map(|r| r.seconds).collect();
+        let left = (config.dagger.rounds - round) as f64 * timed.iter().sum::<f64>() / timed.len().max(1) as f64;
         println!(
-            "round {round}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} % \
-             (dr p50 {:.4} AU, p95 {:.4}; dv p50 {:.4}, p95 {:.4}) [{:.0} s]",
+            "round {round} of {}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} % \
+             (dr p50 {:.4} AU, p95 {:.4}; dv p50 {:.4}, p95 {:.4}) [{:.0} s; at most {:.0} min left]",
+            config.dagger.rounds,
             relabels.converged,
             relabels.attempted,
             relabels.tuples.len(),
@@ -355,7 +373,8 @@ pub fn dagger(
             summary.terminal_position.p95,
             summary.terminal_velocity.p50,
             summary.terminal_velocity.p95,
-            clock.elapsed().as_secs_f64()
+            clock.elapsed().as_secs_f64(),
+            left / 60.0
         );
         write_logs(&dir, &rows, &agent, is_best(&rows))?;
     }

@@ -1,14 +1,16 @@
-//! The main job (`ground run`): a small transfer dataset by the indirect method, pretraining,
-//! RL from the pretrained model, Monte Carlo evaluation, the onboard blobs (f32, int8) flown in
-//! the software-in-the-loop guidance loop against a dispersed plant, and a Markdown report that
-//! links every figure, all in one run folder. Each stage resumes from what an interrupted run
-//! left.
+//! The main job and the recipes (`ground run`): a dataset by the indirect method, pretraining,
+//! RL from the pretrained model, DAgger-style relabelling rounds (when the config's `[dagger]`
+//! has rounds), Monte Carlo evaluation, the onboard blobs (f32, int8) flown in the
+//! software-in-the-loop guidance loop against a dispersed plant, and a Markdown report that
+//! links every figure, all in one run folder. Each stage resumes exactly from what an
+//! interrupted run left.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::config::ExperimentConfig;
+use crate::dagger::{dagger, DaggerSummary};
 use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
@@ -26,28 +28,45 @@ pub struct MainJob {
     pub dataset: Summary,
     pub pretrain: PhaseSummary,
     pub train: PhaseSummary,
+    /// The relabelling rounds, when the config has any.
+    pub dagger: Option<DaggerSummary>,
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
     pub export: ExportReport,
     /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8 (transfers;
     /// the rendezvous flight loop is not built).
     pub sil: Option<[SilReport; 2]>,
-    /// Wall time of each stage, s: generate, pretrain, train, evaluate, export + SIL.
-    pub stage_seconds: [f64; 5],
+    /// Wall time of each stage run, s, by name (this sitting's: a resumed stage counts only
+    /// what it still had to do).
+    pub stage_seconds: Vec<(&'static str, f64)>,
 }
 
 /// Runs every stage into `run` and writes `run/report.md`.
 pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, ExperimentError> {
     let mut config = config.clone();
-    let mut stage_seconds = [0.0; 5];
+    let transfer = config.scenario.problem() == shared::scenario::ProblemKind::Transfer;
+    let relabel = config.dagger.rounds > 0;
+    if relabel && !transfer {
+        return Err(ExperimentError::Mismatch(format!(
+            "relabelling rounds are built for transfers; the config is for {} (set dagger.rounds = 0)",
+            config.scenario.name()
+        )));
+    }
+    let stages = 5 + usize::from(relabel);
+    let mut stage = 0;
+    let mut next = |what: String| {
+        stage += 1;
+        println!("[{stage}/{stages}] {what}");
+    };
+    let mut stage_seconds = Vec::new();
 
     // 1. Fuel-optimal demonstrations (resumable: finished records are skipped).
     let t = Instant::now();
-    println!(
-        "[1/5] solving {} {} trajectories (indirect method)",
+    next(format!(
+        "solving {} {} trajectories (indirect method)",
         config.generate.count,
         config.scenario.name()
-    );
+    ));
     let dataset_dir = run.join("dataset");
     let spacecraft = config
         .env
@@ -69,44 +88,64 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let _ = plot_dataset_sample(&dataset_dir, Shard::WHOLE);
     // Absolute, so the config's relative-path base cannot apply twice.
     config.pretrain.dataset = Some(std::path::absolute(&dataset_dir).unwrap_or(dataset_dir.clone()));
-    stage_seconds[0] = t.elapsed().as_secs_f64();
+    stage_seconds.push(("dataset", t.elapsed().as_secs_f64()));
 
     // 2. Pretraining on the demonstrations.
     let t = Instant::now();
-    println!(
-        "[2/5] pretraining: {} updates on the demonstration buffer",
+    next(format!(
+        "pretraining: {} updates on the demonstration buffer",
         config.pretrain.updates
-    );
+    ));
     let pre = pretrain(&config, run, run)?;
-    stage_seconds[1] = t.elapsed().as_secs_f64();
+    stage_seconds.push(("pretraining", t.elapsed().as_secs_f64()));
 
     // 3. RL from the pretrained model.
     let t = Instant::now();
-    println!(
-        "[3/5] training: {} environment steps from the pretrained model",
+    next(format!(
+        "training: {} environment steps from the pretrained model",
         config.train.env_steps
-    );
+    ));
     let rl = train(&config, run, Start::Pretrained)?;
-    stage_seconds[2] = t.elapsed().as_secs_f64();
+    stage_seconds.push(("RL", t.elapsed().as_secs_f64()));
+    let mut best = rl.folder.join("best.safetensors");
 
-    // 4. Monte Carlo of the best model.
+    // 4. Relabelling rounds from RL's best model.
+    let rounds = if relabel {
+        let t = Instant::now();
+        next(format!(
+            "relabelling rounds: at most {}, {} of {} flights relabelled each{}",
+            config.dagger.rounds,
+            config.dagger.episodes,
+            config.dagger.candidates.unwrap_or(config.dagger.episodes),
+            config
+                .dagger
+                .stop_at
+                .map_or(String::new(), |g| format!(", until {:.1} % within the goal", 100.0 * g))
+        ));
+        let summary = dagger(&config, run, run, &best)?;
+        best = summary.folder.join("best.safetensors");
+        stage_seconds.push(("relabelling", t.elapsed().as_secs_f64()));
+        Some(summary)
+    } else {
+        None
+    };
+
+    // 5. Monte Carlo of the best model.
     let t = Instant::now();
-    println!("[4/5] Monte Carlo: {} episodes", config.evaluate.episodes);
-    let best = rl.folder.join("best.safetensors");
+    next(format!("Monte Carlo: {} episodes", config.evaluate.episodes));
     let mc = monte_carlo(&config, &best, &run.join("mc"), None, None)?;
-    stage_seconds[3] = t.elapsed().as_secs_f64();
+    stage_seconds.push(("Monte Carlo", t.elapsed().as_secs_f64()));
 
-    // 5. Onboard blobs, flown in the SIL loop against the dispersed plant.
+    // 6. Onboard blobs, flown in the SIL loop against the dispersed plant.
     let t = Instant::now();
-    let transfer = config.scenario.problem() == shared::scenario::ProblemKind::Transfer;
-    println!(
-        "[5/5] export f32 + int8 blobs{}",
+    next(format!(
+        "export f32 + int8 blobs{}",
         if transfer {
             format!(", SIL: {} dispersed flights each", config.sil.episodes)
         } else {
             String::new()
         }
-    );
+    ));
     let export_dir = run.join("export");
     let export = export(&config, run, &best, &export_dir)?;
     let fly =
@@ -117,13 +156,14 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     } else {
         None
     };
-    stage_seconds[4] = t.elapsed().as_secs_f64();
+    stage_seconds.push(("export and SIL", t.elapsed().as_secs_f64()));
 
     let job = MainJob {
         report: run.join("report.md"),
         dataset,
         pretrain: pre,
         train: rl,
+        dagger: rounds,
         monte_carlo: mc,
         export,
         sil,
@@ -170,24 +210,19 @@ fn phase_line(name: &str, p: &PhaseSummary) -> String {
 /// The run's report: what was done, the tables, and links to every figure drawn under `run`
 /// (relative paths).
 pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> String {
-    let (dataset, pre, rl, mc, stage_seconds) = (
-        &job.dataset,
-        &job.pretrain,
-        &job.train,
-        &job.monte_carlo,
-        &job.stage_seconds,
-    );
+    let (dataset, pre, rl, mc) = (&job.dataset, &job.pretrain, &job.train, &job.monte_carlo);
     let mut s = String::new();
-    let _ = writeln!(s, "# Main job report: {}\n", config.scenario.name());
+    let _ = writeln!(s, "# Run report: {}\n", config.scenario.name());
+    let stages: Vec<String> = job
+        .stage_seconds
+        .iter()
+        .map(|(name, seconds)| format!("{name} {seconds:.0} s"))
+        .collect();
     let _ = writeln!(
         s,
-        "Stages: dataset {:.0} s, pretraining {:.0} s, training {:.0} s, Monte Carlo {:.0} s, export and SIL {:.0} s (total {:.1} min). The config is in [config.toml](config.toml).\n",
-        stage_seconds[0],
-        stage_seconds[1],
-        stage_seconds[2],
-        stage_seconds[3],
-        stage_seconds[4],
-        stage_seconds.iter().sum::<f64>() / 60.0
+        "Stages (this sitting): {} (total {:.1} min). The config is in [config.toml](config.toml).\n",
+        stages.join(", "),
+        job.stage_seconds.iter().map(|(_, t)| t).sum::<f64>() / 60.0
     );
     let _ = writeln!(s, "## Fuel-optimal demonstrations\n");
     let masses = if dataset.converged > 0 {
@@ -235,6 +270,9 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         }
         s.push('\n');
     }
+    if let Some(rounds) = &job.dagger {
+        rounds_section(&mut s, rounds);
+    }
     let _ = writeln!(s, "## Monte Carlo ({} episodes, seed {})\n", mc.episodes, mc.seed);
     let _ = writeln!(
         s,
@@ -256,6 +294,38 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     );
     export_section(&mut s, &job.export, job.sil.as_ref());
     note_missing_figures(&s, run)
+}
+
+fn rounds_section(s: &mut String, rounds: &DaggerSummary) {
+    let _ = writeln!(s, "## Relabelling rounds\n");
+    let _ = writeln!(
+        s,
+        "Each round flies the policy, re-solves the optimal rest of the flights that miss the most from the states they visited, adds those tuples to the demonstrations and updates (docs/design/learning.md). The round scoring best is kept: round {} of {}.\n",
+        rounds.best_round,
+        rounds.rows.last().map_or(0, |r| r.round)
+    );
+    let _ = writeln!(
+        s,
+        "| round | relabels converged | within the goal (scoring) | dr p50 / p95 (AU) | dv p50 / p95 | s |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    for r in &rounds.rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} / {} | {:.1} % | {:.4} / {:.4} | {:.4} / {:.4} | {:.0} |",
+            r.round,
+            r.relabels_converged,
+            r.relabels_attempted,
+            100.0 * r.within_goal,
+            r.summary.terminal_position.p50,
+            r.summary.terminal_position.p95,
+            r.summary.terminal_velocity.p50,
+            r.summary.terminal_velocity.p95,
+            r.seconds
+        );
+    }
+    let _ = writeln!(s, "\nPer-round figures: [rounds.csv](dagger/rounds.csv).\n");
+    let _ = writeln!(s, "![relabelling rounds](dagger/rounds.svg)\n");
 }
 
 fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport; 2]>) {

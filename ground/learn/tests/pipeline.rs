@@ -142,6 +142,12 @@ fn main_job_writes_a_report_whose_links_resolve() {
     // The onboard contract's actor (10-256-256-3), so the export and SIL stages can fly it.
     config.sac.hidden = vec![256, 256];
     config.sil.episodes = 8;
+    // One relabelling round, toy-sized.
+    config.dagger.rounds = 1;
+    config.dagger.episodes = 2;
+    config.dagger.fractions = vec![0.5];
+    config.dagger.updates = 20;
+    config.dagger.score_episodes = 4;
     // A relative run folder, as `ground run --out runs/quick` gives (the dataset path must not be
     // resolved against it twice).
     let run = relative_to_cwd(&dir.join("run"));
@@ -175,10 +181,21 @@ fn main_job_writes_a_report_whose_links_resolve() {
     }
     assert!(job.export.f32.action_error.max <= 1e-5);
     assert!(text.contains("SIL with dispersions"), "{text}");
-    // The best RL model is what the Monte Carlo evaluated.
+    // The relabelling round ran from RL's best model, and its best is what the Monte Carlo
+    // evaluated.
+    let rounds = job.dagger.as_ref().unwrap();
+    assert_eq!(rounds.rows.iter().map(|r| r.round).collect::<Vec<_>>(), vec![0, 1]);
+    assert!(text.contains("## Relabelling rounds"), "{text}");
+    assert!(run.join("dagger/rounds.csv").is_file());
+    assert_eq!(job.monte_carlo.checkpoint, run.join("dagger/best.safetensors"));
+    // Monte Carlo figures at every reported tolerance.
     assert_eq!(
-        job.monte_carlo.checkpoint,
-        run.join("train-pretrained/best.safetensors")
+        job.monte_carlo
+            .within_tolerances
+            .iter()
+            .map(|t| t.0)
+            .collect::<Vec<_>>(),
+        learn::eval::REPORTED_TOLERANCES.to_vec()
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
