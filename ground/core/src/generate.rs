@@ -105,6 +105,23 @@ pub enum GenerateError {
     /// Shards to merge disagree, overlap, or leave indices out.
     #[error("cannot merge: {0}")]
     Merge(String),
+    /// A shard built by hand with N = 0 or I >= N ([`Shard::from_str`] refuses those).
+    #[error(transparent)]
+    InvalidShard(#[from] ShardError),
+    /// A run of no scenario: its figures would all be NaN.
+    #[error("count must be at least 1: a run of no scenario has nothing to solve")]
+    EmptyCount,
+    /// A shard with no index below the count: it would solve nothing.
+    #[error(
+        "shard {}/{} is empty: a count of {count} has indices 0 to {} only",
+        .shard.index,
+        .shard.count,
+        .count.saturating_sub(1)
+    )]
+    EmptyShard { shard: Shard, count: u64 },
+    /// The homotopy's last eps must be in (0, 1].
+    #[error("final eps must be in (0, 1], got {0}")]
+    InvalidFinalEps(f64),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
@@ -254,11 +271,18 @@ pub fn classify_run(
     let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
     let manifest: Manifest =
         serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-    let results: Vec<Result<TrajectoryRecord, GenerateError>> = (0..manifest.count)
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    // Every record is read before any is classified: a missing or corrupt one (a shard's
+    // folder, an unfinished run) refuses the run before minutes of work and any rewrite.
+    let records = (0..manifest.count)
+        .map(|index| read_record(&record_path(out, index)).map(|record| (index, record)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let results: Vec<Result<TrajectoryRecord, GenerateError>> = records
         .into_par_iter()
-        .map(|index| {
+        .map(|(index, mut record)| {
             let path = record_path(out, index);
-            let mut record = read_record(&path)?;
             let scenario = manifest.scenario.draw(manifest.seed, index);
             if classify_failure(&mut record, &scenario, spacecraft, options) {
                 let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
@@ -334,7 +358,56 @@ pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, Generate
     Ok(summary)
 }
 
+/// Refuses a request that cannot make a dataset: no scenario, an invalid or empty shard, or a
+/// final eps outside (0, 1]. Cheap and read-only, so callers check before creating anything.
+pub fn check_request(manifest: &Manifest, shard: Shard, options: &SolveOptions) -> Result<(), GenerateError> {
+    if shard.count == 0 || shard.index >= shard.count {
+        return Err(ShardError::OutOfRange {
+            index: shard.index,
+            count: shard.count,
+        }
+        .into());
+    }
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    if u64::from(shard.index) >= manifest.count {
+        return Err(GenerateError::EmptyShard {
+            shard,
+            count: manifest.count,
+        });
+    }
+    let eps = options.final_eps;
+    if !(eps.is_finite() && eps > 0.0 && eps <= 1.0) {
+        return Err(GenerateError::InvalidFinalEps(eps));
+    }
+    Ok(())
+}
+
+/// The manifest of the run in `out`, if the folder holds one.
+fn read_manifest(out: &Path) -> Result<Option<Manifest>, GenerateError> {
+    let path = out.join("manifest.json");
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = fs::read(&path).map_err(io_err(&path))?;
+    let found = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.clone(), e.into()))?;
+    Ok(Some(found))
+}
+
+/// Refuses a folder that holds a run of another manifest; says whether it holds one of `wanted`.
+fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
+    match read_manifest(out)? {
+        Some(found) if found != *wanted => Err(GenerateError::ManifestMismatch { found, wanted: *wanted }),
+        Some(_) => Ok(true),
+        None => Ok(false),
+    }
+}
+
 /// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`.
+///
+/// The request and a manifest already in `out` are checked before anything is written, so a
+/// refused run creates no folder and leaves an existing one as it was.
 pub fn generate(
     manifest: Manifest,
     shard: Shard,
@@ -343,19 +416,11 @@ pub fn generate(
     options: &SolveOptions,
     show_progress: bool,
 ) -> Result<Summary, GenerateError> {
+    check_request(&manifest, shard, options)?;
+    let has_manifest = check_manifest(out, &manifest)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
-    let manifest_path = out.join("manifest.json");
-    if manifest_path.exists() {
-        let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
-        let found: Manifest =
-            serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-        if found != manifest {
-            return Err(GenerateError::ManifestMismatch {
-                found,
-                wanted: manifest,
-            });
-        }
-    } else {
+    if !has_manifest {
+        let manifest_path = out.join("manifest.json");
         let json =
             serde_json::to_vec_pretty(&manifest).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
         atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
@@ -451,6 +516,11 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
             manifest.count
         )));
     }
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    // The dataset of another run in `out` is not overwritten.
+    check_manifest(out, &manifest)?;
     write_outputs(
         out,
         &DatasetFile {
