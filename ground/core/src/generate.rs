@@ -1,6 +1,8 @@
 //! Dataset generation at scale: every scenario of a distribution solved by the
 //! indirect method, in parallel, resumable, in disjoint reproducible shards.
 //!
+//! A run folder is held by one process at a time ([`RunLock`]) while it is written.
+//!
 //! Layout of an output folder:
 //! - `manifest.json`: scenario, seed, count (a resumed run must match it);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
@@ -19,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use crate::io::{atomic_write, decode_container, encode_container, ContainerError};
+use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
@@ -122,6 +124,9 @@ pub enum GenerateError {
     /// The homotopy's last eps must be in (0, 1].
     #[error("final eps must be in (0, 1], got {0}")]
     InvalidFinalEps(f64),
+    /// The folder is held by another run (or could not be locked).
+    #[error(transparent)]
+    Lock(#[from] LockError),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
@@ -261,7 +266,7 @@ pub fn classify_failure(
 /// energy-optimal start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
 /// record, in parallel), rewrites those records and the dataset and summaries, whose
 /// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
-/// touched; records classified before are kept as they are.
+/// touched; records classified before are kept as they are. `out` is held for the whole work.
 pub fn classify_run(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -274,6 +279,7 @@ pub fn classify_run(
     if manifest.count == 0 {
         return Err(GenerateError::EmptyCount);
     }
+    let _held = RunLock::acquire(out)?;
     // Every record is read before any is classified: a missing or corrupt one (a shard's
     // folder, an unfinished run) refuses the run before minutes of work and any rewrite.
     let records = (0..manifest.count)
@@ -404,10 +410,8 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
     }
 }
 
-/// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`.
-///
-/// The request and a manifest already in `out` are checked before anything is written, so a
-/// refused run creates no folder and leaves an existing one as it was.
+/// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`, held
+/// for the whole run: [`hold_run`], then [`generate_in`].
 pub fn generate(
     manifest: Manifest,
     shard: Shard,
@@ -416,7 +420,37 @@ pub fn generate(
     options: &SolveOptions,
     show_progress: bool,
 ) -> Result<Summary, GenerateError> {
+    let run = hold_run(manifest, shard, out, options)?;
+    generate_in(&run, manifest, shard, spacecraft, options, show_progress)
+}
+
+/// Holds `out` (created if missing) for a run of `manifest`, or refuses. The request and a
+/// manifest already in `out` are checked first, so a refused run creates no folder and leaves
+/// an existing one as it was; a folder held by another run is refused ([`LockError::Held`]).
+pub fn hold_run(
+    manifest: Manifest,
+    shard: Shard,
+    out: &Path,
+    options: &SolveOptions,
+) -> Result<RunLock, GenerateError> {
     check_request(&manifest, shard, options)?;
+    check_manifest(out, &manifest)?;
+    Ok(RunLock::acquire(out)?)
+}
+
+/// Generates (or resumes) the records of `shard` of the dataset `manifest` into the folder
+/// `run` holds (see [`hold_run`]); the caller may write more into it before letting it go.
+pub fn generate_in(
+    run: &RunLock,
+    manifest: Manifest,
+    shard: Shard,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    show_progress: bool,
+) -> Result<Summary, GenerateError> {
+    let out = run.dir();
+    check_request(&manifest, shard, options)?;
+    // Checked again under the hold: another run may have written its manifest meanwhile.
     let has_manifest = check_manifest(out, &manifest)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
     if !has_manifest {
@@ -482,7 +516,8 @@ pub fn generate(
 }
 
 /// Combines shard dataset files into one dataset in `out`: all must come from one manifest,
-/// be disjoint, and together cover every index.
+/// be disjoint, and together cover every index. `out` is held while it is written, and refused
+/// if it holds a run of another manifest.
 pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
     let mut files = Vec::new();
     for p in inputs {
@@ -519,10 +554,13 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
     if manifest.count == 0 {
         return Err(GenerateError::EmptyCount);
     }
-    // The dataset of another run in `out` is not overwritten.
+    // The dataset of another run in `out` is not overwritten; checked before the hold creates
+    // the folder and again under it.
+    check_manifest(out, &manifest)?;
+    let held = RunLock::acquire(out)?;
     check_manifest(out, &manifest)?;
     write_outputs(
-        out,
+        held.dir(),
         &DatasetFile {
             manifest,
             shard: Shard::WHOLE,

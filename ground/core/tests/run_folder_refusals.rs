@@ -1,5 +1,5 @@
-//! Run folders under bad input: a request that cannot make a dataset and a folder of another run
-//! are refused before anything is created or changed.
+//! Run folders under bad input: a request that cannot make a dataset, a folder of another run
+//! and a folder held by another process are refused before anything is created or changed.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -7,6 +7,7 @@ use std::sync::OnceLock;
 use ground_core::generate::{
     classify_run, generate, merge, write_outputs, DatasetFile, GenerateError, Manifest, Shard,
 };
+use ground_core::io::{LockError, RunLock};
 use ground_core::solver::SolveOptions;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
@@ -116,6 +117,37 @@ fn a_folder_of_another_run_is_refused_and_left_unchanged() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+fn is_held(e: &GenerateError) -> bool {
+    matches!(e, GenerateError::Lock(LockError::Held { .. }))
+}
+
+#[test]
+fn a_held_folder_is_refused_by_generate_and_left_unchanged() {
+    let out = temp_dir("held");
+    write_manifest(&out, &MANIFEST);
+    let held = RunLock::acquire(&out).unwrap();
+    let before = snapshot(&out);
+    let err = generate(MANIFEST, Shard::WHOLE, &out, &spacecraft(), &options(), false).unwrap_err();
+    assert!(is_held(&err), "{err:?}");
+    assert!(err.to_string().contains("in use"), "{err}");
+    assert_eq!(snapshot(&out), before);
+    drop(held);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn merge_refuses_a_held_folder_and_leaves_it_unchanged() {
+    let input = [finished_run().join("dataset.ltds")];
+    let out = temp_dir("merge-held");
+    let held = RunLock::acquire(&out).unwrap();
+    let before = snapshot(&out);
+    let err = merge(&input, &out).unwrap_err();
+    assert!(is_held(&err), "{err:?}");
+    assert_eq!(snapshot(&out), before);
+    drop(held);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 #[test]
 fn merge_refuses_a_folder_of_another_run_and_leaves_it_unchanged() {
     let input = [finished_run().join("dataset.ltds")];
@@ -154,4 +186,15 @@ fn classification_refuses_a_run_of_no_scenario_and_leaves_it_unchanged() {
     assert!(matches!(err, GenerateError::EmptyCount), "{err}");
     assert_eq!(snapshot(&run), before);
     let _ = std::fs::remove_dir_all(&run);
+}
+
+#[test]
+fn classification_refuses_a_held_run_and_leaves_it_unchanged() {
+    let run = finished_run();
+    let held = RunLock::acquire(run).unwrap();
+    let before = snapshot(run);
+    let err = classify_run(run, &spacecraft(), &options()).unwrap_err();
+    assert!(is_held(&err), "{err:?}");
+    assert_eq!(snapshot(run), before);
+    drop(held);
 }
