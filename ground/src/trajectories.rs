@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use ground_core::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
-use ground_core::io::atomic_write;
+use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
-use ground_core::plot::{plot_dataset_sample, plot_trajectories};
+use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
@@ -54,7 +54,8 @@ pub struct SolveArgs {
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
-    /// Also draw the trajectory with its initial and target orbits into this SVG file.
+    /// Also draw the trajectory with its initial and target orbits into this SVG file (its
+    /// folder must exist).
     #[arg(long)]
     plot: Option<PathBuf>,
 }
@@ -67,6 +68,7 @@ pub struct GenerateArgs {
     count: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Run folder (created if missing; its parent folder must exist).
     #[arg(long)]
     out: PathBuf,
     /// Solve only shard I of N (indices i with i mod N == I).
@@ -81,6 +83,7 @@ pub struct GenerateArgs {
 }
 
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
+    require_parent_folder(&args.out)?;
     if !(args.final_eps.is_finite() && args.final_eps > 0.0 && args.final_eps <= 1.0) {
         return Err(format!("--final-eps must be in (0, 1], got {}", args.final_eps).into());
     }
@@ -113,6 +116,7 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
+    require_parent_folder(out)?;
     let file = read_dataset(dataset)?;
     let record = file
         .records
@@ -211,6 +215,11 @@ pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>>
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
+    // A figure path that cannot be written is refused before the solve, not after it.
+    if let Some(path) = &args.plot {
+        check_svg_path(path)?;
+        require_parent_folder(path)?;
+    }
     let record = solve_scenario(kind, args.seed, args.index, &scenario, &sc, &SolveOptions::default());
     if let Some(path) = &args.plot {
         plot_trajectories(&[&record], path)?;
@@ -258,6 +267,7 @@ pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>>
 }
 
 pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    require_parent_folder(out)?;
     let summary = merge(inputs, out)?;
     print_summary(&summary);
     Ok(())
