@@ -1,9 +1,10 @@
 //! The commands that need no PyTorch: one solve, dataset generation and merge, OEM export,
 //! the demonstrations' one-step check.
 
+use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
-use ground_core::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
+use ground_core::generate::{generate_in, hold_run, merge, read_dataset, Manifest, Shard, Summary};
 use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
@@ -74,22 +75,24 @@ pub struct GenerateArgs {
     /// Solve only shard I of N (indices i with i mod N == I).
     #[arg(long, default_value = "0/1")]
     shard: Shard,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
+    /// Worker threads, at least 1 (default: all cores).
+    #[arg(long, value_parser = thread_count)]
+    threads: Option<NonZeroUsize>,
     /// Stop the homotopy at the first level below this eps (docs/spec.md: 1e-4).
     #[arg(long, default_value_t = FINAL_EPS)]
     final_eps: f64,
 }
 
+/// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
+fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
+    text.parse::<usize>()
+        .ok()
+        .and_then(NonZeroUsize::new)
+        .ok_or_else(|| format!("need a whole number of threads, at least 1, got '{text}'"))
+}
+
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
     require_parent_folder(&args.out)?;
-    if !(args.final_eps.is_finite() && args.final_eps > 0.0 && args.final_eps <= 1.0) {
-        return Err(format!("--final-eps must be in (0, 1], got {}", args.final_eps).into());
-    }
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global()?;
-    }
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
@@ -102,7 +105,12 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
         final_eps: args.final_eps,
         ..SolveOptions::default()
     };
-    let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.get()).build_global()?;
+    }
+    // Checks the request and the folder, then holds it until the figure below is written too.
+    let run = hold_run(manifest, args.shard, &args.out, &options)?;
+    let summary = generate_in(&run, manifest, args.shard, &sc, &options, true)?;
     print_summary(&summary);
     // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
     let shown = plot_dataset_sample(&args.out, args.shard)?;
