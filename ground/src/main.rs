@@ -41,7 +41,8 @@ enum Command {
         /// Scenario index of the trajectory.
         #[arg(long)]
         index: u64,
-        /// Output folder: trajectory-INDEX.oem and trajectory-INDEX-thrust.csv.
+        /// Output folder: trajectory-INDEX.oem and trajectory-INDEX-thrust.csv (created if
+        /// missing; its parent folder must exist).
         #[arg(long)]
         out: PathBuf,
         /// Departure epoch (TDB, ISO 8601).
@@ -50,7 +51,7 @@ enum Command {
     },
     /// Combine the dataset files of shards into one dataset.
     Merge {
-        /// Output folder.
+        /// Output folder (created if missing; its parent folder must exist).
         #[arg(long)]
         out: PathBuf,
         /// Shard dataset files (dataset-I-of-N.ltds).

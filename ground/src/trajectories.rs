@@ -1,12 +1,13 @@
 //! The commands that need no PyTorch: one solve, dataset generation and merge, OEM export,
 //! the demonstrations' one-step check.
 
+use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
-use ground_core::generate::{generate, merge, read_dataset, Manifest, Shard, Summary};
-use ground_core::io::atomic_write;
+use ground_core::generate::{generate_in, hold_run, merge, read_dataset, Manifest, Shard, Summary};
+use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
-use ground_core::plot::{plot_dataset_sample, plot_trajectories};
+use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
@@ -54,7 +55,8 @@ pub struct SolveArgs {
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
-    /// Also draw the trajectory with its initial and target orbits into this SVG file.
+    /// Also draw the trajectory with its initial and target orbits into this SVG file (its
+    /// folder must exist).
     #[arg(long)]
     plot: Option<PathBuf>,
 }
@@ -67,26 +69,30 @@ pub struct GenerateArgs {
     count: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Run folder (created if missing; its parent folder must exist).
     #[arg(long)]
     out: PathBuf,
     /// Solve only shard I of N (indices i with i mod N == I).
     #[arg(long, default_value = "0/1")]
     shard: Shard,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
+    /// Worker threads, at least 1 (default: all cores).
+    #[arg(long, value_parser = thread_count)]
+    threads: Option<NonZeroUsize>,
     /// Stop the homotopy at the first level below this eps (docs/spec.md: 1e-4).
     #[arg(long, default_value_t = FINAL_EPS)]
     final_eps: f64,
 }
 
+/// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
+fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
+    text.parse::<usize>()
+        .ok()
+        .and_then(NonZeroUsize::new)
+        .ok_or_else(|| format!("need a whole number of threads, at least 1, got '{text}'"))
+}
+
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
-    if !(args.final_eps.is_finite() && args.final_eps > 0.0 && args.final_eps <= 1.0) {
-        return Err(format!("--final-eps must be in (0, 1], got {}", args.final_eps).into());
-    }
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global()?;
-    }
+    require_parent_folder(&args.out)?;
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
@@ -99,7 +105,12 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
         final_eps: args.final_eps,
         ..SolveOptions::default()
     };
-    let summary = generate(manifest, args.shard, &args.out, &sc, &options, true)?;
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.get()).build_global()?;
+    }
+    // Checks the request and the folder, then holds it until the figure below is written too.
+    let run = hold_run(manifest, args.shard, &args.out, &options)?;
+    let summary = generate_in(&run, manifest, args.shard, &sc, &options, true)?;
     print_summary(&summary);
     // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
     let shown = plot_dataset_sample(&args.out, args.shard)?;
@@ -113,6 +124,7 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
+    require_parent_folder(out)?;
     let file = read_dataset(dataset)?;
     let record = file
         .records
@@ -211,6 +223,11 @@ pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>>
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
+    // A figure path that cannot be written is refused before the solve, not after it.
+    if let Some(path) = &args.plot {
+        check_svg_path(path)?;
+        require_parent_folder(path)?;
+    }
     let record = solve_scenario(kind, args.seed, args.index, &scenario, &sc, &SolveOptions::default());
     if let Some(path) = &args.plot {
         plot_trajectories(&[&record], path)?;
@@ -258,6 +275,7 @@ pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>>
 }
 
 pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    require_parent_folder(out)?;
     let summary = merge(inputs, out)?;
     print_summary(&summary);
     Ok(())

@@ -1,6 +1,8 @@
 //! Dataset generation at scale: every scenario of a distribution solved by the
 //! indirect method, in parallel, resumable, in disjoint reproducible shards.
 //!
+//! A run folder is held by one process at a time ([`RunLock`]) while it is written.
+//!
 //! Layout of an output folder:
 //! - `manifest.json`: scenario, seed, count (a resumed run must match it);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
@@ -19,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use crate::io::{atomic_write, decode_container, encode_container, ContainerError};
+use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
@@ -105,6 +107,26 @@ pub enum GenerateError {
     /// Shards to merge disagree, overlap, or leave indices out.
     #[error("cannot merge: {0}")]
     Merge(String),
+    /// A shard built by hand with N = 0 or I >= N ([`Shard::from_str`] refuses those).
+    #[error(transparent)]
+    InvalidShard(#[from] ShardError),
+    /// A run of no scenario: its figures would all be NaN.
+    #[error("count must be at least 1: a run of no scenario has nothing to solve")]
+    EmptyCount,
+    /// A shard with no index below the count: it would solve nothing.
+    #[error(
+        "shard {}/{} is empty: a count of {count} has indices 0 to {} only",
+        .shard.index,
+        .shard.count,
+        .count.saturating_sub(1)
+    )]
+    EmptyShard { shard: Shard, count: u64 },
+    /// The homotopy's last eps must be in (0, 1].
+    #[error("final eps must be in (0, 1], got {0}")]
+    InvalidFinalEps(f64),
+    /// The folder is held by another run (or could not be locked).
+    #[error(transparent)]
+    Lock(#[from] LockError),
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
@@ -244,7 +266,7 @@ pub fn classify_failure(
 /// energy-optimal start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
 /// record, in parallel), rewrites those records and the dataset and summaries, whose
 /// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
-/// touched; records classified before are kept as they are.
+/// touched; records classified before are kept as they are. `out` is held for the whole work.
 pub fn classify_run(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -254,11 +276,19 @@ pub fn classify_run(
     let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
     let manifest: Manifest =
         serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-    let results: Vec<Result<TrajectoryRecord, GenerateError>> = (0..manifest.count)
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    let _held = RunLock::acquire(out)?;
+    // Every record is read before any is classified: a missing or corrupt one (a shard's
+    // folder, an unfinished run) refuses the run before minutes of work and any rewrite.
+    let records = (0..manifest.count)
+        .map(|index| read_record(&record_path(out, index)).map(|record| (index, record)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let results: Vec<Result<TrajectoryRecord, GenerateError>> = records
         .into_par_iter()
-        .map(|index| {
+        .map(|(index, mut record)| {
             let path = record_path(out, index);
-            let mut record = read_record(&path)?;
             let scenario = manifest.scenario.draw(manifest.seed, index);
             if classify_failure(&mut record, &scenario, spacecraft, options) {
                 let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
@@ -334,7 +364,54 @@ pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, Generate
     Ok(summary)
 }
 
-/// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`.
+/// Refuses a request that cannot make a dataset: no scenario, an invalid or empty shard, or a
+/// final eps outside (0, 1]. Cheap and read-only, so callers check before creating anything.
+pub fn check_request(manifest: &Manifest, shard: Shard, options: &SolveOptions) -> Result<(), GenerateError> {
+    if shard.count == 0 || shard.index >= shard.count {
+        return Err(ShardError::OutOfRange {
+            index: shard.index,
+            count: shard.count,
+        }
+        .into());
+    }
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    if u64::from(shard.index) >= manifest.count {
+        return Err(GenerateError::EmptyShard {
+            shard,
+            count: manifest.count,
+        });
+    }
+    let eps = options.final_eps;
+    if !(eps.is_finite() && eps > 0.0 && eps <= 1.0) {
+        return Err(GenerateError::InvalidFinalEps(eps));
+    }
+    Ok(())
+}
+
+/// The manifest of the run in `out`, if the folder holds one.
+fn read_manifest(out: &Path) -> Result<Option<Manifest>, GenerateError> {
+    let path = out.join("manifest.json");
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = fs::read(&path).map_err(io_err(&path))?;
+    let found = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.clone(), e.into()))?;
+    Ok(Some(found))
+}
+
+/// Refuses a folder that holds a run of another manifest; says whether it holds one of `wanted`.
+fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
+    match read_manifest(out)? {
+        Some(found) if found != *wanted => Err(GenerateError::ManifestMismatch { found, wanted: *wanted }),
+        Some(_) => Ok(true),
+        None => Ok(false),
+    }
+}
+
+/// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`, held
+/// for the whole run: [`hold_run`], then [`generate_in`].
 pub fn generate(
     manifest: Manifest,
     shard: Shard,
@@ -343,19 +420,41 @@ pub fn generate(
     options: &SolveOptions,
     show_progress: bool,
 ) -> Result<Summary, GenerateError> {
+    let run = hold_run(manifest, shard, out, options)?;
+    generate_in(&run, manifest, shard, spacecraft, options, show_progress)
+}
+
+/// Holds `out` (created if missing) for a run of `manifest`, or refuses. The request and a
+/// manifest already in `out` are checked first, so a refused run creates no folder and leaves
+/// an existing one as it was; a folder held by another run is refused ([`LockError::Held`]).
+pub fn hold_run(
+    manifest: Manifest,
+    shard: Shard,
+    out: &Path,
+    options: &SolveOptions,
+) -> Result<RunLock, GenerateError> {
+    check_request(&manifest, shard, options)?;
+    check_manifest(out, &manifest)?;
+    Ok(RunLock::acquire(out)?)
+}
+
+/// Generates (or resumes) the records of `shard` of the dataset `manifest` into the folder
+/// `run` holds (see [`hold_run`]); the caller may write more into it before letting it go.
+pub fn generate_in(
+    run: &RunLock,
+    manifest: Manifest,
+    shard: Shard,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+    show_progress: bool,
+) -> Result<Summary, GenerateError> {
+    let out = run.dir();
+    check_request(&manifest, shard, options)?;
+    // Checked again under the hold: another run may have written its manifest meanwhile.
+    let has_manifest = check_manifest(out, &manifest)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
-    let manifest_path = out.join("manifest.json");
-    if manifest_path.exists() {
-        let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
-        let found: Manifest =
-            serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-        if found != manifest {
-            return Err(GenerateError::ManifestMismatch {
-                found,
-                wanted: manifest,
-            });
-        }
-    } else {
+    if !has_manifest {
+        let manifest_path = out.join("manifest.json");
         let json =
             serde_json::to_vec_pretty(&manifest).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
         atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
@@ -417,7 +516,8 @@ pub fn generate(
 }
 
 /// Combines shard dataset files into one dataset in `out`: all must come from one manifest,
-/// be disjoint, and together cover every index.
+/// be disjoint, and together cover every index. `out` is held while it is written, and refused
+/// if it holds a run of another manifest.
 pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
     let mut files = Vec::new();
     for p in inputs {
@@ -451,8 +551,16 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
             manifest.count
         )));
     }
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    // The dataset of another run in `out` is not overwritten; checked before the hold creates
+    // the folder and again under it.
+    check_manifest(out, &manifest)?;
+    let held = RunLock::acquire(out)?;
+    check_manifest(out, &manifest)?;
     write_outputs(
-        out,
+        held.dir(),
         &DatasetFile {
             manifest,
             shard: Shard::WHOLE,

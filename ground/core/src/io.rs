@@ -1,6 +1,6 @@
 //! Files that are never half-written: atomic replace (temp file in the same folder, fsync,
-//! rename), a checksummed container for record sets, and the lock that keeps a run folder to
-//! one process.
+//! rename), a checksummed container for record sets, the lock that keeps a run folder to one
+//! process, and the check that an output goes into a folder that exists.
 
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -26,6 +26,27 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
     fs::rename(&tmp, path).inspect_err(|_| {
         let _ = fs::remove_file(&tmp);
     })
+}
+
+/// An output path whose parent folder is not there.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}: {} is not an existing folder; create it first", .path.display(), .folder.display())]
+pub struct MissingFolder {
+    pub path: PathBuf,
+    pub folder: PathBuf,
+}
+
+/// Refuses `path` (a file to write or a folder to create) unless its parent folder exists, so a
+/// mistyped output path fails instead of growing a tree of folders wherever it points. A bare
+/// name (parent: the working folder) is accepted.
+pub fn require_parent_folder(path: &Path) -> Result<(), MissingFolder> {
+    match path.parent() {
+        Some(folder) if !folder.as_os_str().is_empty() && !folder.is_dir() => Err(MissingFolder {
+            path: path.to_path_buf(),
+            folder: folder.to_path_buf(),
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Why a container file was refused.
@@ -185,6 +206,29 @@ mod tests {
         assert_eq!(again.dir(), dir.join("run"));
         drop((other, again));
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn an_output_needs_an_existing_parent_folder() {
+        let dir = std::env::temp_dir().join(format!("lowthrust-parent-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).unwrap();
+        assert_eq!(require_parent_folder(&dir.join("out.svg")), Ok(()));
+        assert_eq!(require_parent_folder(&dir.join("run/")), Ok(()));
+        assert_eq!(require_parent_folder(Path::new("bare-name.svg")), Ok(()));
+        let deep = dir.join("missing").join("run");
+        assert_eq!(
+            require_parent_folder(&deep),
+            Err(MissingFolder {
+                path: deep.clone(),
+                folder: dir.join("missing"),
+            })
+        );
+        // A file where the folder should be is no folder either.
+        fs::write(dir.join("file"), "x").unwrap();
+        assert!(require_parent_folder(&dir.join("file").join("out.svg")).is_err());
+        assert_eq!(fs::read_dir(&dir).unwrap().count(), 1, "the check creates nothing");
+        fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -211,7 +211,9 @@ pub fn format_eps(eps: f64) -> String {
     }
 }
 
-pub(crate) fn check_svg_path(path: &Path) -> Result<(), PlotError> {
+/// Refuses a figure path that does not end in `.svg`, the only format written: cheap, so a
+/// caller can check before the work that makes the figure.
+pub fn check_svg_path(path: &Path) -> Result<(), PlotError> {
     let svg = path
         .extension()
         .and_then(|e| e.to_str())

@@ -1,0 +1,159 @@
+//! The commands that write files (`generate`, `merge`, `oem`, `feasibility`, `solve --plot`)
+//! from the outside: impossible requests, outputs in folders that do not exist and run folders
+//! held by another process are refused with the reason, and leave nothing behind.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use ground_core::io::RunLock;
+
+fn ground(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ground")).args(args).output().unwrap()
+}
+
+/// A fresh folder for one test, empty and existing.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lowthrust-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn text(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+/// One finished whole run (one transfer-circular draw, short homotopy), shared by the tests
+/// that need a dataset.
+fn finished_run() -> &'static Path {
+    static RUN: OnceLock<PathBuf> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let run = scratch("finished").join("run");
+        let out = ground(&[
+            "generate",
+            "--scenario",
+            "transfer-circular",
+            "--count",
+            "1",
+            "--seed",
+            "9",
+            "--final-eps",
+            "0.3",
+            "--out",
+            text(&run),
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        run
+    })
+}
+
+/// Every file under `dir` with its bytes, sorted by path: equal snapshots mean nothing changed.
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut files = Vec::new();
+    let mut pending = vec![dir.to_path_buf()];
+    while let Some(d) = pending.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            let relative = path.strip_prefix(dir).unwrap().to_path_buf();
+            if path.is_dir() {
+                files.push((relative, Vec::new()));
+                pending.push(path);
+            } else {
+                files.push((relative, std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+fn assert_refused(args: &[&str], needle: &str) {
+    let out = ground(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{args:?} was accepted: {err}");
+    assert!(err.contains(needle), "{args:?}: {err}");
+}
+
+#[test]
+fn impossible_generate_requests_are_refused_before_the_folder_is_created() {
+    let parent = scratch("impossible");
+    let out = parent.join("run");
+    for (extra, needle) in [
+        (&["--count", "0"][..], "count must be at least 1"),
+        (&["--count", "1", "--threads", "0"][..], "--threads"),
+        (&["--count", "3", "--shard", "5/8"][..], "shard 5/8 is empty"),
+        (&["--count", "1", "--final-eps", "0"][..], "final eps"),
+    ] {
+        let mut args = vec!["generate", "--scenario", "transfer-circular", "--out", text(&out)];
+        args.extend_from_slice(extra);
+        assert_refused(&args, needle);
+        assert!(!out.exists(), "{extra:?}: the refused run created {}", out.display());
+    }
+    let _ = std::fs::remove_dir_all(&parent);
+}
+
+#[test]
+fn outputs_in_a_missing_folder_are_refused_and_nothing_is_created() {
+    let dataset = finished_run().join("dataset.ltds");
+    let parent = scratch("missing-folder");
+    let missing = parent.join("missing");
+    let inside = |name: &str| missing.join(name).to_str().unwrap().to_string();
+    let (plot, run, merged, oem) = (inside("fig.svg"), inside("run"), inside("merged"), inside("oem"));
+    let commands: [Vec<&str>; 4] = [
+        vec!["solve", "--a0", "1", "--af", "1.3", "--plot", &plot],
+        vec![
+            "generate",
+            "--scenario",
+            "transfer-circular",
+            "--count",
+            "1",
+            "--final-eps",
+            "0.3",
+            "--out",
+            &run,
+        ],
+        vec!["merge", "--out", &merged, text(&dataset)],
+        vec!["oem", "--dataset", text(&dataset), "--index", "0", "--out", &oem],
+    ];
+    for args in commands {
+        assert_refused(&args, "is not an existing folder");
+        assert!(!missing.exists(), "{args:?} created {}", missing.display());
+    }
+    let _ = std::fs::remove_dir_all(&parent);
+}
+
+#[test]
+fn run_folders_held_by_another_process_are_refused_and_left_unchanged() {
+    let run = finished_run();
+    let parent = scratch("held");
+    let dataset = run.join("dataset.ltds");
+    let target = parent.join("target");
+    let generate = [
+        "generate",
+        "--scenario",
+        "transfer-circular",
+        "--count",
+        "1",
+        "--seed",
+        "9",
+        "--final-eps",
+        "0.3",
+        "--out",
+        text(&target),
+    ];
+    let merge = ["merge", "--out", text(&target), text(&dataset)];
+    for args in [&generate[..], &merge[..]] {
+        let held = RunLock::acquire(&target).unwrap();
+        let before = snapshot(&target);
+        assert_refused(args, "is in use by another process");
+        assert_eq!(snapshot(&target), before, "{args:?} changed the held folder");
+        drop(held);
+    }
+    let held = RunLock::acquire(run).unwrap();
+    let before = snapshot(run);
+    assert_refused(&["feasibility", "--out", text(run)], "is in use by another process");
+    assert_eq!(snapshot(run), before, "feasibility changed the held folder");
+    drop(held);
+    let _ = std::fs::remove_dir_all(&parent);
+}
