@@ -92,7 +92,6 @@ fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
 }
 
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
-    require_parent_folder(&args.out)?;
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
@@ -124,7 +123,6 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
-    require_parent_folder(out)?;
     let file = read_dataset(dataset)?;
     let record = file
         .records
@@ -275,7 +273,6 @@ pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>>
 }
 
 pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    require_parent_folder(out)?;
     let summary = merge(inputs, out)?;
     print_summary(&summary);
     Ok(())
