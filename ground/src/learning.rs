@@ -37,9 +37,13 @@ pub enum LearnCommand {
     Evaluate {
         #[command(flatten)]
         experiment: ExperimentArgs,
-        /// Agent checkpoint (a best.safetensors of a phase).
+        /// Agent checkpoint (a best.safetensors of a phase, or an actor file).
+        #[arg(long, required_unless_present = "model", conflicts_with = "model")]
+        checkpoint: Option<PathBuf>,
+        /// A shipped model folder (models/NAME): its actor, checked against its card, flown
+        /// with the card's config unless --config is given.
         #[arg(long)]
-        checkpoint: PathBuf,
+        model: Option<PathBuf>,
         /// Episodes (default: the config's evaluate.episodes).
         #[arg(long)]
         episodes: Option<NonZeroU64>,
@@ -62,8 +66,15 @@ pub enum LearnCommand {
         #[command(flatten)]
         experiment: ExperimentArgs,
         /// Weight blob (a `ground export` output).
+        #[arg(long, required_unless_present = "model", conflicts_with = "model")]
+        blob: Option<PathBuf>,
+        /// A shipped model folder (models/NAME): its f32 blob (--int8: its int8 blob), checked
+        /// against its card, flown with the card's config unless --config is given.
         #[arg(long)]
-        blob: PathBuf,
+        model: Option<PathBuf>,
+        /// With --model: fly the int8 blob.
+        #[arg(long, requires = "model")]
+        int8: bool,
         /// Flights (default: the config's sil.episodes).
         #[arg(long)]
         episodes: Option<NonZeroU64>,
@@ -125,16 +136,19 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
         LearnCommand::Evaluate {
             experiment,
             checkpoint,
+            model,
             episodes,
             gap_cases,
-        } => evaluate_command(&experiment, &checkpoint, episodes, gap_cases),
+        } => evaluate_command(&experiment, Flown::from(checkpoint, model, false), episodes, gap_cases),
         LearnCommand::Export { experiment, checkpoint } => export_command(&experiment, &checkpoint),
         LearnCommand::Sil {
             experiment,
             blob,
+            model,
+            int8,
             episodes,
             no_dispersions,
-        } => sil_command(&experiment, &blob, episodes, no_dispersions),
+        } => sil_command(&experiment, Flown::from(blob, model, int8), episodes, no_dispersions),
         LearnCommand::Pendulum {
             steps,
             seed,
@@ -351,13 +365,52 @@ fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<
     Ok(())
 }
 
+/// What a command flies: a file given as such, or one of a shipped model's.
+enum Flown {
+    File(PathBuf),
+    Model { dir: PathBuf, int8: bool },
+}
+
+impl Flown {
+    fn from(file: Option<PathBuf>, model: Option<PathBuf>, int8: bool) -> Self {
+        match (file, model) {
+            (_, Some(dir)) => Self::Model { dir, int8 },
+            // clap requires one of the two.
+            (file, None) => Self::File(file.unwrap_or_default()),
+        }
+    }
+
+    /// The config and the file to fly. A model is opened first (every check of its card) and
+    /// flown with its own config unless the command names one; `blob` picks its f32 or int8
+    /// blob (`ground sil`) instead of its actor (`ground evaluate`).
+    fn resolve(&self, args: &ExperimentArgs, blob: bool) -> CommandResult<(ExperimentConfig, PathBuf)> {
+        match self {
+            Self::File(file) => Ok((args.load()?.0, file.clone())),
+            Self::Model { dir, int8 } => {
+                let model = learn::model::open_model(dir)?;
+                let file = match (blob, int8) {
+                    (false, _) => model.actor(),
+                    (true, false) => model.blob(shared::blob::Quantization::F32),
+                    (true, true) => model.blob(shared::blob::Quantization::Int8),
+                };
+                let config = match &args.config {
+                    Some(_) => args.load()?.0,
+                    None => model.config,
+                };
+                Ok((config, file))
+            }
+        }
+    }
+}
+
 fn evaluate_command(
     args: &ExperimentArgs,
-    checkpoint: &Path,
+    flown: Flown,
     episodes: Option<NonZeroU64>,
     gap_cases: Option<u64>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, _) = args.load()?;
+    let (config, checkpoint) = flown.resolve(args, false)?;
+    let checkpoint = checkpoint.as_path();
     let report = in_run_folder(&args.out, || {
         Ok(learn::eval::monte_carlo(
             &config,
@@ -384,11 +437,12 @@ fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dy
 
 fn sil_command(
     args: &ExperimentArgs,
-    blob: &Path,
+    flown: Flown,
     episodes: Option<NonZeroU64>,
     no_dispersions: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, _) = args.load()?;
+    let (config, blob) = flown.resolve(args, true)?;
+    let blob = blob.as_path();
     let dispersions = if no_dispersions {
         firmware_sim::Dispersions::NONE
     } else {

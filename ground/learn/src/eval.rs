@@ -14,7 +14,7 @@ use shared::scenario::{ProblemKind, Scenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::experiment::{policy_batch, ExperimentError};
-use crate::sac::agent::Sac;
+use crate::sac::agent::{read_checked_safetensors, Sac};
 use crate::sac::trainer::uniform_action;
 use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
@@ -142,11 +142,24 @@ pub fn monte_carlo(
     }
 }
 
-/// Loads the actor of a checkpoint for the config's problem.
+/// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a
+/// phase's best.safetensors) or an actor file (a shipped model's actor.safetensors).
 pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) -> Result<Sac, ExperimentError> {
     tch::set_num_threads(config.compute.threads);
-    let mut agent = Sac::new(config.sac.clone(), obs_dim, 3, config.device());
-    agent.load(checkpoint)?;
+    let actor_only = read_checked_safetensors(checkpoint)?
+        .iter()
+        .all(|(name, _)| name.starts_with("actor."));
+    let mut sac = config.sac.clone();
+    if actor_only {
+        // The file holds the actor that flies; no average to keep.
+        sac.actor_averaging = 0.0;
+    }
+    let mut agent = Sac::new(sac, obs_dim, 3, config.device());
+    if actor_only {
+        agent.load_actor(checkpoint)?;
+    } else {
+        agent.load(checkpoint)?;
+    }
     Ok(agent)
 }
 

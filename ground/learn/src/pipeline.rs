@@ -14,6 +14,7 @@ use crate::dagger::{dagger, DaggerSummary};
 use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
+use crate::model::{write_model, ModelCard, ModelSources};
 use crate::sil::{sil_monte_carlo, SilReport};
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::{generate, Manifest, Shard, Summary};
@@ -33,6 +34,8 @@ pub struct MainJob {
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
     pub export: ExportReport,
+    /// The shipped form of the result (RUN/model: actor, blobs, card).
+    pub model: ModelCard,
     /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8 (transfers;
     /// the rendezvous flight loop is not built).
     pub sil: Option<[SilReport; 2]>,
@@ -156,6 +159,21 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     } else {
         None
     };
+    let model = write_model(
+        &run.join("model"),
+        &ModelSources {
+            config: &config,
+            checkpoint: &best,
+            dataset: &dataset,
+            rounds: rounds
+                .as_ref()
+                .map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round)),
+            monte_carlo: &mc,
+            export: &export,
+            sil: sil.as_ref().map_or(&[][..], |s| &s[..]),
+        },
+    )
+    .map_err(|e| ExperimentError::Mismatch(format!("model folder: {e}")))?;
     stage_seconds.push(("export and SIL", t.elapsed().as_secs_f64()));
 
     let job = MainJob {
@@ -166,6 +184,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         dagger: rounds,
         monte_carlo: mc,
         export,
+        model,
         sil,
         stage_seconds,
     };
@@ -293,6 +312,10 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
     export_section(&mut s, &job.export, job.sil.as_ref());
+    let _ = writeln!(
+        s,
+        "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32. Copy the folder to `models/NAME/`; `ground evaluate --model` and `ground sil --model` fly it as it is.\n"
+    );
     note_missing_figures(&s, run)
 }
 

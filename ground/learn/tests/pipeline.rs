@@ -10,8 +10,16 @@ use common::{scratch_dir, toy_config, toy_dataset};
 use learn::config::ExperimentConfig;
 use learn::eval::monte_carlo;
 use learn::experiment::{pretrain, train, ExperimentError, PhaseState, Start};
-use learn::sac::agent::Sac;
+use learn::sac::agent::{read_checked_safetensors, write_checked_safetensors, CheckpointError, Sac};
 use shared::scenario::ScenarioKind;
+
+fn bytes(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn crc32(bytes: &[u8]) -> String {
+    format!("{:08x}", crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(bytes))
+}
 
 /// `path` (absolute) written relative to the current directory: "../" up to the root, then down.
 fn relative_to_cwd(path: &Path) -> PathBuf {
@@ -188,6 +196,55 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert!(text.contains("## Relabelling rounds"), "{text}");
     assert!(run.join("dagger/rounds.csv").is_file());
     assert_eq!(job.monte_carlo.checkpoint, run.join("dagger/best.safetensors"));
+    // The model folder opens, and its actor file flies exactly as the checkpoint it came from.
+    let model_dir = run.join("model");
+    let model = learn::model::open_model(&model_dir).unwrap();
+    assert_eq!(model.card.rounds, Some((1, rounds.best_round)));
+    assert_eq!(model.card.sil.len(), 2);
+    let from_actor = monte_carlo(&config, &model.actor(), &dir.join("mc-actor"), None, Some(0)).unwrap();
+    assert_eq!(from_actor.policy, job.monte_carlo.policy);
+    assert_eq!(
+        model.card.monte_carlo.share_within(0.01),
+        Some(job.monte_carlo.within_accuracy_goal)
+    );
+    // Files that disagree with the card, or with each other, are refused.
+    let copy = |name: &str| {
+        let to = dir.join(name);
+        let _ = std::fs::remove_dir_all(&to);
+        std::fs::create_dir_all(&to).unwrap();
+        for e in std::fs::read_dir(&model_dir).unwrap().flatten() {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+        to
+    };
+    let flipped = copy("model-flipped");
+    let int8 = flipped.join("transfer-int8.blob");
+    let mut bytes = std::fs::read(&int8).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    std::fs::write(&int8, bytes).unwrap();
+    assert!(matches!(
+        learn::model::open_model(&flipped),
+        Err(learn::model::ModelError::Checksum { .. })
+    ));
+    // Another actor under a card rewritten to match it: the f32 blob no longer holds its weights.
+    let swapped = copy("model-swapped");
+    tch::manual_seed(77);
+    let other = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    other.save_flown_actor(&swapped.join("actor.safetensors")).unwrap();
+    let mut card = model.card.clone();
+    let crc = crc32(&std::fs::read(swapped.join("actor.safetensors")).unwrap());
+    card.files.insert("actor.safetensors".into(), crc);
+    std::fs::write(swapped.join("card.json"), serde_json::to_vec(&card).unwrap()).unwrap();
+    assert!(matches!(
+        learn::model::open_model(&swapped),
+        Err(learn::model::ModelError::BlobDisagrees { .. })
+    ));
+    std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
+    assert!(matches!(
+        learn::model::open_model(&swapped),
+        Err(learn::model::ModelError::Card { .. })
+    ));
     // Monte Carlo figures at every reported tolerance.
     assert_eq!(
         job.monte_carlo
@@ -197,5 +254,53 @@ fn main_job_writes_a_report_whose_links_resolve() {
             .collect::<Vec<_>>(),
         learn::eval::REPORTED_TOLERANCES.to_vec()
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn altered_checkpoints_are_refused() {
+    let dir = scratch_dir("checkpoint-integrity");
+    let config = toy_config(&dir.join("unused"));
+    tch::manual_seed(3);
+    let agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    let good = dir.join("good.safetensors");
+    agent.save(&good).unwrap();
+    let mut fresh = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    fresh.load(&good).unwrap();
+
+    // One flipped bit anywhere in the tensor data (the last bytes: the end of some tensor).
+    let mut flipped = bytes(&good);
+    let n = flipped.len();
+    flipped[n - 5] ^= 0x10;
+    let path = dir.join("flipped.safetensors");
+    std::fs::write(&path, &flipped).unwrap();
+    assert!(matches!(fresh.load(&path), Err(CheckpointError::Corrupt(_))));
+
+    // A file without a checksum (as plain tch or PyTorch writes it).
+    let tensors = read_checked_safetensors(&good).unwrap();
+    let plain = dir.join("plain.safetensors");
+    tch::Tensor::write_safetensors(&tensors, &plain).unwrap();
+    assert!(matches!(fresh.load(&plain), Err(CheckpointError::Corrupt(_))));
+
+    // A NaN actor weight under a valid checksum.
+    let poisoned: Vec<(String, tch::Tensor)> = tensors
+        .iter()
+        .map(|(name, t)| {
+            let t = t.copy();
+            if name == "online.actor.l0.weight" {
+                let _ = t.get(0).get(0).fill_(f64::NAN);
+            }
+            (name.clone(), t)
+        })
+        .collect();
+    let nan = dir.join("nan.safetensors");
+    write_checked_safetensors(&poisoned, &nan).unwrap();
+    match fresh.load(&nan) {
+        Err(CheckpointError::NonFinite(name)) => assert_eq!(name, "online.actor.l0.weight"),
+        other => panic!("NaN weight not refused: {other:?}"),
+    }
+    // The refused loads left the agent as the good checkpoint made it.
+    let obs = [0.1f32; 10];
+    assert_eq!(fresh.act(&obs, 1), agent.act(&obs, 1));
     std::fs::remove_dir_all(&dir).unwrap();
 }

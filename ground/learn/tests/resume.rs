@@ -1,6 +1,6 @@
-//! Exact resumption and checkpoint integrity: a phase stopped at a checkpoint and started
-//! again ends with the same bytes as one that never stopped, and a checkpoint that was altered
-//! on disk is refused.
+//! Exact resumption: a phase stopped at a checkpoint and started again ends with the same bytes
+//! as one that never stopped. One test in its own binary: torch's generator is global to the
+//! process, and another test's draws would interleave with these.
 
 mod common;
 
@@ -8,7 +8,6 @@ use std::path::Path;
 
 use common::{scratch_dir, toy_config, toy_dataset};
 use learn::experiment::{pretrain, train, PhaseState, Start};
-use learn::sac::agent::{read_checked_safetensors, write_checked_safetensors, CheckpointError, Sac};
 
 fn bytes(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -77,53 +76,5 @@ fn pretraining_and_rl_stopped_and_resumed_end_byte_identical() {
         curves(&straight.join("train-pretrained/state.json")),
         curves(&stopped.join("train-pretrained/state.json"))
     );
-    std::fs::remove_dir_all(&dir).unwrap();
-}
-
-#[test]
-fn altered_checkpoints_are_refused() {
-    let dir = scratch_dir("checkpoint-integrity");
-    let config = toy_config(&dir.join("unused"));
-    tch::manual_seed(3);
-    let agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
-    let good = dir.join("good.safetensors");
-    agent.save(&good).unwrap();
-    let mut fresh = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
-    fresh.load(&good).unwrap();
-
-    // One flipped bit anywhere in the tensor data (the last bytes: the end of some tensor).
-    let mut flipped = bytes(&good);
-    let n = flipped.len();
-    flipped[n - 5] ^= 0x10;
-    let path = dir.join("flipped.safetensors");
-    std::fs::write(&path, &flipped).unwrap();
-    assert!(matches!(fresh.load(&path), Err(CheckpointError::Corrupt(_))));
-
-    // A file without a checksum (as plain tch or PyTorch writes it).
-    let tensors = read_checked_safetensors(&good).unwrap();
-    let plain = dir.join("plain.safetensors");
-    tch::Tensor::write_safetensors(&tensors, &plain).unwrap();
-    assert!(matches!(fresh.load(&plain), Err(CheckpointError::Corrupt(_))));
-
-    // A NaN actor weight under a valid checksum.
-    let poisoned: Vec<(String, tch::Tensor)> = tensors
-        .iter()
-        .map(|(name, t)| {
-            let t = t.copy();
-            if name == "online.actor.l0.weight" {
-                let _ = t.get(0).get(0).fill_(f64::NAN);
-            }
-            (name.clone(), t)
-        })
-        .collect();
-    let nan = dir.join("nan.safetensors");
-    write_checked_safetensors(&poisoned, &nan).unwrap();
-    match fresh.load(&nan) {
-        Err(CheckpointError::NonFinite(name)) => assert_eq!(name, "online.actor.l0.weight"),
-        other => panic!("NaN weight not refused: {other:?}"),
-    }
-    // The refused loads left the agent as the good checkpoint made it.
-    let obs = [0.1f32; 10];
-    assert_eq!(fresh.act(&obs, 1), agent.act(&obs, 1));
     std::fs::remove_dir_all(&dir).unwrap();
 }

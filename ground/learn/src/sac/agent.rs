@@ -533,6 +533,46 @@ impl Sac {
         Ok(())
     }
 
+    /// Writes the flown actor alone (the averaged one when averaging is on) as
+    /// `actor.l0.weight`, ..., `actor.mean.*`, `actor.log_std.*`, checksummed: what a shipped
+    /// model carries ([`Sac::load_actor`] reads it back).
+    pub fn save_flown_actor(&self, path: &Path) -> Result<(), CheckpointError> {
+        let store = self.average.as_ref().map_or(&self.actor_store, |a| &a.store);
+        let mut vars: Vec<(String, Tensor)> = store.variables().into_iter().collect();
+        vars.sort_by(|a, b| a.0.cmp(&b.0));
+        write_checked_safetensors(&vars, path)
+    }
+
+    /// Loads an actor file of [`Sac::save_flown_actor`] into the flown actor (for evaluation:
+    /// the critics and optimisers stay as they are). Every actor tensor must be there with its
+    /// shape, and nothing else.
+    pub fn load_actor(&mut self, path: &Path) -> Result<(), CheckpointError> {
+        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
+        let store = self.average.as_ref().map_or(&self.actor_store, |a| &a.store);
+        let vars = store.variables();
+        if let Some(extra) = tensors.keys().find(|n| !vars.contains_key(*n)) {
+            return Err(CheckpointError::Mismatch(format!(
+                "{extra} is no actor tensor (an actor file holds actor.* only)"
+            )));
+        }
+        for (name, dst) in &vars {
+            let src = tensors
+                .get(name)
+                .ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
+            if src.size() != dst.size() {
+                return Err(CheckpointError::Mismatch(format!(
+                    "tensor {name} has shape {:?}, this actor expects {:?}",
+                    src.size(),
+                    dst.size()
+                )));
+            }
+        }
+        for (name, mut dst) in vars {
+            tch::no_grad(|| dst.copy_(&tensors[&name].to_device(self.device)));
+        }
+        Ok(())
+    }
+
     /// The flown actor's weights (the averaged one when averaging is on) by layer name (`l0`,
     /// `l1`, `mean`, `log_std`; weight [out, in]) for the onboard exporter.
     pub fn actor_weights(&self) -> HashMap<String, (Vec<i64>, Vec<f32>)> {

@@ -1,0 +1,426 @@
+//! A shipped controller (`models/NAME/`): the flown actor's weights, its onboard blobs and a
+//! model card, bound together so that files that disagree are refused by whatever opens them.
+//!
+//! ```text
+//! actor.safetensors    the flown actor alone (tensors actor.l0.*, actor.l1.*, actor.mean.*,
+//!                      actor.log_std.*), with its CRC-32 in the safetensors metadata
+//! transfer-f32.blob    the onboard blobs (`ground export`), flown by `ground sil`
+//! transfer-int8.blob
+//! card.json            the card for machines: config, commit, command, data, figures, and the
+//!                      CRC-32 of every file above
+//! card.md              the same for people
+//! ```
+//!
+//! [`open_model`] checks every file against the card's CRC-32 and that the f32 blob holds
+//! exactly the actor's weights (it re-encodes them); `ground evaluate --model` and `ground sil
+//! --model` fly only what passed.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use shared::blob::{ProblemKind, Quantization};
+
+use crate::config::ExperimentConfig;
+use crate::eval::MonteCarloReport;
+use crate::experiment::ExperimentError;
+use crate::export::{actor_network, blob_file, ExportReport};
+use crate::sac::agent::Sac;
+use crate::sil::SilReport;
+use ground_core::env::batch::OutcomeSummary;
+use ground_core::generate::Summary;
+use ground_core::io::atomic_write;
+
+/// The actor's file in a model folder.
+pub const ACTOR_FILE: &str = "actor.safetensors";
+/// The card for machines.
+pub const CARD_JSON: &str = "card.json";
+/// The card for people.
+pub const CARD_MD: &str = "card.md";
+/// Version of the card's layout.
+pub const CARD_FORMAT: u32 = 1;
+
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Why a model folder was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("{}: {source}", .path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{}: the card does not parse: {reason}", .path.display())]
+    Card { path: PathBuf, reason: String },
+    #[error("{}: card format {found}, this version reads {CARD_FORMAT}", .path.display())]
+    Format { path: PathBuf, found: u32 },
+    #[error("{}: CRC-32 {found}, the card says {recorded}: the file is not the one the card describes", .path.display())]
+    Checksum {
+        path: PathBuf,
+        found: String,
+        recorded: String,
+    },
+    #[error("{}: the f32 blob does not hold the actor's weights", .path.display())]
+    BlobDisagrees { path: PathBuf },
+    #[error("model folder {}: {reason}", .dir.display())]
+    Incomplete { dir: PathBuf, reason: String },
+    #[error(transparent)]
+    Experiment(#[from] Box<ExperimentError>),
+}
+
+/// Figures of a policy over a set of episodes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlightFigures {
+    pub episodes: usize,
+    pub completed: usize,
+    /// (tolerance, share of the completed episodes with |dr| (AU) and |dv| within it).
+    pub within: Vec<(f64, f64)>,
+    pub dr_p50: f64,
+    pub dr_p95: f64,
+    pub dv_p50: f64,
+    pub dv_p95: f64,
+    pub final_mass_mean: f64,
+}
+
+impl FlightFigures {
+    fn of(report: &MonteCarloReport) -> Self {
+        let p: &OutcomeSummary = &report.policy;
+        Self {
+            episodes: p.episodes,
+            completed: p.completed,
+            within: report.within_tolerances.clone(),
+            dr_p50: p.terminal_position.p50,
+            dr_p95: p.terminal_position.p95,
+            dv_p50: p.terminal_velocity.p50,
+            dv_p95: p.terminal_velocity.p95,
+            final_mass_mean: p.final_mass.mean,
+        }
+    }
+
+    /// The share within `tolerance`, if it was measured.
+    pub fn share_within(&self, tolerance: f64) -> Option<f64> {
+        self.within.iter().find(|(t, _)| *t == tolerance).map(|(_, s)| *s)
+    }
+}
+
+/// The model card: where the controller came from and what it does.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelCard {
+    pub format: u32,
+    pub scenario: String,
+    /// The command that produced it and the commit it was built from.
+    pub command: String,
+    pub commit: String,
+    /// UTC date of the card.
+    pub created: String,
+    /// The experiment config (TOML).
+    pub config: String,
+    /// The demonstrations: records, converged, seed, final eps.
+    pub demonstrations: (usize, usize, u64, f64),
+    /// Relabelling rounds run, and the one kept (None without rounds).
+    pub rounds: Option<(u64, u64)>,
+    /// The Monte Carlo of the actor (the config's episodes, seed `monte_carlo_seed`).
+    pub monte_carlo: FlightFigures,
+    pub monte_carlo_seed: u64,
+    /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
+    pub overspend: Option<(usize, f64, f64)>,
+    /// The blobs flown in the SIL loop with the config's dispersions: (blob file, figures).
+    pub sil: Vec<(String, FlightFigures)>,
+    /// Every file of the folder but the cards, with its CRC-32 (8 hex digits).
+    pub files: BTreeMap<String, String>,
+}
+
+fn crc_of(path: &Path) -> Result<String, ModelError> {
+    let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(format!("{:08x}", CRC.checksum(&bytes)))
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
+    move |source| ModelError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// The commit of the working tree the command runs in ("unknown" outside a git checkout;
+/// "+modified" when it has uncommitted changes).
+pub fn current_commit() -> String {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+    };
+    match git(&["rev-parse", "--short=12", "HEAD"]) {
+        Some(commit) => match git(&["status", "--porcelain", "--untracked-files=no"]) {
+            Some(changes) if !changes.is_empty() => format!("{commit}+modified"),
+            _ => commit,
+        },
+        None => "unknown".into(),
+    }
+}
+
+/// What [`write_model`] is given: the run's stages' results.
+pub struct ModelSources<'a> {
+    pub config: &'a ExperimentConfig,
+    /// The checkpoint whose flown actor is shipped.
+    pub checkpoint: &'a Path,
+    pub dataset: &'a Summary,
+    pub rounds: Option<(u64, u64)>,
+    pub monte_carlo: &'a MonteCarloReport,
+    pub export: &'a ExportReport,
+    pub sil: &'a [SilReport],
+}
+
+/// Writes the model folder `dir` (created; files replaced atomically): the flown actor, the
+/// export's blobs, and the cards.
+pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, ModelError> {
+    let config = sources.config;
+    let kind = config.scenario.problem();
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let agent = crate::eval::load_agent(config, obs_dim(kind), sources.checkpoint)
+        .map_err(|e| ModelError::Experiment(Box::new(e)))?;
+    agent
+        .save_flown_actor(&dir.join(ACTOR_FILE))
+        .map_err(|e| ModelError::Experiment(Box::new(e.into())))?;
+    let mut files = BTreeMap::new();
+    files.insert(ACTOR_FILE.to_string(), crc_of(&dir.join(ACTOR_FILE))?);
+    for blob in [&sources.export.f32.file, &sources.export.int8.file] {
+        let name = blob
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let bytes = std::fs::read(blob).map_err(io(blob))?;
+        let target = dir.join(&name);
+        atomic_write(&target, &bytes).map_err(io(&target))?;
+        files.insert(name, crc_of(&target)?);
+    }
+    let mc = sources.monte_carlo;
+    let card = ModelCard {
+        format: CARD_FORMAT,
+        scenario: config.scenario.name().to_string(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        commit: current_commit(),
+        created: utc_date(),
+        config: config.to_toml(),
+        demonstrations: (
+            sources.dataset.records,
+            sources.dataset.converged,
+            sources.dataset.seed,
+            config.generate.final_eps,
+        ),
+        rounds: sources.rounds,
+        monte_carlo: FlightFigures::of(mc),
+        monte_carlo_seed: mc.seed,
+        overspend: mc.overspend.as_ref().map(|o| (o.count, o.p50, o.p95)),
+        sil: sources
+            .sil
+            .iter()
+            .map(|r| {
+                let name = r
+                    .blob
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                (name, FlightFigures::of(&r.monte_carlo))
+            })
+            .collect(),
+        files,
+    };
+    let json = serde_json::to_vec_pretty(&card).map_err(|e| ModelError::Card {
+        path: dir.join(CARD_JSON),
+        reason: e.to_string(),
+    })?;
+    atomic_write(&dir.join(CARD_JSON), &json).map_err(io(&dir.join(CARD_JSON)))?;
+    atomic_write(&dir.join(CARD_MD), card_markdown(&card).as_bytes()).map_err(io(&dir.join(CARD_MD)))?;
+    // What was written must open: the same checks as every reader.
+    open_model(dir)?;
+    Ok(card)
+}
+
+/// Today's UTC date, YYYY-MM-DD.
+fn utc_date() -> String {
+    let days = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs() / 86_400) as i64;
+    // Civil from days (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}-{month:02}-{day:02}")
+}
+
+/// A model folder that passed [`open_model`]'s checks.
+#[derive(Debug, Clone)]
+pub struct ShippedModel {
+    pub dir: PathBuf,
+    pub card: ModelCard,
+    /// The card's config (the one the controller was trained and measured with).
+    pub config: ExperimentConfig,
+}
+
+impl ShippedModel {
+    pub fn actor(&self) -> PathBuf {
+        self.dir.join(ACTOR_FILE)
+    }
+
+    /// The blob of `quantization`.
+    pub fn blob(&self, quantization: Quantization) -> PathBuf {
+        self.dir.join(blob_file(self.config.scenario.problem(), quantization))
+    }
+}
+
+/// Opens the model folder `dir`: the card parses and is of this format, its config is valid,
+/// every file it lists is there with its CRC-32, both blobs are listed, and the f32 blob holds
+/// exactly the actor's weights.
+pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
+    let card_path = dir.join(CARD_JSON);
+    let bytes = std::fs::read(&card_path).map_err(io(&card_path))?;
+    let card: ModelCard = serde_json::from_slice(&bytes).map_err(|e| ModelError::Card {
+        path: card_path.clone(),
+        reason: e.to_string(),
+    })?;
+    if card.format != CARD_FORMAT {
+        return Err(ModelError::Format {
+            path: card_path,
+            found: card.format,
+        });
+    }
+    let config = ExperimentConfig::from_toml(&card.config).map_err(|e| ModelError::Card {
+        path: dir.join(CARD_JSON),
+        reason: format!("its config: {e}"),
+    })?;
+    let kind = config.scenario.problem();
+    for needed in [
+        ACTOR_FILE.to_string(),
+        blob_file(kind, Quantization::F32),
+        blob_file(kind, Quantization::Int8),
+    ] {
+        if !card.files.contains_key(&needed) {
+            return Err(ModelError::Incomplete {
+                dir: dir.to_path_buf(),
+                reason: format!("the card lists no {needed}"),
+            });
+        }
+    }
+    for (name, recorded) in &card.files {
+        let path = dir.join(name);
+        let found = crc_of(&path)?;
+        if &found != recorded {
+            return Err(ModelError::Checksum {
+                path,
+                found,
+                recorded: recorded.clone(),
+            });
+        }
+    }
+    let f32_path = dir.join(blob_file(kind, Quantization::F32));
+    let shipped = std::fs::read(&f32_path).map_err(io(&f32_path))?;
+    let provenance = shared::blob::decode(&shipped)
+        .map(|b| b.provenance.to_string())
+        .map_err(|_| ModelError::BlobDisagrees { path: f32_path.clone() })?;
+    let agent = load_actor(&config, &dir.join(ACTOR_FILE))?;
+    let rebuilt = actor_network(&agent, kind)
+        .ok()
+        .and_then(|net| net.f32_blob(&provenance).ok());
+    if rebuilt.as_deref() != Some(shipped.as_slice()) {
+        return Err(ModelError::BlobDisagrees { path: f32_path });
+    }
+    Ok(ShippedModel {
+        dir: dir.to_path_buf(),
+        card,
+        config,
+    })
+}
+
+/// An agent flying the actor of an actor file.
+pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelError> {
+    crate::eval::load_agent(config, obs_dim(config.scenario.problem()), path)
+        .map_err(|e| ModelError::Experiment(Box::new(e)))
+}
+
+fn obs_dim(kind: ProblemKind) -> usize {
+    use ground_core::env::{Environment, RendezvousEnv, TransferEnv};
+    match kind {
+        ProblemKind::Transfer => TransferEnv::OBS,
+        ProblemKind::Rendezvous => RendezvousEnv::OBS,
+    }
+}
+
+fn figures_row(name: &str, f: &FlightFigures) -> String {
+    let shares: Vec<String> = f.within.iter().map(|(_, s)| format!("{:.1} %", 100.0 * s)).collect();
+    format!(
+        "| {name} | {}/{} | {} | {:.4} / {:.4} | {:.4} / {:.4} | {:.4} |\n",
+        f.completed,
+        f.episodes,
+        shares.join(" | "),
+        f.dr_p50,
+        f.dr_p95,
+        f.dv_p50,
+        f.dv_p95,
+        f.final_mass_mean
+    )
+}
+
+/// The card for people.
+pub fn card_markdown(card: &ModelCard) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Model card: {}\n", card.scenario);
+    let _ = writeln!(
+        s,
+        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32 in [card.json](card.json); `ground evaluate --model` and `ground sil --model` refuse a folder whose files disagree.\n",
+        card.created, card.command, card.commit
+    );
+    let (records, converged, seed, eps) = card.demonstrations;
+    let _ = writeln!(
+        s,
+        "**Data**: {records} {} trajectories by the indirect method (seed {seed}, final eps {eps}), {converged} converged.{}\n",
+        card.scenario,
+        card.rounds
+            .map_or(String::new(), |(run, kept)| format!(" Then {run} relabelling rounds; round {kept} is shipped."))
+    );
+    let tolerances: Vec<String> = card
+        .monte_carlo
+        .within
+        .iter()
+        .map(|(t, _)| format!("within {t}"))
+        .collect();
+    let _ = writeln!(
+        s,
+        "## Figures\n\nMonte Carlo seed {}; SIL: the blobs flown by the onboard guidance loop against the dispersed plant of the config's `[sil]`.\n",
+        card.monte_carlo_seed
+    );
+    let _ = writeln!(
+        s,
+        "| flown | completed | {} | dr p50 / p95 (AU) | dv p50 / p95 | final mass |",
+        tolerances.join(" | ")
+    );
+    let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
+    s.push_str(&figures_row("actor, Monte Carlo", &card.monte_carlo));
+    for (blob, f) in &card.sil {
+        s.push_str(&figures_row(&format!("{blob}, SIL"), f));
+    }
+    if let Some((count, median, p95)) = card.overspend {
+        let _ = writeln!(
+            s,
+            "\nPropellant against the indirect optimum on {count} Monte Carlo scenarios: overspend median {:.2} %, p95 {:.1} %.",
+            100.0 * median,
+            100.0 * p95
+        );
+    }
+    let _ = writeln!(s, "\n## Files\n");
+    for (name, crc) in &card.files {
+        let _ = writeln!(s, "- [{name}]({name}) (CRC-32 {crc})");
+    }
+    let _ = writeln!(s, "\n## Config\n\n```toml\n{}```", card.config);
+    s
+}
