@@ -81,6 +81,10 @@ pub enum LearnCommand {
         /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
         #[arg(long)]
         no_dispersions: bool,
+        /// Exit 0 when the blob is refused and the flights run in safe mode (thrust off), as
+        /// the flight software does; without it a refused blob is a failed command.
+        #[arg(long)]
+        allow_safe_mode: bool,
     },
     /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
     /// better mean episode reward within 20,000 steps); prints the learning curve.
@@ -148,7 +152,14 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             int8,
             episodes,
             no_dispersions,
-        } => sil_command(&experiment, Flown::from(blob, model, int8), episodes, no_dispersions),
+            allow_safe_mode,
+        } => sil_command(
+            &experiment,
+            Flown::from(blob, model, int8),
+            episodes,
+            no_dispersions,
+            allow_safe_mode,
+        ),
         LearnCommand::Pendulum {
             steps,
             seed,
@@ -432,7 +443,11 @@ fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dy
     })?;
     println!("{}", learn::export::describe(&report));
     println!("written to {}", args.out.display());
-    Ok(())
+    // The blobs stay for study (export.json has every figure); the exit status says they failed.
+    match report.failed_criteria().as_slice() {
+        [] => Ok(()),
+        failed => Err(format!("export check failed: {}", failed.join("; ")).into()),
+    }
 }
 
 fn sil_command(
@@ -440,6 +455,7 @@ fn sil_command(
     flown: Flown,
     episodes: Option<NonZeroU64>,
     no_dispersions: bool,
+    allow_safe_mode: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
     let (config, blob) = flown.resolve(args, true)?;
     let blob = blob.as_path();
@@ -459,5 +475,11 @@ fn sil_command(
     })?;
     println!("{}", learn::sil::describe(&report));
     println!("written to {}", args.out.display());
-    Ok(())
+    match report.controller.strip_prefix("safe mode: ") {
+        Some(why) if !allow_safe_mode => Err(format!(
+            "the blob was refused ({why}) and every flight ran in safe mode (thrust off); --allow-safe-mode accepts that"
+        )
+        .into()),
+        _ => Ok(()),
+    }
 }

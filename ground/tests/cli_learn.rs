@@ -82,3 +82,97 @@ fn a_run_folder_in_use_is_refused() {
     drop(held);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A small config whose actor has the onboard contract's shape, flown on few episodes.
+fn small_config(dir: &Path) -> PathBuf {
+    let path = dir.join("small.toml");
+    std::fs::write(
+        &path,
+        "scenario = \"transfer-circular\"\n[sac]\nhidden = [256, 256]\n[evaluate]\nepisodes = 4\noptimality_gap_cases = 0\n[sil]\nepisodes = 2\n",
+    )
+    .unwrap();
+    path
+}
+
+#[test]
+fn a_blob_refused_by_the_sil_is_a_failed_command_unless_safe_mode_is_allowed() {
+    let dir = scratch("sil-refused");
+    let config = small_config(&dir);
+    let blob = dir.join("not-a.blob");
+    std::fs::write(&blob, b"LTNB but not a blob at all").unwrap();
+    let args = |out: &str| {
+        vec![
+            "sil".to_string(),
+            "--config".into(),
+            path(&config).into(),
+            "--blob".into(),
+            path(&blob).into(),
+            "--out".into(),
+            path(&dir.join(out)).into(),
+        ]
+    };
+    let strict = args("strict");
+    refused(&strict.iter().map(String::as_str).collect::<Vec<_>>(), "safe mode");
+    let mut allowed = args("allowed");
+    allowed.push("--allow-safe-mode".into());
+    let out = ground(&allowed.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
+    use learn::config::ExperimentConfig;
+    use learn::sac::agent::{read_checked_safetensors, write_checked_safetensors, Sac};
+    let dir = scratch("export-check");
+    let config_path = small_config(&dir);
+    let config = ExperimentConfig::load(&config_path).unwrap();
+    tch::manual_seed(1);
+    let agent = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
+    let good = dir.join("good.safetensors");
+    agent.save(&good).unwrap();
+    // A first hidden unit at 1e30 whatever the input, which the next layer ignores (zero
+    // weights): the f32 blob flies as the trained actor, but the int8 blob's activation scale
+    // for that layer is set by the 1e30 and every other unit quantizes to zero.
+    let huge: Vec<(String, tch::Tensor)> = read_checked_safetensors(&good)
+        .unwrap()
+        .into_iter()
+        .map(|(name, t)| {
+            match name.as_str() {
+                "online.actor.l0.bias" => {
+                    let _ = t.get(0).fill_(1e30);
+                }
+                "online.actor.l1.weight" => {
+                    let _ = t.narrow(1, 0, 1).fill_(0.0);
+                }
+                _ => {}
+            }
+            (name, t)
+        })
+        .collect();
+    let bad = dir.join("huge.safetensors");
+    write_checked_safetensors(&huge, &bad).unwrap();
+    for (checkpoint, ok) in [(&good, true), (&bad, false)] {
+        let out = dir.join(if ok { "good" } else { "bad" });
+        let result = ground(&[
+            "export",
+            "--config",
+            path(&config_path),
+            "--checkpoint",
+            path(checkpoint),
+            "--out",
+            path(&out),
+        ]);
+        let err = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.success(), ok, "{}: {err}", checkpoint.display());
+        if !ok {
+            assert!(
+                err.contains("export check failed") && err.contains("int8 blob"),
+                "{err}"
+            );
+        }
+        // The blobs and their figures stay for study either way.
+        assert!(out.join("export.json").is_file());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

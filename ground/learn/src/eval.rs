@@ -96,7 +96,9 @@ pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome]
         .collect();
     paired.sort_by(|a, b| a.0.total_cmp(&b.0));
     let n = paired.len();
-    (0..bands.min(n))
+    // No more bands than episodes, so none is empty.
+    let bands = bands.min(n);
+    (0..bands)
         .map(|b| {
             let band = &paired[b * n / bands..(b + 1) * n / bands];
             let outcomes: Vec<EpisodeOutcome> = band.iter().map(|(_, p)| (*p).clone()).collect();
@@ -543,6 +545,9 @@ mod tests {
         assert_eq!(bands[2].coast_miss_max, 0.5);
         assert!((bands[4].final_mass_mean - (1.0 - 0.85)).abs() < 1e-12);
         assert_eq!(bands.iter().map(|b| b.episodes).sum::<usize>(), 10);
+        // Fewer episodes than bands: one band per episode.
+        let few = accuracy_by_coast_miss(&policy[..2], &zero[..2], 5);
+        assert_eq!(few.iter().map(|b| b.episodes).collect::<Vec<_>>(), vec![1, 1]);
         // An incomplete policy episode leaves its band.
         let mut cut = policy.clone();
         cut[0].completed = false;

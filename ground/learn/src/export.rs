@@ -88,6 +88,34 @@ pub struct ExportReport {
     pub int8_reward_difference: f64,
 }
 
+/// The f32 blob flies the trained actor: its largest action error on the held-out states.
+pub const F32_MAX_ACTION_ERROR: f64 = 1e-4;
+/// The int8 blob's closed-loop mean reward stays this close to the f32 blob's (relative).
+pub const INT8_MAX_REWARD_DIFFERENCE: f64 = 0.02;
+
+impl ExportReport {
+    /// The export's accuracy criteria that are not met, in words with their figures (empty:
+    /// both blobs pass).
+    pub fn failed_criteria(&self) -> Vec<String> {
+        let mut failed = Vec::new();
+        let f32_error = self.f32.action_error.max;
+        // A NaN error (non-finite actions) fails too.
+        if f32_error.is_nan() || f32_error > F32_MAX_ACTION_ERROR {
+            failed.push(format!(
+                "the f32 blob's action error reaches {f32_error:.3e} against the trained actor (at most {F32_MAX_ACTION_ERROR:.0e})"
+            ));
+        }
+        if self.int8_reward_difference.is_nan() || self.int8_reward_difference > INT8_MAX_REWARD_DIFFERENCE {
+            failed.push(format!(
+                "the int8 blob's closed-loop mean reward differs from the f32 blob's by {:.2} % (at most {:.0} %)",
+                100.0 * self.int8_reward_difference,
+                100.0 * INT8_MAX_REWARD_DIFFERENCE
+            ));
+        }
+        failed
+    }
+}
+
 /// The actor mean network of an agent (`l0`, `l1`, ..., `mean`; tanh on the output).
 pub fn actor_network(agent: &Sac, kind: ProblemKind) -> Result<MlpWeights, ExperimentError> {
     let weights = agent.actor_weights();

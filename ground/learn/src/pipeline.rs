@@ -385,6 +385,14 @@ fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport
         "\nThe int8 blob's closed-loop mean reward differs from the f32 blob's by {:.2} % (the goal: at most 2 %).\n",
         100.0 * export.int8_reward_difference
     );
+    let failed = export.failed_criteria();
+    if !failed.is_empty() {
+        let _ = writeln!(
+            s,
+            "**The export check failed** (`ground export` exits non-zero on it): {}.\n",
+            failed.join("; ")
+        );
+    }
     let Some(sil) = sil else {
         let _ = writeln!(
             s,
