@@ -22,9 +22,9 @@
 //! command (throttle 0) to its output, so a caller that forgets to check the code still does not
 //! fly garbage. A refused load leaves the policy not loaded, even if it held a policy before.
 //!
-//! Units are the onboard crate's canonical ones: AU, AU per t* (t* = 1 / (2 pi) year), the
-//! initial mass m0 = 1; the time to go in t*. The command's direction is in the local polar
-//! frame (radial, along-track).
+//! Units are the onboard crate's canonical ones: AU, AU per t* (t* = sqrt(AU^3 / mu_sun), about
+//! 58.1 days; a 14-day guidance cycle is 0.2408 t*), the initial mass m0 = 1; the time to go in
+//! t*. The command's direction is in the local polar frame (radial, along-track).
 #![no_std]
 #![deny(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]

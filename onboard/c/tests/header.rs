@@ -19,13 +19,25 @@ fn the_checked_in_header_is_what_cbindgen_generates() {
         std::fs::write(&path, &generated).expect("write include/lowthrust.h");
         return;
     }
-    let checked_in = std::fs::read(&path).unwrap_or_default();
-    assert!(
-        checked_in == generated,
-        "{} differs from what cbindgen generates; rewrite it with\n  \
-         LOWTHRUST_BLESS_HEADER=1 cargo test -p lowthrust-onboard-c --test header\n\
-         generated:\n{}",
-        path.display(),
-        String::from_utf8_lossy(&generated)
-    );
+    let checked_in = String::from_utf8_lossy(&std::fs::read(&path).unwrap_or_default()).into_owned();
+    let generated = String::from_utf8_lossy(&generated).into_owned();
+    if checked_in != generated {
+        let first_difference = checked_in
+            .lines()
+            .map(Some)
+            .chain(std::iter::repeat(None))
+            .zip(generated.lines().map(Some).chain(std::iter::repeat(None)))
+            .take_while(|pair| *pair != (None, None))
+            .enumerate()
+            .find(|(_, (old, new))| old != new);
+        let (line, (old, new)) = first_difference.unwrap_or((0, (None, None)));
+        panic!(
+            "{} differs from what cbindgen generates, first at line {}:\n  checked in: {}\n  generated:  {}\n\
+             rewrite it with LOWTHRUST_BLESS_HEADER=1 cargo test -p lowthrust-onboard-c --test header",
+            path.display(),
+            line + 1,
+            old.unwrap_or("(end of file)"),
+            new.unwrap_or("(end of file)")
+        );
+    }
 }
