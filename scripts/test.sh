@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The project's test command (README): checks formatting, lints (the onboard crate's
 # panic-freedom lints included) and tests, first of everything that needs no PyTorch, then
-# installs PyTorch and does the same for the learning stack; the Cortex-M4F build and QEMU run.
+# installs PyTorch and does the same for the learning stack; the Cortex-M4F build and QEMU run;
+# the C interface hosted by C programs on the host and on the Cortex-M4F.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -16,7 +17,7 @@ cargo fmt --all -- --check
 
 # Everything but the learning stack builds and passes its tests with no PyTorch on the machine:
 # on a fresh clone this runs before scripts/setup-torch.sh has installed anything.
-torch_free=(-p lowthrust-shared -p lowthrust-onboard -p lowthrust-ground-core -p lowthrust-firmware-sim -p lowthrust-tests)
+torch_free=(-p lowthrust-shared -p lowthrust-onboard -p lowthrust-onboard-c -p lowthrust-ground-core -p lowthrust-firmware-sim -p lowthrust-tests)
 
 step "without PyTorch: clippy (warnings are errors)"
 cargo clippy "${torch_free[@]}" --all-targets -- -D warnings
@@ -30,6 +31,7 @@ step "onboard + shared for the Cortex-M4F (no_std, no heap), clippy included"
 cargo clippy -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release -- -D warnings
 cargo build -p lowthrust-onboard -p lowthrust-shared --target thumbv7em-none-eabihf --release
 cargo clippy -p lowthrust-firmware-sim --lib --no-default-features --target thumbv7em-none-eabihf --release -- -D warnings
+cargo clippy -p lowthrust-onboard-c --lib --target thumbv7em-none-eabihf --release -- -D warnings
 
 step "PyTorch 2.13.0 for tch (project venv, once)"
 bash scripts/setup-torch.sh
@@ -40,7 +42,10 @@ cargo clippy --workspace --all-targets -- -D warnings
 step "tests of the learning stack and the full command line"
 cargo test -p lowthrust-learn -p lowthrust-ground --all-targets
 cargo test --workspace --doc
-RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p lowthrust-shared -p lowthrust-onboard
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p lowthrust-shared -p lowthrust-onboard -p lowthrust-onboard-c
 
 step "Cortex-M4F image under QEMU: commands bit for bit equal to the host SIL, refused blobs fly thrust off"
 bash scripts/qemu-sil.sh
+
+step "C interface: a C host program and a C Cortex-M4F image under QEMU command the Rust SIL's bits"
+bash scripts/c-sil.sh

@@ -522,6 +522,9 @@ impl NetworkBlob<'_> {
             });
         }
         let q = self.quantization;
+        // The previous layer's outputs, carried along rather than indexed: no bounds check, so
+        // no panic path reaches flight images (the C interface's check looks for one).
+        let mut previous_outputs: Option<u16> = None;
         for (l, layer) in self.layers.iter().enumerate() {
             let ok = |w: u16| w != 0 && usize::from(w) <= MAX_WIDTH;
             if !ok(layer.inputs) || !ok(layer.outputs) {
@@ -531,23 +534,26 @@ impl NetworkBlob<'_> {
                     outputs: layer.outputs,
                 });
             }
-            if l == 0 {
-                if usize::from(layer.inputs) != self.features.len() {
-                    return Err(BlobError::InputMismatch {
-                        expected: self.features.len(),
-                        found: layer.inputs,
-                    });
+            match previous_outputs {
+                None => {
+                    if usize::from(layer.inputs) != self.features.len() {
+                        return Err(BlobError::InputMismatch {
+                            expected: self.features.len(),
+                            found: layer.inputs,
+                        });
+                    }
                 }
-            } else {
-                let prev = self.layers[l - 1].outputs;
-                if layer.inputs != prev {
-                    return Err(BlobError::ChainBreak {
-                        layer: l,
-                        expected: prev,
-                        found: layer.inputs,
-                    });
+                Some(prev) => {
+                    if layer.inputs != prev {
+                        return Err(BlobError::ChainBreak {
+                            layer: l,
+                            expected: prev,
+                            found: layer.inputs,
+                        });
+                    }
                 }
             }
+            previous_outputs = Some(layer.outputs);
             let want = if l + 1 == n { Activation::Tanh } else { Activation::Relu };
             if layer.activation != want {
                 return Err(BlobError::BadActivation {

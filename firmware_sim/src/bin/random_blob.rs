@@ -3,8 +3,9 @@
 //!
 //! `random_blob [--seed N] [--out DIR] [--rendezvous]` writes `DIR/transfer-f32.blob` and
 //! `DIR/transfer-int8.blob` (defaults: seed 1, the current folder); `--rendezvous` writes a
-//! 22-256-256-3 `DIR/rendezvous-int8.blob` instead (the wrong problem for the transfer
-//! image, which must refuse it). The blobs come from
+//! 22-256-256-3 `DIR/rendezvous-f32.blob` and `DIR/rendezvous-int8.blob` instead (the wrong
+//! problem for the transfer image, which must refuse them; the C interface's rendezvous step
+//! flies them). The blobs come from
 //! `shared::quantize`, the exporter's own writer; the int8 activation scales are calibrated on
 //! random feature vectors of flight-like magnitude.
 
@@ -124,15 +125,10 @@ fn run() -> Result<(), String> {
     let shape = sizes.map(|n| n.to_string()).join("-");
     let provenance = format!("random_blob seed {seed}: untrained He-uniform {shape}, for SIL tests");
     let (int8_blob, _) = net.int8_blob(&calibration, &provenance).map_err(|e| e.to_string())?;
+    let f32_blob = net.f32_blob(&provenance).map_err(|e| e.to_string())?;
     let blobs = match kind {
-        ProblemKind::Transfer => vec![
-            (
-                "transfer-f32.blob",
-                net.f32_blob(&provenance).map_err(|e| e.to_string())?,
-            ),
-            ("transfer-int8.blob", int8_blob),
-        ],
-        ProblemKind::Rendezvous => vec![("rendezvous-int8.blob", int8_blob)],
+        ProblemKind::Transfer => vec![("transfer-f32.blob", f32_blob), ("transfer-int8.blob", int8_blob)],
+        ProblemKind::Rendezvous => vec![("rendezvous-f32.blob", f32_blob), ("rendezvous-int8.blob", int8_blob)],
     };
 
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;

@@ -1,0 +1,705 @@
+//! The onboard controller behind a C interface, for flight software written in C or C++ (a cFS
+//! application, an F Prime component): `liblowthrust.a` and `include/lowthrust.h`.
+//!
+//! - `lt_version`: the library version and the blob format version it reads.
+//! - `lt_transfer_load`, `lt_rendezvous_load`: check a weight blob and view it in place as a
+//!   policy, in a caller-provided `lt_policy` (no heap). The policy borrows the blob's bytes:
+//!   they must stay valid and unchanged for as long as the policy is used.
+//! - `lt_transfer_step`, `lt_rendezvous_step`: one guidance cycle, navigation state in,
+//!   thrust command out; the very functions the Rust SIL and the ground evaluation call
+//!   (`onboard::guidance`), so the commands are the same bits.
+//! - `lt_policy_describe`, `lt_error_name`: what a policy flies, and a name for each code.
+//!
+//! **No panic crosses the boundary.** Every entry point checks its pointers (null, the policy's
+//! alignment) and lengths, and returns a code (`error`): 0, or one distinct negative code per
+//! refusal. The crate is linted like `onboard` (no unwrap, no indexing, no panic), and the
+//! static library is built with `panic = "abort"` (the `c-release` profile) as a backstop.
+//! On a bare-metal target the crate is `no_std` with its own panic handler, a trap
+//! into the flight software's fault handler; on a hosted target std provides it, so the rlib
+//! also links into Rust tests and tools.
+//!
+//! **Failure means thrust off.** A step that returns an error has written the thrust-off
+//! command (throttle 0) to its output, so a caller that forgets to check the code still does not
+//! fly garbage. A refused load leaves the policy not loaded, even if it held a policy before.
+//!
+//! Units are the onboard crate's canonical ones: AU, AU per t* (t* = sqrt(AU^3 / mu_sun), about
+//! 58.1 days; a 14-day guidance cycle is 0.2408 t*), the initial mass m0 = 1; the time to go in
+//! t*. The command's direction is in the local polar frame (radial, along-track).
+#![no_std]
+#![deny(missing_docs)]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![deny(clippy::undocumented_unsafe_blocks)]
+// As in onboard: panic-freedom is enforced by the linter (CI runs clippy with -D warnings).
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::unreachable,
+        clippy::todo,
+        clippy::unimplemented,
+        clippy::integer_division,
+        clippy::panic_in_result_fn
+    )
+)]
+// C names for C types: the header is what flight software reads.
+#![allow(non_camel_case_types)]
+
+// A hosted build (the rlib in Rust tests and tools, the host static library) gets the panic
+// handler from std; a bare-metal build defines its own below.
+#[cfg(not(target_os = "none"))]
+extern crate std;
+
+pub mod error;
+
+use core::ffi::c_char;
+use core::mem::{align_of, size_of};
+use core::ptr;
+
+use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
+use onboard::policy::{RendezvousPolicy, TransferPolicy};
+use shared::blob::{ProblemKind, Quantization, FORMAT_VERSION};
+use shared::orbit::{CartesianState, OrbitShape};
+
+pub use error::*;
+
+/// Words of `lt_policy`'s storage: room for either network's layer views on 32- and 64-bit
+/// targets, with headroom so the handle's size (part of the ABI) need not change with them.
+pub const LT_POLICY_STORAGE_WORDS: usize = 48;
+
+/// `lt_policy_info::problem`: a transfer (reach an orbit).
+pub const LT_PROBLEM_TRANSFER: u32 = 0;
+/// `lt_policy_info::problem`: a rendezvous (meet a body).
+pub const LT_PROBLEM_RENDEZVOUS: u32 = 1;
+/// `lt_policy_info::quantization`: f32 weights.
+pub const LT_QUANTIZATION_F32: u32 = 0;
+/// `lt_policy_info::quantization`: int8 weights, 16-bit activations.
+pub const LT_QUANTIZATION_INT8: u32 = 1;
+
+/// A loaded policy, in storage the caller provides (a static, a member of the application's
+/// state): fixed size, 8-byte aligned, no heap. All-zero storage (a zero-initialized static) is
+/// a policy not loaded yet. It holds views into the blob, never a copy of it: the blob's bytes
+/// must outlive every use of the policy. A loaded policy may be copied; it owns nothing.
+#[repr(C)]
+pub struct lt_policy {
+    /// Opaque: written by `lt_*_load`, read by the steps.
+    opaque: [u64; LT_POLICY_STORAGE_WORDS],
+}
+
+/// Not loaded: the state of zeroed storage.
+impl Default for lt_policy {
+    fn default() -> Self {
+        Self {
+            opaque: [0; LT_POLICY_STORAGE_WORDS],
+        }
+    }
+}
+
+/// Library and blob format versions.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct lt_version_info {
+    /// Library version, major.
+    pub major: u16,
+    /// Library version, minor.
+    pub minor: u16,
+    /// Library version, patch.
+    pub patch: u16,
+    /// The weight-blob format version the loads accept (any other is refused).
+    pub blob_format_version: u16,
+}
+
+/// What a loaded policy flies.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct lt_policy_info {
+    /// `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS`.
+    pub problem: u32,
+    /// `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
+    pub quantization: u32,
+}
+
+/// The navigation state: position (AU), velocity (AU/t*), mass (m0 = 1), in the ecliptic plane.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_navigation_state {
+    /// Position x, y (AU).
+    pub r: [f64; 2],
+    /// Velocity x, y (AU/t*).
+    pub v: [f64; 2],
+    /// Mass (fraction of the initial mass).
+    pub m: f64,
+}
+
+/// A transfer's target orbit (reached anywhere on it).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_target_orbit {
+    /// Semi-major axis (AU), > 0.
+    pub a: f64,
+    /// Eccentricity, in [0, 1).
+    pub e: f64,
+    /// Argument of periapsis (rad).
+    pub omega: f64,
+}
+
+/// A rendezvous target body's state now.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_body_state {
+    /// Position x, y (AU).
+    pub r: [f64; 2],
+    /// Velocity x, y (AU/t*).
+    pub v: [f64; 2],
+}
+
+/// A thrust command, held for the guidance cycle.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_thrust_command {
+    /// Throttle in [0, 1]; 0 is thrust off.
+    pub throttle: f64,
+    /// Radial component of the unit thrust direction.
+    pub alpha_r: f64,
+    /// Along-track component of the unit thrust direction.
+    pub alpha_theta: f64,
+}
+
+impl From<ThrustCommand> for lt_thrust_command {
+    fn from(c: ThrustCommand) -> Self {
+        Self {
+            throttle: c.throttle,
+            alpha_r: c.alpha_r,
+            alpha_theta: c.alpha_theta,
+        }
+    }
+}
+
+impl From<lt_navigation_state> for SpacecraftState {
+    fn from(s: lt_navigation_state) -> Self {
+        Self { r: s.r, v: s.v, m: s.m }
+    }
+}
+
+impl From<lt_target_orbit> for OrbitShape {
+    fn from(t: lt_target_orbit) -> Self {
+        Self {
+            a: t.a,
+            e: t.e,
+            omega: t.omega,
+        }
+    }
+}
+
+impl From<lt_body_state> for CartesianState {
+    fn from(b: lt_body_state) -> Self {
+        Self { r: b.r, v: b.v }
+    }
+}
+
+/// The thrust-off command every failed step writes (`onboard`'s `ThrustCommand::OFF`).
+pub const THRUST_OFF: lt_thrust_command = lt_thrust_command {
+    throttle: 0.0,
+    alpha_r: 0.0,
+    alpha_theta: 1.0,
+};
+
+/// What the storage of a loaded `lt_policy` holds. The marker comes first (`repr(C)`), so a
+/// policy not loaded (zeroed, or refused) is told apart by reading one aligned word.
+#[repr(C)]
+struct Loaded {
+    marker: u64,
+    network: Network,
+}
+
+enum Network {
+    // 'static stands for the caller's promise that the blob outlives the policy.
+    Transfer(TransferPolicy<'static>),
+    Rendezvous(RendezvousPolicy<'static>),
+}
+
+/// "LTPOLICY": the storage holds a `Loaded`.
+const LOADED_MARKER: u64 = u64::from_le_bytes(*b"LTPOLICY");
+
+// The handle's size is fixed in the header; the build fails on a target where it is too small.
+const _: () = assert!(size_of::<Loaded>() <= size_of::<lt_policy>());
+const _: () = assert!(align_of::<Loaded>() <= align_of::<lt_policy>());
+
+const fn version_part(s: &str) -> u16 {
+    let mut value = 0u16;
+    let mut rest = s.as_bytes();
+    while let [byte, tail @ ..] = rest {
+        // Cargo's version parts are decimal; a non-digit could only be a pre-release tag.
+        if byte.is_ascii_digit() {
+            value = value.saturating_mul(10).saturating_add((*byte - b'0') as u16);
+        }
+        rest = tail;
+    }
+    value
+}
+
+/// This library's version (the crate's) and the blob format version it reads.
+pub const VERSION: lt_version_info = lt_version_info {
+    major: version_part(env!("CARGO_PKG_VERSION_MAJOR")),
+    minor: version_part(env!("CARGO_PKG_VERSION_MINOR")),
+    patch: version_part(env!("CARGO_PKG_VERSION_PATCH")),
+    blob_format_version: FORMAT_VERSION,
+};
+
+/// Writes the library version and the blob format version it reads to `*out`.
+/// Returns `LT_OK`, or `LT_ERR_NULL_POINTER`.
+///
+/// # Safety
+/// `out` is null or valid for writing an `lt_version_info` (any alignment).
+#[no_mangle]
+pub unsafe extern "C" fn lt_version(out: *mut lt_version_info) -> lt_status {
+    if out.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    // SAFETY: non-null, and the caller promises it is writable; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(out, VERSION) };
+    LT_OK
+}
+
+/// The name of a return code, e.g. `"blob_crc_mismatch"`, for logs and event messages: a static
+/// NUL-terminated string, `"unknown"` for a value that is not a code. Never null.
+#[no_mangle]
+pub extern "C" fn lt_error_name(code: i32) -> *const c_char {
+    error_name(code).as_ptr()
+}
+
+/// Checks the policy pointer: non-null and aligned for `Loaded`.
+fn policy_storage(policy: *const lt_policy) -> Result<*const lt_policy, lt_status> {
+    if policy.is_null() {
+        Err(LT_ERR_NULL_POINTER)
+    } else if !policy.cast::<Loaded>().is_aligned() {
+        Err(LT_ERR_MISALIGNED_POLICY)
+    } else {
+        Ok(policy)
+    }
+}
+
+/// The blob as a slice, after the checks `slice::from_raw_parts` requires of its arguments
+/// (non-null, a length that fits `isize` and does not wrap the address space).
+///
+/// # Safety
+/// `blob` is null or valid for reading `len` bytes, unchanged for as long as the returned
+/// slice (and any policy made from it) is used.
+unsafe fn blob_bytes(blob: *const u8, len: usize) -> Result<&'static [u8], lt_status> {
+    if blob.is_null() {
+        return Err(LT_ERR_NULL_POINTER);
+    }
+    if isize::try_from(len).is_err() || (blob as usize).checked_add(len).is_none() {
+        return Err(LT_ERR_BLOB_LENGTH);
+    }
+    // SAFETY: non-null, length in range and not wrapping (checked above); readable and left
+    // unchanged for the policy's life by the caller's contract. u8 needs no alignment.
+    Ok(unsafe { core::slice::from_raw_parts(blob, len) })
+}
+
+/// # Safety
+/// As `lt_transfer_load`.
+unsafe fn load(policy: *mut lt_policy, blob: *const u8, blob_len: usize, kind: ProblemKind) -> lt_status {
+    let storage = match policy_storage(policy) {
+        Ok(_) => policy.cast::<Loaded>(),
+        Err(code) => return code,
+    };
+    // Not loaded until this load succeeds: a refused blob never leaves an older network flying.
+    // SAFETY: non-null and aligned (checked), writable by the caller's contract; the marker
+    // is the first word of the storage.
+    unsafe { ptr::write(storage.cast::<u64>(), 0) };
+    // SAFETY: the caller's contract on `blob`, passed on.
+    let bytes = match unsafe { blob_bytes(blob, blob_len) } {
+        Ok(bytes) => bytes,
+        Err(code) => return code,
+    };
+    let network = match kind {
+        ProblemKind::Transfer => TransferPolicy::from_bytes(bytes, kind).map(Network::Transfer),
+        ProblemKind::Rendezvous => RendezvousPolicy::from_bytes(bytes, kind).map(Network::Rendezvous),
+    };
+    match network {
+        Ok(network) => {
+            let loaded = Loaded {
+                marker: LOADED_MARKER,
+                network,
+            };
+            // SAFETY: non-null, aligned for `Loaded` (checked), large enough (const assert), and
+            // writable by the caller's contract. Its old contents are plain data, never dropped.
+            unsafe { ptr::write(storage, loaded) };
+            LT_OK
+        }
+        Err(error) => policy_error_code(&error),
+    }
+}
+
+/// Checks a transfer weight blob (magic, format version, CRC-32, structure, the 10-256-256-3
+/// shape) and makes `*policy` a view of it. Nothing is copied: `blob` must stay valid and
+/// unchanged while the policy is used (a blob in flash, or a buffer the application keeps).
+///
+/// Returns `LT_OK`, or the refusal's code (`LT_ERR_BLOB_*` for the bytes, `LT_ERR_WRONG_*` and
+/// `LT_ERR_INT8_*` for a network this controller cannot fly, `LT_ERR_NULL_POINTER`,
+/// `LT_ERR_MISALIGNED_POLICY`, `LT_ERR_BLOB_LENGTH`). On refusal `*policy` (if writable) is not
+/// loaded, whatever it held: fly thrust off (safe mode). To replace a flying policy, load the
+/// new blob into a second `lt_policy` and switch on `LT_OK`.
+///
+/// # Safety
+/// `policy` is null or valid for writing an `lt_policy`; `blob` is null or valid for reading
+/// `blob_len` bytes, unchanged for as long as the policy is used.
+#[no_mangle]
+pub unsafe extern "C" fn lt_transfer_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
+    // SAFETY: the caller's contract, passed on.
+    unsafe { load(policy, blob, blob_len, ProblemKind::Transfer) }
+}
+
+/// `lt_transfer_load` for a rendezvous blob (22-256-256-3).
+///
+/// # Safety
+/// As `lt_transfer_load`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_rendezvous_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
+    // SAFETY: the caller's contract, passed on.
+    unsafe { load(policy, blob, blob_len, ProblemKind::Rendezvous) }
+}
+
+/// The loaded network behind `policy`.
+///
+/// # Safety
+/// `policy` is null or valid for reading an `lt_policy` that is all zero or was written by a
+/// load, and the blob of a loaded policy is still valid.
+unsafe fn loaded<'p>(policy: *const lt_policy) -> Result<&'p Network, lt_status> {
+    let storage = policy_storage(policy)?.cast::<Loaded>();
+    // SAFETY: non-null and aligned (checked), readable by the caller's contract.
+    let marker = unsafe { ptr::read(storage.cast::<u64>()) };
+    if marker != LOADED_MARKER {
+        return Err(LT_ERR_NOT_LOADED);
+    }
+    // SAFETY: the marker is written only together with a whole `Loaded` (in `load`), and cleared
+    // first by every load, so the storage holds a valid `Loaded`.
+    Ok(unsafe { &(*storage).network })
+}
+
+/// Reads an input struct (any alignment).
+///
+/// # Safety
+/// `p` is null or valid for reading a `T`.
+unsafe fn read_input<T: Copy>(p: *const T) -> Result<T, lt_status> {
+    if p.is_null() {
+        return Err(LT_ERR_NULL_POINTER);
+    }
+    // SAFETY: non-null and readable by the caller's contract; read unaligned, so any address is
+    // fine, and copied before any output is written (inputs and output may overlap).
+    Ok(unsafe { ptr::read_unaligned(p) })
+}
+
+/// Writes the outcome of a step: the command, or thrust off with the error's code.
+///
+/// # Safety
+/// `command` is null or valid for writing an `lt_thrust_command`.
+unsafe fn finish(command: *mut lt_thrust_command, result: Result<lt_thrust_command, lt_status>) -> lt_status {
+    let (out, code) = match result {
+        Ok(c) => (c, LT_OK),
+        Err(code) => (THRUST_OFF, code),
+    };
+    if command.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(command, out) };
+    code
+}
+
+fn guided(result: Result<ThrustCommand, GuidanceError>) -> Result<lt_thrust_command, lt_status> {
+    result.map(lt_thrust_command::from).map_err(|e| guidance_error_code(&e))
+}
+
+/// One transfer guidance cycle: the command to hold until the next cycle, from the navigation
+/// state, the target orbit and the time to go (t*, >= 0), through `onboard::guidance::
+/// transfer_step` (features, network, action decoding).
+///
+/// Returns `LT_OK` with the command in `*command`; or a code, with thrust off (throttle 0) in
+/// `*command`: `LT_ERR_INPUT_*` (navigation, target or time to go refused),
+/// `LT_ERR_NON_FINITE_ACTION`, `LT_ERR_NOT_LOADED`, `LT_ERR_WRONG_POLICY_KIND`,
+/// `LT_ERR_NULL_POINTER`, `LT_ERR_MISALIGNED_POLICY`. On any error the caller commands thrust
+/// off for the cycle.
+///
+/// # Safety
+/// Each pointer is null or valid for its struct (inputs read, `command` written; any alignment
+/// except `policy`'s, which must be all zero or written by a load, with its blob still valid).
+#[no_mangle]
+pub unsafe extern "C" fn lt_transfer_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    target: *const lt_target_orbit,
+    time_to_go: f64,
+    command: *mut lt_thrust_command,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = transfer(policy, navigation, target, time_to_go);
+        finish(command, result)
+    }
+}
+
+/// # Safety
+/// As `lt_transfer_step`.
+unsafe fn transfer(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    target: *const lt_target_orbit,
+    time_to_go: f64,
+) -> Result<lt_thrust_command, lt_status> {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let (network, navigation, target) = unsafe { (loaded(policy)?, read_input(navigation)?, read_input(target)?) };
+    let Network::Transfer(actor) = network else {
+        return Err(LT_ERR_WRONG_POLICY_KIND);
+    };
+    guided(transfer_step(actor, &navigation.into(), &target.into(), time_to_go))
+}
+
+/// One rendezvous guidance cycle: as `lt_transfer_step`, with the target body's state now
+/// (propagated by the caller to this cycle's epoch) instead of an orbit.
+///
+/// # Safety
+/// As `lt_transfer_step`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_rendezvous_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    body: *const lt_body_state,
+    time_to_go: f64,
+    command: *mut lt_thrust_command,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = rendezvous(policy, navigation, body, time_to_go);
+        finish(command, result)
+    }
+}
+
+/// # Safety
+/// As `lt_transfer_step`.
+unsafe fn rendezvous(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    body: *const lt_body_state,
+    time_to_go: f64,
+) -> Result<lt_thrust_command, lt_status> {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let (network, navigation, body) = unsafe { (loaded(policy)?, read_input(navigation)?, read_input(body)?) };
+    let Network::Rendezvous(actor) = network else {
+        return Err(LT_ERR_WRONG_POLICY_KIND);
+    };
+    guided(rendezvous_step(actor, &navigation.into(), &body.into(), time_to_go))
+}
+
+/// Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
+/// Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.
+///
+/// # Safety
+/// `policy` as in `lt_transfer_step`; `info` is null or valid for writing an `lt_policy_info`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_policy_describe(policy: *const lt_policy, info: *mut lt_policy_info) -> lt_status {
+    if info.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    // SAFETY: the caller's contract on `policy`.
+    let network = match unsafe { loaded(policy) } {
+        Ok(network) => network,
+        Err(code) => return code,
+    };
+    let quantization = |q| match q {
+        Quantization::F32 => LT_QUANTIZATION_F32,
+        Quantization::Int8 => LT_QUANTIZATION_INT8,
+    };
+    let described = match network {
+        Network::Transfer(p) => lt_policy_info {
+            problem: LT_PROBLEM_TRANSFER,
+            quantization: quantization(p.quantization()),
+        },
+        Network::Rendezvous(p) => lt_policy_info {
+            problem: LT_PROBLEM_RENDEZVOUS,
+            quantization: quantization(p.quantization()),
+        },
+    };
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(info, described) };
+    LT_OK
+}
+
+/// Bare metal: a panic cannot happen (see the crate lints), but if one did, it must not return
+/// into C. A permanently undefined instruction raises a fault (HardFault on a Cortex-M), which
+/// hands control to the flight software's fault response (reset, safe mode).
+#[cfg(target_os = "none")]
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo<'_>) -> ! {
+    loop {
+        #[cfg(target_arch = "arm")]
+        // SAFETY: `udf` touches no memory or register; it only raises the fault.
+        unsafe {
+            core::arch::asm!("udf #0", options(nomem, nostack))
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::ffi::CStr;
+    use onboard::dynamics::StateError;
+    use onboard::features::FeatureError;
+    use onboard::policy::{LayerArray, LayerShape, PolicyError};
+    use shared::blob::{Activation, ArrayKind, BlobError, FeatureLayout, PayloadError};
+    use std::collections::HashSet;
+
+    #[test]
+    fn the_policy_storage_holds_a_loaded_network_with_room_to_spare() {
+        std::println!("Loaded: {} bytes of {}", size_of::<Loaded>(), size_of::<lt_policy>());
+        assert_eq!(align_of::<lt_policy>(), 8);
+        assert!(size_of::<Loaded>() * 3 / 2 <= size_of::<lt_policy>());
+    }
+
+    /// One value of every `BlobError` variant (the match in `blob_error_code` has no wildcard,
+    /// so a new variant fails to compile there; this list makes it fail here too when a code is
+    /// shared).
+    fn every_blob_error() -> std::vec::Vec<BlobError> {
+        std::vec![
+            BlobError::Truncated { needed: 14, found: 3 },
+            BlobError::TrailingBytes {
+                expected: 20,
+                found: 21
+            },
+            BlobError::BadMagic { found: *b"XXXX" },
+            BlobError::UnsupportedVersion { found: 3, supported: 2 },
+            BlobError::CrcMismatch { stored: 1, computed: 2 },
+            BlobError::Payload(PayloadError::BadEnum),
+            BlobError::PayloadNotConsumed { unused: 1 },
+            BlobError::KindMismatch {
+                kind: ProblemKind::Rendezvous,
+                features: FeatureLayout::TransferPolar10,
+            },
+            BlobError::NoLayers,
+            BlobError::TooManyLayers { found: 5, max: 4 },
+            BlobError::InputMismatch {
+                expected: 10,
+                found: 11
+            },
+            BlobError::ChainBreak {
+                layer: 1,
+                expected: 256,
+                found: 255,
+            },
+            BlobError::BadWidth {
+                layer: 0,
+                inputs: 10,
+                outputs: 0,
+            },
+            BlobError::ArrayLength {
+                layer: 0,
+                array: ArrayKind::Bias,
+                expected: 1024,
+                found: 1020,
+            },
+            BlobError::BadActivation {
+                layer: 0,
+                expected: Activation::Relu,
+                found: Activation::Tanh,
+            },
+            BlobError::BadScale {
+                layer: 0,
+                channel: None,
+                bits: 0,
+            },
+            BlobError::NonFiniteWeight {
+                layer: 0,
+                array: ArrayKind::Weights,
+                index: 0,
+            },
+            BlobError::BufferTooSmall {
+                needed: 2,
+                available: 1
+            },
+            BlobError::PayloadTooLarge { len: usize::MAX },
+        ]
+    }
+
+    fn every_policy_refusal() -> std::vec::Vec<PolicyError> {
+        let shape = LayerShape {
+            inputs: 10,
+            outputs: 256,
+        };
+        std::vec![
+            PolicyError::WrongKind {
+                expected: ProblemKind::Transfer,
+                found: ProblemKind::Rendezvous,
+            },
+            PolicyError::WrongFeatures {
+                expected_inputs: 10,
+                found: FeatureLayout::RendezvousPolar22,
+            },
+            PolicyError::WrongLayerCount { expected: 3, found: 2 },
+            PolicyError::WrongShape {
+                layer: 0,
+                expected: shape,
+                found: shape,
+            },
+            PolicyError::WrongArrayLength {
+                layer: 0,
+                array: LayerArray::WeightScales,
+                expected: 4,
+                found: 0,
+            },
+            PolicyError::WrongActivation {
+                layer: 2,
+                expected: Activation::Tanh,
+                found: Activation::Relu,
+            },
+            PolicyError::BadScale { layer: 1 },
+            PolicyError::TooWideForInt8 { layer: 0, inputs: 600 },
+        ]
+    }
+
+    fn every_guidance_error() -> std::vec::Vec<GuidanceError> {
+        let input = GuidanceError::Input;
+        std::vec![
+            input(FeatureError::State(StateError::NonFinite)),
+            input(FeatureError::State(StateError::ZeroRadius)),
+            input(FeatureError::State(StateError::NonPositiveMass)),
+            input(FeatureError::Target),
+            input(FeatureError::TimeToGo),
+            GuidanceError::NonFiniteAction,
+        ]
+    }
+
+    #[test]
+    fn every_refusal_has_its_own_negative_code_with_its_own_name() {
+        let mut codes: std::vec::Vec<lt_status> = every_blob_error().iter().map(blob_error_code).collect();
+        codes.extend(every_policy_refusal().iter().map(policy_error_code));
+        codes.extend(every_guidance_error().iter().map(guidance_error_code));
+        codes.extend([
+            LT_ERR_NULL_POINTER,
+            LT_ERR_MISALIGNED_POLICY,
+            LT_ERR_BLOB_LENGTH,
+            LT_ERR_NOT_LOADED,
+            LT_ERR_WRONG_POLICY_KIND,
+        ]);
+        let distinct: HashSet<lt_status> = codes.iter().copied().collect();
+        assert_eq!(distinct.len(), codes.len(), "a code is shared: {codes:?}");
+        assert!(codes.iter().all(|&c| (c as i32) < 0));
+        // Blob errors inside a policy refusal keep their code.
+        for e in every_blob_error() {
+            assert_eq!(policy_error_code(&PolicyError::Blob(e)), blob_error_code(&e));
+        }
+        // The table lists exactly these codes and LT_OK, each with a distinct name.
+        let table: HashSet<lt_status> = all_codes().collect();
+        assert_eq!(table, distinct.iter().copied().chain([LT_OK]).collect());
+        let names: HashSet<&CStr> = all_codes().map(|c| error_name(c as i32)).collect();
+        assert_eq!(names.len(), table.len());
+        assert!(!names.contains(UNKNOWN_CODE_NAME));
+        assert_eq!(error_name(1), UNKNOWN_CODE_NAME);
+        assert_eq!(error_name(-6), UNKNOWN_CODE_NAME);
+        assert_eq!(error_name(LT_ERR_BLOB_CRC_MISMATCH as i32), c"blob_crc_mismatch");
+    }
+}

@@ -1,0 +1,603 @@
+//! The C interface called as C calls it (raw pointers, lengths, codes), on real blobs: made by
+//! the exporter's writer (`shared::quantize`), then altered byte by byte the ways a bad upload
+//! or a bad memory would alter them. Each refusal must come back as its own code, with thrust
+//! off in the command; each accepted step must be the onboard crate's command to the bit.
+
+use std::ptr;
+
+use lowthrust::*;
+use onboard::dynamics::SpacecraftState;
+use onboard::guidance::{rendezvous_step, transfer_step};
+use onboard::policy::{RendezvousPolicy, TransferPolicy};
+use shared::blob::{self, Activation, FeatureLayout, NetworkBlob, ProblemKind, FORMAT_VERSION, HEADER_LEN};
+use shared::orbit::{CartesianState, OrbitShape};
+use shared::quantize::{DenseWeights, MlpWeights};
+
+const TRANSFER: [usize; 4] = [10, 256, 256, 3];
+const RENDEZVOUS: [usize; 4] = [22, 256, 256, 3];
+
+/// Deterministic weights of roughly He scale, different per layer and seed.
+fn network(kind: ProblemKind, sizes: &[usize], seed: u32) -> MlpWeights {
+    let layers = sizes
+        .windows(2)
+        .enumerate()
+        .map(|(l, w)| {
+            let (inputs, outputs) = (w[0], w[1]);
+            let scale = (6.0 / inputs as f32).sqrt();
+            let phase = (seed * 7 + l as u32) as f32;
+            DenseWeights {
+                inputs,
+                outputs,
+                weights: (0..inputs * outputs)
+                    .map(|k| scale * (0.7 * k as f32 + phase).sin())
+                    .collect(),
+                bias: (0..outputs).map(|j| 0.05 * (1.3 * j as f32 + phase).cos()).collect(),
+                activation: if l + 2 == sizes.len() {
+                    Activation::Tanh
+                } else {
+                    Activation::Relu
+                },
+            }
+        })
+        .collect();
+    MlpWeights { kind, layers }
+}
+
+/// Feature-like calibration vectors (O(1) values, a time to go up to 12).
+fn calibration(inputs: usize) -> Vec<Vec<f32>> {
+    let mut s = 0x2545_f491_4f6c_dd1d_u64;
+    (0..256)
+        .map(|_| {
+            (0..inputs)
+                .map(|i| {
+                    s ^= s << 13;
+                    s ^= s >> 7;
+                    s ^= s << 17;
+                    let u = (s >> 40) as f32 / (1u64 << 24) as f32;
+                    if i == inputs - 1 {
+                        12.0 * u
+                    } else {
+                        2.0 * u - 1.0
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn f32_blob(kind: ProblemKind, sizes: &[usize]) -> Vec<u8> {
+    network(kind, sizes, 1).f32_blob("abi test f32").unwrap()
+}
+
+fn int8_blob(kind: ProblemKind, sizes: &[usize]) -> Vec<u8> {
+    let net = network(kind, sizes, 2);
+    net.int8_blob(&calibration(sizes[0]), "abi test int8").unwrap().0
+}
+
+/// CRC-32 (ISO-HDLC, reflected, polynomial 0xEDB88320), as the blob trailer.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// A correctly framed blob (magic, version, length, CRC) around any payload.
+fn framed(payload: &[u8]) -> Vec<u8> {
+    let mut out = b"LTGB".to_vec();
+    out.extend(FORMAT_VERSION.to_le_bytes());
+    out.extend((payload.len() as u32).to_le_bytes());
+    out.extend(payload);
+    out.extend(crc32(payload).to_le_bytes());
+    out
+}
+
+/// `good` decoded, altered by `edit`, and encoded again without the writer's checks, so the
+/// framing is right and only the decoder's semantic checks can refuse it.
+fn with_defect<'a>(good: &'a [u8], edit: impl FnOnce(&mut NetworkBlob<'a>)) -> Vec<u8> {
+    let mut net = blob::decode(good).unwrap();
+    edit(&mut net);
+    let mut out = vec![0u8; good.len() + 4096];
+    let n = blob::encode_unchecked(&net, &mut out).unwrap();
+    out.truncate(n);
+    out
+}
+
+fn load_transfer(bytes: &[u8]) -> (lt_status, lt_policy) {
+    let mut policy = lt_policy::default();
+    let status = unsafe { lt_transfer_load(&mut policy, bytes.as_ptr(), bytes.len()) };
+    (status, policy)
+}
+
+fn load_rendezvous(bytes: &[u8]) -> (lt_status, lt_policy) {
+    let mut policy = lt_policy::default();
+    let status = unsafe { lt_rendezvous_load(&mut policy, bytes.as_ptr(), bytes.len()) };
+    (status, policy)
+}
+
+const NAV: lt_navigation_state = lt_navigation_state {
+    r: [1.0, 0.1],
+    v: [-0.05, 1.0],
+    m: 0.95,
+};
+const TARGET: lt_target_orbit = lt_target_orbit {
+    a: 1.3,
+    e: 0.05,
+    omega: 0.4,
+};
+const BODY: lt_body_state = lt_body_state {
+    r: [-0.4, 1.2],
+    v: [-0.8, -0.3],
+};
+
+/// A command that is not thrust off, so a test sees that a failed step overwrote it.
+const STALE: lt_thrust_command = lt_thrust_command {
+    throttle: 0.5,
+    alpha_r: 0.6,
+    alpha_theta: 0.8,
+};
+
+fn transfer(
+    policy: &lt_policy,
+    nav: &lt_navigation_state,
+    target: &lt_target_orbit,
+    ttg: f64,
+) -> (lt_status, lt_thrust_command) {
+    let mut command = STALE;
+    let status = unsafe { lt_transfer_step(policy, nav, target, ttg, &mut command) };
+    (status, command)
+}
+
+fn rendezvous(
+    policy: &lt_policy,
+    nav: &lt_navigation_state,
+    body: &lt_body_state,
+    ttg: f64,
+) -> (lt_status, lt_thrust_command) {
+    let mut command = STALE;
+    let status = unsafe { lt_rendezvous_step(policy, nav, body, ttg, &mut command) };
+    (status, command)
+}
+
+fn bits(c: &lt_thrust_command) -> [u64; 3] {
+    [c.throttle.to_bits(), c.alpha_r.to_bits(), c.alpha_theta.to_bits()]
+}
+
+fn assert_thrust_off(c: &lt_thrust_command) {
+    assert_eq!(bits(c), bits(&THRUST_OFF));
+}
+
+/// Navigation states around a 1 -> 1.3 AU transfer: radii 0.8-1.6 AU, all angles, speeds off
+/// circular, masses down to 0.6, times to go up to 12 t*.
+fn states(n: usize) -> Vec<(lt_navigation_state, f64)> {
+    (0..n)
+        .map(|k| {
+            let x = k as f64 / n as f64;
+            let r = 0.8 + 0.8 * x;
+            let theta = 37.0 * x;
+            let speed = (1.0 + 0.2 * (5.0 * theta).sin()) / r.sqrt();
+            let gamma = 0.1 * (3.0 * theta).cos();
+            let (s, c) = theta.sin_cos();
+            let (vr, vt) = (speed * gamma.sin(), speed * gamma.cos());
+            let nav = lt_navigation_state {
+                r: [r * c, r * s],
+                v: [vr * c - vt * s, vr * s + vt * c],
+                m: 1.0 - 0.4 * x,
+            };
+            (nav, 12.0 * (1.0 - x))
+        })
+        .collect()
+}
+
+#[test]
+fn accepted_blobs_fly_the_onboard_commands_bit_for_bit() {
+    for bytes in [
+        f32_blob(ProblemKind::Transfer, &TRANSFER),
+        int8_blob(ProblemKind::Transfer, &TRANSFER),
+    ] {
+        let (status, policy) = load_transfer(&bytes);
+        assert_eq!(status, LT_OK);
+        let rust = TransferPolicy::from_bytes(&bytes, ProblemKind::Transfer).unwrap();
+        let mut thrusting = 0;
+        for (nav, ttg) in states(300) {
+            let (status, command) = transfer(&policy, &nav, &TARGET, ttg);
+            let expected = transfer_step(&rust, &SpacecraftState::from(nav), &OrbitShape::from(TARGET), ttg).unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(bits(&command), bits(&expected.into()));
+            thrusting += usize::from(command.throttle > 0.0);
+        }
+        // The weights are not degenerate: most states thrust.
+        assert!(thrusting > 100, "{thrusting}");
+    }
+    for bytes in [
+        f32_blob(ProblemKind::Rendezvous, &RENDEZVOUS),
+        int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS),
+    ] {
+        let (status, policy) = load_rendezvous(&bytes);
+        assert_eq!(status, LT_OK);
+        let rust = RendezvousPolicy::from_bytes(&bytes, ProblemKind::Rendezvous).unwrap();
+        for (nav, ttg) in states(100) {
+            let (status, command) = rendezvous(&policy, &nav, &BODY, ttg);
+            let expected =
+                rendezvous_step(&rust, &SpacecraftState::from(nav), &CartesianState::from(BODY), ttg).unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(bits(&command), bits(&expected.into()));
+        }
+    }
+}
+
+#[test]
+fn describe_says_what_the_policy_flies() {
+    let cases = [
+        (
+            f32_blob(ProblemKind::Transfer, &TRANSFER),
+            LT_PROBLEM_TRANSFER,
+            LT_QUANTIZATION_F32,
+        ),
+        (
+            int8_blob(ProblemKind::Transfer, &TRANSFER),
+            LT_PROBLEM_TRANSFER,
+            LT_QUANTIZATION_INT8,
+        ),
+        (
+            int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS),
+            LT_PROBLEM_RENDEZVOUS,
+            LT_QUANTIZATION_INT8,
+        ),
+    ];
+    for (bytes, problem, quantization) in cases {
+        let (status, policy) = if problem == LT_PROBLEM_TRANSFER {
+            load_transfer(&bytes)
+        } else {
+            load_rendezvous(&bytes)
+        };
+        assert_eq!(status, LT_OK);
+        let mut info = lt_policy_info {
+            problem: 99,
+            quantization: 99,
+        };
+        assert_eq!(unsafe { lt_policy_describe(&policy, &mut info) }, LT_OK);
+        assert_eq!(info, lt_policy_info { problem, quantization });
+    }
+    let mut info = lt_policy_info {
+        problem: 99,
+        quantization: 99,
+    };
+    assert_eq!(
+        unsafe { lt_policy_describe(&lt_policy::default(), &mut info) },
+        LT_ERR_NOT_LOADED
+    );
+    assert_eq!(
+        unsafe { lt_policy_describe(ptr::null(), &mut info) },
+        LT_ERR_NULL_POINTER
+    );
+    let (_, policy) = load_transfer(&f32_blob(ProblemKind::Transfer, &TRANSFER));
+    assert_eq!(
+        unsafe { lt_policy_describe(&policy, ptr::null_mut()) },
+        LT_ERR_NULL_POINTER
+    );
+}
+
+#[test]
+fn damaged_bytes_are_refused_each_with_its_own_code() {
+    let good = int8_blob(ProblemKind::Transfer, &TRANSFER);
+    let n = good.len();
+    let mut flipped = good.clone();
+    flipped[n / 2] ^= 0xff;
+    let mut bad_magic = good.clone();
+    bad_magic[0] = b'X';
+    let mut next_version = good.clone();
+    next_version[4..6].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
+    let mut trailing = good.clone();
+    trailing.push(0);
+    let payload = &good[HEADER_LEN..n - 4];
+    let mut longer_payload = payload.to_vec();
+    longer_payload.push(0);
+    // The first payload byte is the problem kind's enum tag: 9 names no problem.
+    let mut unknown_kind = payload.to_vec();
+    unknown_kind[0] = 9;
+    let cases: [(&str, &[u8], lt_status); 9] = [
+        ("one payload byte flipped", &flipped, LT_ERR_BLOB_CRC_MISMATCH),
+        ("the last 1000 bytes cut", &good[..n - 1000], LT_ERR_BLOB_TRUNCATED),
+        ("the header alone", &good[..HEADER_LEN], LT_ERR_BLOB_TRUNCATED),
+        (
+            "the next format version",
+            &next_version,
+            LT_ERR_BLOB_UNSUPPORTED_VERSION,
+        ),
+        ("another magic", &bad_magic, LT_ERR_BLOB_BAD_MAGIC),
+        ("a byte after the trailer", &trailing, LT_ERR_BLOB_TRAILING_BYTES),
+        (
+            "a byte after the network",
+            &framed(&longer_payload),
+            LT_ERR_BLOB_PAYLOAD_NOT_CONSUMED,
+        ),
+        ("an unknown problem tag", &framed(&unknown_kind), LT_ERR_BLOB_PAYLOAD),
+        ("no bytes", &[], LT_ERR_BLOB_TRUNCATED),
+    ];
+    for (what, bytes, code) in cases {
+        assert_eq!(load_transfer(bytes).0, code, "{what}");
+    }
+}
+
+#[test]
+fn well_framed_blobs_with_defects_are_refused_each_with_its_own_code() {
+    let f32_good = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let int8_good = int8_blob(ProblemKind::Transfer, &TRANSFER);
+    let nan_bias: Vec<u8> = (0..256)
+        .flat_map(|j| if j == 7 { f32::NAN } else { 0.0 }.to_le_bytes())
+        .collect();
+    let cases: Vec<(&str, Vec<u8>, lt_status)> = vec![
+        (
+            "kind and features disagree",
+            with_defect(&f32_good, |n| n.kind = ProblemKind::Rendezvous),
+            LT_ERR_BLOB_KIND_MISMATCH,
+        ),
+        (
+            "no layers",
+            with_defect(&f32_good, |n| n.layers.clear()),
+            LT_ERR_BLOB_NO_LAYERS,
+        ),
+        (
+            "first layer of 11 inputs",
+            with_defect(&f32_good, |n| n.layers[0].inputs = 11),
+            LT_ERR_BLOB_INPUT_MISMATCH,
+        ),
+        (
+            "layers that do not chain",
+            with_defect(&f32_good, |n| n.layers[1].inputs = 255),
+            LT_ERR_BLOB_CHAIN_BREAK,
+        ),
+        (
+            "a layer of no outputs",
+            with_defect(&f32_good, |n| n.layers[2].outputs = 0),
+            LT_ERR_BLOB_BAD_WIDTH,
+        ),
+        (
+            "a bias one value short",
+            with_defect(&f32_good, |n| n.layers[0].bias = &n.layers[0].bias[4..]),
+            LT_ERR_BLOB_ARRAY_LENGTH,
+        ),
+        (
+            "a tanh hidden layer",
+            with_defect(&f32_good, |n| n.layers[0].activation = Activation::Tanh),
+            LT_ERR_BLOB_BAD_ACTIVATION,
+        ),
+        (
+            "a negative input scale",
+            with_defect(&int8_good, |n| n.layers[1].input_scale = -1.0),
+            LT_ERR_BLOB_BAD_SCALE,
+        ),
+        (
+            "a NaN bias",
+            with_defect(&f32_good, |n| n.layers[1].bias = &nan_bias),
+            LT_ERR_BLOB_NON_FINITE_WEIGHT,
+        ),
+        (
+            "a rendezvous network",
+            int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS),
+            LT_ERR_WRONG_PROBLEM,
+        ),
+        (
+            "two layers",
+            f32_blob(ProblemKind::Transfer, &[10, 256, 3]),
+            LT_ERR_WRONG_LAYER_COUNT,
+        ),
+        (
+            "64-wide hidden layers",
+            f32_blob(ProblemKind::Transfer, &[10, 64, 64, 3]),
+            LT_ERR_WRONG_SHAPE,
+        ),
+    ];
+    for (what, bytes, code) in &cases {
+        assert_eq!(load_transfer(bytes).0, *code, "{what}");
+    }
+    // And the other way round: a transfer network is not a rendezvous policy.
+    assert_eq!(load_rendezvous(&f32_good).0, LT_ERR_WRONG_PROBLEM);
+    assert_eq!(
+        load_rendezvous(&with_defect(&f32_good, |n| n.features = FeatureLayout::RendezvousPolar22)).0,
+        LT_ERR_BLOB_KIND_MISMATCH
+    );
+}
+
+#[test]
+fn null_pointers_impossible_lengths_and_misaligned_storage_are_refused() {
+    let good = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let mut policy = lt_policy::default();
+    unsafe {
+        assert_eq!(
+            lt_transfer_load(ptr::null_mut(), good.as_ptr(), good.len()),
+            LT_ERR_NULL_POINTER
+        );
+        assert_eq!(
+            lt_transfer_load(&mut policy, ptr::null(), good.len()),
+            LT_ERR_NULL_POINTER
+        );
+        assert_eq!(lt_rendezvous_load(&mut policy, ptr::null(), 0), LT_ERR_NULL_POINTER);
+        assert_eq!(
+            lt_transfer_load(&mut policy, good.as_ptr(), usize::MAX),
+            LT_ERR_BLOB_LENGTH
+        );
+        // An address near the top whose length would wrap: refused before anything is read.
+        let near_top = (usize::MAX - 15) as *const u8;
+        assert_eq!(lt_transfer_load(&mut policy, near_top, 64), LT_ERR_BLOB_LENGTH);
+        // Short lengths of a good blob.
+        for len in [0, 1, 13, 14, good.len() - 1] {
+            assert_eq!(
+                lt_transfer_load(&mut policy, good.as_ptr(), len),
+                LT_ERR_BLOB_TRUNCATED,
+                "{len}"
+            );
+        }
+    }
+    // Storage 4 bytes off its alignment.
+    let mut words = vec![0u64; LT_POLICY_STORAGE_WORDS + 1];
+    let misaligned = unsafe { words.as_mut_ptr().cast::<u8>().add(4) }.cast::<lt_policy>();
+    assert_eq!(
+        unsafe { lt_transfer_load(misaligned, good.as_ptr(), good.len()) },
+        LT_ERR_MISALIGNED_POLICY
+    );
+    let mut command = STALE;
+    assert_eq!(
+        unsafe { lt_transfer_step(misaligned, &NAV, &TARGET, 1.0, &mut command) },
+        LT_ERR_MISALIGNED_POLICY
+    );
+    assert_thrust_off(&command);
+
+    let (status, policy) = load_transfer(&good);
+    assert_eq!(status, LT_OK);
+    let mut command = STALE;
+    unsafe {
+        assert_eq!(
+            lt_transfer_step(ptr::null(), &NAV, &TARGET, 1.0, &mut command),
+            LT_ERR_NULL_POINTER
+        );
+        assert_thrust_off(&command);
+        command = STALE;
+        assert_eq!(
+            lt_transfer_step(&policy, ptr::null(), &TARGET, 1.0, &mut command),
+            LT_ERR_NULL_POINTER
+        );
+        assert_thrust_off(&command);
+        command = STALE;
+        assert_eq!(
+            lt_transfer_step(&policy, &NAV, ptr::null(), 1.0, &mut command),
+            LT_ERR_NULL_POINTER
+        );
+        assert_thrust_off(&command);
+        // No command to write: still a code, and nothing written anywhere.
+        assert_eq!(
+            lt_transfer_step(&policy, &NAV, &TARGET, 1.0, ptr::null_mut()),
+            LT_ERR_NULL_POINTER
+        );
+        command = STALE;
+        assert_eq!(
+            lt_rendezvous_step(&policy, &NAV, ptr::null(), 1.0, &mut command),
+            LT_ERR_NULL_POINTER
+        );
+        assert_thrust_off(&command);
+        assert_eq!(lt_version(ptr::null_mut()), LT_ERR_NULL_POINTER);
+    }
+}
+
+#[test]
+fn unaligned_inputs_and_outputs_are_accepted() {
+    let good = int8_blob(ProblemKind::Transfer, &TRANSFER);
+    let (_, policy) = load_transfer(&good);
+    let (_, expected) = transfer(&policy, &NAV, &TARGET, 3.0);
+    // Inputs and output 1 byte off their alignment inside byte buffers.
+    let mut nav = [0u8; size_of::<lt_navigation_state>() + 1];
+    let mut target = [0u8; size_of::<lt_target_orbit>() + 1];
+    let mut out = [0u8; size_of::<lt_thrust_command>() + 1];
+    unsafe {
+        ptr::write_unaligned(nav.as_mut_ptr().add(1).cast(), NAV);
+        ptr::write_unaligned(target.as_mut_ptr().add(1).cast(), TARGET);
+        let status = lt_transfer_step(
+            &policy,
+            nav.as_ptr().add(1).cast(),
+            target.as_ptr().add(1).cast(),
+            3.0,
+            out.as_mut_ptr().add(1).cast(),
+        );
+        assert_eq!(status, LT_OK);
+        let command: lt_thrust_command = ptr::read_unaligned(out.as_ptr().add(1).cast());
+        assert_eq!(bits(&command), bits(&expected));
+    }
+}
+
+#[test]
+fn a_policy_not_loaded_or_of_the_other_kind_flies_thrust_off() {
+    let (status, command) = transfer(&lt_policy::default(), &NAV, &TARGET, 1.0);
+    assert_eq!(status, LT_ERR_NOT_LOADED);
+    assert_thrust_off(&command);
+
+    // A refused load after a good one: the old network no longer flies.
+    let good = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let (_, mut policy) = load_transfer(&good);
+    assert_eq!(transfer(&policy, &NAV, &TARGET, 1.0).0, LT_OK);
+    let mut flipped = good.clone();
+    flipped[good.len() / 3] ^= 1;
+    assert_eq!(
+        unsafe { lt_transfer_load(&mut policy, flipped.as_ptr(), flipped.len()) },
+        LT_ERR_BLOB_CRC_MISMATCH
+    );
+    let (status, command) = transfer(&policy, &NAV, &TARGET, 1.0);
+    assert_eq!(status, LT_ERR_NOT_LOADED);
+    assert_thrust_off(&command);
+
+    // A rendezvous policy cannot fly a transfer step, nor the reverse.
+    let (_, rendezvous_policy) = load_rendezvous(&int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS));
+    let (status, command) = transfer(&rendezvous_policy, &NAV, &TARGET, 1.0);
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_thrust_off(&command);
+    let (_, transfer_policy) = load_transfer(&good);
+    let (status, command) = rendezvous(&transfer_policy, &NAV, &BODY, 1.0);
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_thrust_off(&command);
+    // A loaded policy is plain data: a copy flies the same.
+    let copy: lt_policy = unsafe { ptr::read(&transfer_policy) };
+    assert_eq!(
+        transfer(&copy, &NAV, &TARGET, 1.0),
+        transfer(&transfer_policy, &NAV, &TARGET, 1.0)
+    );
+}
+
+#[test]
+fn refused_guidance_inputs_give_their_codes_and_thrust_off() {
+    let (_, policy) = load_transfer(&int8_blob(ProblemKind::Transfer, &TRANSFER));
+    let nav = |edit: fn(&mut lt_navigation_state)| {
+        let mut n = NAV;
+        edit(&mut n);
+        n
+    };
+    let cases = [
+        (nav(|n| n.v[1] = f64::NAN), TARGET, 1.0, LT_ERR_INPUT_NON_FINITE_STATE),
+        (nav(|n| n.r = [0.0, 0.0]), TARGET, 1.0, LT_ERR_INPUT_ZERO_RADIUS),
+        (nav(|n| n.m = 0.0), TARGET, 1.0, LT_ERR_INPUT_NON_POSITIVE_MASS),
+        (NAV, lt_target_orbit { e: 1.5, ..TARGET }, 1.0, LT_ERR_INPUT_TARGET),
+        (NAV, TARGET, -1.0, LT_ERR_INPUT_TIME_TO_GO),
+        (NAV, TARGET, f64::INFINITY, LT_ERR_INPUT_TIME_TO_GO),
+        // Finite in f64, infinite once narrowed to the network's f32: no action to fly.
+        (nav(|n| n.r = [1e39, 0.0]), TARGET, 1.0, LT_ERR_NON_FINITE_ACTION),
+    ];
+    for (n, t, ttg, code) in cases {
+        let (status, command) = transfer(&policy, &n, &t, ttg);
+        assert_eq!(status, code, "{n:?} {t:?} {ttg}");
+        assert_thrust_off(&command);
+    }
+    let (_, policy) = load_rendezvous(&f32_blob(ProblemKind::Rendezvous, &RENDEZVOUS));
+    let at_sun = lt_body_state { r: [0.0, 0.0], ..BODY };
+    let (status, command) = rendezvous(&policy, &NAV, &at_sun, 1.0);
+    assert_eq!(status, LT_ERR_INPUT_TARGET);
+    assert_thrust_off(&command);
+}
+
+#[test]
+fn version_and_error_names_reach_c() {
+    let mut v = lt_version_info {
+        major: 9,
+        minor: 9,
+        patch: 9,
+        blob_format_version: 9,
+    };
+    assert_eq!(unsafe { lt_version(&mut v) }, LT_OK);
+    assert_eq!(v.blob_format_version, FORMAT_VERSION);
+    let crate_version = format!("{}.{}.{}", v.major, v.minor, v.patch);
+    assert_eq!(crate_version, env!("CARGO_PKG_VERSION"));
+    let name = |code: i32| {
+        unsafe { std::ffi::CStr::from_ptr(lt_error_name(code)) }
+            .to_str()
+            .unwrap()
+    };
+    assert_eq!(name(LT_OK as i32), "ok");
+    assert_eq!(name(LT_ERR_BLOB_UNSUPPORTED_VERSION as i32), "blob_unsupported_version");
+    assert_eq!(name(-1000), "unknown");
+}

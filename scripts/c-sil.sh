@@ -1,0 +1,210 @@
+#!/usr/bin/env bash
+# The C interface's check: the controller hosted by C programs, through liblowthrust.a and
+# include/lowthrust.h, must command the same bits as the Rust SIL.
+#
+# For each weight blob, onboard/c's guidance_calls example records the guidance calls of the
+# Rust SIL's trace flights (firmware_sim's sil_trace: same scenarios, dispersions, seeds; the
+# navigation state each step was given) plus inputs guidance must refuse, and writes what each
+# call must return. Then
+#   1. the host C program (onboard/c/examples/fly.c, gcc) flies every call and its output must
+#      equal the expected one, byte for byte (commands as f64 bits, refusal codes);
+#   2. its transfer commands must equal the `cmd` bits of sil_trace's own trace of the blob;
+#   3. a C firmware image (onboard/c/examples/m4, arm-none-eabi-gcc, liblowthrust.a for
+#      thumbv7em-none-eabihf) flies the same calls on QEMU's mps2-an386 with the output equal
+#      too; it must contain no panic path, and the int8 image must fit 256 KiB flash / 64 KiB RAM.
+# Blobs: seeded random f32 and int8 transfer and rendezvous blobs (random_blob); refused: the
+# int8 transfer blob with one byte flipped, truncated, with the next format version, and a
+# rendezvous blob loaded as transfer (each must be refused with its code and fly thrust off).
+# Exit status: non-zero on any difference or failed check. Outputs: target/c-sil/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+start=$(date +%s)
+
+BIN="${CARGO_TARGET_DIR:-target}"
+OUT=target/c-sil
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+EXAMPLES=onboard/c/examples
+M4="$EXAMPLES/m4"
+FLASH_MAX=$((256 * 1024))
+RAM_MAX=$((64 * 1024))
+
+step() { printf '\n==> %s\n' "$*"; }
+die() {
+    echo "c-sil: FAIL: $*" >&2
+    exit 1
+}
+
+# What is missing: QEMU, the target and llvm-tools (scripts/setup-qemu.sh), the Arm C toolchain.
+if ! command -v qemu-system-arm >/dev/null 2>&1 || ! rustup target list --installed | grep -qx thumbv7em-none-eabihf; then
+    bash scripts/setup-qemu.sh
+fi
+if ! command -v arm-none-eabi-gcc >/dev/null 2>&1; then
+    sudo=""
+    if [ "$(id -u)" -ne 0 ]; then sudo="sudo"; fi
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get update -qq
+    $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends gcc-arm-none-eabi binutils-arm-none-eabi >/dev/null
+fi
+command -v gcc >/dev/null 2>&1 || die "gcc is needed for the host program"
+
+step "Rust: liblowthrust.a for the host and thumbv7em-none-eabihf (profile c-release), guidance_calls, SIL tools"
+nice cargo build -q --profile c-release -p lowthrust-onboard-c
+nice cargo build -q --profile c-release -p lowthrust-onboard-c --target thumbv7em-none-eabihf
+nice cargo build -q --release -p lowthrust-onboard-c --example guidance_calls
+nice cargo build -q --release -p lowthrust-firmware-sim --bin random_blob --bin sil_trace
+HOST_LIB="$BIN/c-release/liblowthrust.a"
+M4_LIB="$BIN/thumbv7em-none-eabihf/c-release/liblowthrust.a"
+
+step "C: the header alone compiles as C99 and C++ with warnings as errors; the host program"
+gcc -std=c99 -Wall -Wextra -Werror -pedantic -fsyntax-only -x c onboard/c/include/lowthrust.h
+if command -v g++ >/dev/null 2>&1; then
+    g++ -std=c++11 -Wall -Wextra -Werror -pedantic -fsyntax-only -x c++ onboard/c/include/lowthrust.h
+fi
+# -lpthread -ldl -lm: what the host static library's std needs (rustc --print native-static-libs).
+gcc -std=c99 -O2 -Wall -Wextra -Werror -pedantic -I onboard/c/include "$EXAMPLES/fly.c" "$EXAMPLES/replay.c" \
+    "$HOST_LIB" -lpthread -ldl -lm -o "$OUT/fly"
+echo "$OUT/fly"
+
+# The Cortex-M4F image of one case: the blob and the calls linked into flash.
+M4_FLAGS=(-mcpu=cortex-m4 -mthumb -mfloat-abi=hard -mfpu=fpv4-sp-d16)
+m4_image() {
+    local blob=$1 calls=$2 elf=$3
+    arm-none-eabi-gcc "${M4_FLAGS[@]}" -std=c99 -O2 -ffreestanding -ffunction-sections -fdata-sections \
+        -Wall -Wextra -Werror -I onboard/c/include \
+        -DLT_BLOB_PATH="\"$(realpath "$blob")\"" -DLT_CALLS_PATH="\"$(realpath "$calls")\"" \
+        -nostdlib -nostartfiles -T "$M4/mps2-an386.ld" -Wl,--gc-sections -Wl,-z,noexecstack \
+        -Wl,-Map="${elf%.elf}.map" \
+        "$M4/startup.c" "$M4/semihost.c" "$M4/main.c" "$M4/data.S" "$EXAMPLES/replay.c" "$M4_LIB" -lgcc -o "$elf"
+}
+
+step "blobs: seeded random (random_blob --seed 1), and refused variants of the int8 transfer blob"
+"$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" >/dev/null
+"$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" --rendezvous >/dev/null
+good="$OUT/blobs/transfer-int8.blob"
+size=$(stat -c %s "$good")
+cp "$good" "$OUT/blobs/altered.blob"
+offset=$((size / 2))
+byte=$(od -An -tu1 -j "$offset" -N1 "$good" | tr -d ' ')
+# shellcheck disable=SC2059 # the format is the octal escape of the flipped byte
+printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$OUT/blobs/altered.blob" bs=1 seek="$offset" conv=notrunc status=none
+head -c $((size - 1000)) "$good" >"$OUT/blobs/truncated.blob"
+cp "$good" "$OUT/blobs/version.blob"
+version=$(od -An -tu2 -j 4 -N2 --endian=little "$good" | tr -d ' ')
+# shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
+printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
+    dd of="$OUT/blobs/version.blob" bs=1 seek=4 conv=notrunc status=none
+ls -l "$OUT/blobs" | awk 'NR > 1 {print "  " $9 " (" $5 " bytes)"}'
+
+summary=()
+failed=0
+fail() {
+    echo "$*" >&2
+    failed=1
+}
+
+# The three f64 bit patterns after each `cmd` word.
+commands() { awk '{for (i = 1; i <= NF - 3; i++) if ($i == "cmd") print $(i + 1), $(i + 2), $(i + 3)}'; }
+
+# run_case NAME BLOB transfer|rendezvous ok|refused
+run_case() {
+    local name=$1 blob=$2 problem=$3 expect=$4
+    local dir="$OUT/$name"
+    step "$name: $(basename "$blob"), $problem, expected: $expect"
+    mkdir -p "$dir"
+    local flag=()
+    [ "$problem" = rendezvous ] && flag=(--rendezvous)
+    "$BIN/release/examples/guidance_calls" "$blob" "$dir" "${flag[@]}"
+    grep -v '^#' "$dir/expected.txt" >"$dir/expected.cmp"
+    echo "$(grep -c '^call' "$dir/expected.cmp") guidance calls; $(sed -n 2p "$dir/expected.cmp")"
+
+    # 1. The host C program.
+    if ! "$OUT/fly" "$blob" "$dir/calls.bin" >"$dir/host.txt"; then
+        fail "$name: the host program failed"
+    elif diff "$dir/expected.cmp" "$dir/host.txt" >"$dir/host.diff"; then
+        echo "host C program (gcc): output identical to the Rust crates'"
+    else
+        head -n 10 "$dir/host.diff" >&2
+        fail "$name: host C output differs: $dir/host.diff"
+    fi
+
+    # 2. Its transfer commands against the Rust SIL's own trace.
+    if [ "$problem" = transfer ]; then
+        "$BIN/release/sil_trace" "$blob" >"$dir/sil_trace.txt"
+        local steps
+        steps=$(grep -c '^step' "$dir/sil_trace.txt")
+        grep '^step' "$dir/sil_trace.txt" | commands >"$dir/sil.cmd"
+        grep '^call' "$dir/host.txt" | head -n "$steps" | commands >"$dir/c.cmd"
+        if [ "$steps" -gt 0 ] && cmp -s "$dir/sil.cmd" "$dir/c.cmd"; then
+            echo "its $steps flight commands equal sil_trace's, bit for bit"
+        else
+            fail "$name: the C commands differ from sil_trace's ($dir/sil.cmd, $dir/c.cmd)"
+        fi
+    fi
+
+    # 3. The Cortex-M4F image under QEMU.
+    m4_image "$blob" "$dir/calls.bin" "$dir/m4.elf"
+    local rc=0
+    timeout 300 qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -nographic -monitor none -serial none \
+        -semihosting-config enable=on,target=native -kernel "$dir/m4.elf" >"$dir/qemu.txt" 2>"$dir/qemu.err" || rc=$?
+    if [ $rc -ne 0 ]; then
+        cat "$dir/qemu.err" "$dir/qemu.txt" | tail -n 5 >&2
+        fail "$name: the image exited with status $rc"
+    elif diff "$dir/expected.cmp" <(grep -v '^#' "$dir/qemu.txt") >"$dir/qemu.diff"; then
+        echo "Cortex-M4F image (QEMU mps2-an386): output identical to the Rust crates'"
+    else
+        head -n 10 "$dir/qemu.diff" >&2
+        fail "$name: QEMU output differs: $dir/qemu.diff"
+    fi
+    if arm-none-eabi-nm "$dir/m4.elf" | grep -E 'rust_begin_unwind|panicking' >"$dir/panic.txt"; then
+        fail "$name: the image links a panic path: $(head -n 3 "$dir/panic.txt" | tr '\n' ' ')"
+    fi
+
+    local load
+    load=$(sed -n 2p "$dir/host.txt")
+    if [ "$expect" = refused ]; then
+        [[ "$load" =~ ^load\ [a-z]+\ -[0-9]+\  ]] || fail "$name: the blob was not refused ($load)"
+        # Every call refused with thrust off: throttle bits zero.
+        grep '^call' "$dir/host.txt" | grep -v ' refused -4 not_loaded cmd 0000000000000000 ' >/dev/null &&
+            fail "$name: a call of a refused policy was not refused with thrust off"
+        summary+=("$(printf '%-20s refused: %s' "$name" "${load#load }")")
+        return 0
+    fi
+    [[ "$load" =~ ^load\ [a-z]+\ 0\ ok$ ]] || fail "$name: a good blob was refused ($load)"
+    local quant flash ram peak fit=""
+    quant=$(sed -n 3p "$dir/host.txt" | awk '{print $3}')
+    # Flash: what is loaded (vectors, code, constants with the blob and the calls, .data's
+    # image); RAM: .data + .bss, plus the stack's measured peak.
+    read -r flash ram < <(arm-none-eabi-size -A "$dir/m4.elf" |
+        awk '$1 ~ /^\.(vectors|text|rodata|ARM\.exidx|ARM\.extab)$/ {f += $2} $1 == ".data" {f += $2; r += $2}
+             $1 == ".bss" {r += $2} END {print f, r}')
+    peak=$(sed -n 's/^# stack high-water \([0-9]*\) bytes.*/\1/p' "$dir/qemu.txt")
+    [ -n "$peak" ] || peak=0
+    if [ "$quant" = int8 ]; then
+        if [ "$flash" -le $FLASH_MAX ] && [ $((ram + peak)) -le $RAM_MAX ]; then
+            fit="fits 256 KiB/64 KiB"
+        else
+            fit="MISSES 256 KiB/64 KiB"
+            fail "$name: the int8 image misses the 256 KiB flash / 64 KiB RAM budget"
+        fi
+    fi
+    local blob_bytes calls_bytes
+    blob_bytes=$(stat -c %s "$blob")
+    calls_bytes=$(stat -c %s "$dir/calls.bin")
+    summary+=("$(printf '%-20s %-4s image flash %d B (%.1f KiB; blob %d B, calls %d B, code and rest %d B); RAM %d B static + %d B stack peak %s' \
+        "$name" "$quant" "$flash" "$(awk "BEGIN {print $flash / 1024}")" "$blob_bytes" "$calls_bytes" \
+        $((flash - blob_bytes - calls_bytes)) "$ram" "$peak" "$fit")")
+}
+
+run_case transfer-f32 "$OUT/blobs/transfer-f32.blob" transfer ok
+run_case transfer-int8 "$OUT/blobs/transfer-int8.blob" transfer ok
+run_case rendezvous-f32 "$OUT/blobs/rendezvous-f32.blob" rendezvous ok
+run_case rendezvous-int8 "$OUT/blobs/rendezvous-int8.blob" rendezvous ok
+run_case altered "$OUT/blobs/altered.blob" transfer refused
+run_case truncated "$OUT/blobs/truncated.blob" transfer refused
+run_case version "$OUT/blobs/version.blob" transfer refused
+run_case wrong-kind "$OUT/blobs/rendezvous-int8.blob" transfer refused
+
+step "summary ($(($(date +%s) - start)) s)"
+printf '%s\n' "${summary[@]}"
+[ $failed -eq 0 ] || die "see above"
+echo "c-sil: the C-hosted controller commands the Rust SIL's bits on the host and on the Cortex-M4F"
