@@ -10,7 +10,7 @@
 # Either way it also checks refusal: the last blob altered (one byte flipped), truncated and
 # given the next format version, and a rendezvous blob, must each be refused by the image with
 # the typed error, flown with thrust off (every throttle bit zero), exit 0, and match the host.
-# Exit status: non-zero on any trace difference, failed run or failed check. The issue's
+# Exit status: non-zero on any trace difference, failed run or failed check. The
 # instruction and footprint targets are reported (met / MISSED), not enforced.
 # QEMU_SIL_PROFILE=1 also times each stage of the forward pass (a second image per good blob,
 # built with the m4 crate's `profile` feature, which the footprint does not include).
