@@ -241,22 +241,10 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
     Ok(card)
 }
 
-/// Today's UTC date, YYYY-MM-DD.
+/// Today's UTC date, YYYY-MM-DD (the calendar reading `ground oem` stamps its files with).
 fn utc_date() -> String {
-    let days = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() / 86_400) as i64;
-    // Civil from days (Howard Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}-{month:02}-{day:02}")
+    let now = ground_core::oem::CalendarEpoch::now_utc().to_string();
+    now.split('T').next().unwrap_or(&now).to_string()
 }
 
 /// A model folder that passed [`open_model`]'s checks.

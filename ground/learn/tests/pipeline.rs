@@ -201,6 +201,12 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let model = learn::model::open_model(&model_dir).unwrap();
     assert_eq!(model.card.rounds, Some((1, rounds.best_round)));
     assert_eq!(model.card.sil.len(), 2);
+    let created = model.card.created.as_bytes();
+    assert!(
+        created.len() == 10 && created[4] == b'-' && created[7] == b'-',
+        "card date {}",
+        model.card.created
+    );
     let from_actor = monte_carlo(&config, &model.actor(), &dir.join("mc-actor"), None, Some(0)).unwrap();
     assert_eq!(from_actor.policy, job.monte_carlo.policy);
     assert_eq!(
