@@ -49,3 +49,6 @@ bash scripts/qemu-sil.sh
 
 step "C interface: a C host program and a C Cortex-M4F image under QEMU command the Rust SIL's bits"
 bash scripts/c-sil.sh
+
+step "fuzzing the blob loader and the C entry points: 10 million inputs, no crash, no altered blob accepted"
+cargo run -q --profile c-release -p lowthrust-onboard-c --example fuzz -- --inputs 10000000
