@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
-# The Cortex-M4F SIL check: for each weight blob, build the firmware image with the blob in
-# flash (firmware_sim/m4), fly the trace's transfers on QEMU's mps2-an386, fly the same on the
-# host (firmware_sim's sil_trace), and require the two traces to be identical (every command
-# and state as f64 bits). Prints instructions per inference, flash/RAM footprint, stack peak.
+# The Cortex-M4F SIL check: for each weight blob, build the firmware image of the blob's problem
+# with the blob in flash (firmware_sim/m4; the `rendezvous` feature for a rendezvous blob), fly
+# the trace's flights of that problem on QEMU's mps2-an386, fly the same on the host
+# (firmware_sim's sil_trace, `--rendezvous` likewise), and require the two traces to be
+# identical (every command and state as f64 bits). Prints instructions per inference, flash/RAM
+# footprint, stack peak.
 #
-#   scripts/qemu-sil.sh                 # seeded random f32 + int8 transfer blobs (random_blob)
-#   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground export's transfer-*.blob)
+#   scripts/qemu-sil.sh                 # seeded random f32 + int8 transfer and rendezvous blobs (random_blob)
+#   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground export's transfer-*.blob, rendezvous-*.blob)
 #
-# Either way it also checks refusal: the last blob altered (one byte flipped), truncated and
-# given the next format version, and a rendezvous blob, must each be refused by the image with
-# the typed error, flown with thrust off (every throttle bit zero), exit 0, and match the host.
+# Either way it also checks refusal, for each problem flown: its last blob altered (one byte
+# flipped), truncated and given the next format version, and a blob of the other problem, must
+# each be refused by that problem's image with the typed error, flown with thrust off (every
+# throttle bit zero), exit 0, and match the host.
 # Exit status: non-zero on any trace difference, failed run or failed check. The
 # instruction and footprint targets are reported (met / MISSED), not enforced.
 # QEMU_SIL_PROFILE=1 also times each stage of the forward pass (a second image per good blob,
@@ -27,7 +30,8 @@ HOST_BIN="${CARGO_TARGET_DIR:-target}/release"
 mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 
-# Instruction and footprint targets of the Cortex-M4 image (transfer policy).
+# Instruction and footprint targets of the Cortex-M4 image (the transfer policy's, applied to the
+# rendezvous policy too: its first layer has 22 inputs instead of 10).
 F32_MAX_INSN=250000
 INT8_MAX_INSN=120000
 FLASH_MAX=$((256 * 1024))
@@ -62,45 +66,83 @@ nice cargo build --release -q -p lowthrust-firmware-sim --bin random_blob --bin 
 blobs=("$@")
 if [ ${#blobs[@]} -eq 0 ]; then
     "$HOST_BIN/random_blob" --seed 1 --out "$OUT/blobs" >/dev/null
-    blobs=("$OUT/blobs/transfer-f32.blob" "$OUT/blobs/transfer-int8.blob")
+    "$HOST_BIN/random_blob" --seed 1 --out "$OUT/blobs" --rendezvous >/dev/null
+    blobs=("$OUT/blobs/transfer-f32.blob" "$OUT/blobs/transfer-int8.blob"
+        "$OUT/blobs/rendezvous-f32.blob" "$OUT/blobs/rendezvous-int8.blob")
 fi
 for b in "${blobs[@]}"; do [ -f "$b" ] || die "no blob $b"; done
 
-# Refusal cases, derived from the last blob, plus a rendezvous network.
+# The problem a blob is for: the first payload byte (offset 10, after magic, version and
+# length) is the postcard index of NetworkBlob::kind, 0 transfer, 1 rendezvous
+# (shared/src/blob.rs). A misread kind would show as a good blob refused.
+blob_problem() {
+    [ "$(head -c 4 "$1")" = LTGB ] || die "$1 is not a weight blob (no LTGB magic)"
+    case $(od -An -tu1 -j 10 -N1 "$1" | tr -d ' ') in
+        0) echo transfer ;;
+        1) echo rendezvous ;;
+        *) die "$1: unknown problem" ;;
+    esac
+}
+problems=()
+declare -A last=()
+for b in "${blobs[@]}"; do
+    p=$(blob_problem "$b")
+    [ -n "${last[$p]:-}" ] || problems+=("$p")
+    last[$p]=$b
+done
+
+# Refusal cases of each problem flown, derived from its last blob; the other problem's blob is
+# a seeded random one.
 neg="$OUT/refused"
 mkdir -p "$neg"
-last="${blobs[${#blobs[@]} - 1]}"
-size=$(stat -c %s "$last")
-cp "$last" "$neg/altered.blob"
-offset=$((size / 2))
-byte=$(od -An -tu1 -j "$offset" -N1 "$last" | tr -d ' ')
-# shellcheck disable=SC2059 # the format is the octal escape of the flipped byte
-printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$neg/altered.blob" bs=1 seek="$offset" conv=notrunc status=none
-head -c $((size - 1000)) "$last" >"$neg/truncated.blob"
-cp "$last" "$neg/version.blob"
-version=$(od -An -tu2 -j 4 -N2 --endian=little "$last" | tr -d ' ')
-# shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
-printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
-    dd of="$neg/version.blob" bs=1 seek=4 conv=notrunc status=none
+"$HOST_BIN/random_blob" --seed 1 --out "$neg" >/dev/null
 "$HOST_BIN/random_blob" --seed 1 --out "$neg" --rendezvous >/dev/null
+# spoil PREFIX BLOB: PREFIX{altered,truncated,version}.blob
+spoil() {
+    local prefix=$1 blob=$2 size offset byte version
+    size=$(stat -c %s "$blob")
+    cp "$blob" "$neg/${prefix}altered.blob"
+    offset=$((size / 2))
+    byte=$(od -An -tu1 -j "$offset" -N1 "$blob" | tr -d ' ')
+    # shellcheck disable=SC2059 # the format is the octal escape of the flipped byte
+    printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$neg/${prefix}altered.blob" bs=1 seek="$offset" conv=notrunc status=none
+    head -c $((size - 1000)) "$blob" >"$neg/${prefix}truncated.blob"
+    cp "$blob" "$neg/${prefix}version.blob"
+    version=$(od -An -tu2 -j 4 -N2 --endian=little "$blob" | tr -d ' ')
+    # shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
+    printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
+        dd of="$neg/${prefix}version.blob" bs=1 seek=4 conv=notrunc status=none
+}
+for p in "${problems[@]}"; do
+    if [ "$p" = transfer ]; then spoil "" "${last[$p]}"; else spoil "$p-" "${last[$p]}"; fi
+done
 
-step "clippy and rustfmt for the image crate (excluded from the workspace)"
-(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$last")" nice cargo clippy --release -q -- -D warnings)
+step "clippy and rustfmt for the image crate (excluded from the workspace), transfer and rendezvous images"
+any_blob=$(realpath "${blobs[0]}")
+(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$any_blob" nice cargo clippy --release -q -- -D warnings)
+(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$any_blob" nice cargo clippy --release -q --features rendezvous,profile -- -D warnings)
 (cd "$M4" && cargo fmt --check)
 
 summary=()
 failed=0
 
-# run_case NAME BLOB ok|refused
+# run_case NAME BLOB ok|refused transfer|rendezvous (the image's problem)
 run_case() {
-    local name=$1 blob=$2 expect=$3
+    local name=$1 blob=$2 expect=$3 problem=$4
     local qemu="$OUT/$name.qemu.txt" host="$OUT/$name.host.txt"
-    step "$name: $(basename "$blob") ($(stat -c %s "$blob") bytes), expected: $expect"
-    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q)
+    # The rendezvous image and its host twin.
+    local features=() twin=() profile=profile
+    if [ "$problem" = rendezvous ]; then
+        features=(--features rendezvous)
+        twin=(--rendezvous)
+        profile=profile,rendezvous
+    fi
+    step "$name: $(basename "$blob") ($(stat -c %s "$blob") bytes), $problem image, expected: $expect"
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q "${features[@]}")
     cp "$M4_TARGET/thumbv7em-none-eabihf/release/lowthrust-m4" "$OUT/$name.elf"
     # The runner (QEMU and its flags) is the one in firmware_sim/m4/.cargo/config.toml.
     local rc=0
-    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 cargo run --release -q) \
+    (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 cargo run --release -q "${features[@]}") \
         >"$qemu" 2>"$OUT/$name.qemu.err" || rc=$?
     if [ $rc -ne 0 ]; then
         cat "$OUT/$name.qemu.err" >&2
@@ -108,7 +150,7 @@ run_case() {
         failed=1
         return
     fi
-    "$HOST_BIN/sil_trace" "$blob" --latency >"$host"
+    "$HOST_BIN/sil_trace" "$blob" "${twin[@]}" --latency >"$host"
     if diff <(grep -v '^#' "$qemu") <(grep -v '^#' "$host") >"$OUT/$name.diff"; then
         echo "traces identical: $(grep -vc '^#' "$qemu") lines (commands and states as f64 bits)"
     else
@@ -130,7 +172,7 @@ run_case() {
             echo "a refused blob flew with thrust on" >&2
             failed=1
         fi
-        summary+=("$(printf '%-18s refused, thrust off: %s' "$name" "$(head -n 1 "$qemu" | cut -c 15-)")")
+        summary+=("$(printf '%-22s refused, thrust off: %s' "$name" "$(head -n 1 "$qemu" | cut -c 15-)")")
         return
     fi
     grep -q '^blob \(f32\|int8\) ' "$qemu" || {
@@ -148,7 +190,7 @@ run_case() {
         awk '$1 ~ /^\.(vector_table|text|rodata)$/ {f += $2} $1 == ".data" {f += $2; r += $2}
              $1 ~ /^\.(bss|uninit)$/ {r += $2} END {print f, r}')
     if [ "${QEMU_SIL_PROFILE:-0}" = 1 ]; then
-        (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 nice cargo run --release -q --features profile) \
+        (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" timeout 300 nice cargo run --release -q --features "$profile") \
             2>/dev/null | grep '^# profile' | sed 's/^# /  /' || true
     fi
     local limit=$F32_MAX_INSN verdict
@@ -158,17 +200,26 @@ run_case() {
     if [ "$quant" = int8 ]; then
         fit=$([ "$flash" -le $FLASH_MAX ] && [ $((ram + peak)) -le $RAM_MAX ] && echo "fits 256 KiB/64 KiB" || echo "MISSES 256 KiB/64 KiB")
     fi
-    summary+=("$(printf '%-18s %-4s %7d instructions/inference (target %d: %s); flash %d B (%.1f KiB); RAM %d B static + %d B stack peak %s' \
+    summary+=("$(printf '%-22s %-4s %7d instructions/inference (target %d: %s); flash %d B (%.1f KiB); RAM %d B static + %d B stack peak %s' \
         "$name" "$quant" "$insn" "$limit" "$verdict" "$flash" "$(awk "BEGIN {print $flash / 1024}")" "$ram" "$peak" "$fit")")
 }
 
 for b in "${blobs[@]}"; do
-    run_case "$(basename "$b" .blob)" "$b" ok
+    run_case "$(basename "$b" .blob)" "$b" ok "$(blob_problem "$b")"
 done
-for n in altered truncated version; do
-    run_case "$n" "$neg/$n.blob" refused
+for p in "${problems[@]}"; do
+    prefix=""
+    [ "$p" = rendezvous ] && prefix="$p-"
+    for n in altered truncated version; do
+        run_case "$prefix$n" "$neg/$prefix$n.blob" refused "$p"
+    done
+    # A blob of the other problem.
+    if [ "$p" = transfer ]; then
+        run_case wrong-kind "$neg/rendezvous-int8.blob" refused transfer
+    else
+        run_case rendezvous-wrong-kind "$neg/transfer-int8.blob" refused rendezvous
+    fi
 done
-run_case wrong-kind "$neg/rendezvous-int8.blob" refused
 
 step "summary ($(($(date +%s) - start)) s)"
 printf '%s\n' "${summary[@]}"

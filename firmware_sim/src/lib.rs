@@ -8,9 +8,13 @@
 //! missed-thrust events that start and end anywhere in a cycle) act on it. With
 //! [`Dispersions::NONE`] a flight is bit-identical to the ground environment's episode.
 //!
-//! The core is `no_std` and allocation-free ([`fly_transfer_observed`] reports each step to a
-//! closure), so the Cortex-M4 image runs the very same code; the `std` feature adds
-//! [`Flight`], a recorded flight.
+//! One loop flies both problems ([`fly_observed`]); a [`Problem`] says what it steers to: the
+//! target orbit of a [`Transfer`], or the body of a [`Rendezvous`], whose state flight software
+//! propagates onboard each cycle by the Kepler coast from the scenario's epoch.
+//!
+//! The core is `no_std` and allocation-free ([`fly_observed`] reports each step to a closure),
+//! so the Cortex-M4 image runs the very same code; the `std` feature adds [`Flight`], a
+//! recorded flight.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 
@@ -19,42 +23,166 @@ pub mod trace;
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{
-    reward, transfer_features, transfer_residuals, FeatureError, Residuals, RewardWeights, TRANSFER_FEATURES,
+    rendezvous_features, rendezvous_residuals, reward, transfer_features, transfer_residuals, FeatureError, Residuals,
+    RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
 };
-use onboard::guidance::{transfer_step, Actor, GuidanceError};
+use onboard::guidance::{rendezvous_step, transfer_step, Actor, GuidanceError};
 use onboard::integrator::Tolerances;
-use onboard::policy::{PolicyError, TransferPolicy};
+use onboard::kepler::{coast, KeplerError};
+use onboard::policy::{Mlp, PolicyError, RendezvousPolicy, TransferPolicy};
 use shared::blob::ProblemKind;
+use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::{Scenario, ScenarioError};
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
 pub use dispersion::{DispersedPlant, DispersionError, Dispersions};
 
-/// The flight computer's network: the blob's policy, or safe mode when the blob was refused.
+/// Hidden width of the flown actors (onboard's `TransferPolicy` and `RendezvousPolicy`).
+const HIDDEN: usize = 256;
+
+/// The network flown on `N` features: the transfer (10) or rendezvous (22) actor.
+pub type Policy<'a, const N: usize> = Mlp<'a, N, HIDDEN, HIDDEN, ACTION_LEN>;
+
+// The flown policies are onboard's: a change of their shape there fails to compile here.
+const _: fn(TransferPolicy<'_>) -> Policy<'_, TRANSFER_FEATURES> = |p| p;
+const _: fn(RendezvousPolicy<'_>) -> Policy<'_, RENDEZVOUS_FEATURES> = |p| p;
+
+/// What the guidance loop steers to, and how flight software knows it at each cycle. The loop
+/// is generic over it so that transfer and rendezvous fly one implementation. Implemented by
+/// the zero-sized markers [`Transfer`] and [`Rendezvous`], passed by value to pick the problem.
+pub trait Problem<const N: usize>: Copy {
+    /// The problem of the scenarios and blobs this flies.
+    const KIND: ProblemKind;
+    /// The target as guidance is given it: an orbit, or a body's state.
+    type Target: Copy;
+
+    /// The target at t = `index` STEP, computed as flight software does.
+    fn target(scenario: &Scenario, index: u32) -> Result<Self::Target, SilError>;
+    /// The `N` features of `state` against `target`.
+    fn features(state: &SpacecraftState, target: &Self::Target, time_to_go: f64) -> Result<[f64; N], FeatureError>;
+    /// The residuals read off the features.
+    fn residuals(features: &[f64; N]) -> Residuals;
+    /// The onboard guidance step of this problem.
+    fn guidance<A: Actor<N>>(
+        actor: &A,
+        navigation: &SpacecraftState,
+        target: &Self::Target,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError>;
+}
+
+/// A free-anomaly transfer (docs/spec.md section 5): the target is the orbit itself.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Transfer;
+
+/// A rendezvous (docs/spec.md section 6): the target is a body on the target orbit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Rendezvous;
+
+impl Problem<TRANSFER_FEATURES> for Transfer {
+    const KIND: ProblemKind = ProblemKind::Transfer;
+    type Target = OrbitShape;
+
+    fn target(scenario: &Scenario, _index: u32) -> Result<OrbitShape, SilError> {
+        Ok(scenario.target)
+    }
+
+    fn features(
+        state: &SpacecraftState,
+        target: &OrbitShape,
+        time_to_go: f64,
+    ) -> Result<[f64; TRANSFER_FEATURES], FeatureError> {
+        transfer_features(state, target, time_to_go)
+    }
+
+    fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
+        transfer_residuals(features)
+    }
+
+    fn guidance<A: Actor<TRANSFER_FEATURES>>(
+        actor: &A,
+        navigation: &SpacecraftState,
+        target: &OrbitShape,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        transfer_step(actor, navigation, target, time_to_go)
+    }
+}
+
+impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
+    const KIND: ProblemKind = ProblemKind::Rendezvous;
+    type Target = CartesianState;
+
+    /// The body coasted from its state at the epoch (t = 0, anomaly `target_nu0`) every time,
+    /// not from the previous cycle's, so no error accumulates over the flight: the ephemeris
+    /// the ground environment uses (`ground_core::env::body_at`), bit for bit.
+    fn target(scenario: &Scenario, index: u32) -> Result<CartesianState, SilError> {
+        let epoch = scenario.target.cartesian_at(scenario.target_nu0);
+        coast(&epoch, f64::from(index) * STEP).map_err(|error| SilError::Target { index, error })
+    }
+
+    fn features(
+        state: &SpacecraftState,
+        target: &CartesianState,
+        time_to_go: f64,
+    ) -> Result<[f64; RENDEZVOUS_FEATURES], FeatureError> {
+        rendezvous_features(state, target, time_to_go)
+    }
+
+    fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
+        rendezvous_residuals(features)
+    }
+
+    fn guidance<A: Actor<RENDEZVOUS_FEATURES>>(
+        actor: &A,
+        navigation: &SpacecraftState,
+        target: &CartesianState,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        rendezvous_step(actor, navigation, target, time_to_go)
+    }
+}
+
+/// The flight computer's network on `N` features: the blob's policy, or safe mode when the
+/// blob was refused. `Controller<'a>` is the transfer controller.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Controller<'a> {
-    Network(TransferPolicy<'a>),
+pub enum Controller<'a, const N: usize = TRANSFER_FEATURES> {
+    Network(Policy<'a, N>),
     /// The blob was refused at load (why is kept): every command is thrust off.
     SafeMode(PolicyError),
 }
 
-impl<'a> Controller<'a> {
-    /// Loads a transfer blob; a blob of another version, kind or shape, truncated or altered,
-    /// puts the controller in safe mode instead of flying garbage.
-    pub fn load_transfer(blob: &'a [u8]) -> Self {
-        match TransferPolicy::from_bytes(blob, ProblemKind::Transfer) {
+impl<'a, const N: usize> Controller<'a, N> {
+    /// Loads a blob for problem `P`; a blob of another version, problem or shape, truncated or
+    /// altered, puts the controller in safe mode instead of flying garbage.
+    pub fn load<P: Problem<N>>(blob: &'a [u8]) -> Self {
+        match Policy::from_bytes(blob, P::KIND) {
             Ok(policy) => Self::Network(policy),
             Err(error) => Self::SafeMode(error),
         }
     }
 }
 
+impl<'a> Controller<'a, TRANSFER_FEATURES> {
+    /// Loads a transfer blob, or goes to safe mode (see [`Controller::load`]).
+    pub fn load_transfer(blob: &'a [u8]) -> Self {
+        Self::load::<Transfer>(blob)
+    }
+}
+
+impl<'a> Controller<'a, RENDEZVOUS_FEATURES> {
+    /// Loads a rendezvous blob, or goes to safe mode (see [`Controller::load`]).
+    pub fn load_rendezvous(blob: &'a [u8]) -> Self {
+        Self::load::<Rendezvous>(blob)
+    }
+}
+
 /// The action that decodes to thrust off (throttle (a0 + 1) / 2 = 0).
 pub const THRUST_OFF_ACTION: [f32; 3] = [-1.0, 0.0, 1.0];
 
-impl Actor<TRANSFER_FEATURES> for Controller<'_> {
-    fn act(&self, features: &[f32; TRANSFER_FEATURES]) -> [f32; 3] {
+impl<const N: usize> Actor<N> for Controller<'_, N> {
+    fn act(&self, features: &[f32; N]) -> [f32; 3] {
         match self {
             Self::Network(policy) => policy.forward(features),
             Self::SafeMode(_) => THRUST_OFF_ACTION,
@@ -62,15 +190,15 @@ impl Actor<TRANSFER_FEATURES> for Controller<'_> {
     }
 }
 
-/// One guidance cycle as flown.
+/// One guidance cycle as flown, with the `N` features of its problem.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FlightStep {
+pub struct FlightStep<const N: usize = TRANSFER_FEATURES> {
     /// Step index k (0-based): the command was computed at t = k * STEP.
     pub index: u32,
     /// What navigation reported at the start of the step (the truth plus navigation error).
     pub navigation: SpacecraftState,
     /// Features of the true state at the start of the step (the MDP's observation).
-    pub features: [f64; TRANSFER_FEATURES],
+    pub features: [f64; N],
     /// Command of the guidance step (thrust off when guidance refused its input).
     pub command: ThrustCommand,
     /// What the thruster did with it (pointing error, thrust magnitude factor applied to the
@@ -106,8 +234,16 @@ pub struct FlightSummary {
 pub enum SilError {
     Scenario(ScenarioError),
     Dispersion(DispersionError),
-    /// This loop flies transfers; rendezvous comes with its environment.
-    NotATransfer,
+    /// The scenario poses another problem than the loop flies.
+    WrongProblem {
+        expected: ProblemKind,
+        found: ProblemKind,
+    },
+    /// The rendezvous body could not be propagated to step `index`.
+    Target {
+        index: u32,
+        error: KeplerError,
+    },
     /// The plant could not be propagated (for example the tank ran dry) at step `index`.
     Plant {
         index: u32,
@@ -125,7 +261,10 @@ impl core::fmt::Display for SilError {
         match self {
             Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
             Self::Dispersion(e) => write!(f, "invalid dispersions: {e}"),
-            Self::NotATransfer => f.write_str("only transfer scenarios can be flown so far"),
+            Self::WrongProblem { expected, found } => {
+                write!(f, "a {found:?} scenario given to the {expected:?} loop")
+            }
+            Self::Target { index, error } => write!(f, "target body unusable at step {index}: {error}"),
             Self::Plant { index, error } => write!(f, "plant propagation failed at step {index}: {error}"),
             Self::Features { index, error } => write!(f, "plant state unusable at step {index}: {error}"),
         }
@@ -135,11 +274,13 @@ impl core::fmt::Display for SilError {
 #[cfg(feature = "std")]
 impl std::error::Error for SilError {}
 
-/// Flies a transfer scenario closed loop and reports every cycle to `observer`: at each
-/// 14-day cycle the guidance step computes a command from the navigation state, the truth
-/// plant flies it (with `dispersions`, drawn from `seed`) to the next cycle. No allocation.
+/// Flies `scenario` closed loop as problem `P` and reports every cycle to `observer`: at each
+/// 14-day cycle the guidance step computes a command from the navigation state and the target
+/// at that time, the truth plant flies it (with `dispersions`, drawn from `seed`) to the next
+/// cycle. No allocation.
 #[allow(clippy::too_many_arguments)] // the flight's inputs, each needed; a struct would only rename them
-pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>(
+pub fn fly_observed<const N: usize, P: Problem<N>, A: Actor<N>, O: FnMut(&FlightStep<N>)>(
+    _problem: P,
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -151,8 +292,11 @@ pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>
 ) -> Result<FlightSummary, SilError> {
     scenario.validate().map_err(SilError::Scenario)?;
     dispersions.validate().map_err(SilError::Dispersion)?;
-    if scenario.problem != ProblemKind::Transfer {
-        return Err(SilError::NotATransfer);
+    if scenario.problem != P::KIND {
+        return Err(SilError::WrongProblem {
+            expected: P::KIND,
+            found: scenario.problem,
+        });
     }
     let mut plant = DispersedPlant::new(dispersions, seed);
     let actual = CanonicalSpacecraft {
@@ -167,12 +311,13 @@ pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>
         final_residuals: None,
         guidance_faults: 0,
     };
+    // The target at the start of the cycle; the end of one cycle is the start of the next.
+    let mut target = P::target(scenario, 0)?;
     for index in 0..scenario.steps {
         let time_to_go = f64::from(scenario.steps - index) * STEP;
-        let features = transfer_features(&state, &scenario.target, time_to_go)
-            .map_err(|error| SilError::Features { index, error })?;
+        let features = P::features(&state, &target, time_to_go).map_err(|error| SilError::Features { index, error })?;
         let navigation = plant.navigate(&state);
-        let (command, guidance_error) = match transfer_step(actor, &navigation, &scenario.target, time_to_go) {
+        let (command, guidance_error) = match P::guidance(actor, &navigation, &target, time_to_go) {
             Ok(c) => (c, None),
             Err(e) => (ThrustCommand::OFF, Some(e)),
         };
@@ -194,9 +339,11 @@ pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>
             }
             tau = end;
         }
-        let after = transfer_features(&state, &scenario.target, time_to_go - STEP)
+        // The end of the cycle as the MDP sees step index + 1 (its time to go, its target).
+        target = P::target(scenario, index + 1)?;
+        let after = P::features(&state, &target, f64::from(scenario.steps - index - 1) * STEP)
             .map_err(|error| SilError::Features { index, error })?;
-        let residuals = transfer_residuals(&after);
+        let residuals = P::residuals(&after);
         // The reward charges the commanded throttle, as the MDP does.
         let step = FlightStep {
             index,
@@ -220,17 +367,67 @@ pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>
     Ok(summary)
 }
 
+/// [`fly_observed`] for a transfer scenario.
+#[allow(clippy::too_many_arguments)] // as fly_observed
+pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>(
+    actor: &A,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
+    observer: O,
+) -> Result<FlightSummary, SilError> {
+    fly_observed(
+        Transfer,
+        actor,
+        scenario,
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+        seed,
+        observer,
+    )
+}
+
+/// [`fly_observed`] for a rendezvous scenario.
+#[allow(clippy::too_many_arguments)] // as fly_observed
+pub fn fly_rendezvous_observed<A: Actor<RENDEZVOUS_FEATURES>, O: FnMut(&FlightStep<RENDEZVOUS_FEATURES>)>(
+    actor: &A,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
+    observer: O,
+) -> Result<FlightSummary, SilError> {
+    fly_observed(
+        Rendezvous,
+        actor,
+        scenario,
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+        seed,
+        observer,
+    )
+}
+
 /// A recorded closed-loop flight.
 #[cfg(feature = "std")]
 #[derive(Debug, Clone, PartialEq)]
-pub struct Flight {
+pub struct Flight<const N: usize = TRANSFER_FEATURES> {
     pub initial: SpacecraftState,
-    pub steps: Vec<FlightStep>,
+    pub steps: Vec<FlightStep<N>>,
     pub summary: FlightSummary,
 }
 
 #[cfg(feature = "std")]
-impl Flight {
+impl<const N: usize> Flight<N> {
     pub fn total_reward(&self) -> f64 {
         self.summary.total_reward
     }
@@ -244,10 +441,11 @@ impl Flight {
     }
 }
 
-/// Flies a transfer and records every cycle (see [`fly_transfer_observed`]).
+/// Flies `scenario` as problem `P` and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
-#[allow(clippy::too_many_arguments)] // as fly_transfer_observed
-pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
+#[allow(clippy::too_many_arguments)] // as fly_observed
+pub fn fly<const N: usize, P: Problem<N>, A: Actor<N>>(
+    problem: P,
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -255,9 +453,10 @@ pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
     weights: &RewardWeights,
     dispersions: &Dispersions,
     seed: u64,
-) -> Result<Flight, SilError> {
+) -> Result<Flight<N>, SilError> {
     let mut steps = Vec::with_capacity(scenario.steps as usize);
-    let summary = fly_transfer_observed(
+    let summary = fly_observed(
+        problem,
         actor,
         scenario,
         spacecraft,
@@ -272,6 +471,54 @@ pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
         steps,
         summary,
     })
+}
+
+/// Flies a transfer and records every cycle (see [`fly_observed`]).
+#[cfg(feature = "std")]
+#[allow(clippy::too_many_arguments)] // as fly_observed
+pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
+    actor: &A,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
+) -> Result<Flight, SilError> {
+    fly(
+        Transfer,
+        actor,
+        scenario,
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+        seed,
+    )
+}
+
+/// Flies a rendezvous and records every cycle (see [`fly_observed`]).
+#[cfg(feature = "std")]
+#[allow(clippy::too_many_arguments)] // as fly_observed
+pub fn fly_rendezvous<A: Actor<RENDEZVOUS_FEATURES>>(
+    actor: &A,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    weights: &RewardWeights,
+    dispersions: &Dispersions,
+    seed: u64,
+) -> Result<Flight<RENDEZVOUS_FEATURES>, SilError> {
+    fly(
+        Rendezvous,
+        actor,
+        scenario,
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+        seed,
+    )
 }
 
 /// A hand-tuned feedback law for demonstrations and as a baseline for learned policies: thrust
@@ -377,6 +624,152 @@ mod tests {
     fn fly(law: &impl Actor<TRANSFER_FEATURES>, s: &Scenario, d: &Dispersions, seed: u64) -> Flight {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         fly_transfer(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
+    }
+
+    /// The transfer of `scenario(target_a)` as a rendezvous with a body at `nu0` at t = 0.
+    fn rendezvous(target_a: f64, nu0: f64) -> Scenario {
+        Scenario {
+            problem: ProblemKind::Rendezvous,
+            target_nu0: nu0,
+            ..scenario(target_a)
+        }
+    }
+
+    fn fly_rdv(
+        law: &impl Actor<RENDEZVOUS_FEATURES>,
+        s: &Scenario,
+        d: &Dispersions,
+        seed: u64,
+    ) -> Flight<RENDEZVOUS_FEATURES> {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        fly_rendezvous(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
+    }
+
+    /// Half throttle along-track whatever the features: the same commands for either problem.
+    struct Half;
+    impl<const N: usize> Actor<N> for Half {
+        fn act(&self, _: &[f32; N]) -> [f32; 3] {
+            [0.0, 0.0, 1.0]
+        }
+    }
+
+    #[test]
+    fn a_rendezvous_sees_the_body_coasted_from_its_epoch_each_cycle() {
+        let s = rendezvous(1.52, 1.2);
+        let flight = fly_rdv(&Half, &s, &Dispersions::NONE, 0);
+        assert_eq!(flight.steps.len(), s.steps as usize);
+        let epoch = s.target.cartesian_at(s.target_nu0);
+        let body = |k: u32| coast(&epoch, f64::from(k) * STEP).unwrap();
+        for k in &flight.steps {
+            // Features 10..14: the body's x, y, vx, vy, as guidance was given them.
+            let b = body(k.index);
+            assert_eq!(k.features[10..14], [b.r[0], b.r[1], b.v[0], b.v[1]], "step {}", k.index);
+            assert_eq!(k.features[20], f64::from(s.steps - k.index) * STEP);
+            // Residuals against the body at the end of the cycle.
+            let b = body(k.index + 1);
+            let (dr, dv) = (
+                libm::hypot(b.r[0] - k.state.r[0], b.r[1] - k.state.r[1]),
+                libm::hypot(b.v[0] - k.state.v[0], b.v[1] - k.state.v[1]),
+            );
+            assert_eq!(
+                (k.residuals.position, k.residuals.velocity),
+                (dr, dv),
+                "step {}",
+                k.index
+            );
+            let w = RewardWeights::default();
+            assert_eq!(k.reward, reward(&k.residuals, 0.5, &w));
+        }
+        // Coasting, the spacecraft flies one Kepler arc and keeps its mass, as in a transfer.
+        let coasting = fly_rdv(&THRUST_OFF, &s, &Dispersions::NONE, 0);
+        let end = coasting.final_state();
+        let direct = coast(&s.initial.cartesian(), s.time_of_flight()).unwrap();
+        for (a, b) in end.r.iter().chain(&end.v).zip(direct.r.iter().chain(&direct.v)) {
+            assert!((a - b).abs() < 1e-11);
+        }
+        assert_eq!(end.m, 1.0);
+    }
+
+    /// Thrust off whatever the features.
+    const THRUST_OFF: Constant = Constant(THRUST_OFF_ACTION);
+    struct Constant([f32; 3]);
+    impl<const N: usize> Actor<N> for Constant {
+        fn act(&self, _: &[f32; N]) -> [f32; 3] {
+            self.0
+        }
+    }
+
+    #[test]
+    fn dispersions_act_on_a_rendezvous_exactly_as_on_a_transfer() {
+        // The same commands from the same start meet the same plant: every draw (navigation,
+        // thrust magnitude, pointing, missed thrust) comes from the seed alone, not the problem.
+        let (t, r) = (scenario(1.52), rendezvous(1.52, 2.0));
+        for (d, seed) in [(Dispersions::TYPICAL, 7), (Dispersions::NONE, 0)] {
+            let a = fly(&Half, &t, &d, seed);
+            let b = fly_rdv(&Half, &r, &d, seed);
+            assert_eq!(a.steps.len(), b.steps.len());
+            for (x, y) in a.steps.iter().zip(&b.steps) {
+                assert_eq!(
+                    (x.navigation, x.command, x.applied, x.missed_thrust, x.state),
+                    (y.navigation, y.command, y.applied, y.missed_thrust, y.state),
+                    "step {}",
+                    x.index
+                );
+            }
+            // Only the target differs: the body is not where the transfer's proxy is.
+            assert_ne!(a.total_reward(), b.total_reward());
+        }
+        let d = Dispersions::TYPICAL;
+        let flight = fly_rdv(&Half, &r, &d, 7);
+        assert!(flight.steps.iter().any(|k| k.missed_thrust > 0.0));
+        assert!(flight.steps.iter().all(|k| k.navigation != k.state));
+    }
+
+    #[test]
+    fn a_refused_rendezvous_blob_flies_thrust_off_and_the_wrong_problem_is_refused() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let r = rendezvous(1.52, 1.0);
+        let controller = Controller::load_rendezvous(&[0u8; 64]);
+        assert!(matches!(controller, Controller::SafeMode(_)));
+        let flight = fly_rdv(&controller, &r, &Dispersions::TYPICAL, 1);
+        assert_eq!(flight.steps.len(), r.steps as usize);
+        assert!(flight
+            .steps
+            .iter()
+            .all(|k| k.command.throttle == 0.0 && k.applied.throttle == 0.0));
+        assert_eq!(flight.final_state().m, 1.0);
+        let (tol, w) = (Tolerances::default(), RewardWeights::default());
+        let t = scenario(1.52);
+        assert_eq!(
+            fly_rendezvous(&controller, &t, &sc, &tol, &w, &Dispersions::NONE, 1),
+            Err(SilError::WrongProblem {
+                expected: ProblemKind::Rendezvous,
+                found: ProblemKind::Transfer
+            })
+        );
+        assert_eq!(
+            fly_transfer(&Half, &r, &sc, &tol, &w, &Dispersions::NONE, 1),
+            Err(SilError::WrongProblem {
+                expected: ProblemKind::Transfer,
+                found: ProblemKind::Rendezvous
+            })
+        );
+        let bad = Dispersions {
+            pointing: f64::NAN,
+            ..Dispersions::NONE
+        };
+        assert_eq!(
+            fly_rendezvous(&controller, &r, &sc, &tol, &w, &bad, 1),
+            Err(SilError::Dispersion(DispersionError))
+        );
+        let nowhere = Scenario {
+            target_nu0: f64::NAN,
+            ..r
+        };
+        assert!(matches!(
+            fly_rendezvous(&controller, &nowhere, &sc, &tol, &w, &Dispersions::NONE, 1),
+            Err(SilError::Scenario(_))
+        ));
     }
 
     #[test]

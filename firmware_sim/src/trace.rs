@@ -1,12 +1,12 @@
-//! The SIL trace: one text format, and one set of flights, for the host run
-//! (`src/bin/sil_trace.rs`) and the Cortex-M4 image (`m4/`), so the two runs can be diffed
-//! line by line (`scripts/qemu-sil.sh`). Every f64 is printed as its bit pattern in hex:
+//! The SIL trace: one text format, and one set of flights per problem ([`TRANSFER_FLIGHTS`],
+//! [`RENDEZVOUS_FLIGHTS`]), for the host run (`src/bin/sil_trace.rs`) and the Cortex-M4 image
+//! (`m4/`), so the two runs can be diffed line by line (`scripts/qemu-sil.sh`). Every f64 is printed as its bit pattern in hex:
 //! equal traces mean bit-identical flights, not flights that agree to printing precision.
 //!
 //! Lines (the image adds its measurements as lines starting with [`COMMENT`], which the diff
 //! ignores):
 //! - `blob f32|int8 bytes <n> provenance "<text>"` or `blob refused: <why>` (the typed load error);
-//! - `flight <name> seed <seed> steps <n>` before each flight of [`FLIGHTS`];
+//! - `flight <name> seed <seed> steps <n>` before each flight;
 //! - `step <k> cmd <u> <ar> <at> applied <u> <ar> <at> missed <t> state <x> <y> <vx> <vy> <m>
 //!   reward <r> guidance ok|<why>`, the command and the true state at the end of the step;
 //! - `end steps <n> faults <n> reward <sum> final <x> <y> <vx> <vy> <m>` or `end error: <why>`.
@@ -14,15 +14,15 @@
 use core::fmt::{self, Write};
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::features::{RewardWeights, TRANSFER_FEATURES};
+use onboard::features::RewardWeights;
 use onboard::guidance::Actor;
 use onboard::integrator::Tolerances;
 use shared::blob::Quantization;
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::scenario::Scenario;
+use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::Spacecraft;
 
-use crate::{fly_transfer_observed, Controller, Dispersions, FlightStep, FlightSummary, SilError};
+use crate::{fly_observed, Controller, Dispersions, FlightStep, FlightSummary, Problem, SilError};
 
 /// First character of the lines a trace consumer must ignore (measurements, timings).
 pub const COMMENT: char = '#';
@@ -37,9 +37,9 @@ pub struct TraceFlight {
 }
 
 /// A circular 1 AU -> 1.3 AU transfer (39 steps of 14 days) from nu = 0.3 rad.
-const fn scenario() -> Scenario {
+const fn transfer() -> Scenario {
     Scenario {
-        problem: shared::scenario::ProblemKind::Transfer,
+        problem: ProblemKind::Transfer,
         initial: OrbitElements {
             shape: OrbitShape {
                 a: 1.0,
@@ -59,25 +59,54 @@ const fn scenario() -> Scenario {
     }
 }
 
-/// The trace's flights: the nominal plant (the MDP itself), then the dispersed plant of
-/// [`Dispersions::TYPICAL`], whose random draws (ChaCha, Gaussian by libm) must agree too.
-pub const FLIGHTS: [TraceFlight; 2] = [
-    TraceFlight {
-        name: "nominal",
-        scenario: scenario(),
-        dispersions: Dispersions::NONE,
-        seed: 0,
-    },
-    TraceFlight {
-        name: "dispersed",
-        scenario: scenario(),
-        dispersions: Dispersions::TYPICAL,
-        seed: 20_261_121,
-    },
-];
+/// The same orbits as a rendezvous with a body starting 40 degrees ahead of the spacecraft
+/// (nu = 0.3 + 0.7 rad), so the flight has to phase as well as raise its orbit.
+const fn rendezvous() -> Scenario {
+    let transfer = transfer();
+    Scenario {
+        problem: ProblemKind::Rendezvous,
+        target_nu0: 1.0,
+        ..transfer
+    }
+}
+
+/// The two flights of each problem: the nominal plant (the MDP itself), then the dispersed
+/// plant of [`Dispersions::TYPICAL`], whose random draws (ChaCha, Gaussian by libm) must agree
+/// too.
+const fn flights(names: [&'static str; 2], scenario: Scenario) -> [TraceFlight; 2] {
+    let [nominal, dispersed] = names;
+    [
+        TraceFlight {
+            name: nominal,
+            scenario,
+            dispersions: Dispersions::NONE,
+            seed: 0,
+        },
+        TraceFlight {
+            name: dispersed,
+            scenario,
+            dispersions: Dispersions::TYPICAL,
+            seed: 20_261_121,
+        },
+    ]
+}
+
+/// The transfer image's flights.
+pub const TRANSFER_FLIGHTS: [TraceFlight; 2] = flights(["nominal", "dispersed"], transfer());
+
+/// The rendezvous image's flights (named apart, so a trace says which image wrote it).
+pub const RENDEZVOUS_FLIGHTS: [TraceFlight; 2] = flights(["rendezvous-nominal", "rendezvous-dispersed"], rendezvous());
+
+/// The trace's flights of problem `P`.
+pub fn flights_of<const N: usize, P: Problem<N>>(_problem: P) -> &'static [TraceFlight; 2] {
+    match P::KIND {
+        ProblemKind::Transfer => &TRANSFER_FLIGHTS,
+        ProblemKind::Rendezvous => &RENDEZVOUS_FLIGHTS,
+    }
+}
 
 /// The header line: what `controller` made of `blob`, or why it refused it.
-pub fn write_header<W: Write>(w: &mut W, blob: &[u8], controller: &Controller<'_>) -> fmt::Result {
+pub fn write_header<W: Write, const N: usize>(w: &mut W, blob: &[u8], controller: &Controller<'_, N>) -> fmt::Result {
     match controller {
         Controller::Network(policy) => {
             let q = match policy.quantization() {
@@ -111,7 +140,7 @@ fn write_state<W: Write>(w: &mut W, s: &SpacecraftState) -> fmt::Result {
 }
 
 /// One `step` line.
-pub fn write_step<W: Write>(w: &mut W, s: &FlightStep) -> fmt::Result {
+pub fn write_step<W: Write, const N: usize>(w: &mut W, s: &FlightStep<N>) -> fmt::Result {
     write!(w, "step {} cmd ", s.index)?;
     write_command(w, &s.command)?;
     w.write_str(" applied ")?;
@@ -143,10 +172,11 @@ pub fn write_end<W: Write>(w: &mut W, result: &Result<FlightSummary, SilError>) 
     }
 }
 
-/// Flies `flight` with `actor`, writing its `flight`, `step` and `end` lines to `w`. The
-/// outer error is a failed write; the inner result is the flight's.
-pub fn fly<A: Actor<TRANSFER_FEATURES>, W: Write>(
+/// Flies `flight` as problem `P` with `actor`, writing its `flight`, `step` and `end` lines to
+/// `w`. The outer error is a failed write; the inner result is the flight's.
+pub fn fly<const N: usize, P: Problem<N>, A: Actor<N>, W: Write>(
     w: &mut W,
+    problem: P,
     actor: &A,
     flight: &TraceFlight,
 ) -> Result<Result<FlightSummary, SilError>, fmt::Error> {
@@ -160,7 +190,8 @@ pub fn fly<A: Actor<TRANSFER_FEATURES>, W: Write>(
         return Err(fmt::Error);
     };
     let mut written = Ok(());
-    let result = fly_transfer_observed(
+    let result = fly_observed(
+        problem,
         actor,
         &flight.scenario,
         &spacecraft,
@@ -184,8 +215,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_trace_scenario_has_the_spec_time_of_flight() {
-        let s = scenario();
+    fn the_trace_scenarios_have_the_spec_time_of_flight() {
+        let s = transfer();
         assert_eq!(s, Scenario::transfer(s.initial, s.target));
+        let r = rendezvous();
+        assert_eq!(r.steps, Scenario::steps_for(&r.initial.shape, &r.target));
+        assert_eq!((r.initial, r.target), (s.initial, s.target));
+        assert!(r.validate().is_ok());
+    }
+
+    #[test]
+    fn each_problem_has_its_own_flights() {
+        assert!(TRANSFER_FLIGHTS
+            .iter()
+            .all(|f| f.scenario.problem == ProblemKind::Transfer));
+        assert!(RENDEZVOUS_FLIGHTS
+            .iter()
+            .all(|f| f.scenario.problem == ProblemKind::Rendezvous));
+        assert_eq!(flights_of(crate::Transfer), &TRANSFER_FLIGHTS);
+        assert_eq!(flights_of(crate::Rendezvous), &RENDEZVOUS_FLIGHTS);
     }
 }

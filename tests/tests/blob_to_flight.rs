@@ -1,15 +1,19 @@
 //! From a blob written by the ground side (`shared::blob`) to commands flown by the onboard crate
 //! in the SIL loop: the contract between the crates, end to end.
 
-use firmware_sim::{fly_transfer, Dispersions};
-use onboard::features::{decode_action, to_network_input, RewardWeights};
+use firmware_sim::{
+    fly_observed, fly_rendezvous, fly_transfer, Controller, Dispersions, FlightStep, Problem, Rendezvous, Transfer,
+};
+use ground_core::env::{EnvConfig, Environment, MdpEnv};
+use onboard::features::{decode_action, to_network_input, RewardWeights, RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+use onboard::guidance::Actor;
 use onboard::integrator::Tolerances;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use shared::blob::{
     decode, encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, FeatureLayout, LayerBlob,
-    NetworkBlob, ProblemKind, Quantization,
+    NetworkBlob, ProblemKind, Quantization, FORMAT_VERSION,
 };
-use shared::scenario::ScenarioKind;
+use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 
 /// Deterministic weights (xorshift), scaled like a PyTorch default init (+-1/sqrt(fan_in)).
@@ -55,13 +59,27 @@ fn calibrate(sizes: &[usize], seed: u64, inputs: &[Vec<f32>]) -> Vec<f32> {
     max_abs
 }
 
-fn calibration_inputs() -> Vec<Vec<f32>> {
+/// Network inputs at the start of draws of the hard distribution of the network's problem
+/// (told by its input count).
+fn calibration_inputs(inputs: usize) -> Vec<Vec<f32>> {
     (0..200)
         .map(|index| {
-            let s = ScenarioKind::TransferHard.draw(99, index);
+            let rendezvous = inputs == RENDEZVOUS_FEATURES;
+            let kind = if rendezvous {
+                ScenarioKind::RendezvousHard
+            } else {
+                ScenarioKind::TransferHard
+            };
+            let s = kind.draw(99, index);
             let state = onboard::dynamics::SpacecraftState::from_cartesian(&s.initial.cartesian(), 1.0);
-            let f = onboard::features::transfer_features(&state, &s.target, s.time_of_flight()).unwrap();
-            to_network_input(&f).to_vec()
+            if rendezvous {
+                let body = s.target.cartesian_at(s.target_nu0);
+                let f = onboard::features::rendezvous_features(&state, &body, s.time_of_flight()).unwrap();
+                to_network_input(&f).to_vec()
+            } else {
+                let f = onboard::features::transfer_features(&state, &s.target, s.time_of_flight()).unwrap();
+                to_network_input(&f).to_vec()
+            }
         })
         .collect()
 }
@@ -69,7 +87,7 @@ fn calibration_inputs() -> Vec<Vec<f32>> {
 /// The f32 network in PyTorch layout [out][in], then the blob arrays per quantization.
 fn network(sizes: &[usize], quantization: Quantization, seed: u64) -> Vec<OwnedLayer> {
     let calibration = match quantization {
-        Quantization::Int8 => calibrate(sizes, seed, &calibration_inputs()),
+        Quantization::Int8 => calibrate(sizes, seed, &calibration_inputs(sizes[0])),
         Quantization::F32 => Vec::new(),
     };
     let last = sizes.len() - 2;
@@ -151,6 +169,153 @@ fn transfer_blob(quantization: Quantization) -> Vec<u8> {
         FeatureLayout::TransferPolar10,
         quantization,
     )
+}
+
+fn rendezvous_blob(quantization: Quantization) -> Vec<u8> {
+    let layers = network(&[22, 256, 256, 3], quantization, 17);
+    blob_bytes(
+        &layers,
+        ProblemKind::Rendezvous,
+        FeatureLayout::RendezvousPolar22,
+        quantization,
+    )
+}
+
+/// Flies `scenario` in the SIL without dispersions and through the ground environment of the
+/// same problem, the environment's actions from `actor` on its observations, and requires the
+/// same episode bit for bit: observation, command, state, reward and residuals at every step.
+fn sil_is_the_environment<const N: usize, P, E>(problem: P, actor: &impl Actor<N>, scenario: &Scenario)
+where
+    P: Problem<N>,
+    E: Environment<Obs = [f32; N]>,
+{
+    let config = EnvConfig::default();
+    let spacecraft = config.spacecraft.canonical().unwrap();
+    let mut steps: Vec<FlightStep<N>> = Vec::new();
+    let summary = fly_observed(
+        problem,
+        actor,
+        scenario,
+        &spacecraft,
+        &config.integrator.tolerances(),
+        &config.reward.weights(),
+        &Dispersions::NONE,
+        0,
+        |k| steps.push(*k),
+    )
+    .unwrap();
+    assert_eq!(summary.steps, scenario.steps);
+    let mut env = E::new(&config).unwrap();
+    let mut obs = env.reset(scenario).unwrap();
+    let mut total = 0.0;
+    for k in &steps {
+        assert_eq!(obs, to_network_input(&k.features), "observation at step {}", k.index);
+        let step = env.step(&actor.act(&obs)).unwrap();
+        assert_eq!(step.info.command, k.command, "command at step {}", k.index);
+        assert!(k.guidance_error.is_none());
+        assert_eq!(step.info.state, k.state, "state after step {}", k.index);
+        assert_eq!(step.info.residuals, k.residuals, "residuals after step {}", k.index);
+        assert_eq!(step.reward.to_bits(), k.reward.to_bits(), "reward of step {}", k.index);
+        assert_eq!(step.done, k.index + 1 == scenario.steps);
+        total += step.reward;
+        obs = step.observation;
+    }
+    assert_eq!(total.to_bits(), summary.total_reward.to_bits());
+}
+
+#[test]
+fn without_dispersions_the_sil_flies_the_ground_environments_episodes() {
+    for quantization in [Quantization::F32, Quantization::Int8] {
+        let bytes = transfer_blob(quantization);
+        let transfer = Controller::load_transfer(&bytes);
+        assert!(matches!(transfer, Controller::Network(_)));
+        let bytes = rendezvous_blob(quantization);
+        let rendezvous = Controller::load_rendezvous(&bytes);
+        assert!(matches!(rendezvous, Controller::Network(_)));
+        for index in 0..3 {
+            let scenario = ScenarioKind::TransferCircular.draw(2026, index);
+            sil_is_the_environment::<TRANSFER_FEATURES, _, MdpEnv<ground_core::env::Transfer>>(
+                Transfer, &transfer, &scenario,
+            );
+            for kind in [ScenarioKind::RendezvousCircular, ScenarioKind::RendezvousHard] {
+                let scenario = kind.draw(2026, index);
+                sil_is_the_environment::<RENDEZVOUS_FEATURES, _, MdpEnv<ground_core::env::Rendezvous>>(
+                    Rendezvous,
+                    &rendezvous,
+                    &scenario,
+                );
+            }
+        }
+    }
+}
+
+/// The blob's refused variants: one payload byte flipped, the last 1,000 bytes cut, the next
+/// format version (as scripts/qemu-sil.sh makes them).
+fn spoiled(bytes: &[u8]) -> [(&'static str, Vec<u8>); 3] {
+    let mut altered = bytes.to_vec();
+    let mid = altered.len() / 2;
+    altered[mid] ^= 0xff;
+    let mut version = bytes.to_vec();
+    version[4..6].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
+    [
+        ("altered", altered),
+        ("truncated", bytes[..bytes.len() - 1000].to_vec()),
+        ("version", version),
+    ]
+}
+
+#[test]
+fn the_sil_controller_refuses_bad_blobs_of_either_problem_and_flies_them_thrust_off() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let (tol, w) = (Tolerances::default(), RewardWeights::default());
+    for quantization in [Quantization::F32, Quantization::Int8] {
+        let (transfer, rendezvous) = (transfer_blob(quantization), rendezvous_blob(quantization));
+        let t = ScenarioKind::TransferCircular.draw(7, 0);
+        let r = ScenarioKind::RendezvousCircular.draw(7, 0);
+        // Each refusal is typed; the flight goes on in safe mode, thrust off, dispersions and all.
+        let bad = spoiled(&rendezvous);
+        let mut refused: Vec<_> = bad
+            .iter()
+            .map(|(what, bytes)| (*what, Controller::load_rendezvous(bytes)))
+            .collect();
+        refused.push(("transfer blob", Controller::load_rendezvous(&transfer)));
+        for (what, controller) in &refused {
+            let Controller::SafeMode(error) = controller else {
+                panic!("{what}: a rendezvous blob {what} was loaded");
+            };
+            match *what {
+                "altered" => assert!(matches!(error, PolicyError::Blob(BlobError::CrcMismatch { .. }))),
+                "transfer blob" => assert_eq!(
+                    *error,
+                    PolicyError::WrongKind {
+                        expected: ProblemKind::Rendezvous,
+                        found: ProblemKind::Transfer
+                    }
+                ),
+                _ => assert!(matches!(error, PolicyError::Blob(_)), "{what}: {error:?}"),
+            }
+            let flight = fly_rendezvous(controller, &r, &sc, &tol, &w, &Dispersions::TYPICAL, 3).unwrap();
+            assert_eq!(flight.steps.len(), r.steps as usize);
+            assert!(flight
+                .steps
+                .iter()
+                .all(|k| k.command.throttle == 0.0 && k.applied.throttle == 0.0));
+            assert_eq!(flight.final_state().m, 1.0, "{what}");
+        }
+        // And the same for a transfer controller.
+        let bad = spoiled(&transfer);
+        let mut refused: Vec<_> = bad
+            .iter()
+            .map(|(what, bytes)| (*what, Controller::load_transfer(bytes)))
+            .collect();
+        refused.push(("rendezvous blob", Controller::load_transfer(&rendezvous)));
+        for (what, controller) in &refused {
+            assert!(matches!(controller, Controller::SafeMode(_)), "{what}");
+            let flight = fly_transfer(controller, &t, &sc, &tol, &w, &Dispersions::TYPICAL, 3).unwrap();
+            assert!(flight.steps.iter().all(|k| k.command.throttle == 0.0), "{what}");
+            assert_eq!(flight.final_state().m, 1.0, "{what}");
+        }
+    }
 }
 
 #[test]

@@ -12,7 +12,7 @@ use core::hint::black_box;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
-use onboard::features::{ACTION_LEN, TRANSFER_FEATURES};
+use onboard::features::ACTION_LEN;
 use onboard::guidance::Actor;
 
 /// The SysTick's 24-bit reload: the longest period, 2^24 ticks (671 M instructions).
@@ -76,16 +76,16 @@ pub fn calibrate(counter: &Counter, n: u32) -> (u32, u32) {
 /// Most inferences recorded (the flight's guidance cycles).
 pub const MAX_SAMPLES: usize = 128;
 
-/// An actor that counts the ticks of every inference of the actor it wraps.
-pub struct Counted<'a, A> {
+/// An actor on `N` features that counts the ticks of every inference of the actor it wraps.
+pub struct Counted<'a, A, const N: usize> {
     inner: &'a A,
     counter: &'a Counter,
     samples: [Cell<u32>; MAX_SAMPLES],
     count: Cell<usize>,
-    first_input: Cell<Option<[f32; TRANSFER_FEATURES]>>,
+    first_input: Cell<Option<[f32; N]>>,
 }
 
-impl<'a, A: Actor<TRANSFER_FEATURES>> Counted<'a, A> {
+impl<'a, const N: usize, A: Actor<N>> Counted<'a, A, N> {
     pub fn new(inner: &'a A, counter: &'a Counter) -> Self {
         Self {
             inner,
@@ -106,7 +106,7 @@ impl<'a, A: Actor<TRANSFER_FEATURES>> Counted<'a, A> {
     }
 
     /// The features of the first inference (what the repeated benchmark runs on).
-    pub fn first_input(&self) -> Option<[f32; TRANSFER_FEATURES]> {
+    pub fn first_input(&self) -> Option<[f32; N]> {
         self.first_input.get()
     }
 }
@@ -114,11 +114,7 @@ impl<'a, A: Actor<TRANSFER_FEATURES>> Counted<'a, A> {
 /// One inference between two SysTick reads. `black_box` on both sides keeps the work between
 /// the reads: LLVM may move pure arithmetic across a volatile read, not across an opaque call.
 #[inline(always)]
-fn timed<A: Actor<TRANSFER_FEATURES>>(
-    inner: &A,
-    counter: &Counter,
-    x: &[f32; TRANSFER_FEATURES],
-) -> ([f32; ACTION_LEN], u32) {
+fn timed<const N: usize, A: Actor<N>>(inner: &A, counter: &Counter, x: &[f32; N]) -> ([f32; ACTION_LEN], u32) {
     let t0 = counter.now();
     let x = black_box(x);
     let y = black_box(inner.act(x));
@@ -126,8 +122,8 @@ fn timed<A: Actor<TRANSFER_FEATURES>>(
     (y, Counter::ticks(t0, t1))
 }
 
-impl<A: Actor<TRANSFER_FEATURES>> Actor<TRANSFER_FEATURES> for Counted<'_, A> {
-    fn act(&self, x: &[f32; TRANSFER_FEATURES]) -> [f32; ACTION_LEN] {
+impl<const N: usize, A: Actor<N>> Actor<N> for Counted<'_, A, N> {
+    fn act(&self, x: &[f32; N]) -> [f32; ACTION_LEN] {
         let (y, ticks) = timed(self.inner, self.counter, x);
         let n = self.count.get();
         if let Some(slot) = self.samples.get(n) {
@@ -142,12 +138,7 @@ impl<A: Actor<TRANSFER_FEATURES>> Actor<TRANSFER_FEATURES> for Counted<'_, A> {
 }
 
 /// Ticks of `reps` back-to-back inferences on `x` (the sub-tick resolution of the mean).
-pub fn repeated<A: Actor<TRANSFER_FEATURES>>(
-    inner: &A,
-    counter: &Counter,
-    x: &[f32; TRANSFER_FEATURES],
-    reps: u32,
-) -> u32 {
+pub fn repeated<const N: usize, A: Actor<N>>(inner: &A, counter: &Counter, x: &[f32; N], reps: u32) -> u32 {
     let t0 = counter.now();
     for _ in 0..reps {
         black_box(inner.act(black_box(x)));

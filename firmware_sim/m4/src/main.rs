@@ -1,10 +1,12 @@
 //! The Cortex-M4F flight image (QEMU mps2-an386): the SIL guidance loop of `firmware_sim`
-//! flying the trace's transfers with the weight blob linked into flash, the trace and the
+//! flying the trace's flights with the weight blob linked into flash, the trace and the
 //! measurements written through semihosting.
 //!
-//! The blob is refused at load if it is of another version, problem or shape, truncated or
-//! altered: the typed error goes into the trace and the flights are flown in safe mode (thrust
-//! off), then the image exits 0 as usual, since refusing is the correct behaviour.
+//! The image flies one problem, chosen at build time: transfers by default, rendezvous with the
+//! `rendezvous` feature (flight software is built for its mission, and one network's code keeps
+//! the image small). The blob is refused at load if it is of another version, problem or shape,
+//! truncated or altered: the typed error goes into the trace and the flights are flown in safe
+//! mode (thrust off), then the image exits 0 as usual, since refusing is the correct behaviour.
 //! It exits 1 only when the firmware itself fails (panic, fault, output error).
 #![no_std]
 #![no_main]
@@ -28,10 +30,26 @@ mod stack;
 use core::fmt::Write;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
-use firmware_sim::trace::{self, COMMENT, FLIGHTS};
+use firmware_sim::trace::{self, COMMENT};
 use firmware_sim::Controller;
 
 use counter::{Counted, Counter, INSTRUCTIONS_PER_TICK, MAX_SAMPLES};
+
+/// The problem this image flies, and its network's input count.
+#[cfg(not(feature = "rendezvous"))]
+mod mission {
+    pub use firmware_sim::Transfer as Flown;
+    pub const FEATURES: usize = onboard::features::TRANSFER_FEATURES;
+}
+#[cfg(feature = "rendezvous")]
+mod mission {
+    pub use firmware_sim::Rendezvous as Flown;
+    pub const FEATURES: usize = onboard::features::RENDEZVOUS_FEATURES;
+}
+use mission::{Flown, FEATURES};
+
+/// The flight computer's controller of this image's problem.
+type FlownController<'a> = Controller<'a, FEATURES>;
 
 /// Aligns the blob in flash (64 bytes: a cache line on parts that have one); the decoder does
 /// not need it, since it reads every array byte-wise.
@@ -62,7 +80,7 @@ fn run(out: &mut semi::Out) -> core::fmt::Result {
     };
     let counter = Counter::start(peripherals.SYST);
     let blob: &'static [u8] = &BLOB.0;
-    let controller = Controller::load_transfer(blob);
+    let controller = FlownController::load::<Flown>(blob);
     let counted = Counted::new(&controller, &counter);
     fly(out, blob, &controller, &counted)?;
     // The flights' stack peak, before the measurements add their own frames.
@@ -82,13 +100,13 @@ fn run(out: &mut semi::Out) -> core::fmt::Result {
 fn fly(
     out: &mut semi::Out,
     blob: &[u8],
-    controller: &Controller<'_>,
-    counted: &Counted<'_, Controller<'_>>,
+    controller: &FlownController<'_>,
+    counted: &Counted<'_, FlownController<'_>, FEATURES>,
 ) -> core::fmt::Result {
     trace::write_header(out, blob, controller)?;
-    for flight in &FLIGHTS {
+    for flight in trace::flights_of(Flown) {
         // The flight's outcome is in its `end` line.
-        let _flown = trace::fly(out, counted, flight)?;
+        let _flown = trace::fly(out, Flown, counted, flight)?;
     }
     Ok(())
 }
@@ -98,8 +116,8 @@ fn fly(
 fn measure(
     out: &mut semi::Out,
     counter: &Counter,
-    controller: &Controller<'_>,
-    counted: &Counted<'_, Controller<'_>>,
+    controller: &FlownController<'_>,
+    counted: &Counted<'_, FlownController<'_>, FEATURES>,
 ) -> core::fmt::Result {
     let (empty, looped) = counter::calibrate(counter, CALIBRATION_LOOP);
     writeln!(

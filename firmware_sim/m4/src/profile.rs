@@ -5,8 +5,8 @@ use core::fmt::{self, Write};
 use core::hint::black_box;
 
 use firmware_sim::trace::COMMENT;
-use onboard::features::TRANSFER_FEATURES;
-use onboard::policy::{MlpLayers, TransferPolicy};
+use firmware_sim::Policy;
+use onboard::policy::MlpLayers;
 
 use crate::counter::{Counter, INSTRUCTIONS_PER_TICK};
 
@@ -31,12 +31,25 @@ impl fmt::Display for Hundredths {
     }
 }
 
+/// A stage's name, with the network's input count where it has one (10 or 22).
+struct Stage(&'static str, Option<usize>, &'static str);
+
+impl fmt::Display for Stage {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.0)?;
+        if let Some(n) = self.1 {
+            write!(f, " {n}")?;
+        }
+        f.write_str(self.2)
+    }
+}
+
 /// Writes the breakdown of `policy.forward(x)` as comment lines.
-pub fn write<W: Write>(
+pub fn write<W: Write, const N: usize>(
     w: &mut W,
     counter: &Counter,
-    policy: &TransferPolicy<'_>,
-    x: &[f32; TRANSFER_FEATURES],
+    policy: &Policy<'_, N>,
+    x: &[f32; N],
 ) -> fmt::Result {
     let whole = per_call(counter, x, |x| policy.forward(x));
     // Standalone copies: LLVM inlines and schedules them apart from the flight's Controller::act,
@@ -58,15 +71,24 @@ pub fn write<W: Write>(
             let q2 = c.quantize_input(&relu(b.forward(&q1)));
             let l2 = per_call(counter, &q1, |q| b.accumulate(q));
             let stages = [
-                ("L1 quantize 10", per_call(counter, x, |x| a.quantize_input(x))),
-                ("L1 accumulate 10x256", per_call(counter, &q0, |q| a.accumulate(q))),
-                ("L2 accumulate 256x256", l2),
-                ("L3 accumulate 256x3", per_call(counter, &q2, |q| c.accumulate(q))),
                 (
-                    "L2 quantize 256",
+                    Stage("L1 quantize", Some(N), ""),
+                    per_call(counter, x, |x| a.quantize_input(x)),
+                ),
+                (
+                    Stage("L1 accumulate", Some(N), "x256"),
+                    per_call(counter, &q0, |q| a.accumulate(q)),
+                ),
+                (Stage("L2 accumulate 256x256", None, ""), l2),
+                (
+                    Stage("L3 accumulate 256x3", None, ""),
+                    per_call(counter, &q2, |q| c.accumulate(q)),
+                ),
+                (
+                    Stage("L2 quantize 256", None, ""),
                     per_call(counter, &[0.5f32; 256], |h| b.quantize_input(h)),
                 ),
-                ("L1 dequantize 256", {
+                (Stage("L1 dequantize 256", None, ""), {
                     let all = per_call(counter, &q0, |q| a.forward(q));
                     all.saturating_sub(per_call(counter, &q0, |q| a.accumulate(q)))
                 }),
@@ -87,9 +109,9 @@ pub fn write<W: Write>(
             let h2 = relu(b.forward(&h1));
             let l2 = per_call(counter, &h1, |h| b.forward(h));
             let stages = [
-                ("L1 10x256", per_call(counter, x, |x| a.forward(x))),
-                ("L2 256x256", l2),
-                ("L3 256x3", per_call(counter, &h2, |h| c.forward(h))),
+                (Stage("L1", Some(N), "x256"), per_call(counter, x, |x| a.forward(x))),
+                (Stage("L2 256x256", None, ""), l2),
+                (Stage("L3 256x3", None, ""), per_call(counter, &h2, |h| c.forward(h))),
             ];
             for (name, v) in stages {
                 write!(w, "; {name} {}", Hundredths(v))?;

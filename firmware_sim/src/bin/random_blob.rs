@@ -3,11 +3,10 @@
 //!
 //! `random_blob [--seed N] [--out DIR] [--rendezvous]` writes `DIR/transfer-f32.blob` and
 //! `DIR/transfer-int8.blob` (defaults: seed 1, the current folder); `--rendezvous` writes a
-//! 22-256-256-3 `DIR/rendezvous-f32.blob` and `DIR/rendezvous-int8.blob` instead (the wrong
-//! problem for the transfer image, which must refuse them; the C interface's rendezvous step
-//! flies them). The blobs come from
-//! `shared::quantize`, the exporter's own writer; the int8 activation scales are calibrated on
-//! random feature vectors of flight-like magnitude.
+//! 22-256-256-3 `DIR/rendezvous-f32.blob` and `DIR/rendezvous-int8.blob` instead (flown by the
+//! rendezvous image and the C interface's rendezvous step, refused by the transfer image). The
+//! blobs come from `shared::quantize`, the exporter's own writer; the int8 activation scales are
+//! calibrated on random feature vectors of flight-like magnitude.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -53,12 +52,20 @@ fn he_layer(inputs: usize, outputs: usize, activation: Activation, rng: &mut Rng
     }
 }
 
-/// Transfer features of flight-like magnitude (docs/spec.md section 5): radius 0.8-1.8 AU, unit
-/// direction, velocities of near-circular orbits, mass 0.6-1, time to go up to 12 t*.
-/// A rendezvous network gets O(1) inputs: it is only ever refused.
+/// Radius, polar angle and polar velocity of a near-circular orbit point of 0.8-1.8 AU.
+fn orbit_point(rng: &mut Rng) -> (f64, f64, f64, f64) {
+    let r = rng.uniform(0.8, 1.8);
+    let theta = rng.uniform(0.0, std::f64::consts::TAU);
+    (r, theta, rng.uniform(-0.2, 0.2), rng.uniform(0.7, 1.2) / r.sqrt())
+}
+
+/// Features of flight-like magnitude (docs/spec.md sections 5 and 6), mass 0.6-1, time to go up
+/// to 12 t*. Transfer: radius 0.8-1.8 AU, unit direction, velocities of near-circular orbits,
+/// the target proxy likewise. Rendezvous: spacecraft and body on such orbits, their polar and
+/// Cartesian states and differences.
 fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
-    if inputs != TRANSFER[0] {
-        return (0..inputs).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
+    if inputs == RENDEZVOUS[0] {
+        return rendezvous_sample(rng);
     }
     let theta = rng.uniform(0.0, std::f64::consts::TAU);
     let r = rng.uniform(0.8, 1.8);
@@ -74,6 +81,42 @@ fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
         rng.uniform(-0.2, 0.2),
         rng.uniform(0.7, 1.2) / r_t.sqrt(),
         rng.uniform(0.0, 12.0),
+    ]
+    .map(|v| v as f32)
+    .to_vec()
+}
+
+fn rendezvous_sample(rng: &mut Rng) -> Vec<f32> {
+    let cartesian = |(r, theta, v_r, v_theta): (f64, f64, f64, f64)| {
+        let (c, s) = (theta.cos(), theta.sin());
+        [r * c, r * s, v_r * c - v_theta * s, v_r * s + v_theta * c]
+    };
+    let (craft, body) = (orbit_point(rng), orbit_point(rng));
+    let ([x, y, vx, vy], [xt, yt, vxt, vyt]) = (cartesian(craft), cartesian(body));
+    let (dx, dy, dvx, dvy) = (xt - x, yt - y, vxt - vx, vyt - vy);
+    [
+        craft.0,
+        craft.1.cos(),
+        craft.1.sin(),
+        body.0,
+        body.1.cos(),
+        body.1.sin(),
+        x,
+        y,
+        vx,
+        vy,
+        xt,
+        yt,
+        vxt,
+        vyt,
+        dx,
+        dy,
+        dvx,
+        dvy,
+        dx.hypot(dy),
+        dvx.hypot(dvy),
+        rng.uniform(0.0, 12.0),
+        rng.uniform(0.6, 1.0),
     ]
     .map(|v| v as f32)
     .to_vec()

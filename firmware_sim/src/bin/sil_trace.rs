@@ -1,21 +1,22 @@
 //! The host twin of the Cortex-M4 image: flies the trace's flights (`firmware_sim::trace`)
 //! with the blob in the given file and prints the same trace the image prints under QEMU.
 //!
-//! `sil_trace BLOB [--latency]`. With `--latency` it also times the inference on the host
-//! (lines starting with `#`, which the trace diff ignores).
+//! `sil_trace BLOB [--rendezvous] [--latency]`. The image is built for one problem, and so is
+//! its twin: transfer by default (a rendezvous blob is refused), with `--rendezvous` the
+//! rendezvous image (a transfer blob is refused). With `--latency` it also times the inference
+//! on the host (lines starting with `#`, which the trace diff ignores).
 
 use std::fmt::Write as _;
 use std::hint::black_box;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use firmware_sim::trace::{self, FLIGHTS};
-use firmware_sim::Controller;
-use onboard::features::TRANSFER_FEATURES;
+use firmware_sim::trace::{self, flights_of};
+use firmware_sim::{Controller, Problem, Rendezvous, Transfer};
 use onboard::guidance::Actor;
 
 /// Host latency: the median over batches of inferences on the nominal flight's features.
-fn latency(controller: &Controller<'_>, inputs: &[[f32; TRANSFER_FEATURES]]) -> String {
+fn latency<const N: usize>(controller: &Controller<'_, N>, inputs: &[[f32; N]]) -> String {
     const BATCHES: usize = 31;
     const PER_BATCH: usize = 200;
     let mut ns: Vec<f64> = Vec::with_capacity(BATCHES);
@@ -41,26 +42,19 @@ fn latency(controller: &Controller<'_>, inputs: &[[f32; TRANSFER_FEATURES]]) -> 
     )
 }
 
-fn run() -> Result<(), String> {
-    let mut args = std::env::args().skip(1);
-    let path = args.next().ok_or("usage: sil_trace BLOB [--latency]")?;
-    let timing = match args.next().as_deref() {
-        None => false,
-        Some("--latency") => true,
-        Some(a) => return Err(format!("unknown argument {a}")),
-    };
-    let blob = std::fs::read(&path).map_err(|e| format!("{path}: {e}"))?;
-    let controller = Controller::load_transfer(&blob);
+/// The trace of `blob` flown as problem `P`, as the image built for `P` writes it.
+fn trace_of<const N: usize, P: Problem<N>>(problem: P, blob: &[u8], timing: bool) -> Result<String, String> {
+    let controller = Controller::<N>::load::<P>(blob);
     let mut out = String::new();
     let mut inputs = Vec::new();
-    trace::write_header(&mut out, &blob, &controller).map_err(|e| e.to_string())?;
-    for (i, flight) in FLIGHTS.iter().enumerate() {
+    trace::write_header(&mut out, blob, &controller).map_err(|e| e.to_string())?;
+    for (i, flight) in flights_of(problem).iter().enumerate() {
         let recorder = Recorder {
             inner: &controller,
             inputs: std::cell::RefCell::new(Vec::new()),
         };
         // How the flight ended is in the trace's `end` line, compared with the image's.
-        let _flown = trace::fly(&mut out, &recorder, flight).map_err(|e| e.to_string())?;
+        let _flown = trace::fly(&mut out, problem, &recorder, flight).map_err(|e| e.to_string())?;
         if i == 0 {
             inputs = recorder.inputs.into_inner();
         }
@@ -69,18 +63,39 @@ fn run() -> Result<(), String> {
     if timing && matches!(controller, Controller::Network(_)) && !inputs.is_empty() {
         writeln!(out, "{}", latency(&controller, &inputs)).map_err(|e| e.to_string())?;
     }
+    Ok(out)
+}
+
+fn run() -> Result<(), String> {
+    let usage = "usage: sil_trace BLOB [--rendezvous] [--latency]";
+    let mut args = std::env::args().skip(1);
+    let path = args.next().ok_or(usage)?;
+    let (mut rendezvous, mut timing) = (false, false);
+    for a in args {
+        match a.as_str() {
+            "--rendezvous" => rendezvous = true,
+            "--latency" => timing = true,
+            _ => return Err(format!("unknown argument {a}; {usage}")),
+        }
+    }
+    let blob = std::fs::read(&path).map_err(|e| format!("{path}: {e}"))?;
+    let out = if rendezvous {
+        trace_of(Rendezvous, &blob, timing)?
+    } else {
+        trace_of(Transfer, &blob, timing)?
+    };
     print!("{out}");
     Ok(())
 }
 
 /// Passes inferences through and keeps their inputs (for the latency measurement).
-struct Recorder<'a> {
-    inner: &'a Controller<'a>,
-    inputs: std::cell::RefCell<Vec<[f32; TRANSFER_FEATURES]>>,
+struct Recorder<'a, const N: usize> {
+    inner: &'a Controller<'a, N>,
+    inputs: std::cell::RefCell<Vec<[f32; N]>>,
 }
 
-impl Actor<TRANSFER_FEATURES> for Recorder<'_> {
-    fn act(&self, x: &[f32; TRANSFER_FEATURES]) -> [f32; 3] {
+impl<const N: usize> Actor<N> for Recorder<'_, N> {
+    fn act(&self, x: &[f32; N]) -> [f32; 3] {
         self.inputs.borrow_mut().push(*x);
         self.inner.act(x)
     }

@@ -153,7 +153,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let export = export(&config, run, &best, &export_dir)?;
     let fly =
         |blob: &Path, folder: &str| sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions);
-    // The flight-software loop flies transfers only so far.
+    // The SIL Monte Carlo (`ground sil`) flies transfers only so far.
     let sil = if transfer {
         Some([fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?])
     } else {
@@ -396,7 +396,7 @@ fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport
     let Some(sil) = sil else {
         let _ = writeln!(
             s,
-            "No SIL flight: the flight-software loop (`firmware_sim`) flies transfers only so far.\n"
+            "No SIL flight: the SIL Monte Carlo (`ground sil`) flies transfers only so far.\n"
         );
         return;
     };

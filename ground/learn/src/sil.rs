@@ -71,7 +71,9 @@ fn outcome(
             SilError::Plant { index, error } => EnvError::Propagation { step: index, error },
             SilError::Features { index, error } => EnvError::Features { step: index, error },
             SilError::Scenario(e) => EnvError::Scenario(e),
-            SilError::Dispersion(_) | SilError::NotATransfer => EnvError::Config("not flyable in SIL"),
+            SilError::Target { index, error } => EnvError::Body { step: index, error },
+            SilError::WrongProblem { expected, found } => EnvError::WrongProblem { expected, found },
+            SilError::Dispersion(_) => EnvError::Config("not flyable in SIL"),
         }),
         non_finite_actions: steps
             .iter()
@@ -154,7 +156,7 @@ pub fn sil_monte_carlo(
 ) -> Result<SilReport, ExperimentError> {
     if config.scenario.problem() != ProblemKind::Transfer {
         return Err(ExperimentError::Mismatch(
-            "the SIL loop flies transfers; rendezvous flight software is not built yet".into(),
+            "`ground sil` flies transfers; its rendezvous Monte Carlo is not built yet".into(),
         ));
     }
     dispersions

@@ -24,7 +24,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use firmware_sim::trace::FLIGHTS;
+use firmware_sim::trace::TRANSFER_FLIGHTS;
 use firmware_sim::{fly_transfer_observed, Controller};
 use lowthrust::{
     error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
@@ -96,7 +96,7 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
     let spacecraft = Spacecraft::MSR_ERO.canonical().map_err(|e| e.to_string())?;
     let mut calls = Vec::new();
     let mut first = 0;
-    for flight in &FLIGHTS {
+    for flight in &TRANSFER_FLIGHTS {
         let target = flight.scenario.target;
         let steps = flight.scenario.steps;
         // The trace flight itself (firmware_sim::trace::fly flies it with the same arguments).
@@ -133,7 +133,7 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
         .map_err(|e| e.to_string())?;
         first = calls.len();
     }
-    let nominal = FLIGHTS[0].scenario.target;
+    let nominal = TRANSFER_FLIGHTS[0].scenario.target;
     let nav = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
     let policy = TransferPolicy::from_bytes(blob, ProblemKind::Transfer);
     for (navigation, first_target_component, time_to_go) in refused_inputs(nav) {
@@ -157,7 +157,7 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
 
 fn rendezvous_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
     let policy = RendezvousPolicy::from_bytes(blob, ProblemKind::Rendezvous);
-    let scenario = FLIGHTS[0].scenario;
+    let scenario = TRANSFER_FLIGHTS[0].scenario;
     let spacecraft0 = scenario.initial.cartesian();
     let body0 = scenario.target.cartesian_at(scenario.target_nu0);
     let step = |navigation: SpacecraftState, body: CartesianState, time_to_go: f64| Call {
