@@ -2,6 +2,8 @@
 # Generate a dataset as a Slurm job array: one shard per array task, then merge.
 #   sbatch scripts/slurm_generate.sh            (16 shards of transfer-hard, 10,000 cases)
 #   ground merge --out runs/hard runs/hard/shard-*/dataset-*-of-16.ltds
+# SCENARIO, COUNT, SEED, OUT and GROUND (the binary) override the defaults below;
+# scripts/slurm-ci.sh runs this array on a single-node cluster and checks the merge.
 # Shards are disjoint and reproducible (index mod N), so a failed task is simply resubmitted:
 # it resumes from the records it already wrote.
 #SBATCH --job-name=lowthrust-generate
@@ -14,6 +16,7 @@ SCENARIO=${SCENARIO:-transfer-hard}
 COUNT=${COUNT:-10000}
 SEED=${SEED:-1}
 OUT=${OUT:-runs/hard}
-srun ./target/release/ground generate --scenario "$SCENARIO" --count "$COUNT" --seed "$SEED" \
+GROUND=${GROUND:-./target/release/ground}
+srun "$GROUND" generate --scenario "$SCENARIO" --count "$COUNT" --seed "$SEED" \
   --shard "${SLURM_ARRAY_TASK_ID}/${SLURM_ARRAY_TASK_COUNT}" --threads "${SLURM_CPUS_PER_TASK}" \
   --out "$OUT/shard-${SLURM_ARRAY_TASK_ID}"

@@ -58,6 +58,13 @@ enum Command {
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
     },
+    /// Check that two dataset files hold the same trajectories, solve times aside (a sharded or
+    /// resumed run against a single one): exit status 1 when they differ.
+    Compare {
+        /// Dataset files (dataset.ltds or dataset-I-of-N.ltds).
+        first: PathBuf,
+        second: PathBuf,
+    },
     /// One-step mismatch between the environment and the optimal trajectories of a dataset
     /// (docs/spec.md section 7).
     Demos {
@@ -100,6 +107,7 @@ fn main() -> ExitCode {
             departure,
         } => trajectories::oem_command(&dataset, index, &out, &departure),
         Command::Merge { out, inputs } => trajectories::merge_command(&inputs, &out),
+        Command::Compare { first, second } => trajectories::compare_command(&first, &second),
         Command::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
         Command::Feasibility { out } => trajectories::feasibility_command(&out),
         #[cfg(feature = "learn")]

@@ -4,7 +4,9 @@
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
-use ground_core::generate::{generate_in, hold_run, merge, read_dataset, Manifest, Shard, Summary};
+use ground_core::generate::{
+    generate_in, hold_run, merge, read_dataset, trajectory_difference, Manifest, Shard, Summary,
+};
 use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
@@ -276,6 +278,22 @@ pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::
     let summary = merge(inputs, out)?;
     print_summary(&summary);
     Ok(())
+}
+
+pub fn compare_command(first: &Path, second: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let (a, b) = (read_dataset(first)?, read_dataset(second)?);
+    match trajectory_difference(&a, &b) {
+        None => {
+            println!(
+                "{} and {}: the same {} trajectories",
+                first.display(),
+                second.display(),
+                a.records.len()
+            );
+            Ok(())
+        }
+        Some(difference) => Err(format!("{} and {} differ: {difference}", first.display(), second.display()).into()),
+    }
 }
 
 pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error::Error>> {

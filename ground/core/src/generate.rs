@@ -319,6 +319,33 @@ fn read_record(path: &Path) -> Result<TrajectoryRecord, GenerateError> {
 }
 
 /// Reads a dataset file, refusing anything corrupt or of another format.
+/// Where two datasets differ in what was solved (the solve times aside, which no two runs
+/// share): `None` when they hold the same manifest, shard and records, bit for bit.
+pub fn trajectory_difference(a: &DatasetFile, b: &DatasetFile) -> Option<String> {
+    if a.manifest != b.manifest {
+        return Some(format!("manifests differ: {:?} and {:?}", a.manifest, b.manifest));
+    }
+    if a.shard != b.shard {
+        return Some(format!("shards differ: {:?} and {:?}", a.shard, b.shard));
+    }
+    if a.records.len() != b.records.len() {
+        return Some(format!("{} and {} records", a.records.len(), b.records.len()));
+    }
+    // Compared as their encodings: a failed record's NaN final mass is equal to itself bit for
+    // bit, never by `==`.
+    let untimed = |r: &TrajectoryRecord| {
+        postcard::to_allocvec(&TrajectoryRecord {
+            seconds: 0.0,
+            ..r.clone()
+        })
+        .ok()
+    };
+    a.records.iter().zip(&b.records).find_map(|(ra, rb)| {
+        let (ea, eb) = (untimed(ra), untimed(rb));
+        (ea.is_none() || ea != eb).then(|| format!("records of index {} and {} differ", ra.index, rb.index))
+    })
+}
+
 pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
     decode_container(DATASET_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))

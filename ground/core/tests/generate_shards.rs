@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use ground_core::generate::{generate, merge, read_dataset, GenerateError, Manifest, Shard};
+use ground_core::generate::{generate, merge, read_dataset, trajectory_difference, GenerateError, Manifest, Shard};
 use ground_core::solver::record::TrajectoryRecord;
 use ground_core::solver::SolveOptions;
 use shared::scenario::ScenarioKind;
@@ -70,7 +70,27 @@ fn shards_merge_into_the_single_run_and_restarts_resume() {
     )
     .unwrap();
     let merged = read_dataset(&merged_dir.join("dataset.ltds")).unwrap();
-    assert_eq!(without_timing(merged.records), without_timing(single.records.clone()));
+    assert_eq!(
+        without_timing(merged.records.clone()),
+        without_timing(single.records.clone())
+    );
+    // `ground compare`'s check: the same trajectories, solve times aside; one costate bit or
+    // another seed is a difference.
+    assert_eq!(trajectory_difference(&merged, &single), None);
+    let mut altered = merged.clone();
+    altered.records[3].seconds += 1.0;
+    assert_eq!(trajectory_difference(&altered, &single), None);
+    altered.records[3].residual = f64::from_bits(altered.records[3].residual.to_bits() ^ 1);
+    assert!(trajectory_difference(&altered, &single).is_some_and(|d| d.contains("index 3")));
+    // A failed record (NaN final mass, infinite residual) equals itself.
+    let mut failed = merged.clone();
+    failed.records[1].final_mass = f64::NAN;
+    failed.records[1].residual = f64::INFINITY;
+    assert_eq!(trajectory_difference(&failed, &failed.clone()), None);
+    let mut reseeded = merged.clone();
+    reseeded.manifest.seed += 1;
+    assert!(trajectory_difference(&reseeded, &single).is_some());
+    assert!(trajectory_difference(&shard_a, &single).is_some());
     // A shard alone is not a dataset.
     assert!(matches!(
         merge(&[a.join("dataset-0-of-2.ltds")], &temp_dir("partial")),
