@@ -166,6 +166,8 @@ pub fn current_commit() -> String {
 /// What [`write_model`] is given: the run's stages' results.
 pub struct ModelSources<'a> {
     pub config: &'a ExperimentConfig,
+    /// The commit the run was built from ([`current_commit`] when it started).
+    pub commit: &'a str,
     /// The checkpoint whose flown actor is shipped.
     pub checkpoint: &'a Path,
     pub dataset: &'a Summary,
@@ -203,7 +205,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         format: CARD_FORMAT,
         scenario: config.scenario.name().to_string(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
-        commit: current_commit(),
+        commit: sources.commit.to_string(),
         created: utc_date(),
         config: config.to_toml(),
         demonstrations: (

@@ -14,7 +14,7 @@ use crate::dagger::{dagger, DaggerSummary};
 use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
-use crate::model::{write_model, ModelCard, ModelSources};
+use crate::model::{current_commit, write_model, ModelCard, ModelSources};
 use crate::sil::{sil_monte_carlo, SilReport};
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::{generate, Manifest, Shard, Summary};
@@ -46,6 +46,8 @@ pub struct MainJob {
 
 /// Runs every stage into `run` and writes `run/report.md`.
 pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, ExperimentError> {
+    // The code this run is built from: read now, as the tree may change while it runs.
+    let commit = current_commit();
     let mut config = config.clone();
     let transfer = config.scenario.problem() == shared::scenario::ProblemKind::Transfer;
     let relabel = config.dagger.rounds > 0;
@@ -163,6 +165,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         &run.join("model"),
         &ModelSources {
             config: &config,
+            commit: &commit,
             checkpoint: &best,
             dataset: &dataset,
             rounds: rounds
