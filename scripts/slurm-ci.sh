@@ -33,6 +33,8 @@ fi
 
 step "a single-node cluster: $(hostname -s), $(nproc) CPUs"
 node=$(hostname -s)
+# slurmctld must resolve its own host name; a bare container may not list it.
+getent hosts "$node" >/dev/null || echo "127.0.0.1 $node" >>/etc/hosts
 mkdir -p /etc/slurm /var/spool/slurmctld /var/spool/slurmd /var/log/slurm /run/munge
 # Containers have no systemd and no cgroup delegation: Linux process tracking, no task plugin.
 cat >/etc/slurm/slurm.conf <<EOF
