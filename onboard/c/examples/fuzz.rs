@@ -402,8 +402,9 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
     if code != LT_OK || info.problem != problem {
         return Err(format!("describe of a loaded {kind:?} policy gave {code:?} / {info:?}"));
     }
-    let transfer_actor = TransferPolicy::from_bytes(bytes, ProblemKind::Transfer);
-    let rendezvous_actor = RendezvousPolicy::from_bytes(bytes, ProblemKind::Rendezvous);
+    // The Rust policy of this kind only: each parse checksums the whole blob.
+    let transfer_actor = (kind == ProblemKind::Transfer).then(|| TransferPolicy::from_bytes(bytes, kind));
+    let rendezvous_actor = (kind == ProblemKind::Rendezvous).then(|| RendezvousPolicy::from_bytes(bytes, kind));
     for _ in 0..3 {
         let nav = navigation(rng);
         let time_to_go = hostile(rng, 0.0, 12.0);
@@ -422,7 +423,9 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
                 };
                 // SAFETY: every pointer is a valid reference.
                 let code = unsafe { lt_transfer_step(policy, &nav, &target, time_to_go, &mut command) };
-                let actor = transfer_actor.map_err(|e| format!("Rust refused: {e}"))?;
+                let actor = transfer_actor
+                    .ok_or("no transfer policy")?
+                    .map_err(|e| format!("Rust refused: {e}"))?;
                 let shape: OrbitShape = target.into();
                 (code, transfer_step(&actor, &state, &shape, time_to_go))
             }
@@ -433,7 +436,9 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
                 };
                 // SAFETY: every pointer is a valid reference.
                 let code = unsafe { lt_rendezvous_step(policy, &nav, &body, time_to_go, &mut command) };
-                let actor = rendezvous_actor.map_err(|e| format!("Rust refused: {e}"))?;
+                let actor = rendezvous_actor
+                    .ok_or("no rendezvous policy")?
+                    .map_err(|e| format!("Rust refused: {e}"))?;
                 let body: CartesianState = body.into();
                 (code, rendezvous_step(&actor, &state, &body, time_to_go))
             }
