@@ -66,8 +66,8 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 #![no_std]
-// `unsafe` is denied everywhere but in `policy::arm`, the Cortex-M4F `asm!` kernels, the one
-// module that allows it.
+// `unsafe` is denied everywhere but in `policy::arm`, the Cortex-M4F `asm!` kernels, and
+// `policy::x86`, the x86-64 AVX2 + FMA kernel: the two modules that allow it.
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
 // Panic-freedom is enforced by the linter, not hoped for: CI runs clippy with -D warnings.

@@ -1,11 +1,17 @@
-//! The f32 kernel's floating-point summation order, checked bit for bit (`to_bits`).
+//! The f32 kernel's floating-point arithmetic, checked bit for bit (`to_bits`) against std's
+//! `f32::mul_add` (a correctly rounded fused multiply-add on every host).
 //!
-//! The host result must be bit-identical to the flight computer's unfused arithmetic, so the
-//! kernel may vectorize across outputs but never reassociate the sum of one output:
-//! - a layer at least one register tile wide: `bias[j]`, then `+= x[i] * w[i][j]` for
-//!   i = 0, 1, 2, ... in order (one product and one sum, each rounded to f32);
-//! - a layer narrower than a tile (the 3 action outputs): 8 partial sums, partial `k` taking
-//!   inputs i = k, k + 8, k + 16, ... in order, then `bias[j] + p0 + p1 + ... + p7` in order.
+//! The host result must be bit-identical to the flight computer's (`vfma.f32`), so the kernel
+//! may vectorize across outputs but never reassociate the sum of one output nor round a
+//! product on its own:
+//! - a layer at least one register tile wide: `bias[j]`, then `acc = fma(x[i], w[i][j], acc)`
+//!   for i = 0, 1, 2, ... in order (one rounding per input);
+//! - a layer narrower than a tile (the 3 action outputs): 8 partial sums from 0, partial `k`
+//!   fusing inputs i = k, k + 8, k + 16, ... in order, then `bias[j] + p0 + p1 + ... + p7` in
+//!   order.
+//!
+//! On x86-64 the kernel taken depends on the machine (AVX2 + FMA or portable); both are
+//! checked against the same reference.
 
 mod policy_support;
 
@@ -32,8 +38,7 @@ fn sequential(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
         .map(|j| {
             let mut acc = b_at(layer, j);
             for (i, &xi) in x.iter().enumerate() {
-                let p = xi * w_at(layer, outputs, i, j);
-                acc += p;
+                acc = xi.mul_add(w_at(layer, outputs, i, j), acc);
             }
             acc
         })
@@ -47,8 +52,7 @@ fn split(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
         .map(|j| {
             let mut part = [0.0f32; SPLIT];
             for (i, &xi) in x.iter().enumerate() {
-                let p = xi * w_at(layer, outputs, i, j);
-                part[i % SPLIT] += p;
+                part[i % SPLIT] = xi.mul_add(w_at(layer, outputs, i, j), part[i % SPLIT]);
             }
             let mut acc = b_at(layer, j);
             for p in part {
@@ -67,14 +71,30 @@ fn halves(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
         .map(|j| {
             let (mut lo, mut hi) = (b_at(layer, j), 0.0f32);
             for (i, &xi) in x.iter().enumerate() {
-                let p = xi * w_at(layer, outputs, i, j);
+                let w = w_at(layer, outputs, i, j);
                 if i < mid {
-                    lo += p;
+                    lo = xi.mul_add(w, lo);
                 } else {
-                    hi += p;
+                    hi = xi.mul_add(w, hi);
                 }
             }
             lo + hi
+        })
+        .collect()
+}
+
+/// The sequential order with each product rounded before the sum (unfused): what the kernel
+/// must not compute either.
+fn unfused(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
+    let outputs = usize::from(layer.outputs);
+    (0..outputs)
+        .map(|j| {
+            let mut acc = b_at(layer, j);
+            for (i, &xi) in x.iter().enumerate() {
+                let p = xi * w_at(layer, outputs, i, j);
+                acc += p;
+            }
+            acc
         })
         .collect()
 }
@@ -100,13 +120,14 @@ fn bits(v: &[f32]) -> Vec<u32> {
 }
 
 /// Compares `DenseF32::<IN, OUT>::forward` bit for bit with the order of its width; returns
-/// how many outputs the reassociated `halves` sum gets wrong (the check's sensitivity).
-fn check<const IN: usize, const OUT: usize>(seed: u64, trials: usize) -> usize {
+/// how many outputs the reassociated `halves` sum and the unfused sum get wrong (the check's
+/// sensitivity).
+fn check<const IN: usize, const OUT: usize>(seed: u64, trials: usize) -> (usize, usize) {
     let mut rng = Rng::new(seed);
     let owned = f32_layer(&rough_layer(IN, OUT, &mut rng), Activation::Relu);
     let view = owned.view();
     let layer = DenseF32::<IN, OUT>::from_layer(&view).unwrap();
-    let mut reordered = 0;
+    let (mut reordered, mut rounded) = (0, 0);
     for t in 0..trials {
         let x: [f32; IN] = rough_input(IN, &mut rng).try_into().unwrap();
         let got = layer.forward(&x);
@@ -125,8 +146,15 @@ fn check<const IN: usize, const OUT: usize>(seed: u64, trials: usize) -> usize {
             .zip(bits(&want))
             .filter(|(a, b)| **a != *b)
             .count();
+        if OUT >= F32_TILE {
+            rounded += bits(&unfused(&owned, &x))
+                .iter()
+                .zip(bits(&want))
+                .filter(|(a, b)| **a != *b)
+                .count();
+        }
     }
-    reordered
+    (reordered, rounded)
 }
 
 #[test]
@@ -140,9 +168,11 @@ fn wide_layers_sum_bias_then_inputs_in_order() {
         check::<33, 64>(15, 50),
         check::<5, 200>(16, 50),
     ];
-    // A reassociated sum must differ somewhere, or the bit comparison above proves nothing.
-    for (k, n) in sensitive.iter().enumerate() {
-        assert!(*n > 0, "case {k}: test data cannot tell summation orders apart");
+    // A reassociated or unfused sum must differ somewhere, or the bit comparison above proves
+    // nothing.
+    for (k, (reordered, rounded)) in sensitive.iter().enumerate() {
+        assert!(*reordered > 0, "case {k}: test data cannot tell summation orders apart");
+        assert!(*rounded > 0, "case {k}: test data cannot tell fused from unfused");
     }
 }
 

@@ -161,16 +161,47 @@ pub(super) fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 
     s
 }
 
+/// `acc + x * w` rounded once (`vfma.f32`): the portable f32 kernel's fused multiply-add on
+/// this target (`libm::fmaf` would emulate it in software, through soft-float f64). The
+/// operands pass through core registers, because stable Rust cannot name FPU registers as
+/// `asm!` operands here (the `sreg` class needs the unstable `vfp2` target feature).
+#[inline(always)]
+pub(super) fn fma(x: f32, w: f32, acc: f32) -> f32 {
+    let sum: u32;
+    // SAFETY: `s0`-`s2` are saved on entry and restored on exit by a balanced `vpush`/`vpop`
+    // (12 bytes of stack, so not `nostack`); in between three `vmov`s from core registers, one
+    // `vfma.f32` (VFPv4, present on every target this module is compiled for) and one `vmov`
+    // back. No other memory is touched (`nomem` does not cover the stack push; the stack is
+    // restored), only the declared output register is written, and the flags are not changed.
+    // FPSCR's sticky exception bits may be set, as by any f32 arithmetic; the result depends only
+    // on the inputs and the rounding mode, which nothing changes (`pure`).
+    unsafe {
+        asm!(
+            "vpush {{s0-s2}}",
+            "vmov s0, {a}",
+            "vmov s1, {x}",
+            "vmov s2, {w}",
+            "vfma.f32 s0, s1, s2",
+            "vmov {a}, s0",
+            "vpop {{s0-s2}}",
+            a = inout(reg) acc.to_bits() => sum,
+            x = in(reg) x.to_bits(),
+            w = in(reg) w.to_bits(),
+            options(pure, nomem, preserves_flags),
+        );
+    }
+    f32::from_bits(sum)
+}
+
 /// Outputs per tile of [`f32_tile`]: its accumulators fill `s0`-`s15`.
 pub(super) const F32_ARM_TILE: usize = 16;
 
 /// `acc[k] += x[i] * w[i][col + k]` for `i = 0, 1, 2, ...` in order, `k < 16` (`w` the layer's
-/// input-major f32 LE weights, rows of `OUT` values): per output the same products and sums
-/// in the same order as the portable f32 kernel (one `vmla.f32`: the product rounded, then
-/// the sum). Two inputs per iteration: one `vldmia` loads both, and each of their 16 weights
+/// input-major f32 LE weights, rows of `OUT` values): per output the same fused multiply-adds
+/// in the same order as the portable f32 kernel (one `vfma.f32`: rounded once). Two inputs per iteration: one `vldmia` loads both, and each of their 16 weights
 /// takes an `ldr` (the blob's f32 arrays need not be word-aligned, and the Cortex-M4 allows
 /// unaligned `ldr` but not unaligned `vldr`/`vldm`), half a `vmov` (two core registers to two
-/// FPU registers) and a `vmla`: 85 instructions for 32 multiply-accumulates.
+/// FPU registers) and a `vfma`: 85 instructions for 32 multiply-accumulates.
 ///
 /// Returns `false`, touching nothing, unless `x` has an even number `n >= 2` of inputs, the
 /// tile lies within a row of `stride` bytes (`4 * (col + 16) <= stride`) and `weights` has
@@ -216,83 +247,83 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
                 "ldr {r0}, [{pw}]",
                 "ldr {r1}, [{pw}, #4]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s0, s16, s18",
-                "vmla.f32 s1, s16, s19",
+                "vfma.f32 s0, s16, s18",
+                "vfma.f32 s1, s16, s19",
                 "ldr {r0}, [{pw}, #8]",
                 "ldr {r1}, [{pw}, #12]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s2, s16, s18",
-                "vmla.f32 s3, s16, s19",
+                "vfma.f32 s2, s16, s18",
+                "vfma.f32 s3, s16, s19",
                 "ldr {r0}, [{pw}, #16]",
                 "ldr {r1}, [{pw}, #20]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s4, s16, s18",
-                "vmla.f32 s5, s16, s19",
+                "vfma.f32 s4, s16, s18",
+                "vfma.f32 s5, s16, s19",
                 "ldr {r0}, [{pw}, #24]",
                 "ldr {r1}, [{pw}, #28]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s6, s16, s18",
-                "vmla.f32 s7, s16, s19",
+                "vfma.f32 s6, s16, s18",
+                "vfma.f32 s7, s16, s19",
                 "ldr {r0}, [{pw}, #32]",
                 "ldr {r1}, [{pw}, #36]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s8, s16, s18",
-                "vmla.f32 s9, s16, s19",
+                "vfma.f32 s8, s16, s18",
+                "vfma.f32 s9, s16, s19",
                 "ldr {r0}, [{pw}, #40]",
                 "ldr {r1}, [{pw}, #44]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s10, s16, s18",
-                "vmla.f32 s11, s16, s19",
+                "vfma.f32 s10, s16, s18",
+                "vfma.f32 s11, s16, s19",
                 "ldr {r0}, [{pw}, #48]",
                 "ldr {r1}, [{pw}, #52]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s12, s16, s18",
-                "vmla.f32 s13, s16, s19",
+                "vfma.f32 s12, s16, s18",
+                "vfma.f32 s13, s16, s19",
                 "ldr {r0}, [{pw}, #56]",
                 "ldr {r1}, [{pw}, #60]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s14, s16, s18",
-                "vmla.f32 s15, s16, s19",
+                "vfma.f32 s14, s16, s18",
+                "vfma.f32 s15, s16, s19",
                 "ldr {r0}, [{pv}]",
                 "ldr {r1}, [{pv}, #4]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s0, s17, s18",
-                "vmla.f32 s1, s17, s19",
+                "vfma.f32 s0, s17, s18",
+                "vfma.f32 s1, s17, s19",
                 "ldr {r0}, [{pv}, #8]",
                 "ldr {r1}, [{pv}, #12]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s2, s17, s18",
-                "vmla.f32 s3, s17, s19",
+                "vfma.f32 s2, s17, s18",
+                "vfma.f32 s3, s17, s19",
                 "ldr {r0}, [{pv}, #16]",
                 "ldr {r1}, [{pv}, #20]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s4, s17, s18",
-                "vmla.f32 s5, s17, s19",
+                "vfma.f32 s4, s17, s18",
+                "vfma.f32 s5, s17, s19",
                 "ldr {r0}, [{pv}, #24]",
                 "ldr {r1}, [{pv}, #28]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s6, s17, s18",
-                "vmla.f32 s7, s17, s19",
+                "vfma.f32 s6, s17, s18",
+                "vfma.f32 s7, s17, s19",
                 "ldr {r0}, [{pv}, #32]",
                 "ldr {r1}, [{pv}, #36]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s8, s17, s18",
-                "vmla.f32 s9, s17, s19",
+                "vfma.f32 s8, s17, s18",
+                "vfma.f32 s9, s17, s19",
                 "ldr {r0}, [{pv}, #40]",
                 "ldr {r1}, [{pv}, #44]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s10, s17, s18",
-                "vmla.f32 s11, s17, s19",
+                "vfma.f32 s10, s17, s18",
+                "vfma.f32 s11, s17, s19",
                 "ldr {r0}, [{pv}, #48]",
                 "ldr {r1}, [{pv}, #52]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s12, s17, s18",
-                "vmla.f32 s13, s17, s19",
+                "vfma.f32 s12, s17, s18",
+                "vfma.f32 s13, s17, s19",
                 "ldr {r0}, [{pv}, #56]",
                 "ldr {r1}, [{pv}, #60]",
                 "vmov s18, s19, {r0}, {r1}",
-                "vmla.f32 s14, s17, s18",
-                "vmla.f32 s15, s17, s19",
+                "vfma.f32 s14, s17, s18",
+                "vfma.f32 s15, s17, s19",
                 "add {pw}, {pw}, {step}",
                 "add {pv}, {pv}, {step}",
                 "subs {n}, {n}, #1",

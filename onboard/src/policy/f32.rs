@@ -1,10 +1,13 @@
 //! The portable f32 kernel: a dense layer `y = b + W x` read in place from the blob, as
-//! axpys over register tiles of [`F32_TILE`] outputs (see the module doc of [`super`]).
+//! axpys over register tiles of [`F32_TILE`] outputs (see the module doc of [`super`]), each
+//! product and sum one fused multiply-add ([`fma`]).
 
 use shared::blob::LayerBlob;
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 use super::arm;
+#[cfg(target_arch = "x86_64")]
+use super::x86;
 use super::{check_len, check_shape, f32_le, LayerArray, PolicyError};
 
 /// Outputs per register tile of the f32 kernel (a multiple of 16, the AVX-512 lane count).
@@ -50,10 +53,27 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
 
     /// The pre-activation `b + W x`.
     pub fn forward(&self, x: &[f32; IN]) -> [f32; OUT] {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let mut y = self.bias_vector();
+            if x86::dense(self.weights, x, &mut y) {
+                return y;
+            }
+        }
+        self.forward_portable(x)
+    }
+
+    fn bias_vector(&self) -> [f32; OUT] {
         let mut y = [0.0f32; OUT];
         for (yj, c) in y.iter_mut().zip(self.bias.chunks_exact(4)) {
             *yj = f32_le(c);
         }
+        y
+    }
+
+    /// [`Self::forward`] by the portable kernel (the Cortex-M4F's tiles included).
+    fn forward_portable(&self, x: &[f32; IN]) -> [f32; OUT] {
+        let mut y = self.bias_vector();
         if OUT < F32_TILE {
             axpy_narrow(self.weights, x, &mut y);
             return y;
@@ -79,7 +99,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             for (row, &xi) in self.weights.chunks_exact(row_bytes).zip(x.iter()) {
                 if let Some(ws) = row.get(seg.clone()) {
                     for (a, c) in acc.iter_mut().zip(ws.chunks_exact(4)) {
-                        *a += xi * f32_le(c);
+                        *a = fma(xi, f32_le(c), *a);
                     }
                 }
             }
@@ -116,6 +136,21 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
     }
 }
 
+/// `acc + x * w` rounded once: the fused multiply-add of every f32 kernel, on every target
+/// (`vfma.f32` on the Cortex-M4F, `vfmadd` on x86-64 with FMA, `fmadd` on AArch64, exact in
+/// software elsewhere), so that the host and the flight computer compute the same bits.
+#[inline(always)]
+fn fma(x: f32, w: f32, acc: f32) -> f32 {
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    {
+        arm::fma(x, w, acc)
+    }
+    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
+    {
+        libm::fmaf(x, w, acc)
+    }
+}
+
 /// Independent partial sums (over interleaved inputs) of the narrow-output kernels, so the
 /// additions into one output are not a single long latency chain.
 const SPLIT: usize = 8;
@@ -131,14 +166,14 @@ fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN],
     for (wb, xb) in w.by_ref().zip(xs.by_ref()) {
         for ((p, row), &xi) in part.iter_mut().zip(wb.chunks_exact(row_bytes)).zip(xb) {
             for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
-                *a += xi * f32_le(c);
+                *a = fma(xi, f32_le(c), *a);
             }
         }
     }
     let rest = w.remainder().chunks_exact(row_bytes).zip(xs.remainder());
     for (p, (row, &xi)) in part.iter_mut().zip(rest) {
         for (a, c) in p.iter_mut().zip(row.chunks_exact(4)) {
-            *a += xi * f32_le(c);
+            *a = fma(xi, f32_le(c), *a);
         }
     }
     for p in part.iter() {
@@ -155,8 +190,61 @@ fn axpy_tail<const IN: usize>(weights: &[u8], row_bytes: usize, col: usize, x: &
     for (row, &xi) in weights.chunks_exact(row_bytes).zip(x.iter()) {
         if let Some(ws) = row.get(seg.clone()) {
             for (v, c) in y.iter_mut().zip(ws.chunks_exact(4)) {
-                *v += xi * f32_le(c);
+                *v = fma(xi, f32_le(c), *v);
             }
         }
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    extern crate std;
+    use std::vec::Vec;
+
+    use super::*;
+
+    /// f32 LE bytes of values spread over several binades (xorshift), so that any other
+    /// rounding or order changes low bits.
+    fn rough(n: usize, seed: &mut u64) -> Vec<u8> {
+        (0..n)
+            .flat_map(|_| {
+                *seed ^= *seed << 13;
+                *seed ^= *seed >> 7;
+                *seed ^= *seed << 17;
+                let unit = (*seed >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+                (unit * 2f32.powi((*seed % 11) as i32 - 5)).to_le_bytes()
+            })
+            .collect()
+    }
+
+    fn same_bits<const IN: usize, const OUT: usize>(seed: u64) {
+        let mut s = seed | 1;
+        // One byte in, so the f32 arrays are not word-aligned, as in a blob.
+        let mut weights = std::vec![0u8];
+        weights.extend(rough(IN * OUT, &mut s));
+        let bias = rough(OUT, &mut s);
+        let layer = DenseF32::<IN, OUT> {
+            weights: &weights[1..],
+            bias: &bias,
+        };
+        for _ in 0..20 {
+            let x: [f32; IN] = core::array::from_fn(|i| f32_le(&rough(1, &mut s)) * (1 + i % 3) as f32);
+            let (fast, portable) = (layer.forward(&x), layer.forward_portable(&x));
+            assert_eq!(fast.map(f32::to_bits), portable.map(f32::to_bits), "{IN}x{OUT}");
+        }
+    }
+
+    /// Whichever kernel this machine takes (AVX2 + FMA when it has them), the portable one
+    /// (the flight computer's order and rounding, `libm::fmaf`) gives the same bits.
+    #[test]
+    fn the_machine_kernel_gives_the_portable_kernels_bits() {
+        same_bits::<10, 256>(1);
+        same_bits::<256, 256>(2);
+        same_bits::<256, 3>(3);
+        same_bits::<22, 256>(4);
+        same_bits::<70, 130>(5);
+        same_bits::<13, 5>(6);
+        same_bits::<5, 63>(7);
+        same_bits::<1, 1>(8);
     }
 }

@@ -15,11 +15,12 @@
 //!   vector (an axpy, which vectorizes without reassociating floating-point sums). Outputs are
 //!   processed in tiles of [`F32_TILE`] whose accumulators stay in registers across all inputs;
 //!   a layer narrower than a tile (the 3 action outputs) keeps 8 partial sums over interleaved
-//!   inputs instead. A product and a sum are two roundings: Rust never contracts `a * b + c`
-//!   into an FMA, and `f32::mul_add` needs `std`. On the Cortex-M4F the wide layers run in
-//!   tiles of 16 outputs held in `s0`-`s15` by an `asm!` loop (`vmla.f32`, also two roundings),
-//!   with the same products and sums in the same order per output, so the results are the same
-//!   bits.
+//!   inputs instead. Each product and sum is one fused multiply-add (a single rounding), on
+//!   every target: `vfma.f32` on the Cortex-M4F, where the wide layers run in tiles of 16
+//!   outputs held in `s0`-`s15` by an `asm!` loop; `vfmadd231ps` on x86-64 with AVX2 and FMA
+//!   (detected at run time; tiles of 8 vectors of 8 outputs, `policy/x86.rs`); `libm::fmaf`
+//!   elsewhere (a hardware `fmadd` on AArch64, exact software on a machine without FMA). The
+//!   same fused operations in the same order per output give the same bits on every target.
 //! - int8 (weights output-major, `w[j * IN + i]`): the layer input is quantized once to 16-bit
 //!   levels held in i16, then each output is an exact i32 dot product with the i8 weights
 //!   (integer sums reassociate freely, so every kernel gives the same integers). The target
@@ -39,7 +40,8 @@
 //!
 //! **Files.** This module holds the network shapes, the [`Mlp`] and its loading from a blob;
 //! `policy/f32.rs` the f32 kernel ([`DenseF32`]), `policy/int8.rs` the int8 kernels and the
-//! requantization ([`DenseInt8`], [`quantize`]), `policy/arm.rs` the Cortex-M4F `asm!` loops.
+//! requantization ([`DenseInt8`], [`quantize`]), `policy/arm.rs` the Cortex-M4F `asm!` loops,
+//! `policy/x86.rs` the x86-64 AVX2 + FMA f32 kernel.
 //!
 //! **Non-finite inputs.** [`Mlp::forward`] never panics. If any input is NaN or infinite it
 //! returns `[f32::NAN; OUT]` in both precisions, so a corrupt state cannot turn into a plausible
@@ -62,7 +64,7 @@ pub use int8::{quantize, quantize_relu, to_pair_order, DenseInt8, Int8Kernel, IN
 use int8::Acts;
 
 /// Whether this target runs the `asm!` kernels of `policy/arm.rs`: the int8 pair kernel (DSP
-/// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vmla.f32`). Arm target
+/// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vfma.f32`). Arm target
 /// features are unstable in Rust, so on stable `target_feature = "dsp"` is never set; the
 /// bare-metal hard-float Arm targets stand in for it: `thumbv7em-none-eabihf` (Cortex-M4F and
 /// M7F: ARMv7E-M has DSP by definition, hard float has the FPU), and the v7-R, v8-R and v7-A
@@ -74,6 +76,10 @@ const ARM_ASM: bool = cfg!(all(target_arch = "arm", target_os = "none", target_a
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 #[allow(unsafe_code)]
 mod arm;
+
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod x86;
 
 /// Layers of an [`Mlp`].
 pub const MLP_LAYERS: usize = 3;

@@ -1,0 +1,223 @@
+//! The x86-64 f32 kernel with AVX2 and FMA, chosen at run time by `cpuid` (the host SIL and
+//! benchmarks run on whatever workstation or cluster node they land on, so the binary cannot
+//! assume the instructions at compile time). It computes exactly the portable kernel's fused
+//! multiply-adds in the same order per output (`policy/f32.rs`): 8 outputs per `vfmadd231ps`,
+//! the sum of one output never reassociated, so the results are the bits of the Cortex-M4F's
+//! `vfma.f32` and of `libm::fmaf`.
+//!
+//! With the machine's `unsafe`: `cpuid`/`xgetbv` to detect the features, the `#[target_feature]`
+//! kernel's call, and its unaligned loads and stores through raw pointers, whose bounds are
+//! checked before the kernel is entered (see the SAFETY comments).
+
+// `__cpuid` is a safe function in newer toolchains and an unsafe one in older.
+#![allow(unused_unsafe)]
+
+use core::arch::x86_64::{
+    __cpuid, __cpuid_count, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_permutevar8x32_ps,
+    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps, _mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss,
+    _xgetbv, CpuidResult,
+};
+use core::sync::atomic::{AtomicU8, Ordering};
+
+use super::F32_TILE;
+
+/// Vectors of 8 outputs per register tile of [`F32_TILE`] outputs.
+const VECTORS: usize = F32_TILE >> 3;
+/// Partial sums of the narrow kernel: its contract (`f32.rs`, `SPLIT`).
+const SPLIT: usize = 8;
+
+const UNKNOWN: u8 = 0;
+const ABSENT: u8 = 1;
+const PRESENT: u8 = 2;
+
+/// Whether the CPU runs AVX2 and FMA and the OS saves the YMM registers (cached).
+static AVX2_FMA: AtomicU8 = AtomicU8::new(UNKNOWN);
+
+/// Whether [`dense`] runs the AVX2 + FMA kernel on this machine.
+pub(super) fn has_avx2_fma() -> bool {
+    match AVX2_FMA.load(Ordering::Relaxed) {
+        PRESENT => true,
+        ABSENT => false,
+        _ => {
+            let present = detect();
+            AVX2_FMA.store(if present { PRESENT } else { ABSENT }, Ordering::Relaxed);
+            present
+        }
+    }
+}
+
+/// `cpuid` leaf 1: FMA (ECX 12), OSXSAVE (ECX 27), AVX (ECX 28); leaf 7: AVX2 (EBX 5); then
+/// XCR0 bits 1 and 2 (the OS saves XMM and YMM state), as `is_x86_feature_detected!` does.
+fn detect() -> bool {
+    // SAFETY: `cpuid` exists on every x86-64 CPU; leaves above the maximum are not queried.
+    let CpuidResult { eax: max_leaf, .. } = unsafe { __cpuid(0) };
+    if max_leaf < 7 {
+        return false;
+    }
+    // SAFETY: as above, leaf 1 <= max_leaf.
+    let leaf1 = unsafe { __cpuid(1) };
+    let bit = |reg: u32, n: u32| reg & (1 << n) != 0;
+    if !(bit(leaf1.ecx, 12) && bit(leaf1.ecx, 27) && bit(leaf1.ecx, 28)) {
+        return false;
+    }
+    // SAFETY: as above, leaf 7 <= max_leaf.
+    let leaf7 = unsafe { __cpuid_count(7, 0) };
+    if !bit(leaf7.ebx, 5) {
+        return false;
+    }
+    // SAFETY: OSXSAVE (checked above) means the OS enabled `xgetbv`; XCR0 always exists.
+    let xcr0 = unsafe { read_xcr0() };
+    xcr0 & 0b110 == 0b110
+}
+
+/// XCR0, the state components the OS saves.
+///
+/// # Safety
+/// The CPU must report OSXSAVE.
+#[target_feature(enable = "xsave")]
+unsafe fn read_xcr0() -> u64 {
+    // SAFETY: the caller checked OSXSAVE; register 0 always exists.
+    unsafe { _xgetbv(0) }
+}
+
+/// `y += W x` (`y` holding the bias; `weights`: `IN * OUT` f32 LE input-major) with AVX2 and
+/// FMA, in the portable kernel's order for the layer's width. Returns `false`, touching
+/// nothing, if the machine lacks AVX2 or FMA or `weights` is short; the caller then runs the
+/// portable kernel.
+#[inline]
+pub(super) fn dense<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) -> bool {
+    let needed = IN.checked_mul(OUT).and_then(|n| n.checked_mul(4));
+    if needed.is_none_or(|n| weights.len() < n) || !has_avx2_fma() {
+        return false;
+    }
+    // SAFETY: the CPU runs AVX2 and FMA and the OS saves YMM state (`has_avx2_fma`), and
+    // `weights` holds the `IN * OUT` f32 the kernel reads (checked above).
+    unsafe {
+        if OUT < F32_TILE {
+            narrow(weights.as_ptr().cast(), x, y);
+        } else {
+            wide(weights.as_ptr().cast(), x, y);
+        }
+    }
+    true
+}
+
+/// `acc + x * w` rounded once.
+#[target_feature(enable = "fma")]
+#[inline]
+fn fma1(x: f32, w: f32, acc: f32) -> f32 {
+    _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(x), _mm_set_ss(w), _mm_set_ss(acc)))
+}
+
+/// The wide layer: register tiles of [`F32_TILE`] outputs (8 vectors of 8), each accumulated
+/// over the inputs in order, then vectors of 8 and single outputs for the last `OUT % 64`.
+///
+/// # Safety
+/// AVX2 and FMA present; `w` points to `IN * OUT` readable f32 (any alignment).
+#[target_feature(enable = "avx2,fma")]
+unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], y: &mut [f32; OUT]) {
+    let y = y.as_mut_ptr();
+    let mut col = 0;
+    while col + F32_TILE <= OUT {
+        let mut acc = [_mm256_setzero_ps(); VECTORS];
+        // SAFETY (every pointer below): output `col + 8 v + l < OUT` of `y`; weight `i * OUT +
+        // col + 8 v + l < IN * OUT` of `w`, for `i < IN`, `v < VECTORS`, `l < 8`.
+        for (v, a) in acc.iter_mut().enumerate() {
+            *a = unsafe { _mm256_loadu_ps(y.add(col + 8 * v)) };
+        }
+        for (i, &xi) in x.iter().enumerate() {
+            let xv = _mm256_set1_ps(xi);
+            let row = unsafe { w.add(i * OUT + col) };
+            for (v, a) in acc.iter_mut().enumerate() {
+                *a = _mm256_fmadd_ps(xv, unsafe { _mm256_loadu_ps(row.add(8 * v)) }, *a);
+            }
+        }
+        for (v, a) in acc.iter().enumerate() {
+            unsafe { _mm256_storeu_ps(y.add(col + 8 * v), *a) };
+        }
+        col += F32_TILE;
+    }
+    while col + 8 <= OUT {
+        // SAFETY: as above with one vector.
+        let mut a = unsafe { _mm256_loadu_ps(y.add(col)) };
+        for (i, &xi) in x.iter().enumerate() {
+            a = _mm256_fmadd_ps(_mm256_set1_ps(xi), unsafe { _mm256_loadu_ps(w.add(i * OUT + col)) }, a);
+        }
+        unsafe { _mm256_storeu_ps(y.add(col), a) };
+        col += 8;
+    }
+    while col < OUT {
+        // SAFETY: output `col < OUT`, weights `i * OUT + col < IN * OUT`.
+        let mut a = unsafe { *y.add(col) };
+        for (i, &xi) in x.iter().enumerate() {
+            a = fma1(xi, unsafe { w.add(i * OUT + col).read_unaligned() }, a);
+        }
+        unsafe { *y.add(col) = a };
+        col += 1;
+    }
+}
+
+/// The narrow layer (fewer outputs than a tile, the 3 actions): [`SPLIT`] partial sums per
+/// output, partial `k` over inputs `k, k + 8, k + 16, ...` in order, then `bias + p0 + ... + p7`
+/// in order. A block of 8 inputs is 8 rows of `OUT` weights, `OUT` contiguous vectors; lane `m`
+/// of the block holds row `m / OUT`, output `m % OUT`, so one accumulator vector per position
+/// in the block keeps `OUT * 8` partial sums, and the inputs are spread to the lanes by
+/// `vpermps`.
+///
+/// # Safety
+/// AVX2 and FMA present; `w` points to `IN * OUT` readable f32 (any alignment).
+#[target_feature(enable = "avx2,fma")]
+unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], y: &mut [f32; OUT]) {
+    const { assert!(SPLIT == 8, "the lanes of a vector are the partial sums") };
+    // Lane `l` of vector `v` takes input `(8 v + l) / OUT` of the block.
+    let mut spread = [_mm256_setzero_si256(); OUT];
+    let (mut row, mut col) = (0i32, 0usize);
+    for s in spread.iter_mut() {
+        let mut lanes = [0i32; 8];
+        for lane in lanes.iter_mut() {
+            *lane = row;
+            col += 1;
+            if col == OUT {
+                col = 0;
+                row += 1;
+            }
+        }
+        // SAFETY: 8 i32 from an `[i32; 8]`.
+        *s = unsafe { _mm256_loadu_si256(lanes.as_ptr().cast()) };
+    }
+    let mut acc = [_mm256_setzero_ps(); OUT];
+    let blocks = IN >> 3;
+    for b in 0..blocks {
+        // SAFETY: inputs `8 b .. 8 b + 8 <= IN` of `x`; weights `8 b OUT + 8 v + l < 8 (b + 1)
+        // OUT <= IN * OUT` for `v < OUT`, `l < 8`.
+        let xb = unsafe { _mm256_loadu_ps(x.as_ptr().add(SPLIT * b)) };
+        let block = unsafe { w.add(SPLIT * b * OUT) };
+        for (v, (a, s)) in acc.iter_mut().zip(spread.iter()).enumerate() {
+            let xs = _mm256_permutevar8x32_ps(xb, *s);
+            *a = _mm256_fmadd_ps(xs, unsafe { _mm256_loadu_ps(block.add(8 * v)) }, *a);
+        }
+    }
+    let mut lanes = [[0.0f32; 8]; OUT];
+    for (l, a) in lanes.iter_mut().zip(acc.iter()) {
+        // SAFETY: 8 f32 into an `[f32; 8]`.
+        unsafe { _mm256_storeu_ps(l.as_mut_ptr(), *a) };
+    }
+    // Partial `k` of output `j` is lane `m = k OUT + j` of the block: both orders run over `m`.
+    let mut part = [[0.0f32; OUT]; SPLIT];
+    for (pj, &lane) in part.iter_mut().flatten().zip(lanes.iter().flatten()) {
+        *pj = lane;
+    }
+    // The last `IN % 8` inputs, input `8 blocks + r` into partial `r`.
+    let first = SPLIT * blocks;
+    for (r, (p, &xi)) in part.iter_mut().zip(x.iter().skip(first)).enumerate() {
+        for (j, pj) in p.iter_mut().enumerate() {
+            // SAFETY: weight `(first + r) * OUT + j < IN * OUT`.
+            *pj = fma1(xi, unsafe { w.add((first + r) * OUT + j).read_unaligned() }, *pj);
+        }
+    }
+    for p in part.iter() {
+        for (v, &a) in y.iter_mut().zip(p.iter()) {
+            *v += a;
+        }
+    }
+}
