@@ -1,0 +1,70 @@
+//! The controllers shipped under `models/`: every folder opens (its files agree with its card),
+//! and its f32 blob, flown by the onboard crate in the SIL loop without dispersions on the first
+//! 1,000 of the card's Monte Carlo scenarios, scores the card's share within the accuracy goal.
+//! The card's share was measured by the tch actor on all the Monte Carlo's scenarios, so the two
+//! are different implementations of the policy on overlapping samples: they must agree within
+//! the sampling error of 1,000 flights.
+
+use std::path::{Path, PathBuf};
+
+use firmware_sim::Dispersions;
+use ground_core::env::batch::draw_scenarios;
+use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
+use learn::export::blob_file;
+use learn::model::open_model;
+use learn::sil::fly_blob;
+use shared::blob::{ProblemKind, Quantization};
+
+/// Flights per shipped controller.
+const FLIGHTS: u64 = 1000;
+
+fn shipped_models() -> Vec<PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&root)
+        .unwrap_or_else(|e| panic!("{}: {e}", root.display()))
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.is_dir())
+        .collect();
+    dirs.sort();
+    dirs
+}
+
+#[test]
+fn every_shipped_controller_flies_onboard_as_its_card_says() {
+    let dirs = shipped_models();
+    assert!(!dirs.is_empty(), "no controller is shipped under models/");
+    for dir in dirs {
+        let model = open_model(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+        let config = &model.config;
+        assert_eq!(
+            config.scenario.problem(),
+            ProblemKind::Transfer,
+            "{}: the SIL Monte Carlo flies transfers",
+            dir.display()
+        );
+        let card_share = model
+            .card
+            .monte_carlo
+            .share_within(ACCURACY_GOAL)
+            .unwrap_or_else(|| panic!("{}: the card has no share within the goal", dir.display()));
+        assert_eq!(model.card.monte_carlo_seed, config.seeds.monte_carlo);
+        let blob_path = dir.join(blob_file(ProblemKind::Transfer, Quantization::F32));
+        let blob = std::fs::read(&blob_path).unwrap();
+        let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, FLIGHTS);
+        let (outcomes, guidance_faults, _) = fly_blob(config, &blob, &scenarios, &Dispersions::NONE, 0).unwrap();
+        assert_eq!(guidance_faults, 0, "{}", dir.display());
+        assert!(outcomes.iter().all(|o| o.completed), "{}", dir.display());
+        let flown_share = within_accuracy_goal(&outcomes);
+        // The 1,000 flights are a subset of the card's episodes: three binomial standard deviations
+        // of 1,000 draws (a bound: the overlap only shrinks the difference), plus half a point for
+        // the flights near the goal's edge that the f32 blob and the tch actor end on either side of.
+        let sigma = (card_share * (1.0 - card_share) / FLIGHTS as f64).sqrt();
+        assert!(
+            (flown_share - card_share).abs() <= 3.0 * sigma + 0.005,
+            "{}: flown onboard {:.2} % within the goal, the card says {:.2} %",
+            dir.display(),
+            100.0 * flown_share,
+            100.0 * card_share
+        );
+    }
+}
