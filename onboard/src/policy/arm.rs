@@ -193,6 +193,136 @@ pub(super) fn fma(x: f32, w: f32, acc: f32) -> f32 {
     f32::from_bits(sum)
 }
 
+/// Outputs of the layer [`f32_narrow3`] runs: the 3 actions.
+pub(super) const NARROW_OUTPUTS: usize = 3;
+/// Its partial sums: 8 per output, partial `k` of output `j` at `3 k + j`.
+pub(super) const NARROW_PARTIALS: usize = 8 * NARROW_OUTPUTS;
+
+/// The narrow f32 kernel of a 3-output layer: `part[3 k + j] += x[i] * w[i][j]` (fused, one
+/// `vfma.f32`) for the inputs `i = k, k + 8, k + 16, ...` in order, `k < 8`, `j < 3`: the
+/// portable narrow kernel's partial sums (`f32.rs`), which the caller then adds to the bias in
+/// order. The 24 partials stay in `s0`-`s23` for all inputs; per input one `vldr` of `x[i]`, three
+/// `ldr` of its (possibly unaligned) weights, two `vmov` and three `vfma`: 9 instructions for 3
+/// multiply-adds, against about 15 for the single [`fma`]s through core registers.
+///
+/// Returns `false`, touching nothing, unless `x` has a multiple `n >= 8` of 8 inputs and `weights`
+/// has `12 n` bytes; the caller then runs the portable kernel.
+#[inline(never)]
+pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32; NARROW_PARTIALS]) -> bool {
+    let n = x.len();
+    if n < 8 || !n.is_multiple_of(8) || n.checked_mul(4 * NARROW_OUTPUTS).is_none_or(|len| weights.len() < len) {
+        return false;
+    }
+    // SAFETY: memory accessed, all in bounds:
+    // - `part`: `vldm`/`vstm` of `s0`-`s23` read and write its 24 f32 (96 bytes), through a
+    //   pointer from a `&mut [f32; 24]` (word-aligned, as `vldm`/`vstm` require).
+    // - `x`: the loop runs `n / 8 >= 1` times (`subs`/`bne` at the bottom); iteration `t` reads
+    //   the f32 at byte offsets `0, 4, ..., 28` from `px` = byte `32 t` of the `[f32]` by `vldr`
+    //   (word-aligned: an f32 slice), so bytes `0..4 n` of `x`.
+    // - weights: iteration `t` reads 4 bytes by `ldr` at offsets `0, 4, ..., 92` from `pw` = byte
+    //   `96 t`, so bytes `0..12 n` of `weights`, whose length was checked above. `ldr` may be
+    //   unaligned on the Cortex-M4 (unless `CCR.UNALIGN_TRP` is set; it is off at reset and nothing
+    //   here sets it).
+    // - the stack: `vpush`/`vpop` of `s0`-`s27` (112 bytes), balanced, so `sp` is restored.
+    // Registers: every core register written is a declared operand; `s0`-`s27` are saved on entry
+    // and restored on exit, so no FPU register changes as the compiler sees it. The flags (`subs`)
+    // are clobbered; FPSCR's rounding mode is only read, its sticky exception bits may be set, as
+    // by any f32 arithmetic.
+    unsafe {
+        asm!(
+                "vpush {{s0-s27}}",
+                "vldm {acc}, {{s0-s23}}",
+                "2:",
+                "vldr s24, [{px}, #0]",
+                "ldr {r0}, [{pw}, #0]",
+                "ldr {r1}, [{pw}, #4]",
+                "ldr {r2}, [{pw}, #8]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s0, s24, s25",
+                "vfma.f32 s1, s24, s26",
+                "vfma.f32 s2, s24, s27",
+                "vldr s24, [{px}, #4]",
+                "ldr {r0}, [{pw}, #12]",
+                "ldr {r1}, [{pw}, #16]",
+                "ldr {r2}, [{pw}, #20]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s3, s24, s25",
+                "vfma.f32 s4, s24, s26",
+                "vfma.f32 s5, s24, s27",
+                "vldr s24, [{px}, #8]",
+                "ldr {r0}, [{pw}, #24]",
+                "ldr {r1}, [{pw}, #28]",
+                "ldr {r2}, [{pw}, #32]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s6, s24, s25",
+                "vfma.f32 s7, s24, s26",
+                "vfma.f32 s8, s24, s27",
+                "vldr s24, [{px}, #12]",
+                "ldr {r0}, [{pw}, #36]",
+                "ldr {r1}, [{pw}, #40]",
+                "ldr {r2}, [{pw}, #44]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s9, s24, s25",
+                "vfma.f32 s10, s24, s26",
+                "vfma.f32 s11, s24, s27",
+                "vldr s24, [{px}, #16]",
+                "ldr {r0}, [{pw}, #48]",
+                "ldr {r1}, [{pw}, #52]",
+                "ldr {r2}, [{pw}, #56]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s12, s24, s25",
+                "vfma.f32 s13, s24, s26",
+                "vfma.f32 s14, s24, s27",
+                "vldr s24, [{px}, #20]",
+                "ldr {r0}, [{pw}, #60]",
+                "ldr {r1}, [{pw}, #64]",
+                "ldr {r2}, [{pw}, #68]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s15, s24, s25",
+                "vfma.f32 s16, s24, s26",
+                "vfma.f32 s17, s24, s27",
+                "vldr s24, [{px}, #24]",
+                "ldr {r0}, [{pw}, #72]",
+                "ldr {r1}, [{pw}, #76]",
+                "ldr {r2}, [{pw}, #80]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s18, s24, s25",
+                "vfma.f32 s19, s24, s26",
+                "vfma.f32 s20, s24, s27",
+                "vldr s24, [{px}, #28]",
+                "ldr {r0}, [{pw}, #84]",
+                "ldr {r1}, [{pw}, #88]",
+                "ldr {r2}, [{pw}, #92]",
+                "vmov s25, s26, {r0}, {r1}",
+                "vmov s27, {r2}",
+                "vfma.f32 s21, s24, s25",
+                "vfma.f32 s22, s24, s26",
+                "vfma.f32 s23, s24, s27",
+                "add {px}, {px}, #32",
+                "add {pw}, {pw}, #96",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                "vstm {acc}, {{s0-s23}}",
+                "vpop {{s0-s27}}",
+            acc = in(reg) part.as_mut_ptr(),
+            px = inout(reg) x.as_ptr() => _,
+            pw = inout(reg) weights.as_ptr() => _,
+            n = inout(reg) n >> 3 => _,
+            r0 = out(reg) _,
+            r1 = out(reg) _,
+            r2 = out(reg) _,
+        );
+    }
+    true
+}
+
 /// Outputs per tile of [`f32_tile`]: its accumulators fill `s0`-`s15`.
 pub(super) const F32_ARM_TILE: usize = 16;
 

@@ -53,33 +53,28 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
 
     /// The pre-activation `b + W x`.
     pub fn forward(&self, x: &[f32; IN]) -> [f32; OUT] {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let mut y = self.bias_vector();
-            if x86::dense(self.weights, x, &mut y) {
-                return y;
-            }
-        }
-        self.forward_portable(x)
-    }
-
-    fn bias_vector(&self) -> [f32; OUT] {
+        // One array, filled in place: on the Cortex-M4F each copy of a 256-wide vector costs
+        // hundreds of instructions.
         let mut y = [0.0f32; OUT];
         for (yj, c) in y.iter_mut().zip(self.bias.chunks_exact(4)) {
             *yj = f32_le(c);
         }
+        #[cfg(target_arch = "x86_64")]
+        if x86::dense(self.weights, x, &mut y) {
+            return y;
+        }
+        self.accumulate_portable(x, &mut y);
         y
     }
 
-    /// [`Self::forward`] by the portable kernel (the Cortex-M4F's tiles included).
-    fn forward_portable(&self, x: &[f32; IN]) -> [f32; OUT] {
-        let mut y = self.bias_vector();
+    /// `y += W x` by the portable kernel (the Cortex-M4F's tiles included).
+    #[inline(always)]
+    fn accumulate_portable(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         if OUT < F32_TILE {
-            axpy_narrow(self.weights, x, &mut y);
-            return y;
+            axpy_narrow(self.weights, x, y);
+        } else {
+            self.tiles(x, y);
         }
-        self.tiles(x, &mut y);
-        y
     }
 
     /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
@@ -159,6 +154,18 @@ const SPLIT: usize = 8;
 /// of the whole (const-size) output vector over interleaved inputs.
 #[inline(always)]
 fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) {
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    if OUT == arm::NARROW_OUTPUTS {
+        let mut part = [0.0f32; arm::NARROW_PARTIALS];
+        if arm::f32_narrow3(weights, x, &mut part) {
+            for p in part.chunks_exact(OUT) {
+                for (v, &a) in y.iter_mut().zip(p) {
+                    *v += a;
+                }
+            }
+            return;
+        }
+    }
     let row_bytes = OUT * 4;
     let mut part = [[0.0f32; OUT]; SPLIT];
     let mut w = weights.chunks_exact(SPLIT * row_bytes);
@@ -229,7 +236,9 @@ mod tests {
         };
         for _ in 0..20 {
             let x: [f32; IN] = core::array::from_fn(|i| f32_le(&rough(1, &mut s)) * (1 + i % 3) as f32);
-            let (fast, portable) = (layer.forward(&x), layer.forward_portable(&x));
+            let fast = layer.forward(&x);
+            let mut portable: [f32; OUT] = core::array::from_fn(|j| f32_le(&bias[4 * j..4 * j + 4]));
+            layer.accumulate_portable(&x, &mut portable);
             assert_eq!(fast.map(f32::to_bits), portable.map(f32::to_bits), "{IN}x{OUT}");
         }
     }
