@@ -31,18 +31,24 @@ fn b_at(layer: &OwnedLayer, j: usize) -> f32 {
     f32::from_le_bytes(layer.bias[4 * j..4 * j + 4].try_into().unwrap())
 }
 
-/// Bias first, then inputs in order: the contract for layers at least a tile wide.
-fn sequential(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
+/// Bias first, then inputs in order, each taken into the sum by `mac(x, w, acc)`.
+fn sequential_by(layer: &OwnedLayer, x: &[f32], mac: impl Fn(f32, f32, f32) -> f32) -> Vec<f32> {
     let outputs = usize::from(layer.outputs);
     (0..outputs)
         .map(|j| {
             let mut acc = b_at(layer, j);
             for (i, &xi) in x.iter().enumerate() {
-                acc = xi.mul_add(w_at(layer, outputs, i, j), acc);
+                acc = mac(xi, w_at(layer, outputs, i, j), acc);
             }
             acc
         })
         .collect()
+}
+
+/// Bias first, then one fused multiply-add per input in order: the contract for layers at least
+/// a tile wide.
+fn sequential(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
+    sequential_by(layer, x, f32::mul_add)
 }
 
 /// The narrow kernel's order: [`SPLIT`] interleaved partial sums, then bias + partials in order.
@@ -86,17 +92,7 @@ fn halves(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
 /// The sequential order with each product rounded before the sum (unfused): what the kernel
 /// must not compute either.
 fn unfused(layer: &OwnedLayer, x: &[f32]) -> Vec<f32> {
-    let outputs = usize::from(layer.outputs);
-    (0..outputs)
-        .map(|j| {
-            let mut acc = b_at(layer, j);
-            for (i, &xi) in x.iter().enumerate() {
-                let p = xi * w_at(layer, outputs, i, j);
-                acc += p;
-            }
-            acc
-        })
-        .collect()
+    sequential_by(layer, x, |x, w, acc| acc + x * w)
 }
 
 /// Weights and inputs spread over several orders of magnitude, so that a different summation

@@ -195,8 +195,9 @@ pub(super) fn fma(x: f32, w: f32, acc: f32) -> f32 {
 
 /// Outputs of the layer [`f32_narrow3`] runs: the 3 actions.
 pub(super) const NARROW_OUTPUTS: usize = 3;
-/// Its partial sums: 8 per output, partial `k` of output `j` at `3 k + j`.
-pub(super) const NARROW_PARTIALS: usize = 8 * NARROW_OUTPUTS;
+/// Its partial sums: 8 per output, partial `k` of output `j` at `3 k + j` (the layout of the
+/// portable kernel's `[[f32; 3]; 8]`, flattened).
+const NARROW_PARTIALS: usize = 8 * NARROW_OUTPUTS;
 
 /// The narrow f32 kernel of a 3-output layer: `part[3 k + j] += x[i] * w[i][j]` (fused, one
 /// `vfma.f32`) for the inputs `i = k, k + 8, k + 16, ...` in order, `k < 8`, `j < 3`: the
@@ -205,17 +206,22 @@ pub(super) const NARROW_PARTIALS: usize = 8 * NARROW_OUTPUTS;
 /// `ldr` of its (possibly unaligned) weights, two `vmov` and three `vfma`: 9 instructions for 3
 /// multiply-adds, against about 15 for the single [`fma`]s through core registers.
 ///
-/// Returns `false`, touching nothing, unless `x` has a multiple `n >= 8` of 8 inputs and `weights`
-/// has `12 n` bytes; the caller then runs the portable kernel.
+/// Returns `false`, touching nothing, unless `part` has the 24 partials, `x` has a multiple
+/// `n >= 8` of 8 inputs and `weights` has `12 n` bytes; the caller then runs the portable kernel.
 #[inline(never)]
-pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32; NARROW_PARTIALS]) -> bool {
+pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
     let n = x.len();
-    if n < 8 || !n.is_multiple_of(8) || n.checked_mul(4 * NARROW_OUTPUTS).is_none_or(|len| weights.len() < len) {
+    if part.len() != NARROW_PARTIALS
+        || n < 8
+        || !n.is_multiple_of(8)
+        || n.checked_mul(4 * NARROW_OUTPUTS).is_none_or(|len| weights.len() < len)
+    {
         return false;
     }
     // SAFETY: memory accessed, all in bounds:
-    // - `part`: `vldm`/`vstm` of `s0`-`s23` read and write its 24 f32 (96 bytes), through a
-    //   pointer from a `&mut [f32; 24]` (word-aligned, as `vldm`/`vstm` require).
+    // - `part`: `vldm`/`vstm` of `s0`-`s23` read and write its 24 f32 (96 bytes, its length
+    //   checked above), through a pointer from a `&mut [f32]` (word-aligned, as `vldm`/`vstm`
+    //   require).
     // - `x`: the loop runs `n / 8 >= 1` times (`subs`/`bne` at the bottom); iteration `t` reads
     //   the f32 at byte offsets `0, 4, ..., 28` from `px` = byte `32 t` of the `[f32]` by `vldr`
     //   (word-aligned: an f32 slice), so bytes `0..4 n` of `x`.

@@ -63,18 +63,12 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
         if x86::dense(self.weights, x, &mut y) {
             return y;
         }
-        self.accumulate_portable(x, &mut y);
-        y
-    }
-
-    /// `y += W x` by the portable kernel (the Cortex-M4F's tiles included).
-    #[inline(always)]
-    fn accumulate_portable(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         if OUT < F32_TILE {
-            axpy_narrow(self.weights, x, y);
+            axpy_narrow(self.weights, x, &mut y);
         } else {
-            self.tiles(x, y);
+            self.tiles(x, &mut y);
         }
+        y
     }
 
     /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
@@ -148,26 +142,51 @@ fn fma(x: f32, w: f32, acc: f32) -> f32 {
 
 /// Independent partial sums (over interleaved inputs) of the narrow-output kernels, so the
 /// additions into one output are not a single long latency chain.
-const SPLIT: usize = 8;
+pub(super) const SPLIT: usize = 8;
 
 /// `y += W x` for a layer narrower than a tile (the 3 action outputs): [`SPLIT`] partial sums
-/// of the whole (const-size) output vector over interleaved inputs.
+/// of the whole (const-size) output vector over interleaved inputs, by the target's own kernel
+/// where it has one for the layer, then added to `y` in order.
 #[inline(always)]
 fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) {
-    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-    if OUT == arm::NARROW_OUTPUTS {
-        let mut part = [0.0f32; arm::NARROW_PARTIALS];
-        if arm::f32_narrow3(weights, x, &mut part) {
-            for p in part.chunks_exact(OUT) {
-                for (v, &a) in y.iter_mut().zip(p) {
-                    *v += a;
-                }
-            }
-            return;
-        }
-    }
-    let row_bytes = OUT * 4;
     let mut part = [[0.0f32; OUT]; SPLIT];
+    if !machine_partials(weights, x, &mut part) {
+        portable_partials(weights, x, &mut part);
+    }
+    add_partials(&part, y);
+}
+
+/// [`portable_partials`] by the target's own kernel: `false`, touching nothing, where it has
+/// none for the layer.
+#[inline(always)]
+#[allow(unused_variables)] // on targets without a narrow kernel
+fn machine_partials<const IN: usize, const OUT: usize>(
+    weights: &[u8],
+    x: &[f32; IN],
+    part: &mut [[f32; OUT]; SPLIT],
+) -> bool {
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    {
+        OUT == arm::NARROW_OUTPUTS && arm::f32_narrow3(weights, x, part.as_flattened_mut())
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        x86::narrow_partials(weights, x, part)
+    }
+    #[cfg(not(any(
+        all(target_arch = "arm", target_os = "none", target_abi = "eabihf"),
+        target_arch = "x86_64"
+    )))]
+    {
+        false
+    }
+}
+
+/// `part[k][j] = fma(x[i], w[i][j], part[k][j])` for the inputs `i = k, k + 8, k + 16, ...` in
+/// order: the narrow kernel's partial sums (from 0) in the portable kernel.
+#[inline(always)]
+fn portable_partials<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], part: &mut [[f32; OUT]; SPLIT]) {
+    let row_bytes = OUT * 4;
     let mut w = weights.chunks_exact(SPLIT * row_bytes);
     let mut xs = x.chunks_exact(SPLIT);
     for (wb, xb) in w.by_ref().zip(xs.by_ref()) {
@@ -183,6 +202,11 @@ fn axpy_narrow<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN],
             *a = fma(xi, f32_le(c), *a);
         }
     }
+}
+
+/// `y += p0 + p1 + ... + p7`, one partial at a time, in order.
+#[inline(always)]
+fn add_partials<const OUT: usize>(part: &[[f32; OUT]; SPLIT], y: &mut [f32; OUT]) {
     for p in part.iter() {
         for (v, &a) in y.iter_mut().zip(p.iter()) {
             *v += a;
@@ -238,7 +262,13 @@ mod tests {
             let x: [f32; IN] = core::array::from_fn(|i| f32_le(&rough(1, &mut s)) * (1 + i % 3) as f32);
             let fast = layer.forward(&x);
             let mut portable: [f32; OUT] = core::array::from_fn(|j| f32_le(&bias[4 * j..4 * j + 4]));
-            layer.accumulate_portable(&x, &mut portable);
+            if OUT < F32_TILE {
+                let mut part = [[0.0f32; OUT]; SPLIT];
+                portable_partials(layer.weights, &x, &mut part);
+                add_partials(&part, &mut portable);
+            } else {
+                layer.tiles(&x, &mut portable);
+            }
             assert_eq!(fast.map(f32::to_bits), portable.map(f32::to_bits), "{IN}x{OUT}");
         }
     }

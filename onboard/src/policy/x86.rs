@@ -19,12 +19,11 @@ use core::arch::x86_64::{
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
+use super::f32::SPLIT;
 use super::F32_TILE;
 
 /// Vectors of 8 outputs per register tile of [`F32_TILE`] outputs.
 const VECTORS: usize = F32_TILE >> 3;
-/// Partial sums of the narrow kernel: its contract (`f32.rs`, `SPLIT`).
-const SPLIT: usize = 8;
 
 const UNKNOWN: u8 = 0;
 const ABSENT: u8 = 1;
@@ -80,25 +79,41 @@ unsafe fn read_xcr0() -> u64 {
     unsafe { _xgetbv(0) }
 }
 
-/// `y += W x` (`y` holding the bias; `weights`: `IN * OUT` f32 LE input-major) with AVX2 and
-/// FMA, in the portable kernel's order for the layer's width. Returns `false`, touching
-/// nothing, if the machine lacks AVX2 or FMA or `weights` is short; the caller then runs the
-/// portable kernel.
+/// Whether the kernels can run: AVX2 and FMA present, and `weights` holds `IN * OUT` f32.
+fn usable<const IN: usize, const OUT: usize>(weights: &[u8]) -> bool {
+    let needed = IN.checked_mul(OUT).and_then(|n| n.checked_mul(4));
+    needed.is_some_and(|n| weights.len() >= n) && has_avx2_fma()
+}
+
+/// `y += W x` (`y` holding the bias; `weights`: `IN * OUT` f32 LE input-major) for a layer at
+/// least a tile wide, with AVX2 and FMA, in the portable kernel's order. Returns `false`,
+/// touching nothing, for a narrower layer (see [`narrow_partials`]), if the machine lacks AVX2
+/// or FMA, or if `weights` is short; the caller then runs the portable kernel.
 #[inline]
 pub(super) fn dense<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32; IN], y: &mut [f32; OUT]) -> bool {
-    let needed = IN.checked_mul(OUT).and_then(|n| n.checked_mul(4));
-    if needed.is_none_or(|n| weights.len() < n) || !has_avx2_fma() {
+    if OUT < F32_TILE || !usable::<IN, OUT>(weights) {
         return false;
     }
-    // SAFETY: the CPU runs AVX2 and FMA and the OS saves YMM state (`has_avx2_fma`), and
-    // `weights` holds the `IN * OUT` f32 the kernel reads (checked above).
-    unsafe {
-        if OUT < F32_TILE {
-            narrow(weights.as_ptr().cast(), x, y);
-        } else {
-            wide(weights.as_ptr().cast(), x, y);
-        }
+    // SAFETY: the CPU runs AVX2 and FMA and the OS saves YMM state, and `weights` holds the
+    // `IN * OUT` f32 the kernel reads (`usable`).
+    unsafe { wide(weights.as_ptr().cast(), x, y) };
+    true
+}
+
+/// The narrow kernel's [`SPLIT`] partial sums (from 0) of a layer narrower than a tile, with
+/// AVX2 and FMA: `part[k][j]` fuses the inputs `k, k + 8, k + 16, ...` in order. Returns
+/// `false`, touching nothing, where [`dense`] would.
+#[inline]
+pub(super) fn narrow_partials<const IN: usize, const OUT: usize>(
+    weights: &[u8],
+    x: &[f32; IN],
+    part: &mut [[f32; OUT]; SPLIT],
+) -> bool {
+    if OUT >= F32_TILE || !usable::<IN, OUT>(weights) {
+        return false;
     }
+    // SAFETY: as in `dense`.
+    unsafe { narrow(weights.as_ptr().cast(), x, part) };
     true
 }
 
@@ -157,17 +172,17 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
     }
 }
 
-/// The narrow layer (fewer outputs than a tile, the 3 actions): [`SPLIT`] partial sums per
-/// output, partial `k` over inputs `k, k + 8, k + 16, ...` in order, then `bias + p0 + ... + p7`
-/// in order. A block of 8 inputs is 8 rows of `OUT` weights, `OUT` contiguous vectors; lane `m`
-/// of the block holds row `m / OUT`, output `m % OUT`, so one accumulator vector per position
-/// in the block keeps `OUT * 8` partial sums, and the inputs are spread to the lanes by
-/// `vpermps`.
+/// The narrow layer's partial sums (fewer outputs than a tile, the 3 actions): partial `k`
+/// over inputs `k, k + 8, k + 16, ...` in order. A block of 8 inputs is 8 rows of `OUT`
+/// weights, `OUT` contiguous vectors; lane `m` of the block holds row `m / OUT`, output
+/// `m % OUT`, which is where partial `k = m / OUT` of output `j = m % OUT` lies in `part`
+/// flattened. So one accumulator vector per position in the block keeps the `OUT * 8` partial
+/// sums, and the inputs are spread to the lanes by `vpermps`.
 ///
 /// # Safety
 /// AVX2 and FMA present; `w` points to `IN * OUT` readable f32 (any alignment).
 #[target_feature(enable = "avx2,fma")]
-unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], y: &mut [f32; OUT]) {
+unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], part: &mut [[f32; OUT]; SPLIT]) {
     const { assert!(SPLIT == 8, "the lanes of a vector are the partial sums") };
     // Lane `l` of vector `v` takes input `(8 v + l) / OUT` of the block.
     let mut spread = [_mm256_setzero_si256(); OUT];
@@ -197,15 +212,9 @@ unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN]
             *a = _mm256_fmadd_ps(xs, unsafe { _mm256_loadu_ps(block.add(8 * v)) }, *a);
         }
     }
-    let mut lanes = [[0.0f32; 8]; OUT];
-    for (l, a) in lanes.iter_mut().zip(acc.iter()) {
-        // SAFETY: 8 f32 into an `[f32; 8]`.
-        unsafe { _mm256_storeu_ps(l.as_mut_ptr(), *a) };
-    }
-    // Partial `k` of output `j` is lane `m = k OUT + j` of the block: both orders run over `m`.
-    let mut part = [[0.0f32; OUT]; SPLIT];
-    for (pj, &lane) in part.iter_mut().flatten().zip(lanes.iter().flatten()) {
-        *pj = lane;
+    for (lanes, a) in part.as_flattened_mut().chunks_exact_mut(8).zip(acc.iter()) {
+        // SAFETY: 8 f32 into a chunk of 8 (`part` flattened is `8 OUT` long: `OUT` chunks).
+        unsafe { _mm256_storeu_ps(lanes.as_mut_ptr(), *a) };
     }
     // The last `IN % 8` inputs, input `8 blocks + r` into partial `r`.
     let first = SPLIT * blocks;
@@ -213,11 +222,6 @@ unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN]
         for (j, pj) in p.iter_mut().enumerate() {
             // SAFETY: weight `(first + r) * OUT + j < IN * OUT`.
             *pj = fma1(xi, unsafe { w.add((first + r) * OUT + j).read_unaligned() }, *pj);
-        }
-    }
-    for p in part.iter() {
-        for (v, &a) in y.iter_mut().zip(p.iter()) {
-            *v += a;
         }
     }
 }
