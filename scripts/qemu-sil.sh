@@ -32,8 +32,8 @@ OUT=$(cd "$OUT" && pwd)
 
 # Instruction and footprint targets of the Cortex-M4 image (the transfer policy's, applied to the
 # rendezvous policy too: its first layer has 22 inputs instead of 10).
-F32_MAX_INSN=250000
-INT8_MAX_INSN=120000
+F32_MAX_INSN=160000
+INT8_MAX_INSN=100000
 FLASH_MAX=$((256 * 1024))
 RAM_MAX=$((64 * 1024))
 

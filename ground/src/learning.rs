@@ -57,8 +57,13 @@ pub enum LearnCommand {
         #[command(flatten)]
         experiment: ExperimentArgs,
         /// Agent checkpoint (a best.safetensors of a phase).
+        #[arg(long, required_unless_present = "model", conflicts_with = "model")]
+        checkpoint: Option<PathBuf>,
+        /// A shipped model folder (models/NAME) whose blobs are exported again from its actor
+        /// with its card's config, flown in the SIL loop, and replaced in the folder with the
+        /// card's SIL figures (after a blob format change); --out holds the export and SIL runs.
         #[arg(long)]
-        checkpoint: PathBuf,
+        model: Option<PathBuf>,
     },
     /// Software-in-the-loop Monte Carlo: a blob flown by the onboard guidance loop against the
     /// dispersed truth plant (the config's [sil] dispersions), with the evaluation's metrics.
@@ -144,7 +149,15 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             episodes,
             gap_cases,
         } => evaluate_command(&experiment, Flown::from(checkpoint, model, false), episodes, gap_cases),
-        LearnCommand::Export { experiment, checkpoint } => export_command(&experiment, &checkpoint),
+        LearnCommand::Export {
+            experiment,
+            checkpoint,
+            model,
+        } => match (checkpoint, model) {
+            (_, Some(model)) => reexport_command(&experiment, &model),
+            (Some(checkpoint), None) => export_command(&experiment, &checkpoint),
+            (None, None) => Err("give --checkpoint or --model".into()),
+        },
         LearnCommand::Sil {
             experiment,
             blob,
@@ -445,6 +458,22 @@ fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dy
     println!("written to {}", args.out.display());
     // The blobs stay for study (export.json has every figure); the exit status says they failed.
     match report.failed_criteria().as_slice() {
+        [] => Ok(()),
+        failed => Err(format!("export check failed: {}", failed.join("; ")).into()),
+    }
+}
+
+fn reexport_command(args: &ExperimentArgs, model: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    if args.config.is_some() {
+        return Err("--model exports with the card's config; --config is not used with it".into());
+    }
+    let done = in_run_folder(&args.out, || Ok(learn::model::reexport_model(model, &args.out)?))?;
+    println!("{}", learn::export::describe(&done.export));
+    for report in &done.sil {
+        println!("{}", learn::sil::describe(report));
+    }
+    println!("{} updated; runs in {}", model.display(), args.out.display());
+    match done.export.failed_criteria().as_slice() {
         [] => Ok(()),
         failed => Err(format!("export check failed: {}", failed.join("; ")).into()),
     }

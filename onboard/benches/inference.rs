@@ -101,7 +101,7 @@ fn setup() -> Setup {
         .map(|_| random_input(10, &mut rng).try_into().unwrap())
         .collect();
     let f32_blob = f32_net(&net, ProblemKind::Transfer).encode();
-    let int8_blob = int8_net(&quant, ProblemKind::Transfer).encode();
+    let int8_blob = int8_net(&net, &quant, ProblemKind::Transfer).encode();
     Setup {
         f32_aligned: Aligned::new(&f32_blob),
         int8_aligned: Aligned::new(&int8_blob),
@@ -170,23 +170,12 @@ fn benches(c: &mut Criterion, s: &Setup) {
         g.bench_function("f32_256x256", |bch| bch.iter(|| b.forward(black_box(&h))));
         g.bench_function("f32_256x3", |bch| bch.iter(|| l3.forward(black_box(&h))));
         g.bench_function("int8_quantize_256", |bch| bch.iter(|| qb.quantize_input(black_box(&h))));
-        g.bench_function("int8_10x256", |bch| {
-            let q0 = qa.quantize_input(&x);
-            bch.iter(|| qa.forward(black_box(&q0)))
-        });
-        g.bench_function("int8_10x256_rows", |bch| {
-            let q0 = qa.quantize_input(&x);
-            bch.iter(|| qa.accumulate_rows(black_box(&q0)))
-        });
-        g.bench_function("int8_10x256_lanes", |bch| {
-            let q0 = qa.quantize_input(&x);
-            bch.iter(|| qa.accumulate_lanes(black_box(&q0)))
-        });
+        g.bench_function("int8_f32_10x256", |bch| bch.iter(|| qa.forward(black_box(&x))));
         g.bench_function("int8_256x256", |bch| bch.iter(|| qb.forward(black_box(&q))));
         g.bench_function("int8_256x256_rows", |bch| {
             bch.iter(|| qb.accumulate_rows(black_box(&q)))
         });
-        g.bench_function("int8_256x3", |bch| bch.iter(|| qc.forward(black_box(&q))));
+        g.bench_function("int8_f32_256x3", |bch| bch.iter(|| qc.forward(black_box(&h))));
     }
     g.finish();
 

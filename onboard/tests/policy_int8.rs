@@ -35,7 +35,7 @@ fn run_int8<const IN: usize>(
     let calib: Vec<Vec<f32>> = (0..200).map(|_| random_input(IN, &mut rng)).collect();
     let scales = calibrate(&net, &calib);
     let quant = quantize_net(&net, &scales);
-    let bytes = int8_net(&quant, kind).encode();
+    let bytes = int8_net(&net, &quant, kind).encode();
     let mut errs = Vec::new();
     let mut bounds = Vec::new();
     let mut ratios = Vec::new();
@@ -44,7 +44,7 @@ fn run_int8<const IN: usize>(
         let xa: [f32; IN] = x.clone().try_into().unwrap();
         let got = forward(&bytes, &xa);
         let want = net.forward(&x);
-        let emulated = int8_emulate(&quant, &x);
+        let emulated = int8_emulate(&net, &quant, &x);
         let bound = int8_bound(&net, &quant, &x);
         for (((g, w), b), e8) in got.iter().zip(&want).zip(&bound).zip(&emulated) {
             // The kernel is the int8 scheme (f32 rounding aside: at 16-bit activations an f32

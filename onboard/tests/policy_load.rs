@@ -18,7 +18,7 @@ fn int8_owned(sizes: &[usize], kind: ProblemKind, seed: u64) -> OwnedNet {
     let mut rng = Rng::new(seed);
     let net = RefNet::random(sizes, 1.0, &mut rng);
     let calib: Vec<Vec<f32>> = (0..20).map(|_| random_input(sizes[0], &mut rng)).collect();
-    int8_net(&quantize_net(&net, &calibrate(&net, &calib)), kind)
+    int8_net(&net, &quantize_net(&net, &calibrate(&net, &calib)), kind)
 }
 
 fn shape(inputs: usize, outputs: usize) -> LayerShape {
@@ -210,16 +210,17 @@ fn inconsistent_hand_built_blobs_are_refused() {
         })
     );
 
-    // f32 weights declared as int8: the weight array is 4x too long.
+    // An f32 network declared int8: its first layer is f32 there too, the second's weight
+    // array is 4x too long.
     let mut bad = good.clone();
     bad.quantization = shared::blob::Quantization::Int8;
     assert_eq!(
         TransferPolicy::from_blob(&bad.view(), ProblemKind::Transfer),
         Err(PolicyError::WrongArrayLength {
-            layer: 0,
+            layer: 1,
             array: LayerArray::Weights,
-            expected: 10 * 256,
-            found: 10 * 256 * 4
+            expected: 256 * 256,
+            found: 256 * 256 * 4
         })
     );
 
@@ -233,10 +234,10 @@ fn inconsistent_hand_built_blobs_are_refused() {
         );
     }
     let mut bad = good8.clone();
-    bad.layers[2].weight_scales[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
+    bad.layers[1].weight_scales[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
     assert_eq!(
         TransferPolicy::from_blob(&bad.view(), ProblemKind::Transfer),
-        Err(PolicyError::BadScale { layer: 2 })
+        Err(PolicyError::BadScale { layer: 1 })
     );
 }
 

@@ -33,7 +33,7 @@ fn check_mlp<const IN: usize, const H1: usize, const H2: usize, const OUT: usize
 
     let calib: Vec<Vec<f32>> = (0..20).map(|_| random_input(IN, &mut rng)).collect();
     let quant = quantize_net(&net, &calibrate(&net, &calib));
-    let bytes = int8_net(&quant, kind).encode();
+    let bytes = int8_net(&net, &quant, kind).encode();
     let policy = Mlp::<IN, H1, H2, OUT>::from_bytes(&bytes, kind).unwrap();
     for x in &inputs {
         let got = policy.forward(&x.clone().try_into().unwrap());
@@ -132,7 +132,7 @@ proptest! {
         let calib: Vec<Vec<f32>> = (0..20).map(|_| random_input(10, &mut rng)).collect();
         let quant = quantize_net(&net, &calibrate(&net, &calib));
         let b32 = f32_net(&net, ProblemKind::Transfer).encode();
-        let b8 = int8_net(&quant, ProblemKind::Transfer).encode();
+        let b8 = int8_net(&net, &quant, ProblemKind::Transfer).encode();
         let p32 = Mlp::<10, 16, 8, 3>::from_bytes(&b32, ProblemKind::Transfer).unwrap();
         let p8 = Mlp::<10, 16, 8, 3>::from_bytes(&b8, ProblemKind::Transfer).unwrap();
         let finite = x.iter().all(|v| v.is_finite());

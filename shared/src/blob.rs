@@ -14,14 +14,23 @@
 //! Decoding borrows: every weight array in a decoded [`NetworkBlob`] is a slice of the input
 //! bytes, so a blob linked into flash is used in place, never copied to RAM.
 //!
-//! Weight layouts are fixed by the quantization scheme, chosen for the inference kernels:
-//! - `F32`: weights f32 LE, **input-major** (`w[i * outputs + j]`, the transpose of PyTorch's
+//! Every layer's weight array starts at a multiple of [`WEIGHT_ALIGN`] bytes from the blob's
+//! first byte (zero padding before it, written by [`encode`], checked by [`decode`]): a blob
+//! placed at a word-aligned address has word-aligned weights, which the Cortex-M4F kernels load
+//! several words per instruction (`vldm`, `ldrd`).
+//!
+//! Weight layouts are fixed by each layer's storage ([`Quantization::of_layer`]), chosen for
+//! the inference kernels:
+//! - f32: weights f32 LE, **input-major** (`w[i * outputs + j]`, the transpose of PyTorch's
 //!   `[out][in]`), so a layer is a sequence of axpy updates over the output vector; bias f32 LE.
-//! - `Int8`: weights i8, **output-major** (`w[j * inputs + i]`, PyTorch's layout), so each output
+//! - int8: weights i8, **output-major** (`w[j * inputs + i]`, PyTorch's layout), so each output
 //!   is an integer dot product; one f32 scale per output channel (symmetric, zero point 0);
 //!   bias i32 LE in units of `input_scale * weight_scale[j]`; the layer input is quantized
 //!   symmetrically to 16 bits (`±ACTIVATION_LEVELS`) with `input_scale` (calibrated on the
-//!   ground). Version 2: version 1 quantized activations to ±127.
+//!   ground).
+//!
+//! Versions: 1 quantized int8 activations to ±127; 2 to 16 bits; 3 keeps the first and last
+//! layers of an `Int8` network in f32 and aligns the weight arrays.
 
 use serde::{Deserialize, Serialize};
 
@@ -30,7 +39,11 @@ pub use crate::scenario::ProblemKind;
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"LTGB";
 /// The format version this crate reads and writes.
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
+/// Each weight array starts at a multiple of this many bytes from the start of the blob.
+pub const WEIGHT_ALIGN: usize = 4;
+/// The zero bytes [`encode`] pads with.
+static PADDING: [u8; WEIGHT_ALIGN - 1] = [0; WEIGHT_ALIGN - 1];
 /// Bytes before the payload: magic, version, payload length.
 pub const HEADER_LEN: usize = 10;
 /// Bytes after the payload: the CRC-32.
@@ -81,8 +94,26 @@ impl FeatureLayout {
 pub enum Quantization {
     /// f32 weights and biases.
     F32,
-    /// int8 per-output-channel symmetric weights, i32 bias, 16-bit activations.
+    /// int8 per-output-channel symmetric weights, i32 bias, 16-bit activations, in the hidden
+    /// layers between the first and the last, which stay f32 (see [`Quantization::of_layer`]).
     Int8,
+}
+
+impl Quantization {
+    /// How layer `index` of a network of `layers` layers with this quantization is stored:
+    /// every layer of an `F32` network; in an `Int8` network the hidden layers between the
+    /// first and the last in int8, the first and the last in f32. The first layer's weights form
+    /// small differences of large, nearly equal features (the target radius against the radius,
+    /// with weights of ~46) that 8 bits cannot resolve; the last layer's outputs are the actions
+    /// themselves, one scale per action over 256 weights. Together they hold under 5 % of the
+    /// multiply-adds of the deployed networks.
+    pub fn of_layer(self, index: usize, layers: usize) -> Quantization {
+        match self {
+            Self::F32 => Self::F32,
+            Self::Int8 if index == 0 || index + 1 >= layers => Self::F32,
+            Self::Int8 => Self::Int8,
+        }
+    }
 }
 
 /// A layer's output non-linearity.
@@ -103,16 +134,20 @@ pub struct LayerBlob<'a> {
     pub outputs: u16,
     /// The non-linearity applied to this layer's output.
     pub activation: Activation,
-    /// F32: `inputs * outputs * 4` bytes input-major; Int8: `inputs * outputs` bytes output-major.
+    /// `0..WEIGHT_ALIGN` zero bytes that put `weights` at a multiple of [`WEIGHT_ALIGN`] bytes
+    /// from the start of the blob. [`encode`] writes them whatever the view holds.
+    #[serde(borrow)]
+    pub padding: &'a [u8],
+    /// f32: `inputs * outputs * 4` bytes input-major; int8: `inputs * outputs` bytes output-major.
     #[serde(borrow)]
     pub weights: &'a [u8],
-    /// F32: `outputs` f32 LE; Int8: `outputs` i32 LE.
+    /// f32: `outputs` f32 LE; int8: `outputs` i32 LE.
     #[serde(borrow)]
     pub bias: &'a [u8],
-    /// Int8 only: `outputs` f32 LE per-channel weight scales (empty for F32).
+    /// int8 only: `outputs` f32 LE per-channel weight scales (empty for f32).
     #[serde(borrow)]
     pub weight_scales: &'a [u8],
-    /// Int8 only: the scale that quantizes this layer's input to `±ACTIVATION_LEVELS` (1.0 for F32).
+    /// int8 only: the scale that quantizes this layer's input to `±ACTIVATION_LEVELS` (1.0 for f32).
     pub input_scale: f32,
 }
 
@@ -123,7 +158,7 @@ pub struct NetworkBlob<'a> {
     pub kind: ProblemKind,
     /// The input encoding the network was trained on.
     pub features: FeatureLayout,
-    /// How the weight arrays are stored.
+    /// How the weight arrays are stored (per layer: [`Quantization::of_layer`]).
     pub quantization: Quantization,
     /// Free text: config hash, training run, date. Never interpreted.
     #[serde(borrow)]
@@ -341,6 +376,16 @@ pub enum BlobError {
         /// Element index in the array.
         index: usize,
     },
+    /// A layer's padding is not the `0..WEIGHT_ALIGN` zero bytes that put its weights at a
+    /// multiple of [`WEIGHT_ALIGN`] from the start of the blob.
+    BadPadding {
+        /// Index of the layer (from 0).
+        layer: usize,
+        /// Padding bytes in the blob.
+        len: usize,
+        /// Byte offset of the weights from the start of the blob.
+        weights_offset: usize,
+    },
     /// The output buffer given to [`encode`] is too small.
     BufferTooSmall {
         /// Bytes the blob needs.
@@ -428,6 +473,15 @@ impl core::fmt::Display for BlobError {
             Self::NonFiniteWeight { layer, array, index } => {
                 write!(f, "layer {layer} {array}[{index}] is not finite")
             }
+            Self::BadPadding {
+                layer,
+                len,
+                weights_offset,
+            } => write!(
+                f,
+                "layer {layer}: {len} padding bytes put the weights at byte {weights_offset}; \
+                 {WEIGHT_ALIGN} - 1 zero bytes at most, to a multiple of {WEIGHT_ALIGN}"
+            ),
             Self::BufferTooSmall { needed, available } => {
                 write!(f, "output buffer of {available} bytes, blob needs {needed}")
             }
@@ -485,7 +539,8 @@ pub fn i8_bytes(values: &[i8]) -> std::vec::Vec<u8> {
 }
 
 impl LayerBlob<'_> {
-    /// Byte lengths `[weights, bias, weight_scales]` this layer's shape needs under `q`.
+    /// Byte lengths `[weights, bias, weight_scales]` this layer's shape needs when stored as `q`
+    /// (the layer's own storage, [`Quantization::of_layer`]).
     pub fn expected_lens(&self, q: Quantization) -> [usize; 3] {
         let (i, o) = (usize::from(self.inputs), usize::from(self.outputs));
         // u16 * u16 * 4 < 2^34: saturate rather than overflow on 32-bit targets.
@@ -521,7 +576,6 @@ impl NetworkBlob<'_> {
                 max: MAX_LAYERS,
             });
         }
-        let q = self.quantization;
         // The previous layer's outputs, carried along rather than indexed: no bounds check, so
         // no panic path reaches flight images (the C interface's check looks for one).
         let mut previous_outputs: Option<u16> = None;
@@ -567,6 +621,7 @@ impl NetworkBlob<'_> {
                 (ArrayKind::Bias, layer.bias),
                 (ArrayKind::WeightScales, layer.weight_scales),
             ];
+            let q = self.quantization.of_layer(l, n);
             for ((array, bytes), expected) in arrays.into_iter().zip(layer.expected_lens(q)) {
                 if bytes.len() != expected {
                     return Err(BlobError::ArrayLength {
@@ -703,8 +758,65 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
     if !rest.is_empty() {
         return Err(BlobError::PayloadNotConsumed { unused: rest.len() });
     }
+    for (layer, l) in blob.layers.iter().enumerate() {
+        // Both slices borrow from `bytes`, so the difference is the offset in the blob.
+        let weights_offset = (l.weights.as_ptr() as usize).wrapping_sub(bytes.as_ptr() as usize);
+        if l.padding.len() >= WEIGHT_ALIGN
+            || l.padding.iter().any(|&b| b != 0)
+            || !weights_offset.is_multiple_of(WEIGHT_ALIGN)
+        {
+            return Err(BlobError::BadPadding {
+                layer,
+                len: l.padding.len(),
+                weights_offset,
+            });
+        }
+    }
     blob.validate()?;
     Ok(blob)
+}
+
+/// The fields of a layer before its weights' length prefix, for [`NetworkBlob::aligned`].
+#[derive(Serialize)]
+struct LayerHead<'a> {
+    inputs: u16,
+    outputs: u16,
+    activation: Activation,
+    padding: &'a [u8],
+}
+
+fn serialized_len<T: Serialize + ?Sized>(value: &T) -> Result<usize, BlobError> {
+    postcard::experimental::serialized_size(value).map_err(|e| BlobError::Payload(e.into()))
+}
+
+impl<'a> NetworkBlob<'a> {
+    /// The same network with each layer's padding set so that its weights start at a multiple
+    /// of [`WEIGHT_ALIGN`] bytes from the start of the encoded blob (what [`encode`] writes).
+    pub fn aligned(&self) -> Result<NetworkBlob<'a>, BlobError> {
+        let mut out = self.clone();
+        out.layers.clear();
+        // The payload before the layers; the layer count's varint is one byte for any count up
+        // to MAX_LAYERS, so the empty list stands for the whole one.
+        let mut at = HEADER_LEN + serialized_len(&out)?;
+        for layer in &self.layers {
+            let mut layer = *layer;
+            let head = LayerHead {
+                inputs: layer.inputs,
+                outputs: layer.outputs,
+                activation: layer.activation,
+                padding: &[],
+            };
+            let unpadded = at + serialized_len(&head)? + serialized_len(&layer.weights.len())?;
+            let pad = (WEIGHT_ALIGN - unpadded % WEIGHT_ALIGN) % WEIGHT_ALIGN;
+            layer.padding = PADDING.get(..pad).unwrap_or(&[]);
+            at += serialized_len(&layer)?;
+            out.layers.push(layer).map_err(|_| BlobError::TooManyLayers {
+                found: self.layers.len(),
+                max: MAX_LAYERS,
+            })?;
+        }
+        Ok(out)
+    }
 }
 
 fn payload_len(blob: &NetworkBlob<'_>) -> Result<usize, BlobError> {
@@ -723,17 +835,18 @@ fn framed_len(payload: usize) -> Result<usize, BlobError> {
 /// Total bytes [`encode`] will write for `blob` (validating it first).
 pub fn encoded_len(blob: &NetworkBlob<'_>) -> Result<usize, BlobError> {
     blob.validate()?;
-    framed_len(payload_len(blob)?)
+    framed_len(payload_len(&blob.aligned()?)?)
 }
 
-/// Validates `blob` and writes the framed blob to the start of `out`; returns the bytes
-/// written. No heap, so the flight side could re-emit a blob too.
+/// Validates `blob` and writes the framed blob, its weights aligned
+/// ([`NetworkBlob::aligned`]; the view's own padding is ignored), to the start of `out`;
+/// returns the bytes written. No heap, so the flight side could re-emit a blob too.
 pub fn encode(blob: &NetworkBlob<'_>, out: &mut [u8]) -> Result<usize, BlobError> {
     blob.validate()?;
-    encode_unchecked(blob, out)
+    encode_unchecked(&blob.aligned()?, out)
 }
 
-/// [`encode`] without [`NetworkBlob::validate`]: only for tests that need a correctly framed
+/// [`encode`] without [`NetworkBlob::validate`] and with the view's padding as it is: only for tests that need a correctly framed
 /// blob with a semantic defect, to prove the decoder's own checks fire.
 #[doc(hidden)]
 pub fn encode_unchecked(blob: &NetworkBlob<'_>, out: &mut [u8]) -> Result<usize, BlobError> {
@@ -765,7 +878,7 @@ pub fn encode_unchecked(blob: &NetworkBlob<'_>, out: &mut [u8]) -> Result<usize,
 #[cfg(feature = "std")]
 pub fn encode_to_vec(blob: &NetworkBlob<'_>) -> Result<std::vec::Vec<u8>, BlobError> {
     let mut out = std::vec![0u8; encoded_len(blob)?];
-    let n = encode_unchecked(blob, &mut out)?;
+    let n = encode_unchecked(&blob.aligned()?, &mut out)?;
     debug_assert_eq!(n, out.len());
     Ok(out)
 }

@@ -281,6 +281,7 @@ impl MlpWeights {
                 inputs: width(l.inputs),
                 outputs: width(l.outputs),
                 activation: l.activation,
+                padding: &[],
                 weights: &a.weights,
                 bias: &a.bias,
                 weight_scales: &a.weight_scales,
@@ -306,27 +307,13 @@ impl MlpWeights {
     /// The f32 blob: weights transposed to the input-major layout the f32 kernel streams.
     pub fn f32_blob(&self, provenance: &str) -> Result<Vec<u8>, QuantizeError> {
         self.validate()?;
-        let arrays: Vec<OwnedArrays> = self
-            .layers
-            .iter()
-            .map(|l| {
-                let mut transposed = Vec::with_capacity(l.weights.len());
-                for i in 0..l.inputs {
-                    transposed.extend((0..l.outputs).map(|j| l.weights[j * l.inputs + i]));
-                }
-                OwnedArrays {
-                    weights: f32_le_bytes(&transposed),
-                    bias: f32_le_bytes(&l.bias),
-                    weight_scales: Vec::new(),
-                    input_scale: 1.0,
-                }
-            })
-            .collect();
+        let arrays: Vec<OwnedArrays> = self.layers.iter().map(f32_arrays).collect();
         self.encode(Quantization::F32, &arrays, provenance)
     }
 
-    /// The int8 quantization of every layer, activation scales calibrated on `calibration`
-    /// (network inputs: demonstration and evaluation states).
+    /// The int8 quantization of the layers an `Int8` blob stores in int8 (the hidden layers
+    /// between the first and the last, [`Quantization::of_layer`]), activation scales calibrated
+    /// on `calibration` (network inputs: demonstration and evaluation states), in order.
     pub fn quantize_int8(&self, calibration: &[Vec<f32>]) -> Result<Vec<Int8Layer>, QuantizeError> {
         self.validate()?;
         let n_in = self.layers.first().map_or(0, |l| l.inputs);
@@ -375,7 +362,13 @@ impl MlpWeights {
             .map(|x| x.iter().map(|&v| f64::from(v)).collect())
             .collect();
         let mut layers = Vec::with_capacity(self.layers.len());
-        for ((l, m), stats) in self.layers.iter().zip(largest).zip(&statistics) {
+        let count = self.layers.len();
+        for (index, ((l, m), stats)) in self.layers.iter().zip(largest).zip(&statistics).enumerate() {
+            if Quantization::Int8.of_layer(index, count) == Quantization::F32 {
+                // A layer the blob keeps in f32: its outputs as the network computes them.
+                flowing = flowing.iter().map(|x| l.forward(x)).collect();
+                continue;
+            }
             let input_scale = activation_scale(m);
             let a = f64::from(input_scale);
             let levels = f64::from(ACTIVATION_LEVELS);
@@ -447,13 +440,23 @@ impl MlpWeights {
         provenance: &str,
     ) -> Result<(Vec<u8>, Vec<Int8Layer>), QuantizeError> {
         let quant = self.quantize_int8(calibration)?;
-        let arrays: Vec<OwnedArrays> = quant
+        let mut int8 = quant.iter();
+        let count = self.layers.len();
+        let arrays: Vec<OwnedArrays> = self
+            .layers
             .iter()
-            .map(|q| OwnedArrays {
-                weights: i8_bytes(&q.weights),
-                bias: i32_le_bytes(&q.bias),
-                weight_scales: f32_le_bytes(&q.weight_scales),
-                input_scale: q.input_scale,
+            .enumerate()
+            .map(|(index, l)| {
+                let stored = Quantization::Int8.of_layer(index, count);
+                match (stored == Quantization::Int8).then(|| int8.next()).flatten() {
+                    Some(q) => OwnedArrays {
+                        weights: i8_bytes(&q.weights),
+                        bias: i32_le_bytes(&q.bias),
+                        weight_scales: f32_le_bytes(&q.weight_scales),
+                        input_scale: q.input_scale,
+                    },
+                    None => f32_arrays(l),
+                }
             })
             .collect();
         let blob = self.encode(Quantization::Int8, &arrays, provenance)?;
@@ -466,6 +469,21 @@ struct OwnedArrays {
     bias: Vec<u8>,
     weight_scales: Vec<u8>,
     input_scale: f32,
+}
+
+/// A layer's f32 arrays: the weights transposed to the input-major layout the f32 kernel
+/// streams, the bias as is.
+fn f32_arrays(l: &DenseWeights) -> OwnedArrays {
+    let mut transposed = Vec::with_capacity(l.weights.len());
+    for i in 0..l.inputs {
+        transposed.extend((0..l.outputs).map(|j| l.weights[j * l.inputs + i]));
+    }
+    OwnedArrays {
+        weights: f32_le_bytes(&transposed),
+        bias: f32_le_bytes(&l.bias),
+        weight_scales: Vec::new(),
+        input_scale: 1.0,
+    }
 }
 
 /// A width as the format stores it; one too large saturates and the format's own width check
@@ -524,7 +542,8 @@ mod tests {
             .map(|k| (0..10).map(|i| ((k * 10 + i) as f32 * 0.7).sin() * 2.0).collect())
             .collect();
         let quant = net.quantize_int8(&calib).unwrap();
-        for (l, q) in net.layers.iter().zip(&quant) {
+        assert_eq!(quant.len(), net.layers.len() - 2, "the first and last layers stay f32");
+        for (l, q) in net.layers[1..].iter().zip(&quant) {
             for j in 0..l.outputs {
                 let s = q.weight_scales[j];
                 let row = &l.weights[j * l.inputs..(j + 1) * l.inputs];
@@ -533,17 +552,18 @@ mod tests {
                 assert!(s <= peak / 127.0 * 1.0001 && s >= peak / 127.0 * 0.4999, "{s} {peak}");
             }
         }
-        // Bias correction: on the calibration inputs (layer 0 sees them as they are), the
-        // quantized layer's mean pre-activation equals the exact weights' on the same
-        // quantized inputs, to the bias's rounding (half a unit).
-        let (l, q) = (&net.layers[0], &quant[0]);
+        // Bias correction: on the calibration inputs (layer 1 sees the f32 first layer's
+        // outputs, exact here), the quantized layer's mean pre-activation equals the exact
+        // weights' on the same quantized inputs, to the bias's rounding (half a unit).
+        let (l, q) = (&net.layers[1], &quant[0]);
         let a = f64::from(q.input_scale);
+        let hidden: Vec<Vec<f64>> = calib.iter().map(|x| net.layer_inputs(x).swap_remove(1)).collect();
         for j in 0..l.outputs {
             let unit = a * f64::from(q.weight_scales[j]);
             let (mut quantized, mut exact) = (0.0, 0.0);
-            for x in &calib {
+            for x in &hidden {
                 for (i, &v) in x.iter().enumerate() {
-                    let xq = (f64::from(v) / a).round() * a;
+                    let xq = (v / a).round() * a;
                     quantized += f64::from(q.weights[j * l.inputs + i]) * f64::from(q.weight_scales[j]) * xq;
                     exact += f64::from(l.weights[j * l.inputs + i]) * xq;
                 }
@@ -558,7 +578,7 @@ mod tests {
         }
         // Every calibration input of every layer fits in ACTIVATION_LEVELS steps of its scale.
         for x in &calib {
-            for (a, q) in net.layer_inputs(x).iter().zip(&quant) {
+            for (a, q) in net.layer_inputs(x)[1..].iter().zip(&quant) {
                 assert!(a
                     .iter()
                     .all(|v| v.abs() / f64::from(q.input_scale) <= f64::from(ACTIVATION_LEVELS)));
@@ -594,18 +614,36 @@ mod tests {
             .map(|k| {
                 let r = 1.0 + 0.52 * ((k as f32 * 0.618_034).fract());
                 let gap = 0.004 * ((k as f32 * 1.7).sin());
-                vec![r, r + gap, 0.01 * (k as f32 * 0.3).cos()]
+                vec![r, r + gap, 0.02 + 0.01 * (k as f32 * 0.3).cos()]
             })
             .collect();
+        // An f32 identity first layer (the inputs are positive, so its ReLU keeps them), the
+        // row under test as the int8 hidden layer, and an f32 output layer.
         let net = MlpWeights {
             kind: ProblemKind::Transfer,
-            layers: vec![DenseWeights {
-                inputs: 3,
-                outputs: 1,
-                weights: row.clone(),
-                bias: vec![0.1],
-                activation: Activation::Tanh,
-            }],
+            layers: vec![
+                DenseWeights {
+                    inputs: 3,
+                    outputs: 3,
+                    weights: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                    bias: vec![0.0; 3],
+                    activation: Activation::Relu,
+                },
+                DenseWeights {
+                    inputs: 3,
+                    outputs: 1,
+                    weights: row.clone(),
+                    bias: vec![0.1],
+                    activation: Activation::Relu,
+                },
+                DenseWeights {
+                    inputs: 1,
+                    outputs: 1,
+                    weights: vec![1.0],
+                    bias: vec![0.0],
+                    activation: Activation::Tanh,
+                },
+            ],
         };
         let q = &net.quantize_int8(&inputs).unwrap()[0];
         let s = q.weight_scales[0];

@@ -7,7 +7,7 @@ use serde::Serialize;
 use shared::blob::{
     decode, encode, encode_unchecked, encoded_len, f32_at, f32s, i32_at, Activation, ArrayKind, BlobError,
     FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_VERSION, HEADER_LEN, MAGIC,
-    MAX_LAYERS, MAX_WIDTH, TRAILER_LEN,
+    MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
 };
 
 // ---------------------------------------------------------------- owned test networks
@@ -62,6 +62,7 @@ impl OwnedLayer {
             inputs: self.inputs,
             outputs: self.outputs,
             activation: self.activation,
+            padding: &[],
             weights: &self.weights,
             bias: &self.bias,
             weight_scales: &self.weight_scales,
@@ -76,6 +77,7 @@ impl Owned {
         for l in &self.layers {
             layers.push(l.view()).expect("at most MAX_LAYERS layers");
         }
+        // Padded as the encoder pads, so a decoded blob compares equal to its view.
         NetworkBlob {
             kind: self.kind,
             features: self.features,
@@ -83,6 +85,8 @@ impl Owned {
             provenance: &self.provenance,
             layers,
         }
+        .aligned()
+        .expect("a padded copy of a view that fits MAX_LAYERS")
     }
 }
 
@@ -95,7 +99,7 @@ fn network(features: FeatureLayout, q: Quantization, widths: &[u16], seed: u64) 
             let (i, o) = (widths[l], widths[l + 1]);
             let count = usize::from(i) * usize::from(o);
             let activation = if l + 1 == n { Activation::Tanh } else { Activation::Relu };
-            match q {
+            match q.of_layer(l, n) {
                 Quantization::F32 => {
                     let w: Vec<f32> = (0..count).map(|_| rng.f32(-0.2, 0.2)).collect();
                     let b: Vec<f32> = (0..o).map(|_| rng.f32(-0.05, 0.05)).collect();
@@ -136,7 +140,7 @@ fn network(features: FeatureLayout, q: Quantization, widths: &[u16], seed: u64) 
 }
 
 fn small(q: Quantization) -> Owned {
-    network(FeatureLayout::TransferPolar10, q, &[10, 2, 3], 7)
+    network(FeatureLayout::TransferPolar10, q, &[10, 2, 4, 3], 7)
 }
 
 fn to_bytes(blob: &NetworkBlob<'_>) -> Vec<u8> {
@@ -437,7 +441,8 @@ fn no_layers_and_too_many_layers_are_refused() {
     let mut o4 = o.clone();
     o4.layers.truncate(4);
     o4.layers[3].activation = Activation::Tanh;
-    let layers4: Vec<LayerBlob<'_>> = o4.layers.iter().map(|l| l.view()).collect();
+    let aligned4 = o4.view();
+    let layers4: Vec<LayerBlob<'_>> = aligned4.layers.iter().copied().collect();
     let four = Wide {
         layers: &layers4,
         ..wide
@@ -550,29 +555,47 @@ fn array_lengths_must_match_shape_and_quantization() {
             found: 12,
         },
     );
-    // An F32-sized layer declared Int8: weights are 4x too long.
+    // An F32 network declared Int8: its first and last layers are f32 there too, the hidden
+    // layer's weights are 4x too long.
+    let base = network(FeatureLayout::TransferPolar10, Quantization::F32, &[10, 4, 5, 3], 8);
     let mut o = base.clone();
     o.quantization = Quantization::Int8;
     assert_refused(
         &o,
         BlobError::ArrayLength {
-            layer: 0,
+            layer: 1,
             array: ArrayKind::Weights,
-            expected: 40,
-            found: 160,
+            expected: 20,
+            found: 80,
         },
     );
-    let mut o = network(FeatureLayout::TransferPolar10, Quantization::Int8, &[10, 4, 3], 8);
-    o.layers[0].weight_scales.truncate(12);
+    let int8 = network(FeatureLayout::TransferPolar10, Quantization::Int8, &[10, 4, 5, 3], 8);
+    let mut o = int8.clone();
+    o.layers[1].weight_scales.truncate(16);
     assert_refused(
         &o,
         BlobError::ArrayLength {
-            layer: 0,
+            layer: 1,
             array: ArrayKind::WeightScales,
-            expected: 16,
-            found: 12,
+            expected: 20,
+            found: 16,
         },
     );
+    // An Int8 network's first and last layers are stored in f32: int8-sized arrays there are
+    // refused.
+    for (layer, inputs, outputs) in [(0, 10, 4), (2, 5, 3)] {
+        let mut o = int8.clone();
+        o.layers[layer].weights.truncate(inputs * outputs);
+        assert_refused(
+            &o,
+            BlobError::ArrayLength {
+                layer,
+                array: ArrayKind::Weights,
+                expected: 4 * inputs * outputs,
+                found: inputs * outputs,
+            },
+        );
+    }
 }
 
 #[test]
@@ -621,7 +644,7 @@ fn non_finite_f32_weights_and_biases_are_refused() {
 
 #[test]
 fn scales_must_be_finite_and_positive() {
-    let base = network(FeatureLayout::TransferPolar10, Quantization::Int8, &[10, 4, 3], 11);
+    let base = network(FeatureLayout::TransferPolar10, Quantization::Int8, &[10, 4, 4, 3], 11);
     for bad in [0.0f32, -0.5, f32::NAN, f32::INFINITY] {
         let mut o = base.clone();
         o.layers[1].weight_scales[8..12].copy_from_slice(&bad.to_le_bytes());
@@ -838,4 +861,79 @@ proptest! {
         prop_assert_eq!(&back, &blob);
         assert_borrows_from(&back, &bytes);
     }
+}
+
+// ---------------------------------------------------------------- alignment
+
+#[test]
+fn every_weight_array_starts_word_aligned_from_the_blob_start() {
+    // Provenance lengths 0..8 shift everything after them through every residue mod 4.
+    for q in [Quantization::F32, Quantization::Int8] {
+        for extra in 0..8 {
+            let mut o = network(FeatureLayout::TransferPolar10, q, &[10, 7, 5, 3], 20 + extra);
+            o.provenance.push_str(&"x".repeat(extra as usize));
+            let bytes = to_bytes(&o.view());
+            let back = decode(&bytes).unwrap();
+            for (l, layer) in back.layers.iter().enumerate() {
+                let offset = layer.weights.as_ptr() as usize - bytes.as_ptr() as usize;
+                assert_eq!(offset % WEIGHT_ALIGN, 0, "{q:?} +{extra}: layer {l} at byte {offset}");
+                assert!(layer.padding.len() < WEIGHT_ALIGN && layer.padding.iter().all(|&b| b == 0));
+            }
+        }
+    }
+}
+
+#[test]
+fn padding_that_misaligns_the_weights_or_is_not_zero_is_refused() {
+    // A provenance that leaves layer 0 some padding, so there are bytes to dirty.
+    let o = (0..4)
+        .map(|extra| {
+            let mut o = small(Quantization::F32);
+            o.provenance.push_str(&"x".repeat(extra));
+            o
+        })
+        .find(|o| !o.view().layers[0].padding.is_empty())
+        .expect("one of four provenance lengths pads layer 0");
+    let good = o.view();
+    let pad = good.layers[0].padding.len();
+    let bytes = to_bytes(&good);
+    let offset = decode(&bytes).unwrap().layers[0].weights.as_ptr() as usize - bytes.as_ptr() as usize;
+    let refused = |blob: &NetworkBlob<'_>| decode(&to_bytes_unchecked(blob)).map(|_| ());
+    // Other padding bytes than zero: refused, though the weights stay aligned.
+    let ones = [1u8; 8];
+    let mut dirty = good.clone();
+    dirty.layers[0].padding = &ones[..pad];
+    assert_eq!(
+        refused(&dirty),
+        Err(BlobError::BadPadding {
+            layer: 0,
+            len: pad,
+            weights_offset: offset
+        })
+    );
+    // One byte less: the weights move off the word.
+    let zeros = [0u8; 8];
+    let mut short = good.clone();
+    short.layers[0].padding = &zeros[..pad - 1];
+    assert_eq!(
+        refused(&short),
+        Err(BlobError::BadPadding {
+            layer: 0,
+            len: pad - 1,
+            weights_offset: offset - 1
+        })
+    );
+    // A whole word more: aligned again, but longer than any alignment needs.
+    let mut long = good.clone();
+    long.layers[0].padding = &zeros[..pad + WEIGHT_ALIGN];
+    assert_eq!(
+        refused(&long),
+        Err(BlobError::BadPadding {
+            layer: 0,
+            len: pad + WEIGHT_ALIGN,
+            weights_offset: offset + WEIGHT_ALIGN
+        })
+    );
+    // The encoder itself ignores a view's padding: the dirty view encodes to the good blob.
+    assert_eq!(to_bytes(&dirty), bytes);
 }

@@ -99,7 +99,7 @@ fn network(sizes: &[usize], quantization: Quantization, seed: u64) -> Vec<OwnedL
             let wt = weights(n_in * n_out, n_in, seed + l as u64); // [out][in]
             let b = weights(n_out, n_in, seed + 100 + l as u64);
             let activation = if l == last { Activation::Tanh } else { Activation::Relu };
-            let (weights, bias, scales, input_scale) = match quantization {
+            let (weights, bias, scales, input_scale) = match quantization.of_layer(l, sizes.len() - 1) {
                 Quantization::F32 => {
                     let input_major: Vec<f32> = (0..n_in * n_out).map(|k| wt[(k % n_out) * n_in + k / n_out]).collect();
                     (f32_le_bytes(&input_major), f32_le_bytes(&b), Vec::new(), 1.0)
@@ -144,6 +144,7 @@ fn blob_bytes(
                 inputs: l.inputs,
                 outputs: l.outputs,
                 activation: l.activation,
+                padding: &[],
                 weights: &l.weights,
                 bias: &l.bias,
                 weight_scales: &l.scales,

@@ -66,32 +66,24 @@ pub fn write<W: Write, const N: usize>(
                 v.iter_mut().for_each(|e| *e = e.max(0.0));
                 v
             };
-            let q0 = a.quantize_input(x);
-            let q1 = b.quantize_input(&relu(a.forward(&q0)));
-            let q2 = c.quantize_input(&relu(b.forward(&q1)));
+            let q1 = b.quantize_input(&relu(a.forward(x)));
+            let h2 = relu(b.forward(&q1));
             let l2 = per_call(counter, &q1, |q| b.accumulate(q));
             let stages = [
-                (
-                    Stage("L1 quantize", Some(N), ""),
-                    per_call(counter, x, |x| a.quantize_input(x)),
-                ),
-                (
-                    Stage("L1 accumulate", Some(N), "x256"),
-                    per_call(counter, &q0, |q| a.accumulate(q)),
-                ),
-                (Stage("L2 accumulate 256x256", None, ""), l2),
-                (
-                    Stage("L3 accumulate 256x3", None, ""),
-                    per_call(counter, &q2, |q| c.accumulate(q)),
-                ),
+                (Stage("L1 f32", Some(N), "x256"), per_call(counter, x, |x| a.forward(x))),
                 (
                     Stage("L2 quantize 256", None, ""),
                     per_call(counter, &[0.5f32; 256], |h| b.quantize_input(h)),
                 ),
-                (Stage("L1 dequantize 256", None, ""), {
-                    let all = per_call(counter, &q0, |q| a.forward(q));
-                    all.saturating_sub(per_call(counter, &q0, |q| a.accumulate(q)))
+                (Stage("L2 accumulate 256x256", None, ""), l2),
+                (Stage("L2 dequantize 256", None, ""), {
+                    let all = per_call(counter, &q1, |q| b.forward(q));
+                    all.saturating_sub(l2)
                 }),
+                (
+                    Stage("L3 f32 256x3", None, ""),
+                    per_call(counter, &h2, |h| c.forward(h)),
+                ),
             ];
             for (name, v) in stages {
                 write!(w, "; {name} {}", Hundredths(v))?;

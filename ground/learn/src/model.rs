@@ -126,6 +126,10 @@ pub struct ModelCard {
     pub sil: Vec<(String, FlightFigures)>,
     /// Every file of the folder but the cards, with its CRC-32 (8 hex digits).
     pub files: BTreeMap<String, String>,
+    /// When the blobs were exported again from the same actor ([`reexport_model`], after a blob
+    /// format change): (command, commit, UTC date). The actor and its Monte Carlo are unchanged.
+    #[serde(default)]
+    pub reexported: Option<(String, String, String)>,
 }
 
 fn crc_of(path: &Path) -> Result<String, ModelError> {
@@ -218,29 +222,95 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         monte_carlo: FlightFigures::of(mc),
         monte_carlo_seed: mc.seed,
         overspend: mc.overspend.as_ref().map(|o| (o.count, o.p50, o.p95)),
-        sil: sources
-            .sil
-            .iter()
-            .map(|r| {
-                let name = r
-                    .blob
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                (name, FlightFigures::of(&r.monte_carlo))
-            })
-            .collect(),
+        sil: sil_figures(sources.sil),
         files,
+        reexported: None,
     };
-    let json = serde_json::to_vec_pretty(&card).map_err(|e| ModelError::Card {
+    write_cards(dir, &card)?;
+    Ok(card)
+}
+
+/// The card's SIL rows: (blob file name, figures) per report.
+fn sil_figures(sil: &[SilReport]) -> Vec<(String, FlightFigures)> {
+    sil.iter()
+        .map(|r| {
+            let name = r
+                .blob
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            (name, FlightFigures::of(&r.monte_carlo))
+        })
+        .collect()
+}
+
+/// Writes card.json and card.md, then opens the folder with every reader's checks.
+fn write_cards(dir: &Path, card: &ModelCard) -> Result<(), ModelError> {
+    let json = serde_json::to_vec_pretty(card).map_err(|e| ModelError::Card {
         path: dir.join(CARD_JSON),
         reason: e.to_string(),
     })?;
     atomic_write(&dir.join(CARD_JSON), &json).map_err(io(&dir.join(CARD_JSON)))?;
-    atomic_write(&dir.join(CARD_MD), card_markdown(&card).as_bytes()).map_err(io(&dir.join(CARD_MD)))?;
-    // What was written must open: the same checks as every reader.
+    atomic_write(&dir.join(CARD_MD), card_markdown(card).as_bytes()).map_err(io(&dir.join(CARD_MD)))?;
     open_model(dir)?;
-    Ok(card)
+    Ok(())
+}
+
+/// What [`reexport_model`] did.
+pub struct Reexport {
+    pub card: ModelCard,
+    pub export: ExportReport,
+    pub sil: Vec<SilReport>,
+}
+
+/// `ground export --model DIR`: exports the blobs of a shipped model again from its actor with
+/// its card's config (after a blob format change; the actor, and so its Monte Carlo, stay as
+/// they are), flies them in the SIL loop, and replaces the blobs and the card's SIL figures and
+/// file checksums. The export and SIL Monte Carlos are written under `run`. The folder's files
+/// other than the blobs must still match the card; its blobs may be of an older format.
+pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
+    let (mut card, config) = read_card(dir)?;
+    let actor = dir.join(ACTOR_FILE);
+    let recorded = card.files.get(ACTOR_FILE).cloned().unwrap_or_default();
+    let found = crc_of(&actor)?;
+    if found != recorded {
+        return Err(ModelError::Checksum {
+            path: actor,
+            found,
+            recorded,
+        });
+    }
+    let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
+    let export = crate::export::export(&config, dir, &actor, &run.join("export")).map_err(experiment)?;
+    let sil = if config.scenario.problem() == ProblemKind::Transfer {
+        let fly = |blob: &Path, folder: &str| {
+            crate::sil::sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions)
+        };
+        vec![
+            fly(&export.f32.file, "sil-f32").map_err(experiment)?,
+            fly(&export.int8.file, "sil-int8").map_err(experiment)?,
+        ]
+    } else {
+        Vec::new()
+    };
+    for blob in [&export.f32.file, &export.int8.file] {
+        let name = blob
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let bytes = std::fs::read(blob).map_err(io(blob))?;
+        let target = dir.join(&name);
+        atomic_write(&target, &bytes).map_err(io(&target))?;
+        card.files.insert(name, crc_of(&target)?);
+    }
+    card.sil = sil_figures(&sil);
+    card.reexported = Some((
+        std::env::args().collect::<Vec<_>>().join(" "),
+        current_commit(),
+        utc_date(),
+    ));
+    write_cards(dir, &card)?;
+    Ok(Reexport { card, export, sil })
 }
 
 /// Today's UTC date, YYYY-MM-DD (the calendar reading `ground oem` stamps its files with).
@@ -273,22 +343,7 @@ impl ShippedModel {
 /// every file it lists is there with its CRC-32, both blobs are listed, and the f32 blob holds
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
-    let card_path = dir.join(CARD_JSON);
-    let bytes = std::fs::read(&card_path).map_err(io(&card_path))?;
-    let card: ModelCard = serde_json::from_slice(&bytes).map_err(|e| ModelError::Card {
-        path: card_path.clone(),
-        reason: e.to_string(),
-    })?;
-    if card.format != CARD_FORMAT {
-        return Err(ModelError::Format {
-            path: card_path,
-            found: card.format,
-        });
-    }
-    let config = ExperimentConfig::from_toml(&card.config).map_err(|e| ModelError::Card {
-        path: dir.join(CARD_JSON),
-        reason: format!("its config: {e}"),
-    })?;
+    let (card, config) = read_card(dir)?;
     let kind = config.scenario.problem();
     for needed in [
         ACTOR_FILE.to_string(),
@@ -332,6 +387,27 @@ pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     })
 }
 
+/// The card of the model folder `dir` and its config, parsed and of this format.
+fn read_card(dir: &Path) -> Result<(ModelCard, ExperimentConfig), ModelError> {
+    let card_path = dir.join(CARD_JSON);
+    let bytes = std::fs::read(&card_path).map_err(io(&card_path))?;
+    let card: ModelCard = serde_json::from_slice(&bytes).map_err(|e| ModelError::Card {
+        path: card_path.clone(),
+        reason: e.to_string(),
+    })?;
+    if card.format != CARD_FORMAT {
+        return Err(ModelError::Format {
+            path: card_path,
+            found: card.format,
+        });
+    }
+    let config = ExperimentConfig::from_toml(&card.config).map_err(|e| ModelError::Card {
+        path: dir.join(CARD_JSON),
+        reason: format!("its config: {e}"),
+    })?;
+    Ok((card, config))
+}
+
 /// An agent flying the actor of an actor file.
 pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelError> {
     crate::eval::load_agent(config, obs_dim(config.scenario.problem()), path)
@@ -370,6 +446,13 @@ pub fn card_markdown(card: &ModelCard) -> String {
         "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32 in [card.json](card.json); `ground evaluate --model` and `ground sil --model` refuse a folder whose files disagree.\n",
         card.created, card.command, card.commit
     );
+    if let Some((command, commit, date)) = &card.reexported {
+        let _ = writeln!(
+            s,
+            "Blobs exported again from the same actor on {date} by `{command}` at commit `{commit}` (blob format {}); the SIL figures are theirs.\n",
+            shared::blob::FORMAT_VERSION
+        );
+    }
     let (records, converged, seed, eps) = card.demonstrations;
     let _ = writeln!(
         s,

@@ -3,12 +3,13 @@
 //! 1,000 of the card's Monte Carlo scenarios, scores the card's share within the accuracy goal.
 //! The card's share was measured by the tch actor on all the Monte Carlo's scenarios, so the two
 //! are different implementations of the policy on overlapping samples: they must agree within
-//! the sampling error of 1,000 flights.
+//! the sampling error of 1,000 flights. Its int8 blob, flown on the same scenarios, scores within
+//! a point of the f32 blob (the export's promise), within the paired sampling error.
 
 use std::path::{Path, PathBuf};
 
 use firmware_sim::Dispersions;
-use ground_core::env::batch::draw_scenarios;
+use ground_core::env::batch::{draw_scenarios, EpisodeOutcome};
 use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use learn::export::blob_file;
 use learn::model::open_model;
@@ -65,6 +66,27 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
             dir.display(),
             100.0 * flown_share,
             100.0 * card_share
+        );
+
+        let int8_path = dir.join(blob_file(ProblemKind::Transfer, Quantization::Int8));
+        let int8_blob = std::fs::read(&int8_path).unwrap();
+        let (int8_outcomes, int8_faults, _) = fly_blob(config, &int8_blob, &scenarios, &Dispersions::NONE, 0).unwrap();
+        assert_eq!(int8_faults, 0, "{}", dir.display());
+        // Paired flights: only the scenarios that one blob ends within the goal and the other not
+        // carry sampling error, so the bound is three standard deviations of their count.
+        let inside = |o: &EpisodeOutcome| o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL;
+        let discordant = outcomes
+            .iter()
+            .zip(&int8_outcomes)
+            .filter(|(a, b)| inside(a) != inside(b))
+            .count();
+        let int8_share = within_accuracy_goal(&int8_outcomes);
+        assert!(
+            int8_share >= flown_share - 0.01 - 3.0 * (discordant as f64).sqrt() / FLIGHTS as f64,
+            "{}: int8 {:.2} % within the goal, f32 {:.2} % ({discordant} flights differ)",
+            dir.display(),
+            100.0 * int8_share,
+            100.0 * flown_share
         );
     }
 }

@@ -71,6 +71,9 @@ pub enum lt_status {
     LT_ERR_BLOB_BUFFER_TOO_SMALL = -27,
     /// Encoding only (never returned by a load): the payload does not fit the length field.
     LT_ERR_BLOB_PAYLOAD_TOO_LARGE = -28,
+    /// A layer's padding is not the zero bytes that put its weights at a multiple of 4 bytes
+    /// from the start of the blob.
+    LT_ERR_BLOB_BAD_PADDING = -29,
     /// The blob is for the other problem (a rendezvous blob loaded as transfer, or the reverse).
     LT_ERR_WRONG_PROBLEM = -30,
     /// The blob's feature layout is not the compiled network's input.
@@ -104,7 +107,7 @@ pub enum lt_status {
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 39] = [
+const ERROR_NAMES: [(lt_status, &CStr); 40] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -130,6 +133,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 39] = [
     (LT_ERR_BLOB_NON_FINITE_WEIGHT, c"blob_non_finite_weight"),
     (LT_ERR_BLOB_BUFFER_TOO_SMALL, c"blob_buffer_too_small"),
     (LT_ERR_BLOB_PAYLOAD_TOO_LARGE, c"blob_payload_too_large"),
+    (LT_ERR_BLOB_BAD_PADDING, c"blob_bad_padding"),
     (LT_ERR_WRONG_PROBLEM, c"wrong_problem"),
     (LT_ERR_WRONG_FEATURES, c"wrong_features"),
     (LT_ERR_WRONG_LAYER_COUNT, c"wrong_layer_count"),
@@ -184,6 +188,7 @@ pub fn blob_error_code(error: &BlobError) -> lt_status {
         BlobError::NonFiniteWeight { .. } => LT_ERR_BLOB_NON_FINITE_WEIGHT,
         BlobError::BufferTooSmall { .. } => LT_ERR_BLOB_BUFFER_TOO_SMALL,
         BlobError::PayloadTooLarge { .. } => LT_ERR_BLOB_PAYLOAD_TOO_LARGE,
+        BlobError::BadPadding { .. } => LT_ERR_BLOB_BAD_PADDING,
     }
 }
 

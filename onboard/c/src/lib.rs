@@ -622,6 +622,11 @@ mod tests {
                 available: 1
             },
             BlobError::PayloadTooLarge { len: usize::MAX },
+            BlobError::BadPadding {
+                layer: 1,
+                len: 2,
+                weights_offset: 97,
+            },
         ]
     }
 

@@ -1,17 +1,19 @@
 //! The Cortex-M4F kernels in `asm!`, for what stable Rust cannot express or LLVM does not
 //! generate: the int8 pair kernel's Arm DSP instructions (`sxtb16`, `smlad`; stable Rust has
-//! no intrinsics for them) and the f32 tile kernel, which keeps 16 accumulators in FPU
-//! registers and loads the possibly unaligned blob weights through core registers (LLVM spills
-//! the accumulators and moves every weight separately: 5.15 instructions per multiply-add,
-//! against 2.7 here).
+//! no intrinsics for them) with two-word weight loads (`ldrd`), and the f32 tile kernel, which
+//! keeps 16 accumulators in FPU registers and loads inputs and weights eight at a time (`vldm`;
+//! LLVM spills the accumulators and moves every weight separately: 5.15 instructions per
+//! multiply-add, against 1.21 here). Both multi-word loads need word-aligned weights, which
+//! the blob format provides for a blob stored word-aligned; otherwise they decline and the
+//! portable loops run.
 //!
-//! The only module of `onboard` that allows `unsafe`. Each `unsafe` block is one `asm!`
-//! statement whose SAFETY comment shows every memory access in bounds: the loops read only
-//! through pointers taken from slices whose lengths are checked (by `from_layer`, and again
-//! here, locally, before the `asm!`), for an iteration count derived from those lengths.
-//! Both kernels compute exactly what the portable kernels compute (the same integers; the
-//! same f32 products and sums in the same order per output), which `scripts/qemu-sil.sh`
-//! checks bit for bit against the host.
+//! The only module of `onboard` that allows `unsafe` besides `policy::x86`. Each `unsafe` block
+//! is one `asm!` statement whose SAFETY comment shows every memory access in bounds: the loops
+//! read only through pointers taken from slices whose lengths and alignment are checked (by
+//! `from_layer`, and again here, locally, before the `asm!`), for an iteration count derived
+//! from those lengths. Both kernels compute exactly what the portable kernels compute (the same
+//! integers; the same f32 products and sums in the same order per output), which
+//! `scripts/qemu-sil.sh` checks bit for bit against the host.
 
 use core::arch::asm;
 
@@ -49,105 +51,123 @@ pub(super) fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
     sum
 }
 
+/// Inputs per iteration of [`dot4_pairs`]'s loop (`1 << PAIR_LOOP_SHIFT`): the deployed
+/// hidden width, so its rows take one pass with no loop overhead.
+const PAIR_LOOP_SHIFT: u32 = 8;
+const PAIR_LOOP_INPUTS: usize = 1 << PAIR_LOOP_SHIFT;
+
 /// Four rows (`block`: at least `4 * IN` bytes, row `k` at byte `k * IN`) against the
-/// activations `xp` in pair order: the pair kernel's inner loop, 8 inputs of 4 rows (32
-/// multiply-accumulates) in 44 instructions. Per group of 4 inputs one `ldrd` loads the two
-/// activation words `(x0, x2)`, `(x1, x3)`, and per row one `ldr` loads the 4 weights (any
-/// alignment: the Cortex-M4 allows unaligned `ldr`), then [`pair_mac`]'s four instructions.
-/// Whole groups the loop leaves (at most one) and the last `IN % 4` inputs run in Rust.
+/// activations `xp` in pair order: the pair kernel's inner loop. Per 8 inputs one `ldrd` loads
+/// the activation words `(x0, x2)`, `(x1, x3)` and another `(x4, x6)`, `(x5, x7)`; per row one
+/// `ldrd` loads its 8 weights, then [`pair_mac`]'s steps for each word (the second word's
+/// `sxtb16` results overwrite the weights they came from): 38 instructions for 32
+/// multiply-adds, repeated 32 times per iteration (`.rept`), so 256 inputs per iteration.
+///
+/// `ldrd` needs word-aligned addresses: the blob format aligns the weight arrays (see
+/// [`f32_tile`]), so each row is aligned when `IN` is a multiple of 4. An unaligned block, a
+/// width whose row offsets do not fit `ldrd`'s immediate (`3 IN <= 1020`) and the last
+/// `IN % 256` inputs take [`dot1_pairs`] (the same integers).
 #[inline(always)]
 pub(super) fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
-    // The row offsets are `ldr` immediates (12 bits): true for every int8 layer
-    // (`MAX_INT8_INPUTS` = 512), checked at compile time for each instantiated width.
-    const { assert!(3 * IN <= 4095, "int8 layer too wide for the pair kernel's offsets") };
     let Some(block) = block.get(..4 * IN) else {
         // Unreachable: `accumulate_paired` passes `chunks_exact(4 * IN)` blocks.
         return [0; 4];
     };
-    // Loop iterations, 8 inputs (two groups of 4) each: `IN / 8`.
-    let iterations = IN >> 3;
+    let fits = IN.is_multiple_of(4) && 3 * IN <= 1020 && (block.as_ptr() as usize).is_multiple_of(4);
+    let iterations = if fits { IN >> PAIR_LOOP_SHIFT } else { 0 };
     let [mut a0, mut a1, mut a2, mut a3] = [0i32; 4];
     if iterations > 0 {
         // SAFETY: the loop runs `iterations >= 1` times (`subs`/`bne` at the bottom) and reads
         // only through `px` and `pw`:
         // - `px` starts at `xp.0`, an `[i16; IN]` (`2 * IN` bytes) aligned to 8 (`Acts` is
-        //   `repr(align(8))`), and each `ldrd` reads 8 bytes at `px` and advances it by 8, two
-        //   per iteration: bytes `0..16 * iterations <= 2 * IN` of `xp.0`, each load at a
-        //   multiple of 8 from the start, so word-aligned as `ldrd` requires.
-        // - `pw` starts at `block`, checked above to have `4 * IN` bytes; each half-iteration
-        //   reads 4 bytes at `pw + k * IN` for rows `k = 1, 2, 3` and at `pw` for row 0 (the
-        //   post-indexed load then advances `pw` by 4). After `h` half-iterations `pw` is at
-        //   `4 * h`, and `4 * h + 4 <= 8 * iterations <= IN`, so row `k` reads bytes
-        //   `k * IN .. k * IN + 8 * iterations`, within row `k`'s `IN` bytes of `block`.
-        // Nothing is written to memory (`readonly`), the stack is untouched (`nostack`), and
-        // every register written is a declared output; the flags are clobbered (`subs`, Q).
+        //   `repr(align(8))`); each `ldrd` reads 8 bytes at `px` and advances it by 8, 64 per
+        //   iteration: bytes `0..512 * iterations <= 2 * IN` of `xp.0`, at multiples of 8.
+        // - `pw` starts at `block`, word-aligned and of `4 * IN` bytes (both checked above);
+        //   each of the 32 repetitions reads 8 bytes at `pw + k * IN` for rows `k = 1, 2, 3` and at
+        //   `pw` for row 0 (the post-indexed load then advances `pw` by 8). After `h`
+        //   repetitions `pw` is at `8 h`, and `8 h + 8 <= 256 * iterations <= IN`, so row `k`
+        //   reads bytes `k * IN .. k * IN + 256 * iterations`, within row `k`'s `IN` bytes of
+        //   `block`; every address is word-aligned (`IN` is a multiple of 4, checked above) and
+        //   every offset `k * IN <= 1020` fits `ldrd`'s immediate.
+        // - the stack: `push`/`pop` of `r6`, `r7` (8 bytes), balanced, so `sp` is restored. The two
+        //   registers, which Rust cannot name as operands (LLVM may keep its base and frame
+        //   pointers there), hold the second activation pair inside the block and get their
+        //   values back before it ends; every operand is pinned to another register, so none is
+        //   in them.
+        // Nothing else is written to memory, and every other register written is a declared
+        // output; the flags are clobbered (`subs`, Q).
         unsafe {
             asm!(
+                "push {{r6, r7}}",
                 "2:",
-                "ldrd {xe}, {xo}, [{px}], #8",
-                "ldr {w}, [{pw}, #{r1}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a1}, {t}, {xe}, {a1}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a1}, {t}, {xo}, {a1}",
-                "ldr {w}, [{pw}, #{r2}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a2}, {t}, {xe}, {a2}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a2}, {t}, {xo}, {a2}",
-                "ldr {w}, [{pw}, #{r3}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a3}, {t}, {xe}, {a3}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a3}, {t}, {xo}, {a3}",
-                "ldr {w}, [{pw}], #4",
-                "sxtb16 {t}, {w}",
-                "smlad {a0}, {t}, {xe}, {a0}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a0}, {t}, {xo}, {a0}",
-                "ldrd {xe}, {xo}, [{px}], #8",
-                "ldr {w}, [{pw}, #{r1}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a1}, {t}, {xe}, {a1}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a1}, {t}, {xo}, {a1}",
-                "ldr {w}, [{pw}, #{r2}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a2}, {t}, {xe}, {a2}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a2}, {t}, {xo}, {a2}",
-                "ldr {w}, [{pw}, #{r3}]",
-                "sxtb16 {t}, {w}",
-                "smlad {a3}, {t}, {xe}, {a3}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a3}, {t}, {xo}, {a3}",
-                "ldr {w}, [{pw}], #4",
-                "sxtb16 {t}, {w}",
-                "smlad {a0}, {t}, {xe}, {a0}",
-                "sxtb16 {t}, {w}, ror #8",
-                "smlad {a0}, {t}, {xo}, {a0}",
-                "subs {n}, {n}, #1",
+                ".rept 32",
+                "ldrd r9, r10, [r0], #8",
+                "ldrd r6, r7, [r0], #8",
+                "ldrd r11, r12, [r1, #{row1}]",
+                "sxtb16 lr, r11",
+                "smlad r4, lr, r9, r4",
+                "sxtb16 r11, r11, ror #8",
+                "smlad r4, r11, r10, r4",
+                "sxtb16 lr, r12",
+                "smlad r4, lr, r6, r4",
+                "sxtb16 r12, r12, ror #8",
+                "smlad r4, r12, r7, r4",
+                "ldrd r11, r12, [r1, #{row2}]",
+                "sxtb16 lr, r11",
+                "smlad r5, lr, r9, r5",
+                "sxtb16 r11, r11, ror #8",
+                "smlad r5, r11, r10, r5",
+                "sxtb16 lr, r12",
+                "smlad r5, lr, r6, r5",
+                "sxtb16 r12, r12, ror #8",
+                "smlad r5, r12, r7, r5",
+                "ldrd r11, r12, [r1, #{row3}]",
+                "sxtb16 lr, r11",
+                "smlad r8, lr, r9, r8",
+                "sxtb16 r11, r11, ror #8",
+                "smlad r8, r11, r10, r8",
+                "sxtb16 lr, r12",
+                "smlad r8, lr, r6, r8",
+                "sxtb16 r12, r12, ror #8",
+                "smlad r8, r12, r7, r8",
+                "ldrd r11, r12, [r1], #8",
+                "sxtb16 lr, r11",
+                "smlad r3, lr, r9, r3",
+                "sxtb16 r11, r11, ror #8",
+                "smlad r3, r11, r10, r3",
+                "sxtb16 lr, r12",
+                "smlad r3, lr, r6, r3",
+                "sxtb16 r12, r12, ror #8",
+                "smlad r3, r12, r7, r3",
+                ".endr",
+                "subs r2, r2, #1",
                 "bne 2b",
-                px = inout(reg) xp.0.as_ptr() => _,
-                pw = inout(reg) block.as_ptr() => _,
-                n = inout(reg) iterations => _,
-                a0 = inout(reg) a0,
-                a1 = inout(reg) a1,
-                a2 = inout(reg) a2,
-                a3 = inout(reg) a3,
-                xe = out(reg) _,
-                xo = out(reg) _,
-                w = out(reg) _,
-                t = out(reg) _,
-                r1 = const IN,
-                r2 = const 2 * IN,
-                r3 = const 3 * IN,
-                options(pure, readonly, nostack),
+                "pop {{r6, r7}}",
+                // Every other allocatable core register, named (`asm!` cannot name pinned
+                // operands in the template), so none lands in r6 or r7: r0 the activations,
+                // r1 the weights, r2 the count, r3, r4, r5, r8 the rows' sums, r9, r10 and r6,
+                // r7 the activation pairs, r11, r12 the weights, lr the sign-extended pair.
+                inout("r0") xp.0.as_ptr() => _,
+                inout("r1") block.as_ptr() => _,
+                inout("r2") iterations => _,
+                inout("r3") a0,
+                inout("r4") a1,
+                inout("r5") a2,
+                inout("r8") a3,
+                out("r9") _,
+                out("r10") _,
+                out("r11") _,
+                out("r12") _,
+                out("lr") _,
+                row1 = const IN,
+                row2 = const 2 * IN,
+                row3 = const 3 * IN,
+                options(pure, readonly),
             );
         }
     }
-    // The group the loop leaves when `IN / 4` is odd, then the last `IN % 4` inputs.
-    let done = 8 * iterations;
+    // The inputs the loop leaves (all of them for a block it declines).
+    let done = PAIR_LOOP_INPUTS * iterations;
     let mut s = [a0, a1, a2, a3];
     let rows = block.chunks_exact(IN);
     let (Some(x_rest), true) = (xp.0.get(done..), done <= IN) else {
@@ -333,17 +353,19 @@ pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
 pub(super) const F32_ARM_TILE: usize = 16;
 
 /// `acc[k] += x[i] * w[i][col + k]` for `i = 0, 1, 2, ...` in order, `k < 16` (`w` the layer's
-/// input-major f32 LE weights, rows of `OUT` values): per output the same fused multiply-adds
-/// in the same order as the portable f32 kernel (one `vfma.f32`: rounded once). Two inputs per iteration: one `vldmia` loads both, and each of their 16 weights
-/// takes an `ldr` (the blob's f32 arrays need not be word-aligned, and the Cortex-M4 allows
-/// unaligned `ldr` but not unaligned `vldr`/`vldm`), half a `vmov` (two core registers to two
-/// FPU registers) and a `vfma`: 85 instructions for 32 multiply-accumulates.
+/// input-major f32 LE weights, rows of `stride` bytes): per output the same fused multiply-adds
+/// in the same order as the portable f32 kernel (one `vfma.f32`: rounded once). The 16
+/// accumulators stay in `s0`-`s15` for all inputs; eight inputs at a time are loaded into
+/// `s24`-`s31` by one `vldmia`, and per input the tile's 16 weights by two `vldmia` of 8 into
+/// `s16`-`s23`, each followed by 8 `vfma`, then one `add` steps to the next row: 155
+/// instructions for 128 multiply-adds (the last `n % 8` inputs one at a time, 20 for 16).
 ///
-/// Returns `false`, touching nothing, unless `x` has an even number `n >= 2` of inputs, the
-/// tile lies within a row of `stride` bytes (`4 * (col + 16) <= stride`) and `weights` has
-/// `n * stride` bytes; the caller then runs the portable kernel. Not inlined: one copy serves
-/// every layer and tile (a call per tile of 16 outputs costs a few instructions; inlined
-/// into the loop over tiles it added 18 KB to the image's flash).
+/// `vldm` needs word-aligned addresses: the blob format puts every weight array at a multiple
+/// of 4 bytes from the blob's start, so the weights of a blob stored at a word-aligned address
+/// (the image's flash, or a C caller's aligned buffer) are. Returns `false`, touching nothing,
+/// unless the tile's first weight is word-aligned, `stride` is a multiple of 4, the tile lies
+/// within a row (`4 * (col + 16) <= stride`) and `weights` has `n * stride` bytes; the caller
+/// then runs the portable kernel. Not inlined: one copy serves every layer and tile.
 #[inline(never)]
 pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc: &mut [f32; F32_ARM_TILE]) -> bool {
     let n = x.len();
@@ -351,129 +373,232 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
         .checked_add(F32_ARM_TILE)
         .and_then(|end| end.checked_mul(4))
         .is_some_and(|end| end <= stride);
-    if n < 2 || !n.is_multiple_of(2) || !fits || n.checked_mul(stride).is_none_or(|len| weights.len() < len) {
+    if n == 0 || !fits || !stride.is_multiple_of(4) || n.checked_mul(stride).is_none_or(|len| weights.len() < len) {
         return false;
     }
     let Some(tile) = weights.get(4 * col..) else {
         return false;
     };
+    if !(tile.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
     // SAFETY: memory accessed, all in bounds:
     // - `acc`: `vldm`/`vstm` of `s0`-`s15` read and write its 16 f32 (64 bytes), through a
     //   pointer from a `&mut [f32; 16]` (word-aligned, as `vldm`/`vstm` require).
-    // - `x`: the loop runs `n / 2 >= 1` times (`subs`/`bne` at the bottom); each `vldmia` reads
-    //   two f32 at `px` and advances it by 8 bytes: bytes `0..4 n` of the `[f32]` (word-aligned).
-    // - weights: in iteration `t`, `pw` is at byte `2 t * stride` of `tile` and `pv` at
-    //   `(2 t + 1) * stride`, and each `ldr` reads 4 bytes at offset 0..=60 from them: bytes
-    //   `4 col + i * stride + 4 k .. + 4` of `weights` for input `i < n` and `k < 16`, whose
-    //   end `4 (col + 16) + (n - 1) * stride <= n * stride <= weights.len()` (both checked
-    //   above). `ldr` may be unaligned on the Cortex-M4 (unless the
-    //   `CCR.UNALIGN_TRP` trap is enabled; it is off at reset and nothing here enables it).
-    // - the stack: `vpush`/`vpop` of `s0`-`s19` (80 bytes), balanced, so `sp` is restored.
-    // Registers: every core register written is a declared operand; `s0`-`s19` are saved on
-    // entry and restored on exit, so no FPU register changes as the compiler sees it (Rust
-    // cannot name FPU registers as `asm!` operands on stable for this target). The flags
-    // (`subs`) are clobbered; FPSCR's rounding mode is only read, its sticky exception bits
-    // may be set, as by any f32 arithmetic.
+    // - `x`: the group loop runs `n / 8` times and the single loop `n % 8` times (each skipped
+    //   when its count is 0: `cmp`/`beq` before it, `subs`/`bne` at its bottom); each group's
+    //   `vldmia` reads 8 f32 and each single's one f32 at `px`, advancing it by what it read:
+    //   bytes `0..4 n` of the `[f32]` (word-aligned).
+    // - weights: `pw` starts at `tile`, word-aligned (checked above). For each input `i` two
+    //   `vldmia` read 32 bytes each and advance `pw` by 64, then `add` advances it by
+    //   `stride - 64`, so input `i` reads bytes `i * stride .. i * stride + 64` of `tile`, that
+    //   is bytes `4 col + i * stride .. + 64` of `weights`, whose end for `i = n - 1` is
+    //   `4 (col + 16) + (n - 1) stride <= n stride <= weights.len()` (both checked above); every
+    //   address stays word-aligned (`stride` is a multiple of 4).
+    // - the stack: `vpush`/`vpop` of `d0`-`d15` (`s0`-`s31`, 128 bytes), balanced, so `sp` is
+    //   restored.
+    // Registers: every core register written is a declared operand; `s0`-`s31` are saved on entry
+    // and restored on exit, so no FPU register changes as the compiler sees it (Rust cannot name
+    // FPU registers as `asm!` operands on stable for this target). The flags (`cmp`, `subs`) are
+    // clobbered; FPSCR's rounding mode is only read, its sticky exception bits may be set, as by
+    // any f32 arithmetic.
     unsafe {
         asm!(
-                "vpush {{s0-s19}}",
+                "vpush {{d0-d15}}",
                 "vldm {acc}, {{s0-s15}}",
+                "cmp {groups}, #0",
+                "beq 3f",
                 "2:",
-                "vldmia {px}!, {{s16, s17}}",
-                "ldr {r0}, [{pw}]",
-                "ldr {r1}, [{pw}, #4]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s0, s16, s18",
-                "vfma.f32 s1, s16, s19",
-                "ldr {r0}, [{pw}, #8]",
-                "ldr {r1}, [{pw}, #12]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s2, s16, s18",
-                "vfma.f32 s3, s16, s19",
-                "ldr {r0}, [{pw}, #16]",
-                "ldr {r1}, [{pw}, #20]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s4, s16, s18",
-                "vfma.f32 s5, s16, s19",
-                "ldr {r0}, [{pw}, #24]",
-                "ldr {r1}, [{pw}, #28]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s6, s16, s18",
-                "vfma.f32 s7, s16, s19",
-                "ldr {r0}, [{pw}, #32]",
-                "ldr {r1}, [{pw}, #36]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s8, s16, s18",
-                "vfma.f32 s9, s16, s19",
-                "ldr {r0}, [{pw}, #40]",
-                "ldr {r1}, [{pw}, #44]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s10, s16, s18",
-                "vfma.f32 s11, s16, s19",
-                "ldr {r0}, [{pw}, #48]",
-                "ldr {r1}, [{pw}, #52]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s12, s16, s18",
-                "vfma.f32 s13, s16, s19",
-                "ldr {r0}, [{pw}, #56]",
-                "ldr {r1}, [{pw}, #60]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s14, s16, s18",
-                "vfma.f32 s15, s16, s19",
-                "ldr {r0}, [{pv}]",
-                "ldr {r1}, [{pv}, #4]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s0, s17, s18",
-                "vfma.f32 s1, s17, s19",
-                "ldr {r0}, [{pv}, #8]",
-                "ldr {r1}, [{pv}, #12]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s2, s17, s18",
-                "vfma.f32 s3, s17, s19",
-                "ldr {r0}, [{pv}, #16]",
-                "ldr {r1}, [{pv}, #20]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s4, s17, s18",
-                "vfma.f32 s5, s17, s19",
-                "ldr {r0}, [{pv}, #24]",
-                "ldr {r1}, [{pv}, #28]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s6, s17, s18",
-                "vfma.f32 s7, s17, s19",
-                "ldr {r0}, [{pv}, #32]",
-                "ldr {r1}, [{pv}, #36]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s8, s17, s18",
-                "vfma.f32 s9, s17, s19",
-                "ldr {r0}, [{pv}, #40]",
-                "ldr {r1}, [{pv}, #44]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s10, s17, s18",
-                "vfma.f32 s11, s17, s19",
-                "ldr {r0}, [{pv}, #48]",
-                "ldr {r1}, [{pv}, #52]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s12, s17, s18",
-                "vfma.f32 s13, s17, s19",
-                "ldr {r0}, [{pv}, #56]",
-                "ldr {r1}, [{pv}, #60]",
-                "vmov s18, s19, {r0}, {r1}",
-                "vfma.f32 s14, s17, s18",
-                "vfma.f32 s15, s17, s19",
+                "vldmia {px}!, {{s24-s31}}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s24, s16",
+                "vfma.f32 s1, s24, s17",
+                "vfma.f32 s2, s24, s18",
+                "vfma.f32 s3, s24, s19",
+                "vfma.f32 s4, s24, s20",
+                "vfma.f32 s5, s24, s21",
+                "vfma.f32 s6, s24, s22",
+                "vfma.f32 s7, s24, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s24, s16",
+                "vfma.f32 s9, s24, s17",
+                "vfma.f32 s10, s24, s18",
+                "vfma.f32 s11, s24, s19",
+                "vfma.f32 s12, s24, s20",
+                "vfma.f32 s13, s24, s21",
+                "vfma.f32 s14, s24, s22",
+                "vfma.f32 s15, s24, s23",
                 "add {pw}, {pw}, {step}",
-                "add {pv}, {pv}, {step}",
-                "subs {n}, {n}, #1",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s25, s16",
+                "vfma.f32 s1, s25, s17",
+                "vfma.f32 s2, s25, s18",
+                "vfma.f32 s3, s25, s19",
+                "vfma.f32 s4, s25, s20",
+                "vfma.f32 s5, s25, s21",
+                "vfma.f32 s6, s25, s22",
+                "vfma.f32 s7, s25, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s25, s16",
+                "vfma.f32 s9, s25, s17",
+                "vfma.f32 s10, s25, s18",
+                "vfma.f32 s11, s25, s19",
+                "vfma.f32 s12, s25, s20",
+                "vfma.f32 s13, s25, s21",
+                "vfma.f32 s14, s25, s22",
+                "vfma.f32 s15, s25, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s26, s16",
+                "vfma.f32 s1, s26, s17",
+                "vfma.f32 s2, s26, s18",
+                "vfma.f32 s3, s26, s19",
+                "vfma.f32 s4, s26, s20",
+                "vfma.f32 s5, s26, s21",
+                "vfma.f32 s6, s26, s22",
+                "vfma.f32 s7, s26, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s26, s16",
+                "vfma.f32 s9, s26, s17",
+                "vfma.f32 s10, s26, s18",
+                "vfma.f32 s11, s26, s19",
+                "vfma.f32 s12, s26, s20",
+                "vfma.f32 s13, s26, s21",
+                "vfma.f32 s14, s26, s22",
+                "vfma.f32 s15, s26, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s27, s16",
+                "vfma.f32 s1, s27, s17",
+                "vfma.f32 s2, s27, s18",
+                "vfma.f32 s3, s27, s19",
+                "vfma.f32 s4, s27, s20",
+                "vfma.f32 s5, s27, s21",
+                "vfma.f32 s6, s27, s22",
+                "vfma.f32 s7, s27, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s27, s16",
+                "vfma.f32 s9, s27, s17",
+                "vfma.f32 s10, s27, s18",
+                "vfma.f32 s11, s27, s19",
+                "vfma.f32 s12, s27, s20",
+                "vfma.f32 s13, s27, s21",
+                "vfma.f32 s14, s27, s22",
+                "vfma.f32 s15, s27, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s28, s16",
+                "vfma.f32 s1, s28, s17",
+                "vfma.f32 s2, s28, s18",
+                "vfma.f32 s3, s28, s19",
+                "vfma.f32 s4, s28, s20",
+                "vfma.f32 s5, s28, s21",
+                "vfma.f32 s6, s28, s22",
+                "vfma.f32 s7, s28, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s28, s16",
+                "vfma.f32 s9, s28, s17",
+                "vfma.f32 s10, s28, s18",
+                "vfma.f32 s11, s28, s19",
+                "vfma.f32 s12, s28, s20",
+                "vfma.f32 s13, s28, s21",
+                "vfma.f32 s14, s28, s22",
+                "vfma.f32 s15, s28, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s29, s16",
+                "vfma.f32 s1, s29, s17",
+                "vfma.f32 s2, s29, s18",
+                "vfma.f32 s3, s29, s19",
+                "vfma.f32 s4, s29, s20",
+                "vfma.f32 s5, s29, s21",
+                "vfma.f32 s6, s29, s22",
+                "vfma.f32 s7, s29, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s29, s16",
+                "vfma.f32 s9, s29, s17",
+                "vfma.f32 s10, s29, s18",
+                "vfma.f32 s11, s29, s19",
+                "vfma.f32 s12, s29, s20",
+                "vfma.f32 s13, s29, s21",
+                "vfma.f32 s14, s29, s22",
+                "vfma.f32 s15, s29, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s30, s16",
+                "vfma.f32 s1, s30, s17",
+                "vfma.f32 s2, s30, s18",
+                "vfma.f32 s3, s30, s19",
+                "vfma.f32 s4, s30, s20",
+                "vfma.f32 s5, s30, s21",
+                "vfma.f32 s6, s30, s22",
+                "vfma.f32 s7, s30, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s30, s16",
+                "vfma.f32 s9, s30, s17",
+                "vfma.f32 s10, s30, s18",
+                "vfma.f32 s11, s30, s19",
+                "vfma.f32 s12, s30, s20",
+                "vfma.f32 s13, s30, s21",
+                "vfma.f32 s14, s30, s22",
+                "vfma.f32 s15, s30, s23",
+                "add {pw}, {pw}, {step}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s31, s16",
+                "vfma.f32 s1, s31, s17",
+                "vfma.f32 s2, s31, s18",
+                "vfma.f32 s3, s31, s19",
+                "vfma.f32 s4, s31, s20",
+                "vfma.f32 s5, s31, s21",
+                "vfma.f32 s6, s31, s22",
+                "vfma.f32 s7, s31, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s31, s16",
+                "vfma.f32 s9, s31, s17",
+                "vfma.f32 s10, s31, s18",
+                "vfma.f32 s11, s31, s19",
+                "vfma.f32 s12, s31, s20",
+                "vfma.f32 s13, s31, s21",
+                "vfma.f32 s14, s31, s22",
+                "vfma.f32 s15, s31, s23",
+                "add {pw}, {pw}, {step}",
+                "subs {groups}, {groups}, #1",
                 "bne 2b",
+                "3:",
+                "cmp {singles}, #0",
+                "beq 5f",
+                "4:",
+                "vldmia {px}!, {{s24}}",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s0, s24, s16",
+                "vfma.f32 s1, s24, s17",
+                "vfma.f32 s2, s24, s18",
+                "vfma.f32 s3, s24, s19",
+                "vfma.f32 s4, s24, s20",
+                "vfma.f32 s5, s24, s21",
+                "vfma.f32 s6, s24, s22",
+                "vfma.f32 s7, s24, s23",
+                "vldmia {pw}!, {{s16-s23}}",
+                "vfma.f32 s8, s24, s16",
+                "vfma.f32 s9, s24, s17",
+                "vfma.f32 s10, s24, s18",
+                "vfma.f32 s11, s24, s19",
+                "vfma.f32 s12, s24, s20",
+                "vfma.f32 s13, s24, s21",
+                "vfma.f32 s14, s24, s22",
+                "vfma.f32 s15, s24, s23",
+                "add {pw}, {pw}, {step}",
+                "subs {singles}, {singles}, #1",
+                "bne 4b",
+                "5:",
                 "vstm {acc}, {{s0-s15}}",
-                "vpop {{s0-s19}}",
+                "vpop {{d0-d15}}",
             acc = in(reg) acc.as_mut_ptr(),
             px = inout(reg) x.as_ptr() => _,
             pw = inout(reg) tile.as_ptr() => _,
-            pv = inout(reg) tile.as_ptr().wrapping_add(stride) => _,
-            step = in(reg) 2 * stride,
-            n = inout(reg) n >> 1 => _,
-            r0 = out(reg) _,
-            r1 = out(reg) _,
+            step = in(reg) stride - 64,
+            groups = inout(reg) n >> 3 => _,
+            singles = inout(reg) n & 7 => _,
         );
     }
     true

@@ -151,10 +151,14 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         q
     }
 
-    /// `x` quantized like [`Self::quantize_input`], in `kernel`'s activation order.
+    /// `relu(y)` quantized like [`Self::quantize_input`] ([`quantize_relu`]), in `kernel`'s
+    /// activation order: the int8 layer after the f32 first layer takes its pre-activation.
     #[inline(always)]
-    pub(super) fn quantize_input_for(&self, x: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
-        let mut q = Acts(self.quantize_input(x));
+    pub(super) fn quantize_relu_input_for(&self, y: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
+        let mut q = Acts([0i16; IN]);
+        for (qi, &yi) in q.0.iter_mut().zip(y.iter()) {
+            *qi = quantize_relu(yi, self.input_scale);
+        }
         if kernel == Int8Kernel::Pairs {
             to_pair_order(&mut q.0);
         }
@@ -201,14 +205,13 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// The pair kernel, `xp` in pair order (see [`Self::map_paired`]).
     fn accumulate_paired(&self, xp: &Acts<IN>) -> [i32; OUT] {
         let mut acc = [0i32; OUT];
-        self.map_paired(xp, &mut acc, false, |a, _| a);
+        self.map_paired(xp, &mut acc, |a, _| a);
         acc
     }
 
     /// The pair kernel, `xp` in pair order, with each output finished as soon as its group of
     /// rows is summed: `out[j] = f(acc[j], input_scale * ws[j])`, `acc[j]` the accumulator
-    /// with the bias added (saturating), stored at `j` or, with `reorder`, at `j`'s position in
-    /// pair order (the next layer's input order). No accumulator array, no separate pass.
+    /// with the bias added (saturating). No accumulator array, no separate pass.
     ///
     /// [`INT8_ROWS`] rows per pass; per group of 4 inputs, two words of activation pairs
     /// `(x0, x2)`, `(x1, x3)` shared by the rows, and per row one word of 4 weights split by
@@ -216,7 +219,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// `smlad` ([`pair_mac`]). The last `IN % 4` inputs (natural order) and `OUT % 4` rows take
     /// the scalar path.
     #[inline(always)]
-    fn map_paired<T>(&self, xp: &Acts<IN>, out: &mut [T; OUT], reorder: bool, f: impl Fn(i32, f32) -> T) {
+    fn map_paired<T>(&self, xp: &Acts<IN>, out: &mut [T; OUT], f: impl Fn(i32, f32) -> T) {
         let s_in = self.input_scale;
         let finish = |a: i32, b: &[u8], w: &[u8]| f(a.saturating_add(i32_le(b)), s_in * f32_le(w));
         let mut blocks = self.weights.chunks_exact(INT8_ROWS * IN);
@@ -234,8 +237,8 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
                 (g, b.as_chunks::<4>().0, w.as_chunks::<4>().0)
             {
                 *g0 = finish(a0, b0, w0);
-                let (v1, v2) = (finish(a1, b1, w1), finish(a2, b2, w2));
-                (*g1, *g2) = if reorder { (v2, v1) } else { (v1, v2) };
+                *g1 = finish(a1, b1, w1);
+                *g2 = finish(a2, b2, w2);
                 *g3 = finish(a3, b3, w3);
             }
         }
@@ -303,27 +306,12 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         y
     }
 
-    /// `q = quantize(relu(forward(x)), next_scale)`, input and output in `kernel`'s order: the
-    /// dequantization, ReLU and quantization fused per output ([`quantize_relu`]). Written
-    /// into the caller's array, which spares a 512-byte copy of a returned one on the M4.
-    #[inline(always)]
-    pub(super) fn forward_relu_quantized(&self, xk: &Acts<IN>, next_scale: f32, kernel: Int8Kernel, q: &mut Acts<OUT>) {
-        if kernel == Int8Kernel::Pairs {
-            self.map_paired(xk, &mut q.0, true, |a, s| quantize_relu(a as f32 * s, next_scale));
-            return;
-        }
-        let acc = self.accumulate_for(xk, kernel);
-        for ((qj, &a), c) in q.0.iter_mut().zip(acc.iter()).zip(self.weight_scales.chunks_exact(4)) {
-            *qj = quantize_relu(a as f32 * (self.input_scale * f32_le(c)), next_scale);
-        }
-    }
-
     /// [`Self::forward`], `xk` in `kernel`'s order.
     #[inline(always)]
     pub(super) fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
         if kernel == Int8Kernel::Pairs {
             let mut y = [0.0f32; OUT];
-            self.map_paired(xk, &mut y, false, |a, s| a as f32 * s);
+            self.map_paired(xk, &mut y, |a, s| a as f32 * s);
             return y;
         }
         self.dequantize(&self.accumulate_for(xk, kernel))

@@ -141,6 +141,7 @@ impl OwnedLayer {
             inputs: self.inputs,
             outputs: self.outputs,
             activation: self.activation,
+            padding: &[],
             weights: &self.weights,
             bias: &self.bias,
             weight_scales: &self.weight_scales,
@@ -290,11 +291,22 @@ pub fn calibrate(net: &RefNet, calib: &[Vec<f32>]) -> Vec<f32> {
         .collect()
 }
 
+/// Whether an int8 blob stores layer `l` of `n` in int8 (`Quantization::of_layer`).
+pub fn is_int8(l: usize, n: usize) -> bool {
+    Quantization::Int8.of_layer(l, n) == Quantization::Int8
+}
+
+/// The int8 layers of an int8 blob, in order: the hidden layers between the first and the last,
+/// which the blob keeps in f32 (`Quantization::of_layer`). `input_scales` has one scale per
+/// layer (those of the f32 layers unused).
 pub fn quantize_net(net: &RefNet, input_scales: &[f32]) -> Vec<QuantLayer> {
+    let n = net.layers.len();
     net.layers
         .iter()
         .zip(input_scales)
-        .map(|(l, &s)| quantize_layer(l, s))
+        .enumerate()
+        .filter(|&(l, _)| is_int8(l, n))
+        .map(|(_, (layer, &s))| quantize_layer(layer, s))
         .collect()
 }
 
@@ -311,16 +323,23 @@ pub fn int8_layer(q: &QuantLayer, act: Activation) -> OwnedLayer {
     }
 }
 
-pub fn int8_net(quant: &[QuantLayer], kind: ProblemKind) -> OwnedNet {
-    let n = quant.len();
+/// The int8 blob of `net`: its first and last layers in f32, the int8 layers `quant` (from
+/// [`quantize_net`]) between them.
+pub fn int8_net(net: &RefNet, quant: &[QuantLayer], kind: ProblemKind) -> OwnedNet {
+    let n = net.layers.len();
+    let mut int8 = quant.iter();
     OwnedNet {
         kind,
         features: features_for(kind),
         quantization: Quantization::Int8,
-        layers: quant
+        layers: net
+            .layers
             .iter()
             .enumerate()
-            .map(|(l, q)| int8_layer(q, activation(l, n)))
+            .map(|(l, layer)| match is_int8(l, n).then(|| int8.next()).flatten() {
+                Some(q) => int8_layer(q, activation(l, n)),
+                None => f32_layer(layer, activation(l, n)),
+            })
             .collect(),
     }
 }
@@ -347,38 +366,58 @@ fn quant_err(m: f64, s: f64) -> f64 {
 pub fn int8_bound(net: &RefNet, quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
     let (inputs, _) = net.trace(x);
     let n = net.layers.len();
-    // Error of the (dequantized) layer input before quantization: 0 for the network input.
+    // Error of the layer input against the exact activation: 0 for the network input.
     let mut prev_err: Vec<f64> = vec![0.0; x.len()];
+    let mut int8 = quant.iter();
     let mut out = Vec::new();
-    for l in 0..n {
-        let layer = &net.layers[l];
-        let q = &quant[l];
-        let s = f64::from(q.input_scale);
+    for (l, layer) in net.layers.iter().enumerate() {
         let a = &inputs[l];
-        // Quantized input error vs the exact activation.
-        let d: Vec<f64> = a
-            .iter()
-            .zip(&prev_err)
-            .map(|(&ai, &ei)| ei + quant_err(ai.abs() + ei, s) + 1e-6 * (ai.abs() + ei))
-            .collect();
         let z = layer.pre(a);
-        let e: Vec<f64> = layer
-            .w
-            .iter()
-            .zip(&q.weight_scales)
-            .zip(&z)
-            .map(|((row, &sj), &zj)| {
-                let sj = f64::from(sj);
-                // Bias rounding, then weight rounding on the (perturbed) input, then the
-                // input error through the exact weights.
-                let mut ej = s * sj / 2.0;
-                for ((&w, &ai), &di) in row.iter().zip(a).zip(&d) {
-                    ej += sj / 2.0 * (ai.abs() + di) + f64::from(w).abs() * di;
-                }
-                // f32 arithmetic of the dequantization.
-                ej + 1e-5 * (zj.abs() + ej) + 1e-6
-            })
-            .collect();
+        let e: Vec<f64> = match is_int8(l, n).then(|| int8.next()).flatten() {
+            Some(q) => {
+                let s = f64::from(q.input_scale);
+                // Quantized input error vs the exact activation.
+                let d: Vec<f64> = a
+                    .iter()
+                    .zip(&prev_err)
+                    .map(|(&ai, &ei)| ei + quant_err(ai.abs() + ei, s) + 1e-6 * (ai.abs() + ei))
+                    .collect();
+                layer
+                    .w
+                    .iter()
+                    .zip(&q.weight_scales)
+                    .zip(&z)
+                    .map(|((row, &sj), &zj)| {
+                        let sj = f64::from(sj);
+                        // Bias rounding, then weight rounding on the (perturbed) input, then the
+                        // input error through the exact weights.
+                        let mut ej = s * sj / 2.0;
+                        for ((&w, &ai), &di) in row.iter().zip(a).zip(&d) {
+                            ej += sj / 2.0 * (ai.abs() + di) + f64::from(w).abs() * di;
+                        }
+                        // f32 arithmetic of the dequantization.
+                        ej + 1e-5 * (zj.abs() + ej) + 1e-6
+                    })
+                    .collect()
+            }
+            None => layer
+                .w
+                .iter()
+                .zip(&layer.b)
+                .map(|(row, &b)| {
+                    // An f32 layer: the input error through the exact weights, plus one rounding
+                    // per fused multiply-add, each at most 2^-24 of a running sum bounded by the
+                    // sum of magnitudes (with slack).
+                    let mut through = 0.0;
+                    let mut magnitude = f64::from(b).abs();
+                    for ((&w, &ai), &ei) in row.iter().zip(a).zip(&prev_err) {
+                        through += f64::from(w).abs() * ei;
+                        magnitude += f64::from(w).abs() * (ai.abs() + ei);
+                    }
+                    through + magnitude * (row.len() + 1) as f64 * 2f64.powi(-23)
+                })
+                .collect(),
+        };
         if l + 1 == n {
             // tanh is 1-Lipschitz, and flatter away from 0: its slope on [z - e, z + e] is at
             // most sech^2 of the point nearest 0. Outputs differ by at most 2 anyway.
@@ -403,22 +442,29 @@ pub fn int8_bound(net: &RefNet, quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
     out
 }
 
-/// The int8 scheme emulated in f64 by the test (round half away from zero, clamp to ±LEVELS).
-pub fn int8_emulate(quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
-    let n = quant.len();
+/// The int8 scheme emulated in f64 by the test (round half away from zero, clamp to ±LEVELS);
+/// the f32 layers are exact here (f64), as the blob's f32 layers nearly are.
+pub fn int8_emulate(net: &RefNet, quant: &[QuantLayer], x: &[f32]) -> Vec<f64> {
+    let n = net.layers.len();
+    let mut int8 = quant.iter();
     let mut a: Vec<f64> = x.iter().map(|&v| f64::from(v)).collect();
-    for (l, q) in quant.iter().enumerate() {
-        let s = f64::from(q.input_scale);
-        let xq: Vec<i64> = a.iter().map(|&v| i64::from(quant_act(v, s))).collect();
-        let z: Vec<f64> =
-            q.q.iter()
-                .zip(&q.bias)
-                .zip(&q.weight_scales)
-                .map(|((row, &b), &sj)| {
-                    let acc: i64 = i64::from(b) + row.iter().zip(&xq).map(|(&w, &xi)| i64::from(w) * xi).sum::<i64>();
-                    acc as f64 * s * f64::from(sj)
-                })
-                .collect();
+    for (l, layer) in net.layers.iter().enumerate() {
+        let z: Vec<f64> = match is_int8(l, n).then(|| int8.next()).flatten() {
+            Some(q) => {
+                let s = f64::from(q.input_scale);
+                let xq: Vec<i64> = a.iter().map(|&v| i64::from(quant_act(v, s))).collect();
+                q.q.iter()
+                    .zip(&q.bias)
+                    .zip(&q.weight_scales)
+                    .map(|((row, &b), &sj)| {
+                        let acc: i64 =
+                            i64::from(b) + row.iter().zip(&xq).map(|(&w, &xi)| i64::from(w) * xi).sum::<i64>();
+                        acc as f64 * s * f64::from(sj)
+                    })
+                    .collect()
+            }
+            None => layer.pre(&a),
+        };
         a = if l + 1 == n {
             z.iter().map(|v| v.tanh()).collect()
         } else {
