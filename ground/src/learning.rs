@@ -65,6 +65,23 @@ pub enum LearnCommand {
         #[arg(long)]
         model: Option<PathBuf>,
     },
+    /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported
+    /// and flown in the SIL loop (OUT/export, OUT/sil-*), and the model folder OUT/model
+    /// (actor, blobs, card), as the recipe's last stages do. Copy OUT/model to models/NAME.
+    Ship {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Learner checkpoint (e.g. RUN/dagger/best.safetensors).
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// The relabelling rounds' folder the checkpoint came from (RUN/dagger): the card
+        /// records the rounds run and the one kept.
+        #[arg(long)]
+        rounds: Option<PathBuf>,
+        /// A line for the card on the controller's lineage (repeatable).
+        #[arg(long)]
+        note: Vec<String>,
+    },
     /// Software-in-the-loop Monte Carlo: a blob flown by the onboard guidance loop against the
     /// dispersed truth plant (the config's [sil] dispersions), with the evaluation's metrics.
     Sil {
@@ -158,6 +175,12 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             (Some(checkpoint), None) => export_command(&experiment, &checkpoint),
             (None, None) => Err("give --checkpoint or --model".into()),
         },
+        LearnCommand::Ship {
+            experiment,
+            checkpoint,
+            rounds,
+            note,
+        } => ship_command(&experiment, &checkpoint, rounds.as_deref(), &note),
         LearnCommand::Sil {
             experiment,
             blob,
@@ -474,6 +497,37 @@ fn reexport_command(args: &ExperimentArgs, model: &Path) -> Result<(), Box<dyn s
     }
     println!("{} updated; runs in {}", model.display(), args.out.display());
     match done.export.failed_criteria().as_slice() {
+        [] => Ok(()),
+        failed => Err(format!("export check failed: {}", failed.join("; ")).into()),
+    }
+}
+
+fn ship_command(
+    args: &ExperimentArgs,
+    checkpoint: &Path,
+    rounds: Option<&Path>,
+    notes: &[String],
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, base) = args.load()?;
+    let rounds = match rounds {
+        Some(dir) => {
+            let summary = learn::dagger::read_rounds(dir)?;
+            Some((summary.rows.last().map_or(0, |r| r.round), summary.best_round))
+        }
+        None => None,
+    };
+    let shipped = in_run_folder(&args.out, || {
+        Ok(learn::pipeline::ship(
+            &config, &base, checkpoint, &args.out, rounds, notes,
+        )?)
+    })?;
+    print!("{}", learn::eval::describe(&shipped.monte_carlo));
+    println!("{}", learn::export::describe(&shipped.export));
+    for report in shipped.sil.iter().flatten() {
+        println!("{}", learn::sil::describe(report));
+    }
+    println!("model folder written to {}", args.out.join("model").display());
+    match shipped.export.failed_criteria().as_slice() {
         [] => Ok(()),
         failed => Err(format!("export check failed: {}", failed.join("; ")).into()),
     }

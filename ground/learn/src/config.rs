@@ -199,6 +199,14 @@ pub struct DaggerConfig {
     /// Deterministic episodes on the evaluation seed that score each round (the share
     /// within 0.01 AU and 0.01); the best round is kept.
     pub score_episodes: u64,
+    /// Fly the candidates as the onboard f32 controller against the SIL's dispersed plant
+    /// (`[sil.dispersions]`), so the relabelled states are those that navigation errors,
+    /// thrust errors and missed thrust lead to. Each round is then also scored under the same
+    /// dispersions, and that share picks the best round and meets `stop_at`.
+    pub dispersed: bool,
+    /// Update the actor alone on the cloning error of the demonstrations and relabels (no
+    /// critic, no RL term): what rounds started from a shipped actor, without critics, run.
+    pub cloning_only: bool,
 }
 
 impl Default for DaggerConfig {
@@ -213,6 +221,8 @@ impl Default for DaggerConfig {
             fractions: vec![0.2, 0.4, 0.6, 0.8],
             updates: 10_000,
             score_episodes: 1_000,
+            dispersed: false,
+            cloning_only: false,
         }
     }
 }

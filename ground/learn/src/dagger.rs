@@ -5,6 +5,8 @@
 //! ([`ground_core::demo::relabel`]), adds those tuples to the demonstration buffer, and runs
 //! behaviour-cloning-regularised updates on the grown buffer. The policy then learns what to do
 //! in the states its own errors lead to, which demonstrations of optimal flights never show.
+//! With `dagger.dispersed` the flights are the onboard controller's against the SIL's dispersed
+//! plant, so the relabels also cover what navigation, thrust and missed-thrust errors lead to.
 //!
 //! ```text
 //! RUN/dagger/round-0.safetensors   the starting learner (copied from --from)
@@ -33,8 +35,10 @@ use crate::experiment::{
     check_run, demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations,
     residual_chart, write_file, ExperimentError,
 };
+use crate::export::actor_network;
 use crate::sac::agent::Sac;
 use crate::sac::replay::{sampler, ReplayBuffer};
+use crate::sil::fly_blob_seeded;
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
@@ -48,6 +52,8 @@ const RELABELS_VERSION: u16 = 1;
 const ROUND_STRIDE: u64 = 1_000_000;
 /// Mixed into the training seed for the rounds' replay samplers (apart from RL's streams).
 const SAMPLER_STREAM: u64 = 0xDA66E5;
+/// Mixed into the training seed for the dispersions of the flights a round relabels.
+const DISPERSION_STREAM: u64 = 0xD15BE25E;
 
 /// One round's relabelled tuples, as saved in `relabels-R.ltrl`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -73,19 +79,28 @@ pub struct RoundRow {
     pub updates: u64,
     /// Share of the completed scoring episodes within 0.01 AU and 0.01 (the accuracy goal's figure).
     pub within_goal: f64,
+    /// The same share with the SIL's dispersions (`dagger.dispersed`): the round's score then.
+    #[serde(default)]
+    pub within_goal_dispersed: Option<f64>,
     pub summary: OutcomeSummary,
     /// Wall time of the round (relabels, updates, scoring).
     pub seconds: f64,
 }
 
 impl RoundRow {
+    /// What picks the best round and meets `dagger.stop_at`: the share within the goal under
+    /// dispersions when the round was scored under them, else the nominal one.
+    pub fn score(&self) -> f64 {
+        self.within_goal_dispersed.unwrap_or(self.within_goal)
+    }
+
     const HEADER: &'static str = "round,relabels_attempted,relabels_converged,tuples_added,buffer,updates,\
-within_goal,completed,reward_mean,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,seconds\n";
+within_goal,within_goal_dispersed,completed,reward_mean,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,seconds\n";
 
     fn csv(&self) -> String {
         let s = &self.summary;
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.1}\n",
             self.round,
             self.relabels_attempted,
             self.relabels_converged,
@@ -93,6 +108,7 @@ within_goal,completed,reward_mean,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,se
             self.buffer,
             self.updates,
             self.within_goal,
+            self.within_goal_dispersed.map_or(String::new(), |d| d.to_string()),
             s.completed,
             s.total_reward.mean,
             s.final_mass.mean,
@@ -163,7 +179,23 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
     let scenarios: Vec<Scenario> = (first..first + candidates)
         .map(|i| config.scenario.draw(config.seeds.train, i))
         .collect();
-    let flown = evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?;
+    let flown = if dagger.dispersed {
+        // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:
+        // the trajectory holds the true states, which the relabels start from.
+        let blob = flown_blob(agent)?;
+        let seed = (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first);
+        fly_blob_seeded(
+            config,
+            &blob,
+            &scenarios,
+            &config.sil.dispersions,
+            seed,
+            scenarios.len(),
+        )?
+        .0
+    } else {
+        evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?
+    };
     // A relabel needs a step strictly inside the flight.
     let eligible: Vec<&EpisodeOutcome> = flown
         .iter()
@@ -233,8 +265,25 @@ fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&Epis
     outcomes
 }
 
-/// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios.
-fn score(config: &ExperimentConfig, agent: &Sac) -> Result<(f64, OutcomeSummary), ExperimentError> {
+/// The learner's flown actor as an f32 blob.
+fn flown_blob(agent: &Sac) -> Result<Vec<u8>, ExperimentError> {
+    actor_network(agent, ProblemKind::Transfer)?
+        .f32_blob("relabelling round")
+        .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))
+}
+
+/// A round's score on the evaluation seed's first `dagger.score_episodes` scenarios.
+struct Score {
+    within_goal: f64,
+    summary: OutcomeSummary,
+    /// The share within the goal of the onboard f32 controller with the SIL's dispersions
+    /// (`dagger.dispersed`).
+    within_goal_dispersed: Option<f64>,
+}
+
+/// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios, and
+/// under the SIL's dispersions when the rounds relabel dispersed flights.
+fn score(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentError> {
     let outcomes = evaluate_agent::<TransferEnv>(
         agent,
         &config.env,
@@ -243,7 +292,22 @@ fn score(config: &ExperimentConfig, agent: &Sac) -> Result<(f64, OutcomeSummary)
         config.dagger.score_episodes,
         false,
     )?;
-    Ok((within_accuracy_goal(&outcomes), summarize(&outcomes)))
+    let within_goal_dispersed = if config.dagger.dispersed {
+        let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
+            .map(|i| config.scenario.draw(config.seeds.evaluation, i))
+            .collect();
+        let blob = flown_blob(agent)?;
+        let dispersions = &config.sil.dispersions;
+        let (flown, _, _) = fly_blob_seeded(config, &blob, &scenarios, dispersions, config.seeds.evaluation, 0)?;
+        Some(within_accuracy_goal(&flown))
+    } else {
+        None
+    };
+    Ok(Score {
+        within_goal: within_accuracy_goal(&outcomes),
+        summary: summarize(&outcomes),
+        within_goal_dispersed,
+    })
 }
 
 /// `ground dagger`: `config.dagger.rounds` rounds from `start` (a learner checkpoint, e.g.
@@ -269,7 +333,12 @@ pub fn dagger(
     let mut agent = new_agent(config, true, TransferEnv::OBS);
     let state_path = dir.join("state.json");
     if !round_file(&dir, 0).exists() {
-        agent.load(start)?;
+        // A learner checkpoint, or a shipped model's actor alone (its critics are fresh: train
+        // it with dagger.cloning_only).
+        if let Err(checkpoint) = agent.load(start) {
+            agent = new_agent(config, true, TransferEnv::OBS);
+            agent.start_from_actor(start).map_err(|_| checkpoint)?;
+        }
         prepare_run(config, run)?;
         agent.save(&round_file(&dir, 0))?;
         // A state left by an earlier start belongs to another learner.
@@ -299,7 +368,7 @@ pub fn dagger(
     if rows.last().is_none_or(|r| r.round != done) {
         // Stopped between a round's checkpoint and its score.
         let clock = Instant::now();
-        let (within_goal, summary) = score(config, &agent)?;
+        let score = score(config, &agent)?;
         rows.push(RoundRow {
             round: done,
             relabels_attempted: last_relabels.0,
@@ -307,8 +376,9 @@ pub fn dagger(
             tuples_added: last_relabels.2,
             buffer: buffer.len() as u64,
             updates: updates(&agent),
-            within_goal,
-            summary,
+            within_goal: score.within_goal,
+            within_goal_dispersed: score.within_goal_dispersed,
+            summary: score.summary,
             seconds: clock.elapsed().as_secs_f64(),
         });
         write_logs(&dir, &rows, &agent, is_best(&rows))?;
@@ -317,7 +387,7 @@ pub fn dagger(
         config
             .dagger
             .stop_at
-            .is_some_and(|goal| rows.last().is_some_and(|r| r.within_goal >= goal))
+            .is_some_and(|goal| rows.last().is_some_and(|r| r.score() >= goal))
     };
     for round in done + 1..=config.dagger.rounds {
         if reached(&rows) {
@@ -338,14 +408,20 @@ pub fn dagger(
         let mut rng = sampler(config.seeds.train ^ SAMPLER_STREAM ^ round);
         let bar = progress_bar(config.dagger.updates, &format!("round {round} update"));
         for i in 0..config.dagger.updates {
-            agent.update(&buffer.sample(config.sac.batch_size, &mut rng));
+            let batch = buffer.sample(config.sac.batch_size, &mut rng);
+            if config.dagger.cloning_only {
+                agent.cloning_update(&batch);
+            } else {
+                agent.update(&batch);
+            }
             if i % 100 == 0 {
                 bar.set_position(i);
             }
         }
         bar.finish_and_clear();
         agent.save(&round_file(&dir, round))?;
-        let (within_goal, summary) = score(config, &agent)?;
+        let score = score(config, &agent)?;
+        let (within_goal, summary) = (score.within_goal, score.summary);
         rows.push(RoundRow {
             round,
             relabels_attempted: relabels.attempted,
@@ -354,6 +430,7 @@ pub fn dagger(
             buffer: buffer.len() as u64,
             updates: updates(&agent),
             within_goal,
+            within_goal_dispersed: score.within_goal_dispersed,
             summary,
             seconds: clock.elapsed().as_secs_f64(),
         });
@@ -362,13 +439,17 @@ pub fn dagger(
         let timed: Vec<f64> = rows.iter().filter(|r| r.round > 0).map(|r| r.seconds).collect();
         let left = (config.dagger.rounds - round) as f64 * timed.iter().sum::<f64>() / timed.len().max(1) as f64;
         println!(
-            "round {round} of {}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} % \
+            "round {round} of {}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} %{} \
              (dr p50 {:.4} AU, p95 {:.4}; dv p50 {:.4}, p95 {:.4}) [{:.0} s; at most {:.0} min left]",
             config.dagger.rounds,
             relabels.converged,
             relabels.attempted,
             relabels.tuples.len(),
             100.0 * within_goal,
+            score.within_goal_dispersed.map_or(String::new(), |d| format!(
+                ", {:.1} % with the SIL's dispersions",
+                100.0 * d
+            )),
             summary.terminal_position.p50,
             summary.terminal_position.p95,
             summary.terminal_velocity.p50,
@@ -386,9 +467,25 @@ pub fn dagger(
     })
 }
 
+/// The rounds recorded in a relabelling folder (`RUN/dagger/state.json`) and the best of them.
+pub fn read_rounds(dir: &Path) -> Result<DaggerSummary, ExperimentError> {
+    let path = dir.join("state.json");
+    let bytes = std::fs::read(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
+    let rows: Vec<RoundRow> = serde_json::from_slice(&bytes)
+        .map_err(|e| ExperimentError::Mismatch(format!("{} does not parse: {e}", path.display())))?;
+    let best_round = best_row(&rows)
+        .map(|r| r.round)
+        .ok_or_else(|| ExperimentError::Mismatch(format!("{} records no round", path.display())))?;
+    Ok(DaggerSummary {
+        folder: dir.to_path_buf(),
+        rows,
+        best_round,
+    })
+}
+
 /// The row with the largest share within the goal (the earliest of equals).
 fn best_row(rows: &[RoundRow]) -> Option<&RoundRow> {
-    rows.iter().rev().max_by(|a, b| a.within_goal.total_cmp(&b.within_goal))
+    rows.iter().rev().max_by(|a, b| a.score().total_cmp(&b.score()))
 }
 
 /// Is the last row the best so far?
@@ -422,7 +519,16 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
         "DAgger-style rounds: scoring episodes within 0.01 AU and 0.01",
         "round",
         "share",
-        &[series("within the goal", &|r| r.within_goal)],
+        &if rows.iter().any(|r| r.within_goal_dispersed.is_some()) {
+            vec![
+                series("within the goal", &|r| r.within_goal),
+                series("with the SIL's dispersions", &|r| {
+                    r.within_goal_dispersed.unwrap_or(f64::NAN)
+                }),
+            ]
+        } else {
+            vec![series("within the goal", &|r| r.within_goal)]
+        },
         false,
     );
     let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(|r| (r.round as f64, r.summary)).collect();

@@ -130,6 +130,9 @@ pub struct ModelCard {
     /// format change): (command, commit, UTC date). The actor and its Monte Carlo are unchanged.
     #[serde(default)]
     pub reexported: Option<(String, String, String)>,
+    /// Where the controller came from beyond the config (`ground ship --note`).
+    #[serde(default)]
+    pub notes: Vec<String>,
 }
 
 fn crc_of(path: &Path) -> Result<String, ModelError> {
@@ -179,6 +182,9 @@ pub struct ModelSources<'a> {
     pub monte_carlo: &'a MonteCarloReport,
     pub export: &'a ExportReport,
     pub sil: &'a [SilReport],
+    /// Lines for the card on where the controller came from beyond the config (e.g. the
+    /// shipped actor its rounds started from).
+    pub notes: &'a [String],
 }
 
 /// Writes the model folder `dir` (created; files replaced atomically): the flown actor, the
@@ -225,6 +231,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         sil: sil_figures(sources.sil),
         files,
         reexported: None,
+        notes: sources.notes.to_vec(),
     };
     write_cards(dir, &card)?;
     Ok(card)
@@ -452,6 +459,9 @@ pub fn card_markdown(card: &ModelCard) -> String {
             "Blobs exported again from the same actor on {date} by `{command}` at commit `{commit}` (blob format {}); the SIL figures are theirs.\n",
             shared::blob::FORMAT_VERSION
         );
+    }
+    for note in &card.notes {
+        let _ = writeln!(s, "{note}\n");
     }
     let (records, converged, seed, eps) = card.demonstrations;
     let _ = writeln!(

@@ -151,32 +151,10 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
             String::new()
         }
     ));
-    let export_dir = run.join("export");
-    let export = export(&config, run, &best, &export_dir)?;
-    let fly =
-        |blob: &Path, folder: &str| sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions);
-    // The SIL Monte Carlo (`ground sil`) flies transfers only so far.
-    let sil = if transfer {
-        Some([fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?])
-    } else {
-        None
-    };
-    let model = write_model(
-        &run.join("model"),
-        &ModelSources {
-            config: &config,
-            commit: &commit,
-            checkpoint: &best,
-            dataset: &dataset,
-            rounds: rounds
-                .as_ref()
-                .map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round)),
-            monte_carlo: &mc,
-            export: &export,
-            sil: sil.as_ref().map_or(&[][..], |s| &s[..]),
-        },
-    )
-    .map_err(|e| ExperimentError::Mismatch(format!("model folder: {e}")))?;
+    let rounds_run = rounds
+        .as_ref()
+        .map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round));
+    let (export, sil, model) = export_and_ship(&config, run, run, &commit, &best, &dataset, rounds_run, &mc, &[])?;
     stage_seconds.push(("export and SIL", t.elapsed().as_secs_f64()));
 
     let job = MainJob {
@@ -194,6 +172,95 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let text = report_markdown(&config, run, &job);
     atomic_write(&job.report, text.as_bytes()).map_err(|e| ExperimentError::Io(job.report.clone(), e))?;
     Ok(job)
+}
+
+/// Exports `checkpoint`'s blobs into `run/export`, flies them in the SIL loop against the
+/// config's dispersed plant (transfers: `run/sil-f32`, `run/sil-int8`) and writes the model
+/// folder `run/model` from them and the Monte Carlo `mc`.
+#[allow(clippy::too_many_arguments)]
+fn export_and_ship(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    run: &Path,
+    commit: &str,
+    checkpoint: &Path,
+    dataset: &Summary,
+    rounds: Option<(u64, u64)>,
+    mc: &MonteCarloReport,
+    notes: &[String],
+) -> Result<(ExportReport, Option<[SilReport; 2]>, ModelCard), ExperimentError> {
+    let export = export(config, config_dir, checkpoint, &run.join("export"))?;
+    let fly =
+        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions);
+    // The SIL Monte Carlo (`ground sil`) flies transfers only so far.
+    let sil = if config.scenario.problem() == shared::scenario::ProblemKind::Transfer {
+        Some([fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?])
+    } else {
+        None
+    };
+    let model = write_model(
+        &run.join("model"),
+        &ModelSources {
+            config,
+            commit,
+            checkpoint,
+            dataset,
+            rounds,
+            monte_carlo: mc,
+            export: &export,
+            sil: sil.as_ref().map_or(&[][..], |s| &s[..]),
+            notes,
+        },
+    )
+    .map_err(|e| ExperimentError::Mismatch(format!("model folder: {e}")))?;
+    Ok((export, sil, model))
+}
+
+/// What [`ship`] produced.
+pub struct Shipped {
+    pub monte_carlo: MonteCarloReport,
+    pub export: ExportReport,
+    pub sil: Option<[SilReport; 2]>,
+    /// The model folder, `run/model`.
+    pub model: ModelCard,
+}
+
+/// `ground ship`: the last stages of the recipe for any learner checkpoint (e.g. the best of
+/// relabelling rounds started from a shipped actor): the Monte Carlo (`run/mc`), the blobs and
+/// their SIL flights, and the model folder `run/model`, whose card records `rounds` (run, kept)
+/// and `notes` (the lineage). The demonstrations are the config's `pretrain.dataset`.
+pub fn ship(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    checkpoint: &Path,
+    run: &Path,
+    rounds: Option<(u64, u64)>,
+    notes: &[String],
+) -> Result<Shipped, ExperimentError> {
+    let commit = current_commit();
+    let dataset_file = config.dataset_file(config_dir)?;
+    let summary_path = dataset_file.with_file_name("summary.json");
+    let bytes = std::fs::read(&summary_path).map_err(|e| ExperimentError::Io(summary_path.clone(), e))?;
+    let dataset: Summary = serde_json::from_slice(&bytes)
+        .map_err(|e| ExperimentError::Mismatch(format!("{} does not parse: {e}", summary_path.display())))?;
+    let monte_carlo = monte_carlo(config, checkpoint, &run.join("mc"), None, None)?;
+    let (export, sil, model) = export_and_ship(
+        config,
+        config_dir,
+        run,
+        &commit,
+        checkpoint,
+        &dataset,
+        rounds,
+        &monte_carlo,
+        notes,
+    )?;
+    Ok(Shipped {
+        monte_carlo,
+        export,
+        sil,
+        model,
+    })
 }
 
 fn outcome_row(name: &str, o: &OutcomeSummary) -> String {

@@ -97,14 +97,26 @@ fn outcome(
     }
 }
 
-/// Flies `blob` on the first `episodes` Monte Carlo scenarios with `dispersions`; returns the
-/// per-flight outcomes (trajectories recorded for the first `record` flights), guidance faults
-/// and missed-thrust time, and the failures.
+/// Flies `blob` on the Monte Carlo's `scenarios` with `dispersions` (flight i's dispersions
+/// drawn from the Monte Carlo seed + i); returns the per-flight outcomes (trajectories recorded
+/// for the first `record` flights), guidance faults and missed-thrust time.
 pub fn fly_blob(
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
     dispersions: &Dispersions,
+    record: usize,
+) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+    fly_blob_seeded(config, blob, scenarios, dispersions, config.seeds.monte_carlo, record)
+}
+
+/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i.
+pub fn fly_blob_seeded(
+    config: &ExperimentConfig,
+    blob: &[u8],
+    scenarios: &[Scenario],
+    dispersions: &Dispersions,
+    dispersion_seed: u64,
     record: usize,
 ) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
     let spacecraft = config
@@ -115,7 +127,7 @@ pub fn fly_blob(
     let controller = Controller::load_transfer(blob);
     let tolerances = config.env.integrator.tolerances();
     let weights = config.env.reward.weights();
-    let seed = config.seeds.monte_carlo;
+    let seed = dispersion_seed;
     let flown: Vec<(EpisodeOutcome, u64, f64)> = scenarios
         .par_iter()
         .enumerate()

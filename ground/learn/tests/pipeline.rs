@@ -260,6 +260,44 @@ fn main_job_writes_a_report_whose_links_resolve() {
             .collect::<Vec<_>>(),
         learn::eval::REPORTED_TOLERANCES.to_vec()
     );
+
+    // Relabelling rounds of dispersed flights started from the shipped actor alone, with
+    // cloning-only updates, then `ship`ped: round 0 flies exactly the main job's best learner,
+    // every round is also scored under the dispersions, and the new card records the rounds
+    // and the lineage note.
+    let mut dispersed = config.clone();
+    dispersed.pretrain.dataset = Some(std::path::absolute(run.join("dataset")).unwrap());
+    dispersed.dagger.dispersed = true;
+    dispersed.dagger.cloning_only = true;
+    let again = dir.join("dispersed");
+    let actor = model_dir.join(learn::model::ACTOR_FILE);
+    let summary = learn::dagger::dagger(&dispersed, &dir, &again, &actor).unwrap();
+    let kept = rounds.rows.iter().find(|r| r.round == rounds.best_round).unwrap();
+    assert_eq!(summary.rows[0].within_goal, kept.within_goal);
+    assert_eq!(summary.rows[0].summary, kept.summary);
+    assert!(summary.rows.iter().all(|r| r.within_goal_dispersed.is_some()));
+    assert_eq!(summary.rows.last().unwrap().updates, 20, "cloning-only updates counted");
+    let read = learn::dagger::read_rounds(&again.join("dagger")).unwrap();
+    assert_eq!((read.rows.len(), read.best_round), (2, summary.best_round));
+    let note = "started from the main job's model".to_string();
+    let shipped = learn::pipeline::ship(
+        &dispersed,
+        &dir,
+        &again.join("dagger/best.safetensors"),
+        &dir.join("ship"),
+        Some((1, read.best_round)),
+        std::slice::from_ref(&note),
+    )
+    .unwrap();
+    let card = learn::model::open_model(&dir.join("ship/model")).unwrap().card;
+    assert_eq!(card.notes, vec![note.clone()]);
+    assert_eq!(card.rounds, Some((1, read.best_round)));
+    assert_eq!(card.sil.len(), 2);
+    assert_eq!(
+        card.monte_carlo.share_within(0.01),
+        Some(shipped.monte_carlo.within_accuracy_goal)
+    );
+    assert!(learn::model::card_markdown(&card).contains(&note));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

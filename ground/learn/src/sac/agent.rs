@@ -413,14 +413,7 @@ impl Sac {
         };
         self.actor_optimizer.backward_step(&actor_loss);
         self.critic_store.unfreeze();
-        if let Some(average) = &mut self.average {
-            // A plain running mean until it would weigh the newest iterate less than tau, then the
-            // exponential average: the random initial weights do not linger in it.
-            let tau = self.config.actor_averaging.max(1.0 / (self.updates as f64 + 2.0));
-            tch::no_grad(|| {
-                let _ = average.flat.lerp_(self.actor_optimizer.flat_parameters(), tau);
-            });
-        }
+        self.average_actor();
 
         // 3. Temperature: raise alpha when the entropy is below target, lower it when above.
         let log_prob = sample.log_prob.detach();
@@ -530,6 +523,52 @@ impl Sac {
         adam(&mut self.temperature_optimizer, "adam.temperature")?;
         self.updates = get("updates").map(|t| t.int64_value(&[0]) as u64).unwrap_or(0);
         self.clamp_temperature();
+        Ok(())
+    }
+
+    /// One update of the actor alone on the behaviour-cloning error of the batch's
+    /// demonstrations (its deterministic action against the demonstrated one): no critic,
+    /// temperature or target step, and no draw. Relabelling rounds that start from a shipped
+    /// actor, whose critics were not kept, train this way. Returns the cloning error.
+    pub fn cloning_update(&mut self, batch: &Batch) -> f64 {
+        let b = batch.size;
+        let obs = tensor_2d(&batch.obs, b, self.obs_dim, self.device);
+        let actions = tensor_2d(&batch.actions, b, self.act_dim, self.device);
+        let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
+        let error = self.cloning.error(&self.actor.deterministic(&obs), &actions);
+        let loss = (&error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
+        self.actor_optimizer.backward_step(&loss);
+        self.average_actor();
+        self.updates += 1;
+        loss.double_value(&[])
+    }
+
+    /// The averaged actor takes a step towards the online one.
+    fn average_actor(&mut self) {
+        if let Some(average) = &mut self.average {
+            // A plain running mean until it would weigh the newest iterate less than tau, then the
+            // exponential average: the random initial weights do not linger in it.
+            let tau = self.config.actor_averaging.max(1.0 / (self.updates as f64 + 2.0));
+            tch::no_grad(|| {
+                let _ = average.flat.lerp_(self.actor_optimizer.flat_parameters(), tau);
+            });
+        }
+    }
+
+    /// Starts this learner from an actor file of [`Sac::save_flown_actor`] (a shipped model's):
+    /// the online actor and, when averaging is on, the averaged one both take its weights; the
+    /// critics and optimisers stay as built.
+    pub fn start_from_actor(&mut self, path: &Path) -> Result<(), CheckpointError> {
+        self.load_actor(path)?;
+        if let Some(average) = &self.average {
+            // The two flat buffers are laid out alike (same constructor).
+            tch::no_grad(|| {
+                self.actor_optimizer
+                    .flat_parameters()
+                    .shallow_clone()
+                    .copy_(&average.flat);
+            });
+        }
         Ok(())
     }
 
@@ -671,6 +710,71 @@ mod tests {
         }
         let best = sac.act(&[1.0], 1)[0];
         assert!((best - 0.5).abs() < 0.1, "deterministic action {best}");
+    }
+
+    #[test]
+    fn cloning_updates_fit_the_demonstrations_from_a_shipped_actor_and_touch_no_critic() {
+        let _torch = torch_lock();
+        // Demonstrations of a = 0.5 on the bandit's observation.
+        let mut demos = ReplayBuffer::new(1, 1, 64);
+        for _ in 0..64 {
+            demos.push(&Transition {
+                obs: &[1.0],
+                action: &[0.5],
+                reward: 0.0,
+                next_obs: &[1.0],
+                done: true,
+                demonstration: true,
+            });
+        }
+        let config = SacConfig {
+            learning_rate: 3e-3,
+            actor_averaging: 0.01,
+            ..SacConfig::default()
+        };
+        // A "shipped" actor: another learner's flown actor, written alone.
+        let mut shipped = tiny(config.clone());
+        let mut rng = sampler(3);
+        for _ in 0..20 {
+            shipped.update(&bandit_buffer(64).sample(64, &mut rng));
+        }
+        let dir = std::env::temp_dir().join(format!("lowthrust-actor-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("actor.safetensors");
+        shipped.save_flown_actor(&file).unwrap();
+
+        tch::manual_seed(99);
+        let mut sac = Sac::new(
+            SacConfig {
+                hidden: vec![32, 32],
+                batch_size: 64,
+                ..config
+            },
+            1,
+            1,
+            Device::Cpu,
+        );
+        sac.start_from_actor(&file).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        // Both the flown (averaged) actor and the online one start from the file.
+        assert_eq!(sac.act(&[1.0], 1), shipped.act(&[1.0], 1));
+        let online = |s: &Sac| tch::no_grad(|| s.actor.deterministic(&Tensor::from_slice(&[1.0f32]).view([1, 1])));
+        assert_eq!(online(&sac).double_value(&[0, 0]) as f32, shipped.act(&[1.0], 1)[0]);
+
+        let q_before = sac.q_value(&[1.0], &[0.2], 1);
+        let first = sac.cloning_update(&demos.sample(64, &mut rng));
+        let mut last = first;
+        for _ in 0..300 {
+            last = sac.cloning_update(&demos.sample(64, &mut rng));
+        }
+        assert_eq!(sac.updates, 301);
+        assert!(last < 0.01 * first.max(1e-4), "cloning error {first} -> {last}");
+        assert!(
+            (sac.act(&[1.0], 1)[0] - 0.5).abs() < 0.05,
+            "flown action {:?}",
+            sac.act(&[1.0], 1)
+        );
+        assert_eq!(sac.q_value(&[1.0], &[0.2], 1), q_before, "the critics are untouched");
     }
 
     #[test]
