@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use criterion::{Criterion, Throughput};
 use onboard::policy::{MlpLayers, TransferPolicy};
 use policy_support::{calibrate, f32_net, int8_net, quantize_net, random_input, RefNet, Rng};
-use shared::blob::ProblemKind;
+use shared::blob::{AlignedBlob, ProblemKind};
 
 /// Multiply-adds of one 10-256-256-3 inference.
 const MACS: u64 = 10 * 256 + 256 * 256 + 256 * 3;
@@ -45,41 +45,11 @@ fn fma_peak(acc: &mut [f32; ACC], m: f32, a: f32) {
 struct Setup {
     f32_blob: Vec<u8>,
     int8_blob: Vec<u8>,
-    /// The same blobs placed so that the hidden layer's weights start on a 64-byte line, as a
-    /// blob linked at an aligned address with a padded header would be.
-    f32_aligned: Aligned,
-    int8_aligned: Aligned,
+    /// The same blobs on a 64-byte boundary, as `AlignedBlob` (the host SIL) and the images
+    /// place them: every weight array on a cache line.
+    f32_aligned: AlignedBlob,
+    int8_aligned: AlignedBlob,
     inputs: Vec<[f32; 10]>,
-}
-
-struct Aligned {
-    buf: Vec<u8>,
-    start: usize,
-    len: usize,
-}
-
-impl Aligned {
-    fn new(blob: &[u8]) -> Self {
-        let p = TransferPolicy::from_bytes(blob, ProblemKind::Transfer).unwrap();
-        let w = match p.layers() {
-            MlpLayers::F32(_, b, _) => b.weights(),
-            MlpLayers::Int8(_, b, _) => b.weights(),
-        };
-        let offset = w.as_ptr() as usize - blob.as_ptr() as usize;
-        let mut buf = vec![0u8; blob.len() + 64];
-        let base = buf.as_ptr() as usize + offset;
-        let start = (64 - base % 64) % 64;
-        buf[start..start + blob.len()].copy_from_slice(blob);
-        Self {
-            buf,
-            start,
-            len: blob.len(),
-        }
-    }
-
-    fn bytes(&self) -> &[u8] {
-        &self.buf[self.start..self.start + self.len]
-    }
 }
 
 /// Byte offset of the hidden layer's weights within a 64-byte line.
@@ -103,8 +73,8 @@ fn setup() -> Setup {
     let f32_blob = f32_net(&net, ProblemKind::Transfer).encode();
     let int8_blob = int8_net(&net, &quant, ProblemKind::Transfer).encode();
     Setup {
-        f32_aligned: Aligned::new(&f32_blob),
-        int8_aligned: Aligned::new(&int8_blob),
+        f32_aligned: AlignedBlob::new(&f32_blob),
+        int8_aligned: AlignedBlob::new(&int8_blob),
         f32_blob,
         int8_blob,
         inputs,

@@ -5,7 +5,7 @@
 use proptest::prelude::*;
 use serde::Serialize;
 use shared::blob::{
-    decode, encode, encode_unchecked, encoded_len, f32_at, f32s, i32_at, Activation, ArrayKind, BlobError,
+    decode, encode, encode_unchecked, encoded_len, f32_at, f32s, i32_at, Activation, AlignedBlob, ArrayKind, BlobError,
     FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_VERSION, HEADER_LEN, MAGIC,
     MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
 };
@@ -867,9 +867,9 @@ proptest! {
 
 #[test]
 fn every_weight_array_starts_word_aligned_from_the_blob_start() {
-    // Provenance lengths 0..8 shift everything after them through every residue mod 4.
+    // Provenance lengths 0..2 WEIGHT_ALIGN shift everything after them through every residue.
     for q in [Quantization::F32, Quantization::Int8] {
-        for extra in 0..8 {
+        for extra in 0..2 * WEIGHT_ALIGN as u64 {
             let mut o = network(FeatureLayout::TransferPolar10, q, &[10, 7, 5, 3], 20 + extra);
             o.provenance.push_str(&"x".repeat(extra as usize));
             let bytes = to_bytes(&o.view());
@@ -879,6 +879,13 @@ fn every_weight_array_starts_word_aligned_from_the_blob_start() {
                 assert_eq!(offset % WEIGHT_ALIGN, 0, "{q:?} +{extra}: layer {l} at byte {offset}");
                 assert!(layer.padding.len() < WEIGHT_ALIGN && layer.padding.iter().all(|&b| b == 0));
             }
+            // Placed on a 64-byte boundary, every weight array is on a cache line.
+            let aligned = AlignedBlob::new(&bytes);
+            assert_eq!(aligned.bytes(), &bytes[..]);
+            assert_eq!(aligned.bytes().as_ptr() as usize % WEIGHT_ALIGN, 0);
+            for layer in decode(aligned.bytes()).unwrap().layers.iter() {
+                assert_eq!(layer.weights.as_ptr() as usize % 64, 0);
+            }
         }
     }
 }
@@ -886,21 +893,21 @@ fn every_weight_array_starts_word_aligned_from_the_blob_start() {
 #[test]
 fn padding_that_misaligns_the_weights_or_is_not_zero_is_refused() {
     // A provenance that leaves layer 0 some padding, so there are bytes to dirty.
-    let o = (0..4)
+    let o = (0..WEIGHT_ALIGN)
         .map(|extra| {
             let mut o = small(Quantization::F32);
             o.provenance.push_str(&"x".repeat(extra));
             o
         })
         .find(|o| !o.view().layers[0].padding.is_empty())
-        .expect("one of four provenance lengths pads layer 0");
+        .expect("one of WEIGHT_ALIGN provenance lengths pads layer 0");
     let good = o.view();
     let pad = good.layers[0].padding.len();
     let bytes = to_bytes(&good);
     let offset = decode(&bytes).unwrap().layers[0].weights.as_ptr() as usize - bytes.as_ptr() as usize;
     let refused = |blob: &NetworkBlob<'_>| decode(&to_bytes_unchecked(blob)).map(|_| ());
     // Other padding bytes than zero: refused, though the weights stay aligned.
-    let ones = [1u8; 8];
+    let ones = [1u8; 2 * WEIGHT_ALIGN];
     let mut dirty = good.clone();
     dirty.layers[0].padding = &ones[..pad];
     assert_eq!(
@@ -911,8 +918,8 @@ fn padding_that_misaligns_the_weights_or_is_not_zero_is_refused() {
             weights_offset: offset
         })
     );
-    // One byte less: the weights move off the word.
-    let zeros = [0u8; 8];
+    // One byte less: the weights move off the boundary.
+    let zeros = [0u8; 2 * WEIGHT_ALIGN];
     let mut short = good.clone();
     short.layers[0].padding = &zeros[..pad - 1];
     assert_eq!(
@@ -923,7 +930,7 @@ fn padding_that_misaligns_the_weights_or_is_not_zero_is_refused() {
             weights_offset: offset - 1
         })
     );
-    // A whole word more: aligned again, but longer than any alignment needs.
+    // WEIGHT_ALIGN more: aligned again, but longer than any alignment needs.
     let mut long = good.clone();
     long.layers[0].padding = &zeros[..pad + WEIGHT_ALIGN];
     assert_eq!(

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use serde::{Deserialize, Serialize};
-use shared::blob::{Activation, ProblemKind, Quantization};
+use shared::blob::{Activation, AlignedBlob, ProblemKind, Quantization};
 use shared::quantize::{DenseWeights, MlpWeights};
 use shared::scenario::Scenario;
 
@@ -239,7 +239,8 @@ where
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, config.evaluate.episodes);
     let mut reports = Vec::new();
     for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
-        let policy = OnboardPolicy::load(bytes, P::KIND)
+        let aligned = AlignedBlob::new(bytes);
+        let policy = OnboardPolicy::load(aligned.bytes(), P::KIND)
             .map_err(|e| ExperimentError::Mismatch(format!("the exported blob does not load onboard: {e}")))?;
         let errors = held_out.iter().zip(&reference).map(|(x, r)| {
             let a = policy.act(x);

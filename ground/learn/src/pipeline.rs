@@ -239,6 +239,11 @@ pub fn ship(
 ) -> Result<Shipped, ExperimentError> {
     let commit = current_commit();
     let dataset_file = config.dataset_file(config_dir)?;
+    // The card's config names the dataset absolutely: a relative path means nothing without
+    // the config's folder, which the card does not keep.
+    let mut config = config.clone();
+    config.pretrain.dataset = Some(std::path::absolute(&dataset_file).unwrap_or(dataset_file.clone()));
+    let config = &config;
     let summary_path = dataset_file.with_file_name("summary.json");
     let bytes = std::fs::read(&summary_path).map_err(|e| ExperimentError::Io(summary_path.clone(), e))?;
     let dataset: Summary = serde_json::from_slice(&bytes)

@@ -12,6 +12,7 @@ use std::time::Instant;
 use firmware_sim::{fly_transfer_observed, Controller, Dispersions, FlightStep, SilError};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use shared::blob::AlignedBlob;
 use shared::scenario::{ProblemKind, Scenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
@@ -124,7 +125,9 @@ pub fn fly_blob_seeded(
         .spacecraft
         .canonical()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
-    let controller = Controller::load_transfer(blob);
+    // On a cache line: the host kernels' vector loads then never straddle two.
+    let blob = AlignedBlob::new(blob);
+    let controller = Controller::load_transfer(blob.bytes());
     let tolerances = config.env.integrator.tolerances();
     let weights = config.env.reward.weights();
     let seed = dispersion_seed;

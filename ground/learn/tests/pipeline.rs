@@ -266,7 +266,8 @@ fn main_job_writes_a_report_whose_links_resolve() {
     // every round is also scored under the dispersions, and the new card records the rounds
     // and the lineage note.
     let mut dispersed = config.clone();
-    dispersed.pretrain.dataset = Some(std::path::absolute(run.join("dataset")).unwrap());
+    // Relative to the config's folder (`dir`), as a config file names it.
+    dispersed.pretrain.dataset = Some(PathBuf::from("run/dataset"));
     dispersed.dagger.dispersed = true;
     dispersed.dagger.cloning_only = true;
     let again = dir.join("dispersed");
@@ -289,7 +290,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
         std::slice::from_ref(&note),
     )
     .unwrap();
-    let card = learn::model::open_model(&dir.join("ship/model")).unwrap().card;
+    let shipped_model = learn::model::open_model(&dir.join("ship/model")).unwrap();
+    assert!(shipped_model.config.pretrain.dataset.as_ref().unwrap().is_absolute());
+    let card = shipped_model.card;
     assert_eq!(card.notes, vec![note.clone()]);
     assert_eq!(card.rounds, Some((1, read.best_round)));
     assert_eq!(card.sil.len(), 2);

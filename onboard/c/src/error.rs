@@ -71,7 +71,7 @@ pub enum lt_status {
     LT_ERR_BLOB_BUFFER_TOO_SMALL = -27,
     /// Encoding only (never returned by a load): the payload does not fit the length field.
     LT_ERR_BLOB_PAYLOAD_TOO_LARGE = -28,
-    /// A layer's padding is not the zero bytes that put its weights at a multiple of 4 bytes
+    /// A layer's padding is not the zero bytes that put its weights at a multiple of 64 bytes
     /// from the start of the blob.
     LT_ERR_BLOB_BAD_PADDING = -29,
     /// The blob is for the other problem (a rendezvous blob loaded as transfer, or the reverse).

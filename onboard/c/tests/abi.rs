@@ -105,6 +105,8 @@ fn framed(payload: &[u8]) -> Vec<u8> {
 fn with_defect<'a>(good: &'a [u8], edit: impl FnOnce(&mut NetworkBlob<'a>)) -> Vec<u8> {
     let mut net = blob::decode(good).unwrap();
     edit(&mut net);
+    // Padded again, so the defect is the only one (a shorter array moves the weights after it).
+    let net = net.aligned().unwrap();
     let mut out = vec![0u8; good.len() + 4096];
     let n = blob::encode_unchecked(&net, &mut out).unwrap();
     out.truncate(n);
