@@ -253,10 +253,18 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     }
 
     /// [`Self::accumulate`], one row at a time with [`INT8_LANES`] independent i32 lanes:
-    /// a fixed-width block LLVM maps onto whole vector registers (`vpmovsxbw` + `vpmaddwd`
-    /// on AVX-512, the activations held in registers across rows).
+    /// a fixed-width block LLVM maps onto whole vector registers (`pmaddwd` with the baseline
+    /// SSE2). On x86-64 with AVX2 (found at run time) the explicit kernel of `policy/x86.rs`
+    /// runs instead: 8 rows per activation load, the same integers.
     pub fn accumulate_lanes(&self, xq: &[i16; IN]) -> [i32; OUT] {
         let mut acc = [0i32; OUT];
+        #[cfg(target_arch = "x86_64")]
+        if super::x86::int8_dots(self.weights, xq, &mut acc) {
+            for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
+                *a = a.saturating_add(i32_le(c));
+            }
+            return acc;
+        }
         for ((a, row), c) in acc
             .iter_mut()
             .zip(self.weights.chunks_exact(IN))

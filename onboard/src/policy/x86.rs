@@ -1,9 +1,13 @@
-//! The x86-64 f32 kernel with AVX2 and FMA, chosen at run time by `cpuid` (the host SIL and
+//! The x86-64 kernels with AVX2 and FMA, chosen at run time by `cpuid` (the host SIL and
 //! benchmarks run on whatever workstation or cluster node they land on, so the binary cannot
-//! assume the instructions at compile time). It computes exactly the portable kernel's fused
-//! multiply-adds in the same order per output (`policy/f32.rs`): 8 outputs per `vfmadd231ps`,
-//! the sum of one output never reassociated, so the results are the bits of the Cortex-M4F's
-//! `vfma.f32` and of `libm::fmaf`.
+//! assume the instructions at compile time).
+//!
+//! - f32: exactly the portable kernel's fused multiply-adds in the same order per output
+//!   (`policy/f32.rs`): 8 outputs per `vfmadd231ps`, the sum of one output never reassociated,
+//!   so the results are the bits of the Cortex-M4F's `vfma.f32` and of `libm::fmaf`.
+//! - int8: 16 weights per `vpmovsxbw` + `vpmaddwd` against the i16 activations, 8 rows sharing
+//!   each activation load. Integer sums wrap identically in any order, so the accumulators are
+//!   the portable kernels' and the Cortex-M4F's `smlad` ones, bit for bit.
 //!
 //! With the machine's `unsafe`: `cpuid`/`xgetbv` to detect the features, the `#[target_feature]`
 //! kernel's call, and its unaligned loads and stores through raw pointers, whose bounds are
@@ -13,8 +17,10 @@
 #![allow(unused_unsafe)]
 
 use core::arch::x86_64::{
-    __cpuid, __cpuid_count, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_permutevar8x32_ps,
-    _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps, _mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss,
+    __cpuid, __cpuid_count, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
+    _mm256_extracti128_si256, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_madd_epi16,
+    _mm256_permutevar8x32_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps,
+    _mm_add_epi32, _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_fmadd_ss, _mm_loadu_si128, _mm_set_ss, _mm_shuffle_epi32,
     _xgetbv, CpuidResult,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
@@ -223,5 +229,90 @@ unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN]
             // SAFETY: weight `(first + r) * OUT + j < IN * OUT`.
             *pj = fma1(xi, unsafe { w.add((first + r) * OUT + j).read_unaligned() }, *pj);
         }
+    }
+}
+
+/// Rows of the int8 kernel that share each activation load.
+const INT8_ROWS: usize = 8;
+
+/// The int8 layer's dot products `acc[j] = sum_i w[j][i] x[i]` (wrapping; `weights`: `OUT`
+/// rows of `IN` i8, output-major) with AVX2. Returns `false`, touching nothing, if the machine
+/// lacks AVX2 or `weights` is short; the caller then runs the portable kernel.
+#[inline]
+pub(super) fn int8_dots<const IN: usize, const OUT: usize>(weights: &[u8], x: &[i16; IN], acc: &mut [i32; OUT]) -> bool {
+    let fits = IN.checked_mul(OUT).is_some_and(|n| weights.len() >= n);
+    if !(fits && has_avx2_fma()) {
+        return false;
+    }
+    // SAFETY: the CPU runs AVX2 and the OS saves YMM state, and `weights` holds the `IN * OUT`
+    // bytes the kernel reads.
+    unsafe { int8_rows(weights.as_ptr(), x, acc) };
+    true
+}
+
+/// The sum of a vector's 8 i32 lanes (wrapping).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn lane_sum(v: __m256i) -> i32 {
+    let s = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+    let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b01_00_11_10>(s));
+    let s = _mm_add_epi32(s, _mm_shuffle_epi32::<0b10_11_00_01>(s));
+    _mm_cvtsi128_si32(s)
+}
+
+/// Row `j`'s dot product over the inputs past the last whole block of 16.
+///
+/// # Safety
+/// `w` points to `OUT` readable rows of `IN` bytes, `j < OUT`.
+#[inline(always)]
+unsafe fn tail_dot<const IN: usize>(w: *const u8, j: usize, x: &[i16; IN], first: usize) -> i32 {
+    let mut s = 0i32;
+    for (i, &xi) in x.iter().enumerate().skip(first) {
+        // SAFETY: byte `j IN + i < OUT IN` of `w` (`i < IN`, `j < OUT`).
+        let wi = unsafe { *w.add(j * IN + i) } as i8;
+        s = s.wrapping_add(i32::from(xi) * i32::from(wi));
+    }
+    s
+}
+
+/// [`int8_dots`]' kernel: [`INT8_ROWS`] rows at a time, 16 inputs per step.
+///
+/// # Safety
+/// AVX2 present; `w` points to `IN * OUT` readable bytes (any alignment).
+#[target_feature(enable = "avx2")]
+unsafe fn int8_rows<const IN: usize, const OUT: usize>(w: *const u8, x: &[i16; IN], acc: &mut [i32; OUT]) {
+    let blocks = IN >> 4;
+    let first = blocks << 4;
+    let mut j = 0;
+    while j + INT8_ROWS <= OUT {
+        let mut sums = [_mm256_setzero_si256(); INT8_ROWS];
+        for b in 0..blocks {
+            // SAFETY: inputs `16 b .. 16 b + 16 <= IN` of `x`; bytes `(j + r) IN + 16 b .. + 16
+            // <= (j + r + 1) IN <= OUT IN` of `w` for `r < INT8_ROWS`, `j + INT8_ROWS <= OUT`.
+            let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
+            for (r, sum) in sums.iter_mut().enumerate() {
+                let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add((j + r) * IN + 16 * b).cast()) });
+                *sum = _mm256_add_epi32(*sum, _mm256_madd_epi16(wv, xv));
+            }
+        }
+        for (r, (a, sum)) in acc.iter_mut().skip(j).zip(sums).enumerate() {
+            // SAFETY: row `j + r < OUT`.
+            *a = lane_sum(sum).wrapping_add(unsafe { tail_dot(w, j + r, x, first) });
+        }
+        j += INT8_ROWS;
+    }
+    while j < OUT {
+        let mut sum = _mm256_setzero_si256();
+        for b in 0..blocks {
+            // SAFETY: as above for one row.
+            let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
+            let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add(j * IN + 16 * b).cast()) });
+            sum = _mm256_add_epi32(sum, _mm256_madd_epi16(wv, xv));
+        }
+        if let Some(a) = acc.get_mut(j) {
+            // SAFETY: row `j < OUT`.
+            *a = lane_sum(sum).wrapping_add(unsafe { tail_dot(w, j, x, first) });
+        }
+        j += 1;
     }
 }
