@@ -19,9 +19,9 @@
 use core::arch::x86_64::{
     __cpuid, __cpuid_count, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
     _mm256_extracti128_si256, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_madd_epi16,
-    _mm256_permutevar8x32_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps,
-    _mm_add_epi32, _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_fmadd_ss, _mm_loadu_si128, _mm_set_ss, _mm_shuffle_epi32,
-    _xgetbv, CpuidResult,
+    _mm256_permutevar8x32_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps, _mm_add_epi32,
+    _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_fmadd_ss, _mm_loadu_si128, _mm_set_ss, _mm_shuffle_epi32, _xgetbv,
+    CpuidResult,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -239,7 +239,11 @@ const INT8_ROWS: usize = 8;
 /// rows of `IN` i8, output-major) with AVX2. Returns `false`, touching nothing, if the machine
 /// lacks AVX2 or `weights` is short; the caller then runs the portable kernel.
 #[inline]
-pub(super) fn int8_dots<const IN: usize, const OUT: usize>(weights: &[u8], x: &[i16; IN], acc: &mut [i32; OUT]) -> bool {
+pub(super) fn int8_dots<const IN: usize, const OUT: usize>(
+    weights: &[u8],
+    x: &[i16; IN],
+    acc: &mut [i32; OUT],
+) -> bool {
     let fits = IN.checked_mul(OUT).is_some_and(|n| weights.len() >= n);
     if !(fits && has_avx2_fma()) {
         return false;
