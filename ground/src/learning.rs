@@ -523,7 +523,7 @@ fn ship_command(
     })?;
     print!("{}", learn::eval::describe(&shipped.monte_carlo));
     println!("{}", learn::export::describe(&shipped.export));
-    for report in shipped.sil.iter().flatten() {
+    for report in &shipped.sil {
         println!("{}", learn::sil::describe(report));
     }
     println!("model folder written to {}", args.out.join("model").display());

@@ -18,8 +18,8 @@
 //! blob's first byte (zero padding before it, written by [`encode`], checked by [`decode`]): a
 //! blob placed at a word-aligned address has word-aligned weights, which the Cortex-M4F kernels
 //! load several words per instruction (`vldm`, `ldrd`), and one placed on a 64-byte boundary
-//! ([`AlignedBlob`] on the host) has every weight array on a cache line, so no vector load of
-//! the host kernels straddles two lines.
+//! (`AlignedBlob`, with `std`, on the host) has every weight array on a cache line, so no vector
+//! load of the host kernels straddles two lines.
 //!
 //! Weight layouts are fixed by each layer's storage ([`Quantization::of_layer`]), chosen for
 //! the inference kernels:

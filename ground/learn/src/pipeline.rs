@@ -36,9 +36,8 @@ pub struct MainJob {
     pub export: ExportReport,
     /// The shipped form of the result (RUN/model: actor, blobs, card).
     pub model: ModelCard,
-    /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8 (transfers;
-    /// the rendezvous flight loop is not built).
-    pub sil: Option<[SilReport; 2]>,
+    /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8.
+    pub sil: [SilReport; 2],
     /// Wall time of each stage run, s, by name (this sitting's: a resumed stage counts only
     /// what it still had to do).
     pub stage_seconds: Vec<(&'static str, f64)>,
@@ -144,12 +143,8 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // 6. Onboard blobs, flown in the SIL loop against the dispersed plant.
     let t = Instant::now();
     next(format!(
-        "export f32 + int8 blobs{}",
-        if transfer {
-            format!(", SIL: {} dispersed flights each", config.sil.episodes)
-        } else {
-            String::new()
-        }
+        "export f32 + int8 blobs, SIL: {} dispersed flights each",
+        config.sil.episodes
     ));
     let rounds_run = rounds
         .as_ref()
@@ -175,7 +170,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
 }
 
 /// Exports `checkpoint`'s blobs into `run/export`, flies them in the SIL loop against the
-/// config's dispersed plant (transfers: `run/sil-f32`, `run/sil-int8`) and writes the model
+/// config's dispersed plant (`run/sil-f32`, `run/sil-int8`) and writes the model
 /// folder `run/model` from them and the Monte Carlo `mc`.
 #[allow(clippy::too_many_arguments)]
 fn export_and_ship(
@@ -188,16 +183,11 @@ fn export_and_ship(
     rounds: Option<(u64, u64)>,
     mc: &MonteCarloReport,
     notes: &[String],
-) -> Result<(ExportReport, Option<[SilReport; 2]>, ModelCard), ExperimentError> {
+) -> Result<(ExportReport, [SilReport; 2], ModelCard), ExperimentError> {
     let export = export(config, config_dir, checkpoint, &run.join("export"))?;
     let fly =
         |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions);
-    // The SIL Monte Carlo (`ground sil`) flies transfers only so far.
-    let sil = if config.scenario.problem() == shared::scenario::ProblemKind::Transfer {
-        Some([fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?])
-    } else {
-        None
-    };
+    let sil = [fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?];
     let model = write_model(
         &run.join("model"),
         &ModelSources {
@@ -208,7 +198,7 @@ fn export_and_ship(
             rounds,
             monte_carlo: mc,
             export: &export,
-            sil: sil.as_ref().map_or(&[][..], |s| &s[..]),
+            sil: &sil,
             notes,
         },
     )
@@ -220,7 +210,7 @@ fn export_and_ship(
 pub struct Shipped {
     pub monte_carlo: MonteCarloReport,
     pub export: ExportReport,
-    pub sil: Option<[SilReport; 2]>,
+    pub sil: [SilReport; 2],
     /// The model folder, `run/model`.
     pub model: ModelCard,
 }
@@ -386,7 +376,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    export_section(&mut s, &job.export, job.sil.as_ref());
+    export_section(&mut s, &job.export, &job.sil);
     let _ = writeln!(
         s,
         "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32. Copy the folder to `models/NAME/`; `ground evaluate --model` and `ground sil --model` fly it as it is.\n"
@@ -426,7 +416,7 @@ fn rounds_section(s: &mut String, rounds: &DaggerSummary) {
     let _ = writeln!(s, "![relabelling rounds](dagger/rounds.svg)\n");
 }
 
-fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport; 2]>) {
+fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
     let _ = writeln!(s, "## Onboard blobs and software-in-the-loop flight\n");
     let _ = writeln!(
         s,
@@ -468,13 +458,6 @@ fn export_section(s: &mut String, export: &ExportReport, sil: Option<&[SilReport
             failed.join("; ")
         );
     }
-    let Some(sil) = sil else {
-        let _ = writeln!(
-            s,
-            "No SIL flight: the SIL Monte Carlo (`ground sil`) flies transfers only so far.\n"
-        );
-        return;
-    };
     let d = &sil[0].dispersions;
     let _ = writeln!(
         s,

@@ -9,7 +9,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use firmware_sim::{fly_transfer_observed, Controller, Dispersions, FlightStep, SilError};
+use firmware_sim::{fly_observed, Controller, Dispersions, FlightStep, Problem, SilError};
+use onboard::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
@@ -19,7 +20,7 @@ use crate::config::{ConfigError, ExperimentConfig};
 use crate::eval::{report_and_write, MonteCarloReport};
 use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
-use ground_core::env::{step_reward, EnvError, Transfer};
+use ground_core::env::{step_reward, EnvError, Rendezvous, Transfer};
 use ground_core::io::atomic_write;
 
 /// Flights whose paths are drawn.
@@ -44,16 +45,17 @@ pub struct SilReport {
 
 /// One SIL flight as the evaluation's episode outcome, the reward re-summed with the
 /// environment's own step reward (terminal-accuracy term included) so the two compare.
-fn outcome(
+fn outcome<const N: usize>(
     config: &ExperimentConfig,
     episode: usize,
     scenario: &Scenario,
-    steps: &[FlightStep],
+    steps: &[FlightStep<N>],
     error: Option<SilError>,
     record: bool,
 ) -> EpisodeOutcome {
     let initial = onboard::dynamics::SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
-    let reward = |k: &FlightStep| step_reward(&config.env, scenario, &k.residuals, k.command.throttle, k.index + 1).0;
+    let reward =
+        |k: &FlightStep<N>| step_reward(&config.env, scenario, &k.residuals, k.command.throttle, k.index + 1).0;
     let last = steps.last();
     EpisodeOutcome {
         episode,
@@ -111,13 +113,46 @@ pub fn fly_blob(
     fly_blob_seeded(config, blob, scenarios, dispersions, config.seeds.monte_carlo, record)
 }
 
-/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i.
+/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i; transfers or
+/// rendezvous, as the config's scenario.
 pub fn fly_blob_seeded(
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
     dispersions: &Dispersions,
     dispersion_seed: u64,
+    record: usize,
+) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+    match config.scenario.problem() {
+        ProblemKind::Transfer => fly_blob_as::<TRANSFER_FEATURES, _>(
+            firmware_sim::Transfer,
+            config,
+            blob,
+            scenarios,
+            dispersions,
+            dispersion_seed,
+            record,
+        ),
+        ProblemKind::Rendezvous => fly_blob_as::<RENDEZVOUS_FEATURES, _>(
+            firmware_sim::Rendezvous,
+            config,
+            blob,
+            scenarios,
+            dispersions,
+            dispersion_seed,
+            record,
+        ),
+    }
+}
+
+/// [`fly_blob_seeded`] for one problem.
+fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
+    problem: P,
+    config: &ExperimentConfig,
+    blob: &[u8],
+    scenarios: &[Scenario],
+    dispersions: &Dispersions,
+    seed: u64,
     record: usize,
 ) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
     let spacecraft = config
@@ -127,16 +162,16 @@ pub fn fly_blob_seeded(
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     // On a cache line: the host kernels' vector loads then never straddle two.
     let blob = AlignedBlob::new(blob);
-    let controller = Controller::load_transfer(blob.bytes());
+    let controller = Controller::<N>::load::<P>(blob.bytes());
     let tolerances = config.env.integrator.tolerances();
     let weights = config.env.reward.weights();
-    let seed = dispersion_seed;
     let flown: Vec<(EpisodeOutcome, u64, f64)> = scenarios
         .par_iter()
         .enumerate()
         .map(|(i, scenario)| {
             let mut steps = Vec::with_capacity(scenario.steps as usize);
-            let result = fly_transfer_observed(
+            let result = fly_observed(
+                problem,
                 &controller,
                 scenario,
                 &spacecraft,
@@ -169,11 +204,6 @@ pub fn sil_monte_carlo(
     episodes: Option<u64>,
     dispersions: &Dispersions,
 ) -> Result<SilReport, ExperimentError> {
-    if config.scenario.problem() != ProblemKind::Transfer {
-        return Err(ExperimentError::Mismatch(
-            "`ground sil` flies transfers; its rendezvous Monte Carlo is not built yet".into(),
-        ));
-    }
     dispersions
         .validate()
         .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;
@@ -184,9 +214,9 @@ pub fn sil_monte_carlo(
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = match Controller::load_transfer(&blob) {
-        Controller::Network(p) => format!("{:?}", p.quantization()).to_lowercase(),
-        Controller::SafeMode(e) => format!("safe mode: {e}"),
+    let controller = match config.scenario.problem() {
+        ProblemKind::Transfer => describe_controller(&Controller::load_transfer(&blob)),
+        ProblemKind::Rendezvous => describe_controller(&Controller::load_rendezvous(&blob)),
     };
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
     let bar = indicatif::ProgressBar::new_spinner().with_message(format!("SIL: {n} dispersed flights"));
@@ -199,8 +229,14 @@ pub fn sil_monte_carlo(
         .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
         .collect();
     let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
-    let monte_carlo =
-        report_and_write::<Transfer>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?;
+    let monte_carlo = match config.scenario.problem() {
+        ProblemKind::Transfer => {
+            report_and_write::<Transfer>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?
+        }
+        ProblemKind::Rendezvous => {
+            report_and_write::<Rendezvous>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?
+        }
+    };
     let report = SilReport {
         blob: blob_path.to_path_buf(),
         controller,
@@ -215,6 +251,14 @@ pub fn sil_monte_carlo(
     atomic_write(&path, &serde_json::to_vec_pretty(&report).unwrap_or_default())
         .map_err(|e| ExperimentError::Io(path, e))?;
     Ok(report)
+}
+
+/// "f32", "int8", or "safe mode: <why the blob was refused>".
+fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String {
+    match controller {
+        Controller::Network(p) => format!("{:?}", p.quantization()).to_lowercase(),
+        Controller::SafeMode(e) => format!("safe mode: {e}"),
+    }
 }
 
 /// A short summary of a SIL Monte Carlo.

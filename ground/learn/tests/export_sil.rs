@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use firmware_sim::Dispersions;
 use ground_core::env::batch::{draw_scenarios, evaluate};
-use ground_core::env::{MdpEnv, Transfer};
+use ground_core::env::{MdpEnv, Rendezvous, Transfer};
 use learn::config::ExperimentConfig;
 use learn::export::{export, OnboardPolicy};
 use learn::sac::agent::Sac;
@@ -146,5 +146,90 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     let refused = sil_monte_carlo(&config, &bad, &dir.join("sil-bad"), None, &config.sil.dispersions).unwrap();
     assert!(refused.controller.starts_with("safe mode"), "{}", refused.controller);
     assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn rendezvous_blobs_fly_in_the_sil_as_in_the_environment_and_with_dispersions() {
+    let dir = scratch_dir("export-sil-rendezvous");
+    let config = ExperimentConfig::from_toml(
+        r#"
+scenario = "rendezvous-circular"
+[sac]
+hidden = [256, 256]
+[evaluate]
+episodes = 12
+optimality_gap_cases = 0
+[sil]
+episodes = 8
+[compute]
+threads = 1
+"#,
+    )
+    .unwrap();
+    tch::manual_seed(6);
+    let agent = Sac::new(config.sac.clone(), 22, 3, tch::Device::Cpu);
+    let checkpoint = dir.join("agent.safetensors");
+    agent.save(&checkpoint).unwrap();
+    let report = export(&config, &dir, &checkpoint, &dir.join("export")).unwrap();
+    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, 8);
+    for file in [&report.f32.file, &report.int8.file] {
+        let bytes = std::fs::read(file).unwrap();
+        // Without dispersions the SIL loop flies the environment's episodes bit for bit: the
+        // body propagated onboard by the Kepler coast is the environment's body.
+        let policy = OnboardPolicy::load(&bytes, ProblemKind::Rendezvous).unwrap();
+        let ground =
+            evaluate::<MdpEnv<Rendezvous>, _>(&config.env, &scenarios, |o: &[f32; 22]| policy.act(o), false).unwrap();
+        let (sil, faults, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+        assert_eq!((faults, missed), (0, 0.0));
+        for (g, s) in ground.iter().zip(&sil) {
+            assert!(g.completed && s.completed, "episode {}", g.episode);
+            assert_eq!(
+                g.total_reward.to_bits(),
+                s.total_reward.to_bits(),
+                "episode {}",
+                g.episode
+            );
+            assert_eq!(g.final_mass.to_bits(), s.final_mass.to_bits());
+            assert_eq!(g.terminal, s.terminal);
+        }
+        let (dispersed, _, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
+        assert!(missed > 0.0);
+        assert!(dispersed.iter().zip(&sil).all(|(d, s)| d.final_mass != s.final_mass));
+    }
+    // `ground sil` flies the rendezvous blob, and refuses a transfer blob into safe mode.
+    let sil = sil_monte_carlo(
+        &config,
+        &report.int8.file,
+        &dir.join("sil"),
+        None,
+        &config.sil.dispersions,
+    )
+    .unwrap();
+    assert_eq!((sil.flights, sil.controller.as_str()), (8, "int8"));
+    assert_eq!(sil.monte_carlo.policy.completed, 8);
+    let transfer_blob = dir.join("transfer.blob");
+    let transfer = export(
+        &self::config(),
+        &dir,
+        &{
+            let a = Sac::new(self::config().sac.clone(), 10, 3, tch::Device::Cpu);
+            let path = dir.join("transfer-agent.safetensors");
+            a.save(&path).unwrap();
+            path
+        },
+        &dir.join("transfer-export"),
+    )
+    .unwrap();
+    std::fs::copy(&transfer.f32.file, &transfer_blob).unwrap();
+    let refused = sil_monte_carlo(
+        &config,
+        &transfer_blob,
+        &dir.join("sil-bad"),
+        None,
+        &config.sil.dispersions,
+    )
+    .unwrap();
+    assert!(refused.controller.contains("Transfer"), "{}", refused.controller);
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -183,7 +183,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
         assert!(run.join(figure).is_file(), "{figure} not drawn");
     }
     // The blobs load onboard and SIL flew them: f32 and int8, every flight completed.
-    for (sil, name) in job.sil.as_ref().unwrap().iter().zip(["f32", "int8"]) {
+    for (sil, name) in job.sil.iter().zip(["f32", "int8"]) {
         assert_eq!(sil.controller, name);
         assert_eq!(sil.monte_carlo.policy.completed, 8);
     }
