@@ -8,7 +8,7 @@
 # call must return. Then
 #   1. the host C program (onboard/c/examples/fly.c, gcc) flies every call and its output must
 #      equal the expected one, byte for byte (commands as f64 bits, refusal codes);
-#   2. its transfer commands must equal the `cmd` bits of sil_trace's own trace of the blob;
+#   2. its flight commands must equal the `cmd` bits of sil_trace's own trace of the blob;
 #   3. a C firmware image (onboard/c/examples/m4, arm-none-eabi-gcc, liblowthrust.a for
 #      thumbv7em-none-eabihf) flies the same calls on QEMU's mps2-an386 with the output equal
 #      too; it must contain no panic path, and the int8 image must fit 256 KiB flash / 64 KiB RAM.
@@ -127,18 +127,16 @@ run_case() {
         fail "$name: host C output differs: $dir/host.diff"
     fi
 
-    # 2. Its transfer commands against the Rust SIL's own trace.
-    if [ "$problem" = transfer ]; then
-        "$BIN/release/sil_trace" "$blob" >"$dir/sil_trace.txt"
-        local steps
-        steps=$(grep -c '^step' "$dir/sil_trace.txt")
-        grep '^step' "$dir/sil_trace.txt" | commands >"$dir/sil.cmd"
-        grep '^call' "$dir/host.txt" | head -n "$steps" | commands >"$dir/c.cmd"
-        if [ "$steps" -gt 0 ] && cmp -s "$dir/sil.cmd" "$dir/c.cmd"; then
-            echo "its $steps flight commands equal sil_trace's, bit for bit"
-        else
-            fail "$name: the C commands differ from sil_trace's ($dir/sil.cmd, $dir/c.cmd)"
-        fi
+    # 2. Its flight commands against the Rust SIL's own trace (safe mode for a refused blob).
+    "$BIN/release/sil_trace" "$blob" "${flag[@]}" >"$dir/sil_trace.txt"
+    local steps
+    steps=$(grep -c '^step' "$dir/sil_trace.txt")
+    grep '^step' "$dir/sil_trace.txt" | commands >"$dir/sil.cmd"
+    grep '^call' "$dir/host.txt" | head -n "$steps" | commands >"$dir/c.cmd"
+    if [ "$steps" -gt 0 ] && cmp -s "$dir/sil.cmd" "$dir/c.cmd"; then
+        echo "its $steps flight commands equal sil_trace's, bit for bit"
+    else
+        fail "$name: the C commands differ from sil_trace's ($dir/sil.cmd, $dir/c.cmd)"
     fi
 
     # 3. The Cortex-M4F image under QEMU.

@@ -7,14 +7,14 @@
 //! - `OUT_DIR/expected.txt`: what `replay.c` must print, command bits or refusal code per call,
 //!   computed here by the Rust crates without the C interface.
 //!
-//! Transfer (the default): the calls of `firmware_sim`'s trace flights (`sil_trace`, the same
-//! scenarios, dispersions and seeds), recorded from the closed loop as it flew with
-//! `Controller::load_transfer(BLOB)`, then inputs guidance must refuse. Each recorded navigation
-//! state is what the Rust controller was given; the next one follows from its command through
-//! the plant. So a C-hosted controller that returns the same command bits on every one of
-//! these inputs would have flown the same flights, bit for bit.
-//! Rendezvous (`--rendezvous`, no SIL loop exists for it): a spacecraft and a body coasting on
-//! the trace scenario's orbits, one call per 14-day step, then refused inputs.
+//! The calls of `firmware_sim`'s trace flights of the problem (transfer by default, rendezvous
+//! with `--rendezvous`; `sil_trace`'s, the same scenarios, dispersions and seeds), recorded from
+//! the closed loop as it flew with the blob's controller, then inputs guidance must refuse.
+//! Each recorded navigation state is what the Rust controller was given, and the target what
+//! flight software gave it (the orbit, or the body's state propagated by the Kepler coast); the
+//! next state follows from the command through the plant. So a C-hosted controller that returns
+//! the same command bits on every one of these inputs would have flown the same flights, bit for
+//! bit.
 //!
 //! calls.bin (little-endian): `LTGC`, u32 format 1, u32 problem (0 transfer, 1 rendezvous),
 //! u32 call count, then per call 10 f64: x, y, vx, vy, m; the target (a, e, omega, 0 for a
@@ -24,8 +24,8 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use firmware_sim::trace::TRANSFER_FLIGHTS;
-use firmware_sim::{fly_transfer_observed, Controller};
+use firmware_sim::trace::{flights_of, RENDEZVOUS_FLIGHTS, TRANSFER_FLIGHTS};
+use firmware_sim::{fly_observed, Controller, Problem};
 use lowthrust::{
     error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
 };
@@ -33,10 +33,10 @@ use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::features::RewardWeights;
 use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
 use onboard::integrator::Tolerances;
-use onboard::kepler::coast;
 use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{ProblemKind, Quantization};
 use shared::orbit::{CartesianState, OrbitShape};
+use shared::scenario::Scenario;
 use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
@@ -88,41 +88,52 @@ fn refused_inputs(nav: SpacecraftState) -> Vec<(SpacecraftState, Option<f64>, f6
     ]
 }
 
-fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
-    let controller = Controller::load_transfer(blob);
+/// The guidance calls of the trace flights of problem `P`, flown by `controller` (`target`: the
+/// call's target components from the scenario and the step index, as flight software has them).
+fn flight_calls<const N: usize, P: Problem<N>>(
+    problem: P,
+    controller: &Controller<'_, N>,
+    target: impl Fn(&Scenario, u32) -> Result<[f64; 4], String>,
+    out: &mut String,
+) -> Result<Vec<Call>, String> {
     // A refused blob flies the SIL in safe mode; through the C interface every step of a policy
     // not loaded is refused with thrust off.
     let loaded = matches!(controller, Controller::Network(_));
     let spacecraft = Spacecraft::MSR_ERO.canonical().map_err(|e| e.to_string())?;
     let mut calls = Vec::new();
     let mut first = 0;
-    for flight in &TRANSFER_FLIGHTS {
-        let target = flight.scenario.target;
+    for flight in flights_of(problem) {
         let steps = flight.scenario.steps;
+        let mut failed = None;
         // The trace flight itself (firmware_sim::trace::fly flies it with the same arguments).
-        fly_transfer_observed(
-            &controller,
+        fly_observed(
+            problem,
+            controller,
             &flight.scenario,
             &spacecraft,
             &Tolerances::default(),
             &RewardWeights::default(),
             &flight.dispersions,
             flight.seed,
-            |step| {
-                calls.push(Call {
+            |step| match target(&flight.scenario, step.index) {
+                Ok(target) => calls.push(Call {
                     navigation: step.navigation,
-                    target: orbit_target(&target),
-                    // As fly_transfer_observed computes it.
+                    target,
+                    // As fly_observed computes it.
                     time_to_go: f64::from(steps - step.index) * STEP,
                     outcome: match step.guidance_error {
                         _ if !loaded => Err(LT_ERR_NOT_LOADED),
                         None => Ok(step.command),
                         Some(e) => Err(guidance_error_code(&e)),
                     },
-                })
+                }),
+                Err(e) => failed = Some(e),
             },
         )
         .map_err(|e| format!("flight {}: {e}", flight.name))?;
+        if let Some(e) = failed {
+            return Err(format!("flight {}: target: {e}", flight.name));
+        }
         writeln!(
             out,
             "# calls {first}..{}: flight {} seed {} (sil_trace's), one per step",
@@ -133,6 +144,18 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
         .map_err(|e| e.to_string())?;
         first = calls.len();
     }
+    Ok(calls)
+}
+
+fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
+    let controller = Controller::load_transfer(blob);
+    let mut calls = flight_calls(
+        firmware_sim::Transfer,
+        &controller,
+        |s, _| Ok(orbit_target(&s.target)),
+        out,
+    )?;
+    let first = calls.len();
     let nominal = TRANSFER_FLIGHTS[0].scenario.target;
     let nav = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
     let policy = TransferPolicy::from_bytes(blob, ProblemKind::Transfer);
@@ -157,9 +180,17 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
 
 fn rendezvous_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
     let policy = RendezvousPolicy::from_bytes(blob, ProblemKind::Rendezvous);
-    let scenario = TRANSFER_FLIGHTS[0].scenario;
-    let spacecraft0 = scenario.initial.cartesian();
-    let body0 = scenario.target.cartesian_at(scenario.target_nu0);
+    let controller = Controller::load_rendezvous(blob);
+    let body_at = |s: &Scenario, index: u32| {
+        firmware_sim::Rendezvous::target(s, index)
+            .map(|b| body_target(&b))
+            .map_err(|e| e.to_string())
+    };
+    let mut calls = flight_calls(firmware_sim::Rendezvous, &controller, body_at, out)?;
+    let body0 = RENDEZVOUS_FLIGHTS[0]
+        .scenario
+        .target
+        .cartesian_at(RENDEZVOUS_FLIGHTS[0].scenario.target_nu0);
     let step = |navigation: SpacecraftState, body: CartesianState, time_to_go: f64| Call {
         navigation,
         target: body_target(&body),
@@ -169,22 +200,6 @@ fn rendezvous_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> 
             Err(_) => Err(LT_ERR_NOT_LOADED),
         },
     };
-    let mut calls = Vec::new();
-    for k in 0..scenario.steps {
-        let t = f64::from(k) * STEP;
-        let coasted = coast(&spacecraft0, t).map_err(|e| format!("{e:?}"))?;
-        let body = coast(&body0, t).map_err(|e| format!("{e:?}"))?;
-        // Mass as if a quarter of the propellant went evenly over the flight.
-        let m = 1.0 - 0.25 * f64::from(k) / f64::from(scenario.steps);
-        let navigation = SpacecraftState::from_cartesian(&coasted, m);
-        calls.push(step(navigation, body, f64::from(scenario.steps - k) * STEP));
-    }
-    writeln!(
-        out,
-        "# calls 0..{}: spacecraft and body coasting on the trace scenario's orbits",
-        calls.len()
-    )
-    .map_err(|e| e.to_string())?;
     let first = calls.len();
     let nav = calls.first().map(|c| c.navigation).ok_or("no steps")?;
     for (navigation, first_target_component, time_to_go) in refused_inputs(nav) {
