@@ -153,6 +153,23 @@ pub struct TransferShooting<'a> {
 }
 
 impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferShooting<'_> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &TransferVector,
+        tolerances: &Tolerances,
+    ) -> Result<TransferVector, IntegrationError> {
+        transfer_residual_only(
+            self.scenario,
+            &OptimalControlParams {
+                spacecraft: self.spacecraft,
+                eps,
+            },
+            z,
+            tolerances,
+        )
+    }
+
     fn residual(
         &self,
         eps: f64,
@@ -315,6 +332,7 @@ mod tests {
     use shared::spacecraft::Spacecraft;
 
     use super::super::fixtures::tight;
+    use crate::solver::pontryagin::work_done;
 
     fn scenario() -> Scenario {
         let initial = OrbitElements {
@@ -396,8 +414,18 @@ mod tests {
             scenario: &sce,
             spacecraft: sc,
         };
+        let before = work_done();
         let (f, _) = t.residual(0.3, &z, &tol).unwrap();
+        let sensitivity_work = work_done() - before;
+        let before = work_done();
         assert!((t.residual_only(0.3, &z, &tol).unwrap() - f).amax() < 1e-9);
+        let plain_work = work_done() - before;
+        // Line-search trials and eps differences rely on F alone being the cheap 10-state
+        // propagation, not the sensitivity one with its Jacobian thrown away.
+        assert!(
+            plain_work * 3 < sensitivity_work,
+            "F alone cost {plain_work}, F and J {sensitivity_work}"
+        );
         sce.problem = ProblemKind::Rendezvous;
         let r = RendezvousShooting {
             scenario: &sce,
