@@ -537,6 +537,7 @@ fn bad_inputs_are_refused_and_nothing_is_written() {
             residual: f64::INFINITY,
             iterations: 0,
             converged: false,
+            jacobian: None,
         },
     };
     assert!(matches!(

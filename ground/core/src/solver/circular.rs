@@ -152,6 +152,7 @@ fn settings() -> NewtonSettings {
     NewtonSettings {
         max_iterations: 12,
         tolerance: STRUCTURED_TOLERANCE,
+        progress: None,
     }
 }
 
@@ -457,6 +458,7 @@ fn ms_settings(tolerance: f64) -> NewtonSettings {
     NewtonSettings {
         max_iterations: 12,
         tolerance,
+        progress: None,
     }
 }
 
@@ -914,6 +916,7 @@ fn finish_with(
             let settings = NewtonSettings {
                 max_iterations: 20,
                 tolerance: SEARCH_TOLERANCE,
+                progress: None,
             };
             let o = newton(&budgeted, target, &MultipleShootingFree::join(x, nu), &tol, &settings)
                 .map_err(|error| CircularError::FreeAnomaly { search: e, error })?;
@@ -947,6 +950,7 @@ fn finish_with(
         let settings = NewtonSettings {
             max_iterations: 4,
             tolerance: 1e-10,
+            progress: None,
         };
         let z0 = RendezvousVector::from_column_slice(&z.as_slice()[..5]);
         if let Ok(o) = newton(&single, target, &z0, &tol, &settings) {

@@ -11,6 +11,7 @@
 use std::f64::consts::PI;
 
 use nalgebra::{Const, DimMin, SVector};
+use onboard::integrator::Tolerances;
 use onboard::kepler::coast;
 use shared::orbit::OrbitShape;
 use shared::scenario::Scenario;
@@ -18,7 +19,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 
 use super::pontryagin;
 use super::shooting::{
-    newton, RendezvousShooting, RendezvousVector, ShootingProblem, TransferShooting, TransferVector,
+    newton, NewtonSettings, RendezvousShooting, RendezvousVector, ShootingProblem, TransferShooting, TransferVector,
     RENDEZVOUS_UNKNOWNS, TRANSFER_UNKNOWNS,
 };
 use super::{Budgeted, SolveOptions};
@@ -104,12 +105,52 @@ fn follow<const K: usize>(
     Ok(z)
 }
 
-/// One Newton solve at eps = 1 on the start budgets, within what is left of `work` integration
-/// steps counted from `start`.
+/// One Newton solve at eps = 1 at the multi-start search's accuracy
+/// ([`SolveOptions::search_tolerances`]), within what is left of `work` integration steps counted
+/// from `start`: the continuation's points are guesses of its next step, and only its last one
+/// is [`polish`]ed.
 pub(super) fn solve_at<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     guess: &SVector<f64, K>,
     options: &SolveOptions,
+    start: u64,
+    work: u64,
+) -> Option<SVector<f64, K>>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let settings = NewtonSettings {
+        tolerance: options.search_newton_tolerance,
+        ..options.start_newton
+    };
+    newton_within(problem, guess, &options.search_tolerances, &settings, start, work)
+}
+
+/// `z`, solved at eps = 1 by [`solve_at`], solved again at the full accuracy
+/// ([`SolveOptions::tolerances`] and [`SolveOptions::start_newton`]) within the same budget; `z`
+/// itself if that does not converge (the multi-start then searches from it).
+pub(super) fn polish<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    z: SVector<f64, K>,
+    options: &SolveOptions,
+    start: u64,
+    work: u64,
+) -> SVector<f64, K>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    let tolerances = Tolerances {
+        max_steps: options.start_max_steps,
+        ..options.tolerances
+    };
+    newton_within(problem, &z, &tolerances, &options.start_newton, start, work).unwrap_or(z)
+}
+
+fn newton_within<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    guess: &SVector<f64, K>,
+    tolerances: &Tolerances,
+    settings: &NewtonSettings,
     start: u64,
     work: u64,
 ) -> Option<SVector<f64, K>>
@@ -121,11 +162,7 @@ where
         return None;
     }
     let budgeted = Budgeted::new(problem, work - spent);
-    let tolerances = onboard::integrator::Tolerances {
-        max_steps: options.start_max_steps,
-        ..options.tolerances
-    };
-    newton(&budgeted, 1.0, guess, &tolerances, &options.start_newton)
+    newton(&budgeted, 1.0, guess, tolerances, settings)
         .ok()
         .filter(|o| o.converged)
         .map(|o| o.z)
@@ -189,7 +226,17 @@ pub fn transfer_start(
     })?;
     let mut z = solution;
     z[5] -= scenario.target.omega;
-    Ok(z)
+    let problem = TransferShooting {
+        scenario,
+        spacecraft: *spacecraft,
+    };
+    Ok(polish(
+        &problem,
+        z,
+        options,
+        start,
+        CONTINUATION_WORK * options.max_start_work,
+    ))
 }
 
 /// An energy-optimal start of the rendezvous by continuation in the target orbit and the body's
@@ -239,20 +286,21 @@ pub fn rendezvous_start_turning(
     let p = small_primer(scenario);
     let first = RendezvousVector::from_column_slice(&[p[0], p[1], p[2], p[3], 0.0]);
     let start = pontryagin::work_done();
-    follow::<RENDEZVOUS_UNKNOWNS>(RendezvousVector::zeros(), first, |s, guess| {
+    let work = CONTINUATION_WORK * options.max_start_work;
+    let z = follow::<RENDEZVOUS_UNKNOWNS>(RendezvousVector::zeros(), first, |s, guess| {
         let sc = intermediate_turning(scenario, s, turns);
         let problem = RendezvousShooting {
             scenario: &sc,
             spacecraft: *spacecraft,
         };
-        solve_at(
-            &problem,
-            guess,
-            options,
-            start,
-            CONTINUATION_WORK * options.max_start_work,
-        )
-    })
+        solve_at(&problem, guess, options, start, work)
+    })?;
+    // The path ends on the real scenario (the turns are whole at s = 1).
+    let problem = RendezvousShooting {
+        scenario,
+        spacecraft: *spacecraft,
+    };
+    Ok(polish(&problem, z, options, start, work))
 }
 
 #[cfg(test)]

@@ -381,7 +381,11 @@ fn follow_time(
     loop {
         let (s, z) = path[path.len() - 1];
         if s >= 1.0 {
-            return Ok(z);
+            let problem = TransferShooting {
+                scenario,
+                spacecraft: *spacecraft,
+            };
+            return Ok(continuation::polish(&problem, z, options, start, work));
         }
         let s_next = (s + step).min(1.0);
         let guess = match path.len() {
@@ -459,6 +463,7 @@ pub fn solve_min_time(
     let settings = NewtonSettings {
         max_iterations: 40,
         tolerance: 1e-10,
+        progress: None,
     };
     newton(&problem, 1.0, guess, tolerances, &settings)
         .ok()

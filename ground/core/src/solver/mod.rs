@@ -22,8 +22,9 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::solver::record::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
 use pontryagin::OptimalControlParams;
 use shooting::{
-    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, RendezvousShooting,
-    RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS, RENDEZVOUS_UNKNOWNS,
+    homotopy, initial_state_costate, newton, HomotopyLevel, NewtonOutcome, NewtonSettings, Progress,
+    RendezvousShooting, RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS,
+    RENDEZVOUS_UNKNOWNS,
 };
 
 /// Settings of one solve.
@@ -43,6 +44,18 @@ pub struct SolveOptions {
     /// nowhere is dropped early instead of costing seconds.
     pub start_newton: NewtonSettings,
     pub start_max_steps: u32,
+    /// Integration tolerances and Newton tolerance of the multi-start's search at eps = 1:
+    /// loose, as nearly all of its iterations are spent far from any solution (most guesses
+    /// never converge); a guess converged there is polished at [`Self::tolerances`] and
+    /// [`Self::start_newton`] before it counts as a start.
+    pub search_tolerances: Tolerances,
+    pub search_newton_tolerance: f64,
+    /// The search gives up on a guess whose residual stops falling (see [`Progress`]): on
+    /// transfer-hard seed 11 most guesses plateau at |F| ~ 0.1-2 and used to spend their whole
+    /// iteration budget there; a window of 6 iterations lost no start that a search with 4
+    /// times the budget and up to 12 distinct starts finds, a window of 5 lost one
+    /// (docs/design/solver.md).
+    pub search_progress: Progress,
     /// Integration work (Runge-Kutta steps, see [`pontryagin::work_done`]) the multi-start and
     /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
     /// nowhere, identical on every machine, under any load and in every shard.
@@ -74,6 +87,7 @@ impl Default for SolveOptions {
             newton: NewtonSettings {
                 max_iterations: 15,
                 tolerance: 1e-8,
+                progress: None,
             },
             final_eps: FINAL_EPS,
             max_homotopy_solves: 60,
@@ -81,8 +95,17 @@ impl Default for SolveOptions {
             start_newton: NewtonSettings {
                 max_iterations: 25,
                 tolerance: 1e-8,
+                progress: None,
             },
             start_max_steps: 4_000,
+            search_tolerances: Tolerances {
+                relative: 1e-7,
+                absolute: 1e-8,
+                max_steps: 4_000,
+                initial_step: 0.0,
+            },
+            search_newton_tolerance: 1e-5,
+            search_progress: Progress { window: 6, factor: 0.8 },
             max_start_work: 4_000_000,
             max_homotopy_work: 3_000_000,
             max_transfer_homotopy_work: 15_000_000,
@@ -469,6 +492,12 @@ fn solve_from_direct<P: ShootingProblem<K>, const K: usize>(
     }
 }
 
+/// Polished energy-optimal starts closer than this (max norm) are one start.
+const SAME_START: f64 = 1e-6;
+/// A guess converged at the search's accuracy this close to a start polishes to that start:
+/// distinct energy optima (revolutions, burn splits) differ by tenths in the costates.
+const NEAR_START: f64 = 1e-3;
+
 fn solve_problem<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     scenario: &Scenario,
@@ -479,7 +508,13 @@ fn solve_problem<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
-    let start_tolerances = Tolerances {
+    let search_tolerances = options.search_tolerances;
+    let search_newton = NewtonSettings {
+        tolerance: options.search_newton_tolerance,
+        progress: Some(options.search_progress),
+        ..options.start_newton
+    };
+    let polish_tolerances = Tolerances {
         max_steps: options.start_max_steps,
         ..options.tolerances
     };
@@ -492,13 +527,27 @@ where
     // unconverged ones with the smallest residuals.
     let mut pending: Vec<(SVector<f64, K>, f64)> = Vec::new();
     let n_guesses = guesses.len();
+    // A guess converged at the search's accuracy near a start already found is that start; any
+    // other is polished at the full accuracy and counts once it converges there.
     let consider = |outcome: NewtonOutcome<K>, starts: &mut Vec<(SVector<f64, K>, f64)>| {
         if !outcome.converged {
             return Some((outcome.z, outcome.residual));
         }
-        if !starts.iter().any(|(z, _)| (z - outcome.z).amax() < 1e-6) {
-            if let Some(m) = energy_final_mass(scenario, spacecraft, &outcome.z, &options.tolerances) {
-                starts.push((outcome.z, m));
+        if starts.iter().any(|(z, _)| (z - outcome.z).amax() < NEAR_START) {
+            return None;
+        }
+        let polished = newton(
+            &start_problem,
+            1.0,
+            &outcome.z,
+            &polish_tolerances,
+            &options.start_newton,
+        );
+        if let Ok(polished) = polished {
+            if polished.converged && !starts.iter().any(|(z, _)| (z - polished.z).amax() < SAME_START) {
+                if let Some(m) = energy_final_mass(scenario, spacecraft, &polished.z, &options.tolerances) {
+                    starts.push((polished.z, m));
+                }
             }
         }
         None
@@ -511,7 +560,7 @@ where
             break;
         }
         let share = Budgeted::new(&start_problem, options.max_start_work / (n_guesses as u64 + 10));
-        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &search_tolerances, &search_newton) {
             pending.extend(consider(outcome, &mut starts));
         }
     }
@@ -522,7 +571,7 @@ where
             break;
         }
         let share = Budgeted::new(&start_problem, options.max_start_work / 4);
-        if let Ok(outcome) = newton(&share, 1.0, &z0, &start_tolerances, &options.start_newton) {
+        if let Ok(outcome) = newton(&share, 1.0, &z0, &search_tolerances, &search_newton) {
             consider(outcome, &mut starts);
         }
     }

@@ -2,7 +2,7 @@
 //! [`FINAL_EPS`], the tangent predictor with its curvature correction, and the continuation
 //! with a Newton corrector.
 
-use nalgebra::{Const, DimMin, SVector};
+use nalgebra::{Const, DimMin, SMatrix, SVector};
 use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::Scenario;
 use shared::spacecraft::CanonicalSpacecraft;
@@ -27,11 +27,13 @@ pub fn homotopy_schedule(final_eps: f64) -> impl Iterator<Item = f64> {
 }
 
 /// Tangent of the solution path: dz/d(eps) = -J^-1 dF/d(eps), with dF/d(eps) by a central
-/// difference in eps (the propagations are smooth in eps for eps > 0).
+/// difference in eps (the propagations are smooth in eps for eps > 0). `jacobian`: J at (eps,
+/// z) when the corrector that found z already has it, computed otherwise.
 pub fn homotopy_tangent<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z: &SVector<f64, K>,
     eps: f64,
+    jacobian: Option<&SMatrix<f64, K, K>>,
     tolerances: &Tolerances,
 ) -> Result<Option<SVector<f64, K>>, IntegrationError>
 where
@@ -39,14 +41,18 @@ where
 {
     // Not smaller: the propagations carry ~1e-11 of round-off (see pontryagin::TIME_OFFSET).
     let h = eps * 1e-3;
-    let (_, jac) = problem.residual(eps, z, tolerances)?;
+    let jac = match jacobian {
+        Some(j) => *j,
+        None => problem.residual(eps, z, tolerances)?.1,
+    };
     let fp = problem.residual_only(eps + h, z, tolerances)?;
     let fm = problem.residual_only(eps - h, z, tolerances)?;
     let df_de = (fp - fm) / (2.0 * h);
     Ok(jac.lu().solve(&(-df_de)))
 }
 
-/// The predicted solution at `next` from the solution `z` at `eps`: the tangent step, plus the
+/// The predicted solution at `next` from the solution `z` at `eps` (with its Jacobian when known,
+/// see [`homotopy_tangent`]): the tangent step, plus the
 /// quadratic term that makes the prediction pass through the previous solution `previous`
 /// (at another eps) when there is one. Near eps -> 0 the path bends on the scale of eps itself
 /// (the throttle ramps narrow like eps), and Newton's basin shrinks with it, so the curvature term
@@ -54,6 +60,7 @@ where
 pub fn predict<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z: &SVector<f64, K>,
+    jacobian: Option<&SMatrix<f64, K, K>>,
     eps: f64,
     next: f64,
     previous: Option<(f64, SVector<f64, K>)>,
@@ -62,7 +69,7 @@ pub fn predict<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
-    let Ok(Some(t)) = homotopy_tangent(problem, z, eps, tolerances) else {
+    let Ok(Some(t)) = homotopy_tangent(problem, z, eps, jacobian, tolerances) else {
         return *z;
     };
     let d = next - eps;
@@ -105,6 +112,7 @@ where
     let up = eps1 > eps0;
     let mut factor: f64 = max_ratio;
     let (mut eps, mut z) = (eps0, *z0);
+    let mut jacobian = None;
     let mut previous: Option<(f64, SVector<f64, K>)> = None;
     for _ in 0..max_solves {
         if (up && eps >= eps1) || (!up && eps <= eps1) {
@@ -115,12 +123,12 @@ where
         } else {
             (eps / factor).max(eps1)
         };
-        let predicted = predict(problem, &z, eps, next, previous, tolerances);
+        let predicted = predict(problem, &z, jacobian.as_ref(), eps, next, previous, tolerances);
         let step = newton(problem, next, &predicted, tolerances, settings);
         match step {
             Ok(o) if o.converged => {
                 previous = Some((eps, z));
-                (eps, z) = (next, o.z);
+                (eps, z, jacobian) = (next, o.z, o.jacobian);
                 factor = (factor * factor).min(max_ratio);
             }
             _ => {
@@ -159,7 +167,7 @@ where
     if !outcome.converged {
         return Ok(levels);
     }
-    let (mut eps, mut z) = (first, outcome.z);
+    let (mut eps, mut z, mut jacobian) = (first, outcome.z, outcome.jacobian);
     let mut previous: Option<(f64, SVector<f64, K>)> = None;
     let mut ratio: f64 = 0.5;
     let mut solves = 0u32;
@@ -178,17 +186,18 @@ where
                 return Ok(levels);
             }
             let next = (eps * ratio).max(target);
-            let predicted = predict(problem, &z, eps, next, previous, tolerances);
+            let predicted = predict(problem, &z, jacobian.as_ref(), eps, next, previous, tolerances);
             // A propagation that fails from a predicted point is a failed corrector, not an error.
             let step = newton(problem, next, &predicted, tolerances, settings).unwrap_or(NewtonOutcome {
                 z: predicted,
                 residual: f64::INFINITY,
                 iterations: 0,
                 converged: false,
+                jacobian: None,
             });
             if step.converged {
                 previous = Some((eps, z));
-                (eps, z, last) = (next, step.z, step);
+                (eps, z, jacobian, last) = (next, step.z, step.jacobian, step);
                 ratio = (ratio * ratio).max(0.5); // grow the step back after a success
             } else {
                 ratio = ratio.sqrt();

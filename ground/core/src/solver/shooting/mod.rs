@@ -18,7 +18,7 @@ pub use homotopy::{
     continue_eps, homotopy, homotopy_schedule, homotopy_tangent, predict, solve_transfer_homotopy, HomotopyLevel,
     FINAL_EPS,
 };
-pub use newton::{newton, solve_transfer, NewtonOutcome, NewtonSettings};
+pub use newton::{newton, solve_transfer, NewtonOutcome, NewtonSettings, Progress};
 pub use problem::{
     initial_state_costate, orbit_state, transfer_residual, transfer_residual_at, transfer_residual_only,
     transfer_residual_only_at, PinnedAnomalyTransfer, RendezvousShooting, RendezvousVector, ShootingProblem,

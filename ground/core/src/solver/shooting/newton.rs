@@ -15,6 +15,17 @@ pub struct NewtonSettings {
     pub max_iterations: u32,
     /// Converged when every terminal condition holds to this (canonical units).
     pub tolerance: f64,
+    /// Give up on an iteration that is going nowhere (see [`Progress`]); `None` never does.
+    pub progress: Option<Progress>,
+}
+
+/// Required progress: the residual's 2-norm must fall below `factor` times its value `window`
+/// iterations earlier. For a multi-start, where most guesses never converge and plateau on a
+/// local minimum of |F| while the ones that converge rarely stay flat that long.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    pub window: u32,
+    pub factor: f64,
 }
 
 impl Default for NewtonSettings {
@@ -22,6 +33,7 @@ impl Default for NewtonSettings {
         Self {
             max_iterations: 60,
             tolerance: 1e-8,
+            progress: None,
         }
     }
 }
@@ -33,6 +45,8 @@ pub struct NewtonOutcome<const K: usize = TRANSFER_UNKNOWNS> {
     pub residual: f64,
     pub iterations: u32,
     pub converged: bool,
+    /// The Jacobian at `z`, as the iteration computed it (the homotopy's tangent reuses it).
+    pub jacobian: Option<SMatrix<f64, K, K>>,
 }
 
 /// Minimum-norm solution of J dz = -F by the singular value decomposition, singular values
@@ -102,6 +116,7 @@ where
     let stall = problem.stall_limit();
     let mut stalled = 0u32;
     let mut last_norm = f64::INFINITY;
+    let mut norms: Vec<f64> = Vec::new();
     let eval = |z: &SVector<f64, K>| problem.residual(eps, z, tolerances);
     let mut z = *z0;
     let (mut f, mut jac) = eval(&z)?;
@@ -116,6 +131,7 @@ where
                 residual,
                 iterations,
                 converged: true,
+                jacobian: Some(jac),
             });
         }
         // The 2-norm, which the line search decreases (the max norm can stay put while it falls).
@@ -127,6 +143,13 @@ where
             }
         } else {
             stalled = 0;
+        }
+        if let Some(Progress { window, factor }) = settings.progress {
+            let window = window as usize;
+            if norms.len() >= window && norm > factor * norms[norms.len() - window] {
+                break;
+            }
+            norms.push(norm);
         }
         last_norm = norm;
         iterations += 1;
@@ -198,6 +221,7 @@ where
         residual,
         iterations,
         converged: residual < settings.tolerance,
+        jacobian: Some(jac),
     })
 }
 
@@ -330,6 +354,7 @@ mod tests {
         let settings = NewtonSettings {
             max_iterations: 40,
             tolerance: 1e-12,
+            progress: None,
         };
         let z0 = SVector::<f64, 2>::new(1.0, 1.0);
         let capped = newton(&NoRoot { stall: u32::MAX }, 0.0, &z0, &tight(), &settings).unwrap();
@@ -365,6 +390,25 @@ mod tests {
         assert!(root.converged && (root.z[0] - 0.1).abs() < 1e-10, "{root:?}");
     }
 
+    /// With a required progress, Newton on the problem without a root stops once |F| has
+    /// stopped falling by the factor over the window (|F| creeps towards 1e-2), far below the
+    /// iteration cap it runs to without one.
+    #[test]
+    fn newton_gives_up_when_the_residual_stops_falling_over_the_window() {
+        let settings = NewtonSettings {
+            max_iterations: 40,
+            tolerance: 1e-12,
+            progress: Some(Progress { window: 4, factor: 0.8 }),
+        };
+        let z0 = SVector::<f64, 2>::new(1.0, 1.0);
+        let out = newton(&NoRoot { stall: u32::MAX }, 0.0, &z0, &tight(), &settings).unwrap();
+        assert!(!out.converged);
+        // z0 halves per step: |F| falls by more than 0.8 per 4 steps while z0^2 is above ~1e-3,
+        // then creeps; 9 iterations by hand.
+        assert!((6..12).contains(&out.iterations), "{}", out.iterations);
+        assert!((out.residual - 1e-2).abs() < 1e-3, "{}", out.residual);
+    }
+
     #[test]
     fn energy_optimal_circular_transfer_converges_and_respects_the_hohmann_bound() {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
@@ -384,8 +428,10 @@ mod tests {
         let out = solve_transfer(&scenario, &params, &z0, &tol, &NewtonSettings::default()).unwrap();
         assert!(out.converged, "{out:?}");
         // Re-propagate the solution: terminal conditions hold, and the mass is feasible.
-        let (f, _) = transfer_residual(&scenario, &params, &out.z, &tol).unwrap();
+        let (f, jacobian) = transfer_residual(&scenario, &params, &out.z, &tol).unwrap();
         assert!(f.amax() < 1e-8);
+        // The Jacobian handed on (to the homotopy's tangent) is the one at the solution.
+        assert_eq!(out.jacobian, Some(jacobian));
         let y0 = initial_state_costate(&scenario, &[out.z[0], out.z[1], out.z[2], out.z[3], out.z[4]]);
         let (yf, _) = integrate(
             &crate::solver::pontryagin::StateCostate(params),
