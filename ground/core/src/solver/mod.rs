@@ -51,10 +51,9 @@ pub struct SolveOptions {
     pub search_tolerances: Tolerances,
     pub search_newton_tolerance: f64,
     /// The search gives up on a guess whose residual stops falling (see [`Progress`]): on
-    /// transfer-hard seed 11 most guesses plateau at |F| ~ 0.1-2 and used to spend their whole
-    /// iteration budget there; a window of 6 iterations lost no start that a search with 4
-    /// times the budget and up to 12 distinct starts finds, a window of 5 lost one
-    /// (docs/design/solver.md).
+    /// transfer-hard most guesses plateau at |F| ~ 0.1-2 and used to spend their whole
+    /// iteration budget there. Windows of 5 and 6 leave as many records below the best of six
+    /// search settings (3 of 182 on seeds 7, 8 and 11), 5 is 10 % faster (docs/design/solver.md).
     pub search_progress: Progress,
     /// Integration work (Runge-Kutta steps, see [`pontryagin::work_done`]) the multi-start and
     /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
@@ -105,7 +104,7 @@ impl Default for SolveOptions {
                 initial_step: 0.0,
             },
             search_newton_tolerance: 1e-5,
-            search_progress: Progress { window: 6, factor: 0.8 },
+            search_progress: Progress { window: 5, factor: 0.8 },
             max_start_work: 4_000_000,
             max_homotopy_work: 3_000_000,
             max_transfer_homotopy_work: 15_000_000,
