@@ -1,8 +1,8 @@
 //! `ground`: the ground-side command line.
 //!
 //! Without PyTorch (`--no-default-features`): trajectories by the indirect method, datasets,
-//! shards and their merge, CCSDS OEM export, the demonstrations' check and the feasibility
-//! classification ([`trajectories`]). With the default `learn` feature, also the learning
+//! shards and their merge, CCSDS OEM export, the demonstrations' check, the cross-check against
+//! the direct transcription and the feasibility classification ([`trajectories`]). With the default `learn` feature, also the learning
 //! commands: pretraining, RL, relabelling rounds, Monte Carlo, export, SIL and the main job
 //! ([`learning`]).
 
@@ -75,6 +75,11 @@ enum Command {
         #[arg(long)]
         all: bool,
     },
+    /// Check the converged records of a dataset against the direct transcription started on its
+    /// own (tangential thrust, the record's cost): exit status 1 when a direct solution that
+    /// reaches the target ends heavier than a record (a worse local optimum) and, with
+    /// --repair, re-solving the record from it did not replace it.
+    Crosscheck(trajectories::CrossCheckArgs),
     /// Classify the unconverged transfer records of a finished dataset run by their minimum time
     /// of flight (infeasible, feasible, or unknown) and rewrite the records, the dataset and the
     /// summaries, which then count the infeasible draws apart (1-5 min of work per record).
@@ -110,6 +115,7 @@ fn main() -> ExitCode {
         Command::Compare { first, second } => trajectories::compare_command(&first, &second),
         Command::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
         Command::Feasibility { out } => trajectories::feasibility_command(&out),
+        Command::Crosscheck(args) => trajectories::crosscheck_command(&args),
         #[cfg(feature = "learn")]
         Command::Learn(command) => learning::run(command),
     };

@@ -296,6 +296,150 @@ pub fn compare_command(first: &Path, second: &Path) -> Result<(), Box<dyn std::e
     }
 }
 
+/// `ground crosscheck`: the converged records of a dataset against the direct transcription.
+#[derive(clap::Args)]
+#[command(allow_negative_numbers = true)]
+pub struct CrossCheckArgs {
+    /// Dataset file, or the folder of a `ground generate` run.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Check the first N converged records (all when absent).
+    #[arg(long)]
+    count: Option<NonZeroUsize>,
+    /// Direct segments per 14-day step of the first mesh.
+    #[arg(long, default_value = "1")]
+    segments_per_step: NonZeroUsize,
+    /// Meshes after the first, each twice as fine (warm-started from the one before).
+    #[arg(long, default_value_t = 0)]
+    refinements: usize,
+    /// A direct final mass above the record's by more than this (fraction of the initial
+    /// mass) marks the record a worse local optimum.
+    #[arg(long, default_value_t = 1e-3)]
+    margin: f64,
+    /// Write one row per record here (CSV; its folder must exist).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Re-solve each transfer record a direct solution beats from that solution, and replace it
+    /// when the result converges heavier by the margin (the dataset and summaries are
+    /// rewritten; --dataset must be a run folder).
+    #[arg(long)]
+    repair: bool,
+}
+
+pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::error::Error>> {
+    use ground_core::crosscheck::{crosscheck_records, write_crosscheck_csv, CrossCheckSettings};
+    use ground_core::generate::crosscheck_run;
+    if !(args.margin.is_finite() && args.margin >= 0.0) {
+        return Err(format!("--margin must be a finite number >= 0, not {}", args.margin).into());
+    }
+    if args.refinements > 4 {
+        return Err(format!(
+            "--refinements {} would solve on 2^{} times the first mesh: at most 4",
+            args.refinements, args.refinements
+        )
+        .into());
+    }
+    if args.repair && (args.count.is_some() || !args.dataset.join("manifest.json").is_file()) {
+        return Err(format!(
+            "--repair rewrites a whole run: --dataset must be the folder of a `ground generate` run (without --count), not {}",
+            args.dataset.display()
+        )
+        .into());
+    }
+    if let Some(csv) = &args.csv {
+        require_parent_folder(csv)?;
+    }
+    let settings = CrossCheckSettings {
+        segments_per_step: args.segments_per_step.get(),
+        refinements: args.refinements,
+        margin: args.margin,
+    };
+    let spacecraft = Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let (checks, repaired) = if args.repair {
+        let run = crosscheck_run(
+            &args.dataset,
+            &spacecraft,
+            &settings,
+            &SolveOptions::default(),
+            true,
+            true,
+        )?;
+        (run.checks, run.repaired)
+    } else {
+        let file = if args.dataset.is_dir() {
+            args.dataset.join("dataset.ltds")
+        } else {
+            args.dataset.clone()
+        };
+        let dataset = read_dataset(&file)?;
+        let checks = crosscheck_records(
+            &dataset.records,
+            args.count.map(NonZeroUsize::get),
+            &spacecraft,
+            &settings,
+            true,
+        );
+        (checks, Vec::new())
+    };
+    if checks.is_empty() {
+        return Err(format!("{}: no converged record to check", args.dataset.display()).into());
+    }
+    if let Some(csv) = &args.csv {
+        write_crosscheck_csv(csv, &checks, settings.margin).map_err(|e| format!("{}: {e}", csv.display()))?;
+    }
+    let flown: Vec<_> = checks
+        .iter()
+        .filter_map(|(_, c)| c.as_ref().ok())
+        .filter(|c| c.direct_flies())
+        .collect();
+    let mut differences: Vec<f64> = flown
+        .iter()
+        .map(|c| c.direct_final_mass - c.indirect_final_mass)
+        .collect();
+    differences.sort_by(f64::total_cmp);
+    let beaten: Vec<_> = flown.iter().filter(|c| c.beats_record(settings.margin)).collect();
+    for c in &beaten {
+        println!(
+            "#{}: the direct solution ends at {:.6} of the initial mass, the record at {:.6} (+{:.4})",
+            c.index,
+            c.direct_final_mass,
+            c.indirect_final_mass,
+            c.direct_final_mass - c.indirect_final_mass
+        );
+    }
+    for (index, before, after) in &repaired {
+        println!("#{index}: repaired, re-solved from the direct solution: {before:.6} -> {after:.6}");
+    }
+    for (index, check) in &checks {
+        if let Err(e) = check {
+            println!("#{index}: the direct solve failed: {e}");
+        }
+    }
+    let median = differences.get(differences.len() / 2).copied().unwrap_or(f64::NAN);
+    println!(
+        "{} records checked on {} segments per step: the direct solution reaches the target on {}, \
+         median direct - indirect final mass {median:+.2e}; {} records beaten by more than {} (worse local optima){}",
+        checks.len(),
+        settings.segments_per_step << settings.refinements,
+        flown.len(),
+        beaten.len(),
+        settings.margin,
+        if args.repair {
+            format!(", {} repaired", repaired.len())
+        } else {
+            String::new()
+        }
+    );
+    let left = beaten.len() - repaired.len();
+    if left == 0 {
+        Ok(())
+    } else {
+        Err(format!("{left} of {} records are worse local optima", checks.len()).into())
+    }
+}
+
 pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error::Error>> {
     use ground_core::demo::{print_mismatch_report, RecordFilter};
     let filter = if all {

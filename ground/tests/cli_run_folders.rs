@@ -1,6 +1,7 @@
-//! The commands that write files (`generate`, `merge`, `oem`, `feasibility`, `solve --plot`)
-//! from the outside: impossible requests, outputs in folders that do not exist and run folders
-//! held by another process are refused with the reason, and leave nothing behind.
+//! The commands that write files (`generate`, `merge`, `oem`, `feasibility`, `crosscheck`,
+//! `solve --plot`) from the outside: impossible requests, outputs in folders that do not exist
+//! and run folders held by another process are refused with the reason, and leave nothing
+//! behind.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -140,5 +141,66 @@ fn run_folders_held_by_another_process_are_refused_and_left_unchanged() {
     assert_refused(&["feasibility", "--out", text(run)], "is in use by another process");
     assert_eq!(snapshot(run), before, "feasibility changed the held folder");
     drop(held);
+    let _ = std::fs::remove_dir_all(&parent);
+}
+
+/// `crosscheck` reads a finished run and writes only its CSV: bad settings and a CSV in a
+/// missing folder are refused before any solve, with nothing created; a good request checks the
+/// converged record and writes one row for it.
+#[test]
+fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
+    let run = finished_run();
+    let parent = scratch("crosscheck");
+    let csv = parent.join("crosscheck.csv");
+    // The dataset alone: another test holds the shared run (its lock file) meanwhile.
+    let dataset = run.join("dataset.ltds");
+    let before = std::fs::read(&dataset).unwrap();
+    for (extra, needle) in [
+        (&["--count", "0"][..], "--count"),
+        (&["--segments-per-step", "0"][..], "--segments-per-step"),
+        (&["--margin", "-1"][..], "--margin must be"),
+        (&["--margin", "NaN"][..], "--margin must be"),
+        (&["--refinements", "9"][..], "at most 4"),
+    ] {
+        let mut args = vec!["crosscheck", "--dataset", text(run), "--csv", text(&csv)];
+        args.extend_from_slice(extra);
+        assert_refused(&args, needle);
+        assert!(!csv.exists(), "{extra:?}: the refused check wrote {}", csv.display());
+    }
+    // --repair rewrites a run: a dataset file, or a part of the run, is not one.
+    for args in [
+        &[
+            "crosscheck",
+            "--dataset",
+            &format!("{}/dataset.ltds", text(run)),
+            "--repair",
+        ][..],
+        &["crosscheck", "--dataset", text(run), "--repair", "--count", "1"][..],
+    ] {
+        assert_refused(args, "--repair rewrites a whole run");
+    }
+    assert!(
+        std::fs::read(&dataset).unwrap() == before,
+        "a refused repair changed the dataset"
+    );
+    let missing = parent.join("missing").join("crosscheck.csv");
+    assert_refused(
+        &["crosscheck", "--dataset", text(run), "--csv", text(&missing)],
+        "is not an existing folder",
+    );
+    assert!(!missing.parent().unwrap().exists());
+    let out = ground(&["crosscheck", "--dataset", text(run), "--csv", text(&csv)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: Vec<String> = std::fs::read_to_string(&csv)
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    assert_eq!(rows.len(), 2, "{rows:?}");
+    assert!(rows[1].starts_with("0,"), "{rows:?}");
+    assert!(
+        std::fs::read(&dataset).unwrap() == before,
+        "crosscheck changed the dataset"
+    );
     let _ = std::fs::remove_dir_all(&parent);
 }

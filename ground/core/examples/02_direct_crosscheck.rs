@@ -13,9 +13,11 @@
 //! cargo run --release -p lowthrust-ground-core --example 02_direct_crosscheck -- --scenario transfer-hard --seed 1 --index 1
 //! cargo run --release -p lowthrust-ground-core --example 02_direct_crosscheck -- --start indirect --segments-per-step 1
 //! ```
+//!
+//! `ground crosscheck` runs the same check (tangential start) over every record of a dataset.
 
 use clap::{Parser, ValueEnum};
-use ground_core::solver::direct::{solve_direct, DirectGuess, DirectOptions, DirectSolution};
+use ground_core::solver::direct::{solve_direct_refined, DirectGuess, DirectOptions, DirectSolution};
 use ground_core::solver::pontryagin::OptimalControlParams;
 use ground_core::solver::record::{sample_at, TrajectoryRecord};
 use ground_core::solver::shooting::initial_state_costate;
@@ -118,21 +120,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let options = DirectOptions::default();
     let k0 = args.segments_per_step * scenario.steps as usize;
-    let mut guess = match args.start {
+    let guess = match args.start {
         Start::Tangential => DirectGuess::tangential(&scenario, &spacecraft, k0, 0.5, &options.tolerances)?,
         Start::Indirect => indirect_guess(&record, &spacecraft, k0)?,
     };
-    let mut masses = Vec::new();
-    for _ in 0..args.levels {
-        let solution = solve_direct(&scenario, &spacecraft, &guess, eps, &options)?;
-        print_direct(&solution, record.final_mass);
-        masses.push(solution.final_mass);
-        guess = DirectGuess {
-            controls: solution.controls,
-            nu_f: solution.nu_f.unwrap_or(0.0),
-        }
-        .refined(2);
+    let solutions = solve_direct_refined(&scenario, &spacecraft, guess, args.levels - 1, eps, &options)?;
+    for solution in &solutions {
+        print_direct(solution, record.final_mass);
     }
+    let masses: Vec<f64> = solutions.iter().map(|s| s.final_mass).collect();
     // Richardson extrapolation of the last three meshes: the mesh-converged direct mass.
     if let [.., a, b, c] = masses[..] {
         let order = ((b - a) / (c - b)).abs().log2();

@@ -21,7 +21,9 @@ use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
+use crate::crosscheck::{crosscheck_records, repair_record, CrossCheck, CrossCheckSettings};
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
+use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
@@ -272,22 +274,11 @@ pub fn classify_run(
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> Result<Summary, GenerateError> {
-    let manifest_path = out.join("manifest.json");
-    let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
-    let manifest: Manifest =
-        serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-    if manifest.count == 0 {
-        return Err(GenerateError::EmptyCount);
-    }
-    let _held = RunLock::acquire(out)?;
-    // Every record is read before any is classified: a missing or corrupt one (a shard's
-    // folder, an unfinished run) refuses the run before minutes of work and any rewrite.
-    let records = (0..manifest.count)
-        .map(|index| read_record(&record_path(out, index)).map(|record| (index, record)))
-        .collect::<Result<Vec<_>, _>>()?;
+    let (_held, manifest, records) = hold_whole_run(out)?;
     let results: Vec<Result<TrajectoryRecord, GenerateError>> = records
         .into_par_iter()
-        .map(|(index, mut record)| {
+        .map(|mut record| {
+            let index = record.index;
             let path = record_path(out, index);
             let scenario = manifest.scenario.draw(manifest.seed, index);
             if classify_failure(&mut record, &scenario, spacecraft, options) {
@@ -307,6 +298,104 @@ pub fn classify_run(
             records,
         },
     )
+}
+
+/// What [`crosscheck_run`] found and did.
+#[derive(Debug)]
+pub struct CrossCheckRun {
+    /// Every converged record of the run as it was, against the direct transcription.
+    pub checks: Vec<(u64, Result<CrossCheck, DirectError>)>,
+    /// The records replaced: index, final mass before and after.
+    pub repaired: Vec<(u64, f64, f64)>,
+    /// The dataset's summary after the repairs (`None` without `repair`).
+    pub summary: Option<Summary>,
+}
+
+/// Opt-in after a (whole) run in `out`: checks every converged record against the direct
+/// transcription started on its own ([`crosscheck_records`]). With `repair`, every transfer
+/// record a direct solution beats is re-solved from it ([`repair_record`]); a converged result
+/// heavier by the margin replaces the record, and the dataset and summaries are rewritten. `out` is held for the
+/// whole work; nothing is written without `repair`.
+pub fn crosscheck_run(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &SolveOptions,
+    repair: bool,
+    show_progress: bool,
+) -> Result<CrossCheckRun, GenerateError> {
+    let (_held, manifest, mut records) = hold_whole_run(out)?;
+    let checks = crosscheck_records(&records, None, spacecraft, settings, show_progress);
+    if !repair {
+        return Ok(CrossCheckRun {
+            checks,
+            repaired: Vec::new(),
+            summary: None,
+        });
+    }
+    let beaten: Vec<usize> = checks
+        .iter()
+        .filter(|(_, c)| matches!(c, Ok(c) if c.beats_record(settings.margin)))
+        .filter_map(|(index, _)| records.iter().position(|r| r.index == *index))
+        .collect();
+    let repairs: Vec<(usize, Option<TrajectoryRecord>)> = beaten
+        .into_par_iter()
+        .map(|i| (i, repair_record(&records[i], spacecraft, settings, options)))
+        .collect();
+    let mut repaired = Vec::new();
+    for (i, new) in repairs {
+        if let Some(new) = new {
+            let path = record_path(out, new.index);
+            let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &new)
+                .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+            atomic_write(&path, &bytes).map_err(io_err(&path))?;
+            repaired.push((new.index, records[i].final_mass, new.final_mass));
+            records[i] = new;
+        }
+    }
+    let summary = write_outputs(
+        out,
+        &DatasetFile {
+            manifest,
+            shard: Shard::WHOLE,
+            records,
+        },
+    )?;
+    Ok(CrossCheckRun {
+        checks,
+        repaired,
+        summary: Some(summary),
+    })
+}
+
+/// Holds the whole run in `out` and reads its manifest and every record, in index order. The
+/// manifest is read first, so a folder that holds no run is refused and left as it was; every
+/// record is read before any work, so a missing or corrupt one (a shard's folder, an unfinished
+/// run) refuses the run before minutes of work and any rewrite.
+fn hold_whole_run(out: &Path) -> Result<(RunLock, Manifest, Vec<TrajectoryRecord>), GenerateError> {
+    let manifest_path = out.join("manifest.json");
+    let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
+    let manifest: Manifest =
+        serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+    if manifest.count == 0 {
+        return Err(GenerateError::EmptyCount);
+    }
+    let held = RunLock::acquire(out)?;
+    let records = (0..manifest.count)
+        .map(|index| read_record(&record_path(out, index)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((held, manifest, records))
+}
+
+/// A bar over `len` items with their count, a message and the time left ("{len} {what}, ...");
+/// hidden without `show`.
+pub(crate) fn count_bar(len: usize, what: &str, show: bool) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let template = format!("{{bar:40}} {{pos}}/{{len}} {what}, {{msg}} [{{elapsed_precise}} < {{eta_precise}}]");
+    ProgressBar::new(len as u64)
+        .with_style(ProgressStyle::with_template(&template).unwrap_or_else(|_| ProgressStyle::default_bar()))
 }
 
 fn record_path(out: &Path, index: u64) -> PathBuf {
@@ -487,15 +576,7 @@ pub fn generate_in(
         atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
     }
     let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
-    let bar = if show_progress {
-        ProgressBar::new(indices.len() as u64)
-    } else {
-        ProgressBar::hidden()
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} solved, {msg} [{elapsed_precise} < {eta_precise}]")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    let bar = count_bar(indices.len(), "solved", show_progress);
     let resumed = AtomicUsize::new(0);
     let converged = AtomicUsize::new(0);
     let results: Vec<Result<TrajectoryRecord, GenerateError>> = indices
@@ -653,5 +734,58 @@ mod tests {
         assert_eq!((s.converged, s.infeasible), (2, 1));
         assert!((s.convergence_rate - 0.5).abs() < 1e-15);
         assert!((s.feasible_convergence_rate - 2.0 / 3.0).abs() < 1e-15);
+    }
+
+    /// A run whose record is made a worse local optimum (its final mass lowered by 0.01, as a
+    /// record from another start would be): the check flags it, the repair re-solves it from the
+    /// direct solution and puts back the optimum (the record as solved, its seconds aside), and
+    /// the dataset and summary follow. A second pass finds nothing to repair.
+    #[test]
+    fn crosscheck_run_repairs_a_worse_record_and_rewrites_the_dataset() {
+        use shared::spacecraft::Spacecraft;
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let out = std::env::temp_dir().join(format!("lowthrust-repair-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&out);
+        let manifest = Manifest {
+            scenario: ScenarioKind::TransferHard,
+            seed: 7,
+            count: 1,
+        };
+        let options = SolveOptions::default();
+        generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
+        let optimum = read_record(&record_path(&out, 0)).unwrap();
+        assert!(optimum.converged);
+        let worse = TrajectoryRecord {
+            final_mass: optimum.final_mass - 0.01,
+            ..optimum.clone()
+        };
+        let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &worse).unwrap();
+        atomic_write(&record_path(&out, 0), &bytes).unwrap();
+
+        let settings = CrossCheckSettings::default();
+        let run = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
+        assert!(
+            matches!(&run.checks[0].1, Ok(c) if c.beats_record(settings.margin)),
+            "{:?}",
+            run.checks
+        );
+        assert_eq!(run.repaired.len(), 1, "{:?}", run.repaired);
+        let (index, before, after) = run.repaired[0];
+        assert_eq!((index, before), (0, worse.final_mass));
+        assert!(
+            (after - optimum.final_mass).abs() < 1e-9,
+            "{after} vs {}",
+            optimum.final_mass
+        );
+        let repaired = read_record(&record_path(&out, 0)).unwrap();
+        assert_eq!(repaired.final_mass, after);
+        assert!(repaired.seconds > worse.seconds);
+        let dataset = read_dataset(&dataset_path(&out, Shard::WHOLE)).unwrap();
+        assert_eq!(dataset.records[0].final_mass, after);
+        assert_eq!(run.summary.unwrap().converged, 1);
+
+        let again = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
+        assert!(again.repaired.is_empty());
+        fs::remove_dir_all(&out).unwrap();
     }
 }

@@ -5,6 +5,7 @@
 //! builds on it.
 
 pub mod charts;
+pub mod crosscheck;
 pub mod demo;
 pub mod env;
 pub mod generate;

@@ -282,6 +282,10 @@ pub struct DirectOptions {
     /// the terminal violation by a tenth: the thrust cannot grow, so the time of flight is
     /// (by this evidence) too short. `None` runs to `max_iterations`.
     pub full_throttle_window: Option<usize>,
+    /// Stop, at any throttle, once the terminal violation has stayed above
+    /// [`STAGNANT_VIOLATION`] and within 10 % of its smallest value for this many iterations.
+    /// `None` runs to `max_iterations`.
+    pub stagnation_window: Option<usize>,
     /// Print one line per iteration on stderr.
     pub verbose: bool,
 }
@@ -301,6 +305,7 @@ impl Default for DirectOptions {
             feasibility: 1e-9,
             optimality: 1e-9,
             full_throttle_window: None,
+            stagnation_window: None,
             verbose: false,
         }
     }
@@ -840,6 +845,17 @@ pub fn solve_direct(
                 break;
             }
         }
+        if let Some(window) = options.stagnation_window {
+            // Flat, not merely not falling: the l1-penalty SQP may let the violation rise for
+            // a while as it lowers the cost (seed 7 #50 below), and then it is still moving.
+            let recent = &history[history.len().saturating_sub(window + 1)..];
+            let (low, high) = recent.iter().fold((f64::INFINITY, 0.0f64), |(low, high), h| {
+                (low.min(h.infeasibility), high.max(h.infeasibility))
+            });
+            if recent.len() > window && low > STAGNANT_VIOLATION && high < 1.1 * low {
+                break;
+            }
+        }
         if options.verbose {
             eprintln!(
                 "direct K={kk} eps {eps:.2e} it {iterations:3}: m_f {:.10} |psi| {:.2e} radius {radius:.2e} ratio {ratio:.3} pred {:.2e} mu {penalty:.1e} {:?}",
@@ -872,6 +888,50 @@ pub fn solve_direct(
     })
 }
 
+/// Solves the direct problem on `guess`'s mesh and then on `refinements` meshes, each twice as
+/// fine and warm-started from the one before: one solution per mesh, coarsest first.
+pub fn solve_direct_refined(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    guess: DirectGuess,
+    refinements: usize,
+    eps: f64,
+    options: &DirectOptions,
+) -> Result<Vec<DirectSolution>, DirectError> {
+    let mut guess = guess;
+    let mut solutions: Vec<DirectSolution> = Vec::with_capacity(refinements + 1);
+    for _ in 0..=refinements {
+        if let Some(coarser) = solutions.last() {
+            guess = DirectGuess {
+                controls: coarser.controls.clone(),
+                nu_f: coarser.nu_f.unwrap_or(0.0),
+            }
+            .refined(2);
+        }
+        solutions.push(solve_direct(scenario, sc, &guess, eps, options)?);
+    }
+    Ok(solutions)
+}
+
+/// The stagnation window leaves a terminal violation at or below this alone: the problem is
+/// nearly feasible there and may still converge.
+pub const STAGNANT_VIOLATION: f64 = 1e-6;
+
+/// The settings of [`indirect_start`]'s direct solve.
+fn start_options() -> DirectOptions {
+    DirectOptions {
+        // A start needs the multipliers of a stationary point, not the last digits of the cost.
+        optimality: 1e-7,
+        // Most draws that get here have too short a time of flight: they end at full throttle
+        // with the violation stuck, which used to take up to 200 iterations.
+        full_throttle_window: Some(10),
+        // The rest mostly stall at partial throttle with a violation of 1e-3-1e-1, which took
+        // up to 200 iterations and 2-4 s each (measured on 1,000 draws: every start kept).
+        stagnation_window: Some(20),
+        ..DirectOptions::default()
+    }
+}
+
 /// A segment's throttle above this counts as full.
 const FULL_THROTTLE: f64 = 1.0 - 1e-6;
 
@@ -889,17 +949,21 @@ pub fn indirect_start(
     scenario: &Scenario,
     sc: &CanonicalSpacecraft,
 ) -> Result<([f64; STATE], Option<f64>), DirectError> {
-    let options = DirectOptions {
-        // A start needs the multipliers of a stationary point, not the last digits of the cost.
-        optimality: 1e-7,
-        // Most draws that get here have too short a time of flight: they end at full throttle
-        // with the violation stuck, which used to take up to 200 iterations.
-        full_throttle_window: Some(10),
-        ..DirectOptions::default()
-    };
     let segments = START_SEGMENTS_PER_STEP * scenario.steps as usize;
-    let guess = DirectGuess::tangential(scenario, sc, segments, 0.5, &options.tolerances)?;
-    let solution = solve_direct(scenario, sc, &guess, 1.0, &options)?;
+    let guess = DirectGuess::tangential(scenario, sc, segments, 0.5, &start_options().tolerances)?;
+    indirect_start_from(scenario, sc, &guess)
+}
+
+/// [`indirect_start`] from `guess` instead of tangential thrust: a direct solution of another
+/// cost (eps) or mesh leads the energy-optimal problem, and so the homotopy, into its basin.
+pub fn indirect_start_from(
+    scenario: &Scenario,
+    sc: &CanonicalSpacecraft,
+    guess: &DirectGuess,
+) -> Result<([f64; STATE], Option<f64>), DirectError> {
+    let options = start_options();
+    let segments = guess.controls.len();
+    let solution = solve_direct(scenario, sc, guess, 1.0, &options)?;
     match solution.initial_costates {
         Some(costates) if solution.onboard_infeasibility < 1e-8 => Ok((costates, solution.nu_f)),
         _ => {
@@ -1186,6 +1250,42 @@ mod tests {
             Err(DirectError::NoStart { full_throttle, .. }) => assert_eq!(full_throttle, 100.0),
             other => panic!("{other:?}"),
         }
+    }
+
+    /// Transfer-hard seed 9 #538 has no energy-optimal start either, but its direct problem
+    /// stalls at partial throttle. The stagnation window stops it early at a violation of the
+    /// same size (measured: 25 and 200 iterations, 7.7e-2 both); the start of a feasible draw
+    /// (seed 7 #50 below) still converges with it.
+    #[test]
+    fn a_stalled_violation_at_partial_throttle_stops_the_direct_start() {
+        use shared::scenario::ScenarioKind;
+        let scenario = ScenarioKind::TransferHard.draw(9, 538);
+        let segments = START_SEGMENTS_PER_STEP * scenario.steps as usize;
+        let guess = DirectGuess::tangential(&scenario, &sc(), segments, 0.5, &tol()).unwrap();
+        let solve = |stagnation_window| {
+            let options = DirectOptions {
+                full_throttle_window: Some(10),
+                stagnation_window,
+                ..DirectOptions::default()
+            };
+            solve_direct(&scenario, &sc(), &guess, 1.0, &options).unwrap()
+        };
+        let (windowed, unbounded) = (solve(Some(20)), solve(None));
+        for s in [&windowed, &unbounded] {
+            assert!(!s.converged && !s.controls.iter().all(|c| c[2] > FULL_THROTTLE));
+        }
+        assert!(
+            windowed.iterations < unbounded.iterations / 2,
+            "{} vs {}",
+            windowed.iterations,
+            unbounded.iterations
+        );
+        assert!(
+            (0.5..2.0).contains(&(windowed.infeasibility / unbounded.infeasibility)),
+            "{} vs {}",
+            windowed.infeasibility,
+            unbounded.infeasibility
+        );
     }
 
     /// Seed 7 transfer-hard #50 (TOF 1,070 d, half the mass spent), a draw on which the
