@@ -23,7 +23,7 @@ use ground_core::solver::bangbang::Hohmann;
 use ground_core::solver::min_time::{
     classify_transfer, multistart_extremals, reflown_extremal, Feasibility, MinTimeVector,
 };
-use ground_core::solver::{solve_transfer_from_start, SolveOptions};
+use ground_core::solver::{solve_from_energy_start, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -181,7 +181,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     if let (true, Feasibility::Recovered { z }) = (args.solve, &verdict) {
-        let record = solve_transfer_from_start(kind, args.seed, args.index, &scenario, &spacecraft, &options, *z);
+        let record = solve_from_energy_start(kind, args.seed, args.index, &scenario, &spacecraft, &options, *z);
         println!(
             "\nfuel-optimal from the recovered start: converged {}, m_f {:.6}, eps {:.2e}, {} arcs, {:.1} s{}",
             record.converged,

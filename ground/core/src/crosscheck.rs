@@ -7,7 +7,7 @@
 //! optimum. The converse is no proof: the direct method has local optima of its own, and its mesh
 //! costs it a little propellant (about 6e-4 of the initial mass on 1 segment per step).
 //!
-//! A transfer record so beaten is repaired ([`repair_record`]) from the direct solution that
+//! A record so beaten is repaired ([`repair_record`]) from the direct solution that
 //! beats it: that control leads the energy-optimal direct problem into its basin, whose
 //! multipliers start the indirect homotopy again.
 
@@ -24,8 +24,7 @@ use crate::solver::direct::{
 };
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::shooting::TransferVector;
-use crate::solver::{solve_transfer_from_start, SolveOptions};
-use shared::scenario::ProblemKind;
+use crate::solver::{solve_from_energy_start, SolveOptions};
 
 /// A direct solution re-flown by the onboard propagator within this terminal violation
 /// (canonical units, about 15 km and 3 cm/s) reaches the target.
@@ -130,11 +129,11 @@ pub fn crosscheck_record(
     })
 }
 
-/// Re-solves a transfer record that the direct solution beats ([`CrossCheck::beats_record`])
+/// Re-solves a record that the direct solution beats ([`CrossCheck::beats_record`])
 /// from that solution: its control, solved again at eps = 1 on the same mesh, gives the
 /// costates that start the indirect homotopy. The new record, with the seconds of both solves,
-/// when it converges and ends heavier than `record` by the margin; `None` otherwise, and for a record the
-/// direct solution does not beat or a rendezvous. Transfer-circular records are rarely repaired:
+/// when it converges and ends heavier than `record` by the margin; `None` otherwise, and for a
+/// record the direct solution does not beat. Transfer-circular records are rarely repaired:
 /// their homotopy from such a start stalls (measured on 8 of 8 draws; the generator solves them
 /// on a near-circular path instead).
 pub fn repair_record(
@@ -144,7 +143,7 @@ pub fn repair_record(
     options: &SolveOptions,
 ) -> Option<TrajectoryRecord> {
     let clock = std::time::Instant::now();
-    if record.scenario.problem != ProblemKind::Transfer || !record.converged {
+    if !record.converged {
         return None;
     }
     let solutions = solve_alone(record, spacecraft, settings, &DirectOptions::default()).ok()?;
@@ -154,15 +153,16 @@ pub fn repair_record(
     if !beats {
         return None;
     }
+    // A rendezvous has no final anomaly among its unknowns (nu_f is 0 and unused).
     let guess = DirectGuess {
         controls: finest.controls.clone(),
-        nu_f: finest.nu_f?,
+        nu_f: finest.nu_f.unwrap_or(0.0),
     };
     let (costates, nu_f) = indirect_start_from(&record.scenario, spacecraft, &guess).ok()?;
     let mut start = TransferVector::zeros();
     start.fixed_rows_mut::<5>(0).copy_from_slice(&costates);
-    start[5] = nu_f?;
-    let repaired = solve_transfer_from_start(
+    start[5] = nu_f.unwrap_or(0.0);
+    let repaired = solve_from_energy_start(
         record.kind,
         record.seed,
         record.index,
@@ -316,5 +316,29 @@ mod tests {
         );
         assert!(repaired.final_mass > record.final_mass + 0.02);
         assert_eq!(repair_record(&repaired, &sc, &settings, &SolveOptions::default()), None);
+    }
+
+    /// A rendezvous likewise: rendezvous-circular seed 7 #85, whose record (0.5698) is far below
+    /// what the direct transcription reaches (0.7375), is re-solved onto the better optimum
+    /// (0.7379), with the body met: the record converges, its residual small.
+    #[test]
+    fn a_worse_rendezvous_record_is_repaired_too() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let record = solve_scenario(kind, 7, 85, &kind.draw(7, 85), &sc, &SolveOptions::default());
+        assert!(record.converged, "{:?}", record.failure);
+        let settings = CrossCheckSettings::default();
+        let check = crosscheck_record(&record, &sc, &settings, &DirectOptions::default()).unwrap();
+        assert!(check.beats_record(settings.margin), "{check:?}");
+        let repaired = repair_record(&record, &sc, &settings, &SolveOptions::default()).unwrap();
+        assert!(repaired.converged && repaired.residual < 1e-8);
+        assert!(repaired.final_anomaly.is_none());
+        let above_direct = repaired.final_mass - check.direct_final_mass;
+        assert!(
+            (0.0..1e-3).contains(&above_direct),
+            "{} vs {}",
+            repaired.final_mass,
+            check.direct_final_mass
+        );
     }
 }

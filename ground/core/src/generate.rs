@@ -26,7 +26,7 @@ use crate::io::{atomic_write, decode_container, encode_container, ContainerError
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
-use crate::solver::{solve_scenario, solve_transfer_from_start, SolveOptions};
+use crate::solver::{solve_from_energy_start, solve_scenario, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
 const DATASET_MAGIC: [u8; 4] = *b"LTDS";
@@ -246,7 +246,7 @@ pub fn classify_failure(
         Feasibility::Recovered { z } => {
             // The homotopy from the recovered start: a converged record replaces the failure.
             let solved =
-                solve_transfer_from_start(record.kind, record.seed, record.index, scenario, spacecraft, options, z);
+                solve_from_energy_start(record.kind, record.seed, record.index, scenario, spacecraft, options, z);
             if solved.converged {
                 let seconds = record.seconds + clock.elapsed().as_secs_f64();
                 *record = TrajectoryRecord { seconds, ..solved };

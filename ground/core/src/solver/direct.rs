@@ -1295,13 +1295,13 @@ mod tests {
     #[test]
     fn transfer_hard_seed_7_draw_50_converges_from_the_direct_start() {
         use super::super::shooting::TransferVector;
-        use super::super::{solve_transfer_from_start, SolveOptions};
+        use super::super::{solve_from_energy_start, SolveOptions};
         use shared::scenario::ScenarioKind;
         let kind = ScenarioKind::TransferHard;
         let scenario = kind.draw(7, 50);
         let (l, nu_f) = indirect_start(&scenario, &sc()).unwrap();
         let start = TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap()]);
-        let rec = solve_transfer_from_start(kind, 7, 50, &scenario, &sc(), &SolveOptions::default(), start);
+        let rec = solve_from_energy_start(kind, 7, 50, &scenario, &sc(), &SolveOptions::default(), start);
         assert!(rec.converged && rec.residual < 1e-8, "{:?}", rec.failure);
         let guess = DirectGuess::tangential(&scenario, &sc(), 4 * scenario.steps as usize, 0.5, &tol()).unwrap();
         let direct = solve_direct(&scenario, &sc(), &guess, 0.0, &DirectOptions::default()).unwrap();

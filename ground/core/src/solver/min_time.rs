@@ -891,7 +891,7 @@ mod tests {
         assert!(f.amax() < 1e-8, "eps = 1 residual at the TOF {f}");
         // And the homotopy from it reaches the final eps: the draw converges.
         let kind = ScenarioKind::TransferHard;
-        let record = crate::solver::solve_transfer_from_start(kind, 7, 47, &scenario, &sc, &options, start);
+        let record = crate::solver::solve_from_energy_start(kind, 7, 47, &scenario, &sc, &options, start);
         assert!(record.converged, "{:?}", record.failure);
         assert!(
             record.final_mass > 0.55 && record.final_mass < 0.65,

@@ -164,11 +164,11 @@ pub fn solve_scenario(
     solve_scenario_from(kind, seed, index, scenario, spacecraft, options, None)
 }
 
-/// [`solve_scenario`] for a transfer, with `energy_start` (costates and nu_f solving the
-/// eps = 1 problem, found elsewhere: the time-of-flight continuation of
-/// [`min_time::classify_transfer`]) as the only start of the homotopy instead of the
-/// multi-start, and no near-circular path.
-pub fn solve_transfer_from_start(
+/// [`solve_scenario`] with `energy_start` (costates, and for a transfer nu_f in its last row,
+/// solving the eps = 1 problem, found elsewhere: the time-of-flight continuation of
+/// [`min_time::classify_transfer`], a direct solution in [`crate::crosscheck::repair_record`])
+/// as the only start of the homotopy instead of the multi-start, and no near-circular path.
+pub fn solve_from_energy_start(
     kind: ScenarioKind,
     seed: u64,
     index: u64,
@@ -288,14 +288,15 @@ fn solve_scenario_from(
             };
             // The transfer guesses without their final anomaly, duplicates removed.
             let mut guesses: Vec<RendezvousVector> = Vec::new();
-            for g in transfer_guesses(scenario) {
+            let all = energy_start.map_or_else(|| transfer_guesses(scenario), |z| vec![z]);
+            for g in all {
                 let r = RendezvousVector::from_column_slice(&g.as_slice()[..RENDEZVOUS_UNKNOWNS]);
                 if !guesses.contains(&r) {
                     guesses.push(r);
                 }
             }
             let mut solved = solve_problem(&problem, scenario, spacecraft, guesses, options);
-            if matches!(solved, Err((_, 0))) {
+            if matches!(solved, Err((_, 0))) && energy_start.is_none() {
                 match continuation::rendezvous_start_either_way(scenario, spacecraft, options) {
                     Ok(z) => solved = solve_problem(&problem, scenario, spacecraft, vec![z], options),
                     Err((shorter, longer)) => {
@@ -308,9 +309,11 @@ fn solve_scenario_from(
                     }
                 }
             }
-            solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, _| {
-                RendezvousVector::from_column_slice(&l)
-            });
+            if energy_start.is_none() {
+                solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, _| {
+                    RendezvousVector::from_column_slice(&l)
+                });
+            }
             solved.map(|s| {
                 let z = s.level.outcome.z;
                 let padded = TransferVector::from_column_slice(&[z[0], z[1], z[2], z[3], z[4], 0.0]);
@@ -733,7 +736,7 @@ mod tests {
         };
         let at_start = problem.residual_only(1.0, &start, &options.tolerances).unwrap();
         assert!(at_start.amax() < 1e-8, "eps = 1 residual of the start {at_start}");
-        let record = solve_transfer_from_start(kind, 7, 12, &scenario, &sc, &options, start);
+        let record = solve_from_energy_start(kind, 7, 12, &scenario, &sc, &options, start);
         assert!(record.converged, "{:?}", record.failure);
         let mut z = TransferVector::zeros();
         z.as_mut_slice()[..5].copy_from_slice(&record.costates);
