@@ -282,9 +282,7 @@ pub fn classify_run(
             let path = record_path(out, index);
             let scenario = manifest.scenario.draw(manifest.seed, index);
             if classify_failure(&mut record, &scenario, spacecraft, options) {
-                let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
-                    .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
-                atomic_write(&path, &bytes).map_err(io_err(&path))?;
+                write_record(&path, &record)?;
             }
             Ok(record)
         })
@@ -312,10 +310,10 @@ pub struct CrossCheckRun {
 }
 
 /// Opt-in after a (whole) run in `out`: checks every converged record against the direct
-/// transcription started on its own ([`crosscheck_records`]). With `repair`, every transfer
-/// record a direct solution beats is re-solved from it ([`repair_record`]); a converged result
-/// heavier by the margin replaces the record, and the dataset and summaries are rewritten. `out` is held for the
-/// whole work; nothing is written without `repair`.
+/// transcription started on its own ([`crosscheck_records`]). With `repair`, every record a
+/// direct solution beats is re-solved from it ([`repair_record`]); a converged result heavier
+/// by the margin replaces the record, and the dataset and summaries are rewritten. `out` is
+/// held for the whole work; nothing is written without `repair`.
 pub fn crosscheck_run(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -333,25 +331,22 @@ pub fn crosscheck_run(
             summary: None,
         });
     }
-    let beaten: Vec<usize> = checks
+    // Records are in index order from 0 (hold_whole_run): a check's index is its position.
+    let beaten: Vec<&CrossCheck> = checks
         .iter()
-        .filter(|(_, c)| matches!(c, Ok(c) if c.beats_record(settings.margin)))
-        .filter_map(|(index, _)| records.iter().position(|r| r.index == *index))
+        .filter_map(|(_, c)| c.as_ref().ok())
+        .filter(|c| c.beats_record(settings.margin))
         .collect();
-    let repairs: Vec<(usize, Option<TrajectoryRecord>)> = beaten
+    let repairs: Vec<TrajectoryRecord> = beaten
         .into_par_iter()
-        .map(|i| (i, repair_record(&records[i], spacecraft, settings, options)))
+        .filter_map(|c| repair_record(&records[c.index as usize], c, spacecraft, settings.margin, options))
         .collect();
     let mut repaired = Vec::new();
-    for (i, new) in repairs {
-        if let Some(new) = new {
-            let path = record_path(out, new.index);
-            let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &new)
-                .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
-            atomic_write(&path, &bytes).map_err(io_err(&path))?;
-            repaired.push((new.index, records[i].final_mass, new.final_mass));
-            records[i] = new;
-        }
+    for new in repairs {
+        write_record(&record_path(out, new.index), &new)?;
+        let old = &mut records[new.index as usize];
+        repaired.push((new.index, old.final_mass, new.final_mass));
+        *old = new;
     }
     let summary = write_outputs(
         out,
@@ -400,6 +395,13 @@ pub(crate) fn count_bar(len: usize, what: &str, show: bool) -> ProgressBar {
 
 fn record_path(out: &Path, index: u64) -> PathBuf {
     out.join("records").join(format!("{index:08}.rec"))
+}
+
+/// Writes one record, checksummed, atomically.
+fn write_record(path: &Path, record: &TrajectoryRecord) -> Result<(), GenerateError> {
+    let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, record)
+        .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))?;
+    atomic_write(path, &bytes).map_err(io_err(path))
 }
 
 fn read_record(path: &Path) -> Result<TrajectoryRecord, GenerateError> {
@@ -593,9 +595,7 @@ pub fn generate_in(
             }
             let scenario = manifest.scenario.draw(manifest.seed, index);
             let record = solve_scenario(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
-            let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &record)
-                .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
-            atomic_write(&path, &bytes).map_err(io_err(&path))?;
+            write_record(&path, &record)?;
             if record.converged {
                 converged.fetch_add(1, Ordering::Relaxed);
             }
@@ -759,8 +759,7 @@ mod tests {
             final_mass: optimum.final_mass - 0.01,
             ..optimum.clone()
         };
-        let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, &worse).unwrap();
-        atomic_write(&record_path(&out, 0), &bytes).unwrap();
+        write_record(&record_path(&out, 0), &worse).unwrap();
 
         let settings = CrossCheckSettings::default();
         let run = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();

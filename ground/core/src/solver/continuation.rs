@@ -127,8 +127,8 @@ where
 }
 
 /// `z`, solved at eps = 1 by [`solve_at`], solved again at the full accuracy
-/// ([`SolveOptions::tolerances`] and [`SolveOptions::start_newton`]) within the same budget; `z`
-/// itself if that does not converge (the multi-start then searches from it).
+/// ([`SolveOptions::start_tolerances`] and [`SolveOptions::start_newton`]) within the same
+/// budget; `z` itself if that does not converge (the multi-start then searches from it).
 pub(super) fn polish<P: ShootingProblem<K>, const K: usize>(
     problem: &P,
     z: SVector<f64, K>,
@@ -139,11 +139,15 @@ pub(super) fn polish<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
-    let tolerances = Tolerances {
-        max_steps: options.start_max_steps,
-        ..options.tolerances
-    };
-    newton_within(problem, &z, &tolerances, &options.start_newton, start, work).unwrap_or(z)
+    newton_within(
+        problem,
+        &z,
+        &options.start_tolerances(),
+        &options.start_newton,
+        start,
+        work,
+    )
+    .unwrap_or(z)
 }
 
 fn newton_within<P: ShootingProblem<K>, const K: usize>(

@@ -69,6 +69,17 @@ pub struct SolveOptions {
     pub max_transfer_homotopy_work: u64,
 }
 
+impl SolveOptions {
+    /// Integration tolerances of an energy-optimal start solved (or polished) at the full
+    /// accuracy: [`Self::tolerances`] with the starts' step cap.
+    pub fn start_tolerances(&self) -> Tolerances {
+        Tolerances {
+            max_steps: self.start_max_steps,
+            ..self.tolerances
+        }
+    }
+}
+
 impl Default for SolveOptions {
     fn default() -> Self {
         Self {
@@ -516,10 +527,7 @@ where
         progress: Some(options.search_progress),
         ..options.start_newton
     };
-    let polish_tolerances = Tolerances {
-        max_steps: options.start_max_steps,
-        ..options.tolerances
-    };
+    let polish_tolerances = options.start_tolerances();
     // Every converged start, with the final mass of its energy-optimal trajectory: distinct
     // local optima (revolution counts, burn splits) show up as distinct masses.
     let mut starts: Vec<(SVector<f64, K>, f64)> = Vec::new();
