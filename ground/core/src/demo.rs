@@ -38,7 +38,7 @@ use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
 use crate::env::batch::Stats;
-use crate::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
@@ -303,11 +303,14 @@ impl Placement {
     }
 }
 
-/// Relabels a transfer state (DAgger-style): the fuel-optimal rest of `episode` re-solved by the
-/// indirect method from `state` at step `step`, as a record and its [`Placement`]. `None` when
-/// the state has no orbit (not bound) or the step leaves no flight. The rest is solved as a
-/// general transfer (kind transfer-hard: a near-circular rest that the near-circular path cannot
-/// solve falls back to the general one); seed and index are the caller's, for tracing.
+/// Relabels a state a policy visited (DAgger-style): the fuel-optimal rest of `episode`
+/// re-solved by the indirect method from `state` at step `step`, as a record and its
+/// [`Placement`]. `None` when the state has no orbit (not bound), the step leaves no flight, or
+/// (rendezvous) the body's state at that step cannot be computed. The rest departs from the
+/// state's osculating orbit; a rendezvous rest chases the same body from where it is at that
+/// step. A transfer's rest is solved as a general transfer (kind transfer-hard: a near-circular
+/// rest that the near-circular path cannot solve falls back to the general one), a rendezvous's
+/// as rendezvous-hard; seed and index are the caller's, for tracing.
 pub fn relabel(
     (seed, index): (u64, u64),
     episode: &Scenario,
@@ -316,19 +319,33 @@ pub fn relabel(
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> Option<(TrajectoryRecord, Placement)> {
-    if episode.problem != ProblemKind::Transfer || step >= episode.steps {
+    if step >= episode.steps {
         return None;
     }
+    let (kind, target_nu0) = match episode.problem {
+        ProblemKind::Transfer => (ScenarioKind::TransferHard, episode.target_nu0),
+        ProblemKind::Rendezvous => {
+            // The body coasts on the target orbit: its polar angle at the step, less the
+            // orbit's periapsis angle, is its true anomaly there.
+            let body = body_at(episode, step).ok()?;
+            let theta = body.r[1].atan2(body.r[0]);
+            (
+                ScenarioKind::RendezvousHard,
+                (theta - episode.target.omega).rem_euclid(2.0 * core::f64::consts::PI),
+            )
+        }
+    };
     let rest = Scenario {
         initial: CartesianState { r: state.r, v: state.v }.elements()?,
         steps: episode.steps - step,
+        target_nu0,
         ..*episode
     };
     let scaled = CanonicalSpacecraft {
         thrust: spacecraft.thrust / state.m,
         ..*spacecraft
     };
-    let record = solve_scenario(ScenarioKind::TransferHard, seed, index, &rest, &scaled, options);
+    let record = solve_scenario(kind, seed, index, &rest, &scaled, options);
     let placement = Placement {
         episode: *episode,
         start_step: step,
@@ -695,16 +712,13 @@ mod tests {
         }
     }
 
-    /// Bellman's principle of optimality as a check of [`placed_demonstration`]: re-solved from
-    /// the optimal state at mid-flight (mass m, a spacecraft of thrust T / m, the steps left),
-    /// the transfer's optimal tail is the tail of the whole optimal flight, so the relabelled
-    /// record placed at that step gives the whole record's tuples from there on.
-    #[test]
-    fn a_record_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+    /// Bellman's principle of optimality as a check of [`relabel`] and [`placed_demonstration`]:
+    /// re-solved from the optimal state at mid-flight (mass m, a spacecraft of thrust T / m, the
+    /// steps left, for a rendezvous the body where it is then), the optimal tail is the tail of
+    /// the whole optimal flight, so the relabelled record placed at that step gives the whole
+    /// record's tuples from there on.
+    fn resolved_from_mid_flight_gives_the_tail<P: Problem>(whole_record: &TrajectoryRecord) {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let kind = ScenarioKind::TransferHard;
-        let whole_record = solve_scenario(kind, 7, 0, &kind.draw(7, 0), &sc, &quick_options());
-        assert!(whole_record.converged, "{:?}", whole_record.failure);
         let n = whole_record.scenario.steps;
         let k = n / 2;
         let mid = state_of(&whole_record.steps[k as usize]);
@@ -712,10 +726,17 @@ mod tests {
         assert!(tail_record.converged, "{:?}", tail_record.failure);
         assert_eq!(tail_record.final_eps, whole_record.final_eps);
         assert_eq!((placement.start_step, placement.start_mass), (k, mid.m));
+        // The same optimum: the tail ends at the whole flight's final mass.
+        let tail_final = placement.start_mass * tail_record.final_mass;
+        assert!(
+            (tail_final - whole_record.final_mass).abs() < 1e-6,
+            "{tail_final} vs {}",
+            whole_record.final_mass
+        );
         let config = EnvConfig::default();
         let tol = default_tolerances();
-        let whole = record_demonstration::<Transfer>(&whole_record, &config, &tol).unwrap();
-        let tail = placed_demonstration::<Transfer>(&tail_record, &placement, &config, &tol).unwrap();
+        let whole = record_demonstration::<P>(whole_record, &config, &tol).unwrap();
+        let tail = placed_demonstration::<P>(&tail_record, &placement, &config, &tol).unwrap();
         assert_eq!(tail.transitions.len(), (n - k) as usize);
         let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
         for (t, w) in tail.transitions.iter().zip(&whole.transitions[k as usize..]) {
@@ -737,9 +758,23 @@ mod tests {
             ..placement
         };
         assert_eq!(
-            placed_demonstration::<Transfer>(&tail_record, &wrong, &config, &tol).err(),
+            placed_demonstration::<P>(&tail_record, &wrong, &config, &tol).err(),
             Some(DemoError::Placement)
         );
+    }
+
+    #[test]
+    fn a_transfer_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferHard;
+        let whole_record = solve_scenario(kind, 7, 0, &kind.draw(7, 0), &sc, &quick_options());
+        assert!(whole_record.converged, "{:?}", whole_record.failure);
+        resolved_from_mid_flight_gives_the_tail::<Transfer>(&whole_record);
+    }
+
+    #[test]
+    fn a_rendezvous_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+        resolved_from_mid_flight_gives_the_tail::<Rendezvous>(rendezvous_record());
     }
 
     /// The re-integrated integral against a fine composite Simpson rule on states sampled by

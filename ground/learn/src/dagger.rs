@@ -1,4 +1,4 @@
-//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (transfers).
+//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (transfers and rendezvous).
 //!
 //! Each round flies the deterministic policy on fresh training scenarios, re-solves the
 //! fuel-optimal rest of each flight by the indirect method from the states it visited
@@ -42,7 +42,7 @@ use crate::sil::fly_blob_seeded;
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
-use ground_core::env::{Environment, Transfer, TransferEnv};
+use ground_core::env::{MdpEnv, Problem, Rendezvous, Transfer};
 use ground_core::io::{decode_container, encode_container};
 use ground_core::solver::SolveOptions;
 
@@ -172,7 +172,7 @@ fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 
 /// Flies the policy on round `round`'s training scenarios and relabels the visited states at
 /// the config's fractions of each flight, solved to the demonstrations' eps.
-fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<Relabels, ExperimentError> {
+fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<Relabels, ExperimentError> {
     let dagger = &config.dagger;
     let first = ROUND_STRIDE * round;
     let candidates = dagger.candidates.unwrap_or(dagger.episodes);
@@ -182,7 +182,7 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
     let flown = if dagger.dispersed {
         // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:
         // the trajectory holds the true states, which the relabels start from.
-        let blob = flown_blob(agent)?;
+        let blob = flown_blob(agent, P::KIND)?;
         let seed = (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first);
         fly_blob_seeded(
             config,
@@ -194,7 +194,7 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
         )?
         .0
     } else {
-        evaluate_batched::<TransferEnv, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?
+        evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?
     };
     // A relabel needs a step strictly inside the flight.
     let eligible: Vec<&EpisodeOutcome> = flown
@@ -235,12 +235,12 @@ fn solve_relabels(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<
             if !record.converged {
                 return None;
             }
-            placed_demonstration::<Transfer>(&record, &placement, &config.env, &tolerances).ok()
+            placed_demonstration::<P>(&record, &placement, &config.env, &tolerances).ok()
         })
         .collect();
     bar.finish_and_clear();
     let count: usize = solved.iter().map(|d| d.transitions.len()).sum();
-    let mut tuples = ReplayBuffer::new(TransferEnv::OBS, 3, count.max(1));
+    let mut tuples = ReplayBuffer::new(P::OBS, 3, count.max(1));
     for demo in &solved {
         push_demonstrations(&mut tuples, &demo.transitions);
     }
@@ -266,8 +266,8 @@ fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&Epis
 }
 
 /// The learner's flown actor as an f32 blob.
-fn flown_blob(agent: &Sac) -> Result<Vec<u8>, ExperimentError> {
-    actor_network(agent, ProblemKind::Transfer)?
+fn flown_blob(agent: &Sac, kind: ProblemKind) -> Result<Vec<u8>, ExperimentError> {
+    actor_network(agent, kind)?
         .f32_blob("relabelling round")
         .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))
 }
@@ -283,8 +283,8 @@ struct Score {
 
 /// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios, and
 /// under the SIL's dispersions when the rounds relabel dispersed flights.
-fn score(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentError> {
-    let outcomes = evaluate_agent::<TransferEnv>(
+fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentError> {
+    let outcomes = evaluate_agent::<MdpEnv<P>>(
         agent,
         &config.env,
         config.scenario,
@@ -296,7 +296,7 @@ fn score(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentErro
         let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
             .map(|i| config.scenario.draw(config.seeds.evaluation, i))
             .collect();
-        let blob = flown_blob(agent)?;
+        let blob = flown_blob(agent, P::KIND)?;
         let dispersions = &config.sil.dispersions;
         let (flown, _, _) = fly_blob_seeded(config, &blob, &scenarios, dispersions, config.seeds.evaluation, 0)?;
         Some(within_accuracy_goal(&flown))
@@ -318,25 +318,31 @@ pub fn dagger(
     run: &Path,
     start: &Path,
 ) -> Result<DaggerSummary, ExperimentError> {
-    if config.scenario.problem() != ProblemKind::Transfer {
-        return Err(ExperimentError::Mismatch(format!(
-            "ground dagger relabels transfers only; the config is for {}",
-            config.scenario.name()
-        )));
-    }
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
-    let (mut buffer, _) = demonstration_buffer::<Transfer>(config, config_dir)?;
+    match config.scenario.problem() {
+        ProblemKind::Transfer => dagger_for::<Transfer>(config, config_dir, run, start),
+        ProblemKind::Rendezvous => dagger_for::<Rendezvous>(config, config_dir, run, start),
+    }
+}
+
+fn dagger_for<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    run: &Path,
+    start: &Path,
+) -> Result<DaggerSummary, ExperimentError> {
+    let (mut buffer, _) = demonstration_buffer::<P>(config, config_dir)?;
     check_run(config, run)?;
     let dir = run.join("dagger");
-    let mut agent = new_agent(config, true, TransferEnv::OBS);
+    let mut agent = new_agent(config, true, P::OBS);
     let state_path = dir.join("state.json");
     if !round_file(&dir, 0).exists() {
         // A learner checkpoint, or a shipped model's actor alone (its critics are fresh: train
         // it with dagger.cloning_only).
         if let Err(checkpoint) = agent.load(start) {
-            agent = new_agent(config, true, TransferEnv::OBS);
+            agent = new_agent(config, true, P::OBS);
             agent.start_from_actor(start).map_err(|_| checkpoint)?;
         }
         prepare_run(config, run)?;
@@ -360,7 +366,7 @@ pub fn dagger(
     rows.retain(|r| r.round <= done);
     let mut last_relabels = (0, 0, 0);
     for round in 1..=done {
-        let relabels = load_relabels(&relabels_file(&dir, round), round, TransferEnv::OBS)?;
+        let relabels = load_relabels(&relabels_file(&dir, round), round, P::OBS)?;
         buffer.extend_from(&relabels.tuples);
         last_relabels = (relabels.attempted, relabels.converged, relabels.tuples.len() as u64);
     }
@@ -368,7 +374,7 @@ pub fn dagger(
     if rows.last().is_none_or(|r| r.round != done) {
         // Stopped between a round's checkpoint and its score.
         let clock = Instant::now();
-        let score = score(config, &agent)?;
+        let score = score::<P>(config, &agent)?;
         rows.push(RoundRow {
             round: done,
             relabels_attempted: last_relabels.0,
@@ -396,9 +402,9 @@ pub fn dagger(
         let clock = Instant::now();
         let path = relabels_file(&dir, round);
         let relabels = if path.exists() {
-            load_relabels(&path, round, TransferEnv::OBS)?
+            load_relabels(&path, round, P::OBS)?
         } else {
-            let relabels = solve_relabels(config, &agent, round)?;
+            let relabels = solve_relabels::<P>(config, &agent, round)?;
             save_relabels(&path, &relabels)?;
             relabels
         };
@@ -420,7 +426,7 @@ pub fn dagger(
         }
         bar.finish_and_clear();
         agent.save(&round_file(&dir, round))?;
-        let score = score(config, &agent)?;
+        let score = score::<P>(config, &agent)?;
         let (within_goal, summary) = (score.within_goal, score.summary);
         rows.push(RoundRow {
             round,

@@ -48,14 +48,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // The code this run is built from: read now, as the tree may change while it runs.
     let commit = current_commit();
     let mut config = config.clone();
-    let transfer = config.scenario.problem() == shared::scenario::ProblemKind::Transfer;
     let relabel = config.dagger.rounds > 0;
-    if relabel && !transfer {
-        return Err(ExperimentError::Mismatch(format!(
-            "relabelling rounds are built for transfers; the config is for {} (set dagger.rounds = 0)",
-            config.scenario.name()
-        )));
-    }
     let stages = 5 + usize::from(relabel);
     let mut stage = 0;
     let mut next = |what: String| {

@@ -92,11 +92,10 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
     assert!(matches!(err, ExperimentError::Mismatch(_)), "{err}");
     assert!(err.to_string().contains("relabels-2.ltrl"), "{err}");
 
-    // Rendezvous has no relabelling solver: refused before any work.
+    // A config of another problem than the demonstrations: refused before any work.
     let mut other = config.clone();
     other.scenario = ScenarioKind::RendezvousCircular;
     let err = dagger(&other, &dir, &dir.join("rendezvous"), &start).unwrap_err();
-    assert!(err.to_string().contains("transfers only"), "{err}");
-    assert!(!dir.join("rendezvous").exists());
+    assert!(!dir.join("rendezvous").exists(), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

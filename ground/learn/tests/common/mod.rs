@@ -18,9 +18,14 @@ pub fn scratch_dir(name: &str) -> PathBuf {
 /// Two transfer-circular trajectories, homotopy stopped early (eps 0.3) so the solve is quick:
 /// demonstrations are built the same way at any eps.
 pub fn toy_dataset(dir: &Path) -> PathBuf {
+    toy_dataset_of(dir, ScenarioKind::TransferCircular)
+}
+
+/// [`toy_dataset`] of another distribution (seed 9, draws 0 and 1).
+pub fn toy_dataset_of(dir: &Path, scenario: ScenarioKind) -> PathBuf {
     let out = dir.join("dataset");
     let manifest = Manifest {
-        scenario: ScenarioKind::TransferCircular,
+        scenario,
         seed: 9,
         count: 2,
     };
