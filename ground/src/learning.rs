@@ -21,7 +21,7 @@ pub enum LearnCommand {
         #[arg(long)]
         from_pretrained: bool,
     },
-    /// DAgger-style rounds (transfers): fly the policy, re-solve the optimal rest of each flight
+    /// DAgger-style rounds: fly the policy, re-solve the optimal rest of each flight
     /// from the states it visited, add those tuples to the demonstrations, update; the config's
     /// [dagger] section. Resumable; writes OUT/dagger.
     Dagger {

@@ -14,7 +14,7 @@ use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use learn::export::blob_file;
 use learn::model::open_model;
 use learn::sil::fly_blob;
-use shared::blob::{ProblemKind, Quantization};
+use shared::blob::Quantization;
 
 /// Flights per shipped controller.
 const FLIGHTS: u64 = 1000;
@@ -37,19 +37,14 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
     for dir in dirs {
         let model = open_model(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
         let config = &model.config;
-        assert_eq!(
-            config.scenario.problem(),
-            ProblemKind::Transfer,
-            "{}: the SIL Monte Carlo flies transfers",
-            dir.display()
-        );
+        let problem = config.scenario.problem();
         let card_share = model
             .card
             .monte_carlo
             .share_within(ACCURACY_GOAL)
             .unwrap_or_else(|| panic!("{}: the card has no share within the goal", dir.display()));
         assert_eq!(model.card.monte_carlo_seed, config.seeds.monte_carlo);
-        let blob_path = dir.join(blob_file(ProblemKind::Transfer, Quantization::F32));
+        let blob_path = dir.join(blob_file(problem, Quantization::F32));
         let blob = std::fs::read(&blob_path).unwrap();
         let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, FLIGHTS);
         let (outcomes, guidance_faults, _) = fly_blob(config, &blob, &scenarios, &Dispersions::NONE, 0).unwrap();
@@ -68,7 +63,7 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
             100.0 * card_share
         );
 
-        let int8_path = dir.join(blob_file(ProblemKind::Transfer, Quantization::Int8));
+        let int8_path = dir.join(blob_file(problem, Quantization::Int8));
         let int8_blob = std::fs::read(&int8_path).unwrap();
         let (int8_outcomes, int8_faults, _) = fly_blob(config, &int8_blob, &scenarios, &Dispersions::NONE, 0).unwrap();
         assert_eq!(int8_faults, 0, "{}", dir.display());
