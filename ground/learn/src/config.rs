@@ -207,6 +207,12 @@ pub struct DaggerConfig {
     /// Update the actor alone on the cloning error of the demonstrations and relabels (no
     /// critic, no RL term): what rounds started from a shipped actor, without critics, run.
     pub cloning_only: bool,
+    /// Relabel only flights whose earliest relabel re-solves: the flights are walked from the
+    /// largest miss down, their earliest fraction solved first, until `episodes` of them
+    /// converged; the other fractions are solved for those alone. For distributions with draws
+    /// no control reaches in their time of flight (transfer-hard: about a quarter), which are
+    /// otherwise the largest misses and re-solve to nothing.
+    pub solvable_only: bool,
 }
 
 impl Default for DaggerConfig {
@@ -223,6 +229,7 @@ impl Default for DaggerConfig {
             score_episodes: 1_000,
             dispersed: false,
             cloning_only: false,
+            solvable_only: false,
         }
     }
 }

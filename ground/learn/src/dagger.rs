@@ -201,16 +201,10 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
         .iter()
         .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
         .collect();
-    let jobs: Vec<(usize, u32)> = largest_misses(eligible, dagger.episodes as usize)
-        .into_iter()
-        .flat_map(|o| {
-            let steps = scenarios[o.episode].steps;
-            dagger
-                .fractions
-                .iter()
-                .map(move |f| (o.episode, ((f * f64::from(steps)).round() as u32).clamp(1, steps - 1)))
-        })
-        .collect();
+    let step_at = |episode: usize, fraction: f64| {
+        let steps = scenarios[episode].steps;
+        ((fraction * f64::from(steps)).round() as u32).clamp(1, steps - 1)
+    };
     let sc = config
         .env
         .spacecraft
@@ -223,21 +217,55 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
         ..SolveOptions::default()
     };
     let tolerances = default_tolerances();
-    let bar = progress_bar(jobs.len() as u64, &format!("round {round} relabel"));
-    let solved: Vec<_> = jobs
-        .par_iter()
-        .filter_map(|&(episode, step)| {
-            let state = flown[episode].trajectory.as_ref()?[step as usize].state;
-            let trace = (config.seeds.train, first + episode as u64);
-            let relabelled = relabel(trace, &scenarios[episode], &state, step, &sc, &options);
-            bar.inc(1);
-            let (record, placement) = relabelled?;
-            if !record.converged {
-                return None;
+    let wanted = dagger.episodes as usize;
+    let bar = progress_bar(
+        (wanted * dagger.fractions.len()) as u64,
+        &format!("round {round} relabel"),
+    );
+    // The tuples of the rest of `episode`'s flight re-solved from its state at `step`, if the
+    // solve converged.
+    let solve = |(episode, step): (usize, u32)| {
+        bar.inc(1);
+        let state = flown[episode].trajectory.as_ref()?[step as usize].state;
+        let trace = (config.seeds.train, first + episode as u64);
+        let (record, placement) = relabel(trace, &scenarios[episode], &state, step, &sc, &options)?;
+        if !record.converged {
+            return None;
+        }
+        placed_demonstration::<P>(&record, &placement, &config.env, &tolerances).ok()
+    };
+    let (solved, attempted): (Vec<_>, usize) = if dagger.solvable_only && !dagger.fractions.is_empty() {
+        // The earliest fraction probes each flight, largest miss first, until enough re-solve;
+        // the other fractions are solved for those alone.
+        let mut fractions = dagger.fractions.clone();
+        fractions.sort_by(f64::total_cmp);
+        let ranked: Vec<usize> = ranked_by_miss(eligible).iter().map(|o| o.episode).collect();
+        let (kept, probed) = walk_probes(&ranked, wanted, |episode| {
+            let found = solve((episode, step_at(episode, fractions[0])));
+            if found.is_none() {
+                bar.inc_length(1);
             }
-            placed_demonstration::<P>(&record, &placement, &config.env, &tolerances).ok()
-        })
-        .collect();
+            found
+        });
+        let rest: Vec<(usize, u32)> = kept
+            .iter()
+            .flat_map(|(episode, _)| fractions[1..].iter().map(move |&f| (*episode, step_at(*episode, f))))
+            .collect();
+        let more: Vec<_> = rest.par_iter().filter_map(|&job| solve(job)).collect();
+        let solved = kept.into_iter().map(|(_, demo)| demo).chain(more).collect();
+        (solved, probed + rest.len())
+    } else {
+        let jobs: Vec<(usize, u32)> = largest_misses(eligible, wanted)
+            .into_iter()
+            .flat_map(|o| {
+                dagger
+                    .fractions
+                    .iter()
+                    .map(move |&f| (o.episode, step_at(o.episode, f)))
+            })
+            .collect();
+        (jobs.par_iter().filter_map(|&job| solve(job)).collect(), jobs.len())
+    };
     bar.finish_and_clear();
     let count: usize = solved.iter().map(|d| d.transitions.len()).sum();
     let mut tuples = ReplayBuffer::new(P::OBS, 3, count.max(1));
@@ -246,7 +274,7 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
     }
     Ok(Relabels {
         round,
-        attempted: jobs.len() as u64,
+        attempted: attempted as u64,
         converged: solved.len() as u64,
         tuples,
     })
@@ -255,14 +283,47 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
 /// The `count` outcomes that miss the accuracy goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
 /// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
 /// all of them.
-fn largest_misses(mut outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {
-    if outcomes.len() > count {
-        let miss = |o: &EpisodeOutcome| o.terminal.position.max(o.terminal.velocity) / ACCURACY_GOAL;
-        outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
-        outcomes.truncate(count);
-        outcomes.sort_by_key(|o| o.episode);
+fn largest_misses(outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {
+    if outcomes.len() <= count {
+        return outcomes;
     }
+    let mut largest = ranked_by_miss(outcomes);
+    largest.truncate(count);
+    largest.sort_by_key(|o| o.episode);
+    largest
+}
+
+/// The outcomes from the largest miss of the accuracy goal to the smallest, max(dr, dv) /
+/// [`ACCURACY_GOAL`], the earlier of equal misses first.
+fn ranked_by_miss(mut outcomes: Vec<&EpisodeOutcome>) -> Vec<&EpisodeOutcome> {
+    let miss = |o: &EpisodeOutcome| o.terminal.position.max(o.terminal.velocity) / ACCURACY_GOAL;
+    outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
     outcomes
+}
+
+/// Flights probed at once by [`walk_probes`]: enough to keep every core busy, few enough that
+/// the probes past the quota waste little.
+const PROBE_CHUNK: usize = 32;
+
+/// Probes `ranked` in order, [`PROBE_CHUNK`] at a time in parallel, until at least `quota`
+/// probes have succeeded (every success of the last chunk is kept, so the result does not
+/// depend on the thread count). Returns the successes in rank order and how many were probed.
+fn walk_probes<T: Send>(
+    ranked: &[usize],
+    quota: usize,
+    probe: impl Fn(usize) -> Option<T> + Sync,
+) -> (Vec<(usize, T)>, usize) {
+    let mut kept = Vec::new();
+    let mut probed = 0;
+    for chunk in ranked.chunks(PROBE_CHUNK) {
+        if kept.len() >= quota {
+            break;
+        }
+        let results: Vec<Option<T>> = chunk.par_iter().map(|&item| probe(item)).collect();
+        probed += chunk.len();
+        kept.extend(chunk.iter().zip(results).filter_map(|(&item, r)| r.map(|t| (item, t))));
+    }
+    (kept, probed)
 }
 
 /// The learner's flown actor as an f32 blob.
@@ -591,5 +652,28 @@ mod tests {
         // As many as flown (the default: candidates = episodes): every one, in order.
         assert_eq!(chosen(6), vec![0, 1, 2, 3, 4, 5]);
         assert_eq!(chosen(9), vec![0, 1, 2, 3, 4, 5]);
+    }
+
+    #[test]
+    fn probes_walk_the_ranking_in_chunks_until_the_quota_and_keep_the_last_chunk_whole() {
+        // Items ranked 0..100; the probe succeeds on multiples of 3 and reports its item.
+        let ranked: Vec<usize> = (0..100).collect();
+        let probe = |item: usize| item.is_multiple_of(3).then_some(item * 10);
+        // 11 successes in the first chunk (0..32): a quota of 5 stops there, all 11 kept.
+        let (kept, probed) = walk_probes(&ranked, 5, probe);
+        assert_eq!(probed, PROBE_CHUNK);
+        assert_eq!(kept.len(), 11);
+        assert!(kept.iter().all(|&(item, t)| item.is_multiple_of(3) && t == item * 10));
+        assert!(kept.windows(2).all(|w| w[0].0 < w[1].0), "rank order");
+        // A quota of 12 needs the second chunk (32..64: 11 more).
+        let (kept, probed) = walk_probes(&ranked, 12, probe);
+        assert_eq!((kept.len(), probed), (22, 2 * PROBE_CHUNK));
+        // More than can succeed: every item probed once.
+        let (kept, probed) = walk_probes(&ranked, 1000, probe);
+        assert_eq!((kept.len(), probed), (34, 100));
+        // A ranking that is not in item order is walked in its own order.
+        let reversed: Vec<usize> = (0..100).rev().collect();
+        let (kept, _) = walk_probes(&reversed, 1, probe);
+        assert_eq!(kept.first().map(|k| k.0), Some(99));
     }
 }

@@ -70,6 +70,103 @@ pub struct MonteCarloReport {
     /// The accuracy goal's share by transfer size: quintiles of the zero-thrust miss.
     #[serde(default)]
     pub accuracy_by_coast_miss: Vec<AccuracyBand>,
+    /// The goal's share on the optimality-gap scenarios the indirect method solved: draws
+    /// shown feasible, where a share of all draws would also count draws no control reaches.
+    #[serde(default)]
+    pub where_solved: Option<SolvedShare>,
+    /// The goal's share by eccentricity (eccentric distributions only).
+    #[serde(default)]
+    pub accuracy_by_eccentricity: Vec<EccentricityBand>,
+}
+
+/// The goal's share on the scenarios with an indirect optimum.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SolvedShare {
+    /// Scenarios the indirect method was run on (the optimality gap's).
+    pub scenarios: usize,
+    /// Of those, the ones it solved (converged).
+    pub solved: usize,
+    /// Share of the solved ones the policy flew within 0.01 AU and 0.01.
+    pub within_goal: f64,
+    /// Unsolved scenarios the policy flew within the goal (feasible by the flight itself).
+    pub unsolved_within_goal: usize,
+}
+
+/// Episodes grouped by the larger of the departure and target orbits' eccentricities.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct EccentricityBand {
+    /// The band's edges: e_min <= max(e_departure, e_target) < e_max.
+    pub e_min: f64,
+    pub e_max: f64,
+    pub episodes: usize,
+    /// Share of the band's completed episodes within 0.01 AU and 0.01.
+    pub within_goal: f64,
+    /// The band's optimality-gap scenarios solved by the indirect method, and the goal's share
+    /// on them (None when the band has none).
+    pub where_solved: Option<(usize, f64)>,
+}
+
+/// Edges of the eccentricity bands (the hard distributions draw e up to 0.75).
+pub const ECCENTRICITY_EDGES: [f64; 5] = [0.0, 0.2, 0.4, 0.6, 1.0];
+
+/// The goal's share on the gap's scenarios that the indirect method solved (`policy[i]` flew
+/// scenario i; each gap row names its episode). None without gap rows.
+pub fn share_where_solved(policy: &[EpisodeOutcome], gap: &[GapRow]) -> Option<SolvedShare> {
+    if gap.is_empty() {
+        return None;
+    }
+    let flown = |converged: bool| -> Vec<EpisodeOutcome> {
+        gap.iter()
+            .filter(|g| g.optimal_converged == converged)
+            .filter_map(|g| policy.get(g.episode).cloned())
+            .collect()
+    };
+    let solved = flown(true);
+    Some(SolvedShare {
+        scenarios: gap.len(),
+        solved: solved.len(),
+        within_goal: within_accuracy_goal(&solved),
+        unsolved_within_goal: flown(false).iter().filter(|o| meets(o, ACCURACY_GOAL)).count(),
+    })
+}
+
+/// The goal's share by the larger eccentricity of each scenario's two orbits, in the bands of
+/// [`ECCENTRICITY_EDGES`] that hold episodes; empty when every scenario is near-circular (below
+/// the first inner edge). `policy[i]` flew `scenarios[i]`.
+pub fn accuracy_by_eccentricity(
+    scenarios: &[Scenario],
+    policy: &[EpisodeOutcome],
+    gap: &[GapRow],
+) -> Vec<EccentricityBand> {
+    let eccentricity = |s: &Scenario| s.initial.shape.e.max(s.target.e);
+    if scenarios.iter().all(|s| eccentricity(s) < ECCENTRICITY_EDGES[1]) {
+        return Vec::new();
+    }
+    ECCENTRICITY_EDGES
+        .windows(2)
+        .filter_map(|edge| {
+            let inside = |i: usize| {
+                scenarios
+                    .get(i)
+                    .is_some_and(|s| (edge[0]..edge[1]).contains(&eccentricity(s)))
+            };
+            let outcomes: Vec<EpisodeOutcome> = policy.iter().filter(|o| inside(o.episode)).cloned().collect();
+            if outcomes.is_empty() {
+                return None;
+            }
+            let rows: Vec<GapRow> = gap.iter().filter(|g| inside(g.episode)).copied().collect();
+            let where_solved = share_where_solved(policy, &rows)
+                .filter(|s| s.solved > 0)
+                .map(|s| (s.solved, s.within_goal));
+            Some(EccentricityBand {
+                e_min: edge[0],
+                e_max: edge[1],
+                episodes: outcomes.len(),
+                within_goal: within_accuracy_goal(&outcomes),
+                where_solved,
+            })
+        })
+        .collect()
 }
 
 /// Episodes grouped by how far coasting (zero thrust) would miss the target: the transfer's
@@ -122,11 +219,13 @@ pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
 /// Fraction of the completed episodes that end with |dr| <= `tolerance` AU and |dv| <=
 /// `tolerance`.
 pub fn within_tolerance(outcomes: &[EpisodeOutcome], tolerance: f64) -> f64 {
-    outcomes
-        .iter()
-        .filter(|o| o.completed && o.terminal.position <= tolerance && o.terminal.velocity <= tolerance)
-        .count() as f64
+    outcomes.iter().filter(|o| meets(o, tolerance)).count() as f64
         / outcomes.iter().filter(|o| o.completed).count().max(1) as f64
+}
+
+/// A completed episode that ends with |dr| <= `tolerance` AU and |dv| <= `tolerance`.
+fn meets(outcome: &EpisodeOutcome, tolerance: f64) -> bool {
+    outcome.completed && outcome.terminal.position <= tolerance && outcome.terminal.velocity <= tolerance
 }
 
 /// `ground evaluate`: the Monte Carlo of docs/spec.md section 9 for the agent in `checkpoint`, written
@@ -272,8 +371,10 @@ where
             .collect(),
         mass_ratio: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.mass_ratio))),
         overspend: (!usable.is_empty()).then(|| Stats::of(usable.iter().map(|g| g.overspend))),
-        gap,
+        where_solved: share_where_solved(policy, &gap),
+        accuracy_by_eccentricity: accuracy_by_eccentricity(scenarios, policy, &gap),
         accuracy_by_coast_miss: accuracy_by_coast_miss(policy, &zero, 5),
+        gap,
     };
     write_outputs(out, &report, policy, &zero, &random, scenarios, plotted)?;
     Ok(report)
@@ -467,10 +568,47 @@ pub fn describe(report: &MonteCarloReport) -> String {
             band.episodes
         );
     }
+    for band in &report.accuracy_by_eccentricity {
+        let _ = writeln!(s, "  {}", eccentricity_line(band));
+    }
+    if let Some(line) = solved_line(report) {
+        let _ = writeln!(s, "{line}");
+    }
     if let Some(gap) = gap_line(report) {
         let _ = writeln!(s, "{gap}");
     }
     s
+}
+
+/// One eccentricity band in words.
+pub fn eccentricity_line(band: &EccentricityBand) -> String {
+    let mut line = format!(
+        "e {:.1}-{:.1}: {:>5.1}% within the goal ({} episodes)",
+        band.e_min,
+        band.e_max,
+        100.0 * band.within_goal,
+        band.episodes
+    );
+    if let Some((solved, share)) = band.where_solved {
+        let _ = write!(
+            line,
+            "; {:.1}% of the {solved} solved by the indirect method",
+            100.0 * share
+        );
+    }
+    line
+}
+
+/// The goal's share on the draws the indirect method solved, in words.
+pub fn solved_line(report: &MonteCarloReport) -> Option<String> {
+    let s = report.where_solved?;
+    Some(format!(
+        "On the {} of the first {} scenarios the indirect method solved: {:.1}% within the goal ({} unsolved flown within it).",
+        s.solved,
+        s.scenarios,
+        100.0 * s.within_goal,
+        s.unsolved_within_goal
+    ))
 }
 
 /// How many episodes met the terminal-accuracy goal, in words.
@@ -558,6 +696,81 @@ mod tests {
                 .sum::<usize>(),
             9
         );
+    }
+
+    fn gap_row(episode: usize, converged: bool) -> GapRow {
+        GapRow {
+            episode,
+            policy_mass: 0.8,
+            optimal_mass: if converged { 0.81 } else { f64::NAN },
+            optimal_converged: converged,
+            optimal_eps: 1e-4,
+            mass_ratio: 0.8 / 0.81,
+            overspend: 0.0,
+            policy_dr: 0.0,
+            policy_dv: 0.0,
+        }
+    }
+
+    #[test]
+    fn the_solved_share_counts_only_the_gap_scenarios_the_indirect_method_solved() {
+        // Episodes 0..6 are gap scenarios: 0, 1, 2, 4 solved; the policy meets the goal on 0,
+        // 2, 3 (unsolved) and 6 (outside the gap).
+        let policy: Vec<EpisodeOutcome> = (0..8)
+            .map(|i| outcome(i, if [0, 2, 3, 6].contains(&i) { 0.001 } else { 0.1 }, 0.8))
+            .collect();
+        let gap: Vec<GapRow> = (0..6).map(|i| gap_row(i, [0, 1, 2, 4].contains(&i))).collect();
+        let share = share_where_solved(&policy, &gap).expect("gap rows");
+        assert_eq!((share.scenarios, share.solved, share.unsolved_within_goal), (6, 4, 1));
+        assert_eq!(share.within_goal, 0.5);
+        assert!(share_where_solved(&policy, &[]).is_none());
+    }
+
+    #[test]
+    fn eccentricity_bands_follow_the_larger_eccentricity_and_skip_circular_draws() {
+        let kind = shared::scenario::ScenarioKind::TransferHard;
+        // (e departure, e target): bands [0, 0.2), [0.2, 0.4), [0.6, 1.0); none in [0.4, 0.6).
+        let es = [
+            (0.1, 0.05),
+            (0.3, 0.1),
+            (0.1, 0.35),
+            (0.7, 0.0),
+            (0.65, 0.62),
+            (0.0, 0.19),
+        ];
+        let scenarios: Vec<Scenario> = es
+            .iter()
+            .enumerate()
+            .map(|(i, &(e0, ef))| {
+                let mut s = kind.draw(1, i as u64);
+                s.initial.shape.e = e0;
+                s.target.e = ef;
+                s
+            })
+            .collect();
+        // The goal is met on episodes 0, 1 and 3; episodes 0..4 are gap scenarios, 3 unsolved.
+        let policy: Vec<EpisodeOutcome> = (0..6)
+            .map(|i| outcome(i, if [0, 1, 3].contains(&i) { 0.001 } else { 0.1 }, 0.8))
+            .collect();
+        let gap: Vec<GapRow> = (0..4).map(|i| gap_row(i, i != 3)).collect();
+        let bands = accuracy_by_eccentricity(&scenarios, &policy, &gap);
+        let edges: Vec<(f64, f64)> = bands.iter().map(|b| (b.e_min, b.e_max)).collect();
+        assert_eq!(edges, vec![(0.0, 0.2), (0.2, 0.4), (0.6, 1.0)]);
+        assert_eq!(bands.iter().map(|b| b.episodes).collect::<Vec<_>>(), vec![2, 2, 2]);
+        assert_eq!(
+            bands.iter().map(|b| b.within_goal).collect::<Vec<_>>(),
+            vec![0.5, 0.5, 0.5]
+        );
+        // Band [0, 0.2): gap episode 0 solved and met; [0.2, 0.4): 1 met, 2 missed; [0.6, 1):
+        // its only gap episode (3) unsolved.
+        assert_eq!(bands[0].where_solved, Some((1, 1.0)));
+        assert_eq!(bands[1].where_solved, Some((2, 0.5)));
+        assert_eq!(bands[2].where_solved, None);
+        // Near-circular draws give no bands.
+        let circular: Vec<Scenario> = (0..6)
+            .map(|i| shared::scenario::ScenarioKind::TransferCircular.draw(1, i))
+            .collect();
+        assert!(accuracy_by_eccentricity(&circular, &policy, &gap).is_empty());
     }
 
     #[test]

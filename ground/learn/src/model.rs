@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use shared::blob::{ProblemKind, Quantization};
 
 use crate::config::ExperimentConfig;
-use crate::eval::MonteCarloReport;
+use crate::eval::{eccentricity_line, EccentricityBand, MonteCarloReport, SolvedShare};
 use crate::experiment::ExperimentError;
 use crate::export::{actor_network, blob_file, ExportReport};
 use crate::sac::agent::Sac;
@@ -133,6 +133,12 @@ pub struct ModelCard {
     /// Where the controller came from beyond the config (`ground ship --note`).
     #[serde(default)]
     pub notes: Vec<String>,
+    /// The goal's share on the Monte Carlo scenarios the indirect method solved.
+    #[serde(default)]
+    pub where_solved: Option<SolvedShare>,
+    /// The goal's share by eccentricity (eccentric distributions only).
+    #[serde(default)]
+    pub by_eccentricity: Vec<EccentricityBand>,
 }
 
 fn crc_of(path: &Path) -> Result<String, ModelError> {
@@ -232,6 +238,8 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         files,
         reexported: None,
         notes: sources.notes.to_vec(),
+        where_solved: mc.where_solved,
+        by_eccentricity: mc.accuracy_by_eccentricity.clone(),
     };
     write_cards(dir, &card)?;
     Ok(card)
@@ -499,6 +507,22 @@ pub fn card_markdown(card: &ModelCard) -> String {
             100.0 * median,
             100.0 * p95
         );
+    }
+    if let Some(w) = card.where_solved {
+        let _ = writeln!(
+            s,
+            "\nOn the {} of the first {} Monte Carlo scenarios that the indirect method solved (shown feasible): {:.1} % within the goal; {} unsolved ones flown within it.",
+            w.solved,
+            w.scenarios,
+            100.0 * w.within_goal,
+            w.unsolved_within_goal
+        );
+    }
+    if !card.by_eccentricity.is_empty() {
+        let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
+        for band in &card.by_eccentricity {
+            let _ = writeln!(s, "- {}", eccentricity_line(band));
+        }
     }
     let _ = writeln!(s, "\n## Files\n");
     for (name, crc) in &card.files {

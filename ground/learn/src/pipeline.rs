@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use crate::config::ExperimentConfig;
 use crate::dagger::{dagger, DaggerSummary};
-use crate::eval::{accuracy_line, gap_line, monte_carlo, MonteCarloReport};
+use crate::eval::{accuracy_line, eccentricity_line, gap_line, monte_carlo, solved_line, MonteCarloReport};
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
@@ -360,6 +360,12 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     s.push_str(&outcome_row("zero thrust", &mc.zero_thrust));
     s.push_str(&outcome_row("uniform random", &mc.random));
     let _ = writeln!(s, "\n{}\n", accuracy_line(mc));
+    for band in &mc.accuracy_by_eccentricity {
+        let _ = writeln!(s, "- {}", eccentricity_line(band));
+    }
+    if let Some(line) = solved_line(mc) {
+        let _ = writeln!(s, "\n{line}\n");
+    }
     if let Some(gap) = gap_line(mc) {
         let _ = writeln!(s, "{gap} ([table](mc/optimality-gap.csv))\n");
     }

@@ -92,6 +92,24 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
     assert!(matches!(err, ExperimentError::Mismatch(_)), "{err}");
     assert!(err.to_string().contains("relabels-2.ltrl"), "{err}");
 
+    // Relabelling only flights that re-solve: of the 40 flights, one chunk of 32 is probed at
+    // the earliest fraction (the quota of 2 is met there), and the later fraction is solved only
+    // for the k probes that converged, so attempted = 32 + k and at least those k converged.
+    let mut probed = config.clone();
+    probed.dagger.solvable_only = true;
+    probed.dagger.rounds = 1;
+    probed.dagger.episodes = 2;
+    probed.dagger.candidates = Some(40);
+    probed.dagger.fractions = vec![0.6, 0.3];
+    let rows = dagger(&probed, &dir, &dir.join("probed"), &start).unwrap().rows;
+    let (attempted, converged) = (rows[1].relabels_attempted, rows[1].relabels_converged);
+    let kept = attempted - 32;
+    assert!((2..=32).contains(&kept), "attempted {attempted}, converged {converged}");
+    assert!(
+        (kept..=2 * kept).contains(&converged),
+        "attempted {attempted}, converged {converged}"
+    );
+
     // A config of another problem than the demonstrations: refused before any work.
     let mut other = config.clone();
     other.scenario = ScenarioKind::RendezvousCircular;
