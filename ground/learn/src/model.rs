@@ -7,11 +7,11 @@
 //! transfer-f32.blob    the onboard blobs (`ground export`), flown by `ground sil`
 //! transfer-int8.blob
 //! card.json            the card for machines: config, commit, command, data, figures, and the
-//!                      CRC-32 of every file above
+//!                      CRC-32C of every file above
 //! card.md              the same for people
 //! ```
 //!
-//! [`open_model`] checks every file against the card's CRC-32 and that the f32 blob holds
+//! [`open_model`] checks every file against the card's CRC-32C and that the f32 blob holds
 //! exactly the actor's weights (it re-encodes them); `ground evaluate --model` and `ground sil
 //! --model` fly only what passed.
 
@@ -39,9 +39,12 @@ pub const CARD_JSON: &str = "card.json";
 /// The card for people.
 pub const CARD_MD: &str = "card.md";
 /// Version of the card's layout.
-pub const CARD_FORMAT: u32 = 1;
+pub const CARD_FORMAT: u32 = 2;
 
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// The files' checksum: CRC-32C, not the blobs' own CRC-32 (ISO-HDLC). A blob ends with the
+/// CRC-32 of its payload, so the CRC-32 of the whole file is the same for every blob of one
+/// layout and would bind none of them; format 1 cards carried that CRC-32.
+const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 
 /// Why a model folder was refused.
 #[derive(Debug, thiserror::Error)]
@@ -52,7 +55,7 @@ pub enum ModelError {
     Card { path: PathBuf, reason: String },
     #[error("{}: card format {found}, this version reads {CARD_FORMAT}", .path.display())]
     Format { path: PathBuf, found: u32 },
-    #[error("{}: CRC-32 {found}, the card says {recorded}: the file is not the one the card describes", .path.display())]
+    #[error("{}: CRC-32C {found}, the card says {recorded}: the file is not the one the card describes", .path.display())]
     Checksum {
         path: PathBuf,
         found: String,
@@ -124,7 +127,7 @@ pub struct ModelCard {
     pub overspend: Option<(usize, f64, f64)>,
     /// The blobs flown in the SIL loop with the config's dispersions: (blob file, figures).
     pub sil: Vec<(String, FlightFigures)>,
-    /// Every file of the folder but the cards, with its CRC-32 (8 hex digits).
+    /// Every file of the folder but the cards, with its CRC-32C (8 hex digits).
     pub files: BTreeMap<String, String>,
     /// When the blobs were exported again from the same actor ([`reexport_model`], after a blob
     /// format change): (command, commit, UTC date). The actor and its Monte Carlo are unchanged.
@@ -355,7 +358,7 @@ impl ShippedModel {
 }
 
 /// Opens the model folder `dir`: the card parses and is of this format, its config is valid,
-/// every file it lists is there with its CRC-32, both blobs are listed, and the f32 blob holds
+/// every file it lists is there with its CRC-32C, both blobs are listed, and the f32 blob holds
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     let (card, config) = read_card(dir)?;
@@ -458,7 +461,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
     let _ = writeln!(s, "# Model card: {}\n", card.scenario);
     let _ = writeln!(
         s,
-        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32 in [card.json](card.json); `ground evaluate --model` and `ground sil --model` refuse a folder whose files disagree.\n",
+        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32C in [card.json](card.json); `ground evaluate --model` and `ground sil --model` refuse a folder whose files disagree.\n",
         card.created, card.command, card.commit
     );
     if let Some((command, commit, date)) = &card.reexported {
@@ -526,7 +529,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
     }
     let _ = writeln!(s, "\n## Files\n");
     for (name, crc) in &card.files {
-        let _ = writeln!(s, "- [{name}]({name}) (CRC-32 {crc})");
+        let _ = writeln!(s, "- [{name}]({name}) (CRC-32C {crc})");
     }
     let _ = writeln!(s, "\n## Config\n\n```toml\n{}```", card.config);
     s

@@ -17,8 +17,9 @@ fn bytes(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
-fn crc32(bytes: &[u8]) -> String {
-    format!("{:08x}", crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(bytes))
+/// The model card's file checksum (CRC-32C).
+fn card_checksum(bytes: &[u8]) -> String {
+    format!("{:08x}", crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(bytes))
 }
 
 /// `path` (absolute) written relative to the current directory: "../" up to the root, then down.
@@ -233,13 +234,31 @@ fn main_job_writes_a_report_whose_links_resolve() {
         learn::model::open_model(&flipped),
         Err(learn::model::ModelError::Checksum { .. })
     ));
+    // A valid int8 blob of the same layout but other weights (its own trailer CRC-32 made right
+    // again): the whole file's CRC-32 would not change, the card's checksum must.
+    let other_int8 = copy("model-other-int8");
+    let int8 = other_int8.join("transfer-int8.blob");
+    let mut bytes = std::fs::read(&int8).unwrap();
+    let trailer = bytes.len() - 4;
+    bytes[(10 + trailer) / 2] ^= 1;
+    let payload_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[10..trailer]);
+    bytes[trailer..].copy_from_slice(&payload_crc.to_le_bytes());
+    assert!(
+        shared::blob::decode(&bytes).is_ok(),
+        "the altered blob is still a valid blob"
+    );
+    std::fs::write(&int8, bytes).unwrap();
+    assert!(matches!(
+        learn::model::open_model(&other_int8),
+        Err(learn::model::ModelError::Checksum { .. })
+    ));
     // Another actor under a card rewritten to match it: the f32 blob no longer holds its weights.
     let swapped = copy("model-swapped");
     tch::manual_seed(77);
     let other = Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu);
     other.save_flown_actor(&swapped.join("actor.safetensors")).unwrap();
     let mut card = model.card.clone();
-    let crc = crc32(&std::fs::read(swapped.join("actor.safetensors")).unwrap());
+    let crc = card_checksum(&std::fs::read(swapped.join("actor.safetensors")).unwrap());
     card.files.insert("actor.safetensors".into(), crc);
     std::fs::write(swapped.join("card.json"), serde_json::to_vec(&card).unwrap()).unwrap();
     assert!(matches!(
