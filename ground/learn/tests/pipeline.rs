@@ -239,9 +239,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let other_int8 = copy("model-other-int8");
     let int8 = other_int8.join("transfer-int8.blob");
     let mut bytes = std::fs::read(&int8).unwrap();
-    let trailer = bytes.len() - 4;
-    bytes[(10 + trailer) / 2] ^= 1;
-    let payload_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[10..trailer]);
+    let (header, trailer) = (shared::blob::HEADER_LEN, bytes.len() - shared::blob::TRAILER_LEN);
+    bytes[(header + trailer) / 2] ^= 1;
+    let payload_crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[header..trailer]);
     bytes[trailer..].copy_from_slice(&payload_crc.to_le_bytes());
     assert!(
         shared::blob::decode(&bytes).is_ok(),
