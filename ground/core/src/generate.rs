@@ -5,6 +5,7 @@
 //!
 //! Layout of an output folder:
 //! - `manifest.json`: scenario, seed, count (a resumed run must match it);
+//! - `request.json`: the final eps the records were solved to (a resumed run must match it too);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
 //!   soon as it is solved, so a killed run loses at most the cases in flight;
 //! - `dataset.ltds` (or `dataset-I-of-N.ltds` for a shard): all records of the run, sorted;
@@ -81,6 +82,13 @@ pub struct Manifest {
     pub count: u64,
 }
 
+/// The homotopy depth a run's records were solved to, stored as `request.json` beside the
+/// manifest: a run resumed with another final eps would mix records of two depths.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SolveRequest {
+    pub final_eps: f64,
+}
+
 /// A dataset file: the records of a run (a shard or a whole set).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DatasetFile {
@@ -104,6 +112,9 @@ pub enum GenerateError {
         .wanted.count
     )]
     ManifestMismatch { found: Manifest, wanted: Manifest },
+    /// The folder holds records solved to another final eps.
+    #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
+    FinalEpsMismatch { found: f64, wanted: f64 },
     #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
     /// Shards to merge disagree, overlap, or leave indices out.
@@ -528,6 +539,24 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
     }
 }
 
+/// Refuses a folder whose records were solved to another final eps; says whether it records
+/// one. A folder without `request.json` (written before it existed) is taken as it is.
+fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, GenerateError> {
+    let path = out.join("request.json");
+    if !path.exists() {
+        return Ok(false);
+    }
+    let text = fs::read(&path).map_err(io_err(&path))?;
+    let found: SolveRequest = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.clone(), e.into()))?;
+    if found.final_eps != options.final_eps {
+        return Err(GenerateError::FinalEpsMismatch {
+            found: found.final_eps,
+            wanted: options.final_eps,
+        });
+    }
+    Ok(true)
+}
+
 /// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`, held
 /// for the whole run: [`hold_run`], then [`generate_in`].
 pub fn generate(
@@ -553,6 +582,7 @@ pub fn hold_run(
 ) -> Result<RunLock, GenerateError> {
     check_request(&manifest, shard, options)?;
     check_manifest(out, &manifest)?;
+    check_solve_request(out, options)?;
     Ok(RunLock::acquire(out)?)
 }
 
@@ -570,12 +600,22 @@ pub fn generate_in(
     check_request(&manifest, shard, options)?;
     // Checked again under the hold: another run may have written its manifest meanwhile.
     let has_manifest = check_manifest(out, &manifest)?;
+    let has_request = check_solve_request(out, options)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
     if !has_manifest {
         let manifest_path = out.join("manifest.json");
         let json =
             serde_json::to_vec_pretty(&manifest).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
         atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
+    }
+    if !has_request {
+        let request_path = out.join("request.json");
+        let request = SolveRequest {
+            final_eps: options.final_eps,
+        };
+        let json =
+            serde_json::to_vec_pretty(&request).map_err(|e| GenerateError::Io(request_path.clone(), e.into()))?;
+        atomic_write(&request_path, &json).map_err(io_err(&request_path))?;
     }
     let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
     let bar = count_bar(indices.len(), "solved", show_progress);

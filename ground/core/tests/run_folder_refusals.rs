@@ -117,6 +117,25 @@ fn a_folder_of_another_run_is_refused_and_left_unchanged() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+#[test]
+fn a_folder_solved_to_another_final_eps_is_refused_and_left_unchanged() {
+    // The finished run says how deep its records were solved.
+    let request = std::fs::read_to_string(finished_run().join("request.json")).unwrap();
+    assert!(request.contains("0.3"), "{request}");
+    let out = temp_dir("other-eps");
+    write_manifest(&out, &MANIFEST);
+    std::fs::write(out.join("request.json"), r#"{ "final_eps": 0.5 }"#).unwrap();
+    let before = snapshot(&out);
+    let err = generate(MANIFEST, Shard::WHOLE, &out, &spacecraft(), &options(), false).unwrap_err();
+    assert!(
+        matches!(err, GenerateError::FinalEpsMismatch { found, wanted } if found == 0.5 && wanted == 0.3),
+        "{err}"
+    );
+    assert!(err.to_string().contains("--final-eps 0.5"), "{err}");
+    assert_eq!(snapshot(&out), before);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 fn is_held(e: &GenerateError) -> bool {
     matches!(e, GenerateError::Lock(LockError::Held { .. }))
 }
