@@ -4,7 +4,8 @@
 //! A run folder is held by one process at a time ([`RunLock`]) while it is written.
 //!
 //! Layout of an output folder:
-//! - `manifest.json`: scenario, seed, count (a resumed run must match it);
+//! - `manifest.json`: scenario, seed, count (a resumed run must match it, or ask for more
+//!   scenarios of the same stream: it then extends the run);
 //! - `request.json`: the final eps the records were solved to (a resumed run must match it too);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
 //!   soon as it is solved, so a killed run loses at most the cases in flight;
@@ -103,7 +104,7 @@ pub enum GenerateError {
     Io(PathBuf, std::io::Error),
     /// The folder holds a run of another scenario, seed or count.
     #[error(
-        "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out",
+        "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out (a larger count of the same scenario and seed extends a run)",
         .found.scenario.name(),
         .found.seed,
         .found.count,
@@ -539,6 +540,20 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
     }
 }
 
+/// As [`check_manifest`], but a run of the same scenario and seed with fewer scenarios is taken
+/// too: draws are per index, so its records are the first ones of the larger run, which extends
+/// it. Says whether the folder holds a manifest equal to `wanted` (if not, it is written).
+fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
+    match read_manifest(out)? {
+        Some(found) if found == *wanted => Ok(true),
+        Some(found) if found.scenario == wanted.scenario && found.seed == wanted.seed && found.count < wanted.count => {
+            Ok(false)
+        }
+        Some(found) => Err(GenerateError::ManifestMismatch { found, wanted: *wanted }),
+        None => Ok(false),
+    }
+}
+
 /// Refuses a folder whose records were solved to another final eps; says whether it records
 /// one. A folder without `request.json` (written before it existed) is taken as it is.
 fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, GenerateError> {
@@ -581,7 +596,7 @@ pub fn hold_run(
     options: &SolveOptions,
 ) -> Result<RunLock, GenerateError> {
     check_request(&manifest, shard, options)?;
-    check_manifest(out, &manifest)?;
+    check_manifest_or_fewer(out, &manifest)?;
     check_solve_request(out, options)?;
     Ok(RunLock::acquire(out)?)
 }
@@ -599,7 +614,7 @@ pub fn generate_in(
     let out = run.dir();
     check_request(&manifest, shard, options)?;
     // Checked again under the hold: another run may have written its manifest meanwhile.
-    let has_manifest = check_manifest(out, &manifest)?;
+    let has_manifest = check_manifest_or_fewer(out, &manifest)?;
     let has_request = check_solve_request(out, options)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
     if !has_manifest {

@@ -128,3 +128,38 @@ fn shards_merge_into_the_single_run_and_restarts_resume() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+#[test]
+fn a_run_asked_for_more_scenarios_extends_to_the_single_run_and_fewer_are_refused() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let small = Manifest {
+        scenario: ScenarioKind::TransferCircular,
+        seed: 11,
+        count: 2,
+    };
+    let large = Manifest { count: 4, ..small };
+    let single_dir = temp_dir("extend-single");
+    generate(large, Shard::WHOLE, &single_dir, &sc, &options(), false).unwrap();
+    let single = read_dataset(&single_dir.join("dataset.ltds")).unwrap();
+
+    let grown = temp_dir("extend-grown");
+    let first = generate(small, Shard::WHOLE, &grown, &sc, &options(), false).unwrap();
+    assert_eq!(first.records, 2);
+    let second = generate(large, Shard::WHOLE, &grown, &sc, &options(), false).unwrap();
+    assert_eq!(second.records, 4);
+    let extended = read_dataset(&grown.join("dataset.ltds")).unwrap();
+    assert_eq!(extended.manifest, large);
+    assert_eq!(without_timing(extended.records), without_timing(single.records));
+    let manifest: Manifest = serde_json::from_slice(&std::fs::read(grown.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest, large);
+
+    // Fewer scenarios, or the same count of another stream, are another run.
+    for other in [small, Manifest { seed: 12, ..large }] {
+        assert!(matches!(
+            generate(other, Shard::WHOLE, &grown, &sc, &options(), false),
+            Err(GenerateError::ManifestMismatch { .. })
+        ));
+    }
+    let _ = std::fs::remove_dir_all(&single_dir);
+    let _ = std::fs::remove_dir_all(&grown);
+}
