@@ -147,6 +147,22 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GenerateError + '_ {
     move |e| GenerateError::Io(path.to_path_buf(), e)
 }
 
+/// Writes `value` as pretty JSON to `path`, atomically.
+fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), GenerateError> {
+    let json = serde_json::to_vec_pretty(value).map_err(|e| GenerateError::Io(path.to_path_buf(), e.into()))?;
+    atomic_write(path, &json).map_err(io_err(path))
+}
+
+/// The JSON file `path`, if there is one.
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Option<T>, GenerateError> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = fs::read(path).map_err(io_err(path))?;
+    let value = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.to_path_buf(), e.into()))?;
+    Ok(Some(value))
+}
+
 /// Aggregate figures of a record set (written as summary.json).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
@@ -470,10 +486,7 @@ pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, Generate
         encode_container(DATASET_MAGIC, FORMAT_VERSION, file).map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
     atomic_write(&path, &bytes).map_err(io_err(&path))?;
     let summary = summarize(&file.manifest, file.shard, &file.records);
-    let json =
-        serde_json::to_vec_pretty(&summary).map_err(|e| GenerateError::Io(out.join("summary.json"), e.into()))?;
-    let path = out.join("summary.json");
-    atomic_write(&path, &json).map_err(io_err(&path))?;
+    write_json(&out.join("summary.json"), &summary)?;
     let mut csv = String::from("index,converged,final_mass,final_eps,residual,thrust_arcs,seconds,steps,failure\n");
     for r in &file.records {
         csv.push_str(&format!(
@@ -522,13 +535,7 @@ pub fn check_request(manifest: &Manifest, shard: Shard, options: &SolveOptions) 
 
 /// The manifest of the run in `out`, if the folder holds one.
 fn read_manifest(out: &Path) -> Result<Option<Manifest>, GenerateError> {
-    let path = out.join("manifest.json");
-    if !path.exists() {
-        return Ok(None);
-    }
-    let text = fs::read(&path).map_err(io_err(&path))?;
-    let found = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.clone(), e.into()))?;
-    Ok(Some(found))
+    read_json(&out.join("manifest.json"))
 }
 
 /// Refuses a folder that holds a run of another manifest; says whether it holds one of `wanted`.
@@ -544,25 +551,22 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
 /// too: draws are per index, so its records are the first ones of the larger run, which extends
 /// it. Says whether the folder holds a manifest equal to `wanted` (if not, it is written).
 fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
-    match read_manifest(out)? {
-        Some(found) if found == *wanted => Ok(true),
-        Some(found) if found.scenario == wanted.scenario && found.seed == wanted.seed && found.count < wanted.count => {
+    match check_manifest(out, wanted) {
+        Err(GenerateError::ManifestMismatch { found, .. })
+            if found.scenario == wanted.scenario && found.seed == wanted.seed && found.count < wanted.count =>
+        {
             Ok(false)
         }
-        Some(found) => Err(GenerateError::ManifestMismatch { found, wanted: *wanted }),
-        None => Ok(false),
+        checked => checked,
     }
 }
 
 /// Refuses a folder whose records were solved to another final eps; says whether it records
 /// one. A folder without `request.json` (written before it existed) is taken as it is.
 fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, GenerateError> {
-    let path = out.join("request.json");
-    if !path.exists() {
+    let Some(found) = read_json::<SolveRequest>(&out.join("request.json"))? else {
         return Ok(false);
-    }
-    let text = fs::read(&path).map_err(io_err(&path))?;
-    let found: SolveRequest = serde_json::from_slice(&text).map_err(|e| GenerateError::Io(path.clone(), e.into()))?;
+    };
     if found.final_eps != options.final_eps {
         return Err(GenerateError::FinalEpsMismatch {
             found: found.final_eps,
@@ -618,19 +622,13 @@ pub fn generate_in(
     let has_request = check_solve_request(out, options)?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
     if !has_manifest {
-        let manifest_path = out.join("manifest.json");
-        let json =
-            serde_json::to_vec_pretty(&manifest).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
-        atomic_write(&manifest_path, &json).map_err(io_err(&manifest_path))?;
+        write_json(&out.join("manifest.json"), &manifest)?;
     }
     if !has_request {
-        let request_path = out.join("request.json");
         let request = SolveRequest {
             final_eps: options.final_eps,
         };
-        let json =
-            serde_json::to_vec_pretty(&request).map_err(|e| GenerateError::Io(request_path.clone(), e.into()))?;
-        atomic_write(&request_path, &json).map_err(io_err(&request_path))?;
+        write_json(&out.join("request.json"), &request)?;
     }
     let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
     let bar = count_bar(indices.len(), "solved", show_progress);
