@@ -46,13 +46,45 @@ struct StepCoefficients {
 impl StepCoefficients {
     /// Adam on slices: m <- lerp(m, g, 1 - b1), v <- lerp(v, g^2, 1 - b2),
     /// p <- p - step m / (sqrt(v) / sqrt(bias2) + eps) (PyTorch's placement of eps).
+    /// Every element's arithmetic is the same at any vector width (no fused multiply-add is
+    /// formed), so the widest one the CPU has is taken at run time: the result is bit-for-bit
+    /// the same, and the pass, which is a seventh of an SAC update at SSE width, runs several
+    /// times faster.
     fn apply(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has AVX-512F, checked just above.
+                return unsafe { self.apply_avx512(params, m, v, g) };
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU has AVX2, checked just above.
+                return unsafe { self.apply_avx2(params, m, v, g) };
+            }
+        }
+        self.apply_portable(params, m, v, g);
+    }
+
+    #[inline(always)]
+    fn apply_portable(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]) {
         let (a1, a2) = (self.one_minus_beta1, self.one_minus_beta2);
         for (((p, m), v), &g) in params.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(g) {
             *m += a1 * (g - *m);
             *v += a2 * (g * g - *v);
             *p -= self.step_size * *m / (v.sqrt() * self.inverse_sqrt_bias2 + self.epsilon);
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn apply_avx512(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]) {
+        self.apply_portable(params, m, v, g);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn apply_avx2(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], g: &[f32]) {
+        self.apply_portable(params, m, v, g);
     }
 }
 
@@ -109,18 +141,18 @@ impl Adam {
         &self.flat_params
     }
 
-    /// Clears the gradients, back-propagates `loss` and takes one Adam step.
+    /// Back-propagates `loss` to this optimiser's parameters and takes one Adam step. The
+    /// gradients are returned by the autograd engine, not accumulated into the parameters'
+    /// `.grad` (PyTorch's `zero_grad(set_to_none=True)`): no pass zeroes them, none adds into
+    /// them, and no other network's weight gradients are formed.
     pub fn backward_step(&mut self, loss: &Tensor) {
-        for p in &mut self.params {
-            p.zero_grad();
-        }
-        loss.backward();
-        self.step();
+        let grads = Tensor::run_backward(&[loss], &self.params, false, false);
+        self.step(&grads);
     }
 
-    /// One update from the gradients currently stored on the parameters (a parameter without
-    /// a gradient counts as a zero gradient: its moments decay; every parameter here has one).
-    pub fn step(&mut self) {
+    /// One update from the gradients `grads`, one per parameter in order (an undefined one
+    /// counts as a zero gradient: its moments decay).
+    fn step(&mut self, grads: &[Tensor]) {
         self.steps += 1;
         let bias1 = 1.0 - self.beta1.powi(self.steps as i32);
         let bias2 = 1.0 - self.beta2.powi(self.steps as i32);
@@ -133,20 +165,20 @@ impl Adam {
         };
         tch::no_grad(|| {
             if self.fused {
-                self.fused_cpu_step(&coefficients);
+                self.fused_cpu_step(grads, &coefficients);
             } else {
-                self.tensor_step(&coefficients);
+                self.tensor_step(grads, &coefficients);
             }
         });
     }
 
     /// The update as tensor kernels (any device).
-    fn tensor_step(&mut self, c: &StepCoefficients) {
+    fn tensor_step(&mut self, grads: &[Tensor], c: &StepCoefficients) {
         let grads: Vec<Tensor> = self
             .params
             .iter()
-            .map(|p| {
-                let g = p.grad();
+            .zip(grads)
+            .map(|(p, g)| {
                 if g.defined() {
                     g.reshape([-1])
                 } else {
@@ -170,12 +202,12 @@ impl Adam {
     /// The update as one pass over each parameter's gradient and its slices of the flat
     /// parameter and moment buffers. As tensor kernels it is six passes over ~4 MB at the thesis
     /// sizes (perf: 15 % of an update on one thread); fused, one.
-    fn fused_cpu_step(&mut self, c: &StepCoefficients) {
+    fn fused_cpu_step(&mut self, grads: &[Tensor], c: &StepCoefficients) {
         let grads: Vec<Tensor> = self
             .params
             .iter()
-            .map(|p| {
-                let g = p.grad();
+            .zip(grads)
+            .map(|(p, g)| {
                 if g.defined() {
                     g.to_kind(Kind::Float).contiguous()
                 } else {
@@ -189,7 +221,7 @@ impl Adam {
         let fits = sizes.iter().sum::<usize>() == self.flat_params.numel()
             && grads.iter().zip(&sizes).all(|(g, &n)| g.numel() == n);
         if !fits {
-            return self.tensor_step(c);
+            return self.tensor_step(&grads, c);
         }
         let mut offset = 0usize;
         for (g, n) in grads.iter().zip(sizes) {
@@ -303,10 +335,15 @@ mod tests {
         adam.fused = fused;
         assert_eq!(values(&params), reference, "flattening keeps the values");
         let x = Tensor::from_slice(&[0.5f32, -1.0, 2.0, 0.1, 0.3, -0.4]).view([2, 3]);
+        let mut params = params;
         for step in 1..=5 {
-            let loss = net.forward(&x).square().sum(Kind::Float);
-            adam.backward_step(&loss);
+            // The reference's gradients by autograd's accumulating path, taken before the step.
+            for p in &mut params {
+                p.zero_grad();
+            }
+            net.forward(&x).square().sum(Kind::Float).backward();
             let grads = values(&params.iter().map(|p| p.grad()).collect::<Vec<_>>());
+            adam.backward_step(&net.forward(&x).square().sum(Kind::Float));
             reference_adam(&mut reference, &mut m, &mut v, &grads, step, lr);
             for (got, want) in values(&params).iter().zip(&reference) {
                 assert!(

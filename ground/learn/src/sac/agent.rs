@@ -402,14 +402,22 @@ impl Sac {
         let sample = self.actor.sample(&obs);
         let q_pi = self.critics.min_q(&obs, &sample.action);
         let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
-        let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
-        let bc_error = self.cloning.error(&sample.mean_action, &actions);
-        let bc_loss = (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
-        let actor_loss = if self.config.behaviour_cloning > 0.0 {
+        // The cloning error over the batch's demonstrations: a loss term when it has a weight, a
+        // figure to report when it has none (a batch without demonstrations reports 0).
+        let bc_loss = || {
+            let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
+            let bc_error = self.cloning.error(&sample.mean_action, &actions);
+            (&bc_error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0)
+        };
+        let (actor_loss, bc_loss) = if self.config.behaviour_cloning > 0.0 {
+            let bc_loss = bc_loss();
             let lambda = 1.0 / q_pi.abs().mean(Kind::Float).detach().clamp_min(1e-6);
-            soft_loss.shallow_clone() * lambda + &bc_loss * self.config.behaviour_cloning
+            let loss = soft_loss.shallow_clone() * lambda + &bc_loss * self.config.behaviour_cloning;
+            (loss, bc_loss.double_value(&[]))
+        } else if batch.demonstrations.iter().any(|&d| d > 0.0) {
+            (soft_loss.shallow_clone(), tch::no_grad(|| bc_loss().double_value(&[])))
         } else {
-            soft_loss.shallow_clone()
+            (soft_loss.shallow_clone(), 0.0)
         };
         self.actor_optimizer.backward_step(&actor_loss);
         self.critic_store.unfreeze();
@@ -432,7 +440,7 @@ impl Sac {
             temperature: temperature.double_value(&[0]),
             entropy: -log_prob.mean(Kind::Float).double_value(&[]),
             q_mean: q.get(0).mean(Kind::Float).double_value(&[]),
-            behaviour_cloning_loss: bc_loss.double_value(&[]),
+            behaviour_cloning_loss: bc_loss,
         }
     }
 

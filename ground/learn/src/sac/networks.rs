@@ -15,7 +15,7 @@ fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize], init: nn::Linea
     for (i, &h) in hidden.iter().enumerate() {
         seq = seq
             .add(nn::linear(path / format!("l{i}"), width, h as i64, init))
-            .add_fn(|x| x.relu());
+            .add_fn(|x| x.shallow_clone().relu_());
         width = h as i64;
     }
     seq
@@ -124,7 +124,7 @@ impl TwinCritic {
         for (l, (w, b)) in self.weights.iter().zip(&self.biases).enumerate() {
             h = b.baddbmm(&h, w, 1.0, 1.0);
             if l < last {
-                h = h.relu();
+                let _ = h.relu_();
             }
         }
         h
