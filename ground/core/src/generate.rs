@@ -391,6 +391,61 @@ pub fn crosscheck_run(
     })
 }
 
+/// What a run's check against the direct transcription found and repaired, kept as
+/// `crosscheck.json` in the run folder ([`crosscheck_once`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CrossCheckSummary {
+    /// Records in the run when it was checked: a run extended since is checked again.
+    pub count: u64,
+    /// Converged records checked.
+    pub checked: u64,
+    /// Of those, how many direct solutions reached the target (re-flown by the onboard
+    /// propagator).
+    pub direct_reached: u64,
+    /// Records a direct solution beat by more than the margin: worse local optima.
+    pub beaten: u64,
+    /// The records replaced: index, final mass before and after.
+    pub repaired: Vec<(u64, f64, f64)>,
+}
+
+/// [`crosscheck_run`] with repair, once per run: the first call checks and repairs the run in
+/// `out` and saves what it found as `crosscheck.json`; a later call on the same run (same
+/// count) returns that file and solves nothing, so a resumed recipe does not repeat the work.
+/// The file is written after the repaired records and dataset, so a stop in between repeats
+/// the check on the repaired run, which finds nothing more to repair.
+pub fn crosscheck_once(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &SolveOptions,
+    show_progress: bool,
+) -> Result<CrossCheckSummary, GenerateError> {
+    let path = out.join("crosscheck.json");
+    let manifest_path = out.join("manifest.json");
+    let manifest: Manifest = read_json(&manifest_path)?.ok_or_else(|| {
+        GenerateError::Io(
+            manifest_path.clone(),
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no manifest: not a generate run"),
+        )
+    })?;
+    if let Some(done) = read_json::<CrossCheckSummary>(&path)? {
+        if done.count == manifest.count {
+            return Ok(done);
+        }
+    }
+    let run = crosscheck_run(out, spacecraft, settings, options, true, show_progress)?;
+    let checks: Vec<&CrossCheck> = run.checks.iter().filter_map(|(_, c)| c.as_ref().ok()).collect();
+    let summary = CrossCheckSummary {
+        count: manifest.count,
+        checked: run.checks.len() as u64,
+        direct_reached: checks.iter().filter(|c| c.direct_flies()).count() as u64,
+        beaten: checks.iter().filter(|c| c.beats_record(settings.margin)).count() as u64,
+        repaired: run.repaired,
+    };
+    write_json(&path, &summary)?;
+    Ok(summary)
+}
+
 /// Holds the whole run in `out` and reads its manifest and every record, in index order. The
 /// manifest is read first, so a folder that holds no run is refused and left as it was; every
 /// record is read before any work, so a missing or corrupt one (a shard's folder, an unfinished
@@ -838,6 +893,51 @@ mod tests {
 
         let again = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
         assert!(again.repaired.is_empty());
+        fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// The recipe's stage checks a run once: the summary is kept, a second call on the same run
+    /// returns it and touches nothing (a record made worse since stays as it is), and a run
+    /// extended since is checked again.
+    #[test]
+    fn crosscheck_once_keeps_its_findings_and_checks_an_extended_run_again() {
+        use shared::spacecraft::Spacecraft;
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let out = std::env::temp_dir().join(format!("lowthrust-check-once-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&out);
+        let manifest = Manifest {
+            scenario: ScenarioKind::TransferHard,
+            seed: 7,
+            count: 1,
+        };
+        let options = SolveOptions::default();
+        let settings = CrossCheckSettings::default();
+        generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
+        let optimum = read_record(&record_path(&out, 0)).unwrap();
+        let worse = TrajectoryRecord {
+            final_mass: optimum.final_mass - 0.01,
+            ..optimum.clone()
+        };
+        write_record(&record_path(&out, 0), &worse).unwrap();
+
+        let first = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        assert_eq!((first.count, first.checked, first.beaten), (1, 1, 1), "{first:?}");
+        assert_eq!(first.repaired.len(), 1);
+        assert!((first.repaired[0].2 - optimum.final_mass).abs() < 1e-9);
+        let saved: CrossCheckSummary = read_json(&out.join("crosscheck.json")).unwrap().unwrap();
+        assert_eq!(saved, first);
+
+        write_record(&record_path(&out, 0), &worse).unwrap();
+        let second = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        assert_eq!(second, first);
+        assert_eq!(read_record(&record_path(&out, 0)).unwrap().final_mass, worse.final_mass);
+
+        let extended = Manifest { count: 2, ..manifest };
+        generate(extended, Shard::WHOLE, &out, &sc, &options, false).unwrap();
+        let third = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        assert_eq!(third.count, 2);
+        assert!(third.repaired.iter().any(|r| r.0 == 0), "{third:?}");
+        assert!((read_record(&record_path(&out, 0)).unwrap().final_mass - optimum.final_mass).abs() < 1e-9);
         fs::remove_dir_all(&out).unwrap();
     }
 }

@@ -16,8 +16,9 @@ use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
 use crate::sil::{sil_monte_carlo, SilReport};
+use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::env::batch::OutcomeSummary;
-use ground_core::generate::{generate, Manifest, Shard, Summary};
+use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
 use ground_core::io::atomic_write;
 use ground_core::plot::plot_dataset_sample;
 use ground_core::solver::SolveOptions;
@@ -27,6 +28,9 @@ use ground_core::solver::SolveOptions;
 pub struct MainJob {
     pub report: PathBuf,
     pub dataset: Summary,
+    /// The dataset's check against the direct transcription and its repairs
+    /// (`generate.crosscheck`).
+    pub crosscheck: Option<CrossCheckSummary>,
     pub pretrain: PhaseSummary,
     pub train: PhaseSummary,
     /// The relabelling rounds, when the config has any.
@@ -38,7 +42,7 @@ pub struct MainJob {
     pub model: ModelCard,
     /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8.
     pub sil: [SilReport; 2],
-    /// Wall time of each stage run, s, by name (this sitting's: a resumed stage counts only
+    /// Wall time of each stage run, s, by name (this invocation's: a resumed stage counts only
     /// what it still had to do).
     pub stage_seconds: Vec<(&'static str, f64)>,
 }
@@ -79,8 +83,29 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         final_eps: config.generate.final_eps,
         ..SolveOptions::default()
     };
-    let dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, true)
+    let mut dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, true)
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+    // Worse local optima re-solved onto the better one the direct transcription finds, before
+    // anything imitates them (once per dataset: a resumed run reads what was found).
+    let crosscheck = if config.generate.crosscheck {
+        println!("      checking the records against the direct transcription (repairing worse optima)");
+        let found = crosscheck_once(
+            &dataset_dir,
+            &spacecraft,
+            &CrossCheckSettings::default(),
+            &options,
+            true,
+        )
+        .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+        if !found.repaired.is_empty() {
+            // The summary of the repaired dataset (every record is on disk: nothing is solved).
+            dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, false)
+                .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+        }
+        Some(found)
+    } else {
+        None
+    };
     // The figure is a convenience: a dataset that cannot be plotted is still a dataset.
     let _ = plot_dataset_sample(&dataset_dir, Shard::WHOLE);
     // Absolute, so the config's relative-path base cannot apply twice.
@@ -148,6 +173,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let job = MainJob {
         report: run.join("report.md"),
         dataset,
+        crosscheck,
         pretrain: pre,
         train: rl,
         dagger: rounds,
@@ -297,7 +323,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         .collect();
     let _ = writeln!(
         s,
-        "Stages (this sitting): {} (total {:.1} min). The config is in [config.toml](config.toml).\n",
+        "Stages (wall time of this invocation; a resumed stage counts its resumed part): {} (total {:.1} min). The config is in [config.toml](config.toml).\n",
         stages.join(", "),
         job.stage_seconds.iter().map(|(_, t)| t).sum::<f64>() / 60.0
     );
@@ -321,6 +347,22 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         dataset.seconds_mean,
         dataset.seconds_max,
     );
+    if let Some(c) = &job.crosscheck {
+        let repaired: Vec<String> = c
+            .repaired
+            .iter()
+            .map(|(index, before, after)| format!("#{index} {before:.4} → {after:.4}"))
+            .collect();
+        let _ = writeln!(
+            s,
+            "Checked against the direct transcription started on its own: {} converged records, {} direct solutions reached the target, {} of them ended heavier than the record by more than 1e-3 of the initial mass (worse local optima); {} re-solved onto the better optimum{}. [crosscheck.json](dataset/crosscheck.json)\n",
+            c.checked,
+            c.direct_reached,
+            c.beaten,
+            c.repaired.len(),
+            if repaired.is_empty() { String::new() } else { format!(" ({})", repaired.join(", ")) },
+        );
+    }
     let _ = writeln!(s, "![dataset trajectories](dataset/trajectories.svg)\n");
     let _ = writeln!(s, "Per-trajectory figures: [summary.csv](dataset/summary.csv).\n");
     let _ = writeln!(s, "## Learning\n");

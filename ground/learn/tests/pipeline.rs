@@ -148,6 +148,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     config.generate.count = 2;
     config.generate.seed = 9;
     config.generate.final_eps = 0.3;
+    config.generate.crosscheck = true;
     // The onboard contract's actor (10-256-256-3), so the export and SIL stages can fly it.
     config.sac.hidden = vec![256, 256];
     config.sil.episodes = 8;
@@ -163,11 +164,20 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert!(run.is_relative());
     let job = run_main_job(&config, &run).unwrap();
     assert_eq!(job.dataset.records, 2);
+    // The records were checked against the direct transcription before pretraining.
+    let check = job.crosscheck.as_ref().unwrap();
+    assert_eq!(
+        (check.count, check.checked),
+        (2, job.dataset.converged as u64),
+        "{check:?}"
+    );
+    assert!(run.join("dataset/crosscheck.json").is_file());
     assert_eq!(job.pretrain.updates, 120);
     assert_eq!(job.train.env_steps, 150);
     assert_eq!(job.monte_carlo.episodes, 16);
     let text = std::fs::read_to_string(&job.report).unwrap();
     assert!(text.contains("| zero thrust |"), "{text}");
+    assert!(text.contains("Checked against the direct transcription"), "{text}");
     assert_eq!(broken_links(&job.report), Vec::<String>::new());
     for figure in [
         "pretrain/critic-loss.svg",
