@@ -3,9 +3,11 @@
 # installed if missing; needs root), submits scripts/slurm_generate.sh as a job array, cancels it
 # once records are on disk and submits it again (the tasks resume from the records they wrote),
 # merges the shards and requires the merge to hold the same trajectories as a single run
-# (`ground compare`). The cluster is stopped on exit, however the script ends.
+# (`ground compare`); then, with a binary that has the learning commands, solves a relabelling
+# round's relabels as an array (`[compute.slurm]`) and requires the bytes of the round solved on
+# this machine. The cluster is stopped on exit, however the script ends.
 #
-#   scripts/slurm-ci.sh    # after `cargo build --release -p lowthrust-ground [--no-default-features]`
+#   scripts/slurm-ci.sh    # after `cargo build --release -p lowthrust-ground` (or --no-default-features: no relabel array)
 #
 # Outputs: target/slurm-ci/ (the array's shards and logs, the merge, the single run).
 set -euo pipefail
@@ -113,3 +115,46 @@ step "merge, and compare with a single run"
 "$GROUND" generate --scenario $SCENARIO --count $COUNT --seed $SEED --out "$OUT/single" >/dev/null
 "$GROUND" compare "$OUT/merged/dataset.ltds" "$OUT/single/dataset.ltds"
 echo "slurm-ci: the array's merged shards are the single run's trajectories"
+
+# A relabelling round's solves as an array ([compute.slurm]): needs a binary with the learning
+# commands (the default build, PyTorch installed).
+if "$GROUND" dagger --help >/dev/null 2>&1; then
+    step "a relabelling round solved as a Slurm array: the same relabels as the round solved here"
+    R="$OUT/relabel"
+    mkdir -p "$R"
+    "$GROUND" generate --scenario transfer-circular --count 2 --seed 9 --final-eps 0.3 --out "$R/data" >/dev/null
+    common='scenario = "transfer-circular"
+[sac]
+hidden = [32, 32]
+batch_size = 32
+warmup_steps = 60
+[generate]
+count = 2
+seed = 9
+final_eps = 0.3
+[pretrain]
+dataset = "data"
+updates = 40
+eval_every = 20
+mode = "behaviour-cloning"
+records = "all"
+[dagger]
+rounds = 1
+episodes = 3
+candidates = 6
+fractions = [0.3, 0.6]
+updates = 10
+score_episodes = 4'
+    printf '%s\n' "$common" >"$R/here.toml"
+    printf '%s\n[compute.slurm]\ntasks = 3\noptions = ["--cpus-per-task=1"]\n' "$common" >"$R/array.toml"
+    for arm in here array; do
+        "$GROUND" pretrain --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1
+        "$GROUND" dagger --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1 ||
+            die "the $arm round failed (run it: $GROUND dagger --config $R/$arm.toml --out $R/run-$arm)"
+    done
+    cmp "$R/run-here/dagger/relabels-1.ltrl" "$R/run-array/dagger/relabels-1.ltrl" ||
+        die "the array's relabels differ from the round solved here"
+    echo "slurm-ci: the round's relabels solved by the array are the bytes solved here"
+else
+    echo "slurm-ci: $GROUND has no learning commands (built without PyTorch): the relabel array is not checked"
+fi

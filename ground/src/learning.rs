@@ -136,6 +136,17 @@ pub enum LearnCommand {
         #[arg(long, value_delimiter = ',', default_value = "1,2", value_parser = clap::value_parser!(i32).range(1..))]
         threads: Vec<i32>,
     },
+    /// One Slurm array task of a relabelling round (`[compute.slurm]`): solves its share of the
+    /// relabels in a request file and writes the answers beside it. Run by the array the rounds
+    /// submit, not by hand.
+    RelabelShard {
+        /// The round's request file (`relabel-*.ltrq`).
+        #[arg(long)]
+        request: PathBuf,
+        /// This task and the task count, `i/N` (relabels i, i + N, ...).
+        #[arg(long)]
+        shard: ground_core::generate::Shard,
+    },
     /// The main job: solve a small transfer dataset, pretrain, train, evaluate by Monte Carlo
     /// and write RUN/report.md (embedded small default config unless --config is given).
     Run {
@@ -204,6 +215,17 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             threads,
             csv,
         } => pendulum_command(steps, seed, warmup, eval_every, threads, csv.as_deref()),
+        LearnCommand::RelabelShard { request, shard } => {
+            if let Some(threads) = std::env::var("SLURM_CPUS_PER_TASK")
+                .ok()
+                .and_then(|n| n.parse::<usize>().ok())
+            {
+                let _ = rayon::ThreadPoolBuilder::new().num_threads(threads).build_global();
+            }
+            let out = learn::dagger::relabel_shard(&request, u64::from(shard.index), u64::from(shard.count))?;
+            println!("{}", out.display());
+            Ok(())
+        }
         LearnCommand::BenchSac { updates, threads } => {
             bench_sac(updates, &threads);
             Ok(())

@@ -176,3 +176,90 @@ fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A round's relabels solved as a Slurm array (`[compute.slurm]`) are the bytes the round solves
+/// on this machine. The array is run by a stand-in for `sbatch` that runs each task's command in
+/// turn with `SLURM_ARRAY_TASK_ID` set, as `sbatch --wait --array=0-K --wrap` would; it records
+/// what it was asked. The request and answer files are gone after the round.
+#[test]
+fn relabels_solved_by_a_slurm_array_equal_those_solved_here() {
+    let dir = scratch("slurm-relabel");
+    let out = ground(&[
+        "generate",
+        "--scenario",
+        "transfer-circular",
+        "--count",
+        "2",
+        "--seed",
+        "9",
+        "--final-eps",
+        "0.3",
+        "--out",
+        path(&dir.join("data")),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let sbatch = dir.join("sbatch");
+    let asked = dir.join("asked.txt");
+    std::fs::write(
+        &sbatch,
+        format!(
+            "#!/bin/sh\necho \"$@\" >> '{}'\narray=\nwrap=\nwhile [ $# -gt 0 ]; do\n  case \"$1\" in\n    --array=*) array=${{1#--array=0-}} ;;\n    --wrap) shift; wrap=$1 ;;\n  esac\n  shift\ndone\ni=0\nwhile [ $i -le \"$array\" ]; do\n  SLURM_ARRAY_TASK_ID=$i sh -c \"$wrap\" > /dev/null || exit 1\n  i=$((i + 1))\ndone\n",
+            path(&asked)
+        ),
+    )
+    .unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&sbatch, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let common = "scenario = \"transfer-circular\"\n[sac]\nhidden = [32, 32]\nbatch_size = 32\nwarmup_steps = 60\n\
+[generate]\ncount = 2\nseed = 9\nfinal_eps = 0.3\n[pretrain]\ndataset = \"data\"\nupdates = 40\neval_every = 20\n\
+mode = \"behaviour-cloning\"\nrecords = \"all\"\n[dagger]\nrounds = 1\nepisodes = 3\ncandidates = 6\nfractions = [0.3, 0.6]\n\
+updates = 10\nscore_episodes = 4\n";
+    let here = dir.join("here.toml");
+    std::fs::write(&here, common).unwrap();
+    let array = dir.join("array.toml");
+    std::fs::write(
+        &array,
+        format!(
+            "{common}[compute.slurm]\ntasks = 4\nsbatch = \"{}\"\nground = \"{}\"\noptions = [\"--partition=test\"]\n",
+            path(&sbatch),
+            env!("CARGO_BIN_EXE_ground")
+        ),
+    )
+    .unwrap();
+    let mut relabels = Vec::new();
+    for (config, run) in [(&here, dir.join("run-here")), (&array, dir.join("run-array"))] {
+        for command in ["pretrain", "dagger"] {
+            let out = ground(&[command, "--config", path(config), "--out", path(&run)]);
+            assert!(
+                out.status.success(),
+                "{command}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        let file = run.join("dagger/relabels-1.ltrl");
+        let solved = learn::dagger::load_relabels(&file, 1, 10).unwrap();
+        assert_eq!(solved.attempted, 6);
+        assert!(solved.converged > 0 && !solved.tuples.is_empty(), "nothing to compare");
+        relabels.push(std::fs::read(&file).unwrap());
+        let left: Vec<_> = std::fs::read_dir(run.join("dagger"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|name| name.starts_with("relabel-"))
+            .collect();
+        assert!(left.is_empty(), "left behind: {left:?}");
+    }
+    assert_eq!(
+        relabels[0], relabels[1],
+        "the array's relabels differ from those solved here"
+    );
+    let asked = std::fs::read_to_string(&asked).unwrap();
+    assert_eq!(asked.lines().count(), 1, "one array for the round: {asked}");
+    assert!(
+        asked.contains("--wait") && asked.contains("--array=0-3") && asked.contains("--partition=test"),
+        "{asked}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -267,6 +267,9 @@ pub struct ComputeConfig {
     pub threads: i32,
     /// "cpu" or "cuda".
     pub device: String,
+    /// Solve the relabelling rounds' relabels as a Slurm job array instead of on this machine's
+    /// cores (unset). The relabels are the same either way.
+    pub slurm: Option<SlurmConfig>,
 }
 
 impl Default for ComputeConfig {
@@ -274,8 +277,35 @@ impl Default for ComputeConfig {
         Self {
             threads: 1,
             device: "cpu".into(),
+            slurm: None,
         }
     }
+}
+
+/// A Slurm job array for the relabel solves (`[compute.slurm]`): each batch of a round's
+/// relabels is written to a request file, `sbatch --wait --array` runs `ground relabel-shard`
+/// on it in `tasks` tasks (relabel i in task i mod tasks), and the round reads their results
+/// back in the relabels' order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SlurmConfig {
+    /// Array tasks per batch.
+    pub tasks: u64,
+    /// The submission program.
+    #[serde(default = "default_sbatch")]
+    pub sbatch: String,
+    /// More `sbatch` options, e.g. `["--partition=short", "--cpus-per-task=8"]`; a task solves
+    /// its relabels on `SLURM_CPUS_PER_TASK` threads.
+    #[serde(default)]
+    pub options: Vec<String>,
+    /// The `ground` binary the tasks run, where the compute nodes see it under another path
+    /// (default: the binary running the rounds).
+    #[serde(default)]
+    pub ground: Option<PathBuf>,
+}
+
+fn default_sbatch() -> String {
+    "sbatch".into()
 }
 
 /// Why a config was refused.
@@ -326,6 +356,17 @@ impl ExperimentConfig {
                 Ok(())
             }
         };
+        if let Some(slurm) = &self.compute.slurm {
+            if !(1..=10_000).contains(&slurm.tasks) {
+                return Err(ConfigError::Invalid(format!(
+                    "compute.slurm.tasks must be 1 to 10000, not {}",
+                    slurm.tasks
+                )));
+            }
+            if slurm.sbatch.trim().is_empty() {
+                return Err(ConfigError::Invalid("compute.slurm.sbatch is empty".into()));
+            }
+        }
         positive("pretrain.eval_every", self.pretrain.eval_every)?;
         positive("train.eval_every", self.train.eval_every)?;
         positive("train.eval_episodes", self.train.eval_episodes)?;

@@ -29,15 +29,15 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario};
 
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, SlurmConfig};
 use crate::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use crate::experiment::{
-    check_run, demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, push_demonstrations,
-    residual_chart, write_file, ExperimentError,
+    check_run, demonstration_buffer, evaluate_agent, new_agent, policy_batch, prepare_run, residual_chart, write_file,
+    ExperimentError,
 };
 use crate::export::actor_network;
 use crate::sac::agent::Sac;
-use crate::sac::replay::{sampler, ReplayBuffer};
+use crate::sac::replay::{sampler, ReplayBuffer, Transition};
 use crate::sil::fly_blob_seeded;
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
@@ -45,6 +45,7 @@ use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, Outco
 use ground_core::env::{MdpEnv, Problem, Rendezvous, Transfer};
 use ground_core::io::{decode_container, encode_container};
 use ground_core::solver::SolveOptions;
+use onboard::dynamics::SpacecraftState;
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
 const RELABELS_VERSION: u16 = 1;
@@ -65,6 +66,203 @@ pub struct Relabels {
     pub converged: u64,
     /// The tuples, flagged as demonstrations.
     pub tuples: ReplayBuffer,
+}
+
+/// One relabelled tuple as it enters the buffer (what a Slurm task sends back).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RelabelTuple {
+    obs: Vec<f32>,
+    action: [f32; 3],
+    reward: f32,
+    next_obs: Vec<f32>,
+    done: bool,
+}
+
+/// The tuples of one relabel's re-solved flight, `None` where it did not converge.
+type Solved = Option<Vec<RelabelTuple>>;
+
+/// One relabel: the rest of training scenario `first + episode`'s flight from `state`
+/// (x, y, vx, vy, m) at step `step`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RelabelJob {
+    pub episode: u64,
+    pub step: u32,
+    pub state: [f64; 5],
+}
+
+/// A batch of relabels for a Slurm array (`ground relabel-shard`): the run's config (its
+/// scenarios, spacecraft, environment and final eps), the round's first training scenario and
+/// the relabels in order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RelabelRequest {
+    pub config: String,
+    pub first: u64,
+    pub jobs: Vec<RelabelJob>,
+}
+
+/// A task's answers: (relabel's position in the request, its tuples).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct RelabelShard {
+    answers: Vec<(u64, Solved)>,
+}
+
+const REQUEST_MAGIC: [u8; 4] = *b"LTRQ";
+const REQUEST_VERSION: u16 = 1;
+const SHARD_MAGIC: [u8; 4] = *b"LTRS";
+const SHARD_VERSION: u16 = 1;
+
+/// Solves one relabel, as [`relabel`] and [`placed_demonstration`] make it.
+fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob) -> Solved {
+    let index = first + job.episode;
+    let scenario = config.scenario.draw(config.seeds.train, index);
+    let sc = config.env.spacecraft.canonical().ok()?;
+    // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
+    // to 10.9 % within the goal (docs/results.md).
+    let options = SolveOptions {
+        final_eps: config.generate.final_eps,
+        ..SolveOptions::default()
+    };
+    let [x, y, vx, vy, m] = job.state;
+    let state = SpacecraftState {
+        r: [x, y],
+        v: [vx, vy],
+        m,
+    };
+    let (record, placement) = relabel((config.seeds.train, index), &scenario, &state, job.step, &sc, &options)?;
+    if !record.converged {
+        return None;
+    }
+    let demo = placed_demonstration::<P>(&record, &placement, &config.env, &default_tolerances()).ok()?;
+    Some(
+        demo.transitions
+            .iter()
+            .map(|t| RelabelTuple {
+                obs: t.observation.as_ref().to_vec(),
+                action: t.action,
+                reward: t.reward as f32,
+                next_obs: t.next_observation.as_ref().to_vec(),
+                done: t.done,
+            })
+            .collect(),
+    )
+}
+
+fn shard_file(request: &Path, task: u64, tasks: u64) -> PathBuf {
+    request.with_extension(format!("{task}-of-{tasks}.ltrs"))
+}
+
+/// `ground relabel-shard`: solves the relabels `task`, `task + tasks`, ... of the request file
+/// on this machine's cores and writes their answers beside it.
+pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathBuf, ExperimentError> {
+    if tasks == 0 || task >= tasks {
+        return Err(ExperimentError::Mismatch(format!(
+            "shard {task}/{tasks}: the task must be below the task count"
+        )));
+    }
+    let bytes = std::fs::read(request_path).map_err(|e| ExperimentError::Io(request_path.to_path_buf(), e))?;
+    let request: RelabelRequest = decode_container(REQUEST_MAGIC, REQUEST_VERSION, &bytes)
+        .map_err(|e| ExperimentError::Mismatch(format!("relabel request {}: {e}", request_path.display())))?;
+    let config = ExperimentConfig::from_toml(&request.config)?;
+    let mine: Vec<(u64, &RelabelJob)> = (task..request.jobs.len() as u64)
+        .step_by(tasks as usize)
+        .map(|i| (i, &request.jobs[i as usize]))
+        .collect();
+    let solve = |job: &RelabelJob| match config.scenario.problem() {
+        ProblemKind::Transfer => solve_job::<Transfer>(&config, request.first, job),
+        ProblemKind::Rendezvous => solve_job::<Rendezvous>(&config, request.first, job),
+    };
+    let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
+    let out = shard_file(request_path, task, tasks);
+    let bytes = encode_container(SHARD_MAGIC, SHARD_VERSION, &RelabelShard { answers })
+        .map_err(|e| ExperimentError::Io(out.clone(), std::io::Error::other(e.to_string())))?;
+    write_file(&out, &bytes)?;
+    Ok(out)
+}
+
+/// Solves `jobs` as a Slurm array: writes the request `DIR/relabel-TAG.ltrq`, runs `sbatch
+/// --wait --array` on it, reads every task's answers back in the request's order and removes
+/// the request and answer files. A task that failed or answered nothing fails the round.
+fn solve_on_slurm(
+    config: &ExperimentConfig,
+    slurm: &SlurmConfig,
+    dir: &Path,
+    tag: &str,
+    first: u64,
+    jobs: Vec<RelabelJob>,
+) -> Result<Vec<Solved>, ExperimentError> {
+    if jobs.is_empty() {
+        return Ok(Vec::new());
+    }
+    let count = jobs.len();
+    let request_path = std::path::absolute(dir.join(format!("relabel-{tag}.ltrq")))
+        .map_err(|e| ExperimentError::Io(dir.to_path_buf(), e))?;
+    let request = RelabelRequest {
+        config: config.to_toml(),
+        first,
+        jobs,
+    };
+    let bytes = encode_container(REQUEST_MAGIC, REQUEST_VERSION, &request)
+        .map_err(|e| ExperimentError::Io(request_path.clone(), std::io::Error::other(e.to_string())))?;
+    write_file(&request_path, &bytes)?;
+    let ground = match &slurm.ground {
+        Some(path) => path.clone(),
+        None => std::env::current_exe().map_err(|e| ExperimentError::Io(PathBuf::from("ground"), e))?,
+    };
+    let quoted = |p: &Path| -> Result<String, ExperimentError> {
+        let text = p.to_str().filter(|t| !t.contains('\'')).ok_or_else(|| {
+            ExperimentError::Mismatch(format!("{}: a Slurm task cannot be given this path", p.display()))
+        })?;
+        Ok(format!("'{text}'"))
+    };
+    let tasks = slurm.tasks.min(count as u64);
+    let command = format!(
+        "{} relabel-shard --request {} --shard \"$SLURM_ARRAY_TASK_ID/{tasks}\"",
+        quoted(&ground)?,
+        quoted(&request_path)?
+    );
+    let log = request_path.with_extension("slurm-%a.out");
+    let status = std::process::Command::new(&slurm.sbatch)
+        .arg("--wait")
+        .arg("--job-name=lowthrust-relabel")
+        .arg(format!("--array=0-{}", tasks - 1))
+        .arg(format!("--output={}", log.display()))
+        .args(&slurm.options)
+        .arg("--wrap")
+        .arg(&command)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .map_err(|e| ExperimentError::Io(PathBuf::from(&slurm.sbatch), e))?;
+    if !status.success() {
+        return Err(ExperimentError::Mismatch(format!(
+            "the relabel array ({}) ended with {status}: see {}",
+            slurm.sbatch,
+            log.display()
+        )));
+    }
+    let mut solved: Vec<Option<Solved>> = vec![None; count];
+    for task in 0..tasks {
+        let path = shard_file(&request_path, task, tasks);
+        let bytes = std::fs::read(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
+        let shard: RelabelShard = decode_container(SHARD_MAGIC, SHARD_VERSION, &bytes)
+            .map_err(|e| ExperimentError::Mismatch(format!("relabel answers {}: {e}", path.display())))?;
+        for (i, answer) in shard.answers {
+            if let Some(slot) = solved.get_mut(i as usize) {
+                *slot = Some(answer);
+            }
+        }
+    }
+    let solved: Vec<Solved> = solved.into_iter().collect::<Option<_>>().ok_or_else(|| {
+        ExperimentError::Mismatch(format!(
+            "the relabel array left relabels of {} unanswered",
+            request_path.display()
+        ))
+    })?;
+    for task in 0..tasks {
+        let _ = std::fs::remove_file(shard_file(&request_path, task, tasks));
+        let _ = std::fs::remove_file(request_path.with_extension(format!("slurm-{task}.out")));
+    }
+    let _ = std::fs::remove_file(&request_path);
+    Ok(solved)
 }
 
 /// The score of the learner after a round (round 0: the starting checkpoint).
@@ -172,7 +370,12 @@ fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 
 /// Flies the policy on round `round`'s training scenarios and relabels the visited states at
 /// the config's fractions of each flight, solved to the demonstrations' eps.
-fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64) -> Result<Relabels, ExperimentError> {
+fn solve_relabels<P: Problem>(
+    config: &ExperimentConfig,
+    agent: &Sac,
+    round: u64,
+    dagger_dir: &Path,
+) -> Result<Relabels, ExperimentError> {
     let dagger = &config.dagger;
     let first = ROUND_STRIDE * round;
     let candidates = dagger.candidates.unwrap_or(dagger.episodes);
@@ -205,53 +408,65 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
         let steps = scenarios[episode].steps;
         ((fraction * f64::from(steps)).round() as u32).clamp(1, steps - 1)
     };
-    let sc = config
-        .env
-        .spacecraft
-        .canonical()
-        .map_err(|e| ExperimentError::Mismatch(format!("env.spacecraft: {e:?}")))?;
-    // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
-    // to 10.9 % within the goal (docs/results.md).
-    let options = SolveOptions {
-        final_eps: config.generate.final_eps,
-        ..SolveOptions::default()
-    };
-    let tolerances = default_tolerances();
     let wanted = dagger.episodes as usize;
     let bar = progress_bar(
         (wanted * dagger.fractions.len()) as u64,
         &format!("round {round} relabel"),
     );
-    // The tuples of the rest of `episode`'s flight re-solved from its state at `step`, if the
-    // solve converged.
-    let solve = |(episode, step): (usize, u32)| {
-        bar.inc(1);
-        let state = flown[episode].trajectory.as_ref()?[step as usize].state;
-        let trace = (config.seeds.train, first + episode as u64);
-        let (record, placement) = relabel(trace, &scenarios[episode], &state, step, &sc, &options)?;
-        if !record.converged {
-            return None;
-        }
-        placed_demonstration::<P>(&record, &placement, &config.env, &tolerances).ok()
+    let mut batches = 0u64;
+    // The rest of each (episode, step)'s flight re-solved from its state there, in order: here
+    // on every core, or as a Slurm array (the same results).
+    let mut solve_batch = |pairs: &[(usize, u32)]| -> Result<Vec<Solved>, ExperimentError> {
+        let jobs: Vec<Option<RelabelJob>> = pairs
+            .iter()
+            .map(|&(episode, step)| {
+                let point = flown[episode].trajectory.as_ref()?.get(step as usize)?;
+                let (r, v, m) = (point.state.r, point.state.v, point.state.m);
+                Some(RelabelJob {
+                    episode: episode as u64,
+                    step,
+                    state: [r[0], r[1], v[0], v[1], m],
+                })
+            })
+            .collect();
+        let solved = match &config.compute.slurm {
+            None => jobs
+                .par_iter()
+                .map(|job| {
+                    bar.inc(1);
+                    job.as_ref().and_then(|job| solve_job::<P>(config, first, job))
+                })
+                .collect(),
+            Some(slurm) => {
+                batches += 1;
+                let present: Vec<RelabelJob> = jobs.iter().flatten().copied().collect();
+                let tag = format!("{round}-{batches}");
+                let mut results = solve_on_slurm(config, slurm, dagger_dir, &tag, first, present)?.into_iter();
+                bar.inc(jobs.len() as u64);
+                jobs.iter()
+                    .map(|job| job.as_ref().and_then(|_| results.next().flatten()))
+                    .collect()
+            }
+        };
+        Ok(solved)
     };
-    let (solved, attempted): (Vec<_>, usize) = if dagger.solvable_only && !dagger.fractions.is_empty() {
+    let (solved, attempted): (Vec<Vec<RelabelTuple>>, usize) = if dagger.solvable_only && !dagger.fractions.is_empty() {
         // The earliest fraction probes each flight, largest miss first, until enough re-solve;
         // the other fractions are solved for those alone.
         let mut fractions = dagger.fractions.clone();
         fractions.sort_by(f64::total_cmp);
         let ranked: Vec<usize> = ranked_by_miss(eligible).iter().map(|o| o.episode).collect();
-        let (kept, probed) = walk_probes(&ranked, wanted, |episode| {
-            let found = solve((episode, step_at(episode, fractions[0])));
-            if found.is_none() {
-                bar.inc_length(1);
-            }
-            found
-        });
+        let (kept, probed) = walk_probes(&ranked, wanted, |episodes| {
+            let pairs: Vec<(usize, u32)> = episodes.iter().map(|&e| (e, step_at(e, fractions[0]))).collect();
+            let found = solve_batch(&pairs)?;
+            bar.inc_length(found.iter().filter(|f| f.is_none()).count() as u64);
+            Ok::<_, ExperimentError>(found)
+        })?;
         let rest: Vec<(usize, u32)> = kept
             .iter()
             .flat_map(|(episode, _)| fractions[1..].iter().map(move |&f| (*episode, step_at(*episode, f))))
             .collect();
-        let more: Vec<_> = rest.par_iter().filter_map(|&job| solve(job)).collect();
+        let more = solve_batch(&rest)?.into_iter().flatten();
         let solved = kept.into_iter().map(|(_, demo)| demo).chain(more).collect();
         (solved, probed + rest.len())
     } else {
@@ -264,13 +479,20 @@ fn solve_relabels<P: Problem>(config: &ExperimentConfig, agent: &Sac, round: u64
                     .map(move |&f| (o.episode, step_at(o.episode, f)))
             })
             .collect();
-        (jobs.par_iter().filter_map(|&job| solve(job)).collect(), jobs.len())
+        (solve_batch(&jobs)?.into_iter().flatten().collect(), jobs.len())
     };
     bar.finish_and_clear();
-    let count: usize = solved.iter().map(|d| d.transitions.len()).sum();
+    let count: usize = solved.iter().map(Vec::len).sum();
     let mut tuples = ReplayBuffer::new(P::OBS, 3, count.max(1));
-    for demo in &solved {
-        push_demonstrations(&mut tuples, &demo.transitions);
+    for t in solved.iter().flatten() {
+        tuples.push(&Transition {
+            obs: &t.obs,
+            action: &t.action,
+            reward: t.reward,
+            next_obs: &t.next_obs,
+            done: t.done,
+            demonstration: true,
+        });
     }
     Ok(Relabels {
         round,
@@ -305,25 +527,26 @@ fn ranked_by_miss(mut outcomes: Vec<&EpisodeOutcome>) -> Vec<&EpisodeOutcome> {
 /// the probes past the quota waste little.
 const PROBE_CHUNK: usize = 32;
 
-/// Probes `ranked` in order, [`PROBE_CHUNK`] at a time in parallel, until at least `quota`
-/// probes have succeeded (every success of the last chunk is kept, so the result does not
-/// depend on the thread count). Returns the successes in rank order and how many were probed.
-fn walk_probes<T: Send>(
+/// Probes `ranked` in order, [`PROBE_CHUNK`] at a time (`probe` takes a chunk and answers for
+/// each item, in order), until at least `quota` probes have succeeded (every success of the last
+/// chunk is kept, so the result does not depend on how a chunk is solved). Returns the successes
+/// in rank order and how many were probed.
+fn walk_probes<T, E>(
     ranked: &[usize],
     quota: usize,
-    probe: impl Fn(usize) -> Option<T> + Sync,
-) -> (Vec<(usize, T)>, usize) {
+    mut probe: impl FnMut(&[usize]) -> Result<Vec<Option<T>>, E>,
+) -> Result<(Vec<(usize, T)>, usize), E> {
     let mut kept = Vec::new();
     let mut probed = 0;
     for chunk in ranked.chunks(PROBE_CHUNK) {
         if kept.len() >= quota {
             break;
         }
-        let results: Vec<Option<T>> = chunk.par_iter().map(|&item| probe(item)).collect();
+        let results = probe(chunk)?;
         probed += chunk.len();
         kept.extend(chunk.iter().zip(results).filter_map(|(&item, r)| r.map(|t| (item, t))));
     }
-    (kept, probed)
+    Ok((kept, probed))
 }
 
 /// The learner's flown actor as an f32 blob.
@@ -465,7 +688,7 @@ fn dagger_for<P: Problem>(
         let relabels = if path.exists() {
             load_relabels(&path, round, P::OBS)?
         } else {
-            let relabels = solve_relabels::<P>(config, &agent, round)?;
+            let relabels = solve_relabels::<P>(config, &agent, round, &dir)?;
             save_relabels(&path, &relabels)?;
             relabels
         };
@@ -658,22 +881,27 @@ mod tests {
     fn probes_walk_the_ranking_in_chunks_until_the_quota_and_keep_the_last_chunk_whole() {
         // Items ranked 0..100; the probe succeeds on multiples of 3 and reports its item.
         let ranked: Vec<usize> = (0..100).collect();
-        let probe = |item: usize| item.is_multiple_of(3).then_some(item * 10);
+        let probe = |chunk: &[usize]| -> Result<Vec<Option<usize>>, ()> {
+            Ok(chunk
+                .iter()
+                .map(|&item| item.is_multiple_of(3).then_some(item * 10))
+                .collect())
+        };
         // 11 successes in the first chunk (0..32): a quota of 5 stops there, all 11 kept.
-        let (kept, probed) = walk_probes(&ranked, 5, probe);
+        let (kept, probed) = walk_probes(&ranked, 5, probe).unwrap();
         assert_eq!(probed, PROBE_CHUNK);
         assert_eq!(kept.len(), 11);
         assert!(kept.iter().all(|&(item, t)| item.is_multiple_of(3) && t == item * 10));
         assert!(kept.windows(2).all(|w| w[0].0 < w[1].0), "rank order");
         // A quota of 12 needs the second chunk (32..64: 11 more).
-        let (kept, probed) = walk_probes(&ranked, 12, probe);
+        let (kept, probed) = walk_probes(&ranked, 12, probe).unwrap();
         assert_eq!((kept.len(), probed), (22, 2 * PROBE_CHUNK));
         // More than can succeed: every item probed once.
-        let (kept, probed) = walk_probes(&ranked, 1000, probe);
+        let (kept, probed) = walk_probes(&ranked, 1000, probe).unwrap();
         assert_eq!((kept.len(), probed), (34, 100));
         // A ranking that is not in item order is walked in its own order.
         let reversed: Vec<usize> = (0..100).rev().collect();
-        let (kept, _) = walk_probes(&reversed, 1, probe);
+        let (kept, _) = walk_probes(&reversed, 1, probe).unwrap();
         assert_eq!(kept.first().map(|k| k.0), Some(99));
     }
 }
