@@ -29,7 +29,7 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
     pretrain(&config, &dir, &pre).unwrap();
     let start = pre.join("pretrain/best.safetensors");
 
-    // Two rounds in one sitting.
+    // Two rounds in one invocation.
     let straight = dir.join("straight");
     let whole = dagger(&config, &dir, &straight, &start).unwrap();
     let rounds: Vec<u64> = whole.rows.iter().map(|r| r.round).collect();
@@ -63,7 +63,7 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
     let weights =
         |run: &Path, round: u64| std::fs::read(run.join(format!("dagger/round-{round}.safetensors"))).unwrap();
 
-    // One round, then the second in a later sitting.
+    // One round, then the second in a later invocation.
     let resumed = dir.join("resumed");
     config.dagger.rounds = 1;
     dagger(&config, &dir, &resumed, &start).unwrap();

@@ -94,7 +94,7 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
     let rl_state = state(&run.join("train-pretrained/state.json"));
     let eval_steps: Vec<u64> = rl_state.evaluations.iter().map(|r| r.env_steps).collect();
     assert_eq!(eval_steps, vec![0, 50, 100, 150]);
-    // Updates: one per step once the buffer is past warm-up (60 steps), in both sittings.
+    // Updates: one per step once the buffer is past warm-up (60 steps), in both invocations.
     assert_eq!(rl_state.updates, 150 - 60 + 1);
 
     // The best RL checkpoint loads into a fresh agent with the config's shapes.
