@@ -198,7 +198,9 @@ fn relabels_solved_by_a_slurm_array_equal_those_solved_here() {
         path(&dir.join("data")),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let sbatch = dir.join("sbatch");
+    // Beside the test binaries, where executing is allowed wherever the tests run (a temporary
+    // folder may be mounted without it).
+    let sbatch = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sbatch-{}", std::process::id()));
     let asked = dir.join("asked.txt");
     std::fs::write(
         &sbatch,
@@ -261,5 +263,6 @@ updates = 10\nscore_episodes = 4\n";
         asked.contains("--wait") && asked.contains("--array=0-3") && asked.contains("--partition=test"),
         "{asked}"
     );
+    std::fs::remove_file(&sbatch).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
