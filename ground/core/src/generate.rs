@@ -412,14 +412,15 @@ pub struct CrossCheckSummary {
 /// `out` and saves what it found as `crosscheck.json`; a later call on the same run (same
 /// count) returns that file and solves nothing, so a resumed recipe does not repeat the work.
 /// The file is written after the repaired records and dataset, so a stop in between repeats
-/// the check on the repaired run, which finds nothing more to repair.
+/// the check on the repaired run, which finds nothing more to repair. With the findings comes
+/// the summary of the dataset this call rewrote (`None` when it read the findings back).
 pub fn crosscheck_once(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
     settings: &CrossCheckSettings,
     options: &SolveOptions,
     show_progress: bool,
-) -> Result<CrossCheckSummary, GenerateError> {
+) -> Result<(CrossCheckSummary, Option<Summary>), GenerateError> {
     let path = out.join("crosscheck.json");
     let manifest_path = out.join("manifest.json");
     let manifest: Manifest = read_json(&manifest_path)?.ok_or_else(|| {
@@ -430,7 +431,7 @@ pub fn crosscheck_once(
     })?;
     if let Some(done) = read_json::<CrossCheckSummary>(&path)? {
         if done.count == manifest.count {
-            return Ok(done);
+            return Ok((done, None));
         }
     }
     let run = crosscheck_run(out, spacecraft, settings, options, true, show_progress)?;
@@ -443,7 +444,7 @@ pub fn crosscheck_once(
         repaired: run.repaired,
     };
     write_json(&path, &summary)?;
-    Ok(summary)
+    Ok((summary, run.summary))
 }
 
 /// Holds the whole run in `out` and reads its manifest and every record, in index order. The
@@ -848,11 +849,22 @@ mod tests {
     /// record from another start would be): the check flags it, the repair re-solves it from the
     /// direct solution and puts back the optimum (the record as solved, its seconds aside), and
     /// the dataset and summary follow. A second pass finds nothing to repair.
-    #[test]
-    fn crosscheck_run_repairs_a_worse_record_and_rewrites_the_dataset() {
+    /// A one-draw transfer-hard run (seed 7) in a fresh folder named `name`, whose record is then
+    /// made a worse local optimum (its final mass lowered by 0.01, as a record from another start
+    /// would be): the folder, its manifest, the record as solved and the worse one.
+    struct WorseRecordRun {
+        out: PathBuf,
+        sc: CanonicalSpacecraft,
+        manifest: Manifest,
+        options: SolveOptions,
+        optimum: TrajectoryRecord,
+        worse: TrajectoryRecord,
+    }
+
+    fn worse_record_run(name: &str) -> WorseRecordRun {
         use shared::spacecraft::Spacecraft;
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let out = std::env::temp_dir().join(format!("lowthrust-repair-{}", std::process::id()));
+        let out = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
         let _ = fs::remove_dir_all(&out);
         let manifest = Manifest {
             scenario: ScenarioKind::TransferHard,
@@ -868,7 +880,26 @@ mod tests {
             ..optimum.clone()
         };
         write_record(&record_path(&out, 0), &worse).unwrap();
+        WorseRecordRun {
+            out,
+            sc,
+            manifest,
+            options,
+            optimum,
+            worse,
+        }
+    }
 
+    #[test]
+    fn crosscheck_run_repairs_a_worse_record_and_rewrites_the_dataset() {
+        let WorseRecordRun {
+            out,
+            sc,
+            options,
+            optimum,
+            worse,
+            ..
+        } = worse_record_run("repair");
         let settings = CrossCheckSettings::default();
         let run = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
         assert!(
@@ -901,26 +932,23 @@ mod tests {
     /// extended since is checked again.
     #[test]
     fn crosscheck_once_keeps_its_findings_and_checks_an_extended_run_again() {
-        use shared::spacecraft::Spacecraft;
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        let out = std::env::temp_dir().join(format!("lowthrust-check-once-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&out);
-        let manifest = Manifest {
-            scenario: ScenarioKind::TransferHard,
-            seed: 7,
-            count: 1,
-        };
-        let options = SolveOptions::default();
+        let WorseRecordRun {
+            out,
+            sc,
+            manifest,
+            options,
+            optimum,
+            worse,
+        } = worse_record_run("check-once");
         let settings = CrossCheckSettings::default();
-        generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
-        let optimum = read_record(&record_path(&out, 0)).unwrap();
-        let worse = TrajectoryRecord {
-            final_mass: optimum.final_mass - 0.01,
-            ..optimum.clone()
-        };
-        write_record(&record_path(&out, 0), &worse).unwrap();
 
-        let first = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        let (first, rewritten) = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        // The repaired dataset's summary comes back with it.
+        let dataset = read_dataset(&dataset_path(&out, Shard::WHOLE)).unwrap();
+        assert_eq!(
+            rewritten.map(|r| r.final_mass_mean),
+            Some(dataset.records[0].final_mass)
+        );
         assert_eq!((first.count, first.checked, first.beaten), (1, 1, 1), "{first:?}");
         assert_eq!(first.repaired.len(), 1);
         assert!((first.repaired[0].2 - optimum.final_mass).abs() < 1e-9);
@@ -928,13 +956,14 @@ mod tests {
         assert_eq!(saved, first);
 
         write_record(&record_path(&out, 0), &worse).unwrap();
-        let second = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        let (second, rewritten) = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
         assert_eq!(second, first);
+        assert!(rewritten.is_none(), "nothing was rewritten");
         assert_eq!(read_record(&record_path(&out, 0)).unwrap().final_mass, worse.final_mass);
 
         let extended = Manifest { count: 2, ..manifest };
         generate(extended, Shard::WHOLE, &out, &sc, &options, false).unwrap();
-        let third = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
+        let (third, _) = crosscheck_once(&out, &sc, &settings, &options, false).unwrap();
         assert_eq!(third.count, 2);
         assert!(third.repaired.iter().any(|r| r.0 == 0), "{third:?}");
         assert!((read_record(&record_path(&out, 0)).unwrap().final_mass - optimum.final_mass).abs() < 1e-9);

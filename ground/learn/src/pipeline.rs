@@ -89,7 +89,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // anything imitates them (once per dataset: a resumed run reads what was found).
     let crosscheck = if config.generate.crosscheck {
         println!("      checking the records against the direct transcription (repairing worse optima)");
-        let found = crosscheck_once(
+        let (found, rewritten) = crosscheck_once(
             &dataset_dir,
             &spacecraft,
             &CrossCheckSettings::default(),
@@ -97,10 +97,9 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
             true,
         )
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
-        if !found.repaired.is_empty() {
-            // The summary of the repaired dataset (every record is on disk: nothing is solved).
-            dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, false)
-                .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+        // A resumed run's dataset, read above, already holds the repairs.
+        if let Some(repaired) = rewritten {
+            dataset = repaired;
         }
         Some(found)
     } else {
