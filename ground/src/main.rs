@@ -77,8 +77,9 @@ enum Command {
     },
     /// Check the converged records of a dataset against the direct transcription started on its
     /// own (tangential thrust, the record's cost): exit status 1 when a direct solution that
-    /// reaches the target ends heavier than a record (a worse local optimum) and, with
-    /// --repair, re-solving the record from it did not replace it.
+    /// reaches the target ends heavier than a record (a worse local optimum). With --repair such
+    /// a record is re-solved from the direct solution, or, where that does not end heavier, cut
+    /// from the demonstrations (not converged, its samples dropped, the evidence as its failure).
     Crosscheck(trajectories::CrossCheckArgs),
     /// Classify the unconverged transfer records of a finished dataset run by their minimum time
     /// of flight (infeasible, feasible, or unknown) and rewrite the records, the dataset and the

@@ -319,9 +319,9 @@ pub struct CrossCheckArgs {
     /// Write one row per record here (CSV; its folder must exist).
     #[arg(long)]
     csv: Option<PathBuf>,
-    /// Re-solve each transfer record a direct solution beats from that solution, and replace it
-    /// when the result converges heavier by the margin (the dataset and summaries are
-    /// rewritten; --dataset must be a run folder).
+    /// Re-solve each record a direct solution beats from that solution, and replace it when the
+    /// result converges heavier by the margin, or else cut it from the demonstrations (the
+    /// dataset and summaries are rewritten; --dataset must be a run folder).
     #[arg(long)]
     repair: bool,
 }
@@ -357,7 +357,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
     let spacecraft = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
-    let (checks, repaired) = if args.repair {
+    let (checks, repaired, cut) = if args.repair {
         let run = crosscheck_run(
             &args.dataset,
             &spacecraft,
@@ -366,7 +366,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
             true,
             true,
         )?;
-        (run.checks, run.repaired)
+        (run.checks, run.repaired, run.cut)
     } else {
         let file = if args.dataset.is_dir() {
             args.dataset.join("dataset.ltds")
@@ -381,7 +381,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
             &settings,
             true,
         );
-        (checks, Vec::new())
+        (checks, Vec::new(), Vec::new())
     };
     if checks.is_empty() {
         return Err(format!("{}: no converged record to check", args.dataset.display()).into());
@@ -412,6 +412,9 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
     for (index, before, after) in &repaired {
         println!("#{index}: repaired, re-solved from the direct solution: {before:.6} -> {after:.6}");
     }
+    for (index, _, _) in &cut {
+        println!("#{index}: its re-solve from the direct solution did not end heavier: cut from the demonstrations");
+    }
     for (index, check) in &checks {
         if let Err(e) = check {
             println!("#{index}: the direct solve failed: {e}");
@@ -427,12 +430,13 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
         beaten.len(),
         settings.margin,
         if args.repair {
-            format!(", {} repaired", repaired.len())
+            format!(", {} repaired, {} cut", repaired.len(), cut.len())
         } else {
             String::new()
         }
     );
-    let left = beaten.len() - repaired.len();
+    // With --repair every beaten record is repaired or cut: the dataset imitates none of them.
+    let left = beaten.len() - repaired.len() - cut.len();
     if left == 0 {
         Ok(())
     } else {

@@ -176,6 +176,27 @@ pub fn repair_record(
     })
 }
 
+/// The failure reason of a record cut as a worse local optimum starts with this.
+pub const WORSE_OPTIMUM: &str = "worse local optimum:";
+
+/// A record that a direct solution beats by the margin and whose re-solve from it
+/// ([`repair_record`]) did not end heavier: proven not the optimum and not repaired, it is no
+/// demonstration. It stays in the run, not converged, without its trajectory samples (so no
+/// record filter takes it), with the evidence as its failure.
+pub fn cut_record(record: &TrajectoryRecord, check: &CrossCheck) -> TrajectoryRecord {
+    TrajectoryRecord {
+        converged: false,
+        failure: Some(format!(
+            "{WORSE_OPTIMUM} the direct transcription ends at {:.4} of the initial mass, this record's \
+             indirect solution at {:.4}; re-solved from the direct solution it did not end heavier",
+            check.direct_final_mass, record.final_mass
+        )),
+        ephemeris: Vec::new(),
+        steps: Vec::new(),
+        ..record.clone()
+    }
+}
+
 /// Checks the converged records among `records` (the first `limit` of them, all with `None`)
 /// in parallel, in index order; a direct solve that fails outright is returned as its error.
 pub fn crosscheck_records(

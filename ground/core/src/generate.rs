@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use crate::crosscheck::{crosscheck_records, repair_record, CrossCheck, CrossCheckSettings};
+use crate::crosscheck::{crosscheck_records, cut_record, repair_record, CrossCheck, CrossCheckSettings};
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
@@ -333,15 +333,19 @@ pub struct CrossCheckRun {
     pub checks: Vec<(u64, Result<CrossCheck, DirectError>)>,
     /// The records replaced: index, final mass before and after.
     pub repaired: Vec<(u64, f64, f64)>,
-    /// The dataset's summary after the repairs (`None` without `repair`).
+    /// The beaten records whose re-solve did not end heavier, cut ([`cut_record`]): index, the
+    /// record's final mass and the direct solution's.
+    pub cut: Vec<(u64, f64, f64)>,
+    /// The dataset's summary after the repairs and cuts (`None` without `repair`).
     pub summary: Option<Summary>,
 }
 
 /// Opt-in after a (whole) run in `out`: checks every converged record against the direct
 /// transcription started on its own ([`crosscheck_records`]). With `repair`, every record a
 /// direct solution beats is re-solved from it ([`repair_record`]); a converged result heavier
-/// by the margin replaces the record, and the dataset and summaries are rewritten. `out` is
-/// held for the whole work; nothing is written without `repair`.
+/// by the margin replaces the record, and a record its re-solve does not lift is cut from the
+/// demonstrations ([`cut_record`]); the dataset and summaries are rewritten. `out` is held for
+/// the whole work; nothing is written without `repair`.
 pub fn crosscheck_run(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -356,6 +360,7 @@ pub fn crosscheck_run(
         return Ok(CrossCheckRun {
             checks,
             repaired: Vec::new(),
+            cut: Vec::new(),
             summary: None,
         });
     }
@@ -365,15 +370,24 @@ pub fn crosscheck_run(
         .filter_map(|(_, c)| c.as_ref().ok())
         .filter(|c| c.beats_record(settings.margin))
         .collect();
-    let repairs: Vec<TrajectoryRecord> = beaten
-        .into_par_iter()
-        .filter_map(|c| repair_record(&records[c.index as usize], c, spacecraft, settings.margin, options))
+    let repairs: Vec<Option<TrajectoryRecord>> = beaten
+        .par_iter()
+        .map(|c| repair_record(&records[c.index as usize], c, spacecraft, settings.margin, options))
         .collect();
-    let mut repaired = Vec::new();
-    for new in repairs {
+    let (mut repaired, mut cut) = (Vec::new(), Vec::new());
+    for (check, repair) in beaten.iter().zip(repairs) {
+        let old = &mut records[check.index as usize];
+        let new = match repair {
+            Some(new) => {
+                repaired.push((new.index, old.final_mass, new.final_mass));
+                new
+            }
+            None => {
+                cut.push((old.index, old.final_mass, check.direct_final_mass));
+                cut_record(old, check)
+            }
+        };
         write_record(&record_path(out, new.index), &new)?;
-        let old = &mut records[new.index as usize];
-        repaired.push((new.index, old.final_mass, new.final_mass));
         *old = new;
     }
     let summary = write_outputs(
@@ -387,6 +401,7 @@ pub fn crosscheck_run(
     Ok(CrossCheckRun {
         checks,
         repaired,
+        cut,
         summary: Some(summary),
     })
 }
@@ -406,6 +421,10 @@ pub struct CrossCheckSummary {
     pub beaten: u64,
     /// The records replaced: index, final mass before and after.
     pub repaired: Vec<(u64, f64, f64)>,
+    /// The beaten records not repaired, cut from the demonstrations: index, the record's final
+    /// mass and the direct solution's.
+    #[serde(default)]
+    pub cut: Vec<(u64, f64, f64)>,
 }
 
 /// [`crosscheck_run`] with repair, once per run: the first call checks and repairs the run in
@@ -442,6 +461,7 @@ pub fn crosscheck_once(
         direct_reached: checks.iter().filter(|c| c.direct_flies()).count() as u64,
         beaten: checks.iter().filter(|c| c.beats_record(settings.margin)).count() as u64,
         repaired: run.repaired,
+        cut: run.cut,
     };
     write_json(&path, &summary)?;
     Ok((summary, run.summary))
@@ -924,6 +944,53 @@ mod tests {
 
         let again = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
         assert!(again.repaired.is_empty());
+        fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// A worse record whose re-solve fails (here: no homotopy budget) is cut: it stays in the
+    /// run, not converged, without samples (no record filter takes it as a demonstration), with
+    /// the direct solution's final mass as evidence; the dataset counts it as a failure.
+    #[test]
+    fn crosscheck_run_cuts_a_worse_record_that_its_re_solve_does_not_lift() {
+        use crate::crosscheck::WORSE_OPTIMUM;
+        use crate::demo::RecordFilter;
+        let WorseRecordRun {
+            out,
+            sc,
+            options,
+            worse,
+            ..
+        } = worse_record_run("cut");
+        let starved = SolveOptions {
+            max_homotopy_solves: 0,
+            max_homotopy_work: 1,
+            max_transfer_homotopy_work: 1,
+            ..options
+        };
+        let settings = CrossCheckSettings::default();
+        let run = crosscheck_run(&out, &sc, &settings, &starved, true, false).unwrap();
+        let Ok(check) = &run.checks[0].1 else {
+            panic!("{:?}", run.checks)
+        };
+        assert!(check.beats_record(settings.margin));
+        assert!(run.repaired.is_empty(), "{:?}", run.repaired);
+        assert_eq!(run.cut, vec![(0, worse.final_mass, check.direct_final_mass)]);
+        let cut = read_record(&record_path(&out, 0)).unwrap();
+        assert!(!cut.converged);
+        assert!(
+            cut.failure.as_deref().is_some_and(|f| f.starts_with(WORSE_OPTIMUM)),
+            "{:?}",
+            cut.failure
+        );
+        assert!(!RecordFilter::Converged.accepts(&cut) && !RecordFilter::All.accepts(&cut));
+        assert_eq!((cut.final_mass, cut.scenario), (worse.final_mass, worse.scenario));
+        let dataset = read_dataset(&dataset_path(&out, Shard::WHOLE)).unwrap();
+        assert_eq!(dataset.records[0], cut);
+        let summary = run.summary.unwrap();
+        assert_eq!((summary.converged, summary.failures.len()), (0, 1));
+        // Nothing converged is left to check.
+        let again = crosscheck_run(&out, &sc, &settings, &options, true, false).unwrap();
+        assert!(again.checks.is_empty() && again.cut.is_empty());
         fs::remove_dir_all(&out).unwrap();
     }
 

@@ -352,14 +352,28 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
             .iter()
             .map(|(index, before, after)| format!("#{index} {before:.4} → {after:.4}"))
             .collect();
+        let cut: Vec<String> = c
+            .cut
+            .iter()
+            .map(|(index, record, direct)| format!("#{index} {record:.4}, direct {direct:.4}"))
+            .collect();
+        let listed = |items: &[String]| {
+            if items.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", items.join(", "))
+            }
+        };
         let _ = writeln!(
             s,
-            "Checked against the direct transcription started on its own: {} converged records, {} direct solutions reached the target, {} of them ended heavier than the record by more than 1e-3 of the initial mass (worse local optima); {} re-solved onto the better optimum{}. [crosscheck.json](dataset/crosscheck.json)\n",
+            "Checked against the direct transcription started on its own: {} converged records, {} direct solutions reached the target, {} of them ended heavier than the record by more than 1e-3 of the initial mass (worse local optima); {} re-solved onto the better optimum{}, {} that no re-solve lifted cut from the demonstrations{}. [crosscheck.json](dataset/crosscheck.json)\n",
             c.checked,
             c.direct_reached,
             c.beaten,
             c.repaired.len(),
-            if repaired.is_empty() { String::new() } else { format!(" ({})", repaired.join(", ")) },
+            listed(&repaired),
+            c.cut.len(),
+            listed(&cut),
         );
     }
     let _ = writeln!(s, "![dataset trajectories](dataset/trajectories.svg)\n");
