@@ -441,13 +441,7 @@ pub fn crosscheck_once(
     show_progress: bool,
 ) -> Result<(CrossCheckSummary, Option<Summary>), GenerateError> {
     let path = out.join("crosscheck.json");
-    let manifest_path = out.join("manifest.json");
-    let manifest: Manifest = read_json(&manifest_path)?.ok_or_else(|| {
-        GenerateError::Io(
-            manifest_path.clone(),
-            std::io::Error::new(std::io::ErrorKind::NotFound, "no manifest: not a generate run"),
-        )
-    })?;
+    let manifest = require_manifest(out)?;
     if let Some(done) = read_json::<CrossCheckSummary>(&path)? {
         if done.count == manifest.count {
             return Ok((done, None));
@@ -467,15 +461,22 @@ pub fn crosscheck_once(
     Ok((summary, run.summary))
 }
 
+/// The manifest of the run in `out`; a folder without one is no `generate` run.
+fn require_manifest(out: &Path) -> Result<Manifest, GenerateError> {
+    read_manifest(out)?.ok_or_else(|| {
+        GenerateError::Io(
+            out.join("manifest.json"),
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no manifest: not a generate run"),
+        )
+    })
+}
+
 /// Holds the whole run in `out` and reads its manifest and every record, in index order. The
 /// manifest is read first, so a folder that holds no run is refused and left as it was; every
 /// record is read before any work, so a missing or corrupt one (a shard's folder, an unfinished
 /// run) refuses the run before minutes of work and any rewrite.
 fn hold_whole_run(out: &Path) -> Result<(RunLock, Manifest, Vec<TrajectoryRecord>), GenerateError> {
-    let manifest_path = out.join("manifest.json");
-    let text = fs::read(&manifest_path).map_err(io_err(&manifest_path))?;
-    let manifest: Manifest =
-        serde_json::from_slice(&text).map_err(|e| GenerateError::Io(manifest_path.clone(), e.into()))?;
+    let manifest = require_manifest(out)?;
     if manifest.count == 0 {
         return Err(GenerateError::EmptyCount);
     }
