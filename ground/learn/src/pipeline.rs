@@ -543,6 +543,18 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
             100.0 * r.missed_thrust_fraction
         );
     }
+    if sil[0].by_last_missed_thrust.iter().skip(1).any(|b| b.flights > 0) {
+        let bands: Vec<String> = sil[0]
+            .by_last_missed_thrust
+            .iter()
+            .map(|b| format!("{} {:.1} % ({})", b.band, 100.0 * b.within_goal, b.flights))
+            .collect();
+        let _ = writeln!(
+            s,
+            "\nWithin the goal (f32) by where a flight's last missed thrust ended, as a fraction of the flight (flights): {}.",
+            bands.join(", ")
+        );
+    }
     let _ = writeln!(s, "\n![SIL histograms, int8](sil-int8/histograms.svg)\n");
     let _ = writeln!(s, "![SIL flights, int8](sil-int8/trajectories.svg)\n");
 }

@@ -17,7 +17,7 @@ use shared::blob::AlignedBlob;
 use shared::scenario::{ProblemKind, Scenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
-use crate::eval::{report_and_write, MonteCarloReport};
+use crate::eval::{report_and_write, within_accuracy_goal, MonteCarloReport};
 use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, EnvError, Rendezvous, Transfer};
@@ -25,6 +25,63 @@ use ground_core::io::atomic_write;
 
 /// Flights whose paths are drawn.
 const PLOTTED_FLIGHTS: usize = 6;
+
+/// The missed thrust one flight met.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MissedThrust {
+    /// Canonical time spent in missed-thrust events.
+    pub time: f64,
+    /// Where the last step with missed thrust ends, as a fraction of the flight's steps (None:
+    /// no missed thrust).
+    pub last_end: Option<f64>,
+}
+
+/// Where in the flight the last missed thrust ended: the bands' upper ends (fractions of the
+/// flight's steps). A rendezvous must meet its body at a fixed time, so thrust lost late has
+/// little time left to be made up.
+pub const MISSED_THRUST_BANDS: [f64; 4] = [0.5, 0.8, 0.9, 1.0];
+
+/// The share within the goal of the flights whose last missed thrust ended in one band.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MissedThrustBand {
+    /// "none", or the band of the flight ("0.8-0.9": the last missed thrust ended after 80 %
+    /// and by 90 % of the flight's steps).
+    pub band: String,
+    pub flights: usize,
+    /// Share of the band's completed flights within 0.01 AU and 0.01.
+    pub within_goal: f64,
+}
+
+/// The flights grouped by where their last missed thrust ended ([`MISSED_THRUST_BANDS`]), the
+/// flights without missed thrust first.
+pub fn by_last_missed_thrust(outcomes: &[EpisodeOutcome], missed: &[MissedThrust]) -> Vec<MissedThrustBand> {
+    let mut groups: Vec<(String, Vec<EpisodeOutcome>)> = vec![("none".into(), Vec::new())];
+    let mut lower = 0.0;
+    for upper in MISSED_THRUST_BANDS {
+        groups.push((format!("{lower}-{upper}"), Vec::new()));
+        lower = upper;
+    }
+    for (o, m) in outcomes.iter().zip(missed) {
+        let group = match m.last_end {
+            None => 0,
+            Some(end) => {
+                1 + MISSED_THRUST_BANDS
+                    .iter()
+                    .position(|&u| end <= u)
+                    .unwrap_or(MISSED_THRUST_BANDS.len() - 1)
+            }
+        };
+        groups[group].1.push(o.clone());
+    }
+    groups
+        .into_iter()
+        .map(|(band, flights)| MissedThrustBand {
+            band,
+            flights: flights.len(),
+            within_goal: within_accuracy_goal(&flights),
+        })
+        .collect()
+}
 
 /// What SIL adds to the Monte Carlo report.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -40,6 +97,9 @@ pub struct SilReport {
     pub guidance_faults: u64,
     /// Fraction of the flown time spent in missed-thrust events.
     pub missed_thrust_fraction: f64,
+    /// The share within the goal by where the last missed thrust of a flight ended.
+    #[serde(default)]
+    pub by_last_missed_thrust: Vec<MissedThrustBand>,
     pub monte_carlo: MonteCarloReport,
 }
 
@@ -102,14 +162,14 @@ fn outcome<const N: usize>(
 
 /// Flies `blob` on the Monte Carlo's `scenarios` with `dispersions` (flight i's dispersions
 /// drawn from the Monte Carlo seed + i); returns the per-flight outcomes (trajectories recorded
-/// for the first `record` flights), guidance faults and missed-thrust time.
+/// for the first `record` flights), guidance faults and each flight's missed thrust.
 pub fn fly_blob(
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
     dispersions: &Dispersions,
     record: usize,
-) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     fly_blob_seeded(config, blob, scenarios, dispersions, config.seeds.monte_carlo, record)
 }
 
@@ -122,7 +182,7 @@ pub fn fly_blob_seeded(
     dispersions: &Dispersions,
     dispersion_seed: u64,
     record: usize,
-) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     match config.scenario.problem() {
         ProblemKind::Transfer => fly_blob_as::<TRANSFER_FEATURES, _>(
             firmware_sim::Transfer,
@@ -154,7 +214,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     dispersions: &Dispersions,
     seed: u64,
     record: usize,
-) -> Result<(Vec<EpisodeOutcome>, u64, f64), ExperimentError> {
+) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     let spacecraft = config
         .env
         .spacecraft
@@ -165,7 +225,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     let controller = Controller::<N>::load::<P>(blob.bytes());
     let tolerances = config.env.integrator.tolerances();
     let weights = config.env.reward.weights();
-    let flown: Vec<(EpisodeOutcome, u64, f64)> = scenarios
+    let flown: Vec<(EpisodeOutcome, u64, MissedThrust)> = scenarios
         .par_iter()
         .enumerate()
         .map(|(i, scenario)| {
@@ -182,7 +242,13 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
                 |k| steps.push(*k),
             );
             let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
-            let missed: f64 = steps.iter().map(|k| k.missed_thrust).sum();
+            let missed = MissedThrust {
+                time: steps.iter().map(|k| k.missed_thrust).sum(),
+                last_end: steps
+                    .iter()
+                    .rposition(|k| k.missed_thrust > 0.0)
+                    .map(|k| (k + 1) as f64 / f64::from(scenario.steps)),
+            };
             (
                 outcome(config, i, scenario, &steps, result.err(), i < record),
                 faults,
@@ -191,7 +257,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
         })
         .collect();
     let faults = flown.iter().map(|f| f.1).sum();
-    let missed = flown.iter().map(|f| f.2).sum();
+    let missed = flown.iter().map(|f| f.2).collect();
     Ok((flown.into_iter().map(|f| f.0).collect(), faults, missed))
 }
 
@@ -244,7 +310,8 @@ pub fn sil_monte_carlo(
         flights: outcomes.len(),
         failed,
         guidance_faults,
-        missed_thrust_fraction: missed / flown_time.max(f64::MIN_POSITIVE),
+        missed_thrust_fraction: missed.iter().map(|m| m.time).sum::<f64>() / flown_time.max(f64::MIN_POSITIVE),
+        by_last_missed_thrust: by_last_missed_thrust(&outcomes, &missed),
         monte_carlo,
     };
     let path = out.join("sil.json");
@@ -282,5 +349,82 @@ pub fn describe(report: &SilReport) -> String {
         p.terminal_velocity.p50,
         p.terminal_velocity.p95,
         100.0 * report.monte_carlo.within_accuracy_goal
+    ) + &missed_thrust_line(&report.by_last_missed_thrust)
+}
+
+/// "within the goal by the end of the last missed thrust: none 92.0 % (512), ..." (empty
+/// without missed thrust).
+fn missed_thrust_line(bands: &[MissedThrustBand]) -> String {
+    if bands.iter().skip(1).all(|b| b.flights == 0) {
+        return String::new();
+    }
+    let parts: Vec<String> = bands
+        .iter()
+        .filter(|b| b.flights > 0)
+        .map(|b| format!("{} {:.1} % ({})", b.band, 100.0 * b.within_goal, b.flights))
+        .collect();
+    format!(
+        "\nwithin the goal by where the last missed thrust ended (fraction of the flight): {}",
+        parts.join(", ")
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use onboard::features::Residuals;
+
+    fn flight(episode: usize, miss: f64) -> EpisodeOutcome {
+        EpisodeOutcome {
+            episode,
+            total_reward: 0.0,
+            final_mass: 0.9,
+            terminal: Residuals {
+                position: miss,
+                velocity: miss,
+            },
+            steps: 40,
+            completed: true,
+            error: None,
+            non_finite_actions: 0,
+            trajectory: None,
+        }
+    }
+
+    /// Each flight lands in the band of its last missed thrust (upper ends inclusive), and each
+    /// band's share counts its own flights only.
+    #[test]
+    fn flights_are_grouped_by_where_their_last_missed_thrust_ended() {
+        let missed = |last_end: Option<f64>| MissedThrust {
+            time: if last_end.is_some() { 0.1 } else { 0.0 },
+            last_end,
+        };
+        let cases = [
+            (None, 0.001),
+            (None, 0.02),
+            (Some(0.3), 0.001),
+            (Some(0.5), 0.001),
+            (Some(0.85), 0.02),
+            (Some(0.9), 0.001),
+            (Some(0.95), 0.02),
+            (Some(1.0), 0.02),
+        ];
+        let outcomes: Vec<_> = cases.iter().enumerate().map(|(i, c)| flight(i, c.1)).collect();
+        let flights: Vec<_> = cases.iter().map(|c| missed(c.0)).collect();
+        let bands = by_last_missed_thrust(&outcomes, &flights);
+        let got: Vec<(&str, usize, f64)> = bands
+            .iter()
+            .map(|b| (b.band.as_str(), b.flights, b.within_goal))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("none", 2, 0.5),
+                ("0-0.5", 2, 1.0),
+                ("0.5-0.8", 0, 0.0),
+                ("0.8-0.9", 2, 0.5),
+                ("0.9-1", 2, 0.0),
+            ]
+        );
+    }
 }

@@ -108,7 +108,11 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
         let ground =
             evaluate::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o: &[f32; 10]| policy.act(o), false).unwrap();
         let (sil, faults, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
-        assert_eq!((faults, missed), (0, 0.0));
+        assert_eq!(faults, 0);
+        assert!(
+            missed.iter().all(|m| m.time == 0.0 && m.last_end.is_none()),
+            "{missed:?}"
+        );
         for (g, s) in ground.iter().zip(&sil) {
             assert!(g.completed && s.completed);
             assert_eq!(
@@ -122,7 +126,11 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
         }
         // With dispersions the flights differ, and the dispersion is really flown.
         let (dispersed, _, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
-        assert!(missed > 0.0);
+        assert!(missed.iter().any(|m| m.time > 0.0));
+        // A flight's last missed thrust is placed exactly when it met any.
+        assert!(missed
+            .iter()
+            .all(|m| (m.time > 0.0) == m.last_end.is_some_and(|e| e > 0.0 && e <= 1.0)));
         assert!(dispersed.iter().zip(&sil).all(|(d, s)| d.final_mass != s.final_mass));
     }
 
@@ -181,7 +189,11 @@ threads = 1
         let ground =
             evaluate::<MdpEnv<Rendezvous>, _>(&config.env, &scenarios, |o: &[f32; 22]| policy.act(o), false).unwrap();
         let (sil, faults, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
-        assert_eq!((faults, missed), (0, 0.0));
+        assert_eq!(faults, 0);
+        assert!(
+            missed.iter().all(|m| m.time == 0.0 && m.last_end.is_none()),
+            "{missed:?}"
+        );
         for (g, s) in ground.iter().zip(&sil) {
             assert!(g.completed && s.completed, "episode {}", g.episode);
             assert_eq!(
@@ -194,7 +206,11 @@ threads = 1
             assert_eq!(g.terminal, s.terminal);
         }
         let (dispersed, _, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
-        assert!(missed > 0.0);
+        assert!(missed.iter().any(|m| m.time > 0.0));
+        // A flight's last missed thrust is placed exactly when it met any.
+        assert!(missed
+            .iter()
+            .all(|m| (m.time > 0.0) == m.last_end.is_some_and(|e| e > 0.0 && e <= 1.0)));
         assert!(dispersed.iter().zip(&sil).all(|(d, s)| d.final_mass != s.final_mass));
     }
     // `ground sil` flies the rendezvous blob, and refuses a transfer blob into safe mode.
