@@ -83,6 +83,10 @@ pub struct GenerateArgs {
     /// Stop the homotopy at the first level below this eps (docs/spec.md: 1e-4).
     #[arg(long, default_value_t = FINAL_EPS)]
     final_eps: f64,
+    /// Solve each draw to arrive this many 14-day steps early (then coasting with its target),
+    /// where that converges, on time otherwise: a reserve for thrust lost late in the flight.
+    #[arg(long, default_value_t = 0)]
+    arrival_margin: u32,
 }
 
 /// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
@@ -104,6 +108,7 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
     };
     let options = SolveOptions {
         final_eps: args.final_eps,
+        arrival_margin_steps: args.arrival_margin,
         ..SolveOptions::default()
     };
     if let Some(n) = args.threads {

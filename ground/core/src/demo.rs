@@ -43,7 +43,7 @@ use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
 use crate::solver::shooting::initial_state_costate;
-use crate::solver::{solve_scenario, SolveOptions};
+use crate::solver::{solve_arriving_early, SolveOptions};
 
 /// Actions are clipped to [-ACTION_BOUND, ACTION_BOUND] so a squashed-Gaussian log-probability
 /// stays finite (docs/spec.md section 7).
@@ -280,12 +280,14 @@ pub struct RecordDemonstration<O> {
     pub mismatch: Vec<StepMismatch>,
 }
 
-/// Where a record's flight sits in an episode. A record from departure fills the whole episode
-/// of its own scenario ([`Placement::whole`]). A relabelled record (DAgger-style: the transfer
-/// re-solved from a state a policy visited) starts at step `start_step` of `episode` with mass
-/// `start_mass`; it was solved for a scenario of N - start_step steps departing from that state
-/// and a spacecraft of thrust T / start_mass (the same dynamics with the mass counted in units
-/// of start_mass), so its masses are multiplied by start_mass.
+/// Where a record's flight sits in an episode. A record from departure fills the episode of its
+/// draw ([`Placement::whole`]). A relabelled record (DAgger-style: the transfer re-solved from a
+/// state a policy visited) starts at step `start_step` of `episode` with mass `start_mass`; it
+/// was solved for a scenario of N - start_step steps departing from that state and a spacecraft
+/// of thrust T / start_mass (the same dynamics with the mass counted in units of start_mass), so
+/// its masses are multiplied by start_mass. A record solved to arrive early
+/// ([`crate::solver::solve_arriving_early`]) ends before its episode does: its flight then coasts
+/// to the episode's end, with its target.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Placement {
     pub episode: Scenario,
@@ -294,9 +296,18 @@ pub struct Placement {
 }
 
 impl Placement {
+    /// A record from departure in the episode of its draw: the draw is the record's scenario,
+    /// or, for a record that arrives early, the scenario it shortened; a record of no draw fills
+    /// the episode of its own scenario.
     pub fn whole(record: &TrajectoryRecord) -> Self {
+        let draw = record.kind.draw(record.seed, record.index);
+        let shortened = Scenario {
+            steps: draw.steps,
+            ..record.scenario
+        } == draw
+            && record.scenario.steps < draw.steps;
         Self {
-            episode: record.scenario,
+            episode: if shortened { draw } else { record.scenario },
             start_step: 0,
             start_mass: 1.0,
         }
@@ -310,7 +321,8 @@ impl Placement {
 /// state's osculating orbit; a rendezvous rest chases the same body from where it is at that
 /// step. A transfer's rest is solved as a general transfer (kind transfer-hard: a near-circular
 /// rest that the near-circular path cannot solve falls back to the general one), a rendezvous's
-/// as rendezvous-hard; seed and index are the caller's, for tracing.
+/// as rendezvous-hard, with the options' arrival margin ([`solve_arriving_early`]); seed and
+/// index are the caller's, for tracing.
 pub fn relabel(
     (seed, index): (u64, u64),
     episode: &Scenario,
@@ -345,7 +357,7 @@ pub fn relabel(
         thrust: spacecraft.thrust / state.m,
         ..*spacecraft
     };
-    let record = solve_scenario(kind, seed, index, &rest, &scaled, options);
+    let record = solve_arriving_early(kind, seed, index, &rest, &scaled, options);
     let placement = Placement {
         episode: *episode,
         start_step: step,
@@ -364,7 +376,9 @@ pub fn record_demonstration<P: Problem>(
 }
 
 /// The tuples of a record placed in an episode (see [`Placement`]): observations, rewards and
-/// done flags are the episode's at steps start_step.., the actions the record's ZOH controls.
+/// done flags are the episode's at steps start_step.., the actions the record's ZOH controls;
+/// after a record that ends before its episode, coast steps from its final state to the
+/// episode's end (thrust off, flown by the environment).
 pub fn placed_demonstration<P: Problem>(
     record: &TrajectoryRecord,
     placement: &Placement,
@@ -377,7 +391,7 @@ pub fn placed_demonstration<P: Problem>(
             found: record.scenario.problem,
         });
     }
-    if placement.start_step + record.scenario.steps != placement.episode.steps
+    if placement.start_step + record.scenario.steps > placement.episode.steps
         || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
     {
         return Err(DemoError::Placement);
@@ -437,6 +451,31 @@ pub fn placed_demonstration<P: Problem>(
             trapezoid_error: (trapezoid[0] - control.w[0]).hypot(trapezoid[1] - control.w[1]),
             unclipped_position: (exact.r[0] - s_next.r[0]).hypot(exact.r[1] - s_next.r[1]),
         });
+    }
+    // Arrived early: coast with the target to the episode's end.
+    let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
+    let mut state = placed(arrived);
+    let coast = ZohControl {
+        w: [0.0, 0.0],
+        mean_throttle: 0.0,
+    }
+    .action();
+    for k in placement.start_step + record.scenario.steps..scenario.steps {
+        let observation = env.reset_at(scenario, &state, k).map_err(DemoError::Env)?;
+        let flown = env.step(&coast).map_err(DemoError::Env)?;
+        let next = flown.info.state;
+        let (reward, ..) = MdpEnv::<P>::reward_at(config, scenario, &next, k + 1, 0.0).map_err(DemoError::Env)?;
+        let next_observation = env.reset_at(scenario, &next, k + 1).map_err(DemoError::Env)?;
+        transitions.push(Transition {
+            observation,
+            action: coast,
+            reward,
+            next_observation,
+            done: flown.done,
+            record: record.index,
+            step: k,
+        });
+        state = next;
     }
     Ok(RecordDemonstration { transitions, mismatch })
 }
@@ -775,6 +814,102 @@ mod tests {
     #[test]
     fn a_rendezvous_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
         resolved_from_mid_flight_gives_the_tail::<Rendezvous>(rendezvous_record());
+    }
+
+    /// Solved with an arrival margin, a rendezvous meets the body `margin` steps early; its
+    /// tuples fill the draw's whole episode, the last `margin` of them coasting, and the coasted
+    /// spacecraft stays on the body (its Keplerian orbit, computed independently of the
+    /// environment's propagator) to the end.
+    #[test]
+    fn a_rendezvous_arriving_early_coasts_with_the_body_to_the_end_of_its_episode() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let draw = kind.draw(9, 0);
+        let margin = 2;
+        let options = SolveOptions {
+            arrival_margin_steps: margin,
+            ..quick_options()
+        };
+        let record = solve_arriving_early(kind, 9, 0, &draw, &sc, &options);
+        assert!(record.converged, "{:?}", record.failure);
+        assert_eq!(record.scenario.steps, draw.steps - margin);
+        assert_eq!(Placement::whole(&record).episode, draw);
+        let config = EnvConfig::default();
+        let demo = record_demonstration::<Rendezvous>(&record, &config, &default_tolerances()).unwrap();
+        let n = draw.steps;
+        assert_eq!(demo.transitions.len(), n as usize);
+        let coast = ZohControl {
+            w: [0.0, 0.0],
+            mean_throttle: 0.0,
+        }
+        .action();
+        let mut env = MdpEnv::<Rendezvous>::new(&config).unwrap();
+        let mut state = state_of(record.steps.last().unwrap());
+        for (k, t) in (0u32..).zip(&demo.transitions) {
+            assert_eq!((t.step, t.done), (k, k + 1 == n));
+            if k < n - margin {
+                continue;
+            }
+            assert_eq!(t.action, coast, "step {k}");
+            let body = body_at(&draw, k).unwrap();
+            let miss = (state.r[0] - body.r[0]).hypot(state.r[1] - body.r[1]);
+            let speed = (state.v[0] - body.v[0]).hypot(state.v[1] - body.v[1]);
+            assert!(miss < 1e-6 && speed < 1e-6, "step {k}: {miss:e} AU, {speed:e}");
+            assert_eq!(t.observation, env.reset_at(&draw, &state, k).unwrap());
+            state = env.step(&coast).unwrap().info.state;
+            assert_eq!(t.next_observation, env.reset_at(&draw, &state, k + 1).unwrap());
+        }
+        let body = body_at(&draw, n).unwrap();
+        assert!((state.r[0] - body.r[0]).hypot(state.r[1] - body.r[1]) < 1e-6);
+        // The environment's terminal residuals of the last tuple's state are the body's.
+        let last = demo.transitions.last().unwrap();
+        let (reward, ..) = MdpEnv::<Rendezvous>::reward_at(&config, &draw, &state, n, 0.0).unwrap();
+        assert_eq!(last.reward.to_bits(), reward.to_bits());
+    }
+
+    /// A relabel keeps the margin too: the rest of the flight is solved to arrive early and its
+    /// tuples coast to the episode's end.
+    #[test]
+    fn a_relabel_with_a_margin_arrives_early_and_coasts_to_the_end() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let whole = rendezvous_record();
+        let n = whole.scenario.steps;
+        let k = n / 2;
+        let options = SolveOptions {
+            arrival_margin_steps: 2,
+            ..quick_options()
+        };
+        let mid = state_of(&whole.steps[k as usize]);
+        let (rest, placement) = relabel((7, 0), &whole.scenario, &mid, k, &sc, &options).unwrap();
+        assert!(rest.converged, "{:?}", rest.failure);
+        assert_eq!(rest.scenario.steps, n - k - 2);
+        let demo = placed_demonstration::<Rendezvous>(&rest, &placement, &EnvConfig::default(), &default_tolerances())
+            .unwrap();
+        assert_eq!(demo.transitions.len(), (n - k) as usize);
+        let coast = ZohControl {
+            w: [0.0, 0.0],
+            mean_throttle: 0.0,
+        }
+        .action();
+        assert!(demo.transitions[(n - k - 2) as usize..]
+            .iter()
+            .all(|t| t.action == coast));
+        assert!(demo.transitions.last().unwrap().done);
+    }
+
+    /// A margin the flight cannot hold is not applied: the draw is solved on time.
+    #[test]
+    fn a_margin_as_long_as_the_flight_solves_it_on_time() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let draw = kind.draw(9, 0);
+        let options = SolveOptions {
+            arrival_margin_steps: draw.steps,
+            ..quick_options()
+        };
+        let record = solve_arriving_early(kind, 9, 0, &draw, &sc, &options);
+        assert_eq!(record.scenario, draw);
+        assert_eq!(record.final_mass, rendezvous_record().final_mass);
     }
 
     /// The re-integrated integral against a fine composite Simpson rule on states sampled by

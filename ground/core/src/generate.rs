@@ -28,7 +28,7 @@ use crate::io::{atomic_write, decode_container, encode_container, ContainerError
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
-use crate::solver::{solve_from_energy_start, solve_scenario, SolveOptions};
+use crate::solver::{solve_arriving_early, solve_from_energy_start, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
 const DATASET_MAGIC: [u8; 4] = *b"LTDS";
@@ -83,11 +83,28 @@ pub struct Manifest {
     pub count: u64,
 }
 
-/// The homotopy depth a run's records were solved to, stored as `request.json` beside the
-/// manifest: a run resumed with another final eps would mix records of two depths.
+/// The homotopy depth a run's records were solved to and their arrival margin, stored as
+/// `request.json` beside the manifest: a run resumed with another final eps or margin would mix
+/// records of two kinds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SolveRequest {
     pub final_eps: f64,
+    /// [`SolveOptions::arrival_margin_steps`] (absent: 0, as before it existed).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub arrival_margin_steps: u32,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
+impl SolveRequest {
+    fn of(options: &SolveOptions) -> Self {
+        Self {
+            final_eps: options.final_eps,
+            arrival_margin_steps: options.arrival_margin_steps,
+        }
+    }
 }
 
 /// A dataset file: the records of a run (a shard or a whole set).
@@ -116,6 +133,9 @@ pub enum GenerateError {
     /// The folder holds records solved to another final eps.
     #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
     FinalEpsMismatch { found: f64, wanted: f64 },
+    /// The folder holds records solved with another arrival margin.
+    #[error("output folder holds records solved to arrive {found} steps early, not {wanted}: use another --out or --arrival-margin {found}")]
+    ArrivalMarginMismatch { found: u32, wanted: u32 },
     #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
     /// Shards to merge disagree, overlap, or leave indices out.
@@ -638,8 +658,9 @@ fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, Genera
     }
 }
 
-/// Refuses a folder whose records were solved to another final eps; says whether it records
-/// one. A folder without `request.json` (written before it existed) is taken as it is.
+/// Refuses a folder whose records were solved to another final eps or arrival margin; says
+/// whether it records one. A folder without `request.json` (written before it existed) is taken
+/// as it is.
 fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, GenerateError> {
     let Some(found) = read_json::<SolveRequest>(&out.join("request.json"))? else {
         return Ok(false);
@@ -648,6 +669,12 @@ fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, Gener
         return Err(GenerateError::FinalEpsMismatch {
             found: found.final_eps,
             wanted: options.final_eps,
+        });
+    }
+    if found.arrival_margin_steps != options.arrival_margin_steps {
+        return Err(GenerateError::ArrivalMarginMismatch {
+            found: found.arrival_margin_steps,
+            wanted: options.arrival_margin_steps,
         });
     }
     Ok(true)
@@ -702,10 +729,7 @@ pub fn generate_in(
         write_json(&out.join("manifest.json"), &manifest)?;
     }
     if !has_request {
-        let request = SolveRequest {
-            final_eps: options.final_eps,
-        };
-        write_json(&out.join("request.json"), &request)?;
+        write_json(&out.join("request.json"), &SolveRequest::of(options))?;
     }
     let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
     let bar = count_bar(indices.len(), "solved", show_progress);
@@ -724,7 +748,7 @@ pub fn generate_in(
                 }
             }
             let scenario = manifest.scenario.draw(manifest.seed, index);
-            let record = solve_scenario(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
+            let record = solve_arriving_early(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
             write_record(&path, &record)?;
             if record.converged {
                 converged.fetch_add(1, Ordering::Relaxed);

@@ -136,6 +136,29 @@ fn a_folder_solved_to_another_final_eps_is_refused_and_left_unchanged() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+#[test]
+fn a_folder_solved_with_another_arrival_margin_is_refused_and_left_unchanged() {
+    // A run without a margin records none (its request.json reads as before the margin existed).
+    let request = std::fs::read_to_string(finished_run().join("request.json")).unwrap();
+    assert!(!request.contains("arrival_margin"), "{request}");
+    let out = temp_dir("other-margin");
+    write_manifest(&out, &MANIFEST);
+    std::fs::write(
+        out.join("request.json"),
+        r#"{ "final_eps": 0.3, "arrival_margin_steps": 2 }"#,
+    )
+    .unwrap();
+    let before = snapshot(&out);
+    let err = generate(MANIFEST, Shard::WHOLE, &out, &spacecraft(), &options(), false).unwrap_err();
+    assert!(
+        matches!(err, GenerateError::ArrivalMarginMismatch { found: 2, wanted: 0 }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("--arrival-margin 2"), "{err}");
+    assert_eq!(snapshot(&out), before);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 fn is_held(e: &GenerateError) -> bool {
     matches!(e, GenerateError::Lock(LockError::Held { .. }))
 }

@@ -77,6 +77,10 @@ pub struct GenerateConfig {
     /// (`ground crosscheck --repair`; about 0.4 s a hard record on 2 cores). Off by default:
     /// on 300 transfer-circular records it found none to repair.
     pub crosscheck: bool,
+    /// Demonstrations and relabels are solved to arrive this many 14-day steps before the end
+    /// of the flight where that converges (then coasting with the target), on time otherwise
+    /// (`ground_core::solver::solve_arriving_early`): a reserve for thrust lost late. 0: on time.
+    pub arrival_margin: u32,
 }
 
 impl Default for GenerateConfig {
@@ -86,6 +90,7 @@ impl Default for GenerateConfig {
             seed: 7,
             final_eps: ground_core::solver::shooting::FINAL_EPS,
             crosscheck: false,
+            arrival_margin: 0,
         }
     }
 }

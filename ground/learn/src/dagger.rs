@@ -120,6 +120,7 @@ fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob
     // to 10.9 % within the goal (docs/results.md).
     let options = SolveOptions {
         final_eps: config.generate.final_eps,
+        arrival_margin_steps: config.generate.arrival_margin,
         ..SolveOptions::default()
     };
     let [x, y, vx, vy, m] = job.state;

@@ -24,7 +24,7 @@ use crate::sac::agent::{CheckpointError, Sac, UpdateStats};
 use crate::sac::replay::{sampler, ReplayBuffer, Transition};
 use crate::sac::trainer::{self, Episodic, LoopOptions, LoopState, StepOutcome, TrainObserver, WarmupPolicy};
 use ground_core::charts::{line_chart, Series};
-use ground_core::demo::{default_tolerances, demonstrations, Demonstrations};
+use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
 use ground_core::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
 use ground_core::generate::read_dataset;
@@ -589,7 +589,7 @@ pub struct PhaseSummary {
 }
 
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
-/// problem), with the dataset file and its record count.
+/// problem or arrival margin), with the dataset file and its record count.
 pub fn load_demonstrations<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
@@ -602,6 +602,21 @@ pub fn load_demonstrations<P: Problem>(
             file.display(),
             dataset.manifest.scenario.name(),
             config.scenario.name()
+        )));
+    }
+    // Relabels are solved with the config's margin: demonstrations of another would teach two
+    // arrival times.
+    let margin = dataset
+        .records
+        .iter()
+        .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
+        .max()
+        .unwrap_or(0);
+    if margin != config.generate.arrival_margin {
+        return Err(ExperimentError::Mismatch(format!(
+            "dataset {} was solved to arrive {margin} steps early, the config asks for generate.arrival_margin = {}",
+            file.display(),
+            config.generate.arrival_margin
         )));
     }
     let filter = config.pretrain.records;

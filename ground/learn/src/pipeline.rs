@@ -81,6 +81,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     };
     let options = SolveOptions {
         final_eps: config.generate.final_eps,
+        arrival_margin_steps: config.generate.arrival_margin,
         ..SolveOptions::default()
     };
     let mut dataset = generate(manifest, Shard::WHOLE, &dataset_dir, &spacecraft, &options, true)

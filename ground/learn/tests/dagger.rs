@@ -115,5 +115,14 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
     other.scenario = ScenarioKind::RendezvousCircular;
     let err = dagger(&other, &dir, &dir.join("rendezvous"), &start).unwrap_err();
     assert!(!dir.join("rendezvous").exists(), "{err}");
+    // Relabels arriving early among demonstrations on time: refused before any work.
+    let mut early = config.clone();
+    early.generate.arrival_margin = 2;
+    let err = dagger(&early, &dir, &dir.join("early"), &start).unwrap_err();
+    assert!(
+        matches!(err, ExperimentError::Mismatch(_)) && err.to_string().contains("arrival_margin"),
+        "{err}"
+    );
+    assert!(!dir.join("early").exists(), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -67,6 +67,9 @@ pub struct SolveOptions {
     /// solver.md). Rendezvous keep [`Self::max_homotopy_work`]: a larger budget let a
     /// rendezvous converge from a poor start.
     pub max_transfer_homotopy_work: u64,
+    /// [`solve_arriving_early`] solves a flight to end this many 14-day steps before its time of
+    /// flight (then coasting with its target) where that converges; 0: on time.
+    pub arrival_margin_steps: u32,
 }
 
 impl SolveOptions {
@@ -119,6 +122,7 @@ impl Default for SolveOptions {
             max_start_work: 4_000_000,
             max_homotopy_work: 3_000_000,
             max_transfer_homotopy_work: 15_000_000,
+            arrival_margin_steps: 0,
         }
     }
 }
@@ -173,6 +177,45 @@ pub fn solve_scenario(
     options: &SolveOptions,
 ) -> TrajectoryRecord {
     solve_scenario_from(kind, seed, index, scenario, spacecraft, options, None)
+}
+
+/// [`solve_scenario`] on the scenario shortened by [`SolveOptions::arrival_margin_steps`] where
+/// that converges, on the scenario itself otherwise (the record's scenario says which). A flight
+/// that arrives early coasts with its target for the margin's steps (on the target orbit, or
+/// with the body: a Keplerian coast keeps both matched), so the shorter record is a feasible
+/// flight of the whole time of flight that keeps the margin in reserve: thrust lost late in the
+/// flight can be made up in it. A rendezvous must meet its body at a fixed time, and without a
+/// margin it loses most of the flights that lose thrust in their last tenth (docs/results.md,
+/// "When the thrust was lost").
+pub fn solve_arriving_early(
+    kind: ScenarioKind,
+    seed: u64,
+    index: u64,
+    scenario: &Scenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> TrajectoryRecord {
+    let margin = options.arrival_margin_steps;
+    if margin == 0 || margin >= scenario.steps {
+        return solve_scenario(kind, seed, index, scenario, spacecraft, options);
+    }
+    let early = Scenario {
+        steps: scenario.steps - margin,
+        ..*scenario
+    };
+    let first = solve_scenario(kind, seed, index, &early, spacecraft, options);
+    if first.converged {
+        return first;
+    }
+    let mut on_time = solve_scenario(kind, seed, index, scenario, spacecraft, options);
+    on_time.seconds += first.seconds;
+    if let Some(why) = &mut on_time.failure {
+        *why = format!(
+            "{why}; arriving {margin} steps early: {}",
+            first.failure.as_deref().unwrap_or("not converged")
+        );
+    }
+    on_time
 }
 
 /// [`solve_scenario`] with `energy_start` (costates, and for a transfer nu_f in its last row,
