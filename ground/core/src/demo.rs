@@ -124,6 +124,15 @@ impl ZohControl {
     }
 }
 
+/// The action of a step flown with thrust off, as [`ZohControl::action`] encodes it.
+pub fn coast_action() -> [f32; ACTION_LEN] {
+    ZohControl {
+        w: [0.0, 0.0],
+        mean_throttle: 0.0,
+    }
+    .action()
+}
+
 /// The solver's state-costate system augmented with w' = u (alpha_r, alpha_theta) and the mean
 /// throttle; switch events as the solver's.
 #[derive(Debug, Clone, Copy)]
@@ -455,11 +464,7 @@ pub fn placed_demonstration<P: Problem>(
     // Arrived early: coast with the target to the episode's end.
     let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
     let mut state = placed(arrived);
-    let coast = ZohControl {
-        w: [0.0, 0.0],
-        mean_throttle: 0.0,
-    }
-    .action();
+    let coast = coast_action();
     for k in placement.start_step + record.scenario.steps..scenario.steps {
         let observation = env.reset_at(scenario, &state, k).map_err(DemoError::Env)?;
         let flown = env.step(&coast).map_err(DemoError::Env)?;
@@ -838,11 +843,7 @@ mod tests {
         let demo = record_demonstration::<Rendezvous>(&record, &config, &default_tolerances()).unwrap();
         let n = draw.steps;
         assert_eq!(demo.transitions.len(), n as usize);
-        let coast = ZohControl {
-            w: [0.0, 0.0],
-            mean_throttle: 0.0,
-        }
-        .action();
+        let coast = coast_action();
         let mut env = MdpEnv::<Rendezvous>::new(&config).unwrap();
         let mut state = state_of(record.steps.last().unwrap());
         for (k, t) in (0u32..).zip(&demo.transitions) {
@@ -886,11 +887,7 @@ mod tests {
         let demo = placed_demonstration::<Rendezvous>(&rest, &placement, &EnvConfig::default(), &default_tolerances())
             .unwrap();
         assert_eq!(demo.transitions.len(), (n - k) as usize);
-        let coast = ZohControl {
-            w: [0.0, 0.0],
-            mean_throttle: 0.0,
-        }
-        .action();
+        let coast = coast_action();
         assert!(demo.transitions[(n - k - 2) as usize..]
             .iter()
             .all(|t| t.action == coast));

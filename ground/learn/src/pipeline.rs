@@ -15,7 +15,7 @@ use crate::eval::{accuracy_line, eccentricity_line, gap_line, monte_carlo, solve
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
-use crate::sil::{sil_monte_carlo, SilReport};
+use crate::sil::{met_missed_thrust, sil_monte_carlo, SilReport};
 use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
@@ -544,12 +544,8 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
             100.0 * r.missed_thrust_fraction
         );
     }
-    if sil[0].by_last_missed_thrust.iter().skip(1).any(|b| b.flights > 0) {
-        let bands: Vec<String> = sil[0]
-            .by_last_missed_thrust
-            .iter()
-            .map(|b| format!("{} {:.1} % ({})", b.band, 100.0 * b.within_goal, b.flights))
-            .collect();
+    if met_missed_thrust(&sil[0].by_last_missed_thrust) {
+        let bands: Vec<String> = sil[0].by_last_missed_thrust.iter().map(|b| b.to_string()).collect();
         let _ = writeln!(
             s,
             "\nWithin the goal (f32) by where a flight's last missed thrust ended, as a fraction of the flight (flights): {}.",

@@ -52,6 +52,18 @@ pub struct MissedThrustBand {
     pub within_goal: f64,
 }
 
+impl std::fmt::Display for MissedThrustBand {
+    /// "0.9-1 80.6 % (314)": the band, its share within the goal and its flights.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} {:.1} % ({})", self.band, 100.0 * self.within_goal, self.flights)
+    }
+}
+
+/// Whether any flight of `bands` ([`by_last_missed_thrust`]) met missed thrust.
+pub fn met_missed_thrust(bands: &[MissedThrustBand]) -> bool {
+    bands.iter().skip(1).any(|b| b.flights > 0)
+}
+
 /// The flights grouped by where their last missed thrust ended ([`MISSED_THRUST_BANDS`]), the
 /// flights without missed thrust first.
 pub fn by_last_missed_thrust(outcomes: &[EpisodeOutcome], missed: &[MissedThrust]) -> Vec<MissedThrustBand> {
@@ -355,14 +367,10 @@ pub fn describe(report: &SilReport) -> String {
 /// "within the goal by the end of the last missed thrust: none 92.0 % (512), ..." (empty
 /// without missed thrust).
 fn missed_thrust_line(bands: &[MissedThrustBand]) -> String {
-    if bands.iter().skip(1).all(|b| b.flights == 0) {
+    if !met_missed_thrust(bands) {
         return String::new();
     }
-    let parts: Vec<String> = bands
-        .iter()
-        .filter(|b| b.flights > 0)
-        .map(|b| format!("{} {:.1} % ({})", b.band, 100.0 * b.within_goal, b.flights))
-        .collect();
+    let parts: Vec<String> = bands.iter().filter(|b| b.flights > 0).map(|b| b.to_string()).collect();
     format!(
         "\nwithin the goal by where the last missed thrust ended (fraction of the flight): {}",
         parts.join(", ")
