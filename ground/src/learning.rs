@@ -135,6 +135,13 @@ pub enum LearnCommand {
         /// Torch intra-op thread counts to measure.
         #[arg(long, value_delimiter = ',', default_value = "1,2", value_parser = clap::value_parser!(i32).range(1..))]
         threads: Vec<i32>,
+        /// Where the updates and the GEMM run: "cpu" or "cuda" (refused where libtorch finds no
+        /// CUDA device).
+        #[arg(long, default_value = "cpu", value_parser = ["cpu", "cuda"])]
+        device: String,
+        /// Mini-batch size (the thesis's 256 by default).
+        #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..))]
+        batch: u64,
     },
     /// One Slurm array task of a relabelling round (`[compute.slurm]`): solves its share of the
     /// relabels in a request file and writes the answers beside it. Run by the array the rounds
@@ -226,10 +233,12 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             println!("{}", out.display());
             Ok(())
         }
-        LearnCommand::BenchSac { updates, threads } => {
-            bench_sac(updates, &threads);
-            Ok(())
-        }
+        LearnCommand::BenchSac {
+            updates,
+            threads,
+            device,
+            batch,
+        } => bench_sac(updates, &threads, &device, batch as usize),
     }
 }
 
@@ -317,16 +326,24 @@ fn pendulum_command(
     Ok(())
 }
 
-fn bench_sac(updates: u64, threads: &[i32]) {
+fn bench_sac(updates: u64, threads: &[i32], device: &str, batch: usize) -> Result<(), Box<dyn std::error::Error>> {
     use learn::sac::{bench, SacConfig};
-    let config = SacConfig::default();
+    let device = match device {
+        "cuda" if learn::sac::cuda_available() => tch::Device::Cuda(0),
+        "cuda" => return Err("--device cuda: libtorch finds no CUDA device here".into()),
+        _ => tch::Device::Cpu,
+    };
+    let config = SacConfig {
+        batch_size: batch,
+        ..SacConfig::default()
+    };
     let flops = bench::update_flops(10, 3, &config.hidden, config.batch_size);
     for &n in threads {
         tch::set_num_threads(n);
-        let gemm = bench::gemm_gflops(256, 51);
-        let seconds = bench::seconds_per_update(&config, 10, 3, updates as usize);
+        let gemm = bench::gemm_gflops(256, 51, device);
+        let seconds = bench::seconds_per_update(&config, 10, 3, updates as usize, device);
         println!(
-            "threads {n}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
+            "{device:?}, threads {n}, batch {batch}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
             1.0 / seconds,
             seconds * 1e3,
             flops / 1e9,
@@ -335,6 +352,7 @@ fn bench_sac(updates: u64, threads: &[i32]) {
             gemm
         );
     }
+    Ok(())
 }
 
 /// The experiment config and run folder shared by pretrain, train and evaluate.

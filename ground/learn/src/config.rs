@@ -424,6 +424,14 @@ impl ExperimentConfig {
                 self.compute.device
             )));
         }
+        if self.compute.device == "cuda" && !crate::sac::cuda_available() {
+            // Refused rather than run on the CPU: a job sized for a GPU would take days here.
+            return Err(ConfigError::Invalid(
+                "compute.device = \"cuda\", but libtorch finds no CUDA device here (no GPU, no driver, or a \
+                 CPU-only PyTorch): set compute.device = \"cpu\""
+                    .into(),
+            ));
+        }
         Ok(())
     }
 
@@ -472,7 +480,8 @@ impl ExperimentConfig {
 
     pub fn device(&self) -> tch::Device {
         if self.compute.device == "cuda" {
-            tch::Device::cuda_if_available()
+            // `validate` has refused a config that asks for CUDA where there is none.
+            tch::Device::Cuda(0)
         } else {
             tch::Device::Cpu
         }
@@ -558,6 +567,19 @@ mod tests {
             }
         }
         assert!(count >= 3, "configs/ holds {count} configs");
+    }
+
+    #[test]
+    fn cuda_is_refused_where_libtorch_finds_no_cuda_device() {
+        let c = ExperimentConfig::from_toml("scenario = \"transfer-circular\"\n[compute]\ndevice = \"cuda\"");
+        if crate::sac::cuda_available() {
+            assert_eq!(c.unwrap().device(), tch::Device::Cuda(0));
+        } else {
+            match c {
+                Err(ConfigError::Invalid(reason)) => assert!(reason.contains("no CUDA device"), "{reason}"),
+                other => panic!("a CUDA config on a machine without CUDA gave {other:?}"),
+            }
+        }
     }
 
     #[test]

@@ -30,10 +30,11 @@ pub fn update_flops(obs_dim: usize, act_dim: usize, hidden: &[usize], batch: usi
     target + critic_step + actor_step
 }
 
-/// Measured GEMM rate (GFLOP/s) of a square n x n x n product, median of `reps`.
-pub fn gemm_gflops(n: i64, reps: usize) -> f64 {
-    let a = Tensor::randn([n, n], (Kind::Float, Device::Cpu));
-    let b = Tensor::randn([n, n], (Kind::Float, Device::Cpu));
+/// Measured GEMM rate (GFLOP/s) of a square n x n x n product on `device`, median of `reps`
+/// (reading one element back waits for the product on a GPU).
+pub fn gemm_gflops(n: i64, reps: usize, device: Device) -> f64 {
+    let a = Tensor::randn([n, n], (Kind::Float, device));
+    let b = Tensor::randn([n, n], (Kind::Float, device));
     let mut times = Vec::with_capacity(reps);
     for _ in 0..reps {
         let t = Instant::now();
@@ -45,11 +46,11 @@ pub fn gemm_gflops(n: i64, reps: usize) -> f64 {
     2.0 * (n * n * n) as f64 / times[reps / 2] / 1e9
 }
 
-/// Mean seconds per update, batch sampling included, over `updates` updates (after 20 warm-up
-/// updates).
-pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, updates: usize) -> f64 {
+/// Mean seconds per update on `device`, batch sampling included, over `updates` updates (after
+/// 20 warm-up updates).
+pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, updates: usize, device: Device) -> f64 {
     tch::manual_seed(0);
-    let mut sac = Sac::new(config.clone(), obs_dim, act_dim, Device::Cpu);
+    let mut sac = Sac::new(config.clone(), obs_dim, act_dim, device);
     let mut buffer = ReplayBuffer::new(obs_dim, act_dim, 10_000);
     let mut rng = sampler(0);
     let obs: Vec<f32> = (0..obs_dim).map(|i| i as f32 * 0.1).collect();

@@ -35,6 +35,23 @@ pub fn tune_allocator() {
     }
 }
 
+/// Whether libtorch can run on a CUDA device here. The linker drops `libtorch_cuda.so` from the
+/// binary's needs (nothing names its symbols), and without it libtorch sees no GPU even on a
+/// CUDA build; it is loaded here on first call, from the binary's libtorch folder (its runpath)
+/// or `LD_LIBRARY_PATH`. A CPU-only libtorch has no such library: then false.
+pub fn cuda_available() -> bool {
+    static LOADED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    #[cfg(target_os = "linux")]
+    LOADED.get_or_init(|| {
+        // SAFETY: dlopen of a library by name with a valid C string; the handle is kept for
+        // the life of the process (never closed), so the CUDA hooks its initialisers register
+        // stay valid.
+        let handle = unsafe { libc::dlopen(c"libtorch_cuda.so".as_ptr(), libc::RTLD_NOW | libc::RTLD_GLOBAL) };
+        !handle.is_null()
+    });
+    tch::Cuda::is_available()
+}
+
 /// The learner's hyper-parameters (docs/spec.md section 8); defaults are the thesis's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
