@@ -177,13 +177,33 @@ fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A round's relabels solved as a Slurm array (`[compute.slurm]`) are the bytes the round solves
-/// on this machine. The array is run by a stand-in for `sbatch` that runs each task's command in
-/// turn with `SLURM_ARRAY_TASK_ID` set, as `sbatch --wait --array=0-K --wrap` would; it records
-/// what it was asked. The request and answer files are gone after the round.
-#[test]
-fn relabels_solved_by_a_slurm_array_equal_those_solved_here() {
-    let dir = scratch("slurm-relabel");
+/// A stand-in for `sbatch --wait --array=LIST --wrap CMD`: runs each listed task's command in
+/// turn with `SLURM_ARRAY_TASK_ID` set and appends its arguments to `asked`. While the file
+/// `fail` exists, task `fail_task` removes it and fails the array there (the tasks after it do
+/// not run), as a node lost midway would. Written beside the test binaries, where executing is
+/// allowed wherever the tests run (a temporary folder may be mounted without it).
+fn slurm_stand_in(name: &str, asked: &Path, fail: &Path, fail_task: u32) -> PathBuf {
+    let sbatch = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sbatch-{name}-{}", std::process::id()));
+    std::fs::write(
+        &sbatch,
+        format!(
+            "#!/bin/sh\necho \"$@\" >> '{}'\narray=\nwrap=\nwhile [ $# -gt 0 ]; do\n  case \"$1\" in\n    --array=*) array=${{1#--array=}} ;;\n    --wrap) shift; wrap=$1 ;;\n  esac\n  shift\ndone\n\
+case \"$array\" in\n  *-*) list=$(seq \"${{array%-*}}\" \"${{array#*-}}\") ;;\n  *) list=$(echo \"$array\" | tr ',' ' ') ;;\nesac\n\
+for i in $list; do\n  if [ \"$i\" = {fail_task} ] && [ -e '{}' ]; then rm '{}'; exit 1; fi\n  SLURM_ARRAY_TASK_ID=$i sh -c \"$wrap\" > /dev/null || exit 1\ndone\n",
+            path(asked),
+            path(fail),
+            path(fail)
+        ),
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&sbatch, std::fs::Permissions::from_mode(0o755)).unwrap();
+    sbatch
+}
+
+/// The configs of the Slurm relabel tests: one round solved here, and the same as an array of
+/// four tasks run by `sbatch`, over a two-draw dataset in `dir/data`.
+fn slurm_relabel_configs(dir: &Path, sbatch: &Path) -> (PathBuf, PathBuf) {
     let out = ground(&[
         "generate",
         "--scenario",
@@ -198,22 +218,6 @@ fn relabels_solved_by_a_slurm_array_equal_those_solved_here() {
         path(&dir.join("data")),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    // Beside the test binaries, where executing is allowed wherever the tests run (a temporary
-    // folder may be mounted without it).
-    let sbatch = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sbatch-{}", std::process::id()));
-    let asked = dir.join("asked.txt");
-    std::fs::write(
-        &sbatch,
-        format!(
-            "#!/bin/sh\necho \"$@\" >> '{}'\narray=\nwrap=\nwhile [ $# -gt 0 ]; do\n  case \"$1\" in\n    --array=*) array=${{1#--array=0-}} ;;\n    --wrap) shift; wrap=$1 ;;\n  esac\n  shift\ndone\ni=0\nwhile [ $i -le \"$array\" ]; do\n  SLURM_ARRAY_TASK_ID=$i sh -c \"$wrap\" > /dev/null || exit 1\n  i=$((i + 1))\ndone\n",
-            path(&asked)
-        ),
-    )
-    .unwrap();
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&sbatch, std::fs::Permissions::from_mode(0o755)).unwrap();
-    }
     let common = "scenario = \"transfer-circular\"\n[sac]\nhidden = [32, 32]\nbatch_size = 32\nwarmup_steps = 60\n\
 [generate]\ncount = 2\nseed = 9\nfinal_eps = 0.3\n[pretrain]\ndataset = \"data\"\nupdates = 40\neval_every = 20\n\
 mode = \"behaviour-cloning\"\nrecords = \"all\"\n[dagger]\nrounds = 1\nepisodes = 3\ncandidates = 6\nfractions = [0.3, 0.6]\n\
@@ -225,36 +229,51 @@ updates = 10\nscore_episodes = 4\n";
         &array,
         format!(
             "{common}[compute.slurm]\ntasks = 4\nsbatch = \"{}\"\nground = \"{}\"\noptions = [\"--partition=test\"]\n",
-            path(&sbatch),
+            path(sbatch),
             env!("CARGO_BIN_EXE_ground")
         ),
     )
     .unwrap();
-    let mut relabels = Vec::new();
-    for (config, run) in [(&here, dir.join("run-here")), (&array, dir.join("run-array"))] {
-        for command in ["pretrain", "dagger"] {
-            let out = ground(&[command, "--config", path(config), "--out", path(&run)]);
-            assert!(
-                out.status.success(),
-                "{command}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        let file = run.join("dagger/relabels-1.ltrl");
-        let solved = learn::dagger::load_relabels(&file, 1, 10).unwrap();
-        assert_eq!(solved.attempted, 6);
-        assert!(solved.converged > 0 && !solved.tuples.is_empty(), "nothing to compare");
-        relabels.push(std::fs::read(&file).unwrap());
-        let left: Vec<_> = std::fs::read_dir(run.join("dagger"))
-            .unwrap()
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|name| name.starts_with("relabel-"))
-            .collect();
-        assert!(left.is_empty(), "left behind: {left:?}");
+    (here, array)
+}
+
+/// Pretraining and one round in `run`; the round's relabel file, checked to hold relabels.
+fn pretrain_and_round(config: &Path, run: &Path) -> Vec<u8> {
+    for command in ["pretrain", "dagger"] {
+        let out = ground(&[command, "--config", path(config), "--out", path(run)]);
+        assert!(
+            out.status.success(),
+            "{command}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
+    let file = run.join("dagger/relabels-1.ltrl");
+    let solved = learn::dagger::load_relabels(&file, 1, 10).unwrap();
+    assert_eq!(solved.attempted, 6);
+    assert!(solved.converged > 0 && !solved.tuples.is_empty(), "nothing to compare");
+    let left: Vec<_> = std::fs::read_dir(run.join("dagger"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with("relabel-"))
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+    std::fs::read(&file).unwrap()
+}
+
+/// A round's relabels solved as a Slurm array (`[compute.slurm]`) are the bytes the round solves
+/// on this machine, in one array of every task with the config's options. The request and
+/// answer files are gone after the round.
+#[test]
+fn relabels_solved_by_a_slurm_array_equal_those_solved_here() {
+    let dir = scratch("slurm-relabel");
+    let asked = dir.join("asked.txt");
+    let sbatch = slurm_stand_in("whole", &asked, &dir.join("no-failure"), 0);
+    let (here, array) = slurm_relabel_configs(&dir, &sbatch);
+    let solved_here = pretrain_and_round(&here, &dir.join("run-here"));
+    let solved_by_array = pretrain_and_round(&array, &dir.join("run-array"));
     assert_eq!(
-        relabels[0], relabels[1],
+        solved_here, solved_by_array,
         "the array's relabels differ from those solved here"
     );
     let asked = std::fs::read_to_string(&asked).unwrap();
@@ -263,6 +282,43 @@ updates = 10\nscore_episodes = 4\n";
         asked.contains("--wait") && asked.contains("--array=0-3") && asked.contains("--partition=test"),
         "{asked}"
     );
+    std::fs::remove_file(&sbatch).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An array that fails at its third task fails the round with the reason; the same command
+/// then submits only the tasks that did not answer (the third and fourth), and the round ends
+/// with the relabels solved here.
+#[test]
+fn a_failed_relabel_array_resubmits_only_the_tasks_that_did_not_answer() {
+    let dir = scratch("slurm-relabel-failed");
+    let asked = dir.join("asked.txt");
+    let fail = dir.join("fail");
+    let sbatch = slurm_stand_in("failed", &asked, &fail, 2);
+    let (here, array) = slurm_relabel_configs(&dir, &sbatch);
+    let solved_here = pretrain_and_round(&here, &dir.join("run-here"));
+    let run = dir.join("run-array");
+    let out = ground(&["pretrain", "--config", path(&array), "--out", path(&run)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::write(&fail, "").unwrap();
+    let out = ground(&["dagger", "--config", path(&array), "--out", path(&run)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the round went on past a failed array");
+    assert!(stderr.contains("submits only the others"), "{stderr}");
+    assert!(!fail.exists(), "the array never reached its third task");
+    let solved_by_array = pretrain_and_round(&array, &run);
+    assert_eq!(
+        solved_here, solved_by_array,
+        "the resumed array's relabels differ from those solved here"
+    );
+    let asked: Vec<String> = std::fs::read_to_string(&asked)
+        .unwrap()
+        .lines()
+        .map(str::to_owned)
+        .collect();
+    assert_eq!(asked.len(), 2, "{asked:?}");
+    assert!(asked[0].contains("--array=0-3"), "{}", asked[0]);
+    assert!(asked[1].contains("--array=2,3 "), "{}", asked[1]);
     std::fs::remove_file(&sbatch).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }

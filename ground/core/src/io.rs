@@ -66,6 +66,11 @@ pub enum ContainerError {
 
 const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
+/// The CRC-32 of `bytes`, as the containers carry it: what ties a file to another it answers.
+pub fn checksum(bytes: &[u8]) -> u32 {
+    CRC.checksum(bytes)
+}
+
 /// magic (4) + version (u16 LE) + postcard payload + CRC-32 of the payload (u32 LE).
 pub fn encode_container<T: serde::Serialize>(
     magic: [u8; 4],

@@ -43,7 +43,7 @@ use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
 use ground_core::env::{MdpEnv, Problem, Rendezvous, Transfer};
-use ground_core::io::{decode_container, encode_container};
+use ground_core::io::{checksum, decode_container, encode_container};
 use ground_core::solver::SolveOptions;
 use onboard::dynamics::SpacecraftState;
 
@@ -103,13 +103,16 @@ pub struct RelabelRequest {
 /// A task's answers: (relabel's position in the request, its tuples).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct RelabelShard {
+    /// Checksum of the request file answered: a round run again reuses a task's answers only
+    /// for the same request.
+    request: u32,
     answers: Vec<(u64, Solved)>,
 }
 
 const REQUEST_MAGIC: [u8; 4] = *b"LTRQ";
 const REQUEST_VERSION: u16 = 1;
 const SHARD_MAGIC: [u8; 4] = *b"LTRS";
-const SHARD_VERSION: u16 = 1;
+const SHARD_VERSION: u16 = 2;
 
 /// Solves one relabel, as [`relabel`] and [`placed_demonstration`] make it.
 fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob) -> Solved {
@@ -174,7 +177,11 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
     };
     let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
     let out = shard_file(request_path, task, tasks);
-    let bytes = encode_container(SHARD_MAGIC, SHARD_VERSION, &RelabelShard { answers })
+    let shard = RelabelShard {
+        request: checksum(&bytes),
+        answers,
+    };
+    let bytes = encode_container(SHARD_MAGIC, SHARD_VERSION, &shard)
         .map_err(|e| ExperimentError::Io(out.clone(), std::io::Error::other(e.to_string())))?;
     write_file(&out, &bytes)?;
     Ok(out)
@@ -182,7 +189,9 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
 
 /// Solves `jobs` as a Slurm array: writes the request `DIR/relabel-TAG.ltrq`, runs `sbatch
 /// --wait --array` on it, reads every task's answers back in the request's order and removes
-/// the request and answer files. A task that failed or answered nothing fails the round.
+/// the request and answer files. A task that failed or answered nothing fails the round and the
+/// answers of the others are kept: the round run again (the same request) submits only the
+/// tasks without answers.
 fn solve_on_slurm(
     config: &ExperimentConfig,
     slurm: &SlurmConfig,
@@ -205,48 +214,25 @@ fn solve_on_slurm(
     let bytes = encode_container(REQUEST_MAGIC, REQUEST_VERSION, &request)
         .map_err(|e| ExperimentError::Io(request_path.clone(), std::io::Error::other(e.to_string())))?;
     write_file(&request_path, &bytes)?;
-    let ground = match &slurm.ground {
-        Some(path) => path.clone(),
-        None => std::env::current_exe().map_err(|e| ExperimentError::Io(PathBuf::from("ground"), e))?,
-    };
-    let quoted = |p: &Path| -> Result<String, ExperimentError> {
-        let text = p.to_str().filter(|t| !t.contains('\'')).ok_or_else(|| {
-            ExperimentError::Mismatch(format!("{}: a Slurm task cannot be given this path", p.display()))
-        })?;
-        Ok(format!("'{text}'"))
-    };
+    let request_sum = checksum(&bytes);
     let tasks = slurm.tasks.min(count as u64);
-    let command = format!(
-        "{} relabel-shard --request {} --shard \"$SLURM_ARRAY_TASK_ID/{tasks}\"",
-        quoted(&ground)?,
-        quoted(&request_path)?
-    );
-    let log = request_path.with_extension("slurm-%a.out");
-    let status = std::process::Command::new(&slurm.sbatch)
-        .arg("--wait")
-        .arg("--job-name=lowthrust-relabel")
-        .arg(format!("--array=0-{}", tasks - 1))
-        .arg(format!("--output={}", log.display()))
-        .args(&slurm.options)
-        .arg("--wrap")
-        .arg(&command)
-        .stdout(std::process::Stdio::null())
-        .status()
-        .map_err(|e| ExperimentError::Io(PathBuf::from(&slurm.sbatch), e))?;
-    if !status.success() {
-        return Err(ExperimentError::Mismatch(format!(
-            "the relabel array ({}) ended with {status}: see {}",
-            slurm.sbatch,
-            log.display()
-        )));
+    let answered = |task: u64| -> Result<RelabelShard, String> {
+        let path = shard_file(&request_path, task, tasks);
+        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let shard: RelabelShard = decode_container(SHARD_MAGIC, SHARD_VERSION, &bytes)
+            .map_err(|e| format!("relabel answers {}: {e}", path.display()))?;
+        if shard.request != request_sum {
+            return Err(format!("relabel answers {} are for another request", path.display()));
+        }
+        Ok(shard)
+    };
+    let missing: Vec<u64> = (0..tasks).filter(|&task| answered(task).is_err()).collect();
+    if !missing.is_empty() {
+        submit_relabel_array(slurm, &request_path, tasks, &missing)?;
     }
     let mut solved: Vec<Option<Solved>> = vec![None; count];
     for task in 0..tasks {
-        let path = shard_file(&request_path, task, tasks);
-        let bytes = std::fs::read(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
-        let shard: RelabelShard = decode_container(SHARD_MAGIC, SHARD_VERSION, &bytes)
-            .map_err(|e| ExperimentError::Mismatch(format!("relabel answers {}: {e}", path.display())))?;
-        for (i, answer) in shard.answers {
+        for (i, answer) in answered(task).map_err(ExperimentError::Mismatch)?.answers {
             if let Some(slot) = solved.get_mut(i as usize) {
                 *slot = Some(answer);
             }
@@ -264,6 +250,57 @@ fn solve_on_slurm(
     }
     let _ = std::fs::remove_file(&request_path);
     Ok(solved)
+}
+
+/// Runs `sbatch --wait` on the array tasks `which` (of `tasks`) of a relabel request.
+fn submit_relabel_array(
+    slurm: &SlurmConfig,
+    request_path: &Path,
+    tasks: u64,
+    which: &[u64],
+) -> Result<(), ExperimentError> {
+    let ground = match &slurm.ground {
+        Some(path) => path.clone(),
+        None => std::env::current_exe().map_err(|e| ExperimentError::Io(PathBuf::from("ground"), e))?,
+    };
+    let quoted = |p: &Path| -> Result<String, ExperimentError> {
+        let text = p.to_str().filter(|t| !t.contains('\'')).ok_or_else(|| {
+            ExperimentError::Mismatch(format!("{}: a Slurm task cannot be given this path", p.display()))
+        })?;
+        Ok(format!("'{text}'"))
+    };
+    let command = format!(
+        "{} relabel-shard --request {} --shard \"$SLURM_ARRAY_TASK_ID/{tasks}\"",
+        quoted(&ground)?,
+        quoted(request_path)?
+    );
+    // Slurm's array syntax: a range for every task, else the list.
+    let array = if which.len() as u64 == tasks {
+        format!("0-{}", tasks - 1)
+    } else {
+        which.iter().map(u64::to_string).collect::<Vec<_>>().join(",")
+    };
+    let log = request_path.with_extension("slurm-%a.out");
+    let status = std::process::Command::new(&slurm.sbatch)
+        .arg("--wait")
+        .arg("--job-name=lowthrust-relabel")
+        .arg(format!("--array={array}"))
+        .arg(format!("--output={}", log.display()))
+        .args(&slurm.options)
+        .arg("--wrap")
+        .arg(&command)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .map_err(|e| ExperimentError::Io(PathBuf::from(&slurm.sbatch), e))?;
+    if !status.success() {
+        return Err(ExperimentError::Mismatch(format!(
+            "the relabel array ({}) ended with {status}: see {}; the tasks that answered are kept, and \
+             the same command submits only the others",
+            slurm.sbatch,
+            log.display()
+        )));
+    }
+    Ok(())
 }
 
 /// The score of the learner after a round (round 0: the starting checkpoint).
