@@ -329,8 +329,7 @@ fn pendulum_command(
 fn bench_sac(updates: u64, threads: &[i32], device: &str, batch: usize) -> Result<(), Box<dyn std::error::Error>> {
     use learn::sac::{bench, SacConfig};
     let device = match device {
-        "cuda" if learn::sac::cuda_available() => tch::Device::Cuda(0),
-        "cuda" => return Err("--device cuda: libtorch finds no CUDA device here".into()),
+        "cuda" => learn::sac::cuda_device().map_err(|reason| format!("--device cuda: {reason}"))?,
         _ => tch::Device::Cpu,
     };
     let config = SacConfig {

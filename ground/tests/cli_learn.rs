@@ -66,6 +66,32 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// On a machine where libtorch finds no GPU, a config that asks for CUDA is refused by the
+/// commands that train, with the reason, before any work: no folder is left behind (on a
+/// machine with a GPU there is nothing to refuse).
+#[test]
+fn a_cuda_config_is_refused_before_any_work_where_there_is_no_gpu() {
+    if learn::sac::cuda_device().is_ok() {
+        return;
+    }
+    let dir = scratch("cuda");
+    let config = dir.join("cuda.toml");
+    std::fs::write(
+        &config,
+        "scenario = \"transfer-circular\"\n[compute]\ndevice = \"cuda\"\n",
+    )
+    .unwrap();
+    let out = dir.join("new/run");
+    for command in ["run", "pretrain", "train"] {
+        refused(
+            &[command, "--config", path(&config), "--out", path(&out)],
+            "compute.device = \"cuda\"",
+        );
+    }
+    assert!(!dir.join("new").exists(), "a refused command left a folder behind");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn a_run_folder_in_use_is_refused() {
     let dir = scratch("lock");

@@ -655,16 +655,17 @@ fn dagger_for<P: Problem>(
     run: &Path,
     start: &Path,
 ) -> Result<DaggerSummary, ExperimentError> {
+    let device = config.device()?;
     let (mut buffer, _) = demonstration_buffer::<P>(config, config_dir)?;
     check_run(config, run)?;
     let dir = run.join("dagger");
-    let mut agent = new_agent(config, true, P::OBS);
+    let mut agent = new_agent(config, true, P::OBS, device);
     let state_path = dir.join("state.json");
     if !round_file(&dir, 0).exists() {
         // A learner checkpoint, or a shipped model's actor alone (its critics are fresh: train
         // it with dagger.cloning_only).
         if let Err(checkpoint) = agent.load(start) {
-            agent = new_agent(config, true, P::OBS);
+            agent = new_agent(config, true, P::OBS, device);
             agent.start_from_actor(start).map_err(|_| checkpoint)?;
         }
         prepare_run(config, run)?;

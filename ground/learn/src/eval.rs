@@ -255,7 +255,7 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
         // The file holds the actor that flies; no average to keep.
         sac.actor_averaging = 0.0;
     }
-    let mut agent = Sac::new(sac, obs_dim, 3, config.device());
+    let mut agent = Sac::new(sac, obs_dim, 3, config.device()?);
     if actor_only {
         agent.load_actor(checkpoint)?;
     } else {

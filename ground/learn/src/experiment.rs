@@ -661,17 +661,12 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
     }
 }
 
-pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize) -> Sac {
+/// A fresh agent of the config on `device` (the config's, asked by the caller before any work).
+pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: usize, device: tch::Device) -> Sac {
     tch::set_num_threads(config.compute.threads);
     // The initial weights; every later draw is seeded by the agent itself (`Sac::noise_seed`).
     tch::manual_seed(config.seeds.train as i64);
-    let mut agent = Sac::with_cloning_loss(
-        config.sac_for(pretraining),
-        obs_dim,
-        3,
-        config.device(),
-        config.cloning_loss(),
-    );
+    let mut agent = Sac::with_cloning_loss(config.sac_for(pretraining), obs_dim, 3, device, config.cloning_loss());
     agent.noise_seed = config.seeds.train;
     agent
 }
@@ -684,10 +679,11 @@ fn pretrain_for<P: Problem>(
 where
     MdpEnv<P>: Environment,
 {
+    let device = config.device()?;
     let (buffer, used) = demonstration_buffer::<P>(config, config_dir)?;
     prepare_run(config, run)?;
     let dir = run.join("pretrain");
-    let mut agent = new_agent(config, true, P::OBS);
+    let mut agent = new_agent(config, true, P::OBS, device);
     let mut rng = sampler(config.seeds.train);
     let state = load_state(&dir.join("state.json"))?.unwrap_or_default();
     if state.updates > 0 {
@@ -745,9 +741,10 @@ fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) ->
 where
     MdpEnv<P>: Environment,
 {
+    let device = config.device()?;
     check_run(config, run)?;
     let dir = run.join(start.folder());
-    let mut agent = new_agent(config, false, P::OBS);
+    let mut agent = new_agent(config, false, P::OBS, device);
     if start == Start::Scratch {
         // Vanilla SAC: no demonstrations, so no behaviour-cloning term and no 1/mean|Q| scaling
         // of the actor loss, whatever the config keeps for the pretrained arm.

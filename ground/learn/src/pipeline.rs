@@ -49,6 +49,8 @@ pub struct MainJob {
 
 /// Runs every stage into `run` and writes `run/report.md`.
 pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, ExperimentError> {
+    // Refused before the dataset's hours of solves, not at the pretraining after them.
+    config.device()?;
     // The code this run is built from: read now, as the tree may change while it runs.
     let commit = current_commit();
     let mut config = config.clone();

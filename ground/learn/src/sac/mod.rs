@@ -35,21 +35,44 @@ pub fn tune_allocator() {
     }
 }
 
-/// Whether libtorch can run on a CUDA device here. The linker drops `libtorch_cuda.so` from the
-/// binary's needs (nothing names its symbols), and without it libtorch sees no GPU even on a
-/// CUDA build; it is loaded here on first call, from the binary's libtorch folder (its runpath)
-/// or `LD_LIBRARY_PATH`. A CPU-only libtorch has no such library: then false.
-pub fn cuda_available() -> bool {
-    static LOADED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    #[cfg(target_os = "linux")]
-    LOADED.get_or_init(|| {
-        // SAFETY: dlopen of a library by name with a valid C string; the handle is kept for
-        // the life of the process (never closed), so the CUDA hooks its initialisers register
-        // stay valid.
-        let handle = unsafe { libc::dlopen(c"libtorch_cuda.so".as_ptr(), libc::RTLD_NOW | libc::RTLD_GLOBAL) };
-        !handle.is_null()
-    });
-    tch::Cuda::is_available()
+/// The first CUDA device, or why libtorch cannot use one here. The linker drops
+/// `libtorch_cuda.so` from the binary's needs (nothing names its symbols), and without it
+/// libtorch sees no GPU even on a CUDA build; it is loaded here on first call, from the binary's
+/// libtorch folder (its runpath) or `LD_LIBRARY_PATH`. A CPU-only libtorch has no such library.
+pub fn cuda_device() -> Result<tch::Device, String> {
+    static LOADED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    LOADED.get_or_init(load_torch_cuda).clone()?;
+    if tch::Cuda::is_available() {
+        Ok(tch::Device::Cuda(0))
+    } else {
+        Err("libtorch finds no CUDA device here (no GPU, or no driver)".into())
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn load_torch_cuda() -> Result<(), String> {
+    // SAFETY: dlopen of a library by name with a valid C string; the handle is kept for the life
+    // of the process (never closed), so the CUDA hooks its initialisers register stay valid.
+    // dlerror's message, when there is one, is a valid C string until the next dl call.
+    unsafe {
+        if libc::dlopen(c"libtorch_cuda.so".as_ptr(), libc::RTLD_NOW | libc::RTLD_GLOBAL).is_null() {
+            let reason = libc::dlerror();
+            let reason = if reason.is_null() {
+                "unknown reason".into()
+            } else {
+                std::ffi::CStr::from_ptr(reason).to_string_lossy().into_owned()
+            };
+            return Err(format!(
+                "libtorch_cuda.so does not load (a CPU-only PyTorch?): {reason}"
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(not(target_os = "linux"))]
+fn load_torch_cuda() -> Result<(), String> {
+    Ok(())
 }
 
 /// The learner's hyper-parameters (docs/spec.md section 8); defaults are the thesis's.
