@@ -333,7 +333,7 @@ pub struct CrossCheckArgs {
 
 pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ground_core::crosscheck::{crosscheck_records, write_crosscheck_csv, CrossCheckSettings};
-    use ground_core::generate::crosscheck_run;
+    use ground_core::generate::{crosscheck_run, run_solve_options};
     if !(args.margin.is_finite() && args.margin >= 0.0) {
         return Err(format!("--margin must be a finite number >= 0, not {}", args.margin).into());
     }
@@ -367,7 +367,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
             &args.dataset,
             &spacecraft,
             &settings,
-            &SolveOptions::default(),
+            &run_solve_options(&args.dataset)?,
             true,
             true,
         )?;

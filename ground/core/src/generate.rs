@@ -375,6 +375,8 @@ pub fn crosscheck_run(
     show_progress: bool,
 ) -> Result<CrossCheckRun, GenerateError> {
     let (_held, manifest, mut records) = hold_whole_run(out)?;
+    // A repair re-solves to the records' own final eps: another would be another demonstration.
+    check_solve_request(out, options)?;
     let checks = crosscheck_records(&records, None, spacecraft, settings, show_progress);
     if !repair {
         return Ok(CrossCheckRun {
@@ -658,6 +660,18 @@ fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, Genera
     }
 }
 
+/// The solve options a run's records were solved with (`request.json`; the defaults for a
+/// folder written before it existed), for work that solves more of them (repairs).
+pub fn run_solve_options(out: &Path) -> Result<SolveOptions, GenerateError> {
+    let found = read_json::<SolveRequest>(&out.join("request.json"))?;
+    let defaults = SolveOptions::default();
+    Ok(found.map_or(defaults, |r| SolveOptions {
+        final_eps: r.final_eps,
+        arrival_margin_steps: r.arrival_margin_steps,
+        ..defaults
+    }))
+}
+
 /// Refuses a folder whose records were solved to another final eps or arrival margin; says
 /// whether it records one. A folder without `request.json` (written before it existed) is taken
 /// as it is.
@@ -933,6 +947,44 @@ mod tests {
             optimum,
             worse,
         }
+    }
+
+    /// A repair solves to the run's own final eps: the options of its request are what
+    /// `run_solve_options` gives, and other options are refused before any record is touched.
+    #[test]
+    fn crosscheck_repairs_solve_to_the_runs_own_final_eps() {
+        let WorseRecordRun {
+            out,
+            sc,
+            manifest,
+            options,
+            worse,
+            ..
+        } = worse_record_run("repair-eps");
+        let smoothed_out = out.with_extension("smoothed");
+        let smoothed = SolveOptions {
+            final_eps: 0.25,
+            ..SolveOptions::default()
+        };
+        generate(manifest, Shard::WHOLE, &smoothed_out, &sc, &smoothed, false).unwrap();
+        assert_eq!(run_solve_options(&smoothed_out).unwrap().final_eps, 0.25);
+        assert_eq!(run_solve_options(&out).unwrap().final_eps, options.final_eps);
+        std::fs::remove_dir_all(&smoothed_out).unwrap();
+        let other = SolveOptions {
+            final_eps: options.final_eps * 4.0,
+            ..options
+        };
+        let refused = crosscheck_run(&out, &sc, &CrossCheckSettings::default(), &other, true, false);
+        assert!(
+            matches!(refused, Err(GenerateError::FinalEpsMismatch { .. })),
+            "{refused:?}"
+        );
+        assert_eq!(
+            read_record(&record_path(&out, 0)).unwrap(),
+            worse,
+            "a refused repair touched a record"
+        );
+        std::fs::remove_dir_all(&out).unwrap();
     }
 
     #[test]

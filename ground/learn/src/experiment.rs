@@ -312,11 +312,21 @@ pub fn check_run(config: &ExperimentConfig, run: &Path) -> Result<(), Experiment
         return Ok(());
     };
     let previous = ExperimentConfig::from_toml(&existing)?;
-    // What the folder's checkpoints depend on (an averaged actor is part of them).
-    let same = |c: &ExperimentConfig| (c.scenario, c.sac.hidden.clone(), c.seeds, c.sac.actor_averaging > 0.0);
+    // What the folder's checkpoints and saved relabels depend on (an averaged actor is part of
+    // the checkpoints; relabels are solved to the config's final eps and arrival margin).
+    let same = |c: &ExperimentConfig| {
+        (
+            c.scenario,
+            c.sac.hidden.clone(),
+            c.seeds,
+            c.sac.actor_averaging > 0.0,
+            c.generate.final_eps,
+            c.generate.arrival_margin,
+        )
+    };
     if same(&previous) != same(config) {
         return Err(ExperimentError::Mismatch(format!(
-            "{} holds a run of another experiment (scenario, network, seeds or actor averaging differ); use a new folder",
+            "{} holds a run of another experiment (scenario, network, seeds, actor averaging, final eps or arrival margin differ); use a new folder",
             run.display()
         )));
     }
@@ -877,5 +887,37 @@ where
         if let Err(e) = self.phase.checkpoint(agent, Some(buffer), rng) {
             self.error.get_or_insert(e);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A run folder continues under a config that only asks for more work, and refuses one whose
+    /// checkpoints or relabels would mean something else.
+    #[test]
+    fn a_run_folder_refuses_a_config_of_another_experiment() {
+        let run = std::env::temp_dir().join(format!("lowthrust-check-run-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&run);
+        std::fs::create_dir_all(&run).unwrap();
+        let base = "scenario = \"rendezvous-circular\"\n[generate]\nfinal_eps = 0.016\n";
+        let config = |extra: &str| ExperimentConfig::from_toml(&format!("{base}{extra}")).unwrap();
+        prepare_run(&config(""), &run).unwrap();
+        assert!(check_run(&config("[pretrain]\nupdates = 123456\n"), &run).is_ok());
+        for other in [
+            "arrival_margin = 2\n",
+            "[seeds]\ntrain = 99\n",
+            "[sac]\nhidden = [64, 64]\n",
+        ] {
+            assert!(
+                matches!(check_run(&config(other), &run), Err(ExperimentError::Mismatch(_))),
+                "{other}"
+            );
+        }
+        let other_eps =
+            ExperimentConfig::from_toml("scenario = \"rendezvous-circular\"\n[generate]\nfinal_eps = 0.25\n").unwrap();
+        assert!(matches!(check_run(&other_eps, &run), Err(ExperimentError::Mismatch(_))));
+        std::fs::remove_dir_all(&run).unwrap();
     }
 }
