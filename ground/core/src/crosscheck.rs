@@ -188,7 +188,7 @@ pub fn cut_record(record: &TrajectoryRecord, check: &CrossCheck) -> TrajectoryRe
         converged: false,
         failure: Some(format!(
             "{WORSE_OPTIMUM} the direct transcription ends at {:.4} of the initial mass, this record's \
-             indirect solution at {:.4}; re-solved from the direct solution it did not end heavier",
+             indirect solution at {:.4}; no re-solve from the direct solution ended heavier",
             check.direct_final_mass, record.final_mass
         )),
         ephemeris: Vec::new(),

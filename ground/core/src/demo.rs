@@ -400,7 +400,11 @@ pub fn placed_demonstration<P: Problem>(
             found: record.scenario.problem,
         });
     }
-    if placement.start_step + record.scenario.steps > placement.episode.steps
+    // A record shorter than its episode arrived early (an arrival margin) and is coasted to
+    // the end: only a converged one has arrived.
+    let ends = placement.start_step + record.scenario.steps;
+    if ends > placement.episode.steps
+        || (ends < placement.episode.steps && !record.converged)
         || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
     {
         return Err(DemoError::Placement);
@@ -462,25 +466,28 @@ pub fn placed_demonstration<P: Problem>(
         });
     }
     // Arrived early: coast with the target to the episode's end.
+    // The environment's own steps: a coast is what it flies exactly, so its rewards and
+    // observations are the tuples'.
     let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
-    let mut state = placed(arrived);
+    let first_coast = placement.start_step + record.scenario.steps;
     let coast = coast_action();
-    for k in placement.start_step + record.scenario.steps..scenario.steps {
-        let observation = env.reset_at(scenario, &state, k).map_err(DemoError::Env)?;
-        let flown = env.step(&coast).map_err(DemoError::Env)?;
-        let next = flown.info.state;
-        let (reward, ..) = MdpEnv::<P>::reward_at(config, scenario, &next, k + 1, 0.0).map_err(DemoError::Env)?;
-        let next_observation = env.reset_at(scenario, &next, k + 1).map_err(DemoError::Env)?;
-        transitions.push(Transition {
-            observation,
-            action: coast,
-            reward,
-            next_observation,
-            done: flown.done,
-            record: record.index,
-            step: k,
-        });
-        state = next;
+    if first_coast < scenario.steps {
+        let mut observation = env
+            .reset_at(scenario, &placed(arrived), first_coast)
+            .map_err(DemoError::Env)?;
+        for k in first_coast..scenario.steps {
+            let flown = env.step(&coast).map_err(DemoError::Env)?;
+            transitions.push(Transition {
+                observation,
+                action: coast,
+                reward: flown.reward,
+                next_observation: flown.observation,
+                done: flown.done,
+                record: record.index,
+                step: k,
+            });
+            observation = flown.observation;
+        }
     }
     Ok(RecordDemonstration { transitions, mismatch })
 }

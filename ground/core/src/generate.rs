@@ -6,7 +6,8 @@
 //! Layout of an output folder:
 //! - `manifest.json`: scenario, seed, count (a resumed run must match it, or ask for more
 //!   scenarios of the same stream: it then extends the run);
-//! - `request.json`: the final eps the records were solved to (a resumed run must match it too);
+//! - `request.json`: the final eps the records were solved to and their arrival margin (a resumed
+//!   run must match them too);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
 //!   soon as it is solved, so a killed run loses at most the cases in flight;
 //! - `dataset.ltds` (or `dataset-I-of-N.ltds` for a shard): all records of the run, sorted;

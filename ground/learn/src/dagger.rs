@@ -91,7 +91,8 @@ pub struct RelabelJob {
 }
 
 /// A batch of relabels for a Slurm array (`ground relabel-shard`): the run's config (its
-/// scenarios, spacecraft, environment and final eps), the round's first training scenario and
+/// scenarios, spacecraft, environment, final eps and arrival margin), the round's first training
+/// scenario and
 /// the relabels in order.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RelabelRequest {

@@ -15,7 +15,7 @@ use crate::eval::{accuracy_line, eccentricity_line, gap_line, monte_carlo, solve
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
-use crate::sil::{met_missed_thrust, sil_monte_carlo, SilReport};
+use crate::sil::{missed_thrust_bands, sil_monte_carlo, SilReport};
 use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
@@ -546,12 +546,10 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
             100.0 * r.missed_thrust_fraction
         );
     }
-    if met_missed_thrust(&sil[0].by_last_missed_thrust) {
-        let bands: Vec<String> = sil[0].by_last_missed_thrust.iter().map(|b| b.to_string()).collect();
+    if let Some(bands) = missed_thrust_bands(&sil[0].by_last_missed_thrust) {
         let _ = writeln!(
             s,
-            "\nWithin the goal (f32) by where a flight's last missed thrust ended, as a fraction of the flight (flights): {}.",
-            bands.join(", ")
+            "\nWithin the goal (f32) by where a flight's last missed thrust ended, as a fraction of the flight (flights): {bands}."
         );
     }
     let _ = writeln!(s, "\n![SIL histograms, int8](sil-int8/histograms.svg)\n");

@@ -364,17 +364,21 @@ pub fn describe(report: &SilReport) -> String {
     ) + &missed_thrust_line(&report.by_last_missed_thrust)
 }
 
-/// "within the goal by the end of the last missed thrust: none 92.0 % (512), ..." (empty
+/// "none 92.0 % (512), 0.9-1 80.6 % (314)": the bands that hold flights, for `ground sil` and
+/// the recipe's report; `None` when no flight met missed thrust.
+pub fn missed_thrust_bands(bands: &[MissedThrustBand]) -> Option<String> {
+    met_missed_thrust(bands).then(|| {
+        let parts: Vec<String> = bands.iter().filter(|b| b.flights > 0).map(|b| b.to_string()).collect();
+        parts.join(", ")
+    })
+}
+
+/// "within the goal by where the last missed thrust ended ...: none 92.0 % (512), ..." (empty
 /// without missed thrust).
 fn missed_thrust_line(bands: &[MissedThrustBand]) -> String {
-    if !met_missed_thrust(bands) {
-        return String::new();
-    }
-    let parts: Vec<String> = bands.iter().filter(|b| b.flights > 0).map(|b| b.to_string()).collect();
-    format!(
-        "\nwithin the goal by where the last missed thrust ended (fraction of the flight): {}",
-        parts.join(", ")
-    )
+    missed_thrust_bands(bands).map_or_else(String::new, |bands| {
+        format!("\nwithin the goal by where the last missed thrust ended (fraction of the flight): {bands}")
+    })
 }
 
 #[cfg(test)]
