@@ -106,6 +106,15 @@ impl SolveRequest {
             arrival_margin_steps: options.arrival_margin_steps,
         }
     }
+
+    /// The default solve options with this request's final eps and margin.
+    pub fn options(&self) -> SolveOptions {
+        SolveOptions {
+            final_eps: self.final_eps,
+            arrival_margin_steps: self.arrival_margin_steps,
+            ..SolveOptions::default()
+        }
+    }
 }
 
 /// A dataset file: the records of a run (a shard or a whole set).
@@ -661,16 +670,18 @@ fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, Genera
     }
 }
 
+/// What the records of a dataset file were solved to: the `request.json` of its run folder
+/// (the file's folder); `None` for a folder written before it existed.
+pub fn dataset_solve_request(dataset_file: &Path) -> Result<Option<SolveRequest>, GenerateError> {
+    let folder = dataset_file.parent().unwrap_or(Path::new("."));
+    read_json(&folder.join("request.json"))
+}
+
 /// The solve options a run's records were solved with (`request.json`; the defaults for a
 /// folder written before it existed), for work that solves more of them (repairs).
 pub fn run_solve_options(out: &Path) -> Result<SolveOptions, GenerateError> {
     let found = read_json::<SolveRequest>(&out.join("request.json"))?;
-    let defaults = SolveOptions::default();
-    Ok(found.map_or(defaults, |r| SolveOptions {
-        final_eps: r.final_eps,
-        arrival_margin_steps: r.arrival_margin_steps,
-        ..defaults
-    }))
+    Ok(found.map_or_else(SolveOptions::default, |r| r.options()))
 }
 
 /// Refuses a folder whose records were solved to another final eps or arrival margin; says
@@ -804,6 +815,17 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
         return Err(GenerateError::Merge("no input files".into()));
     };
     let manifest = first.manifest;
+    // Records of another final eps or arrival margin would make one dataset of two kinds.
+    let requests = inputs
+        .iter()
+        .map(|p| dataset_solve_request(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    if requests.windows(2).any(|w| w[0] != w[1]) {
+        return Err(GenerateError::Merge(
+            "inputs were solved to different final eps or arrival margins (their request.json)".into(),
+        ));
+    }
+    let request = requests.into_iter().next().flatten();
     let mut records = Vec::new();
     for f in files {
         if f.manifest != manifest {
@@ -836,6 +858,10 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
     check_manifest(out, &manifest)?;
     let held = RunLock::acquire(out)?;
     check_manifest(out, &manifest)?;
+    if let Some(request) = &request {
+        check_solve_request(held.dir(), &request.options())?;
+        write_json(&held.dir().join("request.json"), request)?;
+    }
     write_outputs(
         held.dir(),
         &DatasetFile {

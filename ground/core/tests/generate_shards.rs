@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use ground_core::generate::{generate, merge, read_dataset, trajectory_difference, GenerateError, Manifest, Shard};
+use ground_core::generate::{
+    dataset_solve_request, generate, merge, read_dataset, trajectory_difference, GenerateError, Manifest, Shard,
+};
 use ground_core::solver::record::TrajectoryRecord;
 use ground_core::solver::SolveOptions;
 use shared::scenario::ScenarioKind;
@@ -96,6 +98,28 @@ fn shards_merge_into_the_single_run_and_restarts_resume() {
         merge(&[a.join("dataset-0-of-2.ltds")], &temp_dir("partial")),
         Err(GenerateError::Merge(_))
     ));
+    // The merged run says what its records were solved to, as the shards' runs do; a shard
+    // solved to another final eps is refused, and nothing is written.
+    let request = dataset_solve_request(&merged_dir.join("dataset.ltds"))
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        (request.final_eps, request.arrival_margin_steps),
+        (options().final_eps, 0)
+    );
+    let deeper = temp_dir("shard1-deeper");
+    let deeper_options = SolveOptions {
+        final_eps: 0.25,
+        ..SolveOptions::default()
+    };
+    generate(manifest, "1/2".parse().unwrap(), &deeper, &sc, &deeper_options, false).unwrap();
+    let mixed = temp_dir("mixed");
+    assert!(matches!(
+        merge(&[a.join("dataset-0-of-2.ltds"), deeper.join("dataset-1-of-2.ltds")], &mixed),
+        Err(GenerateError::Merge(reason)) if reason.contains("final eps")
+    ));
+    assert!(!mixed.exists(), "a refused merge created its folder");
+    let _ = std::fs::remove_dir_all(&deeper);
 
     // Restart: every record is resumed, byte for byte the same set.
     let again = generate(manifest, Shard::WHOLE, &whole, &sc, &options(), false).unwrap();

@@ -27,7 +27,7 @@ use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
 use ground_core::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
-use ground_core::generate::read_dataset;
+use ground_core::generate::{dataset_solve_request, read_dataset};
 use ground_core::io::{atomic_write, decode_container, encode_container};
 
 const REPLAY_MAGIC: [u8; 4] = *b"LTRB";
@@ -615,13 +615,18 @@ pub fn load_demonstrations<P: Problem>(
         )));
     }
     // Relabels are solved with the config's margin: demonstrations of another would teach two
-    // arrival times.
-    let margin = dataset
-        .records
-        .iter()
-        .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
-        .max()
-        .unwrap_or(0);
+    // arrival times. The run's request says it; a folder without one (written before it
+    // existed, or a file moved out of its folder) shows it by its records.
+    let request = dataset_solve_request(&file).map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+    let margin = match request {
+        Some(request) => request.arrival_margin_steps,
+        None => dataset
+            .records
+            .iter()
+            .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
+            .max()
+            .unwrap_or(0),
+    };
     if margin != config.generate.arrival_margin {
         return Err(ExperimentError::Mismatch(format!(
             "dataset {} was solved to arrive {margin} steps early, the config asks for generate.arrival_margin = {}",
