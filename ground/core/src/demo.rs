@@ -875,6 +875,54 @@ mod tests {
         assert_eq!(last.reward.to_bits(), reward.to_bits());
     }
 
+    /// A transfer arriving early coasts on its target orbit: every coasted state's orbit (from
+    /// vis-viva and the eccentricity vector, mu = 1) is the target's, and the tuples are the
+    /// environment's own coast steps.
+    #[test]
+    fn a_transfer_arriving_early_coasts_on_its_target_orbit_to_the_end_of_its_episode() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::TransferHard;
+        let draw = kind.draw(9, 1);
+        let margin = 2;
+        let options = SolveOptions {
+            arrival_margin_steps: margin,
+            ..quick_options()
+        };
+        let record = solve_arriving_early(kind, 9, 1, &draw, &sc, &options);
+        assert!(record.converged, "{:?}", record.failure);
+        assert_eq!(record.scenario.steps, draw.steps - margin);
+        let config = EnvConfig::default();
+        let demo = record_demonstration::<Transfer>(&record, &config, &default_tolerances()).unwrap();
+        let n = draw.steps;
+        assert_eq!(demo.transitions.len(), n as usize);
+        let target = draw.target;
+        let on_target = |state: &SpacecraftState, k: u32| {
+            let r = state.r[0].hypot(state.r[1]);
+            let v2 = state.v[0] * state.v[0] + state.v[1] * state.v[1];
+            let a = 1.0 / (2.0 / r - v2);
+            let rv = state.r[0] * state.v[0] + state.r[1] * state.v[1];
+            let e = [0, 1].map(|i| (v2 - 1.0 / r) * state.r[i] - rv * state.v[i]);
+            let wanted = [target.e * target.omega.cos(), target.e * target.omega.sin()];
+            let off = (a - target.a).abs().max((e[0] - wanted[0]).hypot(e[1] - wanted[1]));
+            assert!(off < 1e-6, "step {k}: {off:e} off the target orbit");
+        };
+        let coast = coast_action();
+        let mut env = MdpEnv::<Transfer>::new(&config).unwrap();
+        let mut state = state_of(record.steps.last().unwrap());
+        for (k, t) in (0u32..).zip(&demo.transitions).skip((n - margin) as usize) {
+            assert_eq!((t.step, t.done, t.action), (k, k + 1 == n, coast));
+            on_target(&state, k);
+            assert_eq!(t.observation, env.reset_at(&draw, &state, k).unwrap());
+            let flown = env.step(&coast).unwrap();
+            state = flown.info.state;
+            assert_eq!(
+                (t.next_observation, t.reward.to_bits()),
+                (flown.observation, flown.reward.to_bits())
+            );
+        }
+        on_target(&state, n);
+    }
+
     /// A relabel keeps the margin too: the rest of the flight is solved to arrive early and its
     /// tuples coast to the episode's end.
     #[test]
