@@ -384,58 +384,104 @@ pub fn crosscheck_run(
     repair: bool,
     show_progress: bool,
 ) -> Result<CrossCheckRun, GenerateError> {
-    let (_held, manifest, mut records) = hold_whole_run(out)?;
+    let mut planned = plan_crosscheck(out, spacecraft, settings, options, repair, show_progress)?;
+    if repair {
+        planned.run.summary = Some(rewrite_records(
+            out,
+            planned.manifest,
+            &mut planned.records,
+            planned.rewrites,
+        )?);
+    }
+    Ok(planned.run)
+}
+
+/// A run held and checked, with the records its repairs would rewrite.
+struct PlannedCrossCheck {
+    _held: RunLock,
+    manifest: Manifest,
+    records: Vec<TrajectoryRecord>,
+    run: CrossCheckRun,
+    rewrites: Vec<TrajectoryRecord>,
+}
+
+/// The checks of [`crosscheck_run`] and, with `repair`, the repaired or cut records, written
+/// nowhere yet.
+fn plan_crosscheck(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &SolveOptions,
+    repair: bool,
+    show_progress: bool,
+) -> Result<PlannedCrossCheck, GenerateError> {
+    let (held, manifest, records) = hold_whole_run(out)?;
     // A repair re-solves to the records' own final eps: another would be another demonstration.
     check_solve_request(out, options)?;
     let checks = crosscheck_records(&records, None, spacecraft, settings, show_progress);
-    if !repair {
-        return Ok(CrossCheckRun {
-            checks,
-            repaired: Vec::new(),
-            cut: Vec::new(),
-            summary: None,
-        });
+    let mut run = CrossCheckRun {
+        checks,
+        repaired: Vec::new(),
+        cut: Vec::new(),
+        summary: None,
+    };
+    let mut rewrites = Vec::new();
+    if repair {
+        // Records are in index order from 0 (hold_whole_run): a check's index is its position.
+        let beaten: Vec<&CrossCheck> = run
+            .checks
+            .iter()
+            .filter_map(|(_, c)| c.as_ref().ok())
+            .filter(|c| c.beats_record(settings.margin))
+            .collect();
+        let repairs: Vec<Option<TrajectoryRecord>> = beaten
+            .par_iter()
+            .map(|c| repair_record(&records[c.index as usize], c, spacecraft, settings.margin, options))
+            .collect();
+        for (check, repair) in beaten.iter().zip(repairs) {
+            let old = &records[check.index as usize];
+            rewrites.push(match repair {
+                Some(new) => {
+                    run.repaired.push((new.index, old.final_mass, new.final_mass));
+                    new
+                }
+                None => {
+                    run.cut.push((old.index, old.final_mass, check.direct_final_mass));
+                    cut_record(old, check)
+                }
+            });
+        }
     }
-    // Records are in index order from 0 (hold_whole_run): a check's index is its position.
-    let beaten: Vec<&CrossCheck> = checks
-        .iter()
-        .filter_map(|(_, c)| c.as_ref().ok())
-        .filter(|c| c.beats_record(settings.margin))
-        .collect();
-    let repairs: Vec<Option<TrajectoryRecord>> = beaten
-        .par_iter()
-        .map(|c| repair_record(&records[c.index as usize], c, spacecraft, settings.margin, options))
-        .collect();
-    let (mut repaired, mut cut) = (Vec::new(), Vec::new());
-    for (check, repair) in beaten.iter().zip(repairs) {
-        let old = &mut records[check.index as usize];
-        let new = match repair {
-            Some(new) => {
-                repaired.push((new.index, old.final_mass, new.final_mass));
-                new
-            }
-            None => {
-                cut.push((old.index, old.final_mass, check.direct_final_mass));
-                cut_record(old, check)
-            }
-        };
+    Ok(PlannedCrossCheck {
+        _held: held,
+        manifest,
+        records,
+        run,
+        rewrites,
+    })
+}
+
+/// Writes `rewrites` over their records (in place in `records`, index order from 0), then the
+/// dataset and summaries of the whole run.
+fn rewrite_records(
+    out: &Path,
+    manifest: Manifest,
+    records: &mut [TrajectoryRecord],
+    rewrites: Vec<TrajectoryRecord>,
+) -> Result<Summary, GenerateError> {
+    for new in rewrites {
         write_record(&record_path(out, new.index), &new)?;
-        *old = new;
+        let index = new.index as usize;
+        records[index] = new;
     }
-    let summary = write_outputs(
+    write_outputs(
         out,
         &DatasetFile {
             manifest,
             shard: Shard::WHOLE,
-            records,
+            records: records.to_vec(),
         },
-    )?;
-    Ok(CrossCheckRun {
-        checks,
-        repaired,
-        cut,
-        summary: Some(summary),
-    })
+    )
 }
 
 /// What a run's check against the direct transcription found and repaired, kept as
@@ -459,12 +505,24 @@ pub struct CrossCheckSummary {
     pub cut: Vec<(u64, f64, f64)>,
 }
 
+/// The findings of a [`crosscheck_once`] and the records they rewrite, written before the
+/// first rewrite: a stop among the rewrites is finished from it with the same findings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct CrossCheckJournal {
+    summary: CrossCheckSummary,
+    rewrites: Vec<TrajectoryRecord>,
+}
+
+const JOURNAL_MAGIC: [u8; 4] = *b"LTCJ";
+const JOURNAL_FILE: &str = "crosscheck-journal.ltcj";
+
 /// [`crosscheck_run`] with repair, once per run: the first call checks and repairs the run in
 /// `out` and saves what it found as `crosscheck.json`; a later call on the same run (same
 /// count) returns that file and solves nothing, so a resumed recipe does not repeat the work.
-/// The file is written after the repaired records and dataset, so a stop in between repeats
-/// the check on the repaired run, which finds nothing more to repair. With the findings comes
-/// the summary of the dataset this call rewrote (`None` when it read the findings back).
+/// The findings and the records to rewrite are journalled before the first rewrite, so a stop
+/// among the rewrites is finished from the journal with the findings of the uninterrupted run.
+/// With the findings comes the summary of the dataset this call rewrote (`None` when it read
+/// the findings back).
 pub fn crosscheck_once(
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -472,25 +530,71 @@ pub fn crosscheck_once(
     options: &SolveOptions,
     show_progress: bool,
 ) -> Result<(CrossCheckSummary, Option<Summary>), GenerateError> {
+    crosscheck_once_stopping(out, spacecraft, settings, options, show_progress, false)
+}
+
+/// [`crosscheck_once`]; with `stop_after_journal` (tests) it returns once the journal is
+/// written, as a run stopped before its first rewrite would.
+fn crosscheck_once_stopping(
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &SolveOptions,
+    show_progress: bool,
+    stop_after_journal: bool,
+) -> Result<(CrossCheckSummary, Option<Summary>), GenerateError> {
     let path = out.join("crosscheck.json");
+    let journal_path = out.join(JOURNAL_FILE);
     let manifest = require_manifest(out)?;
     if let Some(done) = read_json::<CrossCheckSummary>(&path)? {
         if done.count == manifest.count {
             return Ok((done, None));
         }
     }
-    let run = crosscheck_run(out, spacecraft, settings, options, true, show_progress)?;
-    let checks: Vec<&CrossCheck> = run.checks.iter().filter_map(|(_, c)| c.as_ref().ok()).collect();
-    let summary = CrossCheckSummary {
-        count: manifest.count,
-        checked: run.checks.len() as u64,
-        direct_reached: checks.iter().filter(|c| c.direct_flies()).count() as u64,
-        beaten: checks.iter().filter(|c| c.beats_record(settings.margin)).count() as u64,
-        repaired: run.repaired,
-        cut: run.cut,
+    let journal = if journal_path.exists() {
+        let bytes = fs::read(&journal_path).map_err(io_err(&journal_path))?;
+        let journal: CrossCheckJournal = decode_container(JOURNAL_MAGIC, FORMAT_VERSION, &bytes)
+            .map_err(|e| GenerateError::Corrupt(journal_path.clone(), e))?;
+        // A journal of the run before it was extended is stale: the extended run is checked.
+        (journal.summary.count == manifest.count).then_some(journal)
+    } else {
+        None
+    };
+    let (summary, rewritten) = match journal {
+        Some(journal) => {
+            let (_held, manifest, mut records) = hold_whole_run(out)?;
+            let rewritten = rewrite_records(out, manifest, &mut records, journal.rewrites)?;
+            (journal.summary, rewritten)
+        }
+        None => {
+            let mut planned = plan_crosscheck(out, spacecraft, settings, options, true, show_progress)?;
+            let run = &planned.run;
+            let checks: Vec<&CrossCheck> = run.checks.iter().filter_map(|(_, c)| c.as_ref().ok()).collect();
+            let summary = CrossCheckSummary {
+                count: manifest.count,
+                checked: run.checks.len() as u64,
+                direct_reached: checks.iter().filter(|c| c.direct_flies()).count() as u64,
+                beaten: checks.iter().filter(|c| c.beats_record(settings.margin)).count() as u64,
+                repaired: run.repaired.clone(),
+                cut: run.cut.clone(),
+            };
+            let journal = CrossCheckJournal {
+                summary,
+                rewrites: planned.rewrites,
+            };
+            let bytes = encode_container(JOURNAL_MAGIC, FORMAT_VERSION, &journal)
+                .map_err(|e| GenerateError::Corrupt(journal_path.clone(), e))?;
+            atomic_write(&journal_path, &bytes).map_err(io_err(&journal_path))?;
+            if stop_after_journal {
+                return Ok((journal.summary, None));
+            }
+            let rewritten = rewrite_records(out, planned.manifest, &mut planned.records, journal.rewrites)?;
+            (journal.summary, rewritten)
+        }
     };
     write_json(&path, &summary)?;
-    Ok((summary, run.summary))
+    fs::remove_file(&journal_path).map_err(io_err(&journal_path))?;
+    Ok((summary, Some(rewritten)))
 }
 
 /// The manifest of the run in `out`; a folder without one is no `generate` run.
@@ -1101,6 +1205,46 @@ mod tests {
     /// The recipe's stage checks a run once: the summary is kept, a second call on the same run
     /// returns it and touches nothing (a record made worse since stays as it is), and a run
     /// extended since is checked again.
+    /// A recipe stopped after its cross-check's findings, before the records were rewritten,
+    /// ends as the uninterrupted one: the same findings and the same dataset.
+    #[test]
+    fn a_crosscheck_stopped_before_its_rewrites_finishes_as_an_uninterrupted_one() {
+        let settings = CrossCheckSettings::default();
+        let whole = worse_record_run("check-whole");
+        let (uninterrupted, _) = crosscheck_once(&whole.out, &whole.sc, &settings, &whole.options, false).unwrap();
+        let stopped = worse_record_run("check-stopped");
+        let (journalled, rewritten) =
+            crosscheck_once_stopping(&stopped.out, &stopped.sc, &settings, &stopped.options, false, true).unwrap();
+        assert!(rewritten.is_none());
+        assert_eq!(journalled, uninterrupted);
+        assert_eq!(
+            read_record(&record_path(&stopped.out, 0)).unwrap(),
+            stopped.worse,
+            "rewritten before the stop"
+        );
+        assert!(stopped.out.join(JOURNAL_FILE).is_file());
+        // Resumed with options that would solve nothing: the journal, not a new check, finishes it.
+        let starved = SolveOptions {
+            max_homotopy_solves: 0,
+            max_homotopy_work: 1,
+            max_transfer_homotopy_work: 1,
+            ..stopped.options
+        };
+        let (resumed, rewritten) = crosscheck_once(&stopped.out, &stopped.sc, &settings, &starved, false).unwrap();
+        assert_eq!(resumed, uninterrupted);
+        assert!(rewritten.is_some());
+        assert!(!stopped.out.join(JOURNAL_FILE).exists());
+        let without_timing = |out: &Path| {
+            let mut records = read_dataset(&dataset_path(out, Shard::WHOLE)).unwrap().records;
+            records.iter_mut().for_each(|r| r.seconds = 0.0);
+            records
+        };
+        assert_eq!(without_timing(&stopped.out), without_timing(&whole.out));
+        for out in [whole.out, stopped.out] {
+            fs::remove_dir_all(out).unwrap();
+        }
+    }
+
     #[test]
     fn crosscheck_once_keeps_its_findings_and_checks_an_extended_run_again() {
         let WorseRecordRun {
