@@ -402,9 +402,9 @@ pub fn placed_demonstration<P: Problem>(
     }
     // A record shorter than its episode arrived early (an arrival margin) and is coasted to
     // the end: only a converged one has arrived.
-    let ends = placement.start_step + record.scenario.steps;
-    if ends > placement.episode.steps
-        || (ends < placement.episode.steps && !record.converged)
+    let first_coast = placement.start_step + record.scenario.steps;
+    if first_coast > placement.episode.steps
+        || (first_coast < placement.episode.steps && !record.converged)
         || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
     {
         return Err(DemoError::Placement);
@@ -469,7 +469,6 @@ pub fn placed_demonstration<P: Problem>(
     // The environment's own steps: a coast is what it flies exactly, so its rewards and
     // observations are the tuples'.
     let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
-    let first_coast = placement.start_step + record.scenario.steps;
     let coast = coast_action();
     if first_coast < scenario.steps {
         let mut observation = env

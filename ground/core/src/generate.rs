@@ -391,7 +391,7 @@ pub fn crosscheck_run(
         planned.run.summary = Some(rewrite_records(
             out,
             planned.manifest,
-            &mut planned.records,
+            planned.records,
             planned.rewrites,
         )?);
     }
@@ -463,12 +463,12 @@ fn plan_crosscheck(
     })
 }
 
-/// Writes `rewrites` over their records (in place in `records`, index order from 0), then the
+/// Writes `rewrites` over their records (in `records` too, index order from 0), then the
 /// dataset and summaries of the whole run.
 fn rewrite_records(
     out: &Path,
     manifest: Manifest,
-    records: &mut [TrajectoryRecord],
+    mut records: Vec<TrajectoryRecord>,
     rewrites: Vec<TrajectoryRecord>,
 ) -> Result<Summary, GenerateError> {
     for new in rewrites {
@@ -481,7 +481,7 @@ fn rewrite_records(
         &DatasetFile {
             manifest,
             shard: Shard::WHOLE,
-            records: records.to_vec(),
+            records,
         },
     )
 }
@@ -564,12 +564,12 @@ fn crosscheck_once_stopping(
     };
     let (summary, rewritten) = match journal {
         Some(journal) => {
-            let (_held, manifest, mut records) = hold_whole_run(out)?;
-            let rewritten = rewrite_records(out, manifest, &mut records, journal.rewrites)?;
+            let (_held, manifest, records) = hold_whole_run(out)?;
+            let rewritten = rewrite_records(out, manifest, records, journal.rewrites)?;
             (journal.summary, rewritten)
         }
         None => {
-            let mut planned = plan_crosscheck(out, spacecraft, settings, options, true, show_progress)?;
+            let planned = plan_crosscheck(out, spacecraft, settings, options, true, show_progress)?;
             let run = &planned.run;
             let checks: Vec<&CrossCheck> = run.checks.iter().filter_map(|(_, c)| c.as_ref().ok()).collect();
             let summary = CrossCheckSummary {
@@ -590,7 +590,7 @@ fn crosscheck_once_stopping(
             if stop_after_journal {
                 return Ok((journal.summary, None));
             }
-            let rewritten = rewrite_records(out, planned.manifest, &mut planned.records, journal.rewrites)?;
+            let rewritten = rewrite_records(out, planned.manifest, planned.records, journal.rewrites)?;
             (journal.summary, rewritten)
         }
     };

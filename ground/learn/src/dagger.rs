@@ -227,13 +227,19 @@ fn solve_on_slurm(
         }
         Ok(shard)
     };
-    let missing: Vec<u64> = (0..tasks).filter(|&task| answered(task).is_err()).collect();
+    // Answers a stopped round left for this request are read once and kept; the array solves
+    // the others, whose answers are read after it.
+    let mut shards: Vec<Option<RelabelShard>> = (0..tasks).map(|task| answered(task).ok()).collect();
+    let missing: Vec<u64> = (0..tasks).filter(|&task| shards[task as usize].is_none()).collect();
     if !missing.is_empty() {
         submit_relabel_array(slurm, &request_path, tasks, &missing)?;
+        for &task in &missing {
+            shards[task as usize] = Some(answered(task).map_err(ExperimentError::Mismatch)?);
+        }
     }
     let mut solved: Vec<Option<Solved>> = vec![None; count];
-    for task in 0..tasks {
-        for (i, answer) in answered(task).map_err(ExperimentError::Mismatch)?.answers {
+    for shard in shards.into_iter().flatten() {
+        for (i, answer) in shard.answers {
             if let Some(slot) = solved.get_mut(i as usize) {
                 *slot = Some(answer);
             }

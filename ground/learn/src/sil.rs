@@ -60,7 +60,7 @@ impl std::fmt::Display for MissedThrustBand {
 }
 
 /// Whether any flight of `bands` ([`by_last_missed_thrust`]) met missed thrust.
-pub fn met_missed_thrust(bands: &[MissedThrustBand]) -> bool {
+fn met_missed_thrust(bands: &[MissedThrustBand]) -> bool {
     bands.iter().skip(1).any(|b| b.flights > 0)
 }
 
