@@ -81,9 +81,10 @@ enum Command {
     /// a record is re-solved from the direct solution, or, where that does not end heavier, cut
     /// from the demonstrations (not converged, its samples dropped, the evidence as its failure).
     Crosscheck(trajectories::CrossCheckArgs),
-    /// Classify the unconverged transfer records of a finished dataset run by their minimum time
-    /// of flight (infeasible, feasible, or unknown) and rewrite the records, the dataset and the
-    /// summaries, which then count the infeasible draws apart (1-5 min of work per record).
+    /// Classify the unconverged records (transfer or rendezvous) of a finished dataset run by
+    /// their minimum time of flight (infeasible, feasible, or unknown) and rewrite the records,
+    /// the dataset and the summaries, which then count the infeasible draws apart (about 10 s to
+    /// 5 min of work per record).
     Feasibility {
         /// Dataset folder of a whole (unsharded) `ground generate` run.
         #[arg(long)]

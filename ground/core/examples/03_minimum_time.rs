@@ -1,7 +1,8 @@
-//! Is a transfer feasible in its time of flight? The minimum time of flight (`solver::min_time`):
-//! with the anomaly on the target orbit free, a trajectory that reaches the target orbit early can
-//! coast on it, so a transfer is infeasible exactly when its time of flight is below the minimum
-//! time tf_min. `classify_transfer` continues the energy-optimal problem from longer times of
+//! Is a transfer or rendezvous feasible in its time of flight? The minimum time of flight
+//! (`solver::min_time`): with the anomaly on the target orbit free, a trajectory that reaches the
+//! target orbit early can coast on it (and one that meets a rendezvous body early coasts beside
+//! it), so a draw is infeasible exactly when its time of flight is below the minimum time tf_min.
+//! `classify_draw` continues the energy-optimal problem from longer times of
 //! flight down to the real one and runs a multi-start of the minimum-time problem (full thrust
 //! along the primer vector); the verdict is "recovered" (an energy-optimal solution exists at
 //! the time of flight: feasible) or the smallest minimum-time extremal found (a local minimum
@@ -14,6 +15,7 @@
 //! cargo run --release -p lowthrust-ground-core --example 03_minimum_time
 //! cargo run --release -p lowthrust-ground-core --example 03_minimum_time -- --steps 30 --extremals
 //! cargo run --release -p lowthrust-ground-core --example 03_minimum_time -- --scenario transfer-hard --seed 7 --index 47 --solve
+//! cargo run --release -p lowthrust-ground-core --example 03_minimum_time -- --scenario rendezvous-hard --seed 7 --index 3
 //! ```
 
 use std::time::Instant;
@@ -21,7 +23,7 @@ use std::time::Instant;
 use clap::Parser;
 use ground_core::solver::bangbang::Hohmann;
 use ground_core::solver::min_time::{
-    classify_transfer, multistart_extremals, reflown_extremal, Feasibility, MinTimeVector,
+    classify_draw, multistart_extremals, reflown_extremal, rendezvous_multistart_extremals, Feasibility, MinTimeVector,
 };
 use ground_core::solver::{solve_from_energy_start, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
@@ -29,12 +31,12 @@ use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 use shared::units::canonical_to_days;
 
-/// Classify a transfer as feasible or infeasible by its minimum time of flight.
+/// Classify a transfer or rendezvous as feasible or infeasible by its minimum time of flight.
 #[derive(Parser, Debug)]
 struct Args {
-    /// Draw the transfer from this distribution (transfer-circular or transfer-hard) instead
-    /// of the explicit orbits below.
-    #[arg(long, value_parser = parse_kind)]
+    /// Draw the scenario from this distribution (transfer-circular, transfer-hard,
+    /// rendezvous-circular or rendezvous-hard) instead of the explicit transfer below.
+    #[arg(long)]
     scenario: Option<ScenarioKind>,
     /// Seed of the draw.
     #[arg(long, default_value_t = 7)]
@@ -69,18 +71,6 @@ struct Args {
     solve: bool,
 }
 
-/// A `--scenario` that names no transfer kind.
-#[derive(Debug, thiserror::Error)]
-#[error("expected transfer-circular or transfer-hard (minimum time is defined for transfers), got {0:?}")]
-struct NotATransfer(String);
-
-fn parse_kind(name: &str) -> Result<ScenarioKind, NotATransfer> {
-    match name.parse::<ScenarioKind>() {
-        Ok(kind) if kind.problem() == ProblemKind::Transfer => Ok(kind),
-        _ => Err(NotATransfer(name.to_string())),
-    }
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
     let (kind, scenario) = match args.scenario {
@@ -92,8 +82,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let tof = scenario.time_of_flight();
     let days = canonical_to_days;
     println!(
-        "Transfer: a {:.4} -> {:.4} AU, e {:.4} -> {:.4}, {} steps",
-        scenario.initial.shape.a, scenario.target.a, scenario.initial.shape.e, scenario.target.e, scenario.steps
+        "{}: a {:.4} -> {:.4} AU, e {:.4} -> {:.4}, {} steps",
+        kind.name(),
+        scenario.initial.shape.a,
+        scenario.target.a,
+        scenario.initial.shape.e,
+        scenario.target.e,
+        scenario.steps
     );
     let row = |name: &str, value: String| println!("  {name:<32} {value}");
     row("time of flight", format!("{:.1} days", days(tof)));
@@ -108,15 +103,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     let clock = Instant::now();
-    let verdict = classify_transfer(&scenario, &spacecraft, &options);
+    let verdict = classify_draw(&scenario, &spacecraft, &options);
     let seconds = clock.elapsed().as_secs_f64();
     match &verdict {
         Feasibility::Recovered { z } => {
             row("verdict", String::from("FEASIBLE (energy-optimal solution at the TOF)"));
-            row(
-                "final anomaly of that solution",
-                format!("{:.2} deg", z[5].to_degrees()),
-            );
+            if scenario.problem == ProblemKind::Transfer {
+                row(
+                    "final anomaly of that solution",
+                    format!("{:.2} deg", z[5].to_degrees()),
+                );
+            }
         }
         Feasibility::MinTime { tf_min, z, stopped_at } => {
             let class = if *tf_min > tof {
@@ -135,7 +132,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             row("extremal found by", found_by);
             let (y, error, h) = reflown_extremal(&scenario, &spacecraft, z, &options.tolerances)
                 .map_err(|e| format!("re-flying the extremal failed: {e:?}"))?;
-            row("re-flown: orbit error, H(tf)", format!("{error:.1e}, {h:.1e}"));
+            row(
+                "re-flown: terminal error, end condition",
+                format!("{error:.1e}, {h:.1e}"),
+            );
             row("mass at tf_min (full thrust)", format!("{:.4} m0", y[4]));
         }
         Feasibility::Unknown(why) => row("verdict", format!("UNDECIDED: {why}")),
@@ -144,7 +144,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     if args.extremals {
         let clock = Instant::now();
-        let found = multistart_extremals(&scenario, &spacecraft, &options.tolerances);
+        let found = match scenario.problem {
+            ProblemKind::Transfer => multistart_extremals(&scenario, &spacecraft, &options.tolerances),
+            ProblemKind::Rendezvous => rendezvous_multistart_extremals(&scenario, &spacecraft, &options.tolerances),
+        };
         // The same extremal is reached from several guesses, its nu_f counted a whole number of
         // revolutions apart: one row per distinct (costates, tf), with its count.
         let mut distinct: Vec<(MinTimeVector, usize)> = Vec::new();
@@ -173,7 +176,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 i + 1,
                 days(z[4]),
                 z[4] / tof,
-                z[5].to_degrees().rem_euclid(360.0),
+                // A rendezvous has no free final anomaly.
+                match scenario.problem {
+                    ProblemKind::Transfer => z[5].to_degrees().rem_euclid(360.0),
+                    ProblemKind::Rendezvous => f64::NAN,
+                },
                 error,
                 count
             );

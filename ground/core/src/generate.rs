@@ -23,13 +23,13 @@ use std::io::IsTerminal as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::crosscheck::{crosscheck_records, cut_record, repair_record, CrossCheck, CrossCheckSettings};
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
 use crate::solver::direct::DirectError;
-use crate::solver::min_time::{classify_transfer, Feasibility, DAYS_PER_TIME_UNIT};
+use crate::solver::min_time::{classify_draw, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::{solve_arriving_early, solve_from_energy_start, SolveOptions};
 
@@ -270,7 +270,7 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
 /// The failure reason of a draw shown infeasible starts with this.
 pub const INFEASIBLE: &str = "infeasible:";
 
-/// A transfer that found no energy-optimal start: its minimum time of flight decides whether it
+/// A transfer or rendezvous that found no energy-optimal start: its minimum time of flight decides whether it
 /// is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`); the reason is
 /// prefixed with the verdict and the record's `seconds` include the classification. A draw whose
 /// energy-optimal start the classification recovers is solved from it, and a converged solution
@@ -284,13 +284,13 @@ pub fn classify_failure(
     let Some(why) = record.failure.clone() else {
         return false;
     };
-    if record.converged || scenario.problem != ProblemKind::Transfer || !why.starts_with("no energy-optimal start") {
+    if record.converged || !why.starts_with("no energy-optimal start") {
         return false;
     }
     let clock = std::time::Instant::now();
     let tof = scenario.time_of_flight();
     let days = |t: f64| t * DAYS_PER_TIME_UNIT;
-    let verdict = match classify_transfer(scenario, spacecraft, options) {
+    let verdict = match classify_draw(scenario, spacecraft, options) {
         Feasibility::MinTime { tf_min, .. } if tf_min > tof => format!(
             "{INFEASIBLE} minimum time {:.1} d > TOF {:.1} d (ratio {:.3}, local minimum-time extremal)",
             days(tf_min),
@@ -324,8 +324,8 @@ pub fn classify_failure(
     true
 }
 
-/// Opt-in after a (whole) run in `out`: classifies every transfer record without an
-/// energy-optimal start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
+/// Opt-in after a (whole) run in `out`: classifies every record without an energy-optimal
+/// start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
 /// record, in parallel), rewrites those records and the dataset and summaries, whose
 /// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
 /// touched; records classified before are kept as they are. `out` is held for the whole work.

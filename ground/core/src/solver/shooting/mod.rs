@@ -20,7 +20,7 @@ pub use homotopy::{
 };
 pub use newton::{newton, solve_transfer, NewtonOutcome, NewtonSettings, Progress};
 pub use problem::{
-    initial_state_costate, orbit_state, transfer_residual, transfer_residual_at, transfer_residual_only,
-    transfer_residual_only_at, PinnedAnomalyTransfer, RendezvousShooting, RendezvousVector, ShootingProblem,
-    TransferJacobian, TransferShooting, TransferVector, RENDEZVOUS_UNKNOWNS, TRANSFER_UNKNOWNS,
+    body_at, initial_state_costate, orbit_state, transfer_residual, transfer_residual_at, transfer_residual_only,
+    transfer_residual_only_at, PinnedAnomalyTransfer, RendezvousAtTime, RendezvousShooting, RendezvousVector,
+    ShootingProblem, TransferJacobian, TransferShooting, TransferVector, RENDEZVOUS_UNKNOWNS, TRANSFER_UNKNOWNS,
 };

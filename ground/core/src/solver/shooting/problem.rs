@@ -263,7 +263,51 @@ pub struct RendezvousShooting<'a> {
     pub spacecraft: CanonicalSpacecraft,
 }
 
-impl RendezvousShooting<'_> {
+impl<'a> RendezvousShooting<'a> {
+    /// The body's state at the end of the flight.
+    pub fn body_at_arrival(&self) -> Result<CartesianState, IntegrationError> {
+        self.at_own_time().body_at_arrival()
+    }
+
+    fn at_own_time(&self) -> RendezvousAtTime<'a> {
+        RendezvousAtTime {
+            scenario: self.scenario,
+            spacecraft: self.spacecraft,
+            time_of_flight: self.scenario.time_of_flight(),
+        }
+    }
+}
+
+impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<RendezvousVector, IntegrationError> {
+        self.at_own_time().residual_only(eps, z, tolerances)
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &RendezvousVector,
+        tolerances: &Tolerances,
+    ) -> Result<(RendezvousVector, SMatrix<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>), IntegrationError> {
+        self.at_own_time().residual(eps, z, tolerances)
+    }
+}
+
+/// [`RendezvousShooting`] at a time of flight other than the scenario's own (the minimum-time
+/// search's continuation in the time of flight): the body is met where it is at that time.
+#[derive(Debug, Clone, Copy)]
+pub struct RendezvousAtTime<'a> {
+    pub scenario: &'a Scenario,
+    pub spacecraft: CanonicalSpacecraft,
+    pub time_of_flight: f64,
+}
+
+impl RendezvousAtTime<'_> {
     /// The terminal conditions at the final state-costate `y`: r and v equal the body's,
     /// lambda_m(tf) = 0.
     fn terminal(&self, y: &[f64]) -> Result<RendezvousVector, IntegrationError> {
@@ -279,24 +323,32 @@ impl RendezvousShooting<'_> {
 
     /// The body's state at the end of the flight.
     pub fn body_at_arrival(&self) -> Result<CartesianState, IntegrationError> {
-        let start = self.scenario.target.cartesian_at(self.scenario.target_nu0);
-        coast(&start, self.scenario.time_of_flight()).map_err(|_| IntegrationError::InvalidInput)
+        body_at(self.scenario, self.time_of_flight)
+    }
+
+    fn params(&self, eps: f64) -> OptimalControlParams {
+        OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        }
     }
 }
 
-impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
+/// The rendezvous body's state at time t (its Keplerian coast from anomaly nu_f0 at t = 0).
+pub fn body_at(scenario: &Scenario, t: f64) -> Result<CartesianState, IntegrationError> {
+    let start = scenario.target.cartesian_at(scenario.target_nu0);
+    coast(&start, t).map_err(|_| IntegrationError::InvalidInput)
+}
+
+impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousAtTime<'_> {
     fn residual_only(
         &self,
         eps: f64,
         z: &RendezvousVector,
         tolerances: &Tolerances,
     ) -> Result<RendezvousVector, IntegrationError> {
-        let params = OptimalControlParams {
-            spacecraft: self.spacecraft,
-            eps,
-        };
         let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let y = propagate(&params, 0.0, &y0, self.scenario.time_of_flight(), tolerances)?;
+        let y = propagate(&self.params(eps), 0.0, &y0, self.time_of_flight, tolerances)?;
         self.terminal(&y)
     }
 
@@ -306,12 +358,8 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
         z: &RendezvousVector,
         tolerances: &Tolerances,
     ) -> Result<(RendezvousVector, SMatrix<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>), IntegrationError> {
-        let params = OptimalControlParams {
-            spacecraft: self.spacecraft,
-            eps,
-        };
         let y0 = initial_state_costate(self.scenario, &[z[0], z[1], z[2], z[3], z[4]]);
-        let ys = propagate_sensitivity(&params, &y0, self.scenario.time_of_flight(), tolerances)?;
+        let ys = propagate_sensitivity(&self.params(eps), &y0, self.time_of_flight, tolerances)?;
         let f = self.terminal(&ys)?;
         let mut jac = SMatrix::<f64, RENDEZVOUS_UNKNOWNS, RENDEZVOUS_UNKNOWNS>::zeros();
         for k in 0..RENDEZVOUS_UNKNOWNS {
