@@ -645,7 +645,7 @@ impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
         newton(&problem, 1.0, &guess, tolerances, &min_time_newton())
             .ok()
             .filter(|o| o.converged && o.z[4] > 0.0)
-            .map(|o| MinTimeVector::from_column_slice(&[o.z[0], o.z[1], o.z[2], o.z[3], o.z[4], 0.0]))
+            .map(|o| MinTimeRendezvous::padded(&o.z))
     }
 
     fn tof_factors(&self) -> &'static [f64] {
