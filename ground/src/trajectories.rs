@@ -469,7 +469,9 @@ pub fn feasibility_command(out: &Path) -> Result<(), Box<dyn std::error::Error>>
     let sc = Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("spacecraft: {e}"))?;
-    let summary = ground_core::generate::classify_run(out, &sc, &SolveOptions::default())?;
+    // A recovered draw is solved as the run's other records were (its request.json).
+    let options = ground_core::generate::run_solve_options(out)?;
+    let summary = ground_core::generate::classify_run(out, &sc, &options)?;
     for (index, why) in &summary.failures {
         println!("#{index}: {why}");
     }

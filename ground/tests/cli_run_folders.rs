@@ -204,3 +204,28 @@ fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
     );
     let _ = std::fs::remove_dir_all(&parent);
 }
+
+/// `feasibility` solves a recovered draw as the run's other records were solved (its
+/// `request.json`): a run whose request is corrupt is refused with the file's name before any
+/// work, and nothing in it changes.
+#[test]
+fn feasibility_refuses_a_run_with_a_corrupt_request() {
+    let run = finished_run();
+    let parent = scratch("feasibility-request");
+    let copy = parent.join("run");
+    for (path, bytes) in snapshot(run) {
+        let to = copy.join(&path);
+        if run.join(&path).is_dir() {
+            std::fs::create_dir_all(&to).unwrap();
+        } else {
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::write(&to, bytes).unwrap();
+        }
+    }
+    let _ = std::fs::remove_file(copy.join(".lock"));
+    std::fs::write(copy.join("request.json"), "{ not json").unwrap();
+    let before = snapshot(&copy);
+    assert_refused(&["feasibility", "--out", text(&copy)], "request.json");
+    assert_eq!(snapshot(&copy), before, "the refused feasibility changed the run");
+    let _ = std::fs::remove_dir_all(&parent);
+}
