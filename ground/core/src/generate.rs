@@ -1136,6 +1136,27 @@ mod tests {
         assert!((s.feasible_convergence_rate - 2.0 / 3.0).abs() < 1e-15);
     }
 
+    /// A failed rendezvous is classified like a transfer: rendezvous-circular seed 7 #127, which
+    /// the generator fails (its direct transcription stops with every segment at full throttle),
+    /// is recorded infeasible with its minimum time (1.124 TOF), the old reason kept after it.
+    #[test]
+    fn a_failed_rendezvous_is_recorded_infeasible_with_its_minimum_time() {
+        let kind = ScenarioKind::RendezvousCircular;
+        let sc = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
+        let options = SolveOptions::default();
+        let scenario = kind.draw(7, 127);
+        let mut record = crate::solver::solve_scenario(kind, 7, 127, &scenario, &sc, &options);
+        let why = record.failure.clone().expect("the generator fails this draw");
+        assert!(why.starts_with("no energy-optimal start"), "{why}");
+        assert!(classify_failure(&mut record, &scenario, &sc, &options));
+        let verdict = record.failure.as_deref().unwrap();
+        assert!(
+            verdict.starts_with(INFEASIBLE) && verdict.contains("(ratio 1.12") && verdict.ends_with(&why),
+            "{verdict}"
+        );
+        assert!(!record.converged);
+    }
+
     /// A run whose record is made a worse local optimum (its final mass lowered by 0.01, as a
     /// record from another start would be): the check flags it, the repair re-solves it from the
     /// direct solution and puts back the optimum (the record as solved, its seconds aside), and
