@@ -422,11 +422,10 @@ impl Feasibility {
 }
 
 /// Time-of-flight multiples at which an energy-optimal solution is looked for.
-const TOF_FACTORS: [f64; 6] = [1.25, 1.5, 2.0, 3.0, 4.0, 6.0];
-/// The rendezvous's: also 1.1 TOF, where the families of the stretched problem are still those
-/// of the real one (a converged seed 7 rendezvous-hard draw, #50, whose families found at 1.25
-/// TOF and above all fold above its TOF).
-const RENDEZVOUS_TOF_FACTORS: [f64; 7] = [1.1, 1.25, 1.5, 2.0, 3.0, 4.0, 6.0];
+/// 1.1 TOF: the families of the stretched problem are still those of the real one there (a
+/// solved rendezvous-hard draw, seed 7 #50, whose families found at 1.25 TOF and above all fold
+/// above its TOF).
+const TOF_FACTORS: [f64; 7] = [1.1, 1.25, 1.5, 2.0, 3.0, 4.0, 6.0];
 /// Continuation steps in s (tau = tau0 + s (TOF - tau0)).
 const FIRST_STEP: f64 = 1.0 / 8.0;
 const MAX_STEP: f64 = 0.25;
@@ -465,17 +464,13 @@ trait TimeClass<const N: usize>
 where
     Const<N>: DimMin<Const<N>, Output = Const<N>>,
 {
-    /// Whether the time-of-flight continuation follows every distinct energy-optimal solution
-    /// of a stretched problem down, not just the first found.
-    const EVERY_FAMILY: bool;
     fn scenario(&self) -> &Scenario;
     fn spacecraft(&self) -> &CanonicalSpacecraft;
     /// The energy-optimal problem at time of flight `tau`.
     fn at_time(&self, tau: f64) -> impl ShootingProblem<N>;
     /// The multi-start's energy-optimal guesses at the scenario `long` (a stretched copy).
     fn energy_guesses(&self, long: &Scenario) -> Vec<SVector<f64, N>>;
-    /// The continuation in the target at the scenario `long`: its solution (or, with
-    /// [`Self::EVERY_FAMILY`], those of each path it has).
+    /// The continuation in the target at the scenario `long`: the solutions of each path it has.
     fn target_continuation(&self, long: &Scenario, options: &SolveOptions) -> Vec<SVector<f64, N>>;
     /// The minimum-time unknowns from energy-optimal ones at time tau (not yet scaled).
     fn min_time_unknowns(&self, z: &SVector<f64, N>, tau: f64) -> MinTimeVector;
@@ -491,8 +486,6 @@ where
     fn solve_min_time(&self, guess: &MinTimeVector, tolerances: &Tolerances) -> Option<MinTimeVector>;
     /// The direct multi-start's guesses at final time k TOF (not yet scaled).
     fn multistart_guesses(&self, k: f64) -> Vec<MinTimeVector>;
-    /// The time-of-flight multiples of the continuation's first pass.
-    fn tof_factors(&self) -> &'static [f64];
 }
 
 /// The free-anomaly transfer as a [`TimeClass`].
@@ -502,8 +495,6 @@ struct TransferClass<'a> {
 }
 
 impl TimeClass<TRANSFER_UNKNOWNS> for TransferClass<'_> {
-    const EVERY_FAMILY: bool = false;
-
     fn scenario(&self) -> &Scenario {
         self.scenario
     }
@@ -550,10 +541,6 @@ impl TimeClass<TRANSFER_UNKNOWNS> for TransferClass<'_> {
         solve_min_time(self.scenario, &self.spacecraft, guess, tolerances)
     }
 
-    fn tof_factors(&self) -> &'static [f64] {
-        &TOF_FACTORS
-    }
-
     fn multistart_guesses(&self, k: f64) -> Vec<MinTimeVector> {
         let tof = self.scenario.time_of_flight();
         let theta0 = self.scenario.initial.polar().theta;
@@ -577,10 +564,6 @@ struct RendezvousClass<'a> {
 }
 
 impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
-    // The stretched rendezvous has several energy-optimal families (the body's phase at
-    // arrival), and the first one found often folds above a TOF at which another is solved.
-    const EVERY_FAMILY: bool = true;
-
     fn scenario(&self) -> &Scenario {
         self.scenario
     }
@@ -648,10 +631,6 @@ impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
             .map(|o| MinTimeRendezvous::padded(&o.z))
     }
 
-    fn tof_factors(&self) -> &'static [f64] {
-        &RENDEZVOUS_TOF_FACTORS
-    }
-
     fn multistart_guesses(&self, k: f64) -> Vec<MinTimeVector> {
         let tof = self.scenario.time_of_flight();
         transfer_guesses(self.scenario)
@@ -664,8 +643,9 @@ impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
 
 /// Energy-optimal solutions of the scenario with its time of flight stretched to `steps`: from
 /// the multi-start guesses, each within an eighth of a multi-start budget and all within one,
-/// the first that converges, or with [`TimeClass::EVERY_FAMILY`] every distinct one; where none
-/// does, the continuation in the target's.
+/// every distinct one that converges, and those of the continuation in the target: a stretched
+/// problem has several energy-optimal families (a rendezvous's, the body's phase at arrival),
+/// and the first one found often folds above a TOF at which another is solved.
 fn stretched_starts<C: TimeClass<N>, const N: usize>(
     class: &C,
     steps: u32,
@@ -695,12 +675,9 @@ where
             if !found.iter().any(same) {
                 found.push(z);
             }
-            if !C::EVERY_FAMILY {
-                return found;
-            }
         }
     }
-    if (!found.is_empty() && !C::EVERY_FAMILY) || super::pontryagin::work_done().saturating_sub(start) >= work {
+    if super::pontryagin::work_done().saturating_sub(start) >= work {
         return found;
     }
     for z in class.target_continuation(&long, options) {
@@ -858,7 +835,7 @@ pub fn classify_draw(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, opti
     }
 }
 
-/// The classification of either class: the time-of-flight continuation from its first factors,
+/// The classification of either class: the time-of-flight continuation from [`TOF_FACTORS`],
 /// then, if it found no extremal, from [`WIDE_TOF_FACTORS`]; and always the direct multi-start.
 /// The smallest minimum time of the two methods is the verdict's.
 fn classify<C: TimeClass<N>, const N: usize>(class: &C, options: &SolveOptions) -> Feasibility
@@ -867,7 +844,7 @@ where
 {
     let mut why = Vec::new();
     let mut continued = None;
-    for factors in [class.tof_factors(), &WIDE_TOF_FACTORS[..]] {
+    for factors in [&TOF_FACTORS[..], &WIDE_TOF_FACTORS[..]] {
         match time_continuation_pass(class, options, factors, &mut why) {
             Some(recovered @ Feasibility::Recovered { .. }) => return recovered,
             Some(found) => {
@@ -1441,6 +1418,27 @@ mod tests {
             record.final_mass,
             solved.final_mass
         );
+    }
+
+    /// Transfer-hard seed 7 #50, which the generator solves, is recovered: with only the first
+    /// energy-optimal family of each stretched problem followed (from 1.25 TOF), it was called
+    /// infeasible at 1.111 TOF.
+    #[test]
+    fn transfer_hard_50_is_recovered_not_called_infeasible() {
+        use shared::scenario::ScenarioKind;
+        let sc = sc();
+        let options = SolveOptions::default();
+        let scenario = ScenarioKind::TransferHard.draw(7, 50);
+        let result = classify_transfer(&scenario, &sc, &options);
+        let Feasibility::Recovered { z } = result else {
+            panic!("{result:?}");
+        };
+        let problem = TransferShooting {
+            scenario: &scenario,
+            spacecraft: sc,
+        };
+        let f = problem.residual_only(1.0, &z, &options.tolerances).unwrap();
+        assert!(f.amax() < 1e-8, "eps = 1 residual at the TOF {f}");
     }
 
     /// The minimum-time rendezvous Jacobian against central differences of the residual.
