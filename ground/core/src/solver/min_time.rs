@@ -581,15 +581,7 @@ impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
     }
 
     fn energy_guesses(&self, long: &Scenario) -> Vec<RendezvousVector> {
-        // The transfer guesses without their final anomaly, duplicates removed (as the solver's).
-        let mut guesses: Vec<RendezvousVector> = Vec::new();
-        for g in transfer_guesses(long) {
-            let r = RendezvousVector::from_column_slice(&g.as_slice()[..RENDEZVOUS_UNKNOWNS]);
-            if !guesses.contains(&r) {
-                guesses.push(r);
-            }
-        }
-        guesses
+        super::rendezvous_starts(transfer_guesses(long))
     }
 
     fn target_continuation(&self, long: &Scenario, options: &SolveOptions) -> Vec<RendezvousVector> {

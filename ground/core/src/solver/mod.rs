@@ -127,6 +127,19 @@ impl Default for SolveOptions {
     }
 }
 
+/// Rendezvous starts from transfer-shaped ones ([`transfer_guesses`], a padded start): the
+/// costates without the final anomaly, duplicates removed.
+pub(crate) fn rendezvous_starts(all: Vec<TransferVector>) -> Vec<RendezvousVector> {
+    let mut starts: Vec<RendezvousVector> = Vec::new();
+    for g in all {
+        let r = RendezvousVector::from_column_slice(&g.as_slice()[..RENDEZVOUS_UNKNOWNS]);
+        if !starts.contains(&r) {
+            starts.push(r);
+        }
+    }
+    starts
+}
+
 /// Physics-shaped first guesses for the energy-optimal (eps = 1) transfer, most plausible
 /// first: final anomalies from the angle swept at the mean, initial and final mean motions,
 /// lambda_r along -r_hat, lambda_v along -+theta_hat (the primer along the velocity for a
@@ -340,15 +353,7 @@ fn solve_scenario_from(
                 scenario,
                 spacecraft: *spacecraft,
             };
-            // The transfer guesses without their final anomaly, duplicates removed.
-            let mut guesses: Vec<RendezvousVector> = Vec::new();
-            let all = energy_start.map_or_else(|| transfer_guesses(scenario), |z| vec![z]);
-            for g in all {
-                let r = RendezvousVector::from_column_slice(&g.as_slice()[..RENDEZVOUS_UNKNOWNS]);
-                if !guesses.contains(&r) {
-                    guesses.push(r);
-                }
-            }
+            let guesses = rendezvous_starts(energy_start.map_or_else(|| transfer_guesses(scenario), |z| vec![z]));
             let mut solved = solve_problem(&problem, scenario, spacecraft, guesses, options);
             if matches!(solved, Err((_, 0))) && energy_start.is_none() {
                 match continuation::rendezvous_start_either_way(scenario, spacecraft, options) {
