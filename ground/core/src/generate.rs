@@ -270,11 +270,12 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
 /// The failure reason of a draw shown infeasible starts with this.
 pub const INFEASIBLE: &str = "infeasible:";
 
-/// A transfer or rendezvous that found no energy-optimal start: its minimum time of flight decides whether it
-/// is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`); the reason is
-/// prefixed with the verdict and the record's `seconds` include the classification. A draw whose
-/// energy-optimal start the classification recovers is solved from it, and a converged solution
-/// replaces the record. Other records are left as they are. Returns whether the record changed.
+/// A transfer or rendezvous that found no energy-optimal start: its minimum time of flight
+/// decides whether it is infeasible (tf_min > TOF) or a solver failure (see `solver::min_time`);
+/// the reason is prefixed with the verdict and the record's `seconds` include the
+/// classification. A draw whose energy-optimal start the classification recovers is solved from
+/// it, and a converged solution replaces the record. Other records are left as they are. Returns
+/// whether the record changed.
 pub fn classify_failure(
     record: &mut TrajectoryRecord,
     scenario: &Scenario,
@@ -325,7 +326,7 @@ pub fn classify_failure(
 }
 
 /// Opt-in after a (whole) run in `out`: classifies every record without an energy-optimal
-/// start by its minimum time of flight ([`classify_failure`], 1-5 min of work per
+/// start by its minimum time of flight ([`classify_failure`], seconds to minutes of work per
 /// record, in parallel), rewrites those records and the dataset and summaries, whose
 /// `infeasible` count and `feasible_convergence_rate` then reflect it. Converged records are not
 /// touched; records classified before are kept as they are. `out` is held for the whole work.

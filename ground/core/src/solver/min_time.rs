@@ -663,26 +663,27 @@ where
         }
         let cap = (used + share).min(work.saturating_sub(here.saturating_sub(start)));
         if let Some(z) = energy_solve(&problem, &guess, options, here, cap) {
-            let same = |other: &SVector<f64, N>| (z - other).amax() < 1e-6 * (1.0 + z.amax());
-            if !found.iter().any(same) {
-                found.push(z);
-            }
+            push_distinct(&mut found, z);
         }
     }
     if super::pontryagin::work_done().saturating_sub(start) >= work {
         return found;
     }
     for z in class.target_continuation(&long, options) {
-        let same = |other: &SVector<f64, N>| (z - other).amax() < 1e-6 * (1.0 + z.amax());
-        if !found.iter().any(same) {
-            found.push(z);
-        }
+        push_distinct(&mut found, z);
     }
     found
 }
 
+/// Appends `z` unless a solution within 1e-6 (relative) is already there.
+fn push_distinct<const N: usize>(found: &mut Vec<SVector<f64, N>>, z: SVector<f64, N>) {
+    if !found.iter().any(|other| (z - other).amax() < 1e-6 * (1.0 + z.amax())) {
+        found.push(z);
+    }
+}
+
 /// The end of a time-of-flight continuation: a solution at a time reached.
-pub struct Stopped<const N: usize = TRANSFER_UNKNOWNS> {
+pub struct Stopped<const N: usize> {
     pub tau: f64,
     pub z: SVector<f64, N>,
 }
@@ -1433,32 +1434,28 @@ mod tests {
         assert!(f.amax() < 1e-8, "eps = 1 residual at the TOF {f}");
     }
 
-    /// The minimum-time rendezvous Jacobian against central differences of the residual.
-    #[test]
-    fn min_time_rendezvous_jacobian_matches_central_differences() {
-        let sc = sc();
-        let scenario = circle_raise_rendezvous(0.5);
-        let problem = MinTimeRendezvous {
-            scenario: &scenario,
-            spacecraft: sc,
-        };
+    /// `problem`'s Jacobian at `z` against central differences of its residual (and its residual
+    /// against the plain propagation's).
+    fn assert_jacobian_matches_central_differences<P: ShootingProblem<N>, const N: usize>(
+        problem: &P,
+        z: SVector<f64, N>,
+    ) {
         let tol = Tolerances {
             relative: 1e-13,
             absolute: 1e-14,
             ..Tolerances::default()
         };
-        let z = MinTimeRendezvousVector::from_column_slice(&[-0.8, 0.3, 0.4, -1.1, 2.7]);
         let (f, jac) = problem.residual(1.0, &z, &tol).unwrap();
         let plain = problem.residual_only(1.0, &z, &tol).unwrap();
         assert!((f - plain).amax() < 1e-9, "{f} vs {plain}");
         let h = 1e-6;
-        for k in 0..MIN_TIME_RENDEZVOUS_UNKNOWNS {
+        for k in 0..N {
             let (mut zp, mut zm) = (z, z);
             zp[k] += h;
             zm[k] -= h;
             let fd = (problem.residual_only(1.0, &zp, &tol).unwrap() - problem.residual_only(1.0, &zm, &tol).unwrap())
                 / (2.0 * h);
-            for i in 0..MIN_TIME_RENDEZVOUS_UNKNOWNS {
+            for i in 0..N {
                 assert!(
                     (jac[(i, k)] - fd[i]).abs() < 1e-6 * (1.0 + fd[i].abs()),
                     "dF{i}/dz{k}: {} vs {}",
@@ -1469,39 +1466,27 @@ mod tests {
         }
     }
 
+    /// The minimum-time rendezvous Jacobian against central differences of the residual.
+    #[test]
+    fn min_time_rendezvous_jacobian_matches_central_differences() {
+        let scenario = circle_raise_rendezvous(0.5);
+        let problem = MinTimeRendezvous {
+            scenario: &scenario,
+            spacecraft: sc(),
+        };
+        let z = MinTimeRendezvousVector::from_column_slice(&[-0.8, 0.3, 0.4, -1.1, 2.7]);
+        assert_jacobian_matches_central_differences(&problem, z);
+    }
+
     /// The minimum-time Jacobian against central differences of the residual.
     #[test]
     fn min_time_jacobian_matches_central_differences() {
-        let sc = sc();
         let scenario = circle_raise();
         let problem = MinTimeTransfer {
             scenario: &scenario,
-            spacecraft: sc,
-        };
-        let tol = Tolerances {
-            relative: 1e-13,
-            absolute: 1e-14,
-            ..Tolerances::default()
+            spacecraft: sc(),
         };
         let z = MinTimeVector::from_column_slice(&[-0.8, 0.3, 0.4, -1.1, 2.7, 2.2]);
-        let (f, jac) = problem.residual(1.0, &z, &tol).unwrap();
-        let plain = problem.residual_only(1.0, &z, &tol).unwrap();
-        assert!((f - plain).amax() < 1e-9, "{f} vs {plain}");
-        let h = 1e-6;
-        for k in 0..MIN_TIME_UNKNOWNS {
-            let (mut zp, mut zm) = (z, z);
-            zp[k] += h;
-            zm[k] -= h;
-            let fd = (problem.residual_only(1.0, &zp, &tol).unwrap() - problem.residual_only(1.0, &zm, &tol).unwrap())
-                / (2.0 * h);
-            for i in 0..MIN_TIME_UNKNOWNS {
-                assert!(
-                    (jac[(i, k)] - fd[i]).abs() < 1e-6 * (1.0 + fd[i].abs()),
-                    "dF{i}/dz{k}: {} vs {}",
-                    jac[(i, k)],
-                    fd[i]
-                );
-            }
-        }
+        assert_jacobian_matches_central_differences(&problem, z);
     }
 }
