@@ -136,6 +136,11 @@ impl Adam {
         }
     }
 
+    /// The parameters, in the order [`Adam::step`] takes their gradients.
+    pub fn parameters(&self) -> &[Tensor] {
+        &self.params
+    }
+
     /// The parameters' shared buffer (for Polyak averaging of a whole network at once).
     pub fn flat_parameters(&self) -> &Tensor {
         &self.flat_params
@@ -152,7 +157,7 @@ impl Adam {
 
     /// One update from the gradients `grads`, one per parameter in order (an undefined one
     /// counts as a zero gradient: its moments decay).
-    fn step(&mut self, grads: &[Tensor]) {
+    pub fn step(&mut self, grads: &[Tensor]) {
         self.steps += 1;
         let bias1 = 1.0 - self.beta1.powi(self.steps as i32);
         let bias2 = 1.0 - self.beta2.powi(self.steps as i32);
@@ -208,10 +213,13 @@ impl Adam {
             .iter()
             .zip(grads)
             .map(|(p, g)| {
-                if g.defined() {
-                    g.to_kind(Kind::Float).contiguous()
-                } else {
+                if !g.defined() {
                     p.zeros_like()
+                } else if g.kind() == Kind::Float && g.is_contiguous() {
+                    // As it comes from the backward passes: no conversion to dispatch.
+                    g.shallow_clone()
+                } else {
+                    g.to_kind(Kind::Float).contiguous()
                 }
             })
             .collect();

@@ -3,27 +3,25 @@
 //! for the critic's output. Weights are tch's [out, in].
 
 use tch::nn::{self, Module};
-use tch::Tensor;
+use tch::{Kind, Tensor};
 
 /// Bounds on the actor's log standard deviation (Haarnoja et al.'s reference code).
 pub const LOG_STD_MIN: f64 = -20.0;
 pub const LOG_STD_MAX: f64 = 2.0;
 
-fn hidden_stack(path: &nn::Path, input: usize, hidden: &[usize], init: nn::LinearConfig) -> nn::Sequential {
-    let mut seq = nn::seq();
-    let mut width = input as i64;
-    for (i, &h) in hidden.iter().enumerate() {
-        seq = seq
-            .add(nn::linear(path / format!("l{i}"), width, h as i64, init))
-            .add_fn(|x| x.shallow_clone().relu_());
-        width = h as i64;
-    }
-    seq
+fn hidden_layers(path: &nn::Path, input: usize, hidden: &[usize], init: nn::LinearConfig) -> Vec<nn::Linear> {
+    let mut widths = vec![input as i64];
+    widths.extend(hidden.iter().map(|&h| h as i64));
+    widths
+        .windows(2)
+        .enumerate()
+        .map(|(i, w)| nn::linear(path / format!("l{i}"), w[0], w[1], init))
+        .collect()
 }
 
 /// pi(a|s): a = tanh(u), u ~ N(mean(s), std(s)^2).
 pub struct Actor {
-    trunk: nn::Sequential,
+    trunk: Vec<nn::Linear>,
     mean: nn::Linear,
     log_std: nn::Linear,
 }
@@ -56,31 +54,141 @@ impl Actor {
     fn with_init(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize], init: nn::LinearConfig) -> Self {
         let last = *hidden.last().unwrap_or(&obs_dim) as i64;
         Self {
-            trunk: hidden_stack(path, obs_dim, hidden, init),
+            trunk: hidden_layers(path, obs_dim, hidden, init),
             mean: nn::linear(path / "mean", last, act_dim as i64, init),
             log_std: nn::linear(path / "log_std", last, act_dim as i64, init),
         }
     }
 
+    /// The hidden layers' output (the heads' input).
+    fn features(&self, obs: &Tensor) -> Tensor {
+        let mut h = obs.shallow_clone();
+        for layer in &self.trunk {
+            h = layer.forward(&h).relu_();
+        }
+        h
+    }
+
     /// The deterministic action tanh(mean(s)).
     pub fn deterministic(&self, obs: &Tensor) -> Tensor {
-        self.mean.forward(&self.trunk.forward(obs)).tanh()
+        self.mean.forward(&self.features(obs)).tanh()
     }
 
     /// A reparameterised sample (gradients flow through mean and std).
     pub fn sample(&self, obs: &Tensor) -> ActionSample {
-        let h = self.trunk.forward(obs);
+        let h = self.features(obs);
         let mean = self.mean.forward(&h);
         let log_std = self.log_std.forward(&h).clamp(LOG_STD_MIN, LOG_STD_MAX);
+        Self::squash(mean, log_std).0
+    }
+
+    /// The sample and the spread std * noise it added to the mean.
+    fn squash(mean: Tensor, log_std: Tensor) -> (ActionSample, Tensor) {
         let noise = mean.randn_like();
-        let pre_tanh = &mean + log_std.exp() * &noise;
+        let spread = log_std.exp() * &noise;
+        let pre_tanh = &mean + &spread;
         let log_prob = squashed_gaussian_log_prob(&pre_tanh, &noise, &log_std);
-        ActionSample {
+        let sample = ActionSample {
             action: pre_tanh.tanh(),
             log_prob,
             mean_action: mean.tanh(),
-        }
+        };
+        (sample, spread)
     }
+
+    /// The trainable tensors in the order [`Actor::backward`] returns their gradients.
+    pub fn parameters(&self) -> Vec<Tensor> {
+        let mut params = Vec::new();
+        for layer in self.trunk.iter().chain([&self.mean, &self.log_std]) {
+            params.push(layer.ws.shallow_clone());
+            params.extend(layer.bs.as_ref().map(Tensor::shallow_clone));
+        }
+        params
+    }
+
+    /// A sample as [`Actor::sample`] draws it, with what the hand-written backward pass needs:
+    /// every layer's input (the ReLU outputs double as their masks) and the unclamped
+    /// log-standard deviation. Meant for `no_grad` (nothing here is recorded).
+    pub fn sample_recorded(&self, obs: &Tensor) -> (ActionSample, ActorPass) {
+        let mut inputs = vec![obs.shallow_clone()];
+        for layer in &self.trunk {
+            let h = layer.forward(&inputs[inputs.len() - 1]).relu_();
+            inputs.push(h);
+        }
+        let h = &inputs[inputs.len() - 1];
+        let mean = self.mean.forward(h);
+        let raw_log_std = self.log_std.forward(h);
+        let log_std = raw_log_std.clamp(LOG_STD_MIN, LOG_STD_MAX);
+        let (sample, spread) = Self::squash(mean, log_std.shallow_clone());
+        (
+            sample,
+            ActorPass {
+                inputs,
+                raw_log_std,
+                log_std,
+                spread,
+            },
+        )
+    }
+
+    /// Gradients of a loss with respect to [`Actor::parameters`], in that order, from its
+    /// gradients with respect to the mean and the clamped log-standard deviation of a recorded
+    /// pass: the chain rule written out layer by layer (a linear layer y = x W^T + b gives
+    /// dW = g^T x, db = sum g, dx = g W; a ReLU passes g where its output is positive; the clamp
+    /// passes it inside its bounds), as autograd would form it, without recording a graph.
+    pub fn backward(&self, pass: &ActorPass, grad_mean: &Tensor, grad_log_std: &Tensor) -> Vec<Tensor> {
+        let grad_raw_log_std = grad_log_std * pass.log_std.eq_tensor(&pass.raw_log_std);
+        let h = &pass.inputs[pass.inputs.len() - 1];
+        let mut head_grads = Vec::new();
+        for (layer, g) in [(&self.mean, grad_mean), (&self.log_std, &grad_raw_log_std)] {
+            head_grads.push(g.tr().mm(h));
+            if layer.bs.is_some() {
+                head_grads.push(g.sum_dim_intlist(0, false, Kind::Float));
+            }
+        }
+        let mut g = grad_mean.mm(&self.mean.ws).addmm(&grad_raw_log_std, &self.log_std.ws);
+        let mut trunk_grads = Vec::new();
+        for (l, layer) in self.trunk.iter().enumerate().rev() {
+            g = pass.inputs[l + 1].threshold_backward(&g, 0.0);
+            if layer.bs.is_some() {
+                trunk_grads.push(g.sum_dim_intlist(0, false, Kind::Float));
+            }
+            trunk_grads.push(g.tr().mm(&pass.inputs[l]));
+            if l > 0 {
+                g = g.mm(&layer.ws);
+            }
+        }
+        trunk_grads.reverse();
+        trunk_grads.extend(head_grads);
+        trunk_grads
+    }
+}
+
+/// What [`Actor::backward`] needs of a forward pass.
+pub struct ActorPass {
+    /// The input of each hidden layer, then the heads' input.
+    inputs: Vec<Tensor>,
+    raw_log_std: Tensor,
+    log_std: Tensor,
+    /// std * noise of the sample.
+    spread: Tensor,
+}
+
+/// The gradients with respect to the mean and the clamped log-standard deviation of a recorded
+/// sample, from those with respect to its action ([batch, act_dim]) and its log-density (a
+/// scalar, the same for every row). With u = mean + std noise (noise held fixed) and
+/// log pi = sum_j (-noise_j^2 / 2 - log_std_j - log(2 pi) / 2 - log(1 - tanh(u_j)^2)):
+/// d(log pi)/du_j = 2 tanh(u_j) and d(log pi)/d(log_std_j) = -1 besides the path through u.
+pub fn squashed_sample_gradients(
+    sample: &ActionSample,
+    pass: &ActorPass,
+    grad_action: &Tensor,
+    grad_log_prob: &Tensor,
+) -> (Tensor, Tensor) {
+    let a = &sample.action;
+    let grad_pre_tanh = grad_action * (1.0 - a.square()) + a * (grad_log_prob * 2.0);
+    let grad_log_std = &grad_pre_tanh * &pass.spread - grad_log_prob;
+    (grad_pre_tanh, grad_log_std)
 }
 
 /// log pi(tanh(u)) for u = mean + std * noise, summed over action dimensions, shape [batch, 1].
@@ -134,6 +242,84 @@ impl TwinCritic {
     pub fn min_q(&self, obs: &Tensor, action: &Tensor) -> Tensor {
         self.forward(obs, action).amin(0, false)
     }
+
+    /// The trainable tensors in the order [`TwinCritic::weight_gradients`] returns theirs.
+    pub fn parameters(&self) -> Vec<Tensor> {
+        self.weights
+            .iter()
+            .zip(&self.biases)
+            .flat_map(|(w, b)| [w.shallow_clone(), b.shallow_clone()])
+            .collect()
+    }
+
+    /// [`TwinCritic::forward`] keeping every layer's input (the ReLU outputs double as their
+    /// masks) for the hand-written backward passes. Meant for `no_grad`.
+    pub fn forward_recorded(&self, obs: &Tensor, action: &Tensor) -> CriticPass {
+        let mut inputs = vec![Tensor::cat(&[obs, action], 1).unsqueeze(0).expand([2, -1, -1], false)];
+        let last = self.weights.len() - 1;
+        let mut q = Tensor::new();
+        for (l, (w, b)) in self.weights.iter().zip(&self.biases).enumerate() {
+            let mut h = b.baddbmm(&inputs[l], w, 1.0, 1.0);
+            if l < last {
+                inputs.push(h.relu_());
+            } else {
+                q = h;
+            }
+        }
+        CriticPass {
+            inputs,
+            q,
+            action_width: action.size()[1],
+        }
+    }
+
+    /// The gradient with respect to the first layer's input of the layers above it, from
+    /// `grad_q` ([2, batch, 1]), collecting each layer's weight gradients on the way when asked.
+    fn backward(&self, pass: &CriticPass, grad_q: &Tensor, mut weight_grads: Option<&mut Vec<Tensor>>) -> Tensor {
+        let mut g = grad_q.shallow_clone();
+        for l in (0..self.weights.len()).rev() {
+            if l + 1 < self.weights.len() {
+                g = pass.inputs[l + 1].threshold_backward(&g, 0.0);
+            }
+            if let Some(grads) = weight_grads.as_deref_mut() {
+                grads.push(g.sum_dim_intlist(1, true, Kind::Float));
+                grads.push(pass.inputs[l].transpose(1, 2).bmm(&g));
+            }
+            if l > 0 {
+                g = g.bmm(&self.weights[l].transpose(1, 2));
+            }
+        }
+        g
+    }
+
+    /// Gradients of a loss with respect to [`TwinCritic::parameters`], in that order, from its
+    /// gradient with respect to both Q values of a recorded pass ([2, batch, 1]): the chain rule
+    /// written out (a layer y = b + x W gives dW = x^T g, db = sum g, dx = g W^T per network;
+    /// a ReLU passes g where its output is positive), as autograd would form it.
+    pub fn weight_gradients(&self, pass: &CriticPass, grad_q: &Tensor) -> Vec<Tensor> {
+        let mut grads = Vec::with_capacity(2 * self.weights.len());
+        let _ = self.backward(pass, grad_q, Some(&mut grads));
+        grads.reverse();
+        grads
+    }
+
+    /// The gradient of a loss with respect to the action of a recorded pass ([batch, act_dim]),
+    /// from its gradient with respect to both Q values; no weight gradient is formed.
+    pub fn action_gradient(&self, pass: &CriticPass, grad_q: &Tensor) -> Tensor {
+        let g = self.backward(pass, grad_q, None);
+        let inputs = self.weights[0].size()[1];
+        let w_action = self.weights[0].narrow(1, inputs - pass.action_width, pass.action_width);
+        g.bmm(&w_action.transpose(1, 2)).sum_dim_intlist(0, false, Kind::Float)
+    }
+}
+
+/// What [`TwinCritic`]'s backward passes need of a forward pass.
+pub struct CriticPass {
+    /// Each layer's input, [2, batch, width]: (s, a) for both networks, then the ReLU outputs.
+    inputs: Vec<Tensor>,
+    /// Both Q values, [2, batch, 1].
+    pub q: Tensor,
+    action_width: i64,
 }
 
 #[cfg(test)]
