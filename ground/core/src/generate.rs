@@ -18,9 +18,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use std::io::IsTerminal as _;
-
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
+use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::scenario::{Scenario, ScenarioKind};
@@ -28,6 +26,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::crosscheck::{crosscheck_records, cut_record, repair_record, CrossCheck, CrossCheckSettings};
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
+use crate::progress;
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_draw, Feasibility, DAYS_PER_TIME_UNIT};
 use crate::solver::record::TrajectoryRecord;
@@ -627,113 +626,15 @@ fn hold_whole_run(out: &Path) -> Result<(RunLock, Manifest, Vec<TrajectoryRecord
 }
 
 /// A bar over `len` items with their count, a message and the time left ("{len} {what}, ...");
-/// hidden without `show`. Where stderr is no terminal (a batch job's log, where indicatif draws
-/// nothing), the same line at most once a minute ([`LogLines`]).
+/// hidden without `show`, written as log lines where stderr is no terminal ([`progress::bar`]).
 pub(crate) fn count_bar(len: usize, what: &str, show: bool) -> ProgressBar {
     if !show {
         return ProgressBar::hidden();
     }
-    let template = format!("{{bar:40}} {{pos}}/{{len}} {what}, {{msg}} [{{elapsed_precise}} < {{eta_precise}}]");
-    let style = ProgressStyle::with_template(&template).unwrap_or_else(|_| ProgressStyle::default_bar());
-    if std::io::stderr().is_terminal() {
-        ProgressBar::new(len as u64).with_style(style)
-    } else {
-        let log = LogLines::new(LogSink::Stderr, std::time::Duration::from_secs(60));
-        ProgressBar::with_draw_target(
-            Some(len as u64),
-            ProgressDrawTarget::term_like_with_hz(Box::new(log), 1),
-        )
-        .with_style(style)
-    }
-}
-
-/// Where a [`LogLines`] writes.
-#[derive(Debug)]
-enum LogSink {
-    Stderr,
-    #[cfg(test)]
-    Memory(std::sync::Arc<std::sync::Mutex<Vec<String>>>),
-}
-
-/// A bar's drawing as plain lines, the first at once and then at most one every `every`: what
-/// a log file can hold of a bar that a terminal would redraw in place.
-#[derive(Debug)]
-struct LogLines {
-    sink: LogSink,
-    every: std::time::Duration,
-    /// When a line was last written, and the line drawn since.
-    state: std::sync::Mutex<(Option<std::time::Instant>, String)>,
-}
-
-impl LogLines {
-    fn new(sink: LogSink, every: std::time::Duration) -> Self {
-        Self {
-            sink,
-            every,
-            state: std::sync::Mutex::new((None, String::new())),
-        }
-    }
-
-    fn draw(&self, s: &str) {
-        if !s.trim().is_empty() {
-            if let Ok(mut state) = self.state.lock() {
-                state.1 = s.trim_end().to_string();
-            }
-        }
-    }
-}
-
-impl TermLike for LogLines {
-    fn width(&self) -> u16 {
-        120
-    }
-    fn move_cursor_up(&self, _: usize) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn move_cursor_down(&self, _: usize) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn move_cursor_right(&self, _: usize) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn move_cursor_left(&self, _: usize) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn write_line(&self, s: &str) -> std::io::Result<()> {
-        self.draw(s);
-        Ok(())
-    }
-    fn write_str(&self, s: &str) -> std::io::Result<()> {
-        self.draw(s);
-        Ok(())
-    }
-    fn clear_line(&self) -> std::io::Result<()> {
-        Ok(())
-    }
-    fn flush(&self) -> std::io::Result<()> {
-        let Ok(mut state) = self.state.lock() else {
-            return Ok(());
-        };
-        let due = state.0.is_none_or(|last| last.elapsed() >= self.every);
-        if !due || state.1.is_empty() {
-            return Ok(());
-        }
-        let line = std::mem::take(&mut state.1);
-        state.0 = Some(std::time::Instant::now());
-        match &self.sink {
-            LogSink::Stderr => {
-                use std::io::Write as _;
-                writeln!(std::io::stderr(), "{line}")
-            }
-            #[cfg(test)]
-            LogSink::Memory(lines) => {
-                if let Ok(mut lines) = lines.lock() {
-                    lines.push(line);
-                }
-                Ok(())
-            }
-        }
-    }
+    progress::bar(
+        len as u64,
+        &format!("{{bar:40}} {{pos}}/{{len}} {what}, {{msg}} [{{elapsed_precise}} < {{eta_precise}}]"),
+    )
 }
 
 fn record_path(out: &Path, index: u64) -> PathBuf {
@@ -1201,32 +1102,6 @@ mod tests {
             optimum,
             worse,
         }
-    }
-
-    /// In a log (no terminal) a bar is written as plain lines: each drawing when the interval is
-    /// zero, and only the first within an interval.
-    #[test]
-    fn a_bar_in_a_log_is_written_as_lines_at_most_once_an_interval() {
-        use std::sync::{Arc, Mutex};
-        use std::time::Duration;
-        let drawn = |every: Duration| {
-            let lines = Arc::new(Mutex::new(Vec::new()));
-            let log = LogLines::new(LogSink::Memory(lines.clone()), every);
-            let bar = ProgressBar::with_draw_target(Some(10), ProgressDrawTarget::term_like(Box::new(log)))
-                .with_style(ProgressStyle::with_template("{pos}/{len} records").unwrap());
-            for _ in 0..3 {
-                bar.inc(1);
-            }
-            bar.finish();
-            let written = lines.lock().unwrap().clone();
-            written
-        };
-        let every = drawn(Duration::ZERO);
-        assert!(every.iter().any(|l| l == "3/10 records"), "{every:?}");
-        assert!(every.iter().all(|l| l.ends_with("/10 records")), "{every:?}");
-        let hourly = drawn(Duration::from_secs(3600));
-        assert_eq!(hourly.len(), 1, "{hourly:?}");
-        assert!(every.len() > 1, "{every:?}");
     }
 
     /// A repair solves to the run's own final eps: the options of its request are what

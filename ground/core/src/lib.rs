@@ -12,4 +12,5 @@ pub mod generate;
 pub mod io;
 pub mod oem;
 pub mod plot;
+pub mod progress;
 pub mod solver;

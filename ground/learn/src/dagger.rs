@@ -405,11 +405,9 @@ fn save_relabels(path: &Path, relabels: &Relabels) -> Result<(), ExperimentError
 }
 
 fn progress_bar(total: u64, what: &str) -> indicatif::ProgressBar {
-    indicatif::ProgressBar::new(total).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{what:>16} {{bar:36}} {{pos}}/{{len}} {{msg}} [{{elapsed}}<{{eta}}]"
-        ))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    ground_core::progress::bar(
+        total,
+        &format!("{what:>16} {{bar:36}} {{pos}}/{{len}} {{msg}} [{{elapsed}}<{{eta}}]"),
     )
 }
 

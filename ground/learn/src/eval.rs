@@ -299,8 +299,7 @@ where
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let seed = config.seeds.monte_carlo;
     let scenarios = draw_scenarios(config.scenario, seed, n);
-    let bar = indicatif::ProgressBar::new_spinner().with_message(format!("Monte Carlo: {n} episodes"));
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let bar = ground_core::progress::spinner(format!("Monte Carlo: {n} episodes"));
     // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
     let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
     let plotted = fly::<P>(
@@ -386,11 +385,9 @@ fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[E
         return Vec::new();
     };
     let options = SolveOptions::default();
-    let bar = indicatif::ProgressBar::new(scenarios.len() as u64).with_style(
-        indicatif::ProgressStyle::with_template(
-            "optimality gap {bar:30} {pos}/{len} indirect solves [{elapsed}<{eta}]",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    let bar = ground_core::progress::bar(
+        scenarios.len() as u64,
+        "optimality gap {bar:30} {pos}/{len} indirect solves [{elapsed}<{eta}]",
     );
     let rows = scenarios
         .par_iter()

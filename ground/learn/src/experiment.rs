@@ -354,11 +354,9 @@ struct Phase<'a> {
 
 impl<'a> Phase<'a> {
     fn new(dir: PathBuf, config: &'a ExperimentConfig, state: PhaseState, total: u64, what: &str) -> Self {
-        let bar = indicatif::ProgressBar::new(total).with_style(
-            indicatif::ProgressStyle::with_template(&format!(
-                "{what:>9} {{bar:36}} {{pos}}/{{len}} {{msg}} [{{elapsed}}<{{eta}}]"
-            ))
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        let bar = ground_core::progress::bar(
+            total,
+            &format!("{what:>9} {{bar:36}} {{pos}}/{{len}} {{msg}} [{{elapsed}}<{{eta}}]"),
         );
         let seconds_before = state.seconds;
         Self {

@@ -297,8 +297,7 @@ pub fn sil_monte_carlo(
         ProblemKind::Rendezvous => describe_controller(&Controller::load_rendezvous(&blob)),
     };
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
-    let bar = indicatif::ProgressBar::new_spinner().with_message(format!("SIL: {n} dispersed flights"));
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
     let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, dispersions, PLOTTED_FLIGHTS)?;
     bar.finish_and_clear();
     let flown_time: f64 = outcomes.iter().map(|o| f64::from(o.steps)).sum::<f64>() * shared::units::STEP;

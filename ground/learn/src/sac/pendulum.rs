@@ -160,10 +160,7 @@ pub fn sanity_run(config: SacConfig, steps: u64, eval_every: u64, seed: u64) -> 
     agent.noise_seed = seed;
     let mut buffer = ReplayBuffer::new(OBS_DIM, ACT_DIM, config.replay_capacity);
     let mut env = Pendulum::new(seed);
-    let bar = indicatif::ProgressBar::new(steps).with_style(
-        indicatif::ProgressStyle::with_template("pendulum {bar:40} {pos}/{len} steps {msg} [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = ground_core::progress::bar(steps, "pendulum {bar:40} {pos}/{len} steps {msg} [{elapsed}]");
     let mut curve = Curve {
         start: std::time::Instant::now(),
         seed,
