@@ -60,26 +60,25 @@ impl Actor {
         }
     }
 
-    /// The hidden layers' output (the heads' input).
-    fn features(&self, obs: &Tensor) -> Tensor {
-        let mut h = obs.shallow_clone();
+    /// Each hidden layer's input, then the heads' input.
+    fn trunk_inputs(&self, obs: &Tensor) -> Vec<Tensor> {
+        let mut inputs = vec![obs.shallow_clone()];
         for layer in &self.trunk {
-            h = layer.forward(&h).relu_();
+            let h = layer.forward(&inputs[inputs.len() - 1]).relu_();
+            inputs.push(h);
         }
-        h
+        inputs
     }
 
     /// The deterministic action tanh(mean(s)).
     pub fn deterministic(&self, obs: &Tensor) -> Tensor {
-        self.mean.forward(&self.features(obs)).tanh()
+        let inputs = self.trunk_inputs(obs);
+        self.mean.forward(&inputs[inputs.len() - 1]).tanh()
     }
 
     /// A reparameterised sample (gradients flow through mean and std).
     pub fn sample(&self, obs: &Tensor) -> ActionSample {
-        let h = self.features(obs);
-        let mean = self.mean.forward(&h);
-        let log_std = self.log_std.forward(&h).clamp(LOG_STD_MIN, LOG_STD_MAX);
-        Self::squash(mean, log_std).0
+        self.sample_recorded(obs).0
     }
 
     /// The sample and the spread std * noise it added to the mean.
@@ -106,15 +105,10 @@ impl Actor {
         params
     }
 
-    /// A sample as [`Actor::sample`] draws it, with what the hand-written backward pass needs:
-    /// every layer's input (the ReLU outputs double as their masks) and the unclamped
-    /// log-standard deviation. Meant for `no_grad` (nothing here is recorded).
+    /// A sample with what the hand-written backward pass needs: every layer's input (the ReLU
+    /// outputs double as their masks) and the unclamped log-standard deviation.
     pub fn sample_recorded(&self, obs: &Tensor) -> (ActionSample, ActorPass) {
-        let mut inputs = vec![obs.shallow_clone()];
-        for layer in &self.trunk {
-            let h = layer.forward(&inputs[inputs.len() - 1]).relu_();
-            inputs.push(h);
-        }
+        let inputs = self.trunk_inputs(obs);
         let h = &inputs[inputs.len() - 1];
         let mean = self.mean.forward(h);
         let raw_log_std = self.log_std.forward(h);
@@ -227,15 +221,7 @@ impl TwinCritic {
 
     /// Both Q values, shape [2, batch, 1].
     pub fn forward(&self, obs: &Tensor, action: &Tensor) -> Tensor {
-        let mut h = Tensor::cat(&[obs, action], 1).unsqueeze(0).expand([2, -1, -1], false);
-        let last = self.weights.len() - 1;
-        for (l, (w, b)) in self.weights.iter().zip(&self.biases).enumerate() {
-            h = b.baddbmm(&h, w, 1.0, 1.0);
-            if l < last {
-                let _ = h.relu_();
-            }
-        }
-        h
+        self.forward_recorded(obs, action).q
     }
 
     /// min(Q1, Q2), shape [batch, 1].
@@ -252,8 +238,8 @@ impl TwinCritic {
             .collect()
     }
 
-    /// [`TwinCritic::forward`] keeping every layer's input (the ReLU outputs double as their
-    /// masks) for the hand-written backward passes. Meant for `no_grad`.
+    /// Both Q values with every layer's input (the ReLU outputs double as their masks), for the
+    /// hand-written backward passes.
     pub fn forward_recorded(&self, obs: &Tensor, action: &Tensor) -> CriticPass {
         let mut inputs = vec![Tensor::cat(&[obs, action], 1).unsqueeze(0).expand([2, -1, -1], false)];
         let last = self.weights.len() - 1;
