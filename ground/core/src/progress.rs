@@ -102,10 +102,24 @@ impl TermLike for LogLines {
         Ok(())
     }
     fn flush(&self) -> std::io::Result<()> {
+        self.write_pending(false)
+    }
+}
+
+impl Drop for LogLines {
+    /// The bar's last drawing (its final count and time), which the interval may have held back.
+    fn drop(&mut self) {
+        let _ = self.write_pending(true);
+    }
+}
+
+impl LogLines {
+    /// Writes the line drawn since the last one, when the interval has passed or `now`.
+    fn write_pending(&self, now: bool) -> std::io::Result<()> {
         let Ok(mut state) = self.state.lock() else {
             return Ok(());
         };
-        let due = state.0.is_none_or(|last| last.elapsed() >= self.every);
+        let due = now || state.0.is_none_or(|last| last.elapsed() >= self.every);
         if !due || state.1.is_empty() {
             return Ok(());
         }
@@ -132,7 +146,7 @@ mod tests {
     use super::*;
 
     /// In a log (no terminal) a bar is written as plain lines: each drawing when the interval is
-    /// zero, and only the first within an interval.
+    /// zero; within an interval only the first, and the last when the bar goes.
     #[test]
     fn a_bar_in_a_log_is_written_as_lines_at_most_once_an_interval() {
         use std::sync::{Arc, Mutex};
@@ -146,14 +160,19 @@ mod tests {
                 bar.inc(1);
             }
             bar.finish();
+            let before_drop = lines.lock().unwrap().clone();
+            drop(bar);
             let written = lines.lock().unwrap().clone();
-            written
+            (before_drop, written)
         };
-        let every = drawn(Duration::ZERO);
+        let (_, every) = drawn(Duration::ZERO);
         assert!(every.iter().any(|l| l == "3/10 records"), "{every:?}");
         assert!(every.iter().all(|l| l.ends_with("/10 records")), "{every:?}");
-        let hourly = drawn(Duration::from_secs(3600));
-        assert_eq!(hourly.len(), 1, "{hourly:?}");
-        assert!(every.len() > 1, "{every:?}");
+        assert!(every.len() > 2, "{every:?}");
+        let (held, hourly) = drawn(Duration::from_secs(3600));
+        assert_eq!(held.len(), 1, "{held:?}");
+        assert_eq!(hourly.len(), 2, "{hourly:?}");
+        // The finished bar, held back by the interval, is written when it goes.
+        assert_eq!(hourly[1], "10/10 records", "{hourly:?}");
     }
 }
