@@ -195,6 +195,12 @@ struct AveragedActor {
     flat: Tensor,
 }
 
+/// The mean of a per-row error over a batch's demonstration rows (`demos` 1 or 0): the cloning
+/// loss; 0 for a batch without demonstrations.
+fn over_demonstrations(error: &Tensor, demos: &Tensor) -> Tensor {
+    (error * demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0)
+}
+
 /// A mini-batch as tensors on the learner's device.
 struct BatchTensors {
     size: usize,
@@ -528,9 +534,11 @@ impl Sac {
         } else if batch.any_demonstration {
             // Reported, not weighed.
             let error = self.cloning.error(&sample.mean_action, &batch.actions);
-            let loss = (&error * &batch.demonstrations).sum(Kind::Float)
-                / batch.demonstrations.sum(Kind::Float).clamp_min(1.0);
-            (one(), None, loss.double_value(&[]))
+            (
+                one(),
+                None,
+                over_demonstrations(&error, &batch.demonstrations).double_value(&[]),
+            )
         } else {
             (one(), None, 0.0)
         };
@@ -561,8 +569,7 @@ impl Sac {
     fn cloning_gradient(&self, mean_action: &Tensor, demo_actions: &Tensor, demos: &Tensor) -> (f64, Tensor) {
         let policy_action = mean_action.detach().set_requires_grad(true);
         let (loss, grad) = tch::with_grad(|| {
-            let error = self.cloning.error(&policy_action, demo_actions);
-            let loss = (&error * demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
+            let loss = over_demonstrations(&self.cloning.error(&policy_action, demo_actions), demos);
             let grad = Tensor::run_backward(&[&loss], &[&policy_action], false, false);
             (loss, grad)
         });
@@ -670,7 +677,7 @@ impl Sac {
         let actions = tensor_2d(&batch.actions, b, self.act_dim, self.device);
         let demos = tensor_2d(&batch.demonstrations, b, 1, self.device);
         let error = self.cloning.error(&self.actor.deterministic(&obs), &actions);
-        let loss = (&error * &demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
+        let loss = over_demonstrations(&error, &demos);
         self.actor_optimizer.backward_step(&loss);
         self.average_actor();
         self.updates += 1;
