@@ -142,6 +142,13 @@ pub fn coast(state: &CartesianState, dt: f64) -> Result<CartesianState, KeplerEr
         );
         let den = if df >= 0.0 { df + root } else { df - root };
         let mut next = chi - LAGUERRE_N * f / den;
+        // A Laguerre step below chi's resolution is converged: near the root F's rounding can
+        // make the present point a bracket end, and bisecting from there would walk away from
+        // the root. (An overflowed denominator gives a zero step that says nothing.)
+        if next == chi && den.is_finite() {
+            converged = true;
+            break;
+        }
         if !(next.is_finite() && lo < next && next < hi) {
             next = match (lo.is_finite(), hi.is_finite()) {
                 (true, true) => lo + 0.5 * (hi - lo),

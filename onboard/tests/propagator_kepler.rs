@@ -145,6 +145,27 @@ fn coast_matches_kepler_over_a_revolution_at_many_times() {
     }
 }
 
+#[test]
+fn coast_converges_when_the_last_step_lands_on_the_bracket() {
+    // Just past periapsis (e = 0.76), coasting back 0.42 revolutions: the residual at the
+    // converged anomaly rounds to -4e-16, so that point becomes the bracket's lower end and
+    // the next Laguerre step lands exactly on it. An open bracket bisected away from the root
+    // there and stopped 3e-13 off in chi (position 1.7e-12 off); the state's own rounding
+    // allows about 1e-14.
+    let (a, e, w, m0): (f64, f64, f64, f64) = (
+        1.1725896447203579,
+        0.7614112103533374,
+        -0.3314343754057036,
+        0.009974460845890869,
+    );
+    let dt = -0.4160864976650252 * 2.0 * PI * a.powf(1.5);
+    let s0 = elliptic(a, e, w, m0);
+    let got = coast(&s0, dt).unwrap();
+    let want = elliptic(a, e, w, m0 + a.powf(-1.5) * dt);
+    assert!(pos_err(&got, &want) < 2e-14 * a, "pos err {:e}", pos_err(&got, &want));
+    assert!(vel_err(&got, &want) < 2e-14, "vel err {:e}", vel_err(&got, &want));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
 
