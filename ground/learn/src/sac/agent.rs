@@ -208,7 +208,8 @@ struct BatchTensors {
     actions: Tensor,
     rewards: Tensor,
     next_obs: Tensor,
-    dones: Tensor,
+    /// gamma (1 - done): the discount a transition's bootstrapped value takes.
+    continuation: Tensor,
     demonstrations: Tensor,
     any_demonstration: bool,
 }
@@ -254,18 +255,23 @@ fn tensor_2d(data: &[f32], rows: usize, cols: usize, device: Device) -> Tensor {
         .to_device(device)
 }
 
-/// The soft Bellman target y = r + gamma (1 - done) (min Q'(s', a') - alpha log pi(a'|s')):
-/// the entropy bonus enters the bootstrapped value, and a terminal transition bootstraps nothing.
+/// gamma (1 - done) per transition: a terminal transition bootstraps nothing.
+fn continuation(dones: &[f32], discount: f64) -> Vec<f32> {
+    let gamma = discount as f32;
+    dones.iter().map(|&done| gamma * (1.0 - done)).collect()
+}
+
+/// The soft Bellman target y = r + gamma (1 - done) (min Q'(s', a') - alpha log pi(a'|s')), the
+/// entropy bonus in the bootstrapped value; `continuation` is gamma (1 - done) ([`continuation`]).
 pub fn soft_bellman_target(
     rewards: &Tensor,
-    dones: &Tensor,
+    continuation: &Tensor,
     q_next: &Tensor,
     log_prob_next: &Tensor,
     temperature: &Tensor,
-    discount: f64,
 ) -> Tensor {
     let soft_value = q_next - temperature * log_prob_next;
-    rewards + (1.0 - dones) * discount * soft_value
+    rewards + continuation * soft_value
 }
 
 /// The behaviour-cloning error of a batch: the policy's deterministic actions (tanh of the mean)
@@ -477,16 +483,36 @@ impl Sac {
         stats
     }
 
+    /// The batch's columns packed into one buffer and sent as one tensor (one transfer, a few
+    /// operations instead of three per column), then viewed as [batch, width] each.
     fn batch_tensors(&self, batch: &Batch) -> BatchTensors {
         let b = batch.size;
+        let continuation = continuation(&batch.dones, self.config.discount);
+        let columns: [(&[f32], usize); 6] = [
+            (&batch.obs, self.obs_dim),
+            (&batch.actions, self.act_dim),
+            (&batch.rewards, 1),
+            (&batch.next_obs, self.obs_dim),
+            (&continuation, 1),
+            (&batch.demonstrations, 1),
+        ];
+        let packed: Vec<f32> = columns.iter().flat_map(|(data, _)| data.iter().copied()).collect();
+        let lengths: Vec<i64> = columns.iter().map(|(_, width)| (b * width) as i64).collect();
+        let mut tensors = Tensor::from_slice(&packed)
+            .to_device(self.device)
+            .split_with_sizes(lengths.as_slice(), 0)
+            .into_iter()
+            .zip(columns)
+            .map(|(tensor, (_, width))| tensor.view([b as i64, width as i64]));
+        let mut next = || tensors.next().expect("six columns");
         BatchTensors {
             size: b,
-            obs: tensor_2d(&batch.obs, b, self.obs_dim, self.device),
-            actions: tensor_2d(&batch.actions, b, self.act_dim, self.device),
-            rewards: tensor_2d(&batch.rewards, b, 1, self.device),
-            next_obs: tensor_2d(&batch.next_obs, b, self.obs_dim, self.device),
-            dones: tensor_2d(&batch.dones, b, 1, self.device),
-            demonstrations: tensor_2d(&batch.demonstrations, b, 1, self.device),
+            obs: next(),
+            actions: next(),
+            rewards: next(),
+            next_obs: next(),
+            continuation: next(),
+            demonstrations: next(),
             any_demonstration: batch.demonstrations.iter().any(|&d| d > 0.0),
         }
     }
@@ -499,11 +525,10 @@ impl Sac {
         let q_next = self.targets.min_q(&batch.next_obs, &next.action);
         let soft_target = soft_bellman_target(
             &batch.rewards,
-            &batch.dones,
+            &batch.continuation,
             &q_next,
             &next.log_prob,
             temperature,
-            self.config.discount,
         );
         let pass = self.critics.forward_recorded(&batch.obs, &batch.actions);
         let residual = &pass.q - &soft_target;
@@ -526,30 +551,30 @@ impl Sac {
         let critic_pass = self.critics.forward_recorded(&batch.obs, &sample.action);
         let (q_pi, smaller) = critic_pass.q.min_dim(0, true);
         let soft_loss = (temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
-        let one = || Tensor::ones([], (Kind::Float, self.device));
+        // The soft loss's scale: 1 alone (None), 1 / mean|min Q| beside a cloning term.
         let (scale, grad_mean_cloning, cloning_loss) = if self.config.behaviour_cloning > 0.0 {
-            let (loss, grad) = self.cloning_gradient(&sample.mean_action, &batch.actions, &batch.demonstrations);
+            let (loss, grad) = self.cloning_gradient(&sample.mean_action(), &batch.actions, &batch.demonstrations);
             let scale = q_pi.abs().mean(Kind::Float).clamp_min(1e-6).reciprocal();
-            (scale, Some(grad * self.config.behaviour_cloning), loss)
+            (Some(scale), Some(grad * self.config.behaviour_cloning), loss)
         } else if batch.any_demonstration {
             // Reported, not weighed.
-            let error = self.cloning.error(&sample.mean_action, &batch.actions);
-            (
-                one(),
-                None,
-                over_demonstrations(&error, &batch.demonstrations).double_value(&[]),
-            )
+            let error = self.cloning.error(&sample.mean_action(), &batch.actions);
+            let loss = over_demonstrations(&error, &batch.demonstrations).double_value(&[]);
+            (None, None, loss)
         } else {
-            (one(), None, 0.0)
+            (None, None, 0.0)
         };
         // dL/d(min Q) = -scale / batch, routed to the smaller of the two Q values (as min's
         // gradient is); dL/d(log pi) = scale alpha / batch.
-        let grad_q = critic_pass
-            .q
-            .zeros_like()
-            .scatter_(0, &smaller, &(&scale * (-1.0 / b)).expand_as(&q_pi));
+        let mut grad_q = critic_pass.q.zeros_like();
+        let (grad_q, grad_log_prob) = match &scale {
+            Some(scale) => (
+                grad_q.scatter_(0, &smaller, &(scale * (-1.0 / b)).expand_as(&q_pi)),
+                scale * temperature * (1.0 / b),
+            ),
+            None => (grad_q.scatter_value_(0, &smaller, -1.0 / b), temperature * (1.0 / b)),
+        };
         let grad_action = self.critics.action_gradient(&critic_pass, &grad_q);
-        let grad_log_prob = &scale * temperature * (1.0 / b);
         let (grad_mean, grad_log_std) = squashed_sample_gradients(&sample, &actor_pass, &grad_action, &grad_log_prob);
         let grad_mean = match grad_mean_cloning {
             Some(cloning) => grad_mean + cloning,
@@ -851,6 +876,32 @@ mod tests {
         buf.sample(n, &mut sampler(4))
     }
 
+    #[test]
+    fn a_batch_is_sent_as_its_columns() {
+        let _guard = torch_lock();
+        let sac = Sac::new(SacConfig::default(), 5, 3, Device::Cpu);
+        let batch = random_batch(5, 3, 7);
+        assert!(batch.dones.contains(&1.0) && batch.dones.contains(&0.0));
+        let tensors = sac.batch_tensors(&batch);
+        let column = |t: &Tensor, width: i64| {
+            assert_eq!(t.size(), [7, width]);
+            Vec::<f32>::try_from(t.reshape([-1])).unwrap()
+        };
+        assert_eq!(column(&tensors.obs, 5), batch.obs);
+        assert_eq!(column(&tensors.actions, 3), batch.actions);
+        assert_eq!(column(&tensors.rewards, 1), batch.rewards);
+        assert_eq!(column(&tensors.next_obs, 5), batch.next_obs);
+        assert_eq!(column(&tensors.demonstrations, 1), batch.demonstrations);
+        let gamma = sac.config.discount as f32;
+        let bootstrap: Vec<f32> = batch
+            .dones
+            .iter()
+            .map(|&d| if d == 1.0 { 0.0 } else { gamma })
+            .collect();
+        assert_eq!(column(&tensors.continuation, 1), bootstrap);
+        assert_eq!(tensors.any_demonstration, batch.demonstrations.contains(&1.0));
+    }
+
     fn assert_same_gradients(manual: &[Tensor], reference: &[Tensor], what: &str) {
         assert_eq!(manual.len(), reference.len(), "{what}");
         for (k, (m, r)) in manual.iter().zip(reference).enumerate() {
@@ -896,11 +947,10 @@ mod tests {
                 let q_next = sac.targets.min_q(&batch.next_obs, &next.action);
                 soft_bellman_target(
                     &batch.rewards,
-                    &batch.dones,
+                    &batch.continuation,
                     &q_next,
                     &next.log_prob,
                     &temperature,
-                    0.99,
                 )
             });
             let q = sac.critics.forward(&batch.obs, &batch.actions);
@@ -916,7 +966,7 @@ mod tests {
             let q_pi = sac.critics.min_q(&batch.obs, &sample.action);
             let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
             let loss = if behaviour_cloning > 0.0 {
-                let error = cloning.error(&sample.mean_action, &batch.actions);
+                let error = cloning.error(&sample.mean_action(), &batch.actions);
                 let demos = &batch.demonstrations;
                 let bc = (error * demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0);
                 assert!((bc.double_value(&[]) - actor.cloning_loss).abs() < 1e-5);
@@ -1027,11 +1077,10 @@ mod tests {
         let t = |v: &[f32]| Tensor::from_slice(v).view([-1, 1]);
         let y = soft_bellman_target(
             &t(&[1.0, 1.0, -0.5]),
-            &t(&[0.0, 1.0, 0.0]),
+            &t(&continuation(&[0.0, 1.0, 0.0], 0.9)),
             &t(&[2.0, 2.0, -3.0]),
             &t(&[-0.5, -0.5, 1.5]),
             &Tensor::from_slice(&[0.1f32]),
-            0.9,
         );
         // 1 + 0.9 (2 + 0.1 * 0.5); terminal: the reward alone; -0.5 + 0.9 (-3 - 0.1 * 1.5).
         let expected = [2.845f32, 1.0, -0.5 + 0.9 * (-3.0 - 0.15)];

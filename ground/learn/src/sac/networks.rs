@@ -30,8 +30,16 @@ pub struct Actor {
 pub struct ActionSample {
     pub action: Tensor,
     pub log_prob: Tensor,
-    /// tanh(mean): the deterministic action flown onboard.
-    pub mean_action: Tensor,
+    /// The Gaussian's mean (before the squash).
+    mean: Tensor,
+}
+
+impl ActionSample {
+    /// tanh(mean): the deterministic action flown onboard (formed only where it is used: the
+    /// target's sample never needs it).
+    pub fn mean_action(&self) -> Tensor {
+        self.mean.tanh()
+    }
 }
 
 impl Actor {
@@ -90,7 +98,7 @@ impl Actor {
         let sample = ActionSample {
             action: pre_tanh.tanh(),
             log_prob,
-            mean_action: mean.tanh(),
+            mean,
         };
         (sample, spread)
     }
