@@ -379,8 +379,8 @@ pub enum BlobError {
         /// Element index in the array.
         index: usize,
     },
-    /// A layer's padding is not the `0..WEIGHT_ALIGN` zero bytes that put its weights at a
-    /// multiple of [`WEIGHT_ALIGN`] from the start of the blob.
+    /// A layer's padding is not the fewest zero bytes (`0..WEIGHT_ALIGN`) that put its weights
+    /// at a multiple of [`WEIGHT_ALIGN`] from the start of the blob, as [`encode`] writes it.
     BadPadding {
         /// Index of the layer (from 0).
         layer: usize,
@@ -483,7 +483,8 @@ impl core::fmt::Display for BlobError {
             } => write!(
                 f,
                 "layer {layer}: {len} padding bytes put the weights at byte {weights_offset}; \
-                 {WEIGHT_ALIGN} - 1 zero bytes at most, to a multiple of {WEIGHT_ALIGN}"
+                 the fewest zero bytes (at most {WEIGHT_ALIGN} - 1) that reach a multiple of \
+                 {WEIGHT_ALIGN}, with every field before them in its shortest encoding"
             ),
             Self::BufferTooSmall { needed, available } => {
                 write!(f, "output buffer of {available} bytes, blob needs {needed}")
@@ -793,10 +794,14 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
     if !rest.is_empty() {
         return Err(BlobError::PayloadNotConsumed { unused: rest.len() });
     }
-    for (layer, l) in blob.layers.iter().enumerate() {
+    // postcard also reads a varint written in more bytes than it needs; with the padding one
+    // byte shorter the weights stay aligned, so only the padding [`encode`] writes is accepted:
+    // whatever decodes re-encodes to the same network.
+    let canonical = blob.aligned()?;
+    for (layer, (l, c)) in blob.layers.iter().zip(&canonical.layers).enumerate() {
         // Both slices borrow from `bytes`, so the difference is the offset in the blob.
         let weights_offset = (l.weights.as_ptr() as usize).wrapping_sub(bytes.as_ptr() as usize);
-        if l.padding.len() >= WEIGHT_ALIGN
+        if l.padding.len() != c.padding.len()
             || l.padding.iter().any(|&b| b != 0)
             || !weights_offset.is_multiple_of(WEIGHT_ALIGN)
         {

@@ -944,3 +944,26 @@ fn padding_that_misaligns_the_weights_or_is_not_zero_is_refused() {
     // The encoder itself ignores a view's padding: the dirty view encodes to the good blob.
     assert_eq!(to_bytes(&dirty), bytes);
 }
+
+#[test]
+fn an_overlong_padding_length_is_refused() {
+    // postcard reads a varint written in more bytes than it needs. The first layer's padding
+    // length written in two bytes, with one padding byte fewer, leaves the weights aligned where
+    // they were: a blob the encoder never writes, which decoded to another network value than
+    // its own re-encoding (found by the mutation property below).
+    let bytes = to_bytes(&network(FeatureLayout::TransferPolar10, Quantization::F32, &[10, 3, 2], 12).view());
+    let blob = decode(&bytes).unwrap();
+    let pad = blob.layers[0].padding.len();
+    assert!(pad > 1);
+    // The length's one byte sits just before the padding it counts.
+    let at = blob.layers[0].padding.as_ptr() as usize - bytes.as_ptr() as usize - 1;
+    assert_eq!(usize::from(bytes[at]), pad);
+    let mut payload = bytes[HEADER_LEN..bytes.len() - TRAILER_LEN].to_vec();
+    payload[at - HEADER_LEN] = (pad as u8 - 1) | 0x80;
+    let framed = frame(&payload);
+    let got = decode(&framed);
+    assert!(
+        matches!(got, Err(BlobError::BadPadding { layer: 0, len, .. }) if len == pad - 1),
+        "{got:?}"
+    );
+}
