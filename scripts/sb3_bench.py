@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-# Usage: python3 -m venv /tmp/sb3 && /tmp/sb3/bin/pip install stable-baselines3 torch==2.13.0 && /tmp/sb3/bin/python scripts/sb3_bench.py 1
+# Usage: .venv/bin/pip install stable-baselines3 && .venv/bin/python scripts/sb3_bench.py THREADS [UPDATES]
+# (the project's venv from scripts/setup-torch.sh already holds the same torch)
 # SB3 SAC gradient-update rate at the thesis settings (10 features, 3 actions, 2x256, batch 256).
 import sys, time, numpy as np, torch, gymnasium as gym
 from gymnasium import spaces
@@ -15,7 +16,7 @@ model = SAC("MlpPolicy", Dummy(), learning_rate=3e-4, buffer_size=20000, learnin
             tau=0.005, gamma=0.99, train_freq=1, gradient_steps=1, ent_coef="auto", target_entropy=-3,
             policy_kwargs=dict(net_arch=[256, 256]), device="cpu", verbose=0, seed=0)
 model.learn(3000)  # fill the buffer
-n = 300
+n = int(sys.argv[2]) if len(sys.argv) > 2 else 300
 model.train(gradient_steps=20, batch_size=256)
 t = time.perf_counter(); model.train(gradient_steps=n, batch_size=256); dt = time.perf_counter() - t
 print(f"SB3 threads {threads}: {n/dt:.0f} updates/s ({1e3*dt/n:.2f} ms each)")

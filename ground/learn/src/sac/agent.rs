@@ -549,7 +549,7 @@ impl Sac {
         let b = batch.size as f64;
         let (sample, actor_pass) = self.actor.sample_recorded(&batch.obs);
         let critic_pass = self.critics.forward_recorded(&batch.obs, &sample.action);
-        let (q_pi, smaller) = critic_pass.q.min_dim(0, true);
+        let (q_pi, chosen) = critic_pass.q.min_dim(0, false);
         let soft_loss = (temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
         // The soft loss's scale: 1 alone (None), 1 / mean|min Q| beside a cloning term.
         let (scale, grad_mean_cloning, cloning_loss) = if self.config.behaviour_cloning > 0.0 {
@@ -564,17 +564,12 @@ impl Sac {
         } else {
             (None, None, 0.0)
         };
-        // dL/d(min Q) = -scale / batch, routed to the smaller of the two Q values (as min's
-        // gradient is); dL/d(log pi) = scale alpha / batch.
-        let mut grad_q = critic_pass.q.zeros_like();
-        let (grad_q, grad_log_prob) = match &scale {
-            Some(scale) => (
-                grad_q.scatter_(0, &smaller, &(scale * (-1.0 / b)).expand_as(&q_pi)),
-                scale * temperature * (1.0 / b),
-            ),
-            None => (grad_q.scatter_value_(0, &smaller, -1.0 / b), temperature * (1.0 / b)),
+        // dL/d(min Q) = -scale / batch in every row; dL/d(log pi) = scale alpha / batch.
+        let min_gradient = self.critics.min_action_gradient(&critic_pass, &chosen.view([-1]));
+        let (grad_action, grad_log_prob) = match &scale {
+            Some(scale) => (min_gradient * (scale * (-1.0 / b)), scale * temperature * (1.0 / b)),
+            None => (min_gradient * (-1.0 / b), temperature * (1.0 / b)),
         };
-        let grad_action = self.critics.action_gradient(&critic_pass, &grad_q);
         let (grad_mean, grad_log_std) = squashed_sample_gradients(&sample, &actor_pass, &grad_action, &grad_log_prob);
         let grad_mean = match grad_mean_cloning {
             Some(cloning) => grad_mean + cloning,
@@ -959,11 +954,26 @@ mod tests {
             let reference = Tensor::run_backward(&[&loss], &sac.critics.parameters(), false, false);
             assert_same_gradients(&critic.grads, &reference, "critic");
 
+            // Shift the second critic's output bias by the mean gap between the two on the
+            // actor's sample, so that min picks each critic in some of the rows (the median
+            // would tie one row, where autograd's amin splits the gradient).
+            tch::manual_seed(6);
+            tch::no_grad(|| {
+                let sample = sac.actor.sample(&batch.obs);
+                let q = sac.critics.forward(&batch.obs, &sample.action);
+                let gap = (q.get(0) - q.get(1)).mean(Kind::Float);
+                let output_bias = &sac.critic_store.variables()["critic.b2"];
+                let _ = output_bias.get(1).g_add_(&gap);
+            });
             tch::manual_seed(6);
             let actor = tch::no_grad(|| sac.actor_gradients(&batch, &temperature));
             tch::manual_seed(6);
             let sample = sac.actor.sample(&batch.obs);
-            let q_pi = sac.critics.min_q(&batch.obs, &sample.action);
+            let both = sac.critics.forward(&batch.obs, &sample.action);
+            let q_pi = both.amin(0, false);
+            // Each critic is the smaller in some rows, so both routes of min's gradient are used.
+            let first_smaller = both.get(0).lt_tensor(&both.get(1)).sum(Kind::Int64).int64_value(&[]);
+            assert!(0 < first_smaller && first_smaller < 32, "{first_smaller} of 32 rows");
             let soft_loss = (&temperature * &sample.log_prob - &q_pi).mean(Kind::Float);
             let loss = if behaviour_cloning > 0.0 {
                 let error = cloning.error(&sample.mean_action(), &batch.actions);

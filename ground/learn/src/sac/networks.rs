@@ -297,13 +297,35 @@ impl TwinCritic {
         grads
     }
 
-    /// The gradient of a loss with respect to the action of a recorded pass ([batch, act_dim]),
-    /// from its gradient with respect to both Q values; no weight gradient is formed.
-    pub fn action_gradient(&self, pass: &CriticPass, grad_q: &Tensor) -> Tensor {
-        let g = self.backward(pass, grad_q, None);
+    /// d min(Q1, Q2) / da row by row ([batch, act_dim]) of a recorded pass, `chosen` ([batch],
+    /// 0 or 1) naming the critic that min picked in each row, where min's gradient goes. The
+    /// rows are grouped by that critic and each group goes back through its own critic alone,
+    /// so every hidden layer's product runs once over the batch instead of once per critic;
+    /// no weight gradient is formed.
+    pub fn min_action_gradient(&self, pass: &CriticPass, chosen: &Tensor) -> Tensor {
+        let batch = pass.q.size()[1];
+        let last = self.weights.len() - 1;
         let inputs = self.weights[0].size()[1];
-        let w_action = self.weights[0].narrow(1, inputs - pass.action_width, pass.action_width);
-        g.bmm(&w_action.transpose(1, 2)).sum_dim_intlist(0, false, Kind::Float)
+        let mut gradient = Tensor::zeros([batch, pass.action_width], (Kind::Float, pass.q.device()));
+        for k in 0..2i64 {
+            let rows = chosen.eq(k).nonzero().view([-1]);
+            let n = rows.size()[0];
+            if n == 0 {
+                continue;
+            }
+            // dQ_k / d(input of the output layer): its weights, the same for every row.
+            let mut g = self.weights[last].get(k).tr().expand([n, -1], false);
+            for l in (0..last).rev() {
+                g = pass.inputs[l + 1]
+                    .get(k)
+                    .index_select(0, &rows)
+                    .threshold_backward(&g, 0.0);
+                g = g.mm(&self.weights[l].get(k).tr());
+            }
+            let action_part = g.narrow(1, inputs - pass.action_width, pass.action_width);
+            let _ = gradient.index_copy_(0, &rows, &action_part);
+        }
+        gradient
     }
 }
 
