@@ -342,9 +342,10 @@ fn bench_sac(updates: u64, threads: &[i32], device: &str, batch: usize) -> Resul
         let gemm = bench::gemm_gflops(256, 51, device);
         let seconds = bench::seconds_per_update(&config, 10, 3, updates as usize, device);
         println!(
-            "{device:?}, threads {n}, batch {batch}: {:.0} updates/s ({:.2} ms each, {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
+            "{device:?}, threads {n}, batch {batch}: {:.0} updates/s ({:.2} ms each, median of {}-update blocks; {:.2} GFLOP), {:.1} GFLOP/s = {:.0}% of the 256^3 GEMM rate ({:.1} GFLOP/s)",
             1.0 / seconds,
             seconds * 1e3,
+            bench::BLOCK,
             flops / 1e9,
             flops / seconds / 1e9,
             100.0 * flops / seconds / 1e9 / gemm,
