@@ -267,32 +267,23 @@ impl TwinCritic {
         }
     }
 
-    /// The gradient with respect to the first layer's input of the layers above it, from
-    /// `grad_q` ([2, batch, 1]), collecting each layer's weight gradients on the way when asked.
-    fn backward(&self, pass: &CriticPass, grad_q: &Tensor, mut weight_grads: Option<&mut Vec<Tensor>>) -> Tensor {
-        let mut g = grad_q.shallow_clone();
-        for l in (0..self.weights.len()).rev() {
-            if l + 1 < self.weights.len() {
-                g = pass.inputs[l + 1].threshold_backward(&g, 0.0);
-            }
-            if let Some(grads) = weight_grads.as_deref_mut() {
-                grads.push(g.sum_dim_intlist(1, true, Kind::Float));
-                grads.push(pass.inputs[l].transpose(1, 2).bmm(&g));
-            }
-            if l > 0 {
-                g = g.bmm(&self.weights[l].transpose(1, 2));
-            }
-        }
-        g
-    }
-
     /// Gradients of a loss with respect to [`TwinCritic::parameters`], in that order, from its
     /// gradient with respect to both Q values of a recorded pass ([2, batch, 1]): the chain rule
     /// written out (a layer y = b + x W gives dW = x^T g, db = sum g, dx = g W^T per network;
     /// a ReLU passes g where its output is positive), as autograd would form it.
     pub fn weight_gradients(&self, pass: &CriticPass, grad_q: &Tensor) -> Vec<Tensor> {
         let mut grads = Vec::with_capacity(2 * self.weights.len());
-        let _ = self.backward(pass, grad_q, Some(&mut grads));
+        let mut g = grad_q.shallow_clone();
+        for l in (0..self.weights.len()).rev() {
+            if l + 1 < self.weights.len() {
+                g = pass.inputs[l + 1].threshold_backward(&g, 0.0);
+            }
+            grads.push(g.sum_dim_intlist(1, true, Kind::Float));
+            grads.push(pass.inputs[l].transpose(1, 2).bmm(&g));
+            if l > 0 {
+                g = g.bmm(&self.weights[l].transpose(1, 2));
+            }
+        }
         grads.reverse();
         grads
     }
