@@ -100,22 +100,25 @@ impl core::fmt::Display for DispersionError {
     }
 }
 
-/// Standard normal draws (Box-Muller; libm, so identical on the host and the Cortex-M4).
-struct Normal(ChaCha8Rng);
+/// Standard normal draws (Box-Muller; libm, so identical on the host and the Cortex-M4), one
+/// ChaCha8 stream of a seed each.
+pub struct Normal(ChaCha8Rng);
 
 impl Normal {
-    fn new(seed: u64, stream: u64) -> Self {
+    /// The draws of stream `stream` of `seed`.
+    pub fn new(seed: u64, stream: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(stream);
         Self(rng)
     }
 
     /// Uniform in (0, 1]: 53 random bits, never 0 so the logarithm is finite.
-    fn unit(&mut self) -> f64 {
+    pub fn unit(&mut self) -> f64 {
         ((self.0.next_u64() >> 11) as f64 + 1.0) * (1.0 / (1u64 << 53) as f64)
     }
 
-    fn sample(&mut self) -> f64 {
+    /// A standard normal draw.
+    pub fn sample(&mut self) -> f64 {
         let (u1, u2) = (self.unit(), self.unit());
         libm::sqrt(-2.0 * libm::log(u1)) * libm::cos(core::f64::consts::TAU * u2)
     }

@@ -3,8 +3,6 @@
 
 use std::time::Instant;
 
-use rand_chacha::ChaCha8Rng;
-use rand_core::Rng;
 use tch::{Device, Kind, Tensor};
 
 use super::agent::Sac;
@@ -62,27 +60,21 @@ pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, up
     tch::manual_seed(0);
     let mut sac = Sac::new(config.clone(), obs_dim, act_dim, device);
     let mut buffer = ReplayBuffer::new(obs_dim, act_dim, 10_000);
-    let mut rng = sampler(0);
-    let uniform = |rng: &mut ChaCha8Rng| (rng.next_u32() >> 8) as f32 / (1u32 << 24) as f32;
-    let normal = |rng: &mut ChaCha8Rng| {
-        // Box-Muller; 1 - u keeps the logarithm's argument in (0, 1].
-        let (u, v) = (1.0 - uniform(rng), uniform(rng));
-        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
-    };
+    let mut draws = firmware_sim::dispersion::Normal::new(0, 0);
     for k in 0..10_000 {
-        let obs: Vec<f32> = (0..obs_dim).map(|_| normal(&mut rng)).collect();
-        let next_obs: Vec<f32> = (0..obs_dim).map(|_| normal(&mut rng)).collect();
-        let action: Vec<f32> = (0..act_dim).map(|_| 2.0 * uniform(&mut rng) - 1.0).collect();
+        let obs: Vec<f32> = (0..obs_dim).map(|_| draws.sample() as f32).collect();
+        let next_obs: Vec<f32> = (0..obs_dim).map(|_| draws.sample() as f32).collect();
+        let action: Vec<f32> = (0..act_dim).map(|_| (2.0 * draws.unit() - 1.0) as f32).collect();
         buffer.push(&Transition {
             obs: &obs,
             action: &action,
-            reward: -uniform(&mut rng),
+            reward: -draws.unit() as f32,
             next_obs: &next_obs,
             done: k % 50 == 0,
             demonstration: false,
         });
     }
-    let mut rng = sampler(1);
+    let mut rng = sampler(0);
     for _ in 0..20 {
         sac.update(&buffer.sample(config.batch_size, &mut rng));
     }
