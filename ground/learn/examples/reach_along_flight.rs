@@ -22,7 +22,7 @@ use learn::experiment::policy_batch;
 use onboard::dynamics::SpacecraftState;
 use rayon::prelude::*;
 
-const FRACTIONS: [f64; 6] = [0.02, 0.05, 0.1, 0.2, 0.4, 0.6];
+const FRACTIONS: [f64; 8] = [0.02, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8, 0.9];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
