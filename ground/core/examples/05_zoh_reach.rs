@@ -7,10 +7,11 @@
 //! with its terminal violation stuck is evidence that the 14-day hold costs more than the draw's
 //! slack. The re-flown final state's residuals are those the environment scores.
 //!
-//! Run (seed 2000003 is the transfer configs' Monte Carlo stream, so the rows line up with
-//! `ground evaluate`'s mc.csv episode by episode):
+//! Run (the default: 10 draws in about 10 s; seed 2000003 is the transfer configs' Monte Carlo
+//! stream, so the rows line up with `ground evaluate`'s mc.csv episode by episode):
 //!
 //! ```text
+//! cargo run --release -p lowthrust-ground-core --example 05_zoh_reach
 //! cargo run --release -p lowthrust-ground-core --example 05_zoh_reach -- --scenario transfer-hard --seed 2000003 --count 1000 --csv reach.csv
 //! ```
 
@@ -37,10 +38,10 @@ struct Args {
     #[arg(long, default_value_t = 2_000_003)]
     seed: u64,
     /// Draws 0..count of the seed's stream.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 10)]
     count: u64,
     /// Per-draw rows are written here (stdout gets the summary).
-    #[arg(long)]
+    #[arg(long, default_value = "zoh-reach.csv")]
     csv: std::path::PathBuf,
 }
 
