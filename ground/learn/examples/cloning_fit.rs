@@ -22,6 +22,7 @@ use learn::experiment::{demonstration_buffer, load_demonstrations, policy_batch}
 use learn::sac::agent::Sac;
 use learn::sac::replay::sampler;
 use onboard::features::decode_action;
+use shared::scenario::ProblemKind;
 
 /// Steps-to-go bands: the last 3 steps, 3-10, 10-20, more.
 const BANDS: [(f64, f64); 4] = [(0.0, 3.0), (3.0, 10.0), (10.0, 20.0), (20.0, 1e9)];
@@ -31,6 +32,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let usage = "usage: cloning_fit CONFIG (ACTOR | --train HIDDEN UPDATES OUT_ACTOR) DATASET...";
     let (config_path, rest) = args[1..].split_first().ok_or(usage)?;
     let mut config = ExperimentConfig::load(Path::new(config_path))?;
+    if config.scenario.problem() != ProblemKind::Transfer {
+        return Err("a transfer config is needed (the diagnostic flies the 10-feature transfer MDP)".into());
+    }
     let demos = |config: &mut ExperimentConfig, dataset: &str| {
         config.pretrain.dataset = Some(PathBuf::from(dataset));
         load_demonstrations::<Transfer>(config, Path::new(".")).map(|(d, _, records)| (d.transitions, records))

@@ -21,6 +21,7 @@ use learn::eval::load_agent;
 use learn::experiment::policy_batch;
 use onboard::dynamics::SpacecraftState;
 use rayon::prelude::*;
+use shared::scenario::ProblemKind;
 
 const FRACTIONS: [f64; 8] = [0.02, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8, 0.9];
 
@@ -30,6 +31,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: reach_along_flight CONFIG ACTOR REACH_CSV COUNT OUT_CSV".into());
     };
     let config = ExperimentConfig::load(Path::new(config))?;
+    if config.scenario.problem() != ProblemKind::Transfer {
+        return Err("a transfer config is needed (the diagnostic flies the 10-feature transfer MDP)".into());
+    }
     let count: usize = count.parse()?;
     let solved: Vec<usize> = std::fs::read_to_string(reach)?
         .lines()
