@@ -18,13 +18,10 @@
 
 use clap::{Parser, ValueEnum};
 use ground_core::solver::direct::{solve_direct_refined, DirectGuess, DirectOptions, DirectSolution};
-use ground_core::solver::pontryagin::OptimalControlParams;
-use ground_core::solver::record::{sample_at, TrajectoryRecord};
-use ground_core::solver::shooting::initial_state_costate;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
-use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
+use shared::scenario::{Scenario, ScenarioKind};
+use shared::spacecraft::Spacecraft;
 use shared::units::canonical_to_days;
 
 /// Solve one scenario by the indirect and the direct method and compare the final masses.
@@ -122,7 +119,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let k0 = args.segments_per_step * scenario.steps as usize;
     let guess = match args.start {
         Start::Tangential => DirectGuess::tangential(&scenario, &spacecraft, k0, 0.5, &options.tolerances)?,
-        Start::Indirect => indirect_guess(&record, &spacecraft, k0)?,
+        Start::Indirect => DirectGuess::from_record(&record, &spacecraft, k0, &SolveOptions::default().tolerances)
+            .map_err(|e| format!("sampling the indirect control failed: {e:?}"))?,
     };
     let solutions = solve_direct_refined(&scenario, &spacecraft, guess, args.levels - 1, eps, &options)?;
     for solution in &solutions {
@@ -174,37 +172,4 @@ fn explicit_transfer(args: &Args) -> Result<Scenario, Box<dyn std::error::Error>
     let scenario = Scenario::transfer(initial, shape(args.af, args.ef));
     scenario.validate()?;
     Ok(scenario)
-}
-
-/// The indirect solution's control at the midpoints of `segments` equal segments, as a direct
-/// guess (throttle times the polar direction, throttle).
-fn indirect_guess(
-    record: &TrajectoryRecord,
-    spacecraft: &CanonicalSpacecraft,
-    segments: usize,
-) -> Result<DirectGuess, Box<dyn std::error::Error>> {
-    let h = record.scenario.time_of_flight() / segments as f64;
-    let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
-    let params = OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: record.final_eps,
-    };
-    let y0 = initial_state_costate(&record.scenario, &record.costates);
-    let samples = sample_at(&y0, &params, &times, &SolveOptions::default().tolerances)
-        .map_err(|e| format!("sampling the indirect control failed: {e:?}"))?;
-    let controls = samples
-        .iter()
-        .map(|s| {
-            [
-                s.throttle * s.direction_polar[0],
-                s.throttle * s.direction_polar[1],
-                s.throttle,
-            ]
-        })
-        .collect();
-    let nu_f = match record.scenario.problem {
-        ProblemKind::Transfer => record.final_anomaly.unwrap_or(0.0),
-        ProblemKind::Rendezvous => 0.0,
-    };
-    Ok(DirectGuess { controls, nu_f })
 }

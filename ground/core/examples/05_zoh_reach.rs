@@ -20,9 +20,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use clap::Parser;
 use ground_core::solver::direct::{fly_onboard, solve_direct, DirectGuess, DirectOptions};
-use ground_core::solver::pontryagin::OptimalControlParams;
-use ground_core::solver::record::{sample_at, TrajectoryRecord};
-use ground_core::solver::shooting::initial_state_costate;
+use ground_core::solver::record::TrajectoryRecord;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use onboard::dynamics::SpacecraftState;
 use onboard::features::{transfer_features, transfer_residuals};
@@ -141,7 +139,7 @@ fn direct_row(record: &TrajectoryRecord, spacecraft: &CanonicalSpacecraft) -> Op
     let scenario = &record.scenario;
     let segments = scenario.steps as usize;
     let h = scenario.time_of_flight() / segments as f64;
-    let guess = indirect_guess(record, spacecraft, segments)?;
+    let guess = DirectGuess::from_record(record, spacecraft, segments, &SolveOptions::default().tolerances).ok()?;
     let options = DirectOptions {
         full_throttle_window: Some(10),
         stagnation_window: Some(20),
@@ -160,31 +158,5 @@ fn direct_row(record: &TrajectoryRecord, spacecraft: &CanonicalSpacecraft) -> Op
         dr: residuals.position,
         dv: residuals.velocity,
         iterations: solution.iterations,
-    })
-}
-
-/// The indirect control at the midpoints of `segments` equal segments.
-fn indirect_guess(record: &TrajectoryRecord, spacecraft: &CanonicalSpacecraft, segments: usize) -> Option<DirectGuess> {
-    let h = record.scenario.time_of_flight() / segments as f64;
-    let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
-    let params = OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: record.final_eps,
-    };
-    let y0 = initial_state_costate(&record.scenario, &record.costates);
-    let samples = sample_at(&y0, &params, &times, &SolveOptions::default().tolerances).ok()?;
-    let controls = samples
-        .iter()
-        .map(|s| {
-            [
-                s.throttle * s.direction_polar[0],
-                s.throttle * s.direction_polar[1],
-                s.throttle,
-            ]
-        })
-        .collect();
-    Some(DirectGuess {
-        controls,
-        nu_f: record.final_anomaly.unwrap_or(0.0),
     })
 }

@@ -47,7 +47,9 @@ use shared::orbit::CartesianState;
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use super::shooting::orbit_state;
+use super::pontryagin::OptimalControlParams;
+use super::record::{sample_at, TrajectoryRecord};
+use super::shooting::{initial_state_costate, orbit_state};
 
 /// State (x, y, vx, vy, m).
 pub const STATE: usize = 5;
@@ -249,6 +251,38 @@ impl DirectGuess {
             .ok_or(DirectError::Guess)?;
         let nu_f = xf[1].atan2(xf[0]) - scenario.target.omega;
         Ok(Self { controls, nu_f })
+    }
+
+    /// An indirect record's control at the midpoints of `segments` equal segments (throttle
+    /// times the polar direction, throttle), nu_f its final anomaly (0 where it has none): the
+    /// direct problem started in the indirect optimum's basin.
+    pub fn from_record(
+        record: &TrajectoryRecord,
+        spacecraft: &CanonicalSpacecraft,
+        segments: usize,
+        tol: &Tolerances,
+    ) -> Result<Self, IntegrationError> {
+        let h = record.scenario.time_of_flight() / segments as f64;
+        let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
+        let params = OptimalControlParams {
+            spacecraft: *spacecraft,
+            eps: record.final_eps,
+        };
+        let y0 = initial_state_costate(&record.scenario, &record.costates);
+        let controls = sample_at(&y0, &params, &times, tol)?
+            .iter()
+            .map(|s| {
+                [
+                    s.throttle * s.direction_polar[0],
+                    s.throttle * s.direction_polar[1],
+                    s.throttle,
+                ]
+            })
+            .collect();
+        Ok(Self {
+            controls,
+            nu_f: record.final_anomaly.unwrap_or(0.0),
+        })
     }
 
     /// The same control on a mesh `factor` times finer (each segment split into `factor`).

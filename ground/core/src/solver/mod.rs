@@ -941,28 +941,11 @@ mod tests {
         let scenario = kind.draw(7, 0);
         let record = solve_scenario(kind, 7, 0, &scenario, &sc, &options);
         assert!(record.converged, "{:?}", record.failure);
-        let segments = 2 * scenario.steps as usize;
-        let h = scenario.time_of_flight() / segments as f64;
-        let times: Vec<f64> = (0..segments).map(|k| (k as f64 + 0.5) * h).collect();
-        let params = OptimalControlParams {
-            spacecraft: sc,
-            eps: record.final_eps,
-        };
-        let y0 = initial_state_costate(&scenario, &record.costates);
-        let samples = sample_at(&y0, &params, &times, &options.tolerances).unwrap();
-        let guess = DirectGuess {
-            controls: samples
-                .iter()
-                .map(|s| {
-                    [
-                        s.throttle * s.direction_polar[0],
-                        s.throttle * s.direction_polar[1],
-                        s.throttle,
-                    ]
-                })
-                .collect(),
-            nu_f: record.final_anomaly.unwrap(),
-        };
+        assert!(
+            record.final_anomaly.is_some(),
+            "a converged transfer record has its final anomaly"
+        );
+        let guess = DirectGuess::from_record(&record, &sc, 2 * scenario.steps as usize, &options.tolerances).unwrap();
         let sol = solve_direct(&scenario, &sc, &guess, record.final_eps, &DirectOptions::default()).unwrap();
         assert!(sol.converged && sol.infeasibility < 1e-9, "{sol:?}");
         let rel = (sol.final_mass - record.final_mass).abs() / record.final_mass;
