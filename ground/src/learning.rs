@@ -28,9 +28,15 @@ pub enum LearnCommand {
         #[command(flatten)]
         experiment: ExperimentArgs,
         /// Learner checkpoint the first round starts from (default: OUT/pretrain/best.safetensors;
-        /// ignored when OUT/dagger already holds a start).
+        /// ignored when OUT/dagger already holds a start), or an actor file (a shipped model's),
+        /// widened function-preservingly when its hidden layers are narrower than the config's.
         #[arg(long)]
         from: Option<PathBuf>,
+        /// Another run folder (same scenario, seeds, final eps and arrival margin) whose
+        /// completed rounds' relabels become this run's first rounds; the rounds go on after
+        /// them from --from (ignored when OUT/dagger already holds a start).
+        #[arg(long)]
+        relabels_from: Option<PathBuf>,
     },
     /// Monte Carlo evaluation (docs/spec.md section 9) of a checkpoint against zero-thrust and random
     /// policies, with the optimality gap against the indirect solution on a subset.
@@ -176,7 +182,11 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             experiment,
             from_pretrained,
         } => train_command(&experiment, from_pretrained),
-        LearnCommand::Dagger { experiment, from } => dagger_command(&experiment, from.as_deref()),
+        LearnCommand::Dagger {
+            experiment,
+            from,
+            relabels_from,
+        } => dagger_command(&experiment, from.as_deref(), relabels_from.as_deref()),
         LearnCommand::Evaluate {
             experiment,
             checkpoint,
@@ -426,11 +436,15 @@ fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box
     Ok(())
 }
 
-fn dagger_command(args: &ExperimentArgs, from: Option<&Path>) -> Result<(), Box<dyn std::error::Error>> {
+fn dagger_command(
+    args: &ExperimentArgs,
+    from: Option<&Path>,
+    relabels_from: Option<&Path>,
+) -> Result<(), Box<dyn std::error::Error>> {
     let (config, base) = args.load()?;
     let start = from.map_or_else(|| args.out.join("pretrain").join("best.safetensors"), Path::to_path_buf);
     let summary = in_run_folder(&args.out, || {
-        Ok(learn::dagger::dagger(&config, &base, &args.out, &start)?)
+        Ok(learn::dagger::dagger(&config, &base, &args.out, &start, relabels_from)?)
     })?;
     for row in &summary.rows {
         println!(

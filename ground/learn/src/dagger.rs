@@ -16,6 +16,10 @@
 //! RUN/dagger/rounds.{csv,svg}      per-round scores, state.json the same for machines
 //! ```
 //!
+//! A run may also start where another stopped, with another network (`--relabels-from`): the
+//! other run's completed rounds' relabels are copied in as rounds 1..K, the start is saved as
+//! round K as well, and the rounds go on from K + 1 on the same scenarios the other run's would.
+//!
 //! Every file is written atomically and is complete when it exists, so a run resumes from
 //! them alone: the buffer is the demonstrations plus every round's relabels in order, each
 //! round's sampler is seeded from the round number and the agent's noise from its update count. A run stopped anywhere
@@ -638,20 +642,60 @@ fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, Ex
 }
 
 /// `ground dagger`: `config.dagger.rounds` rounds from `start` (a learner checkpoint, e.g.
-/// RUN/pretrain/best.safetensors) in RUN/dagger, resuming whatever rounds are already there.
+/// RUN/pretrain/best.safetensors, or an actor file, narrower ones widened) in RUN/dagger,
+/// resuming whatever rounds are already there. With `relabels_from` (another run folder of the
+/// same scenario, seeds, final eps and arrival margin) that run's completed rounds' relabels
+/// become this run's first rounds, and its own rounds follow them from `start`.
 pub fn dagger(
     config: &ExperimentConfig,
     config_dir: &Path,
     run: &Path,
     start: &Path,
+    relabels_from: Option<&Path>,
 ) -> Result<DaggerSummary, ExperimentError> {
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
     match config.scenario.problem() {
-        ProblemKind::Transfer => dagger_for::<Transfer>(config, config_dir, run, start),
-        ProblemKind::Rendezvous => dagger_for::<Rendezvous>(config, config_dir, run, start),
+        ProblemKind::Transfer => dagger_for::<Transfer>(config, config_dir, run, start, relabels_from),
+        ProblemKind::Rendezvous => dagger_for::<Rendezvous>(config, config_dir, run, start, relabels_from),
     }
+}
+
+/// The relabels of another run's completed rounds (1, 2, ... while both a round's relabels and
+/// its learner are there), refused unless they were solved for this config's problem.
+fn completed_relabels(
+    config: &ExperimentConfig,
+    other: &Path,
+    obs_dim: usize,
+) -> Result<Vec<Relabels>, ExperimentError> {
+    let path = other.join("config.toml");
+    let text = std::fs::read_to_string(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
+    let theirs = ExperimentConfig::from_toml(&text)?;
+    // What a relabel depends on: the scenarios a round flies and what it is solved to.
+    let problem = |c: &ExperimentConfig| (c.scenario, c.seeds, c.generate.final_eps, c.generate.arrival_margin);
+    if problem(&theirs) != problem(config) {
+        return Err(ExperimentError::Mismatch(format!(
+            "{} relabels another problem (scenario, seeds, final eps or arrival margin differ)",
+            other.display()
+        )));
+    }
+    let dir = other.join("dagger");
+    let mut rounds = Vec::new();
+    for round in 1.. {
+        let path = relabels_file(&dir, round);
+        if !path.exists() || !round_file(&dir, round).exists() {
+            break;
+        }
+        rounds.push(load_relabels(&path, round, obs_dim)?);
+    }
+    if rounds.is_empty() {
+        return Err(ExperimentError::Mismatch(format!(
+            "{} holds no completed round",
+            dir.display()
+        )));
+    }
+    Ok(rounds)
 }
 
 fn dagger_for<P: Problem>(
@@ -659,6 +703,7 @@ fn dagger_for<P: Problem>(
     config_dir: &Path,
     run: &Path,
     start: &Path,
+    relabels_from: Option<&Path>,
 ) -> Result<DaggerSummary, ExperimentError> {
     let device = config.device()?;
     let (mut buffer, _) = demonstration_buffer::<P>(config, config_dir)?;
@@ -671,9 +716,28 @@ fn dagger_for<P: Problem>(
         // it with dagger.cloning_only).
         if let Err(checkpoint) = agent.load(start) {
             agent = new_agent(config, true, P::OBS, device);
-            agent.start_from_actor(start).map_err(|_| checkpoint)?;
+            let widths = agent.start_from_actor(start).map_err(|_| checkpoint)?;
+            if widths != config.sac.hidden {
+                println!(
+                    "{}: hidden layers {widths:?} widened to {:?} (the same actor until trained)",
+                    start.display(),
+                    config.sac.hidden
+                );
+            }
         }
+        let inherited = match relabels_from {
+            Some(other) => completed_relabels(config, other, P::OBS)?,
+            None => Vec::new(),
+        };
         prepare_run(config, run)?;
+        // The inherited rounds are this run's own: its folder alone resumes it.
+        for relabels in &inherited {
+            save_relabels(&relabels_file(&dir, relabels.round), relabels)?;
+        }
+        if let Some(last) = inherited.last() {
+            agent.save(&round_file(&dir, last.round))?;
+        }
+        // Written last: the start is complete once round 0 is there.
         agent.save(&round_file(&dir, 0))?;
         // A state left by an earlier start belongs to another learner.
         let _ = std::fs::remove_file(&state_path);
@@ -681,9 +745,15 @@ fn dagger_for<P: Problem>(
     // The learner counts its updates since its first; this command's start at round 0.
     agent.load(&round_file(&dir, 0))?;
     let updates_before = agent.updates;
+    // The last round with its learner saved (inherited rounds have relabels alone).
     let mut done = 0;
-    while round_file(&dir, done + 1).exists() {
-        done += 1;
+    for round in 1.. {
+        if !relabels_file(&dir, round).exists() {
+            break;
+        }
+        if round_file(&dir, round).exists() {
+            done = round;
+        }
     }
     agent.load(&round_file(&dir, done))?;
     let mut rows: Vec<RoundRow> = match std::fs::read(&state_path) {
@@ -770,7 +840,7 @@ fn dagger_for<P: Problem>(
         });
         // Time left: this command's mean round so far times the rounds left of the budget (an
         // upper bound when a goal may stop the rounds early).
-        let timed: Vec<f64> = rows.iter().filter(|r| r.round > 0).map(|r| r.seconds).collect();
+        let timed: Vec<f64> = rows.iter().skip(1).map(|r| r.seconds).collect();
         let left = (config.dagger.rounds - round) as f64 * timed.iter().sum::<f64>() / timed.len().max(1) as f64;
         println!(
             "round {round} of {}: {} of {} relabels converged, {} tuples; within 0.01 AU and 0.01: {:.1} %{} \

@@ -146,7 +146,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
                 .stop_at
                 .map_or(String::new(), |g| format!(", until {:.1} % within the goal", 100.0 * g))
         ));
-        let summary = dagger(&config, run, run, &best)?;
+        let summary = dagger(&config, run, run, &best, None)?;
         best = summary.folder.join("best.safetensors");
         stage_seconds.push(("relabelling", t.elapsed().as_secs_f64()));
         Some(summary)

@@ -28,7 +28,7 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
     let start = pre.join("pretrain/best.safetensors");
 
     let straight = dir.join("straight");
-    let whole = dagger(&config, &dir, &straight, &start).unwrap();
+    let whole = dagger(&config, &dir, &straight, &start, None).unwrap();
     assert_eq!(whole.rows.len(), 3);
     for row in &whole.rows[1..] {
         assert_eq!(row.relabels_attempted, 8, "two relabels per flown episode");
@@ -49,9 +49,9 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
 
     let resumed = dir.join("resumed");
     config.dagger.rounds = 1;
-    dagger(&config, &dir, &resumed, &start).unwrap();
+    dagger(&config, &dir, &resumed, &start, None).unwrap();
     config.dagger.rounds = 2;
-    dagger(&config, &dir, &resumed, &start).unwrap();
+    dagger(&config, &dir, &resumed, &start, None).unwrap();
     let weights = |run: &std::path::Path| std::fs::read(run.join("dagger/round-2.safetensors")).unwrap();
     assert_eq!(weights(&resumed), weights(&straight));
 
@@ -66,6 +66,7 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
         &dir,
         &dir.join("mixed"),
         &transfer_dir.join("pre/pretrain/best.safetensors"),
+        None,
     )
     .unwrap_err();
     assert!(!dir.join("mixed").exists(), "{err}");

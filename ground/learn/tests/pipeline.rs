@@ -301,7 +301,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     dispersed.dagger.cloning_only = true;
     let again = dir.join("dispersed");
     let actor = model_dir.join(learn::model::ACTOR_FILE);
-    let summary = learn::dagger::dagger(&dispersed, &dir, &again, &actor).unwrap();
+    let summary = learn::dagger::dagger(&dispersed, &dir, &again, &actor, None).unwrap();
     let kept = rounds.rows.iter().find(|r| r.round == rounds.best_round).unwrap();
     assert_eq!(summary.rows[0].within_goal, kept.within_goal);
     assert_eq!(summary.rows[0].summary, kept.summary);

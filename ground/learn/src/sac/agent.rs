@@ -718,19 +718,58 @@ impl Sac {
 
     /// Starts this learner from an actor file of [`Sac::save_flown_actor`] (a shipped model's):
     /// the online actor and, when averaging is on, the averaged one both take its weights; the
-    /// critics and optimisers stay as built.
-    pub fn start_from_actor(&mut self, path: &Path) -> Result<(), CheckpointError> {
-        self.load_actor(path)?;
-        if let Some(average) = &self.average {
-            // The two flat buffers are laid out alike (same constructor).
+    /// critics and optimisers stay as built. An actor with narrower hidden layers (the same
+    /// depth, features and actions) is widened without changing its output: each added unit
+    /// keeps this learner's random initial inputs and starts with zero weight into the layer
+    /// above and the heads, so training grows the actor from its own function. Returns the
+    /// file's hidden widths.
+    pub fn start_from_actor(&mut self, path: &Path) -> Result<Vec<usize>, CheckpointError> {
+        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
+        let vars = self.actor_store.variables();
+        if let Some(extra) = tensors.keys().find(|n| !vars.contains_key(*n)) {
+            return Err(CheckpointError::Mismatch(format!(
+                "{extra} is no actor tensor of this network (an actor file holds actor.* only)"
+            )));
+        }
+        for (name, dst) in &vars {
+            let src = tensors
+                .get(name)
+                .ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
+            let (s, d) = (src.size(), dst.size());
+            let fits = s.len() == d.len() && s.iter().zip(&d).all(|(a, b)| a <= b);
+            // The features and the actions are no widths to grow.
+            let head = name.starts_with("actor.mean.") || name.starts_with("actor.log_std.");
+            let fixed = (name == "actor.l0.weight" && s[1] != d[1]) || (head && s[0] != d[0]);
+            if !fits || fixed {
+                return Err(CheckpointError::Mismatch(format!(
+                    "tensor {name} has shape {s:?}, this actor expects {d:?} (or narrower hidden layers)"
+                )));
+            }
+        }
+        for (name, dst) in vars {
+            let src = tensors[&name].to_device(self.device);
+            let mut kept = dst.narrow(0, 0, src.size()[0]);
             tch::no_grad(|| {
-                self.actor_optimizer
-                    .flat_parameters()
-                    .shallow_clone()
-                    .copy_(&average.flat);
+                if src.dim() == 2 {
+                    // The kept units read nothing from the added ones.
+                    let _ = kept.zero_();
+                    kept.narrow(1, 0, src.size()[1]).copy_(&src);
+                } else {
+                    kept.copy_(&src);
+                }
             });
         }
-        Ok(())
+        if let Some(average) = &mut self.average {
+            // The two flat buffers are laid out alike (same constructor).
+            tch::no_grad(|| {
+                average.flat.copy_(self.actor_optimizer.flat_parameters());
+            });
+        }
+        let mut widths = Vec::new();
+        while let Some(bias) = tensors.get(&format!("actor.l{}.bias", widths.len())) {
+            widths.push(bias.size()[0] as usize);
+        }
+        Ok(widths)
     }
 
     /// Writes the flown actor alone (the averaged one when averaging is on) as
@@ -1080,6 +1119,86 @@ mod tests {
             sac.act(&[1.0], 1)
         );
         assert_eq!(sac.q_value(&[1.0], &[0.2], 1), q_before, "the critics are untouched");
+    }
+
+    #[test]
+    fn a_narrower_actor_is_widened_without_changing_its_output_and_its_added_units_learn() {
+        let _torch = torch_lock();
+        let config = SacConfig {
+            learning_rate: 3e-3,
+            actor_averaging: 0.01,
+            batch_size: 64,
+            ..SacConfig::default()
+        };
+        let learner = |hidden: Vec<usize>, obs_dim: usize, seed: i64| {
+            tch::manual_seed(seed);
+            Sac::new(
+                SacConfig {
+                    hidden,
+                    ..config.clone()
+                },
+                obs_dim,
+                2,
+                Device::Cpu,
+            )
+        };
+        let dir = std::env::temp_dir().join(format!("lowthrust-widen-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = |name: &str, sac: &Sac| {
+            let path = dir.join(name);
+            sac.save_flown_actor(&path).unwrap();
+            path
+        };
+        let narrow = learner(vec![8, 6], 3, 5);
+        let narrow_file = file("narrow.safetensors", &narrow);
+        let deeper_file = file("deeper.safetensors", &learner(vec![8, 6, 4], 3, 5));
+        let other_features = file("features.safetensors", &learner(vec![8, 6], 4, 5));
+
+        let mut wide = learner(vec![16, 12], 3, 9);
+        assert!(wide.start_from_actor(&deeper_file).is_err(), "another depth");
+        assert!(wide.start_from_actor(&other_features).is_err(), "other features");
+        assert!(
+            learner(vec![4, 6], 3, 9).start_from_actor(&narrow_file).is_err(),
+            "a wider file"
+        );
+        assert_eq!(wide.start_from_actor(&narrow_file).unwrap(), vec![8, 6]);
+        std::fs::remove_dir_all(&dir).unwrap();
+
+        // The same function on observations it never saw, flown (averaged) and online alike.
+        let obs: Vec<f32> = (0..60).map(|i| ((i * 37 % 23) as f32 / 23.0 - 0.5) * 4.0).collect();
+        let (before, after) = (narrow.act(&obs, 20), wide.act(&obs, 20));
+        let online = tch::no_grad(|| wide.actor.deterministic(&Tensor::from_slice(&obs).view([20, 3])));
+        let online = Vec::<f32>::try_from(online.view([-1])).unwrap();
+        for ((b, a), o) in before.iter().zip(&after).zip(&online) {
+            assert!((b - a).abs() < 1e-6 && (a - o).abs() < 1e-6, "{b} {a} {o}");
+        }
+        // The added units' head weights start at zero and leave it once trained.
+        let added_head_weight = |sac: &Sac| {
+            let w = &sac.actor_store.variables()["actor.mean.weight"];
+            w.narrow(1, 6, 6).abs().sum(Kind::Float).double_value(&[])
+        };
+        assert_eq!(added_head_weight(&wide), 0.0);
+        let mut demos = ReplayBuffer::new(3, 2, 256);
+        for k in 0..256 {
+            let o = [
+                (k % 7) as f32 / 3.5 - 1.0,
+                (k % 11) as f32 / 5.5 - 1.0,
+                (k % 5) as f32 / 2.5 - 1.0,
+            ];
+            demos.push(&Transition {
+                obs: &o,
+                action: &[(o[0] * o[1]).tanh(), (o[2] - o[0]).sin() * 0.8],
+                reward: 0.0,
+                next_obs: &o,
+                done: true,
+                demonstration: true,
+            });
+        }
+        let mut rng = sampler(4);
+        for _ in 0..50 {
+            wide.cloning_update(&demos.sample(64, &mut rng));
+        }
+        assert!(added_head_weight(&wide) > 1e-3, "{}", added_head_weight(&wide));
     }
 
     #[test]
