@@ -224,6 +224,10 @@ pub struct DaggerConfig {
     /// no control reaches in their time of flight (transfer-hard: about a quarter), which are
     /// otherwise the largest misses and re-solve to nothing.
     pub solvable_only: bool,
+    /// Leave out flights that miss by more than this many times the accuracy goal (max(dr /
+    /// 0.01 AU, dv / 0.01)); unset: none. On transfer-hard nearly all such flights are draws
+    /// with no transfer in their time of flight, whose solves fail at the largest cost.
+    pub max_miss: Option<f64>,
 }
 
 impl Default for DaggerConfig {
@@ -241,6 +245,7 @@ impl Default for DaggerConfig {
             dispersed: false,
             cloning_only: false,
             solvable_only: false,
+            max_miss: None,
         }
     }
 }
@@ -396,6 +401,11 @@ impl ExperimentConfig {
             }
         }
         positive("dagger.updates", self.dagger.updates)?;
+        if self.dagger.max_miss.is_some_and(|m| !(m.is_finite() && m >= 1.0)) {
+            return Err(ConfigError::Invalid(
+                "dagger.max_miss must be a finite multiple of the accuracy goal, at least 1".into(),
+            ));
+        }
         if let Some(goal) = self.dagger.stop_at {
             if !(goal > 0.0 && goal <= 1.0) {
                 return Err(ConfigError::Invalid("dagger.stop_at must be a share in (0, 1]".into()));
@@ -526,6 +536,8 @@ mod tests {
             "scenario = \"transfer-circular\"\n[dagger]\nepisodes = 200\ncandidates = 100",
             "scenario = \"transfer-circular\"\n[dagger]\nstop_at = 0.95",
             "scenario = \"transfer-circular\"\n[dagger]\nrounds = 5\nstop_at = 1.5",
+            "scenario = \"transfer-circular\"\n[dagger]\nmax_miss = 0.5",
+            "scenario = \"transfer-circular\"\n[dagger]\nmax_miss = nan",
             "scenario = \"transfer-circular\"\n[sil]\nepisodes = 0",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
         ];

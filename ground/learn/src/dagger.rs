@@ -446,11 +446,7 @@ fn solve_relabels<P: Problem>(
     } else {
         evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?
     };
-    // A relabel needs a step strictly inside the flight.
-    let eligible: Vec<&EpisodeOutcome> = flown
-        .iter()
-        .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
-        .collect();
+    let eligible = relabel_candidates(&flown, &scenarios, dagger.max_miss);
     let step_at = |episode: usize, fraction: f64| {
         let steps = scenarios[episode].steps;
         ((fraction * f64::from(steps)).round() as u32).clamp(1, steps - 1)
@@ -565,9 +561,27 @@ fn largest_misses(outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeO
 /// The outcomes from the largest miss of the accuracy goal to the smallest, max(dr, dv) /
 /// [`ACCURACY_GOAL`], the earlier of equal misses first.
 fn ranked_by_miss(mut outcomes: Vec<&EpisodeOutcome>) -> Vec<&EpisodeOutcome> {
-    let miss = |o: &EpisodeOutcome| o.terminal.position.max(o.terminal.velocity) / ACCURACY_GOAL;
     outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
     outcomes
+}
+
+/// A flight's miss in units of the accuracy goal: max(dr, dv) / [`ACCURACY_GOAL`].
+fn miss(outcome: &EpisodeOutcome) -> f64 {
+    outcome.terminal.position.max(outcome.terminal.velocity) / ACCURACY_GOAL
+}
+
+/// The flights a round may relabel, in episode order: completed, with a step strictly inside
+/// the flight, and missing by at most `max_miss` times the goal when that is set.
+fn relabel_candidates<'a>(
+    flown: &'a [EpisodeOutcome],
+    scenarios: &[Scenario],
+    max_miss: Option<f64>,
+) -> Vec<&'a EpisodeOutcome> {
+    flown
+        .iter()
+        .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
+        .filter(|o| max_miss.is_none_or(|cap| miss(o) <= cap))
+        .collect()
 }
 
 /// Flights probed at once by [`walk_probes`]: enough to keep every core busy, few enough that
@@ -989,6 +1003,32 @@ mod tests {
         // As many as flown (the default: candidates = episodes): every one, in order.
         assert_eq!(chosen(6), vec![0, 1, 2, 3, 4, 5]);
         assert_eq!(chosen(9), vec![0, 1, 2, 3, 4, 5]);
+    }
+
+    #[test]
+    fn flights_beyond_the_miss_cap_are_not_relabelled() {
+        let scenarios: Vec<Scenario> = (0..5)
+            .map(|i| shared::scenario::ScenarioKind::TransferHard.draw(3, i))
+            .collect();
+        let mut flown = vec![
+            outcome(0, 0.005, 0.001),
+            outcome(1, 0.2, 0.0),
+            outcome(2, 0.0, 0.1),
+            outcome(3, 0.1000001, 0.0),
+            outcome(4, 0.5, 0.5),
+        ];
+        let kept = |flown: &[EpisodeOutcome], cap| -> Vec<usize> {
+            relabel_candidates(flown, &scenarios, cap)
+                .iter()
+                .map(|o| o.episode)
+                .collect()
+        };
+        assert_eq!(kept(&flown, None), vec![0, 1, 2, 3, 4]);
+        // 10 times the goal: 0.1 AU or 0.1, inclusive.
+        assert_eq!(kept(&flown, Some(10.0)), vec![0, 2]);
+        assert_eq!(kept(&flown, Some(20.0)), vec![0, 1, 2, 3]);
+        flown[0].completed = false;
+        assert_eq!(kept(&flown, Some(20.0)), vec![1, 2, 3]);
     }
 
     #[test]
