@@ -201,6 +201,21 @@ fn over_demonstrations(error: &Tensor, demos: &Tensor) -> Tensor {
     (error * demos).sum(Kind::Float) / demos.sum(Kind::Float).clamp_min(1.0)
 }
 
+/// An actor file's tensors (of [`Sac::save_flown_actor`]), refused unless it holds exactly the
+/// tensors `vars` names, whatever their shapes.
+fn read_actor_file(path: &Path, vars: &HashMap<String, Tensor>) -> Result<HashMap<String, Tensor>, CheckpointError> {
+    let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
+    if let Some(extra) = tensors.keys().find(|n| !vars.contains_key(*n)) {
+        return Err(CheckpointError::Mismatch(format!(
+            "{extra} is no actor tensor of this network (an actor file holds actor.* only)"
+        )));
+    }
+    if let Some(missing) = vars.keys().find(|n| !tensors.contains_key(*n)) {
+        return Err(CheckpointError::Mismatch(format!("missing tensor {missing}")));
+    }
+    Ok(tensors)
+}
+
 /// A mini-batch as tensors on the learner's device.
 struct BatchTensors {
     size: usize,
@@ -724,22 +739,14 @@ impl Sac {
     /// above and the heads, so training grows the actor from its own function. Returns the
     /// file's hidden widths.
     pub fn start_from_actor(&mut self, path: &Path) -> Result<Vec<usize>, CheckpointError> {
-        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
         let vars = self.actor_store.variables();
-        if let Some(extra) = tensors.keys().find(|n| !vars.contains_key(*n)) {
-            return Err(CheckpointError::Mismatch(format!(
-                "{extra} is no actor tensor of this network (an actor file holds actor.* only)"
-            )));
-        }
+        let tensors = read_actor_file(path, &vars)?;
         for (name, dst) in &vars {
-            let src = tensors
-                .get(name)
-                .ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
-            let (s, d) = (src.size(), dst.size());
+            let (s, d) = (tensors[name].size(), dst.size());
             let fits = s.len() == d.len() && s.iter().zip(&d).all(|(a, b)| a <= b);
             // The features and the actions are no widths to grow.
             let head = name.starts_with("actor.mean.") || name.starts_with("actor.log_std.");
-            let fixed = (name == "actor.l0.weight" && s[1] != d[1]) || (head && s[0] != d[0]);
+            let fixed = fits && ((name == "actor.l0.weight" && s[1] != d[1]) || (head && s[0] != d[0]));
             if !fits || fixed {
                 return Err(CheckpointError::Mismatch(format!(
                     "tensor {name} has shape {s:?}, this actor expects {d:?} (or narrower hidden layers)"
@@ -786,18 +793,11 @@ impl Sac {
     /// the critics and optimisers stay as they are). Every actor tensor must be there with its
     /// shape, and nothing else.
     pub fn load_actor(&mut self, path: &Path) -> Result<(), CheckpointError> {
-        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
         let store = self.average.as_ref().map_or(&self.actor_store, |a| &a.store);
         let vars = store.variables();
-        if let Some(extra) = tensors.keys().find(|n| !vars.contains_key(*n)) {
-            return Err(CheckpointError::Mismatch(format!(
-                "{extra} is no actor tensor (an actor file holds actor.* only)"
-            )));
-        }
+        let tensors = read_actor_file(path, &vars)?;
         for (name, dst) in &vars {
-            let src = tensors
-                .get(name)
-                .ok_or_else(|| CheckpointError::Mismatch(format!("missing tensor {name}")))?;
+            let src = &tensors[name];
             if src.size() != dst.size() {
                 return Err(CheckpointError::Mismatch(format!(
                     "tensor {name} has shape {:?}, this actor expects {:?}",
@@ -1161,6 +1161,22 @@ mod tests {
             learner(vec![4, 6], 3, 9).start_from_actor(&narrow_file).is_err(),
             "a wider file"
         );
+        // A tensor of another rank: refused, not a panic.
+        let flattened: Vec<(String, Tensor)> = narrow
+            .actor_store
+            .variables()
+            .into_iter()
+            .map(|(n, t)| {
+                if n == "actor.l0.weight" {
+                    (n, t.view([-1]))
+                } else {
+                    (n, t)
+                }
+            })
+            .collect();
+        let flattened_file = dir.join("flattened.safetensors");
+        write_checked_safetensors(&flattened, &flattened_file).unwrap();
+        assert!(wide.start_from_actor(&flattened_file).is_err(), "another rank");
         assert_eq!(wide.start_from_actor(&narrow_file).unwrap(), vec![8, 6]);
         std::fs::remove_dir_all(&dir).unwrap();
 
