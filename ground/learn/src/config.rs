@@ -459,6 +459,17 @@ impl ExperimentConfig {
         Ok(file)
     }
 
+    /// What a run's saved relabels depend on: the scenarios a round flies (scenario and seeds)
+    /// and what they are solved to (final eps, arrival margin).
+    pub fn relabel_problem(&self) -> (ScenarioKind, Seeds, f64, u32) {
+        (
+            self.scenario,
+            self.seeds,
+            self.generate.final_eps,
+            self.generate.arrival_margin,
+        )
+    }
+
     /// The SAC settings of a phase: behaviour cloning on in `behaviour-cloning` pretraining
     /// (and in RL if asked), off otherwise.
     pub fn sac_for(&self, pretraining: bool) -> SacConfig {

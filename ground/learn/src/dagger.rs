@@ -686,9 +686,7 @@ fn completed_relabels(
     let path = other.join("config.toml");
     let text = std::fs::read_to_string(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
     let theirs = ExperimentConfig::from_toml(&text)?;
-    // What a relabel depends on: the scenarios a round flies and what it is solved to.
-    let problem = |c: &ExperimentConfig| (c.scenario, c.seeds, c.generate.final_eps, c.generate.arrival_margin);
-    if problem(&theirs) != problem(config) {
+    if theirs.relabel_problem() != config.relabel_problem() {
         return Err(ExperimentError::Mismatch(format!(
             "{} relabels another problem (scenario, seeds, final eps or arrival margin differ)",
             other.display()

@@ -313,17 +313,8 @@ pub fn check_run(config: &ExperimentConfig, run: &Path) -> Result<(), Experiment
     };
     let previous = ExperimentConfig::from_toml(&existing)?;
     // What the folder's checkpoints and saved relabels depend on (an averaged actor is part of
-    // the checkpoints; relabels are solved to the config's final eps and arrival margin).
-    let same = |c: &ExperimentConfig| {
-        (
-            c.scenario,
-            c.sac.hidden.clone(),
-            c.seeds,
-            c.sac.actor_averaging > 0.0,
-            c.generate.final_eps,
-            c.generate.arrival_margin,
-        )
-    };
+    // the checkpoints).
+    let same = |c: &ExperimentConfig| (c.relabel_problem(), c.sac.hidden.clone(), c.sac.actor_averaging > 0.0);
     if same(&previous) != same(config) {
         return Err(ExperimentError::Mismatch(format!(
             "{} holds a run of another experiment (scenario, network, seeds, actor averaging, final eps or arrival margin differ); use a new folder",
