@@ -26,7 +26,7 @@ use onboard::features::{
     rendezvous_features, rendezvous_residuals, reward, transfer_features, transfer_residuals, FeatureError, Residuals,
     RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
 };
-use onboard::guidance::{rendezvous_step, transfer_step, Actor, GuidanceError};
+use onboard::guidance::{Actor, GuidanceError, Guide, TargetFeatures};
 use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, KeplerError};
 use onboard::policy::{Mlp, PolicyError, RendezvousPolicy, TransferPolicy};
@@ -55,7 +55,7 @@ pub trait Problem<const N: usize>: Copy {
     /// The problem of the scenarios and blobs this flies.
     const KIND: ProblemKind;
     /// The target as guidance is given it: an orbit, or a body's state.
-    type Target: Copy;
+    type Target: Copy + TargetFeatures<N>;
 
     /// The target at t = `index` STEP, computed as flight software does.
     fn target(scenario: &Scenario, index: u32) -> Result<Self::Target, SilError>;
@@ -63,13 +63,6 @@ pub trait Problem<const N: usize>: Copy {
     fn features(state: &SpacecraftState, target: &Self::Target, time_to_go: f64) -> Result<[f64; N], FeatureError>;
     /// The residuals read off the features.
     fn residuals(features: &[f64; N]) -> Residuals;
-    /// The onboard guidance step of this problem.
-    fn guidance<A: Actor<N>>(
-        actor: &A,
-        navigation: &SpacecraftState,
-        target: &Self::Target,
-        time_to_go: f64,
-    ) -> Result<ThrustCommand, GuidanceError>;
 }
 
 /// A free-anomaly transfer (docs/spec.md section 5): the target is the orbit itself.
@@ -99,15 +92,6 @@ impl Problem<TRANSFER_FEATURES> for Transfer {
     fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
         transfer_residuals(features)
     }
-
-    fn guidance<A: Actor<TRANSFER_FEATURES>>(
-        actor: &A,
-        navigation: &SpacecraftState,
-        target: &OrbitShape,
-        time_to_go: f64,
-    ) -> Result<ThrustCommand, GuidanceError> {
-        transfer_step(actor, navigation, target, time_to_go)
-    }
 }
 
 impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
@@ -132,15 +116,6 @@ impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
 
     fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
         rendezvous_residuals(features)
-    }
-
-    fn guidance<A: Actor<RENDEZVOUS_FEATURES>>(
-        actor: &A,
-        navigation: &SpacecraftState,
-        target: &CartesianState,
-        time_to_go: f64,
-    ) -> Result<ThrustCommand, GuidanceError> {
-        rendezvous_step(actor, navigation, target, time_to_go)
     }
 }
 
@@ -279,7 +254,7 @@ impl std::error::Error for SilError {}
 /// at that time, the truth plant flies it (with `dispersions`, drawn from `seed`) to the next
 /// cycle. No allocation.
 #[allow(clippy::too_many_arguments)] // the flight's inputs, each needed; a struct would only rename them
-pub fn fly_observed<const N: usize, P: Problem<N>, A: Actor<N>, O: FnMut(&FlightStep<N>)>(
+pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: FnMut(&FlightStep<N>)>(
     _problem: P,
     actor: &A,
     scenario: &Scenario,
@@ -317,7 +292,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Actor<N>, O: FnMut(&Flight
         let time_to_go = f64::from(scenario.steps - index) * STEP;
         let features = P::features(&state, &target, time_to_go).map_err(|error| SilError::Features { index, error })?;
         let navigation = plant.navigate(&state);
-        let (command, guidance_error) = match P::guidance(actor, &navigation, &target, time_to_go) {
+        let (command, guidance_error) = match actor.command(&navigation, &target, time_to_go) {
             Ok(c) => (c, None),
             Err(e) => (ThrustCommand::OFF, Some(e)),
         };
@@ -369,7 +344,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Actor<N>, O: FnMut(&Flight
 
 /// [`fly_observed`] for a transfer scenario.
 #[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>(
+pub fn fly_transfer_observed<A: Guide<TRANSFER_FEATURES, OrbitShape>, O: FnMut(&FlightStep)>(
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -394,7 +369,10 @@ pub fn fly_transfer_observed<A: Actor<TRANSFER_FEATURES>, O: FnMut(&FlightStep)>
 
 /// [`fly_observed`] for a rendezvous scenario.
 #[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_rendezvous_observed<A: Actor<RENDEZVOUS_FEATURES>, O: FnMut(&FlightStep<RENDEZVOUS_FEATURES>)>(
+pub fn fly_rendezvous_observed<
+    A: Guide<RENDEZVOUS_FEATURES, CartesianState>,
+    O: FnMut(&FlightStep<RENDEZVOUS_FEATURES>),
+>(
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -444,7 +422,7 @@ impl<const N: usize> Flight<N> {
 /// Flies `scenario` as problem `P` and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
 #[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly<const N: usize, P: Problem<N>, A: Actor<N>>(
+pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>>(
     problem: P,
     actor: &A,
     scenario: &Scenario,
@@ -476,7 +454,7 @@ pub fn fly<const N: usize, P: Problem<N>, A: Actor<N>>(
 /// Flies a transfer and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
 #[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
+pub fn fly_transfer<A: Guide<TRANSFER_FEATURES, OrbitShape>>(
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -500,7 +478,7 @@ pub fn fly_transfer<A: Actor<TRANSFER_FEATURES>>(
 /// Flies a rendezvous and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
 #[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_rendezvous<A: Actor<RENDEZVOUS_FEATURES>>(
+pub fn fly_rendezvous<A: Guide<RENDEZVOUS_FEATURES, CartesianState>>(
     actor: &A,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,

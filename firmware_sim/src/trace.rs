@@ -15,7 +15,7 @@ use core::fmt::{self, Write};
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::features::RewardWeights;
-use onboard::guidance::Actor;
+use onboard::guidance::Guide;
 use onboard::integrator::Tolerances;
 use shared::blob::Quantization;
 use shared::orbit::{OrbitElements, OrbitShape};
@@ -174,7 +174,7 @@ pub fn write_end<W: Write>(w: &mut W, result: &Result<FlightSummary, SilError>) 
 
 /// Flies `flight` as problem `P` with `actor`, writing its `flight`, `step` and `end` lines to
 /// `w`. The outer error is a failed write; the inner result is the flight's.
-pub fn fly<const N: usize, P: Problem<N>, A: Actor<N>, W: Write>(
+pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
     w: &mut W,
     problem: P,
     actor: &A,

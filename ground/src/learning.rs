@@ -109,6 +109,14 @@ pub enum LearnCommand {
         /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
         #[arg(long)]
         no_dispersions: bool,
+        /// Fly the blob with rollout lookahead (onboard::lookahead): the config's
+        /// [sil] lookahead settings, or the defaults.
+        #[arg(long)]
+        lookahead: bool,
+        /// Solve the first N flights' scenarios by the indirect method: the optimality gap and
+        /// the share within the goal where solved, by eccentricity band (default 0: none).
+        #[arg(long, default_value_t = 0)]
+        gap_cases: u64,
         /// Exit 0 when the blob is refused and the flights run in safe mode (thrust off), as
         /// the flight software does; without it a refused blob is a failed command.
         #[arg(long)]
@@ -216,13 +224,19 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             int8,
             episodes,
             no_dispersions,
+            lookahead,
+            gap_cases,
             allow_safe_mode,
         } => sil_command(
             &experiment,
             Flown::from(blob, model, int8),
             episodes,
-            no_dispersions,
-            allow_safe_mode,
+            SilFlags {
+                no_dispersions,
+                lookahead,
+                gap_cases,
+                allow_safe_mode,
+            },
         ),
         LearnCommand::Pendulum {
             steps,
@@ -587,14 +601,30 @@ fn ship_command(
     }
 }
 
+/// How `ground sil` flies, beyond the config.
+struct SilFlags {
+    no_dispersions: bool,
+    lookahead: bool,
+    gap_cases: u64,
+    allow_safe_mode: bool,
+}
+
 fn sil_command(
     args: &ExperimentArgs,
     flown: Flown,
     episodes: Option<NonZeroU64>,
-    no_dispersions: bool,
-    allow_safe_mode: bool,
+    flags: SilFlags,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, blob) = flown.resolve(args, true)?;
+    let SilFlags {
+        no_dispersions,
+        lookahead,
+        gap_cases,
+        allow_safe_mode,
+    } = flags;
+    let (mut config, blob) = flown.resolve(args, true)?;
+    if lookahead && config.sil.lookahead.is_none() {
+        config.sil.lookahead = Some(Default::default());
+    }
     let blob = blob.as_path();
     let dispersions = if no_dispersions {
         firmware_sim::Dispersions::NONE
@@ -608,6 +638,7 @@ fn sil_command(
             &args.out,
             episodes.map(NonZeroU64::get),
             &dispersions,
+            gap_cases,
         )?)
     })?;
     println!("{}", learn::sil::describe(&report));

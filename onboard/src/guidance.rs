@@ -9,9 +9,11 @@ use shared::orbit::{CartesianState, OrbitShape};
 use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
 use crate::features::{
-    decode_action, rendezvous_features, to_network_input, transfer_features, FeatureError, ACTION_LEN,
-    RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+    decode_action, rendezvous_features, rendezvous_residuals, to_network_input, transfer_features, transfer_residuals,
+    FeatureError, Residuals, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
 };
+use crate::kepler::coast;
+use crate::lookahead::{lookahead_step, Lookahead};
 
 /// A deterministic actor: features in, action in [-1, 1]^3 out. Implemented by the onboard MLPs
 /// (f32 and int8) and by anything else that can fly (tests, baselines).
@@ -19,6 +21,13 @@ pub trait Actor<const IN: usize> {
     /// The action for `features` (already narrowed to f32): throttle and the two polar direction
     /// components, each in [-1, 1], as [`crate::features::decode_action`] reads them.
     fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN];
+}
+
+/// A borrowed actor flies as the actor (so a [`crate::lookahead::Lookahead`] can hold a reference).
+impl<const IN: usize, A: Actor<IN> + ?Sized> Actor<IN> for &A {
+    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN] {
+        (**self).act(features)
+    }
 }
 
 /// The onboard MLPs fly as actors: their output is already the tanh-squashed action.
@@ -65,8 +74,7 @@ pub fn transfer_step<A: Actor<TRANSFER_FEATURES>>(
     target: &OrbitShape,
     time_to_go: f64,
 ) -> Result<ThrustCommand, GuidanceError> {
-    let features = transfer_features(navigation, target, time_to_go).map_err(GuidanceError::Input)?;
-    command_from(actor.act(&to_network_input(&features)))
+    command_at(actor, target, navigation, 0.0, time_to_go)
 }
 
 /// Rendezvous guidance: features of docs/spec.md section 6, actor, decoded command.
@@ -76,7 +84,113 @@ pub fn rendezvous_step<A: Actor<RENDEZVOUS_FEATURES>>(
     target_body: &CartesianState,
     time_to_go: f64,
 ) -> Result<ThrustCommand, GuidanceError> {
-    let features = rendezvous_features(navigation, target_body, time_to_go).map_err(GuidanceError::Input)?;
+    command_at(actor, target_body, navigation, 0.0, time_to_go)
+}
+
+/// A guidance law as flight software calls it each cycle: navigation state, target and time to go
+/// in, the command to hold out. Any [`Actor`] is one (through [`transfer_step`] and
+/// [`rendezvous_step`]); so is an actor with rollout lookahead ([`crate::lookahead::Lookahead`]).
+pub trait Guide<const N: usize, T> {
+    /// The command for this cycle, or why there is none (the caller commands thrust off).
+    fn command(
+        &self,
+        navigation: &SpacecraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError>;
+}
+
+/// Any actor flies the plain guidance step of its problem.
+impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for A {
+    fn command(
+        &self,
+        navigation: &SpacecraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        command_at(self, target, navigation, 0.0, time_to_go)
+    }
+}
+
+impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Lookahead<A> {
+    fn command(
+        &self,
+        navigation: &SpacecraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        lookahead_step(
+            &self.actor,
+            navigation,
+            target,
+            time_to_go,
+            &self.spacecraft,
+            &self.settings,
+        )
+        .map(|d| d.command)
+    }
+}
+
+/// A target as guidance sees it: the features of a state against it, now or (for the
+/// lookahead's rollouts) a while after now. Implemented by the transfer's target orbit and the
+/// rendezvous body's current state.
+pub trait TargetFeatures<const N: usize> {
+    /// The `N` features of `state`, `elapsed` after the guidance cycle's start, `time_to_go` before
+    /// the arrival.
+    fn features_after(&self, state: &SpacecraftState, elapsed: f64, time_to_go: f64) -> Result<[f64; N], FeatureError>;
+    /// The residuals read off the features.
+    fn residuals(features: &[f64; N]) -> Residuals;
+}
+
+/// A transfer's target orbit does not move (docs/spec.md section 5).
+impl TargetFeatures<TRANSFER_FEATURES> for OrbitShape {
+    fn features_after(
+        &self,
+        state: &SpacecraftState,
+        _elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; TRANSFER_FEATURES], FeatureError> {
+        transfer_features(state, self, time_to_go)
+    }
+
+    fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
+        transfer_residuals(features)
+    }
+}
+
+/// A rendezvous body (docs/spec.md section 6) is coasted from its state at the cycle's start; at
+/// the start itself it is taken as given, bit for bit.
+impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
+    fn features_after(
+        &self,
+        state: &SpacecraftState,
+        elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; RENDEZVOUS_FEATURES], FeatureError> {
+        if elapsed == 0.0 {
+            return rendezvous_features(state, self, time_to_go);
+        }
+        let body = coast(self, elapsed).map_err(|_| FeatureError::Target)?;
+        rendezvous_features(state, &body, time_to_go)
+    }
+
+    fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
+        rendezvous_residuals(features)
+    }
+}
+
+/// The network's command for `state`, `elapsed` after the cycle's start and `time_to_go` before
+/// the arrival: features, actor, decoded command; the one path of every guidance step.
+pub(crate) fn command_at<const N: usize, A: Actor<N> + ?Sized, T: TargetFeatures<N>>(
+    actor: &A,
+    target: &T,
+    state: &SpacecraftState,
+    elapsed: f64,
+    time_to_go: f64,
+) -> Result<ThrustCommand, GuidanceError> {
+    let features = target
+        .features_after(state, elapsed, time_to_go)
+        .map_err(GuidanceError::Input)?;
     command_from(actor.act(&to_network_input(&features)))
 }
 

@@ -9,6 +9,8 @@
 //!   decoding.
 //! - [`policy`]: fixed-size MLP inference in f32 and int8 straight from a weight blob.
 //! - [`guidance`]: one guidance step: navigation state, target and time to go in, thrust out.
+//! - [`lookahead`]: the network's command improved by rollouts to the arrival with the onboard
+//!   propagator.
 //!
 //! # Example: load a blob, fly one guidance step
 //!
@@ -91,4 +93,5 @@ pub mod features;
 pub mod guidance;
 pub mod integrator;
 pub mod kepler;
+pub mod lookahead;
 pub mod policy;

@@ -63,6 +63,9 @@ static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), 
 const CALIBRATION_LOOP: u32 = 1_000_000;
 /// Back-to-back inferences of the repeated measurement (resolution 40 / 64 instructions).
 const REPEATS: u32 = 64;
+/// Cycles left in the measured lookahead cycle: 26 rollouts of 4 cycles (one measurement stays
+/// well inside the SysTick's 2^24 ticks).
+const LOOKAHEAD_CYCLES: u32 = 4;
 
 #[entry]
 fn main() -> ! {
@@ -154,12 +157,48 @@ fn measure(
         total / u64::from(REPEATS),
         (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
     )?;
+    lookahead(out, counter, controller)?;
     // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
     #[cfg(feature = "profile")]
     if let Controller::Network(policy) = controller {
         profile::write(out, counter, policy, &x)?;
     }
     Ok(())
+}
+
+/// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
+/// start, [`LOOKAHEAD_CYCLES`] cycles before the arrival: its instructions, whole and per rollout
+/// cycle (an inference and a 14-day propagation), from which a cycle with more to go scales.
+#[inline(never)]
+fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownController<'_>) -> core::fmt::Result {
+    use firmware_sim::Problem;
+    use onboard::dynamics::SpacecraftState;
+    use onboard::lookahead::{lookahead_step, LookaheadSettings, CANDIDATES};
+
+    let Some(flight) = trace::flights_of(Flown).first() else {
+        return Ok(());
+    };
+    let (Ok(target), Ok(spacecraft)) = (
+        <Flown as Problem<FEATURES>>::target(&flight.scenario, 0),
+        shared::spacecraft::Spacecraft::MSR_ERO.canonical(),
+    ) else {
+        return writeln!(out, "{COMMENT} lookahead: no target or spacecraft");
+    };
+    let state = SpacecraftState::from_cartesian(&flight.scenario.initial.cartesian(), 1.0);
+    let time_to_go = f64::from(LOOKAHEAD_CYCLES) * shared::units::STEP;
+    let settings = LookaheadSettings::default();
+    let start = counter.now();
+    let decision = lookahead_step(controller, &state, &target, time_to_go, &spacecraft, &settings);
+    let ticks = Counter::ticks(start, counter.now());
+    let rollout_cycles = CANDIDATES as u64 * u64::from(LOOKAHEAD_CYCLES);
+    let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
+    writeln!(
+        out,
+        "{COMMENT} instructions per lookahead cycle, {LOOKAHEAD_CYCLES} cycles to go ({CANDIDATES} candidates, \
+         {rollout_cycles} rollout cycles): {total}, {} per rollout cycle; chosen candidate {}",
+        total / rollout_cycles,
+        decision.map_or(-1, |d| d.chosen as i64)
+    )
 }
 
 /// Sorts the (at most [`MAX_SAMPLES`]) tick counts for their median: a few lines instead of

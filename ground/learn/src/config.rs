@@ -259,6 +259,11 @@ pub struct SilConfig {
     /// 1-sigma dispersions of the truth plant (default: `Dispersions::TYPICAL`, see
     /// `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
+    /// Fly the blob with rollout lookahead (`onboard::lookahead`) instead of alone (unset).
+    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0 }`, or `ground sil
+    /// --lookahead` for the defaults.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lookahead: Option<LookaheadConfig>,
 }
 
 impl Default for SilConfig {
@@ -266,6 +271,40 @@ impl Default for SilConfig {
         Self {
             episodes: 1_000,
             dispersions: firmware_sim::Dispersions::TYPICAL,
+            lookahead: None,
+        }
+    }
+}
+
+/// What the rollout lookahead weighs (`onboard::lookahead::LookaheadSettings`): the goal is the
+/// evaluation's (0.01 AU and 0.01), the rollouts use the environment's integrator settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LookaheadConfig {
+    /// Below this many goal units a smaller predicted miss is worth nothing more (> 0).
+    pub accuracy_floor: f64,
+    /// Goal units one initial mass of propellant is worth (>= 0).
+    pub fuel_weight: f64,
+}
+
+impl Default for LookaheadConfig {
+    fn default() -> Self {
+        let s = onboard::lookahead::LookaheadSettings::default();
+        Self {
+            accuracy_floor: s.accuracy_floor,
+            fuel_weight: s.fuel_weight,
+        }
+    }
+}
+
+impl LookaheadConfig {
+    /// The onboard settings, rolling out with `tolerances`.
+    pub fn settings(&self, tolerances: onboard::integrator::Tolerances) -> onboard::lookahead::LookaheadSettings {
+        onboard::lookahead::LookaheadSettings {
+            accuracy_floor: self.accuracy_floor,
+            fuel_weight: self.fuel_weight,
+            tolerances,
+            ..Default::default()
         }
     }
 }
@@ -355,6 +394,12 @@ impl ExperimentConfig {
             .dispersions
             .validate()
             .map_err(|e| ConfigError::Invalid(format!("sil.dispersions: {e}")))?;
+        if let Some(lookahead) = &self.sil.lookahead {
+            lookahead
+                .settings(self.env.integrator.tolerances())
+                .validate()
+                .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
+        }
         self.env
             .spacecraft
             .canonical()
@@ -550,6 +595,8 @@ mod tests {
             "scenario = \"transfer-circular\"\n[dagger]\nmax_miss = 0.5",
             "scenario = \"transfer-circular\"\n[dagger]\nmax_miss = nan",
             "scenario = \"transfer-circular\"\n[sil]\nepisodes = 0",
+            "scenario = \"transfer-circular\"\n[sil]\nlookahead = { accuracy_floor = 0.0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nlookahead = { fuel_weight = -1.0 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
         ];
         for text in bad {

@@ -441,6 +441,8 @@ fn solve_relabels<P: Problem>(
             &config.sil.dispersions,
             seed,
             scenarios.len(),
+            // The learner's own flights: the network alone.
+            None,
         )?
         .0
     } else {
@@ -643,7 +645,7 @@ fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, Ex
             .collect();
         let blob = flown_blob(agent, P::KIND)?;
         let dispersions = &config.sil.dispersions;
-        let (flown, _, _) = fly_blob_seeded(config, &blob, &scenarios, dispersions, config.seeds.evaluation, 0)?;
+        let (flown, _, _) = fly_blob_seeded(config, &blob, &scenarios, dispersions, config.seeds.evaluation, 0, None)?;
         Some(within_accuracy_goal(&flown))
     } else {
         None

@@ -302,7 +302,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     let export = crate::export::export(&config, dir, &actor, &run.join("export")).map_err(experiment)?;
     let sil = if config.scenario.problem() == ProblemKind::Transfer {
         let fly = |blob: &Path, folder: &str| {
-            crate::sil::sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions)
+            crate::sil::sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions, 0)
         };
         vec![
             fly(&export.f32.file, "sil-f32").map_err(experiment)?,

@@ -207,7 +207,7 @@ fn export_and_ship(
 ) -> Result<(ExportReport, [SilReport; 2], ModelCard), ExperimentError> {
     let export = export(config, config_dir, checkpoint, &run.join("export"))?;
     let fly =
-        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions);
+        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions, 0);
     let sil = [fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?];
     let model = write_model(
         &run.join("model"),

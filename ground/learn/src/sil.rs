@@ -11,13 +11,14 @@ use std::time::Instant;
 
 use firmware_sim::{fly_observed, Controller, Dispersions, FlightStep, Problem, SilError};
 use onboard::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+use onboard::lookahead::Lookahead;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
 use shared::scenario::{ProblemKind, Scenario};
 
-use crate::config::{ConfigError, ExperimentConfig};
-use crate::eval::{report_and_write, within_accuracy_goal, MonteCarloReport};
+use crate::config::{ConfigError, ExperimentConfig, LookaheadConfig};
+use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, MonteCarloReport};
 use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, EnvError, Rendezvous, Transfer};
@@ -101,6 +102,9 @@ pub struct SilReport {
     pub blob: PathBuf,
     /// "f32", "int8", or "safe mode: <why the blob was refused>".
     pub controller: String,
+    /// The rollout lookahead the blob flew with (None: the network alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lookahead: Option<LookaheadConfig>,
     pub dispersions: Dispersions,
     pub flights: usize,
     /// Flights that could not be completed (plant or feature errors), with their reasons.
@@ -182,11 +186,19 @@ pub fn fly_blob(
     dispersions: &Dispersions,
     record: usize,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    fly_blob_seeded(config, blob, scenarios, dispersions, config.seeds.monte_carlo, record)
+    fly_blob_seeded(
+        config,
+        blob,
+        scenarios,
+        dispersions,
+        config.seeds.monte_carlo,
+        record,
+        config.sil.lookahead.as_ref(),
+    )
 }
 
-/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i; transfers or
-/// rendezvous, as the config's scenario.
+/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i, the network alone
+/// or with `lookahead`; transfers or rendezvous, as the config's scenario.
 pub fn fly_blob_seeded(
     config: &ExperimentConfig,
     blob: &[u8],
@@ -194,6 +206,7 @@ pub fn fly_blob_seeded(
     dispersions: &Dispersions,
     dispersion_seed: u64,
     record: usize,
+    lookahead: Option<&LookaheadConfig>,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     match config.scenario.problem() {
         ProblemKind::Transfer => fly_blob_as::<TRANSFER_FEATURES, _>(
@@ -204,6 +217,7 @@ pub fn fly_blob_seeded(
             dispersions,
             dispersion_seed,
             record,
+            lookahead,
         ),
         ProblemKind::Rendezvous => fly_blob_as::<RENDEZVOUS_FEATURES, _>(
             firmware_sim::Rendezvous,
@@ -213,11 +227,13 @@ pub fn fly_blob_seeded(
             dispersions,
             dispersion_seed,
             record,
+            lookahead,
         ),
     }
 }
 
 /// [`fly_blob_seeded`] for one problem.
+#[allow(clippy::too_many_arguments)] // fly_blob_seeded's inputs and the problem
 fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     problem: P,
     config: &ExperimentConfig,
@@ -226,6 +242,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     dispersions: &Dispersions,
     seed: u64,
     record: usize,
+    lookahead: Option<&LookaheadConfig>,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     let spacecraft = config
         .env
@@ -242,17 +259,41 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
         .enumerate()
         .map(|(i, scenario)| {
             let mut steps = Vec::with_capacity(scenario.steps as usize);
-            let result = fly_observed(
-                problem,
-                &controller,
-                scenario,
-                &spacecraft,
-                &tolerances,
-                &weights,
-                dispersions,
-                seed.wrapping_add(i as u64),
-                |k| steps.push(*k),
-            );
+            let flight_seed = seed.wrapping_add(i as u64);
+            let keep = |k: &FlightStep<N>| steps.push(*k);
+            // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with.
+            let lookahead = lookahead.filter(|_| matches!(controller, Controller::Network(_)));
+            let result = match lookahead {
+                None => fly_observed(
+                    problem,
+                    &controller,
+                    scenario,
+                    &spacecraft,
+                    &tolerances,
+                    &weights,
+                    dispersions,
+                    flight_seed,
+                    keep,
+                ),
+                Some(l) => {
+                    let guide = Lookahead {
+                        actor: &controller,
+                        spacecraft,
+                        settings: l.settings(tolerances),
+                    };
+                    fly_observed(
+                        problem,
+                        &guide,
+                        scenario,
+                        &spacecraft,
+                        &tolerances,
+                        &weights,
+                        dispersions,
+                        flight_seed,
+                        keep,
+                    )
+                }
+            };
             let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
             let missed = MissedThrust {
                 time: steps.iter().map(|k| k.missed_thrust).sum(),
@@ -274,13 +315,14 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
 }
 
 /// `ground sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
-/// plus sil.json).
+/// plus sil.json), with the optimality gap on the first `gap_cases` scenarios (0: none).
 pub fn sil_monte_carlo(
     config: &ExperimentConfig,
     blob_path: &Path,
     out: &Path,
     episodes: Option<u64>,
     dispersions: &Dispersions,
+    gap_cases: u64,
 ) -> Result<SilReport, ExperimentError> {
     dispersions
         .validate()
@@ -307,16 +349,31 @@ pub fn sil_monte_carlo(
         .collect();
     let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
     let monte_carlo = match config.scenario.problem() {
-        ProblemKind::Transfer => {
-            report_and_write::<Transfer>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?
-        }
-        ProblemKind::Rendezvous => {
-            report_and_write::<Rendezvous>(config, blob_path, &scenarios, &outcomes, &plotted, out, Some(0), start)?
-        }
+        ProblemKind::Transfer => report_and_write::<Transfer>(
+            config,
+            blob_path,
+            &scenarios,
+            &outcomes,
+            &plotted,
+            out,
+            Some(gap_cases),
+            start,
+        )?,
+        ProblemKind::Rendezvous => report_and_write::<Rendezvous>(
+            config,
+            blob_path,
+            &scenarios,
+            &outcomes,
+            &plotted,
+            out,
+            Some(gap_cases),
+            start,
+        )?,
     };
     let report = SilReport {
         blob: blob_path.to_path_buf(),
         controller,
+        lookahead: config.sil.lookahead,
         dispersions: *dispersions,
         flights: outcomes.len(),
         failed,
@@ -342,12 +399,19 @@ fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String
 /// A short summary of a SIL Monte Carlo.
 pub fn describe(report: &SilReport) -> String {
     let p = &report.monte_carlo.policy;
-    format!(
+    let controller = match &report.lookahead {
+        Some(l) => format!(
+            "{} with lookahead, accuracy floor {}, fuel weight {}",
+            report.controller, l.accuracy_floor, l.fuel_weight
+        ),
+        None => report.controller.clone(),
+    };
+    let mut text = format!(
         "SIL: {} flights of {} ({}), {} failed, {} guidance faults, {:.2} % of the time in missed thrust\n\
          reward {:.4} +- {:.4} (zero thrust {:.4}); final mass {:.4}; |dr| p50/p95 {:.4}/{:.4} AU; |dv| p50/p95 {:.4}/{:.4}; {:.1} % within 0.01 AU / 0.01",
         report.flights,
         report.blob.display(),
-        report.controller,
+        controller,
         report.failed.len(),
         report.guidance_faults,
         100.0 * report.missed_thrust_fraction,
@@ -360,7 +424,18 @@ pub fn describe(report: &SilReport) -> String {
         p.terminal_velocity.p50,
         p.terminal_velocity.p95,
         100.0 * report.monte_carlo.within_accuracy_goal
-    ) + &missed_thrust_line(&report.by_last_missed_thrust)
+    ) + &missed_thrust_line(&report.by_last_missed_thrust);
+    // With the indirect solutions (ground sil --gap-cases): the share where solved, by band.
+    for band in &report.monte_carlo.accuracy_by_eccentricity {
+        text += &format!("\n  {}", crate::eval::eccentricity_line(band));
+    }
+    for line in [solved_line(&report.monte_carlo), gap_line(&report.monte_carlo)]
+        .into_iter()
+        .flatten()
+    {
+        text += &format!("\n{line}");
+    }
+    text
 }
 
 /// "none 92.0 % (512), 0.9-1 80.6 % (314)": the bands that hold flights, for `ground sil` and

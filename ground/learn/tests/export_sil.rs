@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use firmware_sim::Dispersions;
-use ground_core::env::batch::{draw_scenarios, evaluate};
+use ground_core::env::batch::{draw_scenarios, evaluate, EpisodeOutcome};
 use ground_core::env::{MdpEnv, Rendezvous, Transfer};
 use learn::config::ExperimentConfig;
 use learn::export::{export, OnboardPolicy};
@@ -136,7 +136,7 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
 
     // The SIL Monte Carlo writes the evaluation's files, and a refused blob flies thrust off.
     let sil_dir = dir.join("sil");
-    let sil = sil_monte_carlo(&config, &report.int8.file, &sil_dir, None, &config.sil.dispersions).unwrap();
+    let sil = sil_monte_carlo(&config, &report.int8.file, &sil_dir, None, &config.sil.dispersions, 0).unwrap();
     assert_eq!((sil.flights, sil.controller.as_str()), (12, "int8"));
     for file in [
         "sil.json",
@@ -151,9 +151,49 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     altered[int8_bytes.len() / 2] ^= 0x10;
     let bad = dir.join("altered.blob");
     std::fs::write(&bad, &altered).unwrap();
-    let refused = sil_monte_carlo(&config, &bad, &dir.join("sil-bad"), None, &config.sil.dispersions).unwrap();
+    let refused = sil_monte_carlo(&config, &bad, &dir.join("sil-bad"), None, &config.sil.dispersions, 0).unwrap();
     assert!(refused.controller.starts_with("safe mode"), "{}", refused.controller);
     assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
+    // With lookahead: a good blob arrives no worse than alone on each nominal flight (the rollout
+    // algorithm's guarantee, in the lookahead's own cost), a refused one still flies thrust off.
+    let mut looking = config.clone();
+    looking.sil.lookahead = Some(Default::default());
+    let settings = looking
+        .sil
+        .lookahead
+        .unwrap()
+        .settings(config.env.integrator.tolerances());
+    let cost = |o: &EpisodeOutcome| {
+        assert!(o.completed);
+        settings.cost(&onboard::lookahead::Prediction {
+            residuals: o.terminal,
+            mass: o.final_mass,
+            cost: 0.0,
+        })
+    };
+    let (alone, _, _) = fly_blob(&config, &int8_bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+    let (looked, _, _) = fly_blob(&looking, &int8_bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+    for (a, l) in alone.iter().zip(&looked) {
+        assert!(
+            cost(l) <= cost(a),
+            "episode {}: {} against {}",
+            a.episode,
+            cost(l),
+            cost(a)
+        );
+    }
+    assert!(alone.iter().zip(&looked).any(|(a, l)| cost(l) < cost(a)));
+    let refused = sil_monte_carlo(
+        &looking,
+        &bad,
+        &dir.join("sil-bad-lookahead"),
+        None,
+        &Dispersions::TYPICAL,
+        0,
+    )
+    .unwrap();
+    assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
+    assert!(refused.lookahead.is_some());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -220,6 +260,7 @@ threads = 1
         &dir.join("sil"),
         None,
         &config.sil.dispersions,
+        0,
     )
     .unwrap();
     assert_eq!((sil.flights, sil.controller.as_str()), (8, "int8"));
@@ -244,6 +285,7 @@ threads = 1
         &dir.join("sil-bad"),
         None,
         &config.sil.dispersions,
+        0,
     )
     .unwrap();
     assert!(refused.controller.contains("Transfer"), "{}", refused.controller);

@@ -113,6 +113,10 @@ enum lt_status
   // The network's action is not finite (an input far outside the trained range, or corrupt
   // weights that passed the checks).
   LT_ERR_NON_FINITE_ACTION = -45,
+  // Lookahead refused: the spacecraft's thrust or exhaust speed is not finite and positive, or
+  // the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
+  // and >= 0).
+  LT_ERR_INPUT_LOOKAHEAD = -46,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -180,6 +184,46 @@ typedef struct lt_body_state {
   // Velocity x, y (AU/t*).
   double v[2];
 } lt_body_state;
+
+// What the lookahead weighs (`lt_lookahead_defaults` fills the defaults).
+typedef struct lt_lookahead_settings {
+  // Position residual counted as one unit of miss (AU); default 0.01.
+  double goal_position;
+  // Velocity residual counted as one unit of miss (AU/t*); default 0.01.
+  double goal_velocity;
+  // Below this many goal units a smaller predicted miss is worth nothing more; default 0.5.
+  double accuracy_floor;
+  // Goal units one initial mass of propellant is worth; default 5.
+  double fuel_weight;
+  // Most cycles a rollout flies; with more left the network's command is flown unexamined.
+  uint32_t max_cycles;
+} lt_lookahead_settings;
+
+// The nominal spacecraft the lookahead's rollouts fly, in canonical units.
+typedef struct lt_spacecraft {
+  // Maximum thrust over the initial mass (m0 AU / t*^2).
+  double thrust;
+  // Exhaust speed g0 Isp (AU / t*).
+  double exhaust_speed;
+} lt_spacecraft;
+
+// What one lookahead cycle decided, for telemetry.
+typedef struct lt_lookahead_report {
+  // The network's own command.
+  struct lt_thrust_command network;
+  // The candidate commanded (0: the network's).
+  uint32_t chosen;
+  // 1 when the predicted arrival below is valid (a rollout flew), else 0.
+  uint32_t predicted_valid;
+  // Predicted position residual at the arrival (AU).
+  double predicted_position;
+  // Predicted velocity residual at the arrival (AU/t*).
+  double predicted_velocity;
+  // Predicted mass at the arrival (m0 = 1).
+  double predicted_mass;
+  // The predicted arrival's cost (goal units).
+  double predicted_cost;
+} lt_lookahead_report;
 
 // What a loaded policy flies.
 typedef struct lt_policy_info {
@@ -254,6 +298,47 @@ lt_status lt_rendezvous_step(const struct lt_policy *policy,
                              const struct lt_body_state *body,
                              double time_to_go,
                              struct lt_thrust_command *command);
+
+// Writes the default lookahead settings to `*out`. Returns `LT_OK`, or `LT_ERR_NULL_POINTER`.
+//
+// # Safety
+// `out` is null or valid for writing an `lt_lookahead_settings` (any alignment).
+lt_status lt_lookahead_defaults(struct lt_lookahead_settings *out);
+
+// One transfer guidance cycle with rollout lookahead (`onboard::lookahead::lookahead_step`):
+// the network's command and 25 alternatives around it are each held for this cycle, the
+// network flies every later one with the onboard propagator and `spacecraft`, and the command
+// of the cheapest predicted arrival is returned. About 26 x the cycles left propagations: run it
+// at the 14-day guidance rate, not in a fast loop.
+//
+// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_LOOKAHEAD` for an unusable spacecraft or
+// settings; `report` may be null, else it receives the decision (nothing predicted on error).
+//
+// # Safety
+// As `lt_transfer_step`; `spacecraft` and `settings` are null or valid for reading their
+// structs, `report` null or valid for writing an `lt_lookahead_report`.
+lt_status lt_transfer_lookahead_step(const struct lt_policy *policy,
+                                     const struct lt_navigation_state *navigation,
+                                     const struct lt_target_orbit *target,
+                                     double time_to_go,
+                                     const struct lt_spacecraft *spacecraft,
+                                     const struct lt_lookahead_settings *settings,
+                                     struct lt_thrust_command *command,
+                                     struct lt_lookahead_report *report);
+
+// One rendezvous guidance cycle with rollout lookahead: as `lt_transfer_lookahead_step`, with
+// the target body's state now (the rollouts coast it).
+//
+// # Safety
+// As `lt_transfer_lookahead_step`.
+lt_status lt_rendezvous_lookahead_step(const struct lt_policy *policy,
+                                       const struct lt_navigation_state *navigation,
+                                       const struct lt_body_state *body,
+                                       double time_to_go,
+                                       const struct lt_spacecraft *spacecraft,
+                                       const struct lt_lookahead_settings *settings,
+                                       struct lt_thrust_command *command,
+                                       struct lt_lookahead_report *report);
 
 // Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
 // Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.

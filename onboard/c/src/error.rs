@@ -104,10 +104,14 @@ pub enum lt_status {
     /// The network's action is not finite (an input far outside the trained range, or corrupt
     /// weights that passed the checks).
     LT_ERR_NON_FINITE_ACTION = -45,
+    /// Lookahead refused: the spacecraft's thrust or exhaust speed is not finite and positive, or
+    /// the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
+    /// and >= 0).
+    LT_ERR_INPUT_LOOKAHEAD = -46,
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 40] = [
+const ERROR_NAMES: [(lt_status, &CStr); 41] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -148,6 +152,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 40] = [
     (LT_ERR_INPUT_TARGET, c"input_target"),
     (LT_ERR_INPUT_TIME_TO_GO, c"input_time_to_go"),
     (LT_ERR_NON_FINITE_ACTION, c"non_finite_action"),
+    (LT_ERR_INPUT_LOOKAHEAD, c"input_lookahead"),
 ];
 
 /// What `error_name` says for a value that is not a code.

@@ -8,6 +8,10 @@
 //! - `lt_transfer_step`, `lt_rendezvous_step`: one guidance cycle, navigation state in,
 //!   thrust command out; the very functions the Rust SIL and the ground evaluation call
 //!   (`onboard::guidance`), so the commands are the same bits.
+//! - `lt_transfer_lookahead_step`, `lt_rendezvous_lookahead_step`: the same cycle with rollout
+//!   lookahead (`onboard::lookahead`): candidate commands around the network's flown to the
+//!   arrival with the onboard propagator, the cheapest predicted arrival commanded;
+//!   `lt_lookahead_defaults` fills its settings.
 //! - `lt_policy_describe`, `lt_error_name`: what a policy flies, and a name for each code.
 //!
 //! **No panic crosses the boundary.** Every entry point checks its pointers (null, the policy's
@@ -59,10 +63,13 @@ use core::mem::{align_of, size_of};
 use core::ptr;
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
+use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError, TargetFeatures};
+use onboard::lookahead::{lookahead_step, Decision, LookaheadSettings};
+use onboard::policy::Mlp;
 use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{ProblemKind, Quantization, FORMAT_VERSION};
 use shared::orbit::{CartesianState, OrbitShape};
+use shared::spacecraft::CanonicalSpacecraft;
 
 pub use error::*;
 
@@ -495,6 +502,236 @@ unsafe fn rendezvous(
     guided(rendezvous_step(actor, &navigation.into(), &body.into(), time_to_go))
 }
 
+/// The nominal spacecraft the lookahead's rollouts fly, in canonical units.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_spacecraft {
+    /// Maximum thrust over the initial mass (m0 AU / t*^2).
+    pub thrust: f64,
+    /// Exhaust speed g0 Isp (AU / t*).
+    pub exhaust_speed: f64,
+}
+
+/// What the lookahead weighs (`lt_lookahead_defaults` fills the defaults).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_lookahead_settings {
+    /// Position residual counted as one unit of miss (AU); default 0.01.
+    pub goal_position: f64,
+    /// Velocity residual counted as one unit of miss (AU/t*); default 0.01.
+    pub goal_velocity: f64,
+    /// Below this many goal units a smaller predicted miss is worth nothing more; default 0.5.
+    pub accuracy_floor: f64,
+    /// Goal units one initial mass of propellant is worth; default 5.
+    pub fuel_weight: f64,
+    /// Most cycles a rollout flies; with more left the network's command is flown unexamined.
+    pub max_cycles: u32,
+}
+
+/// What one lookahead cycle decided, for telemetry.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_lookahead_report {
+    /// The network's own command.
+    pub network: lt_thrust_command,
+    /// The candidate commanded (0: the network's).
+    pub chosen: u32,
+    /// 1 when the predicted arrival below is valid (a rollout flew), else 0.
+    pub predicted_valid: u32,
+    /// Predicted position residual at the arrival (AU).
+    pub predicted_position: f64,
+    /// Predicted velocity residual at the arrival (AU/t*).
+    pub predicted_velocity: f64,
+    /// Predicted mass at the arrival (m0 = 1).
+    pub predicted_mass: f64,
+    /// The predicted arrival's cost (goal units).
+    pub predicted_cost: f64,
+}
+
+impl From<lt_lookahead_settings> for LookaheadSettings {
+    fn from(s: lt_lookahead_settings) -> Self {
+        Self {
+            goal_position: s.goal_position,
+            goal_velocity: s.goal_velocity,
+            accuracy_floor: s.accuracy_floor,
+            fuel_weight: s.fuel_weight,
+            max_cycles: s.max_cycles,
+            ..Self::default()
+        }
+    }
+}
+
+/// Writes the default lookahead settings to `*out`. Returns `LT_OK`, or `LT_ERR_NULL_POINTER`.
+///
+/// # Safety
+/// `out` is null or valid for writing an `lt_lookahead_settings` (any alignment).
+#[no_mangle]
+pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) -> lt_status {
+    if out.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    let d = LookaheadSettings::default();
+    let settings = lt_lookahead_settings {
+        goal_position: d.goal_position,
+        goal_velocity: d.goal_velocity,
+        accuracy_floor: d.accuracy_floor,
+        fuel_weight: d.fuel_weight,
+        max_cycles: d.max_cycles,
+    };
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(out, settings) };
+    LT_OK
+}
+
+/// The lookahead's spacecraft and settings, checked.
+///
+/// # Safety
+/// Each pointer is null or valid for reading its struct.
+unsafe fn lookahead_inputs(
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_lookahead_settings,
+) -> Result<(CanonicalSpacecraft, LookaheadSettings), lt_status> {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let (spacecraft, settings) = unsafe { (read_input(spacecraft)?, read_input(settings)?) };
+    let spacecraft = CanonicalSpacecraft {
+        thrust: spacecraft.thrust,
+        exhaust_speed: spacecraft.exhaust_speed,
+    };
+    let settings = LookaheadSettings::from(settings);
+    if !spacecraft.is_valid() || settings.validate().is_err() {
+        return Err(LT_ERR_INPUT_LOOKAHEAD);
+    }
+    Ok((spacecraft, settings))
+}
+
+/// One lookahead cycle of `actor` towards `target`, and its report.
+fn looked_ahead<const N: usize, const H1: usize, const H2: usize, T: TargetFeatures<N>>(
+    actor: &Mlp<'_, N, H1, H2, 3>,
+    navigation: &SpacecraftState,
+    target: &T,
+    time_to_go: f64,
+    inputs: (CanonicalSpacecraft, LookaheadSettings),
+) -> Result<(lt_thrust_command, lt_lookahead_report), lt_status> {
+    let decision: Decision = lookahead_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1)
+        .map_err(|e| guidance_error_code(&e))?;
+    let p = decision.predicted;
+    let report = lt_lookahead_report {
+        network: decision.network.into(),
+        chosen: u32::try_from(decision.chosen).unwrap_or(u32::MAX),
+        predicted_valid: u32::from(p.is_some()),
+        predicted_position: p.map_or(f64::NAN, |p| p.residuals.position),
+        predicted_velocity: p.map_or(f64::NAN, |p| p.residuals.velocity),
+        predicted_mass: p.map_or(f64::NAN, |p| p.mass),
+        predicted_cost: p.map_or(f64::NAN, |p| p.cost),
+    };
+    Ok((decision.command.into(), report))
+}
+
+/// Writes a lookahead cycle's outcome: the command (thrust off on error) and, when `report` is
+/// not null, its report (on error: the thrust-off command, nothing predicted).
+///
+/// # Safety
+/// `command` and `report` are null or valid for writing their structs.
+unsafe fn finish_lookahead(
+    command: *mut lt_thrust_command,
+    report: *mut lt_lookahead_report,
+    result: Result<(lt_thrust_command, lt_lookahead_report), lt_status>,
+) -> lt_status {
+    let written = match result {
+        Ok((_, r)) => r,
+        Err(_) => lt_lookahead_report {
+            network: THRUST_OFF,
+            chosen: 0,
+            predicted_valid: 0,
+            predicted_position: f64::NAN,
+            predicted_velocity: f64::NAN,
+            predicted_mass: f64::NAN,
+            predicted_cost: f64::NAN,
+        },
+    };
+    if !report.is_null() {
+        // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+        unsafe { ptr::write_unaligned(report, written) };
+    }
+    // SAFETY: the caller's contract on `command`, passed on.
+    unsafe { finish(command, result.map(|(c, _)| c)) }
+}
+
+/// One transfer guidance cycle with rollout lookahead (`onboard::lookahead::lookahead_step`):
+/// the network's command and 25 alternatives around it are each held for this cycle, the
+/// network flies every later one with the onboard propagator and `spacecraft`, and the command
+/// of the cheapest predicted arrival is returned. About 26 x the cycles left propagations: run it
+/// at the 14-day guidance rate, not in a fast loop.
+///
+/// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_LOOKAHEAD` for an unusable spacecraft or
+/// settings; `report` may be null, else it receives the decision (nothing predicted on error).
+///
+/// # Safety
+/// As `lt_transfer_step`; `spacecraft` and `settings` are null or valid for reading their
+/// structs, `report` null or valid for writing an `lt_lookahead_report`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_transfer_lookahead_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    target: *const lt_target_orbit,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_lookahead_settings,
+    command: *mut lt_thrust_command,
+    report: *mut lt_lookahead_report,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, target) = (loaded(policy)?, read_input(navigation)?, read_input(target)?);
+            let inputs = lookahead_inputs(spacecraft, settings)?;
+            let Network::Transfer(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            looked_ahead(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
+        })();
+        finish_lookahead(command, report, result)
+    }
+}
+
+/// One rendezvous guidance cycle with rollout lookahead: as `lt_transfer_lookahead_step`, with
+/// the target body's state now (the rollouts coast it).
+///
+/// # Safety
+/// As `lt_transfer_lookahead_step`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_rendezvous_lookahead_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    body: *const lt_body_state,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_lookahead_settings,
+    command: *mut lt_thrust_command,
+    report: *mut lt_lookahead_report,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, body) = (loaded(policy)?, read_input(navigation)?, read_input(body)?);
+            let inputs = lookahead_inputs(spacecraft, settings)?;
+            let Network::Rendezvous(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            looked_ahead(
+                actor,
+                &navigation.into(),
+                &CartesianState::from(body),
+                time_to_go,
+                inputs,
+            )
+        })();
+        finish_lookahead(command, report, result)
+    }
+}
+
 /// Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
 /// Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.
 ///
@@ -689,6 +926,7 @@ mod tests {
             LT_ERR_BLOB_LENGTH,
             LT_ERR_NOT_LOADED,
             LT_ERR_WRONG_POLICY_KIND,
+            LT_ERR_INPUT_LOOKAHEAD,
         ]);
         let distinct: HashSet<lt_status> = codes.iter().copied().collect();
         assert_eq!(distinct.len(), codes.len(), "a code is shared: {codes:?}");

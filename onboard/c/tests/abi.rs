@@ -603,3 +603,201 @@ fn version_and_error_names_reach_c() {
     assert_eq!(name(LT_ERR_BLOB_UNSUPPORTED_VERSION as i32), "blob_unsupported_version");
     assert_eq!(name(-1000), "unknown");
 }
+
+/// The MSR/ERO spacecraft of the scenarios, as the C caller passes it.
+fn spacecraft() -> lt_spacecraft {
+    let c = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
+    lt_spacecraft {
+        thrust: c.thrust,
+        exhaust_speed: c.exhaust_speed,
+    }
+}
+
+fn defaults() -> lt_lookahead_settings {
+    let mut s = lt_lookahead_settings {
+        goal_position: 0.0,
+        goal_velocity: 0.0,
+        accuracy_floor: 0.0,
+        fuel_weight: 0.0,
+        max_cycles: 0,
+    };
+    assert_eq!(unsafe { lt_lookahead_defaults(&mut s) }, LT_OK);
+    s
+}
+
+#[test]
+fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_settings() {
+    use onboard::lookahead::{lookahead_step, LookaheadSettings};
+    let settings = defaults();
+    let d = LookaheadSettings::default();
+    assert_eq!(
+        (
+            settings.goal_position,
+            settings.goal_velocity,
+            settings.accuracy_floor,
+            settings.fuel_weight,
+            settings.max_cycles
+        ),
+        (
+            d.goal_position,
+            d.goal_velocity,
+            d.accuracy_floor,
+            d.fuel_weight,
+            d.max_cycles
+        )
+    );
+    let sc = spacecraft();
+    let canonical = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
+    let bytes = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let (status, policy) = load_transfer(&bytes);
+    assert_eq!(status, LT_OK);
+    let rust = TransferPolicy::from_bytes(&bytes, ProblemKind::Transfer).unwrap();
+    let mut changed = 0;
+    // A few cycles before the arrival (rollouts of 1 to 4 cycles, the last one partial).
+    for (k, (nav, _)) in states(8).into_iter().enumerate() {
+        let ttg = 0.2408 * (0.5 + k as f64 / 2.0);
+        let mut command = STALE;
+        let mut report = std::mem::MaybeUninit::<lt_lookahead_report>::uninit();
+        let status = unsafe {
+            lt_transfer_lookahead_step(
+                &policy,
+                &nav,
+                &TARGET,
+                ttg,
+                &sc,
+                &settings,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        assert_eq!(status, LT_OK);
+        let report = unsafe { report.assume_init() };
+        let expected = lookahead_step(
+            &rust,
+            &SpacecraftState::from(nav),
+            &OrbitShape::from(TARGET),
+            ttg,
+            &canonical,
+            &d,
+        )
+        .unwrap();
+        assert_eq!(bits(&command), bits(&expected.command.into()));
+        assert_eq!(bits(&report.network), bits(&expected.network.into()));
+        assert_eq!(report.chosen as usize, expected.chosen);
+        let p = expected.predicted.unwrap();
+        assert_eq!(report.predicted_valid, 1);
+        assert_eq!(
+            [
+                report.predicted_position,
+                report.predicted_velocity,
+                report.predicted_mass,
+                report.predicted_cost
+            ]
+            .map(f64::to_bits),
+            [p.residuals.position, p.residuals.velocity, p.mass, p.cost].map(f64::to_bits)
+        );
+        changed += usize::from(report.chosen != 0);
+        // The report is optional.
+        let mut again = STALE;
+        let status = unsafe {
+            lt_transfer_lookahead_step(&policy, &nav, &TARGET, ttg, &sc, &settings, &mut again, ptr::null_mut())
+        };
+        assert_eq!((status, bits(&again)), (LT_OK, bits(&command)));
+    }
+    // These made-up weights are far from any optimum: the lookahead overrides them somewhere.
+    assert!(changed > 0);
+    // Unusable settings or spacecraft: their own code, thrust off, nothing predicted.
+    let nav = states(1)[0].0;
+    for (spacecraft, settings) in [
+        (lt_spacecraft { thrust: f64::NAN, ..sc }, defaults()),
+        (
+            lt_spacecraft {
+                exhaust_speed: 0.0,
+                ..sc
+            },
+            defaults(),
+        ),
+        (
+            sc,
+            lt_lookahead_settings {
+                accuracy_floor: 0.0,
+                ..defaults()
+            },
+        ),
+        (
+            sc,
+            lt_lookahead_settings {
+                fuel_weight: -1.0,
+                ..defaults()
+            },
+        ),
+        (
+            sc,
+            lt_lookahead_settings {
+                goal_velocity: f64::INFINITY,
+                ..defaults()
+            },
+        ),
+    ] {
+        let mut command = STALE;
+        let mut report = std::mem::MaybeUninit::<lt_lookahead_report>::uninit();
+        let status = unsafe {
+            lt_transfer_lookahead_step(
+                &policy,
+                &nav,
+                &TARGET,
+                1.0,
+                &spacecraft,
+                &settings,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        assert_eq!(status, LT_ERR_INPUT_LOOKAHEAD);
+        assert_thrust_off(&command);
+        assert_eq!(unsafe { report.assume_init() }.predicted_valid, 0);
+    }
+    // Null inputs, the other problem's policy.
+    let mut command = STALE;
+    let status = unsafe {
+        lt_transfer_lookahead_step(
+            &policy,
+            &nav,
+            &TARGET,
+            1.0,
+            ptr::null(),
+            &settings,
+            &mut command,
+            ptr::null_mut(),
+        )
+    };
+    assert_eq!(status, LT_ERR_NULL_POINTER);
+    assert_thrust_off(&command);
+    let status = unsafe {
+        lt_rendezvous_lookahead_step(&policy, &nav, &BODY, 1.0, &sc, &settings, &mut command, ptr::null_mut())
+    };
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_eq!(unsafe { lt_lookahead_defaults(ptr::null_mut()) }, LT_ERR_NULL_POINTER);
+    // A rendezvous policy: the onboard lookahead's command, bit for bit.
+    let bytes = int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS);
+    let (status, policy) = load_rendezvous(&bytes);
+    assert_eq!(status, LT_OK);
+    let rust = RendezvousPolicy::from_bytes(&bytes, ProblemKind::Rendezvous).unwrap();
+    for (nav, _) in states(3) {
+        let mut command = STALE;
+        let status = unsafe {
+            lt_rendezvous_lookahead_step(&policy, &nav, &BODY, 0.6, &sc, &settings, &mut command, ptr::null_mut())
+        };
+        assert_eq!(status, LT_OK);
+        let expected = lookahead_step(
+            &rust,
+            &SpacecraftState::from(nav),
+            &CartesianState::from(BODY),
+            0.6,
+            &canonical,
+            &d,
+        )
+        .unwrap();
+        assert_eq!(bits(&command), bits(&expected.command.into()));
+    }
+}

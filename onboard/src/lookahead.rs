@@ -1,0 +1,466 @@
+//! Rollout lookahead: the network's command improved by flying a few alternatives to the end of
+//! the transfer with the onboard propagator, the network steering after the first step.
+//!
+//! At each guidance cycle the network proposes a command. [`CANDIDATES`] commands around it
+//! (other throttles, the direction turned by a few degrees) are each held for one cycle and then
+//! the network flies every later cycle, all in the nominal model: the same propagator, spacecraft
+//! and time grid as the flight. The candidate whose predicted arrival costs least is commanded:
+//!
+//! `cost = max(dr / goal_position, dv / goal_velocity, accuracy_floor) + fuel_weight (1 - m_end)`
+//!
+//! (m in m0 units) so the accuracy counts until the residuals are `accuracy_floor` times the goal,
+//! and the propellant decides among arrivals inside that. The cost is the arrival's alone, so
+//! predictions made at different cycles compare. The network's own command is candidate 0 and
+//! wins ties. Because the predicted continuation of the chosen rollout is the network's
+//! candidate at the next cycle, the predicted cost never rises along a nominal flight: flown
+//! without dispersions, the lookahead arrives at a cost no higher than the network alone
+//! (the rollout algorithm's cost improvement; `tests/tests/lookahead.rs` checks it flight by
+//! flight). Under dispersions each cycle replans from the navigation state.
+//!
+//! The work is `CANDIDATES` x the cycles left propagations per cycle (about 1,300 for a 50-cycle
+//! transfer at its start); no allocation, no panic; a candidate whose rollout fails (tank dry,
+//! integrator refusal) is simply not chosen, and if every rollout fails the network's command is
+//! flown.
+
+use shared::spacecraft::CanonicalSpacecraft;
+use shared::units::STEP;
+
+use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
+use crate::features::Residuals;
+use crate::guidance::{command_at, Actor, GuidanceError, TargetFeatures};
+use crate::integrator::Tolerances;
+
+/// Throttle offsets of the candidates from the network's throttle (clamped to [0, 1]); the last
+/// two are thrust off and full throttle outright.
+const THROTTLES: [Throttle; 5] = [
+    Throttle::Offset(0.0),
+    Throttle::Offset(-0.25),
+    Throttle::Offset(0.25),
+    Throttle::Fixed(0.0),
+    Throttle::Fixed(1.0),
+];
+
+/// Turns of the candidates' direction from the network's, in degrees (towards the radial).
+const TURNS_DEG: [f64; 5] = [0.0, 10.0, -10.0, 30.0, -30.0];
+
+/// Candidates per cycle: the network's command, then every throttle with every turn.
+pub const CANDIDATES: usize = 1 + THROTTLES.len() * TURNS_DEG.len();
+
+#[derive(Debug, Clone, Copy)]
+enum Throttle {
+    Offset(f64),
+    Fixed(f64),
+}
+
+/// What the lookahead weighs; `Default` is the goal of docs/spec.md's accuracy figures.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LookaheadSettings {
+    /// Position residual that counts as one unit of miss (AU).
+    pub goal_position: f64,
+    /// Velocity residual that counts as one unit of miss (canonical).
+    pub goal_velocity: f64,
+    /// Below this many goal units, a smaller miss is worth nothing more (> 0).
+    pub accuracy_floor: f64,
+    /// Cost of spending the whole initial mass as propellant, in goal units (>= 0).
+    pub fuel_weight: f64,
+    /// Integrator settings of the rollouts (the flight propagator's by default).
+    pub tolerances: Tolerances,
+    /// Most cycles a rollout may fly; with more left the network's command is flown unexamined.
+    pub max_cycles: u32,
+}
+
+impl Default for LookaheadSettings {
+    fn default() -> Self {
+        Self {
+            goal_position: 0.01,
+            goal_velocity: 0.01,
+            accuracy_floor: 0.5,
+            fuel_weight: 5.0,
+            tolerances: Tolerances::default(),
+            max_cycles: 200,
+        }
+    }
+}
+
+/// Settings the lookahead refuses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InvalidSettings;
+
+impl core::fmt::Display for InvalidSettings {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("lookahead goals and floor must be finite and > 0, the fuel weight finite and >= 0")
+    }
+}
+
+impl LookaheadSettings {
+    /// Checks the figures (the integrator checks its own tolerances when a rollout runs).
+    pub fn validate(&self) -> Result<(), InvalidSettings> {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if positive(self.goal_position)
+            && positive(self.goal_velocity)
+            && positive(self.accuracy_floor)
+            && self.fuel_weight.is_finite()
+            && self.fuel_weight >= 0.0
+        {
+            Ok(())
+        } else {
+            Err(InvalidSettings)
+        }
+    }
+
+    /// The cost of an arrival (see the module documentation); only its residuals and mass count.
+    pub fn cost(&self, arrival: &Prediction) -> f64 {
+        let miss = (arrival.residuals.position / self.goal_position)
+            .max(arrival.residuals.velocity / self.goal_velocity)
+            .max(self.accuracy_floor);
+        miss + self.fuel_weight * (1.0 - arrival.mass)
+    }
+}
+
+/// A predicted arrival: residuals and mass at the end of a rollout.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prediction {
+    /// Residuals at the arrival (docs/spec.md sections 5, 6).
+    pub residuals: Residuals,
+    /// Mass at the arrival (m0 units).
+    pub mass: f64,
+    /// The settings' cost of this arrival.
+    pub cost: f64,
+}
+
+/// One lookahead guidance cycle: the command and why it was chosen (telemetry).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decision {
+    /// The command to hold for the cycle.
+    pub command: ThrustCommand,
+    /// The network's own command.
+    pub network: ThrustCommand,
+    /// Which candidate was chosen (0: the network's).
+    pub chosen: usize,
+    /// The chosen candidate's predicted arrival (None when no rollout succeeded or none ran).
+    pub predicted: Option<Prediction>,
+    /// The network's own predicted arrival (None when its rollout failed or none ran).
+    pub network_predicted: Option<Prediction>,
+}
+
+/// The `index`-th candidate around the network's command `network` (0: itself).
+pub fn candidate(network: &ThrustCommand, index: usize) -> Option<ThrustCommand> {
+    let Some(k) = index.checked_sub(1) else {
+        return Some(*network);
+    };
+    let throttle = THROTTLES.get(k.checked_div(TURNS_DEG.len())?)?;
+    let turn = TURNS_DEG.get(k.checked_rem(TURNS_DEG.len())?)?.to_radians();
+    let u = match *throttle {
+        Throttle::Offset(d) => (network.throttle + d).clamp(0.0, 1.0),
+        Throttle::Fixed(u) => u,
+    };
+    // Thrust off from the network has no direction: turn the along-track one.
+    let (ar, at) = if network.throttle > 0.0 {
+        (network.alpha_r, network.alpha_theta)
+    } else {
+        (0.0, 1.0)
+    };
+    let (s, c) = (libm::sin(turn), libm::cos(turn));
+    Some(ThrustCommand {
+        throttle: u,
+        alpha_r: ar * c + at * s,
+        alpha_theta: at * c - ar * s,
+    })
+}
+
+/// Flies `first` for one cycle from `navigation`, then the network to the arrival.
+#[allow(clippy::too_many_arguments)] // one rollout's inputs
+fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+    actor: &A,
+    target: &T,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &LookaheadSettings,
+    navigation: &SpacecraftState,
+    time_to_go: f64,
+    cycles: u32,
+    first: &ThrustCommand,
+) -> Option<Prediction> {
+    let mut state = *navigation;
+    let mut command = *first;
+    for cycle in 0..cycles {
+        let start = f64::from(cycle) * STEP;
+        // Whole cycles are exactly STEP, as the flight holds them; only a last partial one is
+        // shorter (a remainder within rounding of STEP is a whole cycle).
+        let remaining = time_to_go - start;
+        let duration = if remaining >= STEP * (1.0 - 1e-9) {
+            STEP
+        } else {
+            remaining
+        };
+        if cycle > 0 {
+            command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
+        }
+        state = propagate(&state, &command, spacecraft, duration, &settings.tolerances).ok()?;
+    }
+    let features = target.features_after(&state, time_to_go, 0.0).ok()?;
+    let residuals = T::residuals(&features);
+    let mut arrival = Prediction {
+        residuals,
+        mass: state.m,
+        cost: 0.0,
+    };
+    arrival.cost = settings.cost(&arrival);
+    arrival.cost.is_finite().then_some(arrival)
+}
+
+/// One guidance cycle with lookahead: the network's command at `navigation` (refused inputs and
+/// non-finite actions are errors, as in [`crate::guidance`]), improved by the rollouts of the
+/// module documentation. `time_to_go` is cut into 14-day cycles from now (the last one shorter
+/// when it is not a whole number of them); with more than `settings.max_cycles` cycles left, or
+/// none, the network's command is returned unexamined.
+pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+    actor: &A,
+    navigation: &SpacecraftState,
+    target: &T,
+    time_to_go: f64,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &LookaheadSettings,
+) -> Result<Decision, GuidanceError> {
+    let network = command_at(actor, target, navigation, 0.0, time_to_go)?;
+    let mut decision = Decision {
+        command: network,
+        network,
+        chosen: 0,
+        predicted: None,
+        network_predicted: None,
+    };
+    // Whole cycles left, the last one possibly partial; a sliver below 1e-9 STEP is rounding.
+    let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+    if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.max_cycles)) {
+        return Ok(decision);
+    }
+    let cycles = cycles as u32;
+    for index in 0..CANDIDATES {
+        let Some(first) = candidate(&network, index) else {
+            break;
+        };
+        let Some(arrival) = rollout(
+            actor, target, spacecraft, settings, navigation, time_to_go, cycles, &first,
+        ) else {
+            continue;
+        };
+        if index == 0 {
+            decision.network_predicted = Some(arrival);
+        }
+        if decision.predicted.is_none_or(|best| arrival.cost < best.cost) {
+            decision.command = first;
+            decision.chosen = index;
+            decision.predicted = Some(arrival);
+        }
+    }
+    Ok(decision)
+}
+
+/// An actor flown with lookahead: what flight software holds to call [`lookahead_step`] each
+/// cycle (it implements [`crate::guidance::Guide`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lookahead<A> {
+    /// The network.
+    pub actor: A,
+    /// The nominal spacecraft of the rollouts.
+    pub spacecraft: CanonicalSpacecraft,
+    /// What the rollouts weigh.
+    pub settings: LookaheadSettings,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::{transfer_features, transfer_residuals, ACTION_LEN};
+    use shared::orbit::OrbitShape;
+
+    /// Full along-track thrust whatever the input.
+    struct Tangential;
+    impl<const N: usize> Actor<N> for Tangential {
+        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+            [1.0, 0.0, 1.0]
+        }
+    }
+
+    struct Broken;
+    impl<const N: usize> Actor<N> for Broken {
+        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+            [f32::NAN, 0.0, 1.0]
+        }
+    }
+
+    const ORBIT: OrbitShape = OrbitShape {
+        a: 1.2,
+        e: 0.0,
+        omega: 0.0,
+    };
+
+    fn on_orbit() -> SpacecraftState {
+        SpacecraftState::from_cartesian(&ORBIT.cartesian_at(0.3), 0.9)
+    }
+
+    fn spacecraft() -> CanonicalSpacecraft {
+        shared::spacecraft::Spacecraft::MSR_ERO
+            .canonical()
+            .unwrap_or(CanonicalSpacecraft {
+                thrust: f64::NAN,
+                exhaust_speed: f64::NAN,
+            })
+    }
+
+    #[test]
+    fn candidates_are_unit_directions_with_throttles_in_range() {
+        let network = ThrustCommand {
+            throttle: 0.9,
+            alpha_r: 0.6,
+            alpha_theta: 0.8,
+        };
+        assert_eq!(candidate(&network, 0), Some(network));
+        for index in 1..CANDIDATES {
+            let c = candidate(&network, index).expect("in range");
+            assert!(c.validate().is_ok(), "candidate {index}: {c:?}");
+        }
+        // Throttle + 0.25 clamps at full; a 10 degree turn keeps the angle to the network's.
+        let up = candidate(&network, 1 + 2 * TURNS_DEG.len() + 1).expect("in range");
+        assert_eq!(up.throttle, 1.0);
+        let dot = up.alpha_r * network.alpha_r + up.alpha_theta * network.alpha_theta;
+        assert!((dot - 10f64.to_radians().cos()).abs() < 1e-12);
+        assert_eq!(candidate(&network, CANDIDATES), None);
+        // Off from the network: the along-track direction is turned.
+        let off = candidate(&ThrustCommand::OFF, 1 + 4 * TURNS_DEG.len()).expect("in range");
+        assert_eq!((off.throttle, off.alpha_r, off.alpha_theta), (1.0, 0.0, 1.0));
+    }
+
+    #[test]
+    fn on_the_target_orbit_it_coasts_where_the_network_would_thrust_away() {
+        // Three cycles from the arrival, already on the target orbit: a coast arrives exactly,
+        // full along-track thrust raises the orbit. Only the thrust-off candidates can win.
+        let settings = LookaheadSettings::default();
+        let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, 3.0 * STEP, &spacecraft(), &settings)
+            .expect("valid inputs");
+        assert_eq!(d.network.throttle, 1.0);
+        assert_eq!(d.command.throttle, 0.0, "{d:?}");
+        let network = d.network_predicted.expect("the network's rollout flies");
+        let chosen = d.predicted.expect("a rollout flies");
+        // The network's rollout only thrusts; the chosen one coasts the first cycle and then the
+        // network takes over: less propellant, smaller miss.
+        assert!(chosen.cost < network.cost);
+        assert!(chosen.mass > network.mass);
+        let spent = spacecraft().thrust * 3.0 * STEP / spacecraft().exhaust_speed;
+        assert!((on_orbit().m - network.mass - spent).abs() < 1e-9);
+        // The network's miss is its own flight's: one more check against a plain propagation.
+        let mut x = on_orbit();
+        for _ in 0..3 {
+            x = propagate(
+                &x,
+                &ThrustCommand {
+                    throttle: 1.0,
+                    alpha_r: 0.0,
+                    alpha_theta: 1.0,
+                },
+                &spacecraft(),
+                STEP,
+                &settings.tolerances,
+            )
+            .expect("propagates");
+        }
+        let res = transfer_residuals(&transfer_features(&x, &ORBIT, 0.0).expect("features"));
+        assert_eq!(network.residuals, res);
+    }
+
+    #[test]
+    fn the_network_wins_ties_and_a_partial_last_cycle_is_flown_to_the_arrival() {
+        // A coasting network on the target orbit arrives exactly: nothing beats it.
+        struct Coast;
+        impl<const N: usize> Actor<N> for Coast {
+            fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+                [-1.0, 0.0, 1.0]
+            }
+        }
+        let d = lookahead_step(
+            &Coast,
+            &on_orbit(),
+            &ORBIT,
+            2.5 * STEP,
+            &spacecraft(),
+            &LookaheadSettings::default(),
+        )
+        .expect("valid inputs");
+        assert_eq!(d.chosen, 0);
+        let p = d.predicted.expect("flies");
+        assert!(p.residuals.position < 1e-9 && p.residuals.velocity < 1e-9, "{p:?}");
+        assert_eq!(p.mass, on_orbit().m);
+        // The floor: an exact arrival costs the floor, no less, plus the propellant spent before
+        // (m = 0.9 of m0 at 5 goal units per m0).
+        let s = LookaheadSettings::default();
+        assert!(
+            (p.cost - (s.accuracy_floor + s.fuel_weight * 0.1)).abs() < 1e-12,
+            "{p:?}"
+        );
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_and_unusable_settings_fly_the_network() {
+        let sc = spacecraft();
+        let ok = LookaheadSettings::default();
+        let nan = SpacecraftState {
+            r: [f64::NAN, 0.0],
+            ..on_orbit()
+        };
+        assert!(matches!(
+            lookahead_step(&Tangential, &nan, &ORBIT, STEP, &sc, &ok),
+            Err(GuidanceError::Input(_))
+        ));
+        assert_eq!(
+            lookahead_step(&Broken, &on_orbit(), &ORBIT, STEP, &sc, &ok),
+            Err(GuidanceError::NonFiniteAction)
+        );
+        for bad in [
+            LookaheadSettings {
+                goal_position: 0.0,
+                ..ok
+            },
+            LookaheadSettings {
+                accuracy_floor: f64::NAN,
+                ..ok
+            },
+            LookaheadSettings {
+                fuel_weight: -1.0,
+                ..ok
+            },
+        ] {
+            assert_eq!(bad.validate(), Err(InvalidSettings));
+            let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, STEP, &sc, &bad).expect("flies the network");
+            assert_eq!((d.command, d.chosen, d.predicted), (d.network, 0, None));
+        }
+        // Too far to look, or nothing left to look at: the network's command.
+        let short = LookaheadSettings { max_cycles: 2, ..ok };
+        let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, 3.0 * STEP, &sc, &short).expect("flies");
+        assert_eq!(d.predicted, None);
+        let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, 0.0, &sc, &ok).expect("flies");
+        assert_eq!(d.predicted, None);
+        // A spacecraft the propagator refuses: no rollout flies, the network's command stands.
+        let broken = CanonicalSpacecraft { thrust: f64::NAN, ..sc };
+        let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, 3.0 * STEP, &broken, &ok).expect("flies");
+        assert_eq!((d.command, d.predicted), (d.network, None));
+    }
+
+    #[test]
+    fn a_rendezvous_body_is_coasted_along_the_rollout() {
+        // The spacecraft flies in formation with the body: coasting keeps the miss at zero.
+        let body = ORBIT.cartesian_at(1.0);
+        let ship = SpacecraftState::from_cartesian(&body, 0.8);
+        let d = lookahead_step(
+            &Tangential,
+            &ship,
+            &body,
+            4.0 * STEP,
+            &spacecraft(),
+            &LookaheadSettings::default(),
+        )
+        .expect("valid inputs");
+        assert_eq!(d.command.throttle, 0.0);
+        let network = d.network_predicted.expect("flies");
+        assert!(network.residuals.position > 0.01, "{network:?}");
+    }
+}
