@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use shared::blob::{ProblemKind, Quantization};
 
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, LookaheadConfig};
 use crate::eval::{eccentricity_line, EccentricityBand, MonteCarloReport, SolvedShare};
 use crate::experiment::ExperimentError;
 use crate::export::{actor_network, blob_file, ExportReport};
@@ -142,6 +142,35 @@ pub struct ModelCard {
     /// The goal's share by eccentricity (eccentric distributions only).
     #[serde(default)]
     pub by_eccentricity: Vec<EccentricityBand>,
+    /// The controller flown with rollout lookahead (`[sil] lookahead` in the config): its nominal
+    /// Monte Carlo; the SIL rows above are then flown with it too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lookahead: Option<LookaheadFigures>,
+}
+
+/// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LookaheadFigures {
+    pub settings: LookaheadConfig,
+    pub monte_carlo: FlightFigures,
+    /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
+    pub overspend: Option<(usize, f64, f64)>,
+    pub where_solved: Option<SolvedShare>,
+    pub by_eccentricity: Vec<EccentricityBand>,
+}
+
+impl LookaheadFigures {
+    /// The figures of a nominal SIL Monte Carlo flown with lookahead (None without it).
+    pub fn of(report: &SilReport) -> Option<Self> {
+        let mc = &report.monte_carlo;
+        Some(Self {
+            settings: report.lookahead?,
+            monte_carlo: FlightFigures::of(mc),
+            overspend: mc.overspend.as_ref().map(|o| (o.count, o.p50, o.p95)),
+            where_solved: mc.where_solved,
+            by_eccentricity: mc.accuracy_by_eccentricity.clone(),
+        })
+    }
 }
 
 fn crc_of(path: &Path) -> Result<String, ModelError> {
@@ -191,6 +220,8 @@ pub struct ModelSources<'a> {
     pub monte_carlo: &'a MonteCarloReport,
     pub export: &'a ExportReport,
     pub sil: &'a [SilReport],
+    /// The nominal Monte Carlo of the f32 blob with lookahead, when the config flies it.
+    pub lookahead: Option<&'a SilReport>,
     /// Lines for the card on where the controller came from beyond the config (e.g. the
     /// shipped actor its rounds started from).
     pub notes: &'a [String],
@@ -243,6 +274,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         notes: sources.notes.to_vec(),
         where_solved: mc.where_solved,
         by_eccentricity: mc.accuracy_by_eccentricity.clone(),
+        lookahead: sources.lookahead.and_then(LookaheadFigures::of),
     };
     write_cards(dir, &card)?;
     Ok(card)
@@ -322,6 +354,8 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
+    let lookahead = crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
+    card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
     card.reexported = Some((
         std::env::args().collect::<Vec<_>>().join(" "),
         current_commit(),
@@ -525,6 +559,44 @@ pub fn card_markdown(card: &ModelCard) -> String {
         let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
         for band in &card.by_eccentricity {
             let _ = writeln!(s, "- {}", eccentricity_line(band));
+        }
+    }
+    if let Some(l) = &card.lookahead {
+        let _ = writeln!(
+            s,
+            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}; the SIL rows above fly with it too). The f32 blob on the Monte Carlo's scenarios without dispersions:\n",
+            l.settings.accuracy_floor, l.settings.fuel_weight
+        );
+        let _ = writeln!(
+            s,
+            "| flown | completed | {} | dr p50 / p95 (AU) | dv p50 / p95 | final mass |",
+            tolerances.join(" | ")
+        );
+        let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
+        s.push_str(&figures_row("f32 blob with lookahead, no dispersions", &l.monte_carlo));
+        if let Some((count, median, p95)) = l.overspend {
+            let _ = writeln!(
+                s,
+                "\nOverspend on {count} scenarios: median {:.2} %, p95 {:.1} %.",
+                100.0 * median,
+                100.0 * p95
+            );
+        }
+        if let Some(w) = l.where_solved {
+            let _ = writeln!(
+                s,
+                "\nOn the {} of the first {} scenarios that the indirect method solved: {:.1} % within the goal; {} unsolved ones flown within it.",
+                w.solved,
+                w.scenarios,
+                100.0 * w.within_goal,
+                w.unsolved_within_goal
+            );
+        }
+        if !l.by_eccentricity.is_empty() {
+            let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
+            for band in &l.by_eccentricity {
+                let _ = writeln!(s, "- {}", eccentricity_line(band));
+            }
         }
     }
     let _ = writeln!(s, "\n## Files\n");

@@ -15,7 +15,7 @@ use crate::eval::{accuracy_line, eccentricity_line, gap_line, monte_carlo, solve
 use crate::experiment::{pretrain, train, ExperimentError, PhaseSummary, Start};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
-use crate::sil::{missed_thrust_bands, sil_monte_carlo, SilReport};
+use crate::sil::{lookahead_monte_carlo, missed_thrust_bands, sil_monte_carlo, SilReport};
 use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
@@ -209,6 +209,7 @@ fn export_and_ship(
     let fly =
         |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions, 0);
     let sil = [fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?];
+    let lookahead = lookahead_monte_carlo(config, &export.f32.file, &run.join("mc-lookahead"))?;
     let model = write_model(
         &run.join("model"),
         &ModelSources {
@@ -220,6 +221,7 @@ fn export_and_ship(
             monte_carlo: mc,
             export: &export,
             sil: &sil,
+            lookahead: lookahead.as_ref(),
             notes,
         },
     )

@@ -388,6 +388,28 @@ pub fn sil_monte_carlo(
     Ok(report)
 }
 
+/// When the config flies with lookahead (`[sil] lookahead`): the nominal Monte Carlo of `blob`
+/// with it (the config's `[evaluate]` episodes and optimality-gap cases, no dispersions) in
+/// `out`, for the model card. None otherwise.
+pub fn lookahead_monte_carlo(
+    config: &ExperimentConfig,
+    blob: &Path,
+    out: &Path,
+) -> Result<Option<SilReport>, ExperimentError> {
+    if config.sil.lookahead.is_none() {
+        return Ok(None);
+    }
+    sil_monte_carlo(
+        config,
+        blob,
+        out,
+        Some(config.evaluate.episodes),
+        &Dispersions::NONE,
+        config.evaluate.optimality_gap_cases,
+    )
+    .map(Some)
+}
+
 /// "f32", "int8", or "safe mode: <why the blob was refused>".
 fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String {
     match controller {

@@ -4,7 +4,9 @@
 //! The card's share was measured by the tch actor on all the Monte Carlo's scenarios, so the two
 //! are different implementations of the policy on overlapping samples: they must agree within
 //! the sampling error of 1,000 flights. Its int8 blob, flown on the same scenarios, scores within
-//! a point of the f32 blob (the export's promise), within the paired sampling error.
+//! a point of the f32 blob (the export's promise), within the paired sampling error. A controller
+//! whose card records flying with rollout lookahead scores, flown so on the first scenarios, the
+//! card's lookahead share within the sampling error.
 
 use std::path::{Path, PathBuf};
 
@@ -13,11 +15,19 @@ use ground_core::env::batch::{draw_scenarios, EpisodeOutcome};
 use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use learn::export::blob_file;
 use learn::model::open_model;
-use learn::sil::fly_blob;
+use learn::sil::fly_blob_seeded;
 use shared::blob::Quantization;
 
 /// Flights per shipped controller.
 const FLIGHTS: u64 = 1000;
+/// Flights with lookahead (about 26 times the work of a flight alone).
+const LOOKAHEAD_FLIGHTS: u64 = 300;
+
+/// Three binomial standard deviations of `n` flights around `share`, plus half a point for the
+/// flights near the goal's edge that two implementations end on either side of.
+fn bound(share: f64, n: u64) -> f64 {
+    3.0 * (share * (1.0 - share) / n as f64).sqrt() + 0.005
+}
 
 fn shipped_models() -> Vec<PathBuf> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
@@ -47,16 +57,17 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
         let blob_path = dir.join(blob_file(problem, Quantization::F32));
         let blob = std::fs::read(&blob_path).unwrap();
         let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, FLIGHTS);
-        let (outcomes, guidance_faults, _) = fly_blob(config, &blob, &scenarios, &Dispersions::NONE, 0).unwrap();
+        let alone = |blob: &[u8]| {
+            fly_blob_seeded(config, blob, &scenarios, &Dispersions::NONE, config.seeds.monte_carlo, 0, None).unwrap()
+        };
+        let (outcomes, guidance_faults, _) = alone(&blob);
         assert_eq!(guidance_faults, 0, "{}", dir.display());
         assert!(outcomes.iter().all(|o| o.completed), "{}", dir.display());
         let flown_share = within_accuracy_goal(&outcomes);
-        // The 1,000 flights are a subset of the card's episodes: three binomial standard deviations
-        // of 1,000 draws (a bound: the overlap only shrinks the difference), plus half a point for
-        // the flights near the goal's edge that the f32 blob and the tch actor end on either side of.
-        let sigma = (card_share * (1.0 - card_share) / FLIGHTS as f64).sqrt();
+        // The 1,000 flights are a subset of the card's episodes (the bound's sampling error is an
+        // upper one: the overlap only shrinks the difference).
         assert!(
-            (flown_share - card_share).abs() <= 3.0 * sigma + 0.005,
+            (flown_share - card_share).abs() <= bound(card_share, FLIGHTS),
             "{}: flown onboard {:.2} % within the goal, the card says {:.2} %",
             dir.display(),
             100.0 * flown_share,
@@ -65,7 +76,7 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
 
         let int8_path = dir.join(blob_file(problem, Quantization::Int8));
         let int8_blob = std::fs::read(&int8_path).unwrap();
-        let (int8_outcomes, int8_faults, _) = fly_blob(config, &int8_blob, &scenarios, &Dispersions::NONE, 0).unwrap();
+        let (int8_outcomes, int8_faults, _) = alone(&int8_blob);
         assert_eq!(int8_faults, 0, "{}", dir.display());
         // Paired flights: only the scenarios that one blob ends within the goal and the other not
         // carry sampling error, so the bound is three standard deviations of their count.
@@ -83,5 +94,23 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
             100.0 * int8_share,
             100.0 * flown_share
         );
+
+        if let Some(lookahead) = &model.card.lookahead {
+            assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
+            let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
+            let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
+            let seed = config.seeds.monte_carlo;
+            let (looked, faults, _) =
+                fly_blob_seeded(config, &blob, first, &Dispersions::NONE, seed, 0, config.sil.lookahead.as_ref()).unwrap();
+            assert_eq!(faults, 0);
+            let share = within_accuracy_goal(&looked);
+            assert!(
+                (share - card_share).abs() <= bound(card_share, LOOKAHEAD_FLIGHTS),
+                "{}: flown with lookahead {:.2} % within the goal, the card says {:.2} %",
+                dir.display(),
+                100.0 * share,
+                100.0 * card_share
+            );
+        }
     }
 }
