@@ -354,7 +354,8 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
-    let lookahead = crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
+    let lookahead =
+        crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
     card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
     card.reexported = Some((
         std::env::args().collect::<Vec<_>>().join(" "),

@@ -58,7 +58,16 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
         let blob = std::fs::read(&blob_path).unwrap();
         let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, FLIGHTS);
         let alone = |blob: &[u8]| {
-            fly_blob_seeded(config, blob, &scenarios, &Dispersions::NONE, config.seeds.monte_carlo, 0, None).unwrap()
+            fly_blob_seeded(
+                config,
+                blob,
+                &scenarios,
+                &Dispersions::NONE,
+                config.seeds.monte_carlo,
+                0,
+                None,
+            )
+            .unwrap()
         };
         let (outcomes, guidance_faults, _) = alone(&blob);
         assert_eq!(guidance_faults, 0, "{}", dir.display());
@@ -100,8 +109,16 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
             let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
             let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
             let seed = config.seeds.monte_carlo;
-            let (looked, faults, _) =
-                fly_blob_seeded(config, &blob, first, &Dispersions::NONE, seed, 0, config.sil.lookahead.as_ref()).unwrap();
+            let (looked, faults, _) = fly_blob_seeded(
+                config,
+                &blob,
+                first,
+                &Dispersions::NONE,
+                seed,
+                0,
+                config.sil.lookahead.as_ref(),
+            )
+            .unwrap();
             assert_eq!(faults, 0);
             let share = within_accuracy_goal(&looked);
             assert!(
