@@ -113,6 +113,10 @@ pub enum LearnCommand {
         /// [sil] lookahead settings, or the defaults.
         #[arg(long)]
         lookahead: bool,
+        /// With lookahead: the fraction of the thrust its rollouts plan without, in [0, 1)
+        /// (replaces the config's).
+        #[arg(long)]
+        thrust_margin: Option<f64>,
         /// Solve the first N flights' scenarios by the indirect method: the optimality gap and
         /// the share within the goal where solved, by eccentricity band (default 0: none).
         #[arg(long, default_value_t = 0)]
@@ -225,6 +229,7 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             episodes,
             no_dispersions,
             lookahead,
+            thrust_margin,
             gap_cases,
             allow_safe_mode,
         } => sil_command(
@@ -234,6 +239,7 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             SilFlags {
                 no_dispersions,
                 lookahead,
+                thrust_margin,
                 gap_cases,
                 allow_safe_mode,
             },
@@ -605,6 +611,7 @@ fn ship_command(
 struct SilFlags {
     no_dispersions: bool,
     lookahead: bool,
+    thrust_margin: Option<f64>,
     gap_cases: u64,
     allow_safe_mode: bool,
 }
@@ -618,12 +625,22 @@ fn sil_command(
     let SilFlags {
         no_dispersions,
         lookahead,
+        thrust_margin,
         gap_cases,
         allow_safe_mode,
     } = flags;
     let (mut config, blob) = flown.resolve(args, true)?;
     if lookahead && config.sil.lookahead.is_none() {
         config.sil.lookahead = Some(Default::default());
+    }
+    if let Some(margin) = thrust_margin {
+        let settings = config
+            .sil
+            .lookahead
+            .as_mut()
+            .ok_or("--thrust-margin sets the lookahead's margin: add --lookahead")?;
+        settings.thrust_margin = margin;
+        config.validate()?;
     }
     let blob = blob.as_path();
     let dispersions = if no_dispersions {

@@ -67,6 +67,11 @@ pub struct LookaheadSettings {
     pub tolerances: Tolerances,
     /// Most cycles a rollout may fly; with more left the network's command is flown unexamined.
     pub max_cycles: u32,
+    /// Fraction of the thrust the rollouts plan without, in [0, 1): a duty-cycle margin against
+    /// thrust the flight will lose (missed-thrust events, a weak thruster). 0 plans with the
+    /// nominal thrust, the only setting under which the lookahead never arrives worse than the
+    /// network in the nominal model.
+    pub thrust_margin: f64,
 }
 
 impl Default for LookaheadSettings {
@@ -78,6 +83,7 @@ impl Default for LookaheadSettings {
             fuel_weight: 5.0,
             tolerances: Tolerances::default(),
             max_cycles: 200,
+            thrust_margin: 0.0,
         }
     }
 }
@@ -88,7 +94,9 @@ pub struct InvalidSettings;
 
 impl core::fmt::Display for InvalidSettings {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str("lookahead goals and floor must be finite and > 0, the fuel weight finite and >= 0")
+        f.write_str(
+            "lookahead goals and floor must be finite and > 0, the fuel weight finite and >= 0, the thrust margin in [0, 1)",
+        )
     }
 }
 
@@ -101,6 +109,7 @@ impl LookaheadSettings {
             && positive(self.accuracy_floor)
             && self.fuel_weight.is_finite()
             && self.fuel_weight >= 0.0
+            && (0.0..1.0).contains(&self.thrust_margin)
         {
             Ok(())
         } else {
@@ -235,12 +244,16 @@ pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         return Ok(decision);
     }
     let cycles = cycles as u32;
+    let planned = CanonicalSpacecraft {
+        thrust: spacecraft.thrust * (1.0 - settings.thrust_margin),
+        ..*spacecraft
+    };
     for index in 0..CANDIDATES {
         let Some(first) = candidate(&network, index) else {
             break;
         };
         let Some(arrival) = rollout(
-            actor, target, spacecraft, settings, navigation, time_to_go, cycles, &first,
+            actor, target, &planned, settings, navigation, time_to_go, cycles, &first,
         ) else {
             continue;
         };
@@ -348,6 +361,15 @@ mod tests {
         assert!(chosen.mass > network.mass);
         let spent = spacecraft().thrust * 3.0 * STEP / spacecraft().exhaust_speed;
         assert!((on_orbit().m - network.mass - spent).abs() < 1e-9);
+        // With a thrust margin the rollouts plan with less thrust: a fifth less propellant.
+        let margin = LookaheadSettings {
+            thrust_margin: 0.2,
+            ..settings
+        };
+        let d =
+            lookahead_step(&Tangential, &on_orbit(), &ORBIT, 3.0 * STEP, &spacecraft(), &margin).expect("valid inputs");
+        let planned = d.network_predicted.expect("flies");
+        assert!((on_orbit().m - planned.mass - 0.8 * spent).abs() < 1e-9, "{planned:?}");
         // The network's miss is its own flight's: one more check against a plain propagation.
         let mut x = on_orbit();
         for _ in 0..3 {
@@ -432,6 +454,16 @@ mod tests {
             assert_eq!(bad.validate(), Err(InvalidSettings));
             let d = lookahead_step(&Tangential, &on_orbit(), &ORBIT, STEP, &sc, &bad).expect("flies the network");
             assert_eq!((d.command, d.chosen, d.predicted), (d.network, 0, None));
+        }
+        for margin in [-0.1, 1.0, f64::NAN] {
+            assert_eq!(
+                LookaheadSettings {
+                    thrust_margin: margin,
+                    ..ok
+                }
+                .validate(),
+                Err(InvalidSettings)
+            );
         }
         // Too far to look, or nothing left to look at: the network's command.
         let short = LookaheadSettings { max_cycles: 2, ..ok };

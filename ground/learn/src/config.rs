@@ -260,7 +260,7 @@ pub struct SilConfig {
     /// `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
     /// Fly the blob with rollout lookahead (`onboard::lookahead`) instead of alone (unset).
-    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0 }`, or `ground sil
+    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0, thrust_margin = 0.05 }`, or `ground sil
     /// --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadConfig>,
@@ -285,6 +285,13 @@ pub struct LookaheadConfig {
     pub accuracy_floor: f64,
     /// Goal units one initial mass of propellant is worth (>= 0).
     pub fuel_weight: f64,
+    /// Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub thrust_margin: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for LookaheadConfig {
@@ -293,6 +300,7 @@ impl Default for LookaheadConfig {
         Self {
             accuracy_floor: s.accuracy_floor,
             fuel_weight: s.fuel_weight,
+            thrust_margin: s.thrust_margin,
         }
     }
 }
@@ -303,6 +311,7 @@ impl LookaheadConfig {
         onboard::lookahead::LookaheadSettings {
             accuracy_floor: self.accuracy_floor,
             fuel_weight: self.fuel_weight,
+            thrust_margin: self.thrust_margin,
             tolerances,
             ..Default::default()
         }
@@ -597,6 +606,7 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nepisodes = 0",
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { accuracy_floor = 0.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { fuel_weight = -1.0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nlookahead = { thrust_margin = 1.0 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
         ];
         for text in bad {

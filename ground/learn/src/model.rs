@@ -565,8 +565,8 @@ pub fn card_markdown(card: &ModelCard) -> String {
     if let Some(l) = &card.lookahead {
         let _ = writeln!(
             s,
-            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}; the SIL rows above fly with it too). The f32 blob on the Monte Carlo's scenarios without dispersions:\n",
-            l.settings.accuracy_floor, l.settings.fuel_weight
+            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}; the SIL rows above fly with it too). The f32 blob on the Monte Carlo's scenarios without dispersions:\n",
+            l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
         );
         let _ = writeln!(
             s,

@@ -423,8 +423,8 @@ pub fn describe(report: &SilReport) -> String {
     let p = &report.monte_carlo.policy;
     let controller = match &report.lookahead {
         Some(l) => format!(
-            "{} with lookahead, accuracy floor {}, fuel weight {}",
-            report.controller, l.accuracy_floor, l.fuel_weight
+            "{} with lookahead, accuracy floor {}, fuel weight {}, thrust margin {}",
+            report.controller, l.accuracy_floor, l.fuel_weight, l.thrust_margin
         ),
         None => report.controller.clone(),
     };

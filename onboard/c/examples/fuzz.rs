@@ -507,6 +507,7 @@ fn lookahead(
     settings.accuracy_floor = hostile(rng, 0.1, 1.0);
     settings.fuel_weight = hostile(rng, 0.0, 10.0);
     settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
+    settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
     let canonical = shared::spacecraft::Spacecraft::MSR_ERO
         .canonical()
         .map_err(|e| format!("{e:?}"))?;
@@ -550,6 +551,7 @@ fn lookahead(
         accuracy_floor: settings.accuracy_floor,
         fuel_weight: settings.fuel_weight,
         max_cycles: settings.max_cycles,
+        thrust_margin: settings.thrust_margin,
         ..LookaheadSettings::default()
     };
     let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {

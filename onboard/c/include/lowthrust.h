@@ -115,7 +115,7 @@ enum lt_status
   LT_ERR_NON_FINITE_ACTION = -45,
   // Lookahead refused: the spacecraft's thrust or exhaust speed is not finite and positive, or
   // the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
-  // and >= 0).
+  // and >= 0, the thrust margin in [0, 1)).
   LT_ERR_INPUT_LOOKAHEAD = -46,
 };
 #ifndef __cplusplus
@@ -195,6 +195,9 @@ typedef struct lt_lookahead_settings {
   double accuracy_floor;
   // Goal units one initial mass of propellant is worth; default 5.
   double fuel_weight;
+  // Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin against
+  // missed thrust); default 0.
+  double thrust_margin;
   // Most cycles a rollout flies; with more left the network's command is flown unexamined.
   uint32_t max_cycles;
 } lt_lookahead_settings;

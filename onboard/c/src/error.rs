@@ -106,7 +106,7 @@ pub enum lt_status {
     LT_ERR_NON_FINITE_ACTION = -45,
     /// Lookahead refused: the spacecraft's thrust or exhaust speed is not finite and positive, or
     /// the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
-    /// and >= 0).
+    /// and >= 0, the thrust margin in [0, 1)).
     LT_ERR_INPUT_LOOKAHEAD = -46,
 }
 

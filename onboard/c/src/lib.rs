@@ -524,6 +524,9 @@ pub struct lt_lookahead_settings {
     pub accuracy_floor: f64,
     /// Goal units one initial mass of propellant is worth; default 5.
     pub fuel_weight: f64,
+    /// Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin against
+    /// missed thrust); default 0.
+    pub thrust_margin: f64,
     /// Most cycles a rollout flies; with more left the network's command is flown unexamined.
     pub max_cycles: u32,
 }
@@ -556,6 +559,7 @@ impl From<lt_lookahead_settings> for LookaheadSettings {
             accuracy_floor: s.accuracy_floor,
             fuel_weight: s.fuel_weight,
             max_cycles: s.max_cycles,
+            thrust_margin: s.thrust_margin,
             ..Self::default()
         }
     }
@@ -577,6 +581,7 @@ pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) 
         accuracy_floor: d.accuracy_floor,
         fuel_weight: d.fuel_weight,
         max_cycles: d.max_cycles,
+        thrust_margin: d.thrust_margin,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
     unsafe { ptr::write_unaligned(out, settings) };

@@ -620,6 +620,7 @@ fn defaults() -> lt_lookahead_settings {
         accuracy_floor: 0.0,
         fuel_weight: 0.0,
         max_cycles: 0,
+        thrust_margin: 1.0,
     };
     assert_eq!(unsafe { lt_lookahead_defaults(&mut s) }, LT_OK);
     s
