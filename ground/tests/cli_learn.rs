@@ -62,6 +62,14 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
         "missing.safetensors",
     );
     refused(&["train", "--out", path(&out), "--from-pretrained"], "pretrain");
+    // A lookahead thrust margin without the lookahead, or outside [0, 1).
+    let sil = |extra: &[&'static str]| {
+        let mut args = vec!["sil", "--out", path(&out), "--blob", path(&checkpoint)];
+        args.extend_from_slice(extra);
+        args
+    };
+    refused(&sil(&["--thrust-margin", "0.05"]), "--lookahead");
+    refused(&sil(&["--lookahead", "--thrust-margin", "1.5"]), "thrust margin");
     assert!(!dir.join("new").exists(), "a refused command left a folder behind");
     std::fs::remove_dir_all(&dir).unwrap();
 }
