@@ -490,6 +490,40 @@ fn figures_row(name: &str, f: &FlightFigures) -> String {
     )
 }
 
+/// The card's lines on a Monte Carlo against the indirect optimum: overspend, the share where
+/// solved, by eccentricity band (each when measured).
+fn against_the_optimum(
+    s: &mut String,
+    overspend: Option<(usize, f64, f64)>,
+    where_solved: Option<SolvedShare>,
+    by_eccentricity: &[EccentricityBand],
+) {
+    if let Some((count, median, p95)) = overspend {
+        let _ = writeln!(
+            s,
+            "\nPropellant against the indirect optimum on {count} Monte Carlo scenarios: overspend median {:.2} %, p95 {:.1} %.",
+            100.0 * median,
+            100.0 * p95
+        );
+    }
+    if let Some(w) = where_solved {
+        let _ = writeln!(
+            s,
+            "\nOn the {} of the first {} Monte Carlo scenarios that the indirect method solved (shown feasible): {:.1} % within the goal; {} unsolved ones flown within it.",
+            w.solved,
+            w.scenarios,
+            100.0 * w.within_goal,
+            w.unsolved_within_goal
+        );
+    }
+    if !by_eccentricity.is_empty() {
+        let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
+        for band in by_eccentricity {
+            let _ = writeln!(s, "- {}", eccentricity_line(band));
+        }
+    }
+}
+
 /// The card for people.
 pub fn card_markdown(card: &ModelCard) -> String {
     let mut s = String::new();
@@ -538,30 +572,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
     for (blob, f) in &card.sil {
         s.push_str(&figures_row(&format!("{blob}, SIL"), f));
     }
-    if let Some((count, median, p95)) = card.overspend {
-        let _ = writeln!(
-            s,
-            "\nPropellant against the indirect optimum on {count} Monte Carlo scenarios: overspend median {:.2} %, p95 {:.1} %.",
-            100.0 * median,
-            100.0 * p95
-        );
-    }
-    if let Some(w) = card.where_solved {
-        let _ = writeln!(
-            s,
-            "\nOn the {} of the first {} Monte Carlo scenarios that the indirect method solved (shown feasible): {:.1} % within the goal; {} unsolved ones flown within it.",
-            w.solved,
-            w.scenarios,
-            100.0 * w.within_goal,
-            w.unsolved_within_goal
-        );
-    }
-    if !card.by_eccentricity.is_empty() {
-        let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
-        for band in &card.by_eccentricity {
-            let _ = writeln!(s, "- {}", eccentricity_line(band));
-        }
-    }
+    against_the_optimum(&mut s, card.overspend, card.where_solved, &card.by_eccentricity);
     if let Some(l) = &card.lookahead {
         let _ = writeln!(
             s,
@@ -575,30 +586,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
         );
         let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
         s.push_str(&figures_row("f32 blob with lookahead, no dispersions", &l.monte_carlo));
-        if let Some((count, median, p95)) = l.overspend {
-            let _ = writeln!(
-                s,
-                "\nOverspend on {count} scenarios: median {:.2} %, p95 {:.1} %.",
-                100.0 * median,
-                100.0 * p95
-            );
-        }
-        if let Some(w) = l.where_solved {
-            let _ = writeln!(
-                s,
-                "\nOn the {} of the first {} scenarios that the indirect method solved: {:.1} % within the goal; {} unsolved ones flown within it.",
-                w.solved,
-                w.scenarios,
-                100.0 * w.within_goal,
-                w.unsolved_within_goal
-            );
-        }
-        if !l.by_eccentricity.is_empty() {
-            let _ = writeln!(s, "\nBy the larger eccentricity of the two orbits:\n");
-            for band in &l.by_eccentricity {
-                let _ = writeln!(s, "- {}", eccentricity_line(band));
-            }
-        }
+        against_the_optimum(&mut s, l.overspend, l.where_solved, &l.by_eccentricity);
     }
     let _ = writeln!(s, "\n## Files\n");
     for (name, crc) in &card.files {
