@@ -299,6 +299,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
     dispersed.pretrain.dataset = Some(PathBuf::from("run/dataset"));
     dispersed.dagger.dispersed = true;
     dispersed.dagger.cloning_only = true;
+    // Shipped flying with lookahead: the rounds still fly and score the network alone (round 0
+    // below equals the main job's), the card adds the lookahead's Monte Carlo.
+    dispersed.sil.lookahead = Some(Default::default());
     let again = dir.join("dispersed");
     let actor = model_dir.join(learn::model::ACTOR_FILE);
     let summary = learn::dagger::dagger(&dispersed, &dir, &again, &actor, None).unwrap();
@@ -330,6 +333,11 @@ fn main_job_writes_a_report_whose_links_resolve() {
         Some(shipped.monte_carlo.within_accuracy_goal)
     );
     assert!(learn::model::card_markdown(&card).contains(&note));
+    let lookahead = card.lookahead.as_ref().expect("the card records the lookahead");
+    assert_eq!(Some(lookahead.settings), dispersed.sil.lookahead);
+    assert_eq!(lookahead.monte_carlo.episodes as u64, dispersed.evaluate.episodes);
+    assert!(shipped.sil.iter().all(|r| r.lookahead == dispersed.sil.lookahead));
+    assert!(learn::model::card_markdown(&card).contains("With rollout lookahead"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
