@@ -1,5 +1,6 @@
-//! Rollout lookahead: the network's command improved by flying a few alternatives to the end of
-//! the transfer with the onboard propagator, the network steering after the first step.
+//! Rollout lookahead: the network's command improved by flying a few alternatives to the arrival
+//! (a transfer's or a rendezvous's) with the onboard propagator, the network steering after the
+//! first cycle.
 //!
 //! At each guidance cycle the network proposes a command. [`CANDIDATES`] commands around it
 //! (other throttles, the direction turned by a few degrees) are each held for one cycle and then
