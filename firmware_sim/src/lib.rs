@@ -23,8 +23,7 @@ pub mod trace;
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{
-    rendezvous_features, rendezvous_residuals, reward, transfer_features, transfer_residuals, FeatureError, Residuals,
-    RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+    reward, FeatureError, Residuals, RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
 };
 use onboard::guidance::{Actor, GuidanceError, Guide, TargetFeatures};
 use onboard::integrator::Tolerances;
@@ -54,15 +53,12 @@ const _: fn(RendezvousPolicy<'_>) -> Policy<'_, RENDEZVOUS_FEATURES> = |p| p;
 pub trait Problem<const N: usize>: Copy {
     /// The problem of the scenarios and blobs this flies.
     const KIND: ProblemKind;
-    /// The target as guidance is given it: an orbit, or a body's state.
+    /// The target as guidance is given it: an orbit, or a body's state. Its features and
+    /// residuals are onboard's ([`TargetFeatures`]), the guidance step's own.
     type Target: Copy + TargetFeatures<N>;
 
     /// The target at t = `index` STEP, computed as flight software does.
     fn target(scenario: &Scenario, index: u32) -> Result<Self::Target, SilError>;
-    /// The `N` features of `state` against `target`.
-    fn features(state: &SpacecraftState, target: &Self::Target, time_to_go: f64) -> Result<[f64; N], FeatureError>;
-    /// The residuals read off the features.
-    fn residuals(features: &[f64; N]) -> Residuals;
 }
 
 /// A free-anomaly transfer (docs/spec.md section 5): the target is the orbit itself.
@@ -80,18 +76,6 @@ impl Problem<TRANSFER_FEATURES> for Transfer {
     fn target(scenario: &Scenario, _index: u32) -> Result<OrbitShape, SilError> {
         Ok(scenario.target)
     }
-
-    fn features(
-        state: &SpacecraftState,
-        target: &OrbitShape,
-        time_to_go: f64,
-    ) -> Result<[f64; TRANSFER_FEATURES], FeatureError> {
-        transfer_features(state, target, time_to_go)
-    }
-
-    fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
-        transfer_residuals(features)
-    }
 }
 
 impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
@@ -104,18 +88,6 @@ impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
     fn target(scenario: &Scenario, index: u32) -> Result<CartesianState, SilError> {
         let epoch = scenario.target.cartesian_at(scenario.target_nu0);
         coast(&epoch, f64::from(index) * STEP).map_err(|error| SilError::Target { index, error })
-    }
-
-    fn features(
-        state: &SpacecraftState,
-        target: &CartesianState,
-        time_to_go: f64,
-    ) -> Result<[f64; RENDEZVOUS_FEATURES], FeatureError> {
-        rendezvous_features(state, target, time_to_go)
-    }
-
-    fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
-        rendezvous_residuals(features)
     }
 }
 
@@ -290,7 +262,9 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
     let mut target = P::target(scenario, 0)?;
     for index in 0..scenario.steps {
         let time_to_go = f64::from(scenario.steps - index) * STEP;
-        let features = P::features(&state, &target, time_to_go).map_err(|error| SilError::Features { index, error })?;
+        let features = target
+            .features_after(&state, 0.0, time_to_go)
+            .map_err(|error| SilError::Features { index, error })?;
         let navigation = plant.navigate(&state);
         let (command, guidance_error) = match actor.command(&navigation, &target, time_to_go) {
             Ok(c) => (c, None),
@@ -316,9 +290,10 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         }
         // The end of the cycle as the MDP sees step index + 1 (its time to go, its target).
         target = P::target(scenario, index + 1)?;
-        let after = P::features(&state, &target, f64::from(scenario.steps - index - 1) * STEP)
+        let after = target
+            .features_after(&state, 0.0, f64::from(scenario.steps - index - 1) * STEP)
             .map_err(|error| SilError::Features { index, error })?;
-        let residuals = P::residuals(&after);
+        let residuals = P::Target::residuals(&after);
         // The reward charges the commanded throttle, as the MDP does.
         let step = FlightStep {
             index,

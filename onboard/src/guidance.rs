@@ -202,12 +202,12 @@ fn command_from(action: [f32; ACTION_LEN]) -> Result<ThrustCommand, GuidanceErro
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::dynamics::StateError;
 
     /// Along-track full thrust whatever the input.
-    struct Tangential;
+    pub(crate) struct Tangential;
     impl<const N: usize> Actor<N> for Tangential {
         fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
             [1.0, 0.0, 1.0]
@@ -222,7 +222,8 @@ mod tests {
         }
     }
 
-    struct Broken;
+    /// A network gone bad: a NaN action whatever the input.
+    pub(crate) struct Broken;
     impl<const N: usize> Actor<N> for Broken {
         fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
             [f32::NAN, 0.0, 1.0]

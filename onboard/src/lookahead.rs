@@ -286,22 +286,8 @@ pub struct Lookahead<A> {
 mod tests {
     use super::*;
     use crate::features::{transfer_features, transfer_residuals, ACTION_LEN};
+    use crate::guidance::tests::{Broken, Tangential};
     use shared::orbit::OrbitShape;
-
-    /// Full along-track thrust whatever the input.
-    struct Tangential;
-    impl<const N: usize> Actor<N> for Tangential {
-        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
-            [1.0, 0.0, 1.0]
-        }
-    }
-
-    struct Broken;
-    impl<const N: usize> Actor<N> for Broken {
-        fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
-            [f32::NAN, 0.0, 1.0]
-        }
-    }
 
     const ORBIT: OrbitShape = OrbitShape {
         a: 1.2,
