@@ -7,7 +7,7 @@
 # footprint, stack peak.
 #
 #   scripts/qemu-sil.sh                 # seeded random f32 + int8 transfer and rendezvous blobs (random_blob)
-#   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground export's transfer-*.blob, rendezvous-*.blob)
+#   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground model export's transfer-*.blob, rendezvous-*.blob)
 #
 # Either way it also checks refusal, for each problem flown: its last blob altered (one byte
 # flipped), truncated and given the next format version, and a blob of the other problem, must

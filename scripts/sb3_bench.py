@@ -18,7 +18,7 @@ model = SAC("MlpPolicy", Dummy(), learning_rate=3e-4, buffer_size=20000, learnin
 model.learn(3000)  # fill the buffer
 n = int(sys.argv[2]) if len(sys.argv) > 2 else 300
 model.train(gradient_steps=20, batch_size=256)
-# The median over blocks of 100 updates, as `ground bench-sac` reports.
+# The median over blocks of 100 updates, as `ground dev bench-sac` reports.
 blocks = []
 for _ in range(max(1, -(-n // 100))):
     t = time.perf_counter(); model.train(gradient_steps=100, batch_size=256); blocks.append((time.perf_counter() - t) / 100)

@@ -3,7 +3,7 @@
 # installed if missing; needs root), submits scripts/slurm_generate.sh as a job array, cancels it
 # once records are on disk and submits it again (the tasks resume from the records they wrote),
 # merges the shards and requires the merge to hold the same trajectories as a single run
-# (`ground compare`); then, with a binary that has the learning commands, solves a relabelling
+# (`ground data compare`); then, with a binary that has the learning commands, solves a relabelling
 # round's relabels as an array (`[compute.slurm]`) and requires the bytes of the round solved on
 # this machine. The cluster is stopped on exit, however the script ends.
 #
@@ -111,18 +111,18 @@ echo "job $job: $resumed records resumed"
 [ "$resumed" -ge 1 ] || die "no task resumed a record (logs: $OUT/slurm-${job}_*.out)"
 
 step "merge, and compare with a single run"
-"$GROUND" merge --out "$OUT/merged" "$OUT"/array/shard-*/dataset-*-of-$TASKS.ltds
-"$GROUND" generate --scenario $SCENARIO --count $COUNT --seed $SEED --out "$OUT/single" >/dev/null
-"$GROUND" compare "$OUT/merged/dataset.ltds" "$OUT/single/dataset.ltds"
+"$GROUND" data merge --out "$OUT/merged" "$OUT"/array/shard-*/dataset-*-of-$TASKS.ltds
+"$GROUND" data generate --scenario $SCENARIO --count $COUNT --seed $SEED --out "$OUT/single" >/dev/null
+"$GROUND" data compare "$OUT/merged/dataset.ltds" "$OUT/single/dataset.ltds"
 echo "slurm-ci: the array's merged shards are the single run's trajectories"
 
 # A relabelling round's solves as an array ([compute.slurm]): needs a binary with the learning
 # commands (the default build, PyTorch installed).
-if "$GROUND" dagger --help >/dev/null 2>&1; then
+if "$GROUND" train dagger --help >/dev/null 2>&1; then
     step "a relabelling round solved as a Slurm array: the same relabels as the round solved here"
     R="$OUT/relabel"
     mkdir -p "$R"
-    "$GROUND" generate --scenario transfer-circular --count 2 --seed 9 --final-eps 0.3 --out "$R/data" >/dev/null
+    "$GROUND" data generate --scenario transfer-circular --count 2 --seed 9 --final-eps 0.3 --out "$R/data" >/dev/null
     common='scenario = "transfer-circular"
 [sac]
 hidden = [32, 32]
@@ -148,9 +148,9 @@ score_episodes = 4'
     printf '%s\n' "$common" >"$R/here.toml"
     printf '%s\n[compute.slurm]\ntasks = 3\noptions = ["--cpus-per-task=1"]\n' "$common" >"$R/array.toml"
     for arm in here array; do
-        "$GROUND" pretrain --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1
-        "$GROUND" dagger --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1 ||
-            die "the $arm round failed (run it: $GROUND dagger --config $R/$arm.toml --out $R/run-$arm)"
+        "$GROUND" train pretrain --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1
+        "$GROUND" train dagger --config "$R/$arm.toml" --out "$R/run-$arm" >/dev/null 2>&1 ||
+            die "the $arm round failed (run it: $GROUND train dagger --config $R/$arm.toml --out $R/run-$arm)"
     done
     cmp "$R/run-here/dagger/relabels-1.ltrl" "$R/run-array/dagger/relabels-1.ltrl" ||
         die "the array's relabels differ from the round solved here"

@@ -43,7 +43,7 @@ cargo clippy --workspace --all-targets -- -D warnings
 step "tests of the learning stack and the full command line"
 cargo test -p lowthrust-learn -p lowthrust-ground --all-targets
 cargo test --workspace --doc
-RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p lowthrust-shared -p lowthrust-onboard -p lowthrust-onboard-c
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps -p lowthrust-shared -p lowthrust-onboard -p lowthrust-onboard-c -p lowthrust-ground-core -p lowthrust-learn -p lowthrust-firmware-sim
 
 step "Cortex-M4F image under QEMU: commands bit for bit equal to the host SIL, refused blobs fly thrust off"
 bash scripts/qemu-sil.sh

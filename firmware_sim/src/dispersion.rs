@@ -143,6 +143,8 @@ pub struct DispersedPlant {
 }
 
 impl DispersedPlant {
+    /// The plant of one flight: its thrust factor and first missed-thrust event drawn from
+    /// `seed` (the same seed draws the same flight on any machine, the Cortex-M4F included).
     pub fn new(dispersions: &Dispersions, seed: u64) -> Self {
         let mut thrust = Normal::new(seed, 1);
         let thrust_factor = if dispersions.thrust_magnitude > 0.0 {

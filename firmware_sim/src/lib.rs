@@ -15,8 +15,49 @@
 //! The core is `no_std` and allocation-free ([`fly_observed`] reports each step to a closure),
 //! so the Cortex-M4 image runs the very same code; the `std` feature adds [`Flight`], a
 //! recorded flight.
+//!
+//! # Map
+//!
+//! - this module: the loop ([`fly_observed`], and [`fly`] recording it), what it flies with
+//!   beside the scenario ([`FlightSetup`]), the flight computer's network or safe mode
+//!   ([`Controller`]), the two problems ([`Transfer`], [`Rendezvous`]) and a hand-tuned
+//!   baseline law ([`ProxyTracking`]);
+//! - [`dispersion`]: the real world's dispersions and the truth plant that draws them;
+//! - [`trace`]: the flights both the host and the Cortex-M4F image fly, written line by line
+//!   so the two can be compared bit for bit.
+//!
+//! # Example
+//!
+//! The baseline law flown from a 1 AU circle to a 1.3 AU circle, nominally and with the
+//! typical dispersions:
+//!
+//! ```
+//! use firmware_sim::{fly, Dispersions, FlightSetup, ProxyTracking, Transfer};
+//! use shared::orbit::{OrbitElements, OrbitShape};
+//! use shared::scenario::Scenario;
+//! use shared::spacecraft::Spacecraft;
+//!
+//! let circle = |a| OrbitShape { a, e: 0.0, omega: 0.0 };
+//! let scenario = Scenario::transfer(OrbitElements { shape: circle(1.0), nu: 0.0 }, circle(1.3));
+//! let nominal = FlightSetup::nominal(Spacecraft::MSR_ERO.canonical()?);
+//! let law = ProxyTracking { target_a: 1.3 };
+//!
+//! let flight = fly(Transfer, &law, &scenario, &nominal, 0)?;
+//! assert_eq!(flight.steps.len(), scenario.steps as usize);
+//! let miss = flight.final_residuals().ok_or("no cycle flown")?;
+//! assert!(miss.position < 0.02, "{miss:?}"); // AU
+//! assert!(flight.final_state().m < 1.0); // propellant was spent
+//!
+//! // Each seed draws its own dispersed flight; the nominal plant ignores the seed.
+//! let dispersed = nominal.dispersed(Dispersions::TYPICAL);
+//! let a = fly(Transfer, &law, &scenario, &dispersed, 1)?;
+//! assert_eq!(a, fly(Transfer, &law, &scenario, &dispersed, 1)?);
+//! assert_ne!(a, flight);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
+#![deny(missing_docs)]
 
 pub mod dispersion;
 pub mod trace;
@@ -95,6 +136,7 @@ impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
 /// blob was refused. `Controller<'a>` is the transfer controller.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Controller<'a, const N: usize = TRANSFER_FEATURES> {
+    /// The blob loaded: the network flies.
     Network(Policy<'a, N>),
     /// The blob was refused at load (why is kept): every command is thrust off.
     SafeMode(PolicyError),
@@ -168,7 +210,9 @@ pub struct FlightStep<const N: usize = TRANSFER_FEATURES> {
 pub struct FlightSummary {
     /// Guidance cycles flown.
     pub steps: u32,
+    /// Sum of the cycles' rewards (docs/spec.md section 5).
     pub total_reward: f64,
+    /// True state after the last cycle.
     pub final_state: SpacecraftState,
     /// Residuals at the end (none for a flight of zero steps).
     pub final_residuals: Option<Residuals>,
@@ -179,26 +223,36 @@ pub struct FlightSummary {
 /// Why a flight could not be flown.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SilError {
+    /// The scenario cannot be flown (see [`Scenario::validate`]).
     Scenario(ScenarioError),
+    /// The dispersions are not finite or out of range.
     Dispersion(DispersionError),
     /// The scenario poses another problem than the loop flies.
     WrongProblem {
+        /// The problem of the loop.
         expected: ProblemKind,
+        /// The scenario's.
         found: ProblemKind,
     },
     /// The rendezvous body could not be propagated to step `index`.
     Target {
+        /// The guidance cycle.
         index: u32,
+        /// Why the Kepler coast failed.
         error: KeplerError,
     },
     /// The plant could not be propagated (for example the tank ran dry) at step `index`.
     Plant {
+        /// The guidance cycle.
         index: u32,
+        /// Why the propagation failed.
         error: PropagationError,
     },
     /// The true state left the feature domain (for example r = 0) at step `index`.
     Features {
+        /// The guidance cycle.
         index: u32,
+        /// Why the features could not be computed.
         error: FeatureError,
     },
 }
@@ -221,22 +275,57 @@ impl core::fmt::Display for SilError {
 #[cfg(feature = "std")]
 impl std::error::Error for SilError {}
 
+/// What a flight is flown with beside its scenario and guidance, the same for every flight of a
+/// Monte Carlo: the spacecraft as designed, the plant's integration tolerances, the reward
+/// weights the MDP scores a cycle with, and the real world's dispersions (each flight draws its
+/// own from its seed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FlightSetup {
+    /// The spacecraft as designed (the plant's thrust is dispersed from it).
+    pub spacecraft: CanonicalSpacecraft,
+    /// Tolerances of the plant's propagation.
+    pub tolerances: Tolerances,
+    /// Weights of the reward reported for each cycle (docs/spec.md section 5).
+    pub weights: RewardWeights,
+    /// The dispersions of the truth plant ([`Dispersions::NONE`]: the nominal plant).
+    pub dispersions: Dispersions,
+}
+
+impl FlightSetup {
+    /// The nominal plant for `spacecraft`: default tolerances and reward weights, no dispersions.
+    pub fn nominal(spacecraft: CanonicalSpacecraft) -> Self {
+        Self {
+            spacecraft,
+            tolerances: Tolerances::default(),
+            weights: RewardWeights::default(),
+            dispersions: Dispersions::NONE,
+        }
+    }
+
+    /// The same setup with other dispersions.
+    pub fn dispersed(self, dispersions: Dispersions) -> Self {
+        Self { dispersions, ..self }
+    }
+}
+
 /// Flies `scenario` closed loop as problem `P` and reports every cycle to `observer`: at each
 /// 14-day cycle the guidance step computes a command from the navigation state and the target
-/// at that time, the truth plant flies it (with `dispersions`, drawn from `seed`) to the next
-/// cycle. No allocation.
-#[allow(clippy::too_many_arguments)] // the flight's inputs, each needed; a struct would only rename them
+/// at that time, the truth plant of `setup` flies it (its dispersions drawn from `seed`) to the
+/// next cycle. No allocation.
 pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: FnMut(&FlightStep<N>)>(
     _problem: P,
     actor: &A,
     scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
+    setup: &FlightSetup,
     seed: u64,
     mut observer: O,
 ) -> Result<FlightSummary, SilError> {
+    let FlightSetup {
+        spacecraft,
+        tolerances,
+        weights,
+        dispersions,
+    } = setup;
     scenario.validate().map_err(SilError::Scenario)?;
     dispersions.validate().map_err(SilError::Dispersion)?;
     if scenario.problem != P::KIND {
@@ -317,78 +406,31 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
     Ok(summary)
 }
 
-/// [`fly_observed`] for a transfer scenario.
-#[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_transfer_observed<A: Guide<TRANSFER_FEATURES, OrbitShape>, O: FnMut(&FlightStep)>(
-    actor: &A,
-    scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
-    seed: u64,
-    observer: O,
-) -> Result<FlightSummary, SilError> {
-    fly_observed(
-        Transfer,
-        actor,
-        scenario,
-        spacecraft,
-        tolerances,
-        weights,
-        dispersions,
-        seed,
-        observer,
-    )
-}
-
-/// [`fly_observed`] for a rendezvous scenario.
-#[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_rendezvous_observed<
-    A: Guide<RENDEZVOUS_FEATURES, CartesianState>,
-    O: FnMut(&FlightStep<RENDEZVOUS_FEATURES>),
->(
-    actor: &A,
-    scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
-    seed: u64,
-    observer: O,
-) -> Result<FlightSummary, SilError> {
-    fly_observed(
-        Rendezvous,
-        actor,
-        scenario,
-        spacecraft,
-        tolerances,
-        weights,
-        dispersions,
-        seed,
-        observer,
-    )
-}
-
 /// A recorded closed-loop flight.
 #[cfg(feature = "std")]
 #[derive(Debug, Clone, PartialEq)]
 pub struct Flight<const N: usize = TRANSFER_FEATURES> {
+    /// The state at departure (m = 1).
     pub initial: SpacecraftState,
+    /// Every guidance cycle, in order.
     pub steps: Vec<FlightStep<N>>,
+    /// What the flight ended with.
     pub summary: FlightSummary,
 }
 
 #[cfg(feature = "std")]
 impl<const N: usize> Flight<N> {
+    /// Sum of the cycles' rewards.
     pub fn total_reward(&self) -> f64 {
         self.summary.total_reward
     }
 
+    /// True state after the last cycle.
     pub fn final_state(&self) -> SpacecraftState {
         self.summary.final_state
     }
 
+    /// Residuals at the end (none for a flight of zero steps).
     pub fn final_residuals(&self) -> Option<Residuals> {
         self.summary.final_residuals
     }
@@ -396,82 +438,20 @@ impl<const N: usize> Flight<N> {
 
 /// Flies `scenario` as problem `P` and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
-#[allow(clippy::too_many_arguments)] // as fly_observed
 pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>>(
     problem: P,
     actor: &A,
     scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
+    setup: &FlightSetup,
     seed: u64,
 ) -> Result<Flight<N>, SilError> {
     let mut steps = Vec::with_capacity(scenario.steps as usize);
-    let summary = fly_observed(
-        problem,
-        actor,
-        scenario,
-        spacecraft,
-        tolerances,
-        weights,
-        dispersions,
-        seed,
-        |s| steps.push(*s),
-    )?;
+    let summary = fly_observed(problem, actor, scenario, setup, seed, |s| steps.push(*s))?;
     Ok(Flight {
         initial: SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0),
         steps,
         summary,
     })
-}
-
-/// Flies a transfer and records every cycle (see [`fly_observed`]).
-#[cfg(feature = "std")]
-#[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_transfer<A: Guide<TRANSFER_FEATURES, OrbitShape>>(
-    actor: &A,
-    scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
-    seed: u64,
-) -> Result<Flight, SilError> {
-    fly(
-        Transfer,
-        actor,
-        scenario,
-        spacecraft,
-        tolerances,
-        weights,
-        dispersions,
-        seed,
-    )
-}
-
-/// Flies a rendezvous and records every cycle (see [`fly_observed`]).
-#[cfg(feature = "std")]
-#[allow(clippy::too_many_arguments)] // as fly_observed
-pub fn fly_rendezvous<A: Guide<RENDEZVOUS_FEATURES, CartesianState>>(
-    actor: &A,
-    scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    tolerances: &Tolerances,
-    weights: &RewardWeights,
-    dispersions: &Dispersions,
-    seed: u64,
-) -> Result<Flight<RENDEZVOUS_FEATURES>, SilError> {
-    fly(
-        Rendezvous,
-        actor,
-        scenario,
-        spacecraft,
-        tolerances,
-        weights,
-        dispersions,
-        seed,
-    )
 }
 
 /// A hand-tuned feedback law for demonstrations and as a baseline for learned policies: thrust
@@ -481,6 +461,7 @@ pub fn fly_rendezvous<A: Guide<RENDEZVOUS_FEATURES, CartesianState>>(
 /// in propellant: it is what a learned policy must beat.
 #[derive(Debug, Clone, Copy)]
 pub struct ProxyTracking {
+    /// Semi-major axis of the target orbit (AU).
     pub target_a: f64,
 }
 
@@ -575,8 +556,12 @@ mod tests {
     }
 
     fn fly(law: &impl Actor<TRANSFER_FEATURES>, s: &Scenario, d: &Dispersions, seed: u64) -> Flight {
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        fly_transfer(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
+        super::fly(Transfer, law, s, &setup(*d), seed).unwrap()
+    }
+
+    /// The thesis spacecraft with default tolerances and weights, flown with `dispersions`.
+    fn setup(dispersions: Dispersions) -> FlightSetup {
+        FlightSetup::nominal(Spacecraft::MSR_ERO.canonical().unwrap()).dispersed(dispersions)
     }
 
     /// The transfer of `scenario(target_a)` as a rendezvous with a body at `nu0` at t = 0.
@@ -594,8 +579,7 @@ mod tests {
         d: &Dispersions,
         seed: u64,
     ) -> Flight<RENDEZVOUS_FEATURES> {
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-        fly_rendezvous(law, s, &sc, &Tolerances::default(), &RewardWeights::default(), d, seed).unwrap()
+        super::fly(Rendezvous, law, s, &setup(*d), seed).unwrap()
     }
 
     /// Half throttle along-track whatever the features: the same commands for either problem.
@@ -680,7 +664,6 @@ mod tests {
 
     #[test]
     fn a_refused_rendezvous_blob_flies_thrust_off_and_the_wrong_problem_is_refused() {
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let r = rendezvous(1.52, 1.0);
         let controller = Controller::load_rendezvous(&[0u8; 64]);
         assert!(matches!(controller, Controller::SafeMode(_)));
@@ -691,17 +674,17 @@ mod tests {
             .iter()
             .all(|k| k.command.throttle == 0.0 && k.applied.throttle == 0.0));
         assert_eq!(flight.final_state().m, 1.0);
-        let (tol, w) = (Tolerances::default(), RewardWeights::default());
         let t = scenario(1.52);
+        let nominal = setup(Dispersions::NONE);
         assert_eq!(
-            fly_rendezvous(&controller, &t, &sc, &tol, &w, &Dispersions::NONE, 1),
+            super::fly(Rendezvous, &controller, &t, &nominal, 1),
             Err(SilError::WrongProblem {
                 expected: ProblemKind::Rendezvous,
                 found: ProblemKind::Transfer
             })
         );
         assert_eq!(
-            fly_transfer(&Half, &r, &sc, &tol, &w, &Dispersions::NONE, 1),
+            super::fly(Transfer, &Half, &r, &nominal, 1),
             Err(SilError::WrongProblem {
                 expected: ProblemKind::Transfer,
                 found: ProblemKind::Rendezvous
@@ -712,7 +695,7 @@ mod tests {
             ..Dispersions::NONE
         };
         assert_eq!(
-            fly_rendezvous(&controller, &r, &sc, &tol, &w, &bad, 1),
+            super::fly(Rendezvous, &controller, &r, &setup(bad), 1),
             Err(SilError::Dispersion(DispersionError))
         );
         let nowhere = Scenario {
@@ -720,7 +703,7 @@ mod tests {
             ..r
         };
         assert!(matches!(
-            fly_rendezvous(&controller, &nowhere, &sc, &tol, &w, &Dispersions::NONE, 1),
+            super::fly(Rendezvous, &controller, &nowhere, &nominal, 1),
             Err(SilError::Scenario(_))
         ));
     }
@@ -832,20 +815,10 @@ mod tests {
 
     #[test]
     fn a_refused_blob_flies_thrust_off_and_bad_dispersions_are_refused() {
-        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let s = scenario(1.52);
         let controller = Controller::load_transfer(&[0u8; 64]);
         assert!(matches!(controller, Controller::SafeMode(_)));
-        let flight = fly_transfer(
-            &controller,
-            &s,
-            &sc,
-            &Tolerances::default(),
-            &RewardWeights::default(),
-            &Dispersions::TYPICAL,
-            1,
-        )
-        .unwrap();
+        let flight = fly(&controller, &s, &Dispersions::TYPICAL, 1);
         assert!(flight.steps.iter().all(|k| k.command.throttle == 0.0));
         assert_eq!(flight.final_state().m, 1.0);
         let bad = Dispersions {
@@ -853,15 +826,7 @@ mod tests {
             ..Dispersions::NONE
         };
         assert_eq!(
-            fly_transfer(
-                &controller,
-                &s,
-                &sc,
-                &Tolerances::default(),
-                &RewardWeights::default(),
-                &bad,
-                1
-            ),
+            super::fly(Transfer, &controller, &s, &setup(bad), 1),
             Err(SilError::Dispersion(DispersionError))
         );
     }

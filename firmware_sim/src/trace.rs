@@ -14,15 +14,13 @@
 use core::fmt::{self, Write};
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::features::RewardWeights;
 use onboard::guidance::Guide;
-use onboard::integrator::Tolerances;
 use shared::blob::Quantization;
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::Spacecraft;
 
-use crate::{fly_observed, Controller, Dispersions, FlightStep, FlightSummary, Problem, SilError};
+use crate::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, FlightSummary, Problem, SilError};
 
 /// First character of the lines a trace consumer must ignore (measurements, timings).
 pub const COMMENT: char = '#';
@@ -30,9 +28,13 @@ pub const COMMENT: char = '#';
 /// One flight of the trace.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TraceFlight {
+    /// The flight's name on its `flight` line.
     pub name: &'static str,
+    /// What it flies.
     pub scenario: Scenario,
+    /// The truth plant's dispersions.
     pub dispersions: Dispersions,
+    /// Seed of the dispersions' draws.
     pub seed: u64,
 }
 
@@ -190,21 +192,12 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
         return Err(fmt::Error);
     };
     let mut written = Ok(());
-    let result = fly_observed(
-        problem,
-        actor,
-        &flight.scenario,
-        &spacecraft,
-        &Tolerances::default(),
-        &RewardWeights::default(),
-        &flight.dispersions,
-        flight.seed,
-        |step| {
-            if written.is_ok() {
-                written = write_step(w, step);
-            }
-        },
-    );
+    let setup = FlightSetup::nominal(spacecraft).dispersed(flight.dispersions);
+    let result = fly_observed(problem, actor, &flight.scenario, &setup, flight.seed, |step| {
+        if written.is_ok() {
+            written = write_step(w, step);
+        }
+    });
     written?;
     write_end(w, &result)?;
     Ok(result)

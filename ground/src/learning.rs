@@ -1,5 +1,7 @@
-//! The learning commands (the `learn` feature, on libtorch): pretraining, RL, relabelling rounds,
-//! Monte Carlo, export, SIL, the main job, and the learner's sanity check and benchmark.
+//! The learning commands (the `learn` feature, on libtorch), in groups: `ground train rl`
+//! (pretraining, RL, relabelling rounds), `ground model` (Monte Carlo, export, SIL, ship),
+//! `ground run` (the main job or a recipe) and `ground dev` (the learner's sanity check and
+//! benchmark).
 
 use std::num::NonZeroU64;
 use std::path::{Path, PathBuf};
@@ -7,14 +9,53 @@ use std::path::{Path, PathBuf};
 use clap::Subcommand;
 use learn::config::{ExperimentConfig, EMBEDDED_DEFAULT};
 
+/// The learning groups, flattened into `ground`'s commands.
 #[derive(Subcommand)]
 pub enum LearnCommand {
+    /// Train a controller: pretrain on demonstrations, RL, relabelling rounds (dagger).
+    #[command(subcommand)]
+    Train(TrainCommand),
+    /// A trained controller: Monte Carlo (evaluate), onboard blobs (export), software in the
+    /// loop (sil), and the shipped model folder with its card (ship).
+    #[command(subcommand)]
+    Model(ModelCommand),
+    /// The main job: solve a small transfer dataset, pretrain, train, evaluate by Monte Carlo
+    /// and write RUN/report.md (embedded small default config unless --config is given); with
+    /// a recipe's config, that recipe end to end.
+    Run {
+        /// Experiment config (TOML); the embedded default is configs/quick.toml.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Run folder (an existing one is resumed).
+        #[arg(long, default_value = "runs/quick")]
+        out: PathBuf,
+    },
+    /// Development checks: the learner on Pendulum-v1, and its update throughput.
+    #[command(subcommand)]
+    Dev(DevCommand),
+    /// One Slurm array task of a relabelling round (`[compute.slurm]`): solves its share of the
+    /// relabels in a request file and writes the answers beside it. Run by the array the rounds
+    /// submit, not by hand.
+    #[command(hide = true)]
+    RelabelShard {
+        /// The round's request file (`relabel-*.ltrq`).
+        #[arg(long)]
+        request: PathBuf,
+        /// This task and the task count, `i/N` (relabels i, i + N, ...).
+        #[arg(long)]
+        shard: ground_core::generate::Shard,
+    },
+}
+
+/// `ground train rl`: the learning phases, each resumable in its run folder.
+#[derive(Subcommand)]
+pub enum TrainCommand {
     /// Pretraining (docs/spec.md section 8): demonstration tuples from the config's dataset fill the
     /// replay buffer, then N_pt SAC updates with evaluations; the best model is kept.
     Pretrain(ExperimentArgs),
     /// RL training (vanilla, or from the pretrained model and its buffer with
     /// --from-pretrained), periodic evaluation, best model kept, resumable.
-    Train {
+    Rl {
         #[command(flatten)]
         experiment: ExperimentArgs,
         /// Start from RUN/pretrain (best model and demonstration buffer).
@@ -38,6 +79,11 @@ pub enum LearnCommand {
         #[arg(long)]
         relabels_from: Option<PathBuf>,
     },
+}
+
+/// `ground model`: what is done with a trained controller.
+#[derive(Subcommand)]
+pub enum ModelCommand {
     /// Monte Carlo evaluation (docs/spec.md section 9) of a checkpoint against zero-thrust and random
     /// policies, with the optimality gap against the indirect solution on a subset.
     Evaluate {
@@ -93,7 +139,7 @@ pub enum LearnCommand {
     Sil {
         #[command(flatten)]
         experiment: ExperimentArgs,
-        /// Weight blob (a `ground export` output).
+        /// Weight blob (a `ground model export` output).
         #[arg(long, required_unless_present = "model", conflicts_with = "model")]
         blob: Option<PathBuf>,
         /// A shipped model folder (models/NAME): its f32 blob (--int8: its int8 blob), checked
@@ -126,6 +172,11 @@ pub enum LearnCommand {
         #[arg(long)]
         allow_safe_mode: bool,
     },
+}
+
+/// `ground dev`: checks of the learner itself.
+#[derive(Subcommand)]
+pub enum DevCommand {
     /// Sanity check of the learner on Gymnasium's Pendulum-v1 (SAC should reach about -200 or
     /// better mean episode reward within 20,000 steps); prints the learning curve.
     Pendulum {
@@ -161,27 +212,6 @@ pub enum LearnCommand {
         #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u64).range(1..))]
         batch: u64,
     },
-    /// One Slurm array task of a relabelling round (`[compute.slurm]`): solves its share of the
-    /// relabels in a request file and writes the answers beside it. Run by the array the rounds
-    /// submit, not by hand.
-    RelabelShard {
-        /// The round's request file (`relabel-*.ltrq`).
-        #[arg(long)]
-        request: PathBuf,
-        /// This task and the task count, `i/N` (relabels i, i + N, ...).
-        #[arg(long)]
-        shard: ground_core::generate::Shard,
-    },
-    /// The main job: solve a small transfer dataset, pretrain, train, evaluate by Monte Carlo
-    /// and write RUN/report.md (embedded small default config unless --config is given).
-    Run {
-        /// Experiment config (TOML); the embedded default is configs/quick.toml.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Run folder (an existing one is resumed).
-        #[arg(long, default_value = "runs/quick")]
-        out: PathBuf,
-    },
 }
 
 /// Runs one learning command.
@@ -189,24 +219,48 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
     learn::sac::tune_allocator();
     match command {
         LearnCommand::Run { config, out } => main_job(config.as_deref(), &out),
-        LearnCommand::Pretrain(args) => pretrain_command(&args),
-        LearnCommand::Train {
+        LearnCommand::Train(command) => run_train(command),
+        LearnCommand::Model(command) => run_model(command),
+        LearnCommand::Dev(command) => run_dev(command),
+        LearnCommand::RelabelShard { request, shard } => {
+            if let Some(threads) = std::env::var("SLURM_CPUS_PER_TASK")
+                .ok()
+                .and_then(|n| n.parse::<usize>().ok())
+            {
+                let _ = rayon::ThreadPoolBuilder::new().num_threads(threads).build_global();
+            }
+            let out = learn::dagger::relabel_shard(&request, u64::from(shard.index), u64::from(shard.count))?;
+            println!("{}", out.display());
+            Ok(())
+        }
+    }
+}
+
+fn run_train(command: TrainCommand) -> CommandResult {
+    match command {
+        TrainCommand::Pretrain(args) => pretrain_command(&args),
+        TrainCommand::Rl {
             experiment,
             from_pretrained,
         } => train_command(&experiment, from_pretrained),
-        LearnCommand::Dagger {
+        TrainCommand::Dagger {
             experiment,
             from,
             relabels_from,
         } => dagger_command(&experiment, from.as_deref(), relabels_from.as_deref()),
-        LearnCommand::Evaluate {
+    }
+}
+
+fn run_model(command: ModelCommand) -> CommandResult {
+    match command {
+        ModelCommand::Evaluate {
             experiment,
             checkpoint,
             model,
             episodes,
             gap_cases,
         } => evaluate_command(&experiment, Flown::from(checkpoint, model, false), episodes, gap_cases),
-        LearnCommand::Export {
+        ModelCommand::Export {
             experiment,
             checkpoint,
             model,
@@ -215,13 +269,13 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             (Some(checkpoint), None) => export_command(&experiment, &checkpoint),
             (None, None) => Err("give --checkpoint or --model".into()),
         },
-        LearnCommand::Ship {
+        ModelCommand::Ship {
             experiment,
             checkpoint,
             rounds,
             note,
         } => ship_command(&experiment, &checkpoint, rounds.as_deref(), &note),
-        LearnCommand::Sil {
+        ModelCommand::Sil {
             experiment,
             blob,
             model,
@@ -244,7 +298,12 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
                 allow_safe_mode,
             },
         ),
-        LearnCommand::Pendulum {
+    }
+}
+
+fn run_dev(command: DevCommand) -> CommandResult {
+    match command {
+        DevCommand::Pendulum {
             steps,
             seed,
             warmup,
@@ -252,18 +311,7 @@ pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
             threads,
             csv,
         } => pendulum_command(steps, seed, warmup, eval_every, threads, csv.as_deref()),
-        LearnCommand::RelabelShard { request, shard } => {
-            if let Some(threads) = std::env::var("SLURM_CPUS_PER_TASK")
-                .ok()
-                .and_then(|n| n.parse::<usize>().ok())
-            {
-                let _ = rayon::ThreadPoolBuilder::new().num_threads(threads).build_global();
-            }
-            let out = learn::dagger::relabel_shard(&request, u64::from(shard.index), u64::from(shard.count))?;
-            println!("{}", out.display());
-            Ok(())
-        }
-        LearnCommand::BenchSac {
+        DevCommand::BenchSac {
             updates,
             threads,
             device,
@@ -503,7 +551,7 @@ impl Flown {
 
     /// The config and the file to fly. A model is opened first (every check of its card) and
     /// flown with its own config unless the command names one; `blob` picks its f32 or int8
-    /// blob (`ground sil`) instead of its actor (`ground evaluate`).
+    /// blob (`ground model sil`) instead of its actor (`ground model evaluate`).
     fn resolve(&self, args: &ExperimentArgs, blob: bool) -> CommandResult<(ExperimentConfig, PathBuf)> {
         match self {
             Self::File(file) => Ok((args.load()?.0, file.clone())),
@@ -607,7 +655,7 @@ fn ship_command(
     }
 }
 
-/// How `ground sil` flies, beyond the config.
+/// How `ground model sil` flies, beyond the config.
 struct SilFlags {
     no_dispersions: bool,
     lookahead: bool,

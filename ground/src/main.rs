@@ -1,10 +1,12 @@
-//! `ground`: the ground-side command line.
+//! `ground`: the ground-side command line, in groups.
 //!
-//! Without PyTorch (`--no-default-features`): trajectories by the indirect method, datasets,
-//! shards and their merge, CCSDS OEM export, the demonstrations' check, the cross-check against
-//! the direct transcription and the feasibility classification ([`trajectories`]). With the default `learn` feature, also the learning
-//! commands: pretraining, RL, relabelling rounds, Monte Carlo, export, SIL and the main job
-//! ([`learning`]).
+//! - `ground data` (no PyTorch, also with `--no-default-features`): trajectories by the indirect
+//!   method, datasets, shards and their merge, CCSDS OEM export, the demonstrations' check, the
+//!   cross-check against the direct transcription and the feasibility classification
+//!   ([`trajectories`]).
+//! - With the default `learn` feature ([`learning`]): `ground train rl` (pretraining, RL,
+//!   relabelling rounds), `ground model` (Monte Carlo, export, SIL, ship), `ground run` (the main
+//!   job or any recipe, end to end) and `ground dev` (the learner's sanity check and benchmark).
 
 use std::process::ExitCode;
 
@@ -27,6 +29,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Trajectories and datasets by the indirect method: solve, generate, merge, compare, oem,
+    /// demos, crosscheck, feasibility (no PyTorch needed).
+    #[command(subcommand)]
+    Data(DataCommand),
+    #[cfg(feature = "learn")]
+    #[command(flatten)]
+    Learn(learning::LearnCommand),
+}
+
+/// `ground data`: the commands that need no PyTorch.
+#[derive(Subcommand)]
+enum DataCommand {
     /// Solve one mass-optimal transfer or rendezvous (--rendezvous) by the indirect method
     /// (Pontryagin, energy-to-fuel homotopy, shooting).
     Solve(SolveArgs),
@@ -86,13 +100,29 @@ enum Command {
     /// the dataset and the summaries, which then count the infeasible draws apart (about 10 s to
     /// 5 min of work per record).
     Feasibility {
-        /// Dataset folder of a whole (unsharded) `ground generate` run.
+        /// Dataset folder of a whole (unsharded) `ground data generate` run.
         #[arg(long)]
         out: PathBuf,
     },
-    #[cfg(feature = "learn")]
-    #[command(flatten)]
-    Learn(learning::LearnCommand),
+}
+
+/// Runs one `ground data` command.
+fn run_data(command: DataCommand) -> Result<(), Box<dyn std::error::Error>> {
+    match command {
+        DataCommand::Solve(args) => trajectories::solve_command(&args),
+        DataCommand::Generate(args) => trajectories::generate_command(&args),
+        DataCommand::Oem {
+            dataset,
+            index,
+            out,
+            departure,
+        } => trajectories::oem_command(&dataset, index, &out, &departure),
+        DataCommand::Merge { out, inputs } => trajectories::merge_command(&inputs, &out),
+        DataCommand::Compare { first, second } => trajectories::compare_command(&first, &second),
+        DataCommand::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
+        DataCommand::Feasibility { out } => trajectories::feasibility_command(&out),
+        DataCommand::Crosscheck(args) => trajectories::crosscheck_command(&args),
+    }
 }
 
 fn main() -> ExitCode {
@@ -105,19 +135,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Solve(args) => trajectories::solve_command(&args),
-        Command::Generate(args) => trajectories::generate_command(&args),
-        Command::Oem {
-            dataset,
-            index,
-            out,
-            departure,
-        } => trajectories::oem_command(&dataset, index, &out, &departure),
-        Command::Merge { out, inputs } => trajectories::merge_command(&inputs, &out),
-        Command::Compare { first, second } => trajectories::compare_command(&first, &second),
-        Command::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
-        Command::Feasibility { out } => trajectories::feasibility_command(&out),
-        Command::Crosscheck(args) => trajectories::crosscheck_command(&args),
+        Command::Data(command) => run_data(command),
         #[cfg(feature = "learn")]
         Command::Learn(command) => learning::run(command),
     };

@@ -17,7 +17,7 @@ use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 use shared::units::canonical_to_days;
 
-/// `ground solve`: one fuel-optimal case from explicit orbits or from a scenario draw.
+/// `ground data solve`: one fuel-optimal case from explicit orbits or from a scenario draw.
 #[derive(clap::Args)]
 #[command(allow_negative_numbers = true)]
 pub struct SolveArgs {
@@ -301,11 +301,11 @@ pub fn compare_command(first: &Path, second: &Path) -> Result<(), Box<dyn std::e
     }
 }
 
-/// `ground crosscheck`: the converged records of a dataset against the direct transcription.
+/// `ground data crosscheck`: the converged records of a dataset against the direct transcription.
 #[derive(clap::Args)]
 #[command(allow_negative_numbers = true)]
 pub struct CrossCheckArgs {
-    /// Dataset file, or the folder of a `ground generate` run.
+    /// Dataset file, or the folder of a `ground data generate` run.
     #[arg(long)]
     dataset: PathBuf,
     /// Check the first N converged records (all when absent).
@@ -346,7 +346,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
     }
     if args.repair && (args.count.is_some() || !args.dataset.join("manifest.json").is_file()) {
         return Err(format!(
-            "--repair rewrites a whole run: --dataset must be the folder of a `ground generate` run (without --count), not {}",
+            "--repair rewrites a whole run: --dataset must be the folder of a `ground data generate` run (without --count), not {}",
             args.dataset.display()
         )
         .into());

@@ -34,6 +34,7 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
     let checkpoint = dir.join("missing.safetensors");
     for args in [
         vec![
+            "model",
             "evaluate",
             "--out",
             path(&out),
@@ -43,6 +44,7 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
             "0",
         ],
         vec![
+            "model",
             "sil",
             "--out",
             path(&out),
@@ -51,20 +53,27 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
             "--episodes",
             "0",
         ],
-        vec!["pendulum", "--threads", "0"],
-        vec!["bench-sac", "--threads", "1,0"],
+        vec!["dev", "pendulum", "--threads", "0"],
+        vec!["dev", "bench-sac", "--threads", "1,0"],
     ] {
         refused(&args, "0");
     }
     // Refused after the folder was taken: a missing checkpoint, a missing pretraining phase.
     refused(
-        &["evaluate", "--out", path(&out), "--checkpoint", path(&checkpoint)],
+        &[
+            "model",
+            "evaluate",
+            "--out",
+            path(&out),
+            "--checkpoint",
+            path(&checkpoint),
+        ],
         "missing.safetensors",
     );
-    refused(&["train", "--out", path(&out), "--from-pretrained"], "pretrain");
+    refused(&["train", "rl", "--out", path(&out), "--from-pretrained"], "pretrain");
     // A lookahead thrust margin without the lookahead, or outside [0, 1).
     let sil = |extra: &[&'static str]| {
-        let mut args = vec!["sil", "--out", path(&out), "--blob", path(&checkpoint)];
+        let mut args = vec!["model", "sil", "--out", path(&out), "--blob", path(&checkpoint)];
         args.extend_from_slice(extra);
         args
     };
@@ -90,11 +99,10 @@ fn a_cuda_config_is_refused_before_any_work_where_there_is_no_gpu() {
     )
     .unwrap();
     let out = dir.join("new/run");
-    for command in ["run", "pretrain", "train"] {
-        refused(
-            &[command, "--config", path(&config), "--out", path(&out)],
-            "compute.device = \"cuda\"",
-        );
+    for command in [&["run"][..], &["train", "pretrain"], &["train", "rl"]] {
+        let mut args = command.to_vec();
+        args.extend(["--config", path(&config), "--out", path(&out)]);
+        refused(&args, "compute.device = \"cuda\"");
     }
     assert!(!dir.join("new").exists(), "a refused command left a folder behind");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -105,7 +113,7 @@ fn a_run_folder_in_use_is_refused() {
     let dir = scratch("lock");
     let run = dir.join("run");
     let held = ground_core::io::RunLock::acquire(&run).unwrap();
-    refused(&["pretrain", "--out", path(&run)], "in use");
+    refused(&["train", "pretrain", "--out", path(&run)], "in use");
     // Nothing was written next to the lock.
     let entries: Vec<_> = std::fs::read_dir(&run)
         .unwrap()
@@ -136,7 +144,8 @@ fn a_blob_refused_by_the_sil_is_a_failed_command_unless_safe_mode_is_allowed() {
     std::fs::write(&blob, b"LTNB but not a blob at all").unwrap();
     let args = |out: &str| {
         vec![
-            "sil".to_string(),
+            "model".to_string(),
+            "sil".into(),
             "--config".into(),
             path(&config).into(),
             "--blob".into(),
@@ -189,6 +198,7 @@ fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
     for (checkpoint, ok) in [(&good, true), (&bad, false)] {
         let out = dir.join(if ok { "good" } else { "bad" });
         let result = ground(&[
+            "model",
             "export",
             "--config",
             path(&config_path),
@@ -239,6 +249,7 @@ for i in $list; do\n  if [ \"$i\" = {fail_task} ] && [ -e '{}' ]; then rm '{}'; 
 /// four tasks run by `sbatch`, over a two-draw dataset in `dir/data`.
 fn slurm_relabel_configs(dir: &Path, sbatch: &Path) -> (PathBuf, PathBuf) {
     let out = ground(&[
+        "data",
         "generate",
         "--scenario",
         "transfer-circular",
@@ -274,7 +285,7 @@ updates = 10\nscore_episodes = 4\n";
 /// Pretraining and one round in `run`; the round's relabel file, checked to hold relabels.
 fn pretrain_and_round(config: &Path, run: &Path) -> Vec<u8> {
     for command in ["pretrain", "dagger"] {
-        let out = ground(&[command, "--config", path(config), "--out", path(run)]);
+        let out = ground(&["train", command, "--config", path(config), "--out", path(run)]);
         assert!(
             out.status.success(),
             "{command}: {}",
@@ -332,10 +343,10 @@ fn a_failed_relabel_array_resubmits_only_the_tasks_that_did_not_answer() {
     let (here, array) = slurm_relabel_configs(&dir, &sbatch);
     let solved_here = pretrain_and_round(&here, &dir.join("run-here"));
     let run = dir.join("run-array");
-    let out = ground(&["pretrain", "--config", path(&array), "--out", path(&run)]);
+    let out = ground(&["train", "pretrain", "--config", path(&array), "--out", path(&run)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     std::fs::write(&fail, "").unwrap();
-    let out = ground(&["dagger", "--config", path(&array), "--out", path(&run)]);
+    let out = ground(&["train", "dagger", "--config", path(&array), "--out", path(&run)]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "the round went on past a failed array");
     assert!(stderr.contains("submits only the others"), "{stderr}");

@@ -32,6 +32,7 @@ fn finished_run() -> &'static Path {
     RUN.get_or_init(|| {
         let run = scratch("finished").join("run");
         let out = ground(&[
+            "data",
             "generate",
             "--scenario",
             "transfer-circular",
@@ -86,7 +87,14 @@ fn impossible_generate_requests_are_refused_before_the_folder_is_created() {
         (&["--count", "3", "--shard", "5/8"][..], "shard 5/8 is empty"),
         (&["--count", "1", "--final-eps", "0"][..], "final eps"),
     ] {
-        let mut args = vec!["generate", "--scenario", "transfer-circular", "--out", text(&out)];
+        let mut args = vec![
+            "data",
+            "generate",
+            "--scenario",
+            "transfer-circular",
+            "--out",
+            text(&out),
+        ];
         args.extend_from_slice(extra);
         assert_refused(&args, needle);
         assert!(!out.exists(), "{extra:?}: the refused run created {}", out.display());
@@ -102,7 +110,16 @@ fn a_figure_in_a_missing_folder_is_refused_and_nothing_is_created() {
     let missing = parent.join("missing");
     let plot = missing.join("fig.svg");
     assert_refused(
-        &["solve", "--a0", "1", "--af", "1.3", "--plot", plot.to_str().unwrap()],
+        &[
+            "data",
+            "solve",
+            "--a0",
+            "1",
+            "--af",
+            "1.3",
+            "--plot",
+            plot.to_str().unwrap(),
+        ],
         "is not an existing folder",
     );
     assert!(!missing.exists(), "solve --plot created {}", missing.display());
@@ -116,6 +133,7 @@ fn run_folders_held_by_another_process_are_refused_and_left_unchanged() {
     let dataset = run.join("dataset.ltds");
     let target = parent.join("target");
     let generate = [
+        "data",
         "generate",
         "--scenario",
         "transfer-circular",
@@ -128,7 +146,7 @@ fn run_folders_held_by_another_process_are_refused_and_left_unchanged() {
         "--out",
         text(&target),
     ];
-    let merge = ["merge", "--out", text(&target), text(&dataset)];
+    let merge = ["data", "merge", "--out", text(&target), text(&dataset)];
     for args in [&generate[..], &merge[..]] {
         let held = RunLock::acquire(&target).unwrap();
         let before = snapshot(&target);
@@ -138,7 +156,10 @@ fn run_folders_held_by_another_process_are_refused_and_left_unchanged() {
     }
     let held = RunLock::acquire(run).unwrap();
     let before = snapshot(run);
-    assert_refused(&["feasibility", "--out", text(run)], "is in use by another process");
+    assert_refused(
+        &["data", "feasibility", "--out", text(run)],
+        "is in use by another process",
+    );
     assert_eq!(snapshot(run), before, "feasibility changed the held folder");
     drop(held);
     let _ = std::fs::remove_dir_all(&parent);
@@ -162,7 +183,7 @@ fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
         (&["--margin", "NaN"][..], "--margin must be"),
         (&["--refinements", "9"][..], "at most 4"),
     ] {
-        let mut args = vec!["crosscheck", "--dataset", text(run), "--csv", text(&csv)];
+        let mut args = vec!["data", "crosscheck", "--dataset", text(run), "--csv", text(&csv)];
         args.extend_from_slice(extra);
         assert_refused(&args, needle);
         assert!(!csv.exists(), "{extra:?}: the refused check wrote {}", csv.display());
@@ -170,12 +191,13 @@ fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
     // --repair rewrites a run: a dataset file, or a part of the run, is not one.
     for args in [
         &[
+            "data",
             "crosscheck",
             "--dataset",
             &format!("{}/dataset.ltds", text(run)),
             "--repair",
         ][..],
-        &["crosscheck", "--dataset", text(run), "--repair", "--count", "1"][..],
+        &["data", "crosscheck", "--dataset", text(run), "--repair", "--count", "1"][..],
     ] {
         assert_refused(args, "--repair rewrites a whole run");
     }
@@ -185,11 +207,11 @@ fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
     );
     let missing = parent.join("missing").join("crosscheck.csv");
     assert_refused(
-        &["crosscheck", "--dataset", text(run), "--csv", text(&missing)],
+        &["data", "crosscheck", "--dataset", text(run), "--csv", text(&missing)],
         "is not an existing folder",
     );
     assert!(!missing.parent().unwrap().exists());
-    let out = ground(&["crosscheck", "--dataset", text(run), "--csv", text(&csv)]);
+    let out = ground(&["data", "crosscheck", "--dataset", text(run), "--csv", text(&csv)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let rows: Vec<String> = std::fs::read_to_string(&csv)
         .unwrap()
@@ -225,7 +247,7 @@ fn feasibility_refuses_a_run_with_a_corrupt_request() {
     let _ = std::fs::remove_file(copy.join(".lock"));
     std::fs::write(copy.join("request.json"), "{ not json").unwrap();
     let before = snapshot(&copy);
-    assert_refused(&["feasibility", "--out", text(&copy)], "request.json");
+    assert_refused(&["data", "feasibility", "--out", text(&copy)], "request.json");
     assert_eq!(snapshot(&copy), before, "the refused feasibility changed the run");
     let _ = std::fs::remove_dir_all(&parent);
 }

@@ -1,4 +1,4 @@
-//! `ground solve` from the outside: bad input is refused with a clear message, and `--json`
+//! `ground data solve` from the outside: bad input is refused with a clear message, and `--json`
 //! prints one object with the documented fields.
 
 use std::process::Command;
@@ -10,19 +10,22 @@ fn ground(args: &[&str]) -> std::process::Output {
 #[test]
 fn invalid_orbits_and_times_are_refused_with_a_clear_message() {
     for (args, needle) in [
-        (vec!["solve", "--a0", "0", "--af", "1.3"], "semi-major axis"),
-        (vec!["solve", "--a0", "1", "--af", "1.3", "--e0", "1.2"], "eccentricity"),
-        (vec!["solve", "--a0", "1", "--af", "NaN"], "semi-major axis"),
+        (vec!["data", "solve", "--a0", "0", "--af", "1.3"], "semi-major axis"),
         (
-            vec!["solve", "--a0", "1", "--af", "1.3", "--tof-days", "-14"],
+            vec!["data", "solve", "--a0", "1", "--af", "1.3", "--e0", "1.2"],
+            "eccentricity",
+        ),
+        (vec!["data", "solve", "--a0", "1", "--af", "NaN"], "semi-major axis"),
+        (
+            vec!["data", "solve", "--a0", "1", "--af", "1.3", "--tof-days", "-14"],
             "tof-days",
         ),
         (
-            vec!["solve", "--a0", "1", "--af", "1.3", "--tof-days", "20"],
+            vec!["data", "solve", "--a0", "1", "--af", "1.3", "--tof-days", "20"],
             "whole number",
         ),
-        (vec!["solve", "--scenario", "transfer-easy"], "unknown scenario"),
-        (vec!["solve"], "--scenario"),
+        (vec!["data", "solve", "--scenario", "transfer-easy"], "unknown scenario"),
+        (vec!["data", "solve"], "--scenario"),
     ] {
         let out = ground(&args);
         assert!(!out.status.success(), "{args:?} was accepted");
@@ -33,7 +36,7 @@ fn invalid_orbits_and_times_are_refused_with_a_clear_message() {
 
 #[test]
 fn json_output_has_the_documented_fields_and_a_physical_solution() {
-    let out = ground(&["solve", "--a0", "1", "--af", "1.3", "--json"]);
+    let out = ground(&["data", "solve", "--a0", "1", "--af", "1.3", "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
@@ -55,7 +58,7 @@ fn json_output_has_the_documented_fields_and_a_physical_solution() {
     assert!(m > 0.85 && m < 0.908443, "{v}");
 }
 
-/// `ground solve ... | head -c 1`: the reader goes away before the output is written; the CLI
+/// `ground data solve ... | head -c 1`: the reader goes away before the output is written; the CLI
 /// ends by SIGPIPE like other Unix tools, not by a panic on the broken pipe.
 #[cfg(unix)]
 #[test]
@@ -63,7 +66,7 @@ fn a_closed_output_pipe_ends_the_cli_quietly() {
     use std::os::unix::process::ExitStatusExt;
     use std::process::Stdio;
     let mut child = Command::new(env!("CARGO_BIN_EXE_ground"))
-        .args(["solve", "--a0", "1", "--af", "1.3", "--json"])
+        .args(["data", "solve", "--a0", "1", "--af", "1.3", "--json"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -73,4 +76,25 @@ fn a_closed_output_pipe_ends_the_cli_quietly() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("panicked"), "{err}");
     assert_eq!(out.status.signal(), Some(libc::SIGPIPE), "{:?}: {err}", out.status);
+}
+
+/// `ground --help` lists the command groups a user recognises, at most eight entries, and
+/// never the commands run only by the tool itself (a relabelling round's Slurm task).
+#[test]
+fn the_help_lists_groups_not_internal_commands() {
+    let out = ground(&["--help"]);
+    assert!(out.status.success());
+    let help = String::from_utf8_lossy(&out.stdout);
+    let commands: Vec<&str> = help
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert!(commands.contains(&"data"), "{help}");
+    assert!(commands.len() <= 8, "{} entries: {commands:?}", commands.len());
+    assert!(!help.contains("relabel-shard"), "{help}");
+    // The groups hold the commands: `ground data solve --help` exists.
+    assert!(ground(&["data", "solve", "--help"]).status.success());
 }

@@ -72,6 +72,7 @@
 // `policy::x86`, the x86-64 AVX2 + FMA kernel: the two modules that allow it.
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
+#![deny(clippy::undocumented_unsafe_blocks)]
 // Panic-freedom is enforced by the linter, not hoped for: CI runs clippy with -D warnings.
 #![cfg_attr(
     not(test),
@@ -81,8 +82,6 @@
         clippy::panic,
         clippy::indexing_slicing,
         clippy::unreachable,
-        clippy::todo,
-        clippy::unimplemented,
         clippy::integer_division,
         clippy::panic_in_result_fn
     )

@@ -2,12 +2,11 @@
 //! in the SIL loop: the contract between the crates, end to end.
 
 use firmware_sim::{
-    fly_observed, fly_rendezvous, fly_transfer, Controller, Dispersions, FlightStep, Problem, Rendezvous, Transfer,
+    fly, fly_observed, Controller, Dispersions, FlightSetup, FlightStep, Problem, Rendezvous, Transfer,
 };
 use ground_core::env::{EnvConfig, Environment, MdpEnv};
-use onboard::features::{decode_action, to_network_input, RewardWeights, RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+use onboard::features::{decode_action, to_network_input, RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
 use onboard::guidance::Actor;
-use onboard::integrator::Tolerances;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use shared::blob::{
     decode, encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, FeatureLayout, LayerBlob,
@@ -193,18 +192,13 @@ where
     let config = EnvConfig::default();
     let spacecraft = config.spacecraft.canonical().unwrap();
     let mut steps: Vec<FlightStep<N>> = Vec::new();
-    let summary = fly_observed(
-        problem,
-        actor,
-        scenario,
-        &spacecraft,
-        &config.integrator.tolerances(),
-        &config.reward.weights(),
-        &Dispersions::NONE,
-        0,
-        |k| steps.push(*k),
-    )
-    .unwrap();
+    let setup = FlightSetup {
+        spacecraft,
+        tolerances: config.integrator.tolerances(),
+        weights: config.reward.weights(),
+        dispersions: Dispersions::NONE,
+    };
+    let summary = fly_observed(problem, actor, scenario, &setup, 0, |k| steps.push(*k)).unwrap();
     assert_eq!(summary.steps, scenario.steps);
     let mut env = E::new(&config).unwrap();
     let mut obs = env.reset(scenario).unwrap();
@@ -268,7 +262,7 @@ fn spoiled(bytes: &[u8]) -> [(&'static str, Vec<u8>); 3] {
 #[test]
 fn the_sil_controller_refuses_bad_blobs_of_either_problem_and_flies_them_thrust_off() {
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-    let (tol, w) = (Tolerances::default(), RewardWeights::default());
+    let dispersed = FlightSetup::nominal(sc).dispersed(Dispersions::TYPICAL);
     for quantization in [Quantization::F32, Quantization::Int8] {
         let (transfer, rendezvous) = (transfer_blob(quantization), rendezvous_blob(quantization));
         let t = ScenarioKind::TransferCircular.draw(7, 0);
@@ -295,7 +289,7 @@ fn the_sil_controller_refuses_bad_blobs_of_either_problem_and_flies_them_thrust_
                 ),
                 _ => assert!(matches!(error, PolicyError::Blob(_)), "{what}: {error:?}"),
             }
-            let flight = fly_rendezvous(controller, &r, &sc, &tol, &w, &Dispersions::TYPICAL, 3).unwrap();
+            let flight = fly(Rendezvous, controller, &r, &dispersed, 3).unwrap();
             assert_eq!(flight.steps.len(), r.steps as usize);
             assert!(flight
                 .steps
@@ -312,7 +306,7 @@ fn the_sil_controller_refuses_bad_blobs_of_either_problem_and_flies_them_thrust_
         refused.push(("rendezvous blob", Controller::load_transfer(&rendezvous)));
         for (what, controller) in &refused {
             assert!(matches!(controller, Controller::SafeMode(_)), "{what}");
-            let flight = fly_transfer(controller, &t, &sc, &tol, &w, &Dispersions::TYPICAL, 3).unwrap();
+            let flight = fly(Transfer, controller, &t, &dispersed, 3).unwrap();
             assert!(flight.steps.iter().all(|k| k.command.throttle == 0.0), "{what}");
             assert_eq!(flight.final_state().m, 1.0, "{what}");
         }
@@ -328,16 +322,7 @@ fn a_ground_blob_flies_in_the_sil_loop_with_the_commands_the_network_computes() 
         assert_eq!(policy.quantization(), quantization);
         for index in 0..3 {
             let scenario = ScenarioKind::TransferCircular.draw(2026, index);
-            let flight = fly_transfer(
-                &policy,
-                &scenario,
-                &sc,
-                &Tolerances::default(),
-                &RewardWeights::default(),
-                &Dispersions::NONE,
-                0,
-            )
-            .unwrap();
+            let flight = fly(Transfer, &policy, &scenario, &FlightSetup::nominal(sc), 0).unwrap();
             assert_eq!(flight.steps.len(), scenario.steps as usize);
             for step in &flight.steps {
                 // The command flown is the network's action on the features of that step.

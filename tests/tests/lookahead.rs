@@ -4,8 +4,7 @@
 //! a cost no higher than the network flown alone. The transfer's rollouts are the flight exactly;
 //! the rendezvous's to rounding (its body is coasted from each cycle's state, not the epoch's).
 
-use firmware_sim::{fly, Controller, Dispersions, Flight, Problem, Rendezvous, Transfer};
-use onboard::features::RewardWeights;
+use firmware_sim::{fly, Controller, Flight, FlightSetup, Problem, Rendezvous, Transfer};
 use onboard::guidance::{Actor, TargetFeatures};
 use onboard::lookahead::{lookahead_step, Lookahead, LookaheadSettings, Prediction};
 use shared::blob::AlignedBlob;
@@ -43,16 +42,17 @@ where
 {
     let sc = spacecraft();
     let settings = LookaheadSettings::default();
-    let tolerances = settings.tolerances;
-    let weights = RewardWeights::default();
-    let none = Dispersions::NONE;
-    let alone = fly(problem, actor, scenario, &sc, &tolerances, &weights, &none, 0).unwrap();
+    let setup = FlightSetup {
+        tolerances: settings.tolerances,
+        ..FlightSetup::nominal(sc)
+    };
+    let alone = fly(problem, actor, scenario, &setup, 0).unwrap();
     let guide = Lookahead {
         actor,
         spacecraft: sc,
         settings,
     };
-    let looked = fly(problem, &guide, scenario, &sc, &tolerances, &weights, &none, 0).unwrap();
+    let looked = fly(problem, &guide, scenario, &setup, 0).unwrap();
     assert_eq!(looked.steps.len(), scenario.steps as usize);
     let mut previous = f64::INFINITY;
     for step in &looked.steps {

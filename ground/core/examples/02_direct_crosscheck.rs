@@ -14,7 +14,7 @@
 //! cargo run --release -p lowthrust-ground-core --example 02_direct_crosscheck -- --start indirect --segments-per-step 1
 //! ```
 //!
-//! `ground crosscheck` runs the same check (tangential start) over every record of a dataset.
+//! `ground data crosscheck` runs the same check (tangential start) over every record of a dataset.
 
 use clap::{Parser, ValueEnum};
 use ground_core::solver::direct::{solve_direct_refined, DirectGuess, DirectOptions, DirectSolution};

@@ -8,7 +8,7 @@
 //! slack. The re-flown final state's residuals are those the environment scores.
 //!
 //! Run (the default: 10 draws in about 10 s; seed 2000003 is the transfer configs' Monte Carlo
-//! stream, so the rows line up with `ground evaluate`'s mc.csv episode by episode):
+//! stream, so the rows line up with `ground model evaluate`'s mc.csv episode by episode):
 //!
 //! ```text
 //! cargo run --release -p lowthrust-ground-core --example 05_zoh_reach

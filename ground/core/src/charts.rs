@@ -60,16 +60,22 @@ const FLOWN_LEGEND_WIDTH: u32 = 360;
 /// One line of a line chart; `band` = optional (x, low, high) shaded around it (e.g. mean +- std).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series {
+    /// Legend entry.
     pub name: String,
+    /// (x, y) points, drawn in order.
     pub points: Vec<(f64, f64)>,
+    /// Shaded band: (x, low, high) per point.
     pub band: Option<Vec<(f64, f64, f64)>>,
 }
 
 /// A flown trajectory in the orbit plane (AU) with its initial and target orbits.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FlownPath {
+    /// Legend entry.
     pub label: String,
+    /// Departure orbit (AU, rad), drawn as an ellipse.
     pub initial: OrbitShape,
+    /// Target orbit (AU, rad), drawn as an ellipse.
     pub target: OrbitShape,
     /// (x, y, throttle of the step ending there).
     pub points: Vec<(f64, f64, f64)>,
@@ -78,8 +84,11 @@ pub struct FlownPath {
 /// One panel of a histogram grid.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Panel {
+    /// Panel title.
     pub title: String,
+    /// x-axis label.
     pub x_label: String,
+    /// Values to bin (non-finite ones skipped).
     pub values: Vec<f64>,
     /// Vertical marker lines: (label, x).
     pub markers: Vec<(String, f64)>,
@@ -182,9 +191,9 @@ pub fn histogram(
 /// Flown trajectories in the orbit plane (AU), all on one figure with equal axis scaling: the
 /// Sun at the origin, each path's initial orbit (dashed) and target orbit (solid) in the path's
 /// colour (as in [`crate::plot::plot_trajectories`]), the path itself in [`THRUST_COLOR`] where
-/// the step ending at a point has throttle > [`THRUST_THRESHOLD`] and [`COAST_COLOR`]
-/// elsewhere, a circle at its first point and a triangle at its last. Points with a non-finite
-/// coordinate or throttle are skipped.
+/// the step ending at a point has throttle > [`THRUST_THRESHOLD`] and
+/// [`COAST_COLOR`](crate::plot::COAST_COLOR) elsewhere, a circle at its first point and a
+/// triangle at its last. Points with a non-finite coordinate or throttle are skipped.
 ///
 /// Errors: a path not ending in `.svg`, an orbit that is not an ellipse, no finite point in any
 /// path, or a failed write (the file at `path` is then unchanged).

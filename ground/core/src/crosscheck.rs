@@ -58,18 +58,23 @@ impl Default for CrossCheckSettings {
 /// One record against the direct transcription on its finest mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CrossCheck {
+    /// The record's scenario index.
     pub index: u64,
     /// The cost both methods optimise (the record's final homotopy parameter).
     pub final_eps: f64,
     /// Final masses, fractions of the initial mass.
     pub indirect_final_mass: f64,
+    /// Final mass of the direct solution on the finest mesh, fraction of m0.
     pub direct_final_mass: f64,
+    /// Segments of the finest mesh.
     pub segments: usize,
+    /// Whether the direct solve converged on the finest mesh.
     pub direct_converged: bool,
     /// Terminal violation of the direct controls re-flown by the onboard propagator.
     pub onboard_violation: f64,
     /// SQP iterations over all meshes.
     pub iterations: u32,
+    /// Wall time of the direct solves over all meshes, s.
     pub seconds: f64,
     /// The direct solution's controls (and nu_f): where [`repair_record`] starts.
     pub direct: DirectGuess,
@@ -110,7 +115,7 @@ fn solve_alone(
     )
 }
 
-/// Checks `record` against the direct problem of its scenario solved on its own ([`solve_alone`]).
+/// Checks `record` against the direct problem of its scenario solved on its own (`solve_alone`).
 pub fn crosscheck_record(
     record: &TrajectoryRecord,
     spacecraft: &CanonicalSpacecraft,

@@ -38,7 +38,7 @@ use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
 use crate::env::batch::Stats;
-use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Problem};
 use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
@@ -67,6 +67,7 @@ pub enum RecordFilter {
 }
 
 impl RecordFilter {
+    /// Whether `record` passes the filter.
     pub fn accepts(&self, record: &TrajectoryRecord) -> bool {
         match self {
             Self::Converged => record.converged,
@@ -78,13 +79,19 @@ impl RecordFilter {
 /// One experience tuple (s_k, a_k, r_k, s_k+1, done_k).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Transition<O> {
+    /// s_k: the observation at step k.
     pub observation: O,
+    /// a_k: the clipped action encoding the step's ZOH control.
     pub action: [f32; ACTION_LEN],
+    /// r_k: the environment's reward for the step (printed reward plus terminal-accuracy term).
     pub reward: f64,
+    /// s_k+1: the observation at step k + 1.
     pub next_observation: O,
+    /// True on the episode's last step (k + 1 = N).
     pub done: bool,
     /// Scenario index of the record and step k, for tracing.
     pub record: u64,
+    /// Step index k in the episode.
     pub step: u32,
 }
 
@@ -161,28 +168,46 @@ impl OdeSystem<AUG_LEN, SWITCH_EVENTS> for ControlIntegral {
 /// Why a record gave no tuples.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DemoError {
+    /// Reading the dataset failed (the error's text).
     #[error("dataset: {0}")]
     Dataset(String),
     /// The record is of the other problem than the environment asked for.
     #[error("a {found:?} record where {expected:?} was asked")]
-    WrongProblem { expected: ProblemKind, found: ProblemKind },
+    WrongProblem {
+        /// The environment's problem.
+        expected: ProblemKind,
+        /// The record's.
+        found: ProblemKind,
+    },
     /// The record holds no step samples (failed solve) or not N + 1 of them.
     #[error("record has no (complete) step samples")]
     NoSolution,
     /// A placement whose steps do not add up to the episode's, or a mass outside (0, 1].
     #[error("record does not fit its place in the episode (steps or mass)")]
     Placement,
+    /// The environment refused the spacecraft, scenario or a step.
     #[error("{0}")]
     Env(EnvError),
+    /// Re-integrating the state-costate system over a step failed.
     #[error("re-integration over step {step} failed: {error:?}")]
-    Integration { step: u32, error: IntegrationError },
+    Integration {
+        /// Index k of the record's step (from its t = k STEP).
+        step: u32,
+        /// The integrator's error.
+        error: IntegrationError,
+    },
     /// The re-integrated optimal state differs from the record's sample at `step` by
     /// `deviation`: other spacecraft, other eps, or corrupt costates.
     #[error(
         "re-integrated optimal state departs from the record at step {step} by {deviation:.3e}: \
          another spacecraft, eps or corrupt costates?"
     )]
-    Inconsistent { step: u32, deviation: f64 },
+    Inconsistent {
+        /// Step boundary of the record where the states were compared.
+        step: u32,
+        /// Largest absolute difference over x, y, vx, vy, m (canonical units).
+        deviation: f64,
+    },
 }
 
 impl From<GenerateError> for DemoError {
@@ -266,14 +291,19 @@ fn state_of(s: &TrajectorySample) -> SpacecraftState {
 /// How far the environment's propagation of (s_k, a_k) lands from the optimal s_k+1.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct StepMismatch {
+    /// Scenario index of the record.
     pub record: u64,
+    /// Step index k in the episode.
     pub step: u32,
     /// |r_env - r_opt| (AU), |v_env - v_opt| (AU/t*), |m_env - m_opt| (m0).
     pub position: f64,
+    /// |v_env - v_opt|, AU/t*.
     pub velocity: f64,
+    /// |m_env - m_opt|, fraction of m0.
     pub mass: f64,
     /// ZOH throttle |w| and mean throttle of the optimal control over the step.
     pub zoh_throttle: f64,
+    /// Mean throttle (1/STEP) ∫ u dt.
     pub mean_throttle: f64,
     /// |w_trapezoid - w| of the endpoint rule on the record's two step samples.
     pub trapezoid_error: f64,
@@ -285,7 +315,9 @@ pub struct StepMismatch {
 /// The tuples of one record, with the one-step mismatch of every step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RecordDemonstration<O> {
+    /// The record's tuples, in step order.
     pub transitions: Vec<Transition<O>>,
+    /// One-step mismatch of each step the record flies (none for the coast after an early arrival).
     pub mismatch: Vec<StepMismatch>,
 }
 
@@ -299,8 +331,11 @@ pub struct RecordDemonstration<O> {
 /// to the episode's end, with its target.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Placement {
+    /// The episode the tuples belong to (its steps and, for a rendezvous, its body).
     pub episode: Scenario,
+    /// Step of the episode at which the record's flight starts.
     pub start_step: u32,
+    /// Mass at that step, fraction of the episode's m0.
     pub start_mass: f64,
 }
 
@@ -494,10 +529,13 @@ pub fn placed_demonstration<P: Problem>(
 /// Tuples of a record set, in record order, with the records that gave none.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Demonstrations<O> {
+    /// Tuples of every record used, in record order.
     pub transitions: Vec<Transition<O>>,
+    /// One-step mismatches of those records, in record order.
     pub mismatch: Vec<StepMismatch>,
     /// Records the filter let through: used, and failed with their reasons (scenario index).
     pub used: usize,
+    /// The records that gave no tuple: (scenario index, why).
     pub failed: Vec<(u64, DemoError)>,
     /// Records the filter left out.
     pub filtered_out: usize,
@@ -539,17 +577,29 @@ pub fn demonstrations<P: Problem>(
 /// full-thrust steps (mean throttle 1) and the rest (switches or partial throttle inside).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MismatchReport {
+    /// Transfer or rendezvous.
     pub problem: ProblemKind,
+    /// Records that gave tuples.
     pub records_used: usize,
+    /// (scenario index, reason) of the records that gave none.
     pub records_failed: Vec<(u64, String)>,
+    /// Records the filter left out.
     pub records_filtered_out: usize,
+    /// Number of tuples.
     pub tuples: usize,
+    /// |r_env - r_opt| over all steps, AU.
     pub position: Stats,
+    /// |v_env - v_opt| over all steps, AU/t*.
     pub velocity: Stats,
+    /// |m_env - m_opt| over all steps, fraction of m0.
     pub mass: Stats,
+    /// Position mismatch on coast steps (mean throttle 0), AU.
     pub coast_position: Stats,
+    /// Position mismatch on full-thrust steps (mean throttle 1), AU.
     pub full_thrust_position: Stats,
+    /// Position mismatch on the other steps (switches or partial throttle), AU.
     pub switching_position: Stats,
+    /// Velocity mismatch on those steps, AU/t*.
     pub switching_velocity: Stats,
     /// |w_trapezoid - w|: how far the endpoint rule on the record's step samples is off.
     pub trapezoid_error: Stats,
@@ -558,6 +608,7 @@ pub struct MismatchReport {
 }
 
 impl MismatchReport {
+    /// The report of `demos`' one-step mismatches.
     pub fn from_mismatch<O>(problem: ProblemKind, demos: &Demonstrations<O>) -> Self {
         let m = &demos.mismatch;
         let coast = |s: &&StepMismatch| s.mean_throttle == 0.0;
@@ -656,16 +707,10 @@ pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter)
     let file = read_dataset(dataset)?;
     let problem = file.manifest.scenario.problem();
     let tol = default_tolerances();
-    Ok(match problem {
-        ProblemKind::Transfer => MismatchReport::from_mismatch(
-            problem,
-            &demonstrations::<Transfer>(&file.records, config, filter, &tol),
-        ),
-        ProblemKind::Rendezvous => MismatchReport::from_mismatch(
-            problem,
-            &demonstrations::<Rendezvous>(&file.records, config, filter, &tol),
-        ),
-    })
+    Ok(crate::with_problem!(problem, P => MismatchReport::from_mismatch(
+        problem,
+        &demonstrations::<P>(&file.records, config, filter, &tol),
+    )))
 }
 
 /// CLI entry: prints the mismatch report of a dataset for `spacecraft` and the default reward.
@@ -684,6 +729,7 @@ mod tests {
     use std::sync::OnceLock;
 
     use super::*;
+    use crate::env::{Rendezvous, Transfer};
     use crate::solver::record::sample_at;
     use crate::solver::{solve_scenario, SolveOptions};
     use shared::scenario::{Scenario, ScenarioKind};

@@ -39,13 +39,17 @@ const FORMAT_VERSION: u16 = 1;
 /// Shard I of N: the indices i with i mod N == I. Disjoint, reproducible, and together all.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Shard {
+    /// I, in 0..N.
     pub index: u32,
+    /// N, at least 1.
     pub count: u32,
 }
 
 impl Shard {
+    /// Shard 0/1: every index.
     pub const WHOLE: Self = Self { index: 0, count: 1 };
 
+    /// Whether scenario index `i` belongs to this shard.
     pub fn contains(&self, i: u64) -> bool {
         i % u64::from(self.count) == u64::from(self.index)
     }
@@ -54,14 +58,23 @@ impl Shard {
 /// Why a text is not a shard `I/N`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ShardError {
+    /// No `/` in the text (given in full).
     #[error("shard must look like I/N, got '{0}'")]
     Form(String),
+    /// I (given) is not an unsigned integer.
     #[error("bad shard index '{0}'")]
     Index(String),
+    /// N (given) is not an unsigned integer.
     #[error("bad shard count '{0}'")]
     Count(String),
+    /// N = 0 or I >= N.
     #[error("shard {index}/{count}: need 0 <= I < N")]
-    OutOfRange { index: u32, count: u32 },
+    OutOfRange {
+        /// I.
+        index: u32,
+        /// N.
+        count: u32,
+    },
 }
 
 impl FromStr for Shard {
@@ -80,8 +93,11 @@ impl FromStr for Shard {
 /// What a run generates; stored as `manifest.json` and checked on resume and merge.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
+    /// Distribution the scenarios are drawn from.
     pub scenario: ScenarioKind,
+    /// Seed of the draws: index i is `scenario.draw(seed, i)`.
     pub seed: u64,
+    /// Number of scenarios: indices 0..count.
     pub count: u64,
 }
 
@@ -90,6 +106,7 @@ pub struct Manifest {
 /// records of two kinds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SolveRequest {
+    /// The homotopy's last eps ([`SolveOptions::final_eps`]).
     pub final_eps: f64,
     /// [`SolveOptions::arrival_margin_steps`] (absent: 0, as before it existed).
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -121,13 +138,18 @@ impl SolveRequest {
 /// A dataset file: the records of a run (a shard or a whole set).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DatasetFile {
+    /// What the run generates.
     pub manifest: Manifest,
+    /// Which shard of it these records are.
     pub shard: Shard,
+    /// The records, sorted by index.
     pub records: Vec<TrajectoryRecord>,
 }
 
+/// Why a run, merge or dataset read failed.
 #[derive(Debug, thiserror::Error)]
 pub enum GenerateError {
+    /// Reading or writing this file failed.
     #[error("{path}: {1}", path = .0.display())]
     Io(PathBuf, std::io::Error),
     /// The folder holds a run of another scenario, seed or count.
@@ -140,13 +162,29 @@ pub enum GenerateError {
         .wanted.seed,
         .wanted.count
     )]
-    ManifestMismatch { found: Manifest, wanted: Manifest },
+    ManifestMismatch {
+        /// The folder's manifest.
+        found: Manifest,
+        /// The run's.
+        wanted: Manifest,
+    },
     /// The folder holds records solved to another final eps.
     #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
-    FinalEpsMismatch { found: f64, wanted: f64 },
+    FinalEpsMismatch {
+        /// The folder's final eps.
+        found: f64,
+        /// The run's.
+        wanted: f64,
+    },
     /// The folder holds records solved with another arrival margin.
     #[error("output folder holds records solved to arrive {found} steps early, not {wanted}: use another --out or --arrival-margin {found}")]
-    ArrivalMarginMismatch { found: u32, wanted: u32 },
+    ArrivalMarginMismatch {
+        /// The folder's margin, 14-day steps.
+        found: u32,
+        /// The run's.
+        wanted: u32,
+    },
+    /// This record, journal or dataset file fails its magic, version, checksum or decoding.
     #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
     /// Shards to merge disagree, overlap, or leave indices out.
@@ -165,7 +203,12 @@ pub enum GenerateError {
         .shard.count,
         .count.saturating_sub(1)
     )]
-    EmptyShard { shard: Shard, count: u64 },
+    EmptyShard {
+        /// The shard asked for.
+        shard: Shard,
+        /// The run's scenario count.
+        count: u64,
+    },
     /// The homotopy's last eps must be in (0, 1].
     #[error("final eps must be in (0, 1], got {0}")]
     InvalidFinalEps(f64),
@@ -197,32 +240,46 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Option<T>, G
 /// Aggregate figures of a record set (written as summary.json).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
+    /// Distribution name ([`ScenarioKind::name`]).
     pub scenario: String,
+    /// Seed of the draws.
     pub seed: u64,
+    /// Shard the figures cover.
     pub shard: Shard,
+    /// Number of records.
     pub records: usize,
+    /// Number of converged records.
     pub converged: usize,
+    /// converged / records.
     pub convergence_rate: f64,
     /// Records classified infeasible (failure reason "infeasible: minimum time ..."), and
     /// converged / (records - infeasible).
     #[serde(default)]
     pub infeasible: usize,
+    /// converged / (records - infeasible).
     #[serde(default)]
     pub feasible_convergence_rate: f64,
     /// Solve wall time per record: sum (CPU-seconds across threads), mean, median, max.
     pub seconds_sum: f64,
+    /// Mean solve time per record, s.
     pub seconds_mean: f64,
+    /// Median solve time per record, s.
     pub seconds_median: f64,
+    /// Longest solve time, s.
     pub seconds_max: f64,
     /// Over converged records.
     pub final_mass_mean: f64,
+    /// Standard deviation of the final mass (population), fraction of m0.
     pub final_mass_std: f64,
+    /// Smallest final mass, fraction of m0.
     pub final_mass_min: f64,
+    /// Largest final mass, fraction of m0.
     pub final_mass_max: f64,
     /// (index, reason) of every record that did not converge.
     pub failures: Vec<(u64, String)>,
 }
 
+/// Aggregate figures of `records`, a run's (or a shard's) records; NaN where no record counts.
 pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]) -> Summary {
     let mut seconds: Vec<f64> = records.iter().map(|r| r.seconds).collect();
     seconds.sort_by(f64::total_cmp);
@@ -681,6 +738,7 @@ pub fn trajectory_difference(a: &DatasetFile, b: &DatasetFile) -> Option<String>
     })
 }
 
+/// Reads and checks a dataset file (`dataset.ltds` or a shard's).
 pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
     decode_container(DATASET_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))

@@ -32,7 +32,9 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{}: {} is not an existing folder; create it first", .path.display(), .folder.display())]
 pub struct MissingFolder {
+    /// The path refused.
     pub path: PathBuf,
+    /// Its parent folder, which does not exist.
     pub folder: PathBuf,
 }
 
@@ -52,14 +54,19 @@ pub fn require_parent_folder(path: &Path) -> Result<(), MissingFolder> {
 /// Why a container file was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum ContainerError {
+    /// Shorter than a header and checksum (10 bytes).
     #[error("file is truncated")]
     Truncated,
+    /// The first 4 bytes are not the expected magic.
     #[error("not a file of this kind (bad magic)")]
     BadMagic,
+    /// The file's format version (given) is not the one read.
     #[error("unsupported format version {0}")]
     UnsupportedVersion(u16),
+    /// The payload's CRC-32 does not match the stored one.
     #[error("checksum mismatch: the file is corrupt")]
     CrcMismatch,
+    /// The payload does not (de)serialize with postcard, or has trailing bytes.
     #[error("payload does not decode: {0}")]
     Decode(String),
 }
@@ -121,9 +128,21 @@ pub const LOCK_FILE: &str = ".lock";
 #[derive(Debug, thiserror::Error)]
 pub enum LockError {
     #[error("{} is in use by another process ({holder}); wait for it or use another folder", .dir.display())]
-    Held { dir: PathBuf, holder: String },
+    /// Another process (or another hold in this one) holds the folder.
+    Held {
+        /// The run folder.
+        dir: PathBuf,
+        /// What the lock file says about the holder (`pid N`), or "unknown process".
+        holder: String,
+    },
     #[error("cannot lock {}: {source}", .dir.display())]
-    Io { dir: PathBuf, source: io::Error },
+    /// Creating the folder, or opening or locking its lock file, failed.
+    Io {
+        /// The run folder.
+        dir: PathBuf,
+        /// The underlying error.
+        source: io::Error,
+    },
 }
 
 /// An exclusive hold on a run folder for the life of the value: an OS advisory lock on

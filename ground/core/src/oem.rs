@@ -92,31 +92,57 @@ const MAX_NAME_LENGTH: usize = 80;
 pub enum OemError {
     /// The record's solve did not converge; its samples are not a trajectory.
     #[error(fmt = fmt_not_converged)]
-    NotConverged { failure: Option<String> },
+    NotConverged {
+        /// The record's failure reason, if it has one.
+        failure: Option<String>,
+    },
     /// The record has no ephemeris samples.
     #[error("refusing to export a trajectory with no ephemeris samples")]
     NoSamples,
     /// Sample `index` has a NaN or infinite `field`.
     #[error("ephemeris sample {index}: {field} is not finite")]
-    NonFinite { index: usize, field: &'static str },
+    NonFinite {
+        /// Position of the sample in the ephemeris.
+        index: usize,
+        /// Which quantity: time, position, velocity, mass, throttle or thrust direction.
+        field: &'static str,
+    },
     /// Sample `index` is not later than the one before it.
     #[error("ephemeris sample {index}: time is not later than the previous sample's")]
-    TimeNotIncreasing { index: usize },
+    TimeNotIncreasing {
+        /// Position of the sample in the ephemeris.
+        index: usize,
+    },
     /// Sample `index` is finite but not physical (mass <= 0, throttle outside [0, 1]).
     #[error("ephemeris sample {index}: {reason}")]
-    InvalidSample { index: usize, reason: &'static str },
+    InvalidSample {
+        /// Position of the sample in the ephemeris.
+        index: usize,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
     /// The spacecraft description is unusable.
     #[error("spacecraft: {0}")]
     Spacecraft(SpacecraftError),
     /// An option is not a valid OEM value.
     #[error("OEM option {field}: {reason}")]
-    InvalidOption { field: &'static str, reason: String },
+    InvalidOption {
+        /// The OEM keyword of the option (`"record"` when a written line would be too long).
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// A calendar epoch is malformed or out of range.
     #[error("epoch: {0}")]
     Epoch(String),
     /// The OEM text breaks the standard or departs from what [`write_oem`] writes.
     #[error("OEM line {line}: {message}")]
-    Parse { line: usize, message: String },
+    Parse {
+        /// 1-based line of the text; 0 for the thrust profile of [`OemEphemeris::thrust_profile`].
+        line: usize,
+        /// What is wrong there.
+        message: String,
+    },
     /// Writing to the output failed.
     #[error("writing OEM output: {0}")]
     Io(#[source] std::io::Error),
@@ -395,6 +421,7 @@ pub struct ThrustRow {
     pub epoch: CalendarEpoch,
     /// Days since departure.
     pub t_days: f64,
+    /// Spacecraft mass, kg.
     pub mass_kg: f64,
     /// Throttle u in [0, 1].
     pub throttle: f64,
@@ -440,13 +467,16 @@ impl ThrustRow {
 /// One state of the ephemeris as written: EME2000, Sun-centred.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OemState {
+    /// TDB epoch.
     pub epoch: CalendarEpoch,
+    /// Position (x, y, z), km.
     pub position_km: [f64; 3],
+    /// Velocity (vx, vy, vz), km/s.
     pub velocity_km_s: [f64; 3],
 }
 
 impl OemState {
-    /// The state back in canonical units and J2000 ecliptic axes: (r [AU], v [AU/t*]).
+    /// The state back in canonical units and J2000 ecliptic axes: (r in AU, v in AU/t*).
     pub fn canonical_ecliptic(&self) -> ([f64; 3], [f64; 3]) {
         let r = eme2000_to_ecliptic(self.position_km).map(|x| x / KM_PER_AU);
         let v = eme2000_to_ecliptic(self.velocity_km_s).map(|x| x / KM_S_PER_VELOCITY_UNIT);
@@ -457,30 +487,48 @@ impl OemState {
 /// The OEM metadata block.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OemMetadata {
+    /// Metadata `COMMENT` lines, without the keyword.
     pub comments: Vec<String>,
+    /// `OBJECT_NAME`.
     pub object_name: String,
+    /// `OBJECT_ID`.
     pub object_id: String,
+    /// `CENTER_NAME`.
     pub center_name: String,
+    /// `REF_FRAME`.
     pub ref_frame: String,
+    /// `TIME_SYSTEM`.
     pub time_system: String,
+    /// `START_TIME`.
     pub start_time: CalendarEpoch,
+    /// `USEABLE_START_TIME`, if given.
     pub useable_start_time: Option<CalendarEpoch>,
+    /// `USEABLE_STOP_TIME`, if given.
     pub useable_stop_time: Option<CalendarEpoch>,
+    /// `STOP_TIME`.
     pub stop_time: CalendarEpoch,
+    /// `INTERPOLATION`, if given.
     pub interpolation: Option<String>,
+    /// `INTERPOLATION_DEGREE`, if given.
     pub interpolation_degree: Option<u32>,
 }
 
 /// A single-segment OEM as read by [`read_oem`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct OemEphemeris {
+    /// `CCSDS_OEM_VERS`.
     pub version: String,
+    /// Header `COMMENT` lines, without the keyword.
     pub header_comments: Vec<String>,
+    /// `CREATION_DATE`.
     pub creation_date: CalendarEpoch,
+    /// `ORIGINATOR`.
     pub originator: String,
+    /// The metadata block.
     pub metadata: OemMetadata,
     /// Comments at the head of the data section (including the thrust profile lines).
     pub data_comments: Vec<String>,
+    /// The data lines, in epoch order.
     pub states: Vec<OemState>,
 }
 

@@ -70,22 +70,39 @@ pub enum PlotError {
     NoRecords,
     /// Record number `record` (position in the slice) has an empty ephemeris.
     #[error("record {record} has no ephemeris samples")]
-    NoSamples { record: usize },
+    NoSamples {
+        /// Position of the record in the slice.
+        record: usize,
+    },
     /// Record number `record` has a non-finite position or throttle.
     #[error("record {record} has a non-finite position or throttle")]
-    NonFinite { record: usize },
+    NonFinite {
+        /// Position of the record in the slice.
+        record: usize,
+    },
     /// Record number `record` has an initial or target orbit that is not a valid ellipse.
     #[error("record {record} has an invalid {which} orbit")]
-    InvalidOrbit { record: usize, which: &'static str },
+    InvalidOrbit {
+        /// Position of the record (or flown path) in the slice.
+        record: usize,
+        /// `"initial"` or `"target"`.
+        which: &'static str,
+    },
     /// No throttle curve was given.
     #[error("no throttle curve to plot")]
     NoCurves,
     /// Curve number `curve` has no points.
     #[error("throttle curve {curve} has no points")]
-    EmptyCurve { curve: usize },
+    EmptyCurve {
+        /// Position of the curve in the slice.
+        curve: usize,
+    },
     /// Curve number `curve` has a non-finite eps, time or throttle.
     #[error("throttle curve {curve} has a non-finite value")]
-    NonFiniteCurve { curve: usize },
+    NonFiniteCurve {
+        /// Position of the curve in the slice.
+        curve: usize,
+    },
     /// Fewer than two samples were asked for a throttle curve.
     #[error("a throttle curve needs at least 2 samples, {0} asked")]
     TooFewSamples(usize),
@@ -94,7 +111,12 @@ pub enum PlotError {
     NoConvergedLevel,
     /// Re-propagating the costates of the level at `eps` failed.
     #[error("propagating the level eps = {eps:e} failed: {error:?}")]
-    Propagation { eps: f64, error: IntegrationError },
+    Propagation {
+        /// Homotopy parameter of the level.
+        eps: f64,
+        /// The integrator's error.
+        error: IntegrationError,
+    },
     /// A chart ([`crate::charts`]) has no finite value to draw; names the chart.
     #[error("{0}: no finite value to draw")]
     NothingToDraw(&'static str),
@@ -103,7 +125,12 @@ pub enum PlotError {
     InvalidBins(usize),
     /// A histogram range that is not finite and increasing.
     #[error("histogram range [{low}, {high}] is not finite and increasing")]
-    InvalidRange { low: f64, high: f64 },
+    InvalidRange {
+        /// Lower bound asked for.
+        low: f64,
+        /// Upper bound asked for.
+        high: f64,
+    },
     /// The drawing library failed.
     #[error("drawing the plot failed: {0}")]
     Render(String),

@@ -76,7 +76,7 @@ fn shards_merge_into_the_single_run_and_restarts_resume() {
         without_timing(merged.records.clone()),
         without_timing(single.records.clone())
     );
-    // `ground compare`'s check: the same trajectories, solve times aside; one costate bit or
+    // `ground data compare`'s check: the same trajectories, solve times aside; one costate bit or
     // another seed is a difference.
     assert_eq!(trajectory_difference(&merged, &single), None);
     let mut altered = merged.clone();

@@ -13,31 +13,43 @@ use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
 
+/// A whole experiment as one TOML file: the scenario distribution, seeds, environment, learner,
+/// the settings of every phase and the compute. Missing sections take their defaults (the
+/// thesis's); unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExperimentConfig {
     /// Scenario distribution of docs/spec.md section 4 (training, evaluation and Monte Carlo).
     pub scenario: ScenarioKind,
+    /// Disjoint seeds of the training, evaluation and Monte Carlo scenario streams.
     #[serde(default)]
     pub seeds: Seeds,
+    /// The environment (docs/spec.md section 5): spacecraft, reward, terminal-accuracy term and
+    /// integrator settings.
     #[serde(default)]
     pub env: EnvConfig,
+    /// The SAC hyper-parameters (docs/spec.md section 8); per phase see [`ExperimentConfig::sac_for`].
     #[serde(default)]
     pub sac: SacConfig,
     /// The trajectory dataset the main job (`ground run`) generates for pretraining.
     #[serde(default)]
     pub generate: GenerateConfig,
+    /// Pretraining on the demonstrations (`ground train pretrain`).
     #[serde(default)]
     pub pretrain: PretrainConfig,
+    /// The RL phase (`ground train rl`) and the periodic evaluations of both phases.
     #[serde(default)]
     pub train: TrainConfig,
+    /// The Monte Carlo evaluation (`ground model evaluate`, and the main job).
     #[serde(default)]
     pub evaluate: EvaluateConfig,
-    /// DAgger-style rounds of relabelled demonstrations (`ground dagger`, transfers).
+    /// DAgger-style rounds of relabelled demonstrations (`ground train dagger`, transfers).
     #[serde(default)]
     pub dagger: DaggerConfig,
+    /// The software-in-the-loop Monte Carlo of exported blobs.
     #[serde(default)]
     pub sil: SilConfig,
+    /// Torch threads, device, and where relabels are solved.
     #[serde(default)]
     pub compute: ComputeConfig,
 }
@@ -64,17 +76,20 @@ impl Default for Seeds {
     }
 }
 
+/// The trajectory dataset the main job solves by the indirect method (`ground data generate` with
+/// these settings): how many scenarios and to what homotopy depth.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GenerateConfig {
     /// Trajectories solved (the thesis: 1,000 circular, 10,000 hard).
     pub count: u64,
+    /// Seed of the dataset's scenario draws (record i is scenario i of this seed; default 7).
     pub seed: u64,
     /// Final eps of the energy-to-fuel homotopy (docs/spec.md: below 1e-4).
     pub final_eps: f64,
     /// `ground run` checks every converged record against the direct transcription started on
     /// its own and re-solves those it beats onto the better optimum before pretraining
-    /// (`ground crosscheck --repair`; about 0.4 s a hard record on 2 cores). Off by default:
+    /// (`ground data crosscheck --repair`; about 0.4 s a hard record on 2 cores). Off by default:
     /// on 300 transfer-circular records it found none to repair.
     pub crosscheck: bool,
     /// Demonstrations and relabels are solved to arrive this many 14-day steps before the end
@@ -106,14 +121,17 @@ pub enum PretrainMode {
     BehaviourCloning,
 }
 
+/// Pretraining: gradient updates on the demonstration buffer alone, no environment interaction.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PretrainConfig {
-    /// Trajectory dataset (a `ground generate` output: the folder or its .ltds file).
+    /// Trajectory dataset (a `ground data generate` output: the folder or its .ltds file).
     pub dataset: Option<PathBuf>,
     /// Gradient updates with no environment interaction (N_pt).
     pub updates: u64,
+    /// Gradient updates between evaluations, the best model kept (default 10,000; > 0).
     pub eval_every: u64,
+    /// How the actor learns from the demonstrations (default `sac`, the thesis).
     pub mode: PretrainMode,
     /// Behaviour-cloning weight for `mode = "behaviour-cloning"` (and kept during RL if
     /// `train.keep_behaviour_cloning`).
@@ -141,14 +159,19 @@ impl Default for PretrainConfig {
     }
 }
 
+/// The RL phase (from scratch or from the pretrained model). Its `eval_episodes` also size the
+/// pretraining evaluations.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrainConfig {
     /// Environment steps of RL (1 update per step after the warm-up).
     pub env_steps: u64,
+    /// Environment steps between evaluations, the best model kept (default 10,000; > 0).
     pub eval_every: u64,
     /// Deterministic evaluation episodes each time.
     pub eval_episodes: u64,
+    /// Environment steps between checkpoints of agent, replay buffer and loop state, for
+    /// resumption (default 50,000; 0: at the end only).
     pub checkpoint_every: u64,
     /// Keep the behaviour-cloning term on the demonstrations still in the buffer during RL.
     pub keep_behaviour_cloning: bool,
@@ -166,6 +189,7 @@ impl Default for TrainConfig {
     }
 }
 
+/// The Monte Carlo evaluation of the trained policy (docs/spec.md section 9).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EvaluateConfig {
@@ -185,7 +209,7 @@ impl Default for EvaluateConfig {
     }
 }
 
-/// DAgger-style rounds (`ground dagger`): fly the policy on fresh training scenarios, re-solve
+/// DAgger-style rounds (`ground train dagger`): fly the policy on fresh training scenarios, re-solve
 /// the fuel-optimal rest of the flight from states it visited, add those tuples to the
 /// demonstration buffer, then behaviour-cloning-regularised updates on the grown buffer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -250,7 +274,7 @@ impl Default for DaggerConfig {
     }
 }
 
-/// The software-in-the-loop Monte Carlo (`ground sil`, and the main job after export).
+/// The software-in-the-loop Monte Carlo (`ground model sil`, and the main job after export).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SilConfig {
@@ -260,7 +284,7 @@ pub struct SilConfig {
     /// `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
     /// Fly the blob with rollout lookahead (`onboard::lookahead`) instead of alone (unset).
-    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0, thrust_margin = 0.05 }`, or `ground sil
+    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0, thrust_margin = 0.05 }`, or `ground model sil
     /// --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadConfig>,
@@ -318,6 +342,8 @@ impl LookaheadConfig {
     }
 }
 
+/// Where the learner computes: torch threads, CPU or CUDA, and optionally a Slurm job array for
+/// the relabel solves.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ComputeConfig {
@@ -369,10 +395,15 @@ fn default_sbatch() -> String {
 /// Why a config was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The config file could not be read: its path and the I/O error.
     #[error("cannot read config {}: {}", .0.display(), .1)]
     Read(PathBuf, std::io::Error),
+    /// The text is not a config: TOML syntax, an unknown key, a wrong type or an unknown
+    /// scenario name (the parser's message).
     #[error("config does not parse: {0}")]
     Parse(String),
+    /// A value is out of range or contradicts another (the message names the key); also a
+    /// missing dataset file or a CUDA device that is not there.
     #[error("config is invalid: {0}")]
     Invalid(String),
 }
@@ -381,17 +412,22 @@ pub enum ConfigError {
 pub const EMBEDDED_DEFAULT: &str = include_str!("../../../configs/quick.toml");
 
 impl ExperimentConfig {
+    /// Parses a TOML config and [`validates`](ExperimentConfig::validate) it; absent sections and
+    /// keys take their defaults.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
         let config: Self = toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string()))?;
         config.validate()?;
         Ok(config)
     }
 
+    /// Reads and parses the config file at `path` ([`ExperimentConfig::from_toml`]).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read(path.to_path_buf(), e))?;
         Self::from_toml(&text)
     }
 
+    /// The config as TOML with every value written out (defaults included); it parses back to an
+    /// equal config. Written beside a run's outputs as `RUN/config.toml`.
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_default()
     }

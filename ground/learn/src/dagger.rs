@@ -1,4 +1,4 @@
-//! `ground dagger`: DAgger-style rounds of relabelled demonstrations (transfers and rendezvous).
+//! `ground train dagger`: DAgger-style rounds of relabelled demonstrations (transfers and rendezvous).
 //!
 //! Each round flies the deterministic policy on fresh training scenarios, re-solves the
 //! fuel-optimal rest of each flight by the indirect method from the states it visited
@@ -46,9 +46,10 @@ use crate::sil::fly_blob_seeded;
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
-use ground_core::env::{MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::env::{MdpEnv, Problem};
 use ground_core::io::{checksum, decode_container, encode_container};
 use ground_core::solver::SolveOptions;
+use ground_core::with_problem;
 use onboard::dynamics::SpacecraftState;
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
@@ -63,6 +64,7 @@ const DISPERSION_STREAM: u64 = 0xD15BE25E;
 /// One round's relabelled tuples, as saved in `relabels-R.ltrl`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Relabels {
+    /// The round these tuples were solved in (from 1).
     pub round: u64,
     /// States sent to the solver.
     pub attempted: u64,
@@ -89,8 +91,11 @@ type Solved = Option<Vec<RelabelTuple>>;
 /// (x, y, vx, vy, m) at step `step`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RelabelJob {
+    /// The flight, counted from the round's first training scenario.
     pub episode: u64,
+    /// The step of the flight whose state the rest is solved from.
     pub step: u32,
+    /// The true state there: x, y (AU), vx, vy (AU/t*), mass (fraction of m0).
     pub state: [f64; 5],
 }
 
@@ -100,8 +105,11 @@ pub struct RelabelJob {
 /// the relabels in order.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RelabelRequest {
+    /// The run's config as TOML.
     pub config: String,
+    /// Index of the round's first training scenario (the round times 1,000,000).
     pub first: u64,
+    /// The relabels, in order.
     pub jobs: Vec<RelabelJob>,
 }
 
@@ -176,10 +184,8 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
         .step_by(tasks as usize)
         .map(|i| (i, &request.jobs[i as usize]))
         .collect();
-    let solve = |job: &RelabelJob| match config.scenario.problem() {
-        ProblemKind::Transfer => solve_job::<Transfer>(&config, request.first, job),
-        ProblemKind::Rendezvous => solve_job::<Rendezvous>(&config, request.first, job),
-    };
+    let solve =
+        |job: &RelabelJob| with_problem!(config.scenario.problem(), P => solve_job::<P>(&config, request.first, job));
     let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
     let out = shard_file(request_path, task, tasks);
     let shard = RelabelShard {
@@ -317,10 +323,15 @@ fn submit_relabel_array(
 /// The score of the learner after a round (round 0: the starting checkpoint).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RoundRow {
+    /// The round (0: the starting learner).
     pub round: u64,
+    /// States sent to the solver in the round.
     pub relabels_attempted: u64,
+    /// Of those, solved to the final eps.
     pub relabels_converged: u64,
+    /// Tuples the round added to the buffer.
     pub tuples_added: u64,
+    /// Transitions in the buffer after the round: demonstrations and every relabel so far.
     pub buffer: u64,
     /// Gradient updates of this command so far.
     pub updates: u64,
@@ -329,6 +340,7 @@ pub struct RoundRow {
     /// The same share with the SIL's dispersions (`dagger.dispersed`): the round's score then.
     #[serde(default)]
     pub within_goal_dispersed: Option<f64>,
+    /// Reward, final mass and terminal residuals of the nominal scoring episodes.
     pub summary: OutcomeSummary,
     /// Wall time of the round (relabels, updates, scoring).
     pub seconds: f64,
@@ -368,9 +380,10 @@ within_goal,within_goal_dispersed,completed,reward_mean,final_mass_mean,dr_p50,d
     }
 }
 
-/// What `ground dagger` ended with.
+/// What `ground train dagger` ended with.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DaggerSummary {
+    /// The rounds' folder, `RUN/dagger`.
     pub folder: PathBuf,
     /// Round 0 (the start) and every round done.
     pub rows: Vec<RoundRow>,
@@ -657,7 +670,7 @@ fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, Ex
     })
 }
 
-/// `ground dagger`: `config.dagger.rounds` rounds from `start` (a learner checkpoint, e.g.
+/// `ground train dagger`: `config.dagger.rounds` rounds from `start` (a learner checkpoint, e.g.
 /// RUN/pretrain/best.safetensors, or an actor file, narrower ones widened) in RUN/dagger,
 /// resuming whatever rounds are already there. With `relabels_from` (another run folder of the
 /// same scenario, seeds, final eps and arrival margin) that run's completed rounds' relabels
@@ -672,10 +685,7 @@ pub fn dagger(
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
-    match config.scenario.problem() {
-        ProblemKind::Transfer => dagger_for::<Transfer>(config, config_dir, run, start, relabels_from),
-        ProblemKind::Rendezvous => dagger_for::<Rendezvous>(config, config_dir, run, start, relabels_from),
-    }
+    with_problem!(config.scenario.problem(), P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
 }
 
 /// The relabels of another run's completed rounds (1, 2, ... while both a round's relabels and

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_core::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::{ProblemKind, Scenario};
+use shared::scenario::Scenario;
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::experiment::{policy_batch, ExperimentError};
@@ -18,9 +18,10 @@ use crate::sac::agent::{read_checked_safetensors, Sac};
 use crate::sac::trainer::uniform_action;
 use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
-use ground_core::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::env::{Environment, MdpEnv, Problem};
 use ground_core::io::atomic_write;
 use ground_core::solver::{solve_scenario, SolveOptions};
+use ground_core::with_problem;
 
 /// Episodes whose flown path is drawn.
 const PLOTTED_TRAJECTORIES: usize = 6;
@@ -35,28 +36,45 @@ pub const REPORTED_TOLERANCES: [f64; 3] = [0.01, 0.005, 0.001];
 /// One scenario's indirect optimum next to what the policy flew.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct GapRow {
+    /// Index of the scenario in the Monte Carlo stream (the episode that flew it).
     pub episode: usize,
+    /// Final mass the policy arrived with (fraction of m0).
     pub policy_mass: f64,
+    /// Final mass of the indirect solution (fraction of m0; NaN where no solution was found).
     pub optimal_mass: f64,
+    /// Whether the energy-to-fuel homotopy reached its final eps.
     pub optimal_converged: bool,
+    /// The eps the homotopy ended at (the final eps when converged).
     pub optimal_eps: f64,
     /// m_policy / m_optimal (docs/spec.md section 9).
     pub mass_ratio: f64,
     /// Propellant used / optimal propellant - 1.
     pub overspend: f64,
+    /// The policy's terminal position residual |dr| (AU).
     pub policy_dr: f64,
+    /// The policy's terminal velocity residual |dv| (AU/t*).
     pub policy_dv: f64,
 }
 
+/// What a Monte Carlo found (`summary.json`): the policy and both baselines on the same
+/// scenarios, the accuracy goal's shares and the optimality gap.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MonteCarloReport {
+    /// Name of the scenario distribution.
     pub scenario: String,
+    /// What flew: the checkpoint or actor file, or the blob for a SIL Monte Carlo.
     pub checkpoint: PathBuf,
+    /// Episodes flown by the policy.
     pub episodes: usize,
+    /// Seed of the scenario draws (`seeds.monte_carlo`).
     pub seed: u64,
+    /// Wall-clock seconds the Monte Carlo took.
     pub seconds: f64,
+    /// The policy's reward, final mass and terminal residuals.
     pub policy: OutcomeSummary,
+    /// The zero-thrust baseline (coasting) on the same scenarios.
     pub zero_thrust: OutcomeSummary,
+    /// The baseline of uniform random actions on the same scenarios.
     pub random: OutcomeSummary,
     /// Fraction of completed episodes with |dr| <= 0.01 AU and |dv| <= 0.01.
     pub within_accuracy_goal: f64,
@@ -64,8 +82,12 @@ pub struct MonteCarloReport {
     /// [`REPORTED_TOLERANCES`].
     #[serde(default)]
     pub within_tolerances: Vec<(f64, f64)>,
+    /// The optimality gap: one row for each of the first `evaluate.optimality_gap_cases`
+    /// scenarios, which the indirect method was run on.
     pub gap: Vec<GapRow>,
+    /// Statistics of [`GapRow::mass_ratio`] over the rows with an optimum (None without).
     pub mass_ratio: Option<Stats>,
+    /// Statistics of [`GapRow::overspend`] over the same rows.
     pub overspend: Option<Stats>,
     /// The accuracy goal's share by transfer size: quintiles of the zero-thrust miss.
     #[serde(default)]
@@ -97,7 +119,9 @@ pub struct SolvedShare {
 pub struct EccentricityBand {
     /// The band's edges: e_min <= max(e_departure, e_target) < e_max.
     pub e_min: f64,
+    /// Upper edge of the band (exclusive).
     pub e_max: f64,
+    /// Episodes flown in the band.
     pub episodes: usize,
     /// Share of the band's completed episodes within 0.01 AU and 0.01.
     pub within_goal: f64,
@@ -175,10 +199,13 @@ pub fn accuracy_by_eccentricity(
 pub struct AccuracyBand {
     /// Zero-thrust terminal |dr| (AU) of the band's first and last episode.
     pub coast_miss_min: f64,
+    /// Zero-thrust terminal |dr| (AU) of the band's last episode, the largest in it.
     pub coast_miss_max: f64,
+    /// Episodes in the band (completed by both the policy and the coast).
     pub episodes: usize,
     /// Share of the band's episodes within 0.01 AU and 0.01.
     pub within_goal: f64,
+    /// The policy's mean final mass in the band (fraction of m0).
     pub final_mass_mean: f64,
 }
 
@@ -228,7 +255,7 @@ fn meets(outcome: &EpisodeOutcome, tolerance: f64) -> bool {
     outcome.completed && outcome.terminal.position <= tolerance && outcome.terminal.velocity <= tolerance
 }
 
-/// `ground evaluate`: the Monte Carlo of docs/spec.md section 9 for the agent in `checkpoint`, written
+/// `ground model evaluate`: the Monte Carlo of docs/spec.md section 9 for the agent in `checkpoint`, written
 /// to `out` (mc.csv, summary.json, histograms.svg, trajectories.svg).
 pub fn monte_carlo(
     config: &ExperimentConfig,
@@ -237,10 +264,7 @@ pub fn monte_carlo(
     episodes: Option<u64>,
     gap_cases: Option<u64>,
 ) -> Result<MonteCarloReport, ExperimentError> {
-    match config.scenario.problem() {
-        ProblemKind::Transfer => monte_carlo_for::<Transfer>(config, checkpoint, out, episodes, gap_cases),
-        ProblemKind::Rendezvous => monte_carlo_for::<Rendezvous>(config, checkpoint, out, episodes, gap_cases),
-    }
+    with_problem!(config.scenario.problem(), P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
 }
 
 /// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a

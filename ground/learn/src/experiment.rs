@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use shared::scenario::{ProblemKind, ScenarioKind};
+use shared::scenario::ScenarioKind;
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::sac::agent::{CheckpointError, Sac, UpdateStats};
@@ -26,9 +26,10 @@ use crate::sac::trainer::{self, Episodic, LoopOptions, LoopState, StepOutcome, T
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
-use ground_core::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem};
 use ground_core::generate::{dataset_solve_request, read_dataset};
 use ground_core::io::{atomic_write, decode_container, encode_container};
+use ground_core::with_problem;
 
 const REPLAY_MAGIC: [u8; 4] = *b"LTRB";
 const REPLAY_VERSION: u16 = 1;
@@ -39,14 +40,19 @@ const UPDATE_LOG_EVERY: u64 = 1_000;
 /// Why a phase could not run or stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum ExperimentError {
+    /// The config was refused, or its dataset or device is not there.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The trajectory dataset could not be read or gave no demonstration tuples.
     #[error("dataset: {0}")]
     Dataset(String),
+    /// A checkpoint or actor file could not be read or written.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    /// A file of the run folder could not be read or written: its path and the I/O error.
     #[error("{}: {}", .0.display(), .1)]
     Io(PathBuf, std::io::Error),
+    /// The evaluation episodes could not be flown.
     #[error("evaluation: {0}")]
     Evaluation(EvalError),
     /// A file in the run folder belongs to another experiment (problem, shapes).
@@ -78,6 +84,7 @@ pub enum Start {
 }
 
 impl Start {
+    /// The phase's folder in the run: `train-scratch` or `train-pretrained`.
     pub fn folder(self) -> &'static str {
         match self {
             Self::Scratch => "train-scratch",
@@ -89,9 +96,13 @@ impl Start {
 /// One evaluation (100 deterministic episodes by default) during a phase.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct EvalRow {
+    /// Gradient updates done when evaluated.
     pub updates: u64,
+    /// Environment steps taken when evaluated (0 in pretraining).
     pub env_steps: u64,
+    /// Wall-clock seconds of the phase so far, across resumptions.
     pub seconds: f64,
+    /// Reward, final mass and terminal residuals of the evaluation episodes.
     pub summary: OutcomeSummary,
 }
 
@@ -122,11 +133,17 @@ final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95\n";
 /// Where a phase stands, saved next to its last checkpoint.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct PhaseState {
+    /// The RL loop's position (unused in pretraining).
     pub loop_state: LoopState,
+    /// Gradient updates done.
     pub updates: u64,
+    /// Wall-clock seconds spent, across resumptions.
     pub seconds: f64,
+    /// Every evaluation so far, in order (`eval.csv`).
     pub evaluations: Vec<EvalRow>,
+    /// Loss averages logged so far, in order (`updates.csv`).
     pub update_log: Vec<UpdateRow>,
+    /// The evaluation with the highest mean reward: the one `best.safetensors` holds.
     pub best: Option<EvalRow>,
     /// Word position of the replay sampler stream (restored on resume).
     pub sampler_word_pos: u128,
@@ -135,17 +152,26 @@ pub struct PhaseState {
     pub unlogged: UpdateAccumulator,
 }
 
-/// Loss averages over [`UPDATE_LOG_EVERY`] updates.
+/// Loss averages over up to 1,000 updates (fewer in short phases, which log about 100 rows).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct UpdateRow {
+    /// Gradient updates done at the end of the averaged span.
     pub updates: u64,
+    /// Environment steps taken then (0 in pretraining).
     pub env_steps: u64,
+    /// Mean of [`UpdateStats::critic_loss`].
     pub critic_loss: f64,
+    /// Mean of [`UpdateStats::actor_loss`].
     pub actor_loss: f64,
+    /// Mean of [`UpdateStats::temperature_loss`].
     pub temperature_loss: f64,
+    /// Mean temperature alpha.
     pub temperature: f64,
+    /// Mean entropy estimate -E[log pi].
     pub entropy: f64,
+    /// Mean of [`UpdateStats::q_mean`].
     pub q_mean: f64,
+    /// Mean of [`UpdateStats::behaviour_cloning_loss`].
     pub behaviour_cloning_loss: f64,
 }
 
@@ -217,10 +243,13 @@ pub struct ScenarioTask<E: Environment> {
     env: E,
     kind: ScenarioKind,
     seed: u64,
+    /// Steps the environment refused, each of which ended its episode.
     pub failed_steps: u64,
 }
 
 impl<E: Environment> ScenarioTask<E> {
+    /// The task on a fresh environment of `config`; episode `e` flies scenario `e` of `kind` drawn
+    /// with `seed`.
     pub fn new(config: &EnvConfig, kind: ScenarioKind, seed: u64) -> Result<Self, ExperimentError> {
         let env = E::new(config).map_err(|e| ExperimentError::Mismatch(format!("environment: {e}")))?;
         Ok(Self {
@@ -564,22 +593,24 @@ pub(crate) fn residual_chart(path: &Path, title: &str, x_label: &str, points: &[
     );
 }
 
-/// `ground pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
+/// `ground train pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
 /// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
 pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
-    match config.scenario.problem() {
-        ProblemKind::Transfer => pretrain_for::<Transfer>(config, config_dir, run),
-        ProblemKind::Rendezvous => pretrain_for::<Rendezvous>(config, config_dir, run),
-    }
+    with_problem!(config.scenario.problem(), P => pretrain_for::<P>(config, config_dir, run))
 }
 
 /// What a phase ended with.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PhaseSummary {
+    /// The phase's folder in the run (`RUN/pretrain`, `RUN/train-*`).
     pub folder: PathBuf,
+    /// Gradient updates done in the phase.
     pub updates: u64,
+    /// Environment steps taken (0 for pretraining).
     pub env_steps: u64,
+    /// Wall-clock seconds spent, across resumptions.
     pub seconds: f64,
+    /// The best evaluation (highest mean reward), the model in `best.safetensors`.
     pub best: Option<EvalRow>,
     /// Trajectory records turned into demonstrations (pretraining only).
     pub demonstration_records: usize,
@@ -732,13 +763,10 @@ where
     })
 }
 
-/// `ground train`: RL from scratch or from the pretrained model and its buffer, evaluations
+/// `ground train rl`: RL from scratch or from the pretrained model and its buffer, evaluations
 /// every `train.eval_every` environment steps, best model kept, resumable.
 pub fn train(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError> {
-    match config.scenario.problem() {
-        ProblemKind::Transfer => train_for::<Transfer>(config, run, start),
-        ProblemKind::Rendezvous => train_for::<Rendezvous>(config, run, start),
-    }
+    with_problem!(config.scenario.problem(), P => train_for::<P>(config, run, start))
 }
 
 fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError>

@@ -1,4 +1,4 @@
-//! `ground export`: a checkpoint's actor mean network to the onboard weight blobs, f32 and
+//! `ground model export`: a checkpoint's actor mean network to the onboard weight blobs, f32 and
 //! int8, with what each costs in accuracy.
 //!
 //! - Calibration states (int8 activation scales): the demonstration tuples of the config's
@@ -24,8 +24,9 @@ use crate::sac::agent::Sac;
 use ground_core::env::batch::{
     draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats,
 };
-use ground_core::env::{Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::env::{Environment, MdpEnv, Problem};
 use ground_core::io::atomic_write;
+use ground_core::with_problem;
 
 /// Stream offsets that keep the export's scenarios apart from training and evaluation.
 const CALIBRATION_STREAM: u64 = 0x6361_6c69;
@@ -38,7 +39,9 @@ const MAX_DEMONSTRATION_STATES: usize = 20_000;
 /// The onboard policy of either problem, so one code path measures both.
 #[derive(Debug, Clone, Copy)]
 pub enum OnboardPolicy<'a> {
+    /// A transfer blob.
     Transfer(TransferPolicy<'a>),
+    /// A rendezvous blob.
     Rendezvous(RendezvousPolicy<'a>),
 }
 
@@ -65,22 +68,34 @@ impl<'a> OnboardPolicy<'a> {
 /// the largest of the three component errors.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BlobReport {
+    /// Where the blob was written.
     pub file: PathBuf,
+    /// `f32` or `int8`.
     pub quantization: String,
+    /// The blob's size in bytes.
     pub bytes: usize,
+    /// Per held-out state, the largest component error |a_blob - a_tch| (actions in [-1, 1]).
     pub action_error: Stats,
     /// The closed-loop Monte Carlo of this blob in the ground environment.
     pub closed_loop: OutcomeSummary,
 }
 
+/// What an export wrote and measured (`export.json`); [`ExportReport::failed_criteria`] judges it.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ExportReport {
+    /// The checkpoint or actor file exported.
     pub checkpoint: PathBuf,
+    /// Name of the config's scenario distribution (e.g. `transfer-circular`).
     pub problem: String,
+    /// States the int8 activation scales were calibrated on (visited and demonstrated).
     pub calibration_states: usize,
+    /// Of those, states of demonstration tuples (0 without a dataset).
     pub demonstration_states: usize,
+    /// Held-out states the action errors were measured on.
     pub held_out_states: usize,
+    /// The f32 blob.
     pub f32: BlobReport,
+    /// The int8 blob.
     pub int8: BlobReport,
     /// Closed-loop episodes flown per blob (the config's Monte Carlo scenarios).
     pub closed_loop_episodes: usize,
@@ -166,7 +181,7 @@ pub fn blob_file(kind: ProblemKind, quantization: Quantization) -> String {
     format!("{problem}-{q}.blob")
 }
 
-/// `ground export`: writes `transfer-f32.blob` / `transfer-int8.blob` (or `rendezvous-*`) and
+/// `ground model export`: writes `transfer-f32.blob` / `transfer-int8.blob` (or `rendezvous-*`) and
 /// `export.json` into `out`. `config_dir` resolves the config's relative dataset path.
 pub fn export(
     config: &ExperimentConfig,
@@ -174,10 +189,7 @@ pub fn export(
     checkpoint: &Path,
     out: &Path,
 ) -> Result<ExportReport, ExperimentError> {
-    match config.scenario.problem() {
-        ProblemKind::Transfer => export_for::<Transfer>(config, config_dir, checkpoint, out),
-        ProblemKind::Rendezvous => export_for::<Rendezvous>(config, config_dir, checkpoint, out),
-    }
+    with_problem!(config.scenario.problem(), P => export_for::<P>(config, config_dir, checkpoint, out))
 }
 
 /// Network inputs at every state of `episodes` (recorded trajectories).

@@ -4,7 +4,7 @@
 //! ```text
 //! actor.safetensors    the flown actor alone (tensors actor.l0.*, actor.l1.*, actor.mean.*,
 //!                      actor.log_std.*), with its CRC-32 in the safetensors metadata
-//! transfer-f32.blob    the onboard blobs (`ground export`), flown by `ground sil`
+//! transfer-f32.blob    the onboard blobs (`ground model export`), flown by `ground model sil`
 //! transfer-int8.blob
 //! card.json            the card for machines: config, commit, command, data, figures, and the
 //!                      CRC-32C of every file above
@@ -12,7 +12,7 @@
 //! ```
 //!
 //! [`open_model`] checks every file against the card's CRC-32C and that the f32 blob holds
-//! exactly the actor's weights (it re-encodes them); `ground evaluate --model` and `ground sil
+//! exactly the actor's weights (it re-encodes them); `ground model evaluate --model` and `ground model sil
 //! --model` fly only what passed.
 
 use std::collections::BTreeMap;
@@ -31,6 +31,7 @@ use crate::sil::SilReport;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::Summary;
 use ground_core::io::atomic_write;
+use ground_core::with_problem;
 
 /// The actor's file in a model folder.
 pub const ACTOR_FILE: &str = "actor.safetensors";
@@ -49,22 +50,61 @@ const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 /// Why a model folder was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
+    /// A file of the folder could not be read or written.
     #[error("{}: {source}", .path.display())]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// card.json does not parse or cannot be written, or its config is refused.
     #[error("{}: the card does not parse: {reason}", .path.display())]
-    Card { path: PathBuf, reason: String },
+    Card {
+        /// The card.json file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// card.md does not say what card.json says (edited by hand, or written by another writer).
+    #[error("{}: does not say what card.json says (both are written by the card's writer)", .path.display())]
+    MarkdownDisagrees {
+        /// The card.md file.
+        path: PathBuf,
+    },
+    /// The card is of another layout than [`CARD_FORMAT`].
     #[error("{}: card format {found}, this version reads {CARD_FORMAT}", .path.display())]
-    Format { path: PathBuf, found: u32 },
+    Format {
+        /// The card.json file.
+        path: PathBuf,
+        /// The format it declares.
+        found: u32,
+    },
+    /// A file's CRC-32C is not the one the card records: not the file the card describes.
     #[error("{}: CRC-32C {found}, the card says {recorded}: the file is not the one the card describes", .path.display())]
     Checksum {
+        /// The file.
         path: PathBuf,
+        /// Its CRC-32C (8 hex digits).
         found: String,
+        /// The card's.
         recorded: String,
     },
+    /// The f32 blob does not decode or is not the actor's weights encoded again.
     #[error("{}: the f32 blob does not hold the actor's weights", .path.display())]
-    BlobDisagrees { path: PathBuf },
+    BlobDisagrees {
+        /// The f32 blob.
+        path: PathBuf,
+    },
+    /// The card does not list a file every model has (the actor, either blob).
     #[error("model folder {}: {reason}", .dir.display())]
-    Incomplete { dir: PathBuf, reason: String },
+    Incomplete {
+        /// The model folder.
+        dir: PathBuf,
+        /// What is missing.
+        reason: String,
+    },
+    /// Reading or writing the actor, or exporting or flying the blobs, failed.
     #[error(transparent)]
     Experiment(#[from] Box<ExperimentError>),
 }
@@ -72,14 +112,21 @@ pub enum ModelError {
 /// Figures of a policy over a set of episodes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FlightFigures {
+    /// Episodes flown.
     pub episodes: usize,
+    /// Of those, the ones that reached their terminal step.
     pub completed: usize,
     /// (tolerance, share of the completed episodes with |dr| (AU) and |dv| within it).
     pub within: Vec<(f64, f64)>,
+    /// Median terminal position residual |dr| (AU).
     pub dr_p50: f64,
+    /// 95th percentile of |dr| (AU).
     pub dr_p95: f64,
+    /// Median terminal velocity residual |dv| (AU/t*).
     pub dv_p50: f64,
+    /// 95th percentile of |dv| (AU/t*).
     pub dv_p95: f64,
+    /// Mean final mass (fraction of m0).
     pub final_mass_mean: f64,
 }
 
@@ -107,10 +154,13 @@ impl FlightFigures {
 /// The model card: where the controller came from and what it does.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModelCard {
+    /// The card's layout version, [`CARD_FORMAT`] when written.
     pub format: u32,
+    /// Name of the scenario distribution the controller was trained and measured on.
     pub scenario: String,
     /// The command that produced it and the commit it was built from.
     pub command: String,
+    /// The commit ([`current_commit`]; `+modified` when the tree had uncommitted changes).
     pub commit: String,
     /// UTC date of the card.
     pub created: String,
@@ -122,6 +172,7 @@ pub struct ModelCard {
     pub rounds: Option<(u64, u64)>,
     /// The Monte Carlo of the actor (the config's episodes, seed `monte_carlo_seed`).
     pub monte_carlo: FlightFigures,
+    /// Seed of the Monte Carlo's scenario draws.
     pub monte_carlo_seed: u64,
     /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
     pub overspend: Option<(usize, f64, f64)>,
@@ -133,7 +184,7 @@ pub struct ModelCard {
     /// format change): (command, commit, UTC date). The actor and its Monte Carlo are unchanged.
     #[serde(default)]
     pub reexported: Option<(String, String, String)>,
-    /// Where the controller came from beyond the config (`ground ship --note`).
+    /// Where the controller came from beyond the config (`ground model ship --note`).
     #[serde(default)]
     pub notes: Vec<String>,
     /// The goal's share on the Monte Carlo scenarios the indirect method solved.
@@ -151,11 +202,15 @@ pub struct ModelCard {
 /// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LookaheadFigures {
+    /// What the lookahead weighed.
     pub settings: LookaheadConfig,
+    /// Figures of the nominal Monte Carlo flown with lookahead.
     pub monte_carlo: FlightFigures,
     /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
     pub overspend: Option<(usize, f64, f64)>,
+    /// The goal's share on the scenarios the indirect method solved.
     pub where_solved: Option<SolvedShare>,
+    /// The goal's share by eccentricity (eccentric distributions only).
     pub by_eccentricity: Vec<EccentricityBand>,
 }
 
@@ -210,15 +265,21 @@ pub fn current_commit() -> String {
 
 /// What [`write_model`] is given: the run's stages' results.
 pub struct ModelSources<'a> {
+    /// The run's config.
     pub config: &'a ExperimentConfig,
     /// The commit the run was built from ([`current_commit`] when it started).
     pub commit: &'a str,
     /// The checkpoint whose flown actor is shipped.
     pub checkpoint: &'a Path,
+    /// The demonstration dataset's summary.
     pub dataset: &'a Summary,
+    /// Relabelling rounds run and the one kept (None without rounds).
     pub rounds: Option<(u64, u64)>,
+    /// The Monte Carlo of the checkpoint.
     pub monte_carlo: &'a MonteCarloReport,
+    /// The export whose blobs are shipped.
     pub export: &'a ExportReport,
+    /// The blobs' SIL Monte Carlos with the config's dispersions.
     pub sil: &'a [SilReport],
     /// The nominal Monte Carlo of the f32 blob with lookahead, when the config flies it.
     pub lookahead: Option<&'a SilReport>,
@@ -254,10 +315,10 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
     let card = ModelCard {
         format: CARD_FORMAT,
         scenario: config.scenario.name().to_string(),
-        command: std::env::args().collect::<Vec<_>>().join(" "),
+        command: portable_command(),
         commit: sources.commit.to_string(),
         created: utc_date(),
-        config: config.to_toml(),
+        config: portable_config(config),
         demonstrations: (
             sources.dataset.records,
             sources.dataset.converged,
@@ -308,12 +369,15 @@ fn write_cards(dir: &Path, card: &ModelCard) -> Result<(), ModelError> {
 
 /// What [`reexport_model`] did.
 pub struct Reexport {
+    /// The card as rewritten.
     pub card: ModelCard,
+    /// The new export (under `run/export`).
     pub export: ExportReport,
+    /// The new blobs' SIL Monte Carlos (transfers only; empty for rendezvous).
     pub sil: Vec<SilReport>,
 }
 
-/// `ground export --model DIR`: exports the blobs of a shipped model again from its actor with
+/// `ground model export --model DIR`: exports the blobs of a shipped model again from its actor with
 /// its card's config (after a blob format change; the actor, and so its Monte Carlo, stay as
 /// they are), flies them in the SIL loop, and replaces the blobs and the card's SIL figures and
 /// file checksums. The export and SIL Monte Carlos are written under `run`. The folder's files
@@ -357,16 +421,59 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     let lookahead =
         crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
     card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
-    card.reexported = Some((
-        std::env::args().collect::<Vec<_>>().join(" "),
-        current_commit(),
-        utc_date(),
-    ));
+    card.reexported = Some((portable_command(), current_commit(), utc_date()));
     write_cards(dir, &card)?;
     Ok(Reexport { card, export, sil })
 }
 
-/// Today's UTC date, YYYY-MM-DD (the calendar reading `ground oem` stamps its files with).
+/// The running command as a user reruns it from the repository: `ground` for the binary's
+/// path, and arguments under the working folder relative to it. A card never records where
+/// the machine that made it keeps its files.
+fn portable_command() -> String {
+    let mut args = std::env::args();
+    let program = args.next().map(|p| {
+        let name = Path::new(&p).file_stem().map(|n| n.to_string_lossy().into_owned());
+        name.unwrap_or(p)
+    });
+    program
+        .into_iter()
+        .chain(args.map(|a| portable_path(Path::new(&a)).to_string_lossy().into_owned()))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The config as the card records it: the pretraining dataset relative to the working folder
+/// when it lies under it.
+fn portable_config(config: &ExperimentConfig) -> String {
+    let mut config = config.clone();
+    if let Some(dataset) = &config.pretrain.dataset {
+        config.pretrain.dataset = Some(portable_path(dataset));
+    }
+    config.to_toml()
+}
+
+/// `path` relative to the working folder when it is an absolute path under it, with `a/..`
+/// steps folded; any other path as given.
+fn portable_path(path: &Path) -> PathBuf {
+    let Ok(cwd) = std::env::current_dir() else {
+        return path.to_path_buf();
+    };
+    let Ok(relative) = path.strip_prefix(&cwd) else {
+        return path.to_path_buf();
+    };
+    let mut folded = PathBuf::new();
+    for part in relative.components() {
+        match part {
+            std::path::Component::ParentDir if folded.file_name().is_some() => {
+                folded.pop();
+            }
+            other => folded.push(other),
+        }
+    }
+    folded
+}
+
+/// Today's UTC date, YYYY-MM-DD (the calendar reading `ground data oem` stamps its files with).
 fn utc_date() -> String {
     let now = ground_core::oem::CalendarEpoch::now_utc().to_string();
     now.split('T').next().unwrap_or(&now).to_string()
@@ -375,13 +482,16 @@ fn utc_date() -> String {
 /// A model folder that passed [`open_model`]'s checks.
 #[derive(Debug, Clone)]
 pub struct ShippedModel {
+    /// The model folder.
     pub dir: PathBuf,
+    /// Its card.
     pub card: ModelCard,
     /// The card's config (the one the controller was trained and measured with).
     pub config: ExperimentConfig,
 }
 
 impl ShippedModel {
+    /// The actor file, `DIR/actor.safetensors`.
     pub fn actor(&self) -> PathBuf {
         self.dir.join(ACTOR_FILE)
     }
@@ -433,6 +543,12 @@ pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     if rebuilt.as_deref() != Some(shipped.as_slice()) {
         return Err(ModelError::BlobDisagrees { path: f32_path });
     }
+    // card.md is what people read: it must say what card.json, the bound record, says.
+    let md = dir.join(CARD_MD);
+    let written = std::fs::read_to_string(&md).map_err(io(&md))?;
+    if written != card_markdown(&card) {
+        return Err(ModelError::MarkdownDisagrees { path: md });
+    }
     Ok(ShippedModel {
         dir: dir.to_path_buf(),
         card,
@@ -468,11 +584,8 @@ pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelEr
 }
 
 fn obs_dim(kind: ProblemKind) -> usize {
-    use ground_core::env::{Environment, RendezvousEnv, TransferEnv};
-    match kind {
-        ProblemKind::Transfer => TransferEnv::OBS,
-        ProblemKind::Rendezvous => RendezvousEnv::OBS,
-    }
+    use ground_core::env::Problem;
+    with_problem!(kind, P => P::OBS)
 }
 
 fn figures_row(name: &str, f: &FlightFigures) -> String {
@@ -530,7 +643,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
     let _ = writeln!(s, "# Model card: {}\n", card.scenario);
     let _ = writeln!(
         s,
-        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32C in [card.json](card.json); `ground evaluate --model` and `ground sil --model` refuse a folder whose files disagree.\n",
+        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32C in [card.json](card.json); `ground model evaluate --model` and `ground model sil --model` refuse a folder whose files disagree.\n",
         card.created, card.command, card.commit
     );
     if let Some((command, commit, date)) = &card.reexported {
@@ -594,4 +707,25 @@ pub fn card_markdown(card: &ModelCard) -> String {
     }
     let _ = writeln!(s, "\n## Config\n\n```toml\n{}```", card.config);
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_card_records_paths_under_the_working_folder_relative_to_it() {
+        let cwd = std::env::current_dir().unwrap();
+        let under = cwd.join("configs").join("..").join("runs").join("tc").join("dataset");
+        assert_eq!(portable_path(&under), Path::new("runs/tc/dataset"));
+        // Relative paths, flags and paths elsewhere are kept as given.
+        for kept in ["runs/tc", "--out", "/elsewhere/runs/tc"] {
+            assert_eq!(portable_path(Path::new(kept)), Path::new(kept));
+        }
+        let mut config = ExperimentConfig::from_toml(crate::config::EMBEDDED_DEFAULT).unwrap();
+        config.pretrain.dataset = Some(under);
+        let text = portable_config(&config);
+        assert!(text.contains("dataset = \"runs/tc/dataset\""), "{text}");
+        assert!(!text.contains(&*cwd.to_string_lossy()), "{text}");
+    }
 }

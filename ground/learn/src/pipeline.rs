@@ -26,15 +26,20 @@ use ground_core::solver::SolveOptions;
 /// What the main job produced.
 #[derive(Debug, Clone)]
 pub struct MainJob {
+    /// The run's Markdown report, `RUN/report.md`.
     pub report: PathBuf,
+    /// The demonstration dataset's summary (`RUN/dataset`).
     pub dataset: Summary,
     /// The dataset's check against the direct transcription and its repairs
     /// (`generate.crosscheck`).
     pub crosscheck: Option<CrossCheckSummary>,
+    /// The pretraining phase (`RUN/pretrain`).
     pub pretrain: PhaseSummary,
+    /// RL from the pretrained model (`RUN/train-pretrained`).
     pub train: PhaseSummary,
     /// The relabelling rounds, when the config has any.
     pub dagger: Option<DaggerSummary>,
+    /// The Monte Carlo of the best model (`RUN/mc`).
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
     pub export: ExportReport,
@@ -231,14 +236,17 @@ fn export_and_ship(
 
 /// What [`ship`] produced.
 pub struct Shipped {
+    /// The Monte Carlo of the checkpoint (`run/mc`).
     pub monte_carlo: MonteCarloReport,
+    /// Its onboard blobs (`run/export`).
     pub export: ExportReport,
+    /// The blobs flown in the SIL loop against the dispersed plant: f32 and int8.
     pub sil: [SilReport; 2],
     /// The model folder, `run/model`.
     pub model: ModelCard,
 }
 
-/// `ground ship`: the last stages of the recipe for any learner checkpoint (e.g. the best of
+/// `ground model ship`: the last stages of the recipe for any learner checkpoint (e.g. the best of
 /// relabelling rounds started from a shipped actor): the Monte Carlo (`run/mc`), the blobs and
 /// their SIL flights, and the model folder `run/model`, whose card records `rounds` (run, kept)
 /// and `notes` (the lineage). The demonstrations are the config's `pretrain.dataset`.
@@ -438,7 +446,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     export_section(&mut s, &job.export, &job.sil);
     let _ = writeln!(
         s,
-        "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32. Copy the folder to `models/NAME/`; `ground evaluate --model` and `ground sil --model` fly it as it is.\n"
+        "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"
     );
     note_missing_figures(&s, run)
 }
@@ -513,7 +521,7 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
     if !failed.is_empty() {
         let _ = writeln!(
             s,
-            "**The export check failed** (`ground export` exits non-zero on it): {}.\n",
+            "**The export check failed** (`ground model export` exits non-zero on it): {}.\n",
             failed.join("; ")
         );
     }

@@ -1,4 +1,4 @@
-//! `ground sil`: Monte Carlo of a weight blob flown by the software-in-the-loop guidance loop
+//! `ground model sil`: Monte Carlo of a weight blob flown by the software-in-the-loop guidance loop
 //! ([`firmware_sim`]) against the dispersed truth plant, reported with the same metrics and
 //! figures as the ground evaluation ([`crate::eval`]), plus what only SIL sees (guidance faults,
 //! missed thrust).
@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use firmware_sim::{fly_observed, Controller, Dispersions, FlightStep, Problem, SilError};
+use firmware_sim::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, Problem, SilError};
 use onboard::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
 use onboard::lookahead::Lookahead;
 use rayon::prelude::*;
@@ -21,8 +21,9 @@ use crate::config::{ConfigError, ExperimentConfig, LookaheadConfig};
 use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, MonteCarloReport};
 use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
-use ground_core::env::{step_reward, EnvError, Rendezvous, Transfer};
+use ground_core::env::{step_reward, EnvError};
 use ground_core::io::atomic_write;
+use ground_core::with_problem;
 
 /// Flights whose paths are drawn.
 const PLOTTED_FLIGHTS: usize = 6;
@@ -48,6 +49,7 @@ pub struct MissedThrustBand {
     /// "none", or the band of the flight ("0.8-0.9": the last missed thrust ended after 80 %
     /// and by 90 % of the flight's steps).
     pub band: String,
+    /// Flights in the band.
     pub flights: usize,
     /// Share of the band's completed flights within 0.01 AU and 0.01.
     pub within_goal: f64,
@@ -99,13 +101,16 @@ pub fn by_last_missed_thrust(outcomes: &[EpisodeOutcome], missed: &[MissedThrust
 /// What SIL adds to the Monte Carlo report.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SilReport {
+    /// The blob flown.
     pub blob: PathBuf,
-    /// "f32", "int8", or "safe mode: <why the blob was refused>".
+    /// "f32", "int8", or "safe mode: " and why the blob was refused.
     pub controller: String,
     /// The rollout lookahead the blob flew with (None: the network alone).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadConfig>,
+    /// The truth plant's dispersions.
     pub dispersions: Dispersions,
+    /// Flights flown.
     pub flights: usize,
     /// Flights that could not be completed (plant or feature errors), with their reasons.
     pub failed: Vec<(usize, String)>,
@@ -116,6 +121,7 @@ pub struct SilReport {
     /// The share within the goal by where the last missed thrust of a flight ended.
     #[serde(default)]
     pub by_last_missed_thrust: Vec<MissedThrustBand>,
+    /// The flights' figures, as the evaluation's Monte Carlo reports them.
     pub monte_carlo: MonteCarloReport,
 }
 
@@ -232,6 +238,21 @@ pub fn fly_blob_seeded(
     }
 }
 
+/// The config's spacecraft, plant tolerances and reward weights, flown with `dispersions`.
+pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Result<FlightSetup, ExperimentError> {
+    let spacecraft = config
+        .env
+        .spacecraft
+        .canonical()
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+    Ok(FlightSetup {
+        spacecraft,
+        tolerances: config.env.integrator.tolerances(),
+        weights: config.env.reward.weights(),
+        dispersions: *dispersions,
+    })
+}
+
 /// [`fly_blob_seeded`] for one problem.
 #[allow(clippy::too_many_arguments)] // fly_blob_seeded's inputs and the problem
 fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
@@ -244,16 +265,10 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     record: usize,
     lookahead: Option<&LookaheadConfig>,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    let spacecraft = config
-        .env
-        .spacecraft
-        .canonical()
-        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+    let setup = flight_setup(config, dispersions)?;
     // On a cache line: the host kernels' vector loads then never straddle two.
     let blob = AlignedBlob::new(blob);
     let controller = Controller::<N>::load::<P>(blob.bytes());
-    let tolerances = config.env.integrator.tolerances();
-    let weights = config.env.reward.weights();
     let flown: Vec<(EpisodeOutcome, u64, MissedThrust)> = scenarios
         .par_iter()
         .enumerate()
@@ -264,34 +279,14 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
             // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with.
             let lookahead = lookahead.filter(|_| matches!(controller, Controller::Network(_)));
             let result = match lookahead {
-                None => fly_observed(
-                    problem,
-                    &controller,
-                    scenario,
-                    &spacecraft,
-                    &tolerances,
-                    &weights,
-                    dispersions,
-                    flight_seed,
-                    keep,
-                ),
+                None => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
                 Some(l) => {
                     let guide = Lookahead {
                         actor: &controller,
-                        spacecraft,
-                        settings: l.settings(tolerances),
+                        spacecraft: setup.spacecraft,
+                        settings: l.settings(setup.tolerances),
                     };
-                    fly_observed(
-                        problem,
-                        &guide,
-                        scenario,
-                        &spacecraft,
-                        &tolerances,
-                        &weights,
-                        dispersions,
-                        flight_seed,
-                        keep,
-                    )
+                    fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
                 }
             };
             let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
@@ -314,7 +309,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     Ok((flown.into_iter().map(|f| f.0).collect(), faults, missed))
 }
 
-/// `ground sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
+/// `ground model sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
 /// plus sil.json), with the optimality gap on the first `gap_cases` scenarios (0: none).
 pub fn sil_monte_carlo(
     config: &ExperimentConfig,
@@ -348,28 +343,16 @@ pub fn sil_monte_carlo(
         .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
         .collect();
     let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
-    let monte_carlo = match config.scenario.problem() {
-        ProblemKind::Transfer => report_and_write::<Transfer>(
-            config,
-            blob_path,
-            &scenarios,
-            &outcomes,
-            &plotted,
-            out,
-            Some(gap_cases),
-            start,
-        )?,
-        ProblemKind::Rendezvous => report_and_write::<Rendezvous>(
-            config,
-            blob_path,
-            &scenarios,
-            &outcomes,
-            &plotted,
-            out,
-            Some(gap_cases),
-            start,
-        )?,
-    };
+    let monte_carlo = with_problem!(config.scenario.problem(), P => report_and_write::<P>(
+        config,
+        blob_path,
+        &scenarios,
+        &outcomes,
+        &plotted,
+        out,
+        Some(gap_cases),
+        start,
+    ))?;
     let report = SilReport {
         blob: blob_path.to_path_buf(),
         controller,
@@ -447,7 +430,7 @@ pub fn describe(report: &SilReport) -> String {
         p.terminal_velocity.p95,
         100.0 * report.monte_carlo.within_accuracy_goal
     ) + &missed_thrust_line(&report.by_last_missed_thrust);
-    // With the indirect solutions (ground sil --gap-cases): the share where solved, by band.
+    // With the indirect solutions (ground model sil --gap-cases): the share where solved, by band.
     for band in &report.monte_carlo.accuracy_by_eccentricity {
         text += &format!("\n  {}", crate::eval::eccentricity_line(band));
     }
@@ -460,7 +443,7 @@ pub fn describe(report: &SilReport) -> String {
     text
 }
 
-/// "none 92.0 % (512), 0.9-1 80.6 % (314)": the bands that hold flights, for `ground sil` and
+/// "none 92.0 % (512), 0.9-1 80.6 % (314)": the bands that hold flights, for `ground model sil` and
 /// the recipe's report; `None` when no flight met missed thrust.
 pub fn missed_thrust_bands(bands: &[MissedThrustBand]) -> Option<String> {
     met_missed_thrust(bands).then(|| {

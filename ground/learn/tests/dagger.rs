@@ -1,4 +1,4 @@
-//! `ground dagger` at toy scale, in its own test binary: it compares weights byte for byte, and
+//! `ground train dagger` at toy scale, in its own test binary: it compares weights byte for byte, and
 //! torch's global random stream is shared by every test of a process.
 
 mod common;
@@ -12,7 +12,7 @@ use learn::sac::agent::Sac;
 use shared::scenario::ScenarioKind;
 use tch::Device;
 
-/// `ground dagger` at toy scale: rounds stopped and resumed (between rounds, and between a
+/// `ground train dagger` at toy scale: rounds stopped and resumed (between rounds, and between a
 /// round's relabels and its updates) end with the same learner, byte for byte, as rounds run
 /// without a stop; saved relabels are reused, not solved again; a corrupt one is refused; another
 /// run goes on from them with a wider actor.

@@ -1,4 +1,4 @@
-//! `ground dagger` on rendezvous at toy scale, in its own test binary (torch's global random
+//! `ground train dagger` on rendezvous at toy scale, in its own test binary (torch's global random
 //! stream is shared by every test of a process, and the resumption check compares weights).
 
 mod common;

@@ -1,4 +1,4 @@
-//! From a checkpoint to flight: `ground export` blobs against the tch actor, and the SIL loop
+//! From a checkpoint to flight: `ground model export` blobs against the tch actor, and the SIL loop
 //! against the ground environment.
 
 use std::path::PathBuf;
@@ -253,7 +253,7 @@ threads = 1
             .all(|m| (m.time > 0.0) == m.last_end.is_some_and(|e| e > 0.0 && e <= 1.0)));
         assert!(dispersed.iter().zip(&sil).all(|(d, s)| d.final_mass != s.final_mass));
     }
-    // `ground sil` flies the rendezvous blob, and refuses a transfer blob into safe mode.
+    // `ground model sil` flies the rendezvous blob, and refuses a transfer blob into safe mode.
     let sil = sil_monte_carlo(
         &config,
         &report.int8.file,

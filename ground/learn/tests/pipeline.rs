@@ -244,6 +244,15 @@ fn main_job_writes_a_report_whose_links_resolve() {
         learn::model::open_model(&flipped),
         Err(learn::model::ModelError::Checksum { .. })
     ));
+    // A card.md that no longer says what card.json says.
+    let edited = copy("model-edited-card");
+    let mut text = std::fs::read_to_string(edited.join("card.md")).unwrap();
+    text = text.replacen("within 0.01", "within 0.001", 1);
+    std::fs::write(edited.join("card.md"), text).unwrap();
+    assert!(matches!(
+        learn::model::open_model(&edited),
+        Err(learn::model::ModelError::MarkdownDisagrees { .. })
+    ));
     // A valid int8 blob of the same layout but other weights (its own trailer CRC-32 made right
     // again): the whole file's CRC-32 would not change, the card's checksum must.
     let other_int8 = copy("model-other-int8");

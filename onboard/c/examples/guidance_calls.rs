@@ -25,14 +25,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use firmware_sim::trace::{flights_of, RENDEZVOUS_FLIGHTS, TRANSFER_FLIGHTS};
-use firmware_sim::{fly_observed, Controller, Problem};
+use firmware_sim::{fly_observed, Controller, FlightSetup, Problem};
 use lowthrust::{
     error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
 };
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::features::RewardWeights;
 use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
-use onboard::integrator::Tolerances;
 use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{ProblemKind, Quantization};
 use shared::orbit::{CartesianState, OrbitShape};
@@ -106,14 +104,12 @@ fn flight_calls<const N: usize, P: Problem<N>>(
         let steps = flight.scenario.steps;
         let mut failed = None;
         // The trace flight itself (firmware_sim::trace::fly flies it with the same arguments).
+        let setup = FlightSetup::nominal(spacecraft).dispersed(flight.dispersions);
         fly_observed(
             problem,
             controller,
             &flight.scenario,
-            &spacecraft,
-            &Tolerances::default(),
-            &RewardWeights::default(),
-            &flight.dispersions,
+            &setup,
             flight.seed,
             |step| match target(&flight.scenario, step.index) {
                 Ok(target) => calls.push(Call {

@@ -144,16 +144,20 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
         // SAFETY (every pointer below): output `col + 8 v + l < OUT` of `y`; weight `i * OUT +
         // col + 8 v + l < IN * OUT` of `w`, for `i < IN`, `v < VECTORS`, `l < 8`.
         for (v, a) in acc.iter_mut().enumerate() {
+            // SAFETY: in bounds, by the SAFETY comment above.
             *a = unsafe { _mm256_loadu_ps(y.add(col + 8 * v)) };
         }
         for (i, &xi) in x.iter().enumerate() {
             let xv = _mm256_set1_ps(xi);
+            // SAFETY: in bounds, by the SAFETY comment above.
             let row = unsafe { w.add(i * OUT + col) };
             for (v, a) in acc.iter_mut().enumerate() {
+                // SAFETY: in bounds, by the SAFETY comment above.
                 *a = _mm256_fmadd_ps(xv, unsafe { _mm256_loadu_ps(row.add(8 * v)) }, *a);
             }
         }
         for (v, a) in acc.iter().enumerate() {
+            // SAFETY: in bounds, by the SAFETY comment above.
             unsafe { _mm256_storeu_ps(y.add(col + 8 * v), *a) };
         }
         col += F32_TILE;
@@ -162,8 +166,10 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
         // SAFETY: as above with one vector.
         let mut a = unsafe { _mm256_loadu_ps(y.add(col)) };
         for (i, &xi) in x.iter().enumerate() {
+            // SAFETY: in bounds, by the SAFETY comment above.
             a = _mm256_fmadd_ps(_mm256_set1_ps(xi), unsafe { _mm256_loadu_ps(w.add(i * OUT + col)) }, a);
         }
+        // SAFETY: in bounds, by the SAFETY comment above.
         unsafe { _mm256_storeu_ps(y.add(col), a) };
         col += 8;
     }
@@ -171,8 +177,10 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
         // SAFETY: output `col < OUT`, weights `i * OUT + col < IN * OUT`.
         let mut a = unsafe { *y.add(col) };
         for (i, &xi) in x.iter().enumerate() {
+            // SAFETY: in bounds, by the SAFETY comment above.
             a = fma1(xi, unsafe { w.add(i * OUT + col).read_unaligned() }, a);
         }
+        // SAFETY: in bounds, by the SAFETY comment above.
         unsafe { *y.add(col) = a };
         col += 1;
     }
@@ -212,9 +220,11 @@ unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN]
         // SAFETY: inputs `8 b .. 8 b + 8 <= IN` of `x`; weights `8 b OUT + 8 v + l < 8 (b + 1)
         // OUT <= IN * OUT` for `v < OUT`, `l < 8`.
         let xb = unsafe { _mm256_loadu_ps(x.as_ptr().add(SPLIT * b)) };
+        // SAFETY: in bounds, by the SAFETY comment above.
         let block = unsafe { w.add(SPLIT * b * OUT) };
         for (v, (a, s)) in acc.iter_mut().zip(spread.iter()).enumerate() {
             let xs = _mm256_permutevar8x32_ps(xb, *s);
+            // SAFETY: in bounds, by the SAFETY comment above.
             *a = _mm256_fmadd_ps(xs, unsafe { _mm256_loadu_ps(block.add(8 * v)) }, *a);
         }
     }
@@ -295,6 +305,7 @@ unsafe fn int8_rows<const IN: usize, const OUT: usize>(w: *const u8, x: &[i16; I
             // <= (j + r + 1) IN <= OUT IN` of `w` for `r < INT8_ROWS`, `j + INT8_ROWS <= OUT`.
             let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
             for (r, sum) in sums.iter_mut().enumerate() {
+                // SAFETY: in bounds, by the SAFETY comment above.
                 let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add((j + r) * IN + 16 * b).cast()) });
                 *sum = _mm256_add_epi32(*sum, _mm256_madd_epi16(wv, xv));
             }
@@ -310,6 +321,7 @@ unsafe fn int8_rows<const IN: usize, const OUT: usize>(w: *const u8, x: &[i16; I
         for b in 0..blocks {
             // SAFETY: as above for one row.
             let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
+            // SAFETY: in bounds, by the SAFETY comment above.
             let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add(j * IN + 16 * b).cast()) });
             sum = _mm256_add_epi32(sum, _mm256_madd_epi16(wv, xv));
         }

@@ -24,6 +24,7 @@ use super::{EnvConfig, EnvError, Environment};
 pub struct TrajectoryPoint {
     /// Step index (0 = departure).
     pub step: u32,
+    /// Spacecraft state at that step (canonical).
     pub state: SpacecraftState,
     /// The command flown over the step that ended here (`None` at departure).
     pub command: Option<ThrustCommand>,
@@ -62,7 +63,12 @@ pub enum EvalError {
     Env(EnvError),
     /// The batched policy returned `got` actions for `expected` observations.
     #[error("the policy returned {got} actions for {expected} observations")]
-    PolicyBatch { expected: usize, got: usize },
+    PolicyBatch {
+        /// Observations passed (running episodes).
+        expected: usize,
+        /// Actions returned.
+        got: usize,
+    },
 }
 
 /// Scenarios 0..count of the stream `seed` of `kind`.
@@ -260,13 +266,21 @@ where
 /// Mean, standard deviation and percentiles of one figure.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Stats {
+    /// Number of finite values.
     pub count: usize,
+    /// Mean.
     pub mean: f64,
+    /// Standard deviation (population).
     pub std: f64,
+    /// Smallest value.
     pub min: f64,
+    /// 5th percentile (nearest rank).
     pub p05: f64,
+    /// Median (nearest rank).
     pub p50: f64,
+    /// 95th percentile (nearest rank).
     pub p95: f64,
+    /// Largest value.
     pub max: f64,
 }
 
@@ -308,14 +322,21 @@ impl Stats {
 /// Summary of a set of episodes (completed ones only for the figures).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OutcomeSummary {
+    /// Episodes flown.
     pub episodes: usize,
+    /// Episodes that reached their terminal step.
     pub completed: usize,
+    /// Sum of the step rewards per episode.
     pub total_reward: Stats,
+    /// Final mass, fraction of m0.
     pub final_mass: Stats,
+    /// Terminal position residual dr, AU.
     pub terminal_position: Stats,
+    /// Terminal velocity residual dv, AU/t*.
     pub terminal_velocity: Stats,
 }
 
+/// Figures of `outcomes`, the statistics over the completed episodes only.
 pub fn summarize(outcomes: &[EpisodeOutcome]) -> OutcomeSummary {
     let done = || outcomes.iter().filter(|o| o.completed);
     OutcomeSummary {

@@ -34,7 +34,8 @@ use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, KeplerError};
 use serde::{Deserialize, Serialize};
 use shared::orbit::CartesianState;
-use shared::scenario::{ProblemKind, Scenario, ScenarioError, ScenarioKind};
+pub use shared::scenario::ProblemKind;
+use shared::scenario::{Scenario, ScenarioError, ScenarioKind};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
 use shared::units::STEP;
 
@@ -62,6 +63,7 @@ impl Default for RewardConfig {
 }
 
 impl RewardConfig {
+    /// The weights in the onboard reward's form.
     pub fn weights(&self) -> RewardWeights {
         RewardWeights {
             position: self.position,
@@ -87,15 +89,23 @@ impl RewardConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum TerminalAccuracy {
+    /// No term: the printed reward.
     #[default]
     None,
+    /// `-(position dr + velocity dv)` on the last step only.
     TerminalPenalty {
+        /// Weight on dr (1/AU), >= 0.
         position: f64,
+        /// Weight on dv (t*/AU), >= 0.
         velocity: f64,
     },
+    /// `-(position dr + velocity dv) exp(-j / horizon_steps)` on every step.
     TimeWeighted {
+        /// Weight on dr (1/AU), >= 0.
         position: f64,
+        /// Weight on dv (t*/AU), >= 0.
         velocity: f64,
+        /// e-folding length of the weight in steps, > 0.
         horizon_steps: f64,
     },
 }
@@ -163,8 +173,11 @@ pub enum NonFiniteAction {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IntegratorConfig {
+    /// Relative tolerance.
     pub relative: f64,
+    /// Absolute tolerance (canonical units).
     pub absolute: f64,
+    /// Step cap per 14-day step; a propagation that needs more fails.
     pub max_steps: u32,
 }
 
@@ -182,6 +195,7 @@ impl Default for IntegratorConfig {
 }
 
 impl IntegratorConfig {
+    /// As the onboard integrator's [`Tolerances`] (initial step chosen by the integrator).
     pub fn tolerances(&self) -> Tolerances {
         Tolerances {
             relative: self.relative,
@@ -196,25 +210,38 @@ impl IntegratorConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EnvConfig {
+    /// Thrust, Isp and initial mass (SI); converted to canonical units by [`Environment::new`].
     pub spacecraft: Spacecraft,
+    /// Weights of the printed reward.
     pub reward: RewardConfig,
+    /// Optional terminal-accuracy term.
     pub terminal: TerminalAccuracy,
+    /// What a non-finite action does.
     pub non_finite_action: NonFiniteAction,
+    /// Integrator accuracy of thrusting steps.
     pub integrator: IntegratorConfig,
 }
 
 /// Why an environment call failed. Every failure is one of these, never a panic.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum EnvError {
+    /// The configured spacecraft does not convert to canonical units.
     #[error("invalid spacecraft: {0}")]
     Spacecraft(SpacecraftError),
+    /// A reward, terminal-accuracy or integrator setting is out of range; says which.
     #[error("invalid environment config: {0}")]
     Config(&'static str),
+    /// The scenario fails [`Scenario::validate`].
     #[error("invalid scenario: {0}")]
     Scenario(ScenarioError),
     /// A transfer scenario given to the rendezvous environment or the other way round.
     #[error("a {found:?} scenario given to the {expected:?} environment")]
-    WrongProblem { expected: ProblemKind, found: ProblemKind },
+    WrongProblem {
+        /// The environment's problem.
+        expected: ProblemKind,
+        /// The scenario's.
+        found: ProblemKind,
+    },
     /// `step` before any `reset`.
     #[error("step called before reset")]
     NotReset,
@@ -223,25 +250,46 @@ pub enum EnvError {
     EpisodeOver,
     /// `reset_at` with a step index beyond N.
     #[error("step {step} is beyond the episode's {steps} steps")]
-    StepOutOfRange { step: u32, steps: u32 },
+    StepOutOfRange {
+        /// The step index asked for.
+        step: u32,
+        /// N.
+        steps: u32,
+    },
     /// The action had a NaN or infinite component and the config refuses such actions.
     #[error("the action has a NaN or infinite component")]
     NonFiniteAction,
     /// The spacecraft state cannot be propagated over step `step` (tank empty, integrator
     /// failure, state at the Sun, ...).
     #[error("propagation over step {step} failed: {error}")]
-    Propagation { step: u32, error: PropagationError },
+    Propagation {
+        /// Index k of the step flown (from t = k STEP to (k + 1) STEP).
+        step: u32,
+        /// The onboard propagator's error.
+        error: PropagationError,
+    },
     /// The state or target at step `step` is outside the feature domain.
     #[error("features at step {step}: {error}")]
-    Features { step: u32, error: FeatureError },
+    Features {
+        /// Step index of the state.
+        step: u32,
+        /// The onboard feature encoding's error.
+        error: FeatureError,
+    },
     /// The rendezvous body could not be propagated to step `step`.
     #[error("target body at step {step}: {error:?}")]
-    Body { step: u32, error: KeplerError },
+    Body {
+        /// Step index the body was wanted at.
+        step: u32,
+        /// The Kepler solver's error.
+        error: KeplerError,
+    },
 }
 
 /// The two problems: how their features and residuals are computed. Implemented by
 /// [`Transfer`] and [`Rendezvous`]; [`MdpEnv`] is generic over it.
 pub trait Problem: Send + Sync + 'static {
+    /// Which problem the scenarios must be.
     const KIND: ProblemKind;
     /// Number of features (10 or 22).
     const OBS: usize;
@@ -252,8 +300,39 @@ pub trait Problem: Send + Sync + 'static {
 
     /// Features of `state` at step `step` (time t = step STEP, time to go (N - step) STEP).
     fn features(scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Features, EnvError>;
+    /// Position and velocity residuals in the features (AU, AU/t*).
     fn residuals(features: &Self::Features) -> Residuals;
+    /// The features narrowed to f32 for the network.
     fn observation(features: &Self::Features) -> Self::Obs;
+}
+
+/// Evaluates `$body` with the type `$P` naming the [`Problem`] of `$kind` (a
+/// [`ProblemKind`]): the one place the ground side lists its problems, so that code generic
+/// over [`Problem`] is called for a run's problem without a match arm per problem at each call.
+///
+/// ```
+/// use ground_core::env::Problem;
+/// use ground_core::with_problem;
+/// use shared::scenario::ProblemKind;
+///
+/// let features = |kind| with_problem!(kind, P => P::OBS);
+/// assert_eq!(features(ProblemKind::Transfer), 10);
+/// assert_eq!(features(ProblemKind::Rendezvous), 22);
+/// ```
+#[macro_export]
+macro_rules! with_problem {
+    ($kind:expr, $P:ident => $body:expr) => {
+        match $kind {
+            $crate::env::ProblemKind::Transfer => {
+                type $P = $crate::env::Transfer;
+                $body
+            }
+            $crate::env::ProblemKind::Rendezvous => {
+                type $P = $crate::env::Rendezvous;
+                $body
+            }
+        }
+    };
 }
 
 /// The transfer problem (docs/spec.md section 5).
@@ -359,10 +438,13 @@ pub struct StepInfo {
 /// One transition as the learner sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Step<O> {
+    /// Observation after the step.
     pub observation: O,
+    /// Total reward of the step: printed reward plus terminal-accuracy term.
     pub reward: f64,
     /// True after step N (terminal; no bootstrapping past it).
     pub done: bool,
+    /// Details of the step.
     pub info: StepInfo,
 }
 
@@ -370,6 +452,7 @@ pub struct Step<O> {
 pub trait Environment: Send {
     /// Number of observation features.
     const OBS: usize;
+    /// Transfer or rendezvous.
     const PROBLEM: ProblemKind;
     /// `[f32; OBS]`.
     type Obs: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + 'static;
@@ -378,6 +461,7 @@ pub trait Environment: Send {
     fn new(config: &EnvConfig) -> Result<Self, EnvError>
     where
         Self: Sized;
+    /// The configuration the environment was built with.
     fn config(&self) -> &EnvConfig;
     /// Starts an episode of `scenario` at its initial state (m = 1, step 0).
     fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError>;
@@ -399,9 +483,11 @@ pub trait Environment: Send {
     fn observation(&self) -> Option<Self::Obs>;
     /// The current spacecraft state.
     fn state(&self) -> Option<SpacecraftState>;
+    /// The scenario of the current episode (`None` before the first reset).
     fn scenario(&self) -> Option<&Scenario>;
     /// Steps taken so far in the episode (k).
     fn steps_taken(&self) -> u32;
+    /// Whether the episode has taken its N steps (false before the first reset).
     fn is_done(&self) -> bool;
 }
 
@@ -428,6 +514,7 @@ pub type TransferEnv = MdpEnv<Transfer>;
 pub type RendezvousEnv = MdpEnv<Rendezvous>;
 
 impl<P: Problem> MdpEnv<P> {
+    /// The configured spacecraft in canonical units.
     pub fn spacecraft(&self) -> &CanonicalSpacecraft {
         &self.spacecraft
     }

@@ -66,7 +66,9 @@ impl OdeSystem<Y_LEN> for Arc {
 /// full thrust, starting with `first`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Structure {
+    /// Regime of the first arc ([`Regime::Coast`] or [`Regime::Full`]).
     pub first: Regime,
+    /// Number of switching times (arcs minus one).
     pub switches: usize,
 }
 
@@ -96,9 +98,13 @@ impl Structure {
 /// pattern along nearly circular orbits is then fixed, which leaves a well-conditioned system).
 #[derive(Debug, Clone, Copy)]
 pub struct BangBangTransfer<'a> {
+    /// The transfer to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// The fixed coast / full-thrust arc sequence.
     pub structure: Structure,
+    /// First switching time t_1 (t*) to pin, replacing the transversality condition; `None`: free.
     pub pin: Option<f64>,
 }
 
@@ -125,10 +131,13 @@ fn rho_gradient(y: &[f64; Y_LEN], c: f64) -> [f64; Y_LEN] {
 /// What a propagation of the structured problem returns: the final state-costate, the states at
 /// the switches, and (with sensitivities) dy/dz at the switches and at tf.
 pub struct Flight {
+    /// State-costate at tf.
     pub y_final: [f64; Y_LEN],
+    /// State-costate at each switching time, in order.
     pub y_switch: Vec<[f64; Y_LEN]>,
     /// 10 x n row-major blocks: d y / d z at each switch, then at tf (only with sensitivities).
     pub dy_switch: Vec<Vec<[f64; Y_LEN]>>,
+    /// d y(tf) / d z, one column of 10 per unknown (only with sensitivities).
     pub dy_final: Vec<[f64; Y_LEN]>,
 }
 
@@ -330,6 +339,7 @@ impl<const K: usize> ShootingProblem<K> for BangBangTransfer<'_> {
 pub struct Hohmann {
     /// +1 for a raise (prograde burns), -1 for a lowering.
     pub sign: f64,
+    /// Impulse magnitudes |dv1|, |dv2| at departure and arrival (AU/t*).
     pub dv: [f64; 2],
     /// Final mass of the impulsive transfer exp(-(dv1 + dv2) / c): an upper bound of the final
     /// mass of any finite-thrust transfer between circular orbits.
@@ -340,10 +350,12 @@ pub struct Hohmann {
     pub burn: [f64; 2],
     /// Half period of the transfer ellipse.
     pub half_period: f64,
+    /// Exhaust speed c (AU/t*) the masses and burns were computed with.
     pub exhaust_speed: f64,
 }
 
 impl Hohmann {
+    /// The Hohmann transfer between circles of radii `r1` and `r2` (AU) for spacecraft `sc`.
     pub fn new(r1: f64, r2: f64, sc: &CanonicalSpacecraft) -> Self {
         let c = sc.exhaust_speed;
         let dv1 = ((1.0 / r1).sqrt() * ((2.0 * r2 / (r1 + r2)).sqrt() - 1.0)).abs();
@@ -362,6 +374,8 @@ impl Hohmann {
         }
     }
 
+    /// The Hohmann transfer between the scenario's departure and target semi-major axes
+    /// (eccentricities ignored).
     pub fn of(scenario: &Scenario, sc: &CanonicalSpacecraft) -> Self {
         Self::new(scenario.initial.shape.a, scenario.target.a, sc)
     }

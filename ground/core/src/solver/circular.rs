@@ -133,6 +133,7 @@ pub struct CircularSolution {
     pub initial_coast: bool,
     /// Largest terminal residual of the replay (fresh propagation of the costates at `eps`).
     pub residual: f64,
+    /// Final mass of the replay, fraction of m0.
     pub final_mass: f64,
 }
 
@@ -599,7 +600,10 @@ pub enum CircularError {
     ShorterThanHohmann,
     /// Fewer than two shifts of the bang-bang scan solved.
     #[error("bang-bang shift scan: {solved} of {samples} shifts solved", samples = SHIFT_SAMPLES)]
-    ShiftScan { solved: usize },
+    ShiftScan {
+        /// Shifts that solved.
+        solved: usize,
+    },
     /// No shift of the scan led to a stationary bang-bang candidate.
     #[error("bang-bang: no stationary shift solved")]
     NoStationaryShift,
@@ -612,7 +616,9 @@ pub enum CircularError {
     /// Both paths failed, in the order they were tried.
     #[error("{first}; {second}")]
     BothPaths {
+        /// Why the path tried first failed.
         first: Box<CircularError>,
+        /// Why the other failed.
         second: Box<CircularError>,
     },
     /// No energy-optimal (eps = 1) solution to start the downward homotopy from.
@@ -632,25 +638,39 @@ pub enum CircularError {
     StalledAtStart,
     /// The free-anomaly path stalled below `eps`, and the pinned path from there failed.
     #[error("stalled below eps = {eps:.3e}; pinned: {pinned}")]
-    Pinned { eps: f64, pinned: Box<CircularError> },
+    Pinned {
+        /// Lowest eps the free-anomaly path solved.
+        eps: f64,
+        /// Why the pinned path failed.
+        pinned: Box<CircularError>,
+    },
     /// The pinned path stalled at this eps.
     #[error("stalled at eps = {0:.3e}")]
     Stalled(f64),
     /// The final nu_f search and replay failed with stall-limited inner solves, then without.
     #[error("{limited}; without the stall limit: {unlimited}")]
     Finish {
+        /// Failure with the stall limit.
         limited: Box<CircularError>,
+        /// Failure without it.
         unlimited: Box<CircularError>,
     },
     /// The nu_f search failed, and Newton with nu_f free failed to propagate.
     #[error("{search}; free nu_f: {error:?}")]
     FreeAnomaly {
+        /// Where the nu_f search stopped.
         search: SearchFailure,
+        /// The propagation error of the free-nu_f Newton.
         error: IntegrationError,
     },
     /// The nu_f search failed, and Newton with nu_f free ended at this residual.
     #[error("{search}; free nu_f: residual {residual:.1e}")]
-    FreeAnomalyResidual { search: SearchFailure, residual: f64 },
+    FreeAnomalyResidual {
+        /// Where the nu_f search stopped.
+        search: SearchFailure,
+        /// Largest terminal residual where Newton ended (canonical).
+        residual: f64,
+    },
     /// The single propagation from the initial costates failed.
     #[error("replay: propagation failed")]
     ReplayPropagation,
@@ -674,16 +694,22 @@ pub enum CircularError {
 /// Why the nu_f search at the final eps (`transversality_search`) stopped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum SearchFailure {
+    /// The inner multiple-shooting solve at the starting nu_f failed.
     #[error("transversality search: inner solve failed at the start")]
     StartSolve,
+    /// The search spent its integration-work budget.
     #[error("transversality search: work budget spent")]
     Budget,
+    /// The tangent d x / d nu_f of the inner solution, or the residual's slope along it, failed.
     #[error("transversality search: tangent failed")]
     Tangent,
+    /// The next nu_f is not finite (a flat transversality residual).
     #[error("transversality search: flat transversality residual")]
     FlatResidual,
+    /// The inner solve at the next nu_f failed, even with the step halved 8 times.
     #[error("transversality search: inner solve failed")]
     InnerSolve,
+    /// 40 iterations without the transversality residual meeting the search tolerance.
     #[error("transversality search: no convergence")]
     NoConvergence,
 }

@@ -60,7 +60,10 @@ const INPUTS: usize = STATE + CONTROL;
 /// Terminal conditions (r and v).
 const TERMINAL: usize = 4;
 
+/// A node state (x, y, vx, vy, m): AU, AU/t*, fraction of m0.
 pub type State = [f64; STATE];
+/// A segment control (w_r, w_theta, s): polar thrust vector in units of the maximum thrust, and
+/// throttle.
 pub type Control = [f64; CONTROL];
 /// Jacobian of a segment map with respect to (x_k, p_k).
 pub type SegmentJacobian = SMatrix<f64, STATE, INPUTS>;
@@ -191,8 +194,10 @@ impl Target {
 /// Why a direct solve could not run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DirectError {
+    /// A segment propagation failed.
     #[error("direct transcription: segment propagation failed ({0:?})")]
     Integration(IntegrationError),
+    /// The Kepler coast of the rendezvous target body to tf failed.
     #[error("direct transcription: the target body's coast failed")]
     Kepler,
     /// The QP solver could not even set up (bad data).
@@ -209,8 +214,11 @@ pub enum DirectError {
          with {full_throttle:.0} % of the segments at full throttle"
     )]
     NoStart {
+        /// Number of segments of the transcription.
         segments: usize,
+        /// Largest terminal-condition violation reached (canonical).
         violation: f64,
+        /// Share of the segments at full throttle, percent.
         full_throttle: f64,
     },
 }
@@ -224,6 +232,7 @@ impl From<IntegrationError> for DirectError {
 /// A point of the direct problem: controls per segment and, for transfers, nu_f.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DirectGuess {
+    /// One control per segment, in flight order.
     pub controls: Vec<Control>,
     /// Transfers: the final true anomaly on the target orbit (ignored for rendezvous).
     pub nu_f: f64,
@@ -303,6 +312,7 @@ impl DirectGuess {
 pub struct DirectOptions {
     /// Integration tolerances of every segment propagation.
     pub tolerances: Tolerances,
+    /// SQP iterations before giving up.
     pub max_iterations: u32,
     /// Initial trust radius on every control component (and on nu_f).
     pub trust_radius: f64,
@@ -348,21 +358,26 @@ impl Default for DirectOptions {
 /// One SQP iteration, for the record.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IterationLog {
+    /// Final mass of the iterate, fraction of m0.
     pub final_mass: f64,
     /// Largest terminal-condition violation.
     pub infeasibility: f64,
+    /// Trust radius of the step tried.
     pub trust_radius: f64,
     /// Actual / predicted merit decrease of the step tried.
     pub ratio: f64,
+    /// Whether the step was taken.
     pub accepted: bool,
 }
 
 /// A direct solution.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DirectSolution {
+    /// Number of equal segments K.
     pub segments: usize,
     /// Homotopy parameter of the cost that was minimised (0: fuel-optimal).
     pub eps: f64,
+    /// One control per segment, in flight order.
     pub controls: Vec<Control>,
     /// Transfers: the final true anomaly reached (rad).
     pub nu_f: Option<f64>,
@@ -375,13 +390,17 @@ pub struct DirectSolution {
     pub onboard_infeasibility: f64,
     /// Largest |w_k| - s_k gap on thrusting segments (0 at a tight relaxation).
     pub relaxation_gap: f64,
+    /// SQP iterations done.
     pub iterations: u32,
+    /// Whether the feasibility and optimality tests of [`DirectOptions`] both passed.
     pub converged: bool,
     /// Converged solutions: the costates at t = 0 that the QP's multipliers imply, in the
     /// indirect solver's convention (docs/spec.md section 3: the same running cost, so the same scale).
     /// See [`solve_direct`].
     pub initial_costates: Option<[f64; STATE]>,
+    /// Wall time of the solve, s.
     pub seconds: f64,
+    /// One entry per SQP iteration.
     pub history: Vec<IterationLog>,
 }
 

@@ -48,6 +48,7 @@ use super::{continuation, transfer_guesses, SolveOptions};
 
 /// Unknowns of the minimum-time transfer: lambda_r(0), lambda_v(0), tf, nu_f.
 pub const MIN_TIME_UNKNOWNS: usize = 6;
+/// Minimum-time transfer unknowns (lambda_r(0), lambda_v(0), tf, nu_f), canonical.
 pub type MinTimeVector = SVector<f64, MIN_TIME_UNKNOWNS>;
 type MinTimeJacobian = SMatrix<f64, MIN_TIME_UNKNOWNS, MIN_TIME_UNKNOWNS>;
 
@@ -91,7 +92,7 @@ fn mass_limit(spacecraft: &CanonicalSpacecraft) -> f64 {
     0.95 * spacecraft.exhaust_speed / spacecraft.thrust
 }
 
-/// Full-thrust propagation from the departure state with costates z[..4] to z[4].
+/// Full-thrust propagation from the departure state with costates `z[..4]` to `z[4]`.
 pub fn propagate_full_thrust(
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
@@ -208,7 +209,9 @@ fn min_time_terminal(
 /// The minimum-time free-anomaly transfer as a shooting problem (eps is ignored).
 #[derive(Debug, Clone, Copy)]
 pub struct MinTimeTransfer<'a> {
+    /// The transfer (its own time of flight is not used).
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
 }
 
@@ -257,6 +260,7 @@ impl ShootingProblem<MIN_TIME_UNKNOWNS> for MinTimeTransfer<'_> {
 
 /// Unknowns of the minimum-time rendezvous: lambda_r(0), lambda_v(0), tf.
 pub const MIN_TIME_RENDEZVOUS_UNKNOWNS: usize = 5;
+/// Minimum-time rendezvous unknowns (lambda_r(0), lambda_v(0), tf), canonical.
 pub type MinTimeRendezvousVector = SVector<f64, MIN_TIME_RENDEZVOUS_UNKNOWNS>;
 type MinTimeRendezvousJacobian = SMatrix<f64, MIN_TIME_RENDEZVOUS_UNKNOWNS, MIN_TIME_RENDEZVOUS_UNKNOWNS>;
 
@@ -295,10 +299,12 @@ fn rendezvous_end_condition(y: &[f64; Y_LEN], spacecraft: &CanonicalSpacecraft, 
 /// transfer: a trajectory that meets the body at t1 can coast beside it to any later t. Cost
 /// tf, terminal constraint x(tf) = x_body(tf): lambda(tf) = nu and H(tf) = nu . dx_body/dt with
 /// lambda_0 = 1; lambda_m(tf) = 0 as before. Unknowns (lambda_r(0), lambda_v(0), tf); residuals:
-/// r, v equal the body's (4) and the end condition [`rendezvous_end_condition`] (1).
+/// r, v equal the body's (4) and the end condition `rendezvous_end_condition` (1).
 #[derive(Debug, Clone, Copy)]
 pub struct MinTimeRendezvous<'a> {
+    /// The rendezvous (its own time of flight is not used).
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
 }
 
@@ -362,8 +368,11 @@ impl ShootingProblem<MIN_TIME_RENDEZVOUS_UNKNOWNS> for MinTimeRendezvous<'_> {
 /// The energy-optimal transfer at a time of flight `tof` other than the scenario's own.
 #[derive(Debug, Clone, Copy)]
 pub struct TransferAtTime<'a> {
+    /// The transfer.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// Time of flight to solve at (t*).
     pub tof: f64,
 }
 
@@ -401,13 +410,19 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferAtTime<'_> {
 pub enum Feasibility {
     /// The energy-optimal problem was solved at the real time of flight: a start for the
     /// homotopy (z: costates and nu_f), so the draw is feasible.
-    Recovered { z: TransferVector },
+    Recovered {
+        /// Initial costates and nu_f of the energy-optimal (eps = 1) solution.
+        z: TransferVector,
+    },
     /// A minimum-time extremal: tf_min (canonical) and its unknowns; `stopped_at` is where the
     /// time-of-flight continuation stopped (canonical; NaN for an extremal of the direct
     /// multi-start). Infeasible when tf_min > TOF.
     MinTime {
+        /// Minimum time of flight (t*).
         tf_min: f64,
+        /// The extremal's unknowns.
         z: MinTimeVector,
+        /// Time of flight where the continuation stopped (t*), or NaN.
         stopped_at: f64,
     },
     /// Neither: why.
@@ -684,7 +699,9 @@ fn push_distinct<const N: usize>(found: &mut Vec<SVector<f64, N>>, z: SVector<f6
 
 /// The end of a time-of-flight continuation: a solution at a time reached.
 pub struct Stopped<const N: usize> {
+    /// Time of flight reached (t*).
     pub tau: f64,
+    /// The solution at `tau`.
     pub z: SVector<f64, N>,
 }
 
@@ -801,7 +818,7 @@ pub fn classify_transfer(scenario: &Scenario, spacecraft: &CanonicalSpacecraft, 
 }
 
 /// Classifies a rendezvous that has no energy-optimal start at its time of flight (see the
-/// module notes); its extremals' z[5] is zero and unused, its recovered start padded as the
+/// module notes); its extremals' `z[5]` is zero and unused, its recovered start padded as the
 /// solver pads a rendezvous's.
 pub fn classify_rendezvous(
     scenario: &Scenario,
@@ -1043,7 +1060,7 @@ pub fn multistart_extremals(
     )
 }
 
-/// The rendezvous's minimum-time extremals of the direct multi-start, smallest tf first (z[5]
+/// The rendezvous's minimum-time extremals of the direct multi-start, smallest tf first (`z[5]`
 /// unused).
 pub fn rendezvous_multistart_extremals(
     scenario: &Scenario,

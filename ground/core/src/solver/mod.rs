@@ -32,6 +32,8 @@ use shooting::{
 pub struct SolveOptions {
     /// Integration tolerances of every shooting propagation (docs/spec.md: rtol 1e-11 or tighter).
     pub tolerances: Tolerances,
+    /// Newton settings of the homotopy's corrector; its tolerance is the acceptance test of a
+    /// solution.
     pub newton: NewtonSettings,
     /// The homotopy stops at the first level below this (docs/spec.md: 1e-4).
     pub final_eps: f64,
@@ -43,12 +45,14 @@ pub struct SolveOptions {
     /// Iteration and integration budgets of each multi-start attempt: a guess that is going
     /// nowhere is dropped early instead of costing seconds.
     pub start_newton: NewtonSettings,
+    /// Integration step cap of the energy-optimal starts' propagations ([`Self::start_tolerances`]).
     pub start_max_steps: u32,
     /// Integration tolerances and Newton tolerance of the multi-start's search at eps = 1:
     /// loose, as nearly all of its iterations are spent far from any solution (most guesses
     /// never converge); a guess converged there is polished at [`Self::tolerances`] and
     /// [`Self::start_newton`] before it counts as a start.
     pub search_tolerances: Tolerances,
+    /// Newton tolerance of the search (canonical).
     pub search_newton_tolerance: f64,
     /// The search gives up on a guess whose residual stops falling (see [`Progress`]): on
     /// transfer-hard most guesses plateau at |F| ~ 0.1-2 and used to spend their whole
@@ -59,6 +63,7 @@ pub struct SolveOptions {
     /// the homotopy may spend, each: a deterministic bound on the time of a case that is going
     /// nowhere, identical on every machine, under any load and in every shard.
     pub max_start_work: u64,
+    /// Integration work the homotopy may spend on a rendezvous (and on the near-circular path).
     pub max_homotopy_work: u64,
     /// The homotopy's budget on the general path of a transfer (transfer-hard): the spread
     /// throttle of its near-circular draws crawls down the eps schedule, and at 3e6 two of seed

@@ -24,15 +24,20 @@ use super::shooting::{initial_state_costate, orbit_state, ShootingProblem};
 pub const SEGMENTS: usize = 6;
 /// Unknowns: the initial costates and the state-costate at the inner nodes.
 pub const MS_UNKNOWNS: usize = 5 + Y_LEN * (SEGMENTS - 1);
+/// Multiple-shooting unknowns: lambda_0 (5), then the state-costate at each inner node (10 each).
 pub type MsVector = SVector<f64, MS_UNKNOWNS>;
+/// Jacobian of the multiple-shooting residual with respect to [`MsVector`].
 pub type MsJacobian = SMatrix<f64, MS_UNKNOWNS, MS_UNKNOWNS>;
 
 /// The pinned-anomaly transfer by multiple shooting. Residual rows: r, v - orbit(nu_f) (0..4),
 /// lambda_m(tf) (4), then the continuity defects of the inner nodes, 10 per node.
 #[derive(Debug, Clone, Copy)]
 pub struct MultipleShootingTransfer<'a> {
+    /// The transfer to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// Pinned final true anomaly on the target orbit (rad).
     pub nu_f: f64,
 }
 
@@ -306,13 +311,16 @@ mod tests {
 
 /// Unknowns of the free-anomaly multiple shooting: [`MS_UNKNOWNS`] and nu_f last.
 pub const MS_FREE_UNKNOWNS: usize = MS_UNKNOWNS + 1;
+/// Free-anomaly multiple-shooting unknowns: [`MsVector`]'s, then nu_f (rad).
 pub type MsFreeVector = SVector<f64, MS_FREE_UNKNOWNS>;
 
 /// The free-anomaly transfer by multiple shooting: [`MultipleShootingTransfer`]'s unknowns plus
 /// nu_f, its residual plus the transversality condition (last row).
 #[derive(Debug, Clone, Copy)]
 pub struct MultipleShootingFree<'a> {
+    /// The transfer to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
 }
 

@@ -25,18 +25,26 @@ pub const YS_LEN: usize = Y_LEN + Y_LEN * SENS_COLS;
 
 /// Indices into y.
 pub mod idx {
+    /// Position (x, y), AU: `y[0..2]`.
     pub const R: usize = 0;
+    /// Velocity (vx, vy), AU/t*: `y[2..4]`.
     pub const V: usize = 2;
+    /// Mass, fraction of m0: `y[4]`.
     pub const M: usize = 4;
+    /// Position costate lambda_r: `y[5..7]`.
     pub const LR: usize = 5;
+    /// Velocity costate lambda_v: `y[7..9]`.
     pub const LV: usize = 7;
+    /// Mass costate lambda_m: `y[9]`.
     pub const LM: usize = 9;
 }
 
 /// The spacecraft and the homotopy parameter eps of the running cost L = u - eps u (1 - u).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OptimalControlParams {
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// Homotopy parameter in [0, 1]: 1 energy-optimal, 0 fuel-optimal (bang-bang).
     pub eps: f64,
 }
 
@@ -65,8 +73,11 @@ pub fn optimal_throttle<D: DualNum<Primitive = f64> + Copy>(rho: D, eps: f64) ->
 /// Which branch of the smoothed throttle law applies: u = 0, the linear ramp, or u = 1.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Regime {
+    /// rho < -eps: u = 0.
     Coast,
+    /// |rho| <= eps: u = (1 + rho / eps) / 2.
     Ramp,
+    /// rho > eps: u = 1.
     Full,
 }
 
@@ -464,7 +475,7 @@ std::thread_local! {
 /// Work of one sensitivity step relative to a plain one (measured: ~6x the derivative cost).
 pub const SENSITIVITY_STEP_WORK: u64 = 6;
 
-/// The integration work done on this thread so far (see [`WORK`]).
+/// The integration work done on this thread so far (see `WORK`).
 pub fn work_done() -> u64 {
     WORK.with(Cell::get)
 }

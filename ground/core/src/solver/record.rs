@@ -16,8 +16,11 @@ pub const EPHEMERIS_POINTS: usize = 100;
 pub struct TrajectorySample {
     /// Time since departure, t*.
     pub t: f64,
+    /// Position (x, y), AU, heliocentric inertial.
     pub r: [f64; 2],
+    /// Velocity (vx, vy), AU/t*.
     pub v: [f64; 2],
+    /// Mass, fraction of m0.
     pub m: f64,
     /// Optimal throttle u in [0, 1].
     pub throttle: f64,
@@ -30,10 +33,16 @@ pub struct TrajectorySample {
 /// One solved (or failed) scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrajectoryRecord {
+    /// Distribution the scenario was drawn from (a label only for scenarios given by hand).
     pub kind: ScenarioKind,
+    /// Seed of the draw: `kind.draw(seed, index)` gave `scenario` (before any arrival margin).
     pub seed: u64,
+    /// Index of the draw in its seed's stream.
     pub index: u64,
+    /// The scenario solved.
     pub scenario: Scenario,
+    /// Whether the homotopy reached the final eps with the terminal conditions met and the
+    /// solution was sampled.
     pub converged: bool,
     /// Why the solve failed, when it did.
     pub failure: Option<String>,
@@ -41,6 +50,7 @@ pub struct TrajectoryRecord {
     pub costates: [f64; 5],
     /// Transfers: the final true anomaly on the target orbit (rad).
     pub final_anomaly: Option<f64>,
+    /// Homotopy parameter of the stored costates: the last level solved.
     pub final_eps: f64,
     /// Final mass, fraction of m0.
     pub final_mass: f64,

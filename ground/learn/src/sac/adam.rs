@@ -106,12 +106,17 @@ impl StepCoefficients {
 /// Why [`Adam::load_state`] refused a checkpoint's optimiser state.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum AdamStateError {
+    /// The state lacks this tensor (`PREFIX.m.i`, `PREFIX.v.i` or `PREFIX.steps`).
     #[error("missing tensor {0}")]
     Missing(String),
+    /// A moment tensor's shape differs from its parameter's (another network size).
     #[error("tensor {name} has shape {found:?}, expected {expected:?}")]
     Shape {
+        /// The tensor's name.
         name: String,
+        /// Its shape in the checkpoint.
         found: Vec<i64>,
+        /// The shape of the parameter it belongs to.
         expected: Vec<i64>,
     },
 }
@@ -126,6 +131,7 @@ pub struct Adam {
     steps: i64,
     /// One fused pass on the CPU; tensor kernels elsewhere (CUDA).
     fused: bool,
+    /// Step size (PyTorch's `lr`), read at every step.
     pub learning_rate: f64,
     beta1: f64,
     beta2: f64,

@@ -14,12 +14,17 @@ use super::SacConfig;
 /// What one gradient update measured (means over the batch).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct UpdateStats {
+    /// Twin-critic loss 2 mean (Q_k(s, a) - y)^2 against the soft Bellman target y.
     pub critic_loss: f64,
+    /// Soft actor loss mean(alpha log pi - min Q), without the behaviour-cloning term or scale.
     pub actor_loss: f64,
+    /// Temperature loss -log alpha mean(log pi + target entropy).
     pub temperature_loss: f64,
+    /// The temperature alpha this update used.
     pub temperature: f64,
     /// -E[log pi], the policy's entropy estimate.
     pub entropy: f64,
+    /// Batch mean of Q1(s, a) at the stored actions.
     pub q_mean: f64,
     /// Mean cloning error of tanh(mean) against the demonstrated action ([`CloningLoss`]; 0
     /// without demonstrations).
@@ -29,10 +34,13 @@ pub struct UpdateStats {
 /// Why a checkpoint was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
+    /// The file could not be read or written.
     #[error("checkpoint I/O: {0}")]
     Io(std::io::Error),
+    /// Not a safetensors file, or a tensor of an unsupported dtype (f32 and i64 only).
     #[error("checkpoint is not a readable safetensors file: {0}")]
     Format(String),
+    /// The tensors do not fit this agent: one missing, one extra, or another shape.
     #[error("checkpoint does not match this agent: {0}")]
     Mismatch(String),
     /// The tensors do not match the checksum written with them (a flipped byte, a splice), or
@@ -150,7 +158,13 @@ fn noise_seed(seed: u64, stream: u64, counter: u64) -> i64 {
     (z ^ (z >> 31)) as i64
 }
 
+/// A SAC learner: squashed-Gaussian actor, twin critics with Polyak-averaged targets, learned
+/// temperature alpha, their Adam optimisers and, when [`SacConfig::actor_averaging`] is set, an
+/// averaged actor. Observations and actions are flat f32 rows; actions lie in [-1, 1].
 pub struct Sac {
+    /// The hyper-parameters. `hidden`, `learning_rate`, `target_entropy`,
+    /// `initial_log_temperature` and `actor_averaging` are read at construction only; the others
+    /// where they are used, so a phase may change them (RL from scratch sets `behaviour_cloning` to 0).
     pub config: SacConfig,
     obs_dim: usize,
     act_dim: usize,
@@ -277,7 +291,7 @@ fn continuation(dones: &[f32], discount: f64) -> Vec<f32> {
 }
 
 /// The soft Bellman target y = r + gamma (1 - done) (min Q'(s', a') - alpha log pi(a'|s')), the
-/// entropy bonus in the bootstrapped value; `continuation` is gamma (1 - done) ([`continuation`]).
+/// entropy bonus in the bootstrapped value; `continuation` is gamma (1 - done).
 pub fn soft_bellman_target(
     rewards: &Tensor,
     continuation: &Tensor,
@@ -294,6 +308,7 @@ pub fn soft_bellman_target(
 /// agent averages it over the batch's demonstrations and weighs it by
 /// [`SacConfig::behaviour_cloning`]; gradients flow through `policy_action`.
 pub trait CloningLoss: Send + Sync {
+    /// The error of each row of `policy_action` against `demo_action`, shape [batch, 1].
     fn error(&self, policy_action: &Tensor, demo_action: &Tensor) -> Tensor;
 
     /// The action dimension the error is defined for (`None`: any); [`Sac::with_cloning_loss`]
@@ -400,14 +415,17 @@ impl Sac {
         }
     }
 
+    /// Observation features the networks take.
     pub fn obs_dim(&self) -> usize {
         self.obs_dim
     }
 
+    /// Action components the actor outputs.
     pub fn act_dim(&self) -> usize {
         self.act_dim
     }
 
+    /// The current temperature alpha = exp(log alpha).
     pub fn temperature(&self) -> f64 {
         self.log_temperature.exp().double_value(&[0])
     }
@@ -449,7 +467,7 @@ impl Sac {
     }
 
     /// One SAC gradient update on a mini-batch. The gradients are written out by hand
-    /// ([`Sac::critic_gradients`], [`Sac::actor_gradients`]) rather than recorded and replayed
+    /// (`Sac::critic_gradients`, `Sac::actor_gradients`) rather than recorded and replayed
     /// by autograd: the same arithmetic without a graph of some sixty nodes per update, whose
     /// bookkeeping cost a seventh of an update at the thesis's sizes (5.4 against 4.6 ms on one
     /// thread). A test checks them against autograd on the losses as written there.

@@ -81,11 +81,15 @@ fn load_torch_cuda() -> Result<(), String> {
 pub struct SacConfig {
     /// Hidden layer widths, shared by the actor and both critics.
     pub hidden: Vec<usize>,
+    /// Adam learning rate of the actor, the critics and the temperature (default 3e-4; > 0).
     pub learning_rate: f64,
+    /// Discount factor gamma per environment step, in [0, 1) (default 0.99).
     pub discount: f64,
     /// Polyak factor of the target critics, applied after every update.
     pub target_smoothing: f64,
+    /// Transitions per gradient update's mini-batch (default 256).
     pub batch_size: usize,
+    /// Transitions the replay buffer holds; once full, the oldest is overwritten (default 1,000,000).
     pub replay_capacity: usize,
     /// Environment steps before the first gradient update.
     pub warmup_steps: u64,
@@ -93,6 +97,7 @@ pub struct SacConfig {
     pub updates_per_step: u32,
     /// Entropy target; `None` means minus the action dimension (-3 here).
     pub target_entropy: Option<f64>,
+    /// Initial log alpha, the entropy temperature's logarithm (default 0: alpha = 1).
     pub initial_log_temperature: f64,
     /// Upper bound on log alpha (None = unbounded, the thesis). Behaviour cloning pins the mean
     /// action at the demonstrations' clipped extremes (+-0.999), where the tanh squash makes the
@@ -138,22 +143,41 @@ impl Default for SacConfig {
 /// Why [`SacConfig::validate`] refused a config.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SacConfigError {
+    /// A setting that must be positive and finite (`learning_rate`) is not.
     #[error("sac.{name} must be positive and finite, got {value}")]
-    NotPositive { name: &'static str, value: f64 },
+    NotPositive {
+        /// The key, without `sac.`.
+        name: &'static str,
+        /// The refused value.
+        value: f64,
+    },
+    /// `discount` is outside [0, 1).
     #[error("sac.discount must be in [0, 1), got {0}")]
     Discount(f64),
+    /// `target_smoothing` is outside (0, 1].
     #[error("sac.target_smoothing must be in (0, 1], got {0}")]
     TargetSmoothing(f64),
+    /// `hidden` is empty or lists a zero width.
     #[error("sac.hidden must list positive widths, got {0:?}")]
     Hidden(Vec<usize>),
+    /// `batch_size`, `replay_capacity` or `updates_per_step` is 0.
     #[error("sac.batch_size, sac.replay_capacity and sac.updates_per_step must be positive")]
     ZeroSize,
+    /// `behaviour_cloning` is negative or not finite.
     #[error("sac.behaviour_cloning must be >= 0, got {0}")]
     BehaviourCloning(f64),
+    /// `actor_averaging` is outside [0, 1].
     #[error("sac.actor_averaging must be in [0, 1] (0 = off), got {0}")]
     ActorAveraging(f64),
+    /// `initial_log_temperature` is above `max_log_temperature`.
     #[error("sac.initial_log_temperature ({initial}) is above sac.max_log_temperature ({cap:?})")]
-    TemperatureAboveCap { initial: f64, cap: Option<f64> },
+    TemperatureAboveCap {
+        /// The initial log alpha.
+        initial: f64,
+        /// The cap on log alpha.
+        cap: Option<f64>,
+    },
+    /// `initial_log_temperature`, `target_entropy` or `max_log_temperature` is NaN or infinite.
     #[error("sac.initial_log_temperature, sac.target_entropy and sac.max_log_temperature must be finite")]
     NotFinite,
 }

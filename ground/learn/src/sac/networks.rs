@@ -7,6 +7,7 @@ use tch::{Kind, Tensor};
 
 /// Bounds on the actor's log standard deviation (Haarnoja et al.'s reference code).
 pub const LOG_STD_MIN: f64 = -20.0;
+/// The upper bound (the lower is [`LOG_STD_MIN`]).
 pub const LOG_STD_MAX: f64 = 2.0;
 
 fn hidden_layers(path: &nn::Path, input: usize, hidden: &[usize], init: nn::LinearConfig) -> Vec<nn::Linear> {
@@ -28,7 +29,9 @@ pub struct Actor {
 
 /// An action drawn from the actor with its log-density (after the tanh squash).
 pub struct ActionSample {
+    /// The squashed action tanh(u), [batch, act_dim], in (-1, 1).
     pub action: Tensor,
+    /// log pi(a|s) of the squashed action, summed over its components, [batch, 1].
     pub log_prob: Tensor,
     /// The Gaussian's mean (before the squash).
     mean: Tensor,
@@ -43,6 +46,8 @@ impl ActionSample {
 }
 
 impl Actor {
+    /// A freshly initialised actor under `path` (PyTorch's `nn.Linear` initialisation, from the torch
+    /// generator): ReLU hidden layers of widths `hidden`, then `mean` and `log_std` heads of `act_dim`.
     pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
         Self::with_init(path, obs_dim, act_dim, hidden, Default::default())
     }
@@ -212,6 +217,8 @@ pub struct TwinCritic {
 }
 
 impl TwinCritic {
+    /// Both critics freshly initialised under `path` (PyTorch's `nn.Linear` initialisation, separate
+    /// draws): input (s, a) concatenated, ReLU hidden layers of widths `hidden`, one Q output.
     pub fn new(path: &nn::Path, obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
         let mut widths = vec![(obs_dim + act_dim) as i64];
         widths.extend(hidden.iter().map(|&h| h as i64));
@@ -288,7 +295,7 @@ impl TwinCritic {
         grads
     }
 
-    /// d min(Q1, Q2) / da row by row ([batch, act_dim]) of a recorded pass, `chosen` ([batch],
+    /// d min(Q1, Q2) / da row by row ([batch, act_dim]) of a recorded pass, `chosen` (`[batch]`,
     /// 0 or 1) naming the critic that min picked in each row, where min's gradient goes. The
     /// rows are grouped by that critic and each group goes back through its own critic alone,
     /// so every hidden layer's product runs once over the batch instead of once per critic;

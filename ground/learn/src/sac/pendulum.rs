@@ -10,8 +10,11 @@ use super::replay::{sampler, ReplayBuffer};
 use super::trainer::{mean_std, run, Episodic, LoopOptions, LoopState, StepOutcome, TrainObserver, WarmupPolicy};
 use super::SacConfig;
 
+/// Observation: cos and sin of the angle from upright, angular rate (rad/s).
 pub const OBS_DIM: usize = 3;
+/// Action: torque as a fraction of the 2 N m limit.
 pub const ACT_DIM: usize = 1;
+/// Steps per episode (10 s of 0.05 s steps), a time limit, not a terminal state.
 pub const EPISODE_STEPS: u32 = 200;
 const MAX_SPEED: f64 = 8.0;
 const MAX_TORQUE: f64 = 2.0;
@@ -40,6 +43,7 @@ fn wrap(angle: f64) -> f64 {
 }
 
 impl Pendulum {
+    /// A pendulum drawing from `seed`, already reset to a random state.
     pub fn new(seed: u64) -> Self {
         let mut p = Self {
             angle: 0.0,
@@ -52,6 +56,7 @@ impl Pendulum {
         p
     }
 
+    /// A new episode: angle uniform in [-pi, pi), rate uniform in [-1, 1] rad/s; its observation.
     pub fn reset(&mut self) -> [f32; OBS_DIM] {
         self.angle = uniform(&mut self.rng, -std::f64::consts::PI, std::f64::consts::PI);
         self.rate = uniform(&mut self.rng, -1.0, 1.0);
@@ -59,6 +64,7 @@ impl Pendulum {
         self.observation()
     }
 
+    /// [cos angle, sin angle, angular rate].
     pub fn observation(&self) -> [f32; OBS_DIM] {
         [self.angle.cos() as f32, self.angle.sin() as f32, self.rate as f32]
     }
@@ -127,9 +133,13 @@ pub fn evaluate(agent: &Sac, episodes: u64, seed: u64) -> (f64, f64) {
 /// One point of the sanity run's learning curve.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct CurvePoint {
+    /// Environment steps trained when evaluated.
     pub env_steps: u64,
+    /// Mean episode reward of the 10 deterministic evaluation episodes.
     pub mean_reward: f64,
+    /// Their standard deviation.
     pub std_reward: f64,
+    /// Wall-clock seconds since training started.
     pub seconds: f64,
 }
 

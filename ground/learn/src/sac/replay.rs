@@ -10,14 +10,22 @@ use serde::{Deserialize, Serialize};
 /// the behaviour-cloning term applies to them only.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Transition<'a> {
+    /// Observation s, `obs_dim` features.
     pub obs: &'a [f32],
+    /// Action a, `act_dim` components in [-1, 1].
     pub action: &'a [f32],
+    /// Reward of the step.
     pub reward: f32,
+    /// Observation s' after the step.
     pub next_obs: &'a [f32],
+    /// s' is terminal: nothing is bootstrapped past it.
     pub done: bool,
+    /// The tuple comes from a demonstration or a relabel, not from the agent's own flight.
     pub demonstration: bool,
 }
 
+/// The replay buffer: [`Transition`]s column by column in flat f32 arrays, up to a fixed
+/// capacity; serialisable, so a checkpoint carries it.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct ReplayBuffer {
     obs_dim: usize,
@@ -37,16 +45,24 @@ pub struct ReplayBuffer {
 /// A sampled mini-batch, row-major `[batch, dim]`.
 #[derive(Debug, Clone, Default)]
 pub struct Batch {
+    /// Rows (transitions) in the batch.
     pub size: usize,
+    /// Observations, `[size, obs_dim]`.
     pub obs: Vec<f32>,
+    /// Actions, `[size, act_dim]`.
     pub actions: Vec<f32>,
+    /// Rewards, `[size]`.
     pub rewards: Vec<f32>,
+    /// Next observations, `[size, obs_dim]`.
     pub next_obs: Vec<f32>,
+    /// 1 where s' is terminal, else 0, `[size]`.
     pub dones: Vec<f32>,
+    /// 1 for demonstration tuples, else 0, `[size]`.
     pub demonstrations: Vec<f32>,
 }
 
 impl ReplayBuffer {
+    /// An empty buffer of `capacity` transitions of these dimensions; panics on a zero capacity.
     pub fn new(obs_dim: usize, act_dim: usize, capacity: usize) -> Self {
         assert!(capacity > 0, "replay capacity must be positive");
         Self {
@@ -64,22 +80,27 @@ impl ReplayBuffer {
         }
     }
 
+    /// Transitions stored (at most the capacity).
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether no transition is stored.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
 
+    /// The most transitions it holds before overwriting the oldest.
     pub fn capacity(&self) -> usize {
         self.capacity
     }
 
+    /// Observation features per transition.
     pub fn obs_dim(&self) -> usize {
         self.obs_dim
     }
 
+    /// Action components per transition.
     pub fn act_dim(&self) -> usize {
         self.act_dim
     }

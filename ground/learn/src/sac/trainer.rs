@@ -11,7 +11,9 @@ use super::replay::{ReplayBuffer, Transition};
 pub trait Episodic {
     /// Why an episode could not start.
     type Error;
+    /// Observation features.
     fn obs_dim(&self) -> usize;
+    /// Action components.
     fn act_dim(&self) -> usize;
     /// Starts episode number `episode` (deterministic per task seed and episode number).
     fn reset(&mut self, episode: u64) -> Result<Vec<f32>, Self::Error>;
@@ -22,7 +24,9 @@ pub trait Episodic {
 /// The result of one environment step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepOutcome {
+    /// The observation after the step.
     pub obs: Vec<f32>,
+    /// The step's reward.
     pub reward: f64,
     /// The episode reached a terminal state: no bootstrapping past it.
     pub terminal: bool,
@@ -42,7 +46,9 @@ pub enum WarmupPolicy {
 /// Where the loop stands; checkpointed so a run resumes where it stopped.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LoopState {
+    /// Environment steps taken so far.
     pub env_steps: u64,
+    /// Episodes finished; the one in progress is episode number `episodes`.
     pub episodes: u64,
     /// Sum of rewards of the episode in progress.
     pub episode_reward: f64,
@@ -70,9 +76,13 @@ pub trait TrainObserver {
 /// Loop settings that are not SAC hyper-parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LoopOptions {
+    /// The environment step count the loop runs up to.
     pub total_steps: u64,
+    /// Environment steps between evaluations (0: none).
     pub eval_every: u64,
+    /// Environment steps between checkpoints (0: only the one at the end).
     pub checkpoint_every: u64,
+    /// How the actions of the first `warmup_steps` steps are chosen.
     pub warmup: WarmupPolicy,
 }
 

@@ -13,7 +13,9 @@ use super::problem::{ShootingProblem, TransferShooting, TransferVector, TRANSFER
 /// One level of the energy-to-fuel homotopy.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HomotopyLevel<const K: usize = TRANSFER_UNKNOWNS> {
+    /// Homotopy parameter of this level.
     pub eps: f64,
+    /// Where the Newton corrector ended at `eps`.
     pub outcome: NewtonOutcome<K>,
 }
 

@@ -12,6 +12,7 @@ use crate::solver::pontryagin::OptimalControlParams;
 /// Settings of the Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonSettings {
+    /// Iterations before giving up.
     pub max_iterations: u32,
     /// Converged when every terminal condition holds to this (canonical units).
     pub tolerance: f64,
@@ -24,7 +25,9 @@ pub struct NewtonSettings {
 /// local minimum of |F| while the ones that converge rarely stay flat that long.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Progress {
+    /// Number of iterations looked back.
     pub window: u32,
+    /// Required reduction over the window, in (0, 1).
     pub factor: f64,
 }
 
@@ -41,9 +44,13 @@ impl Default for NewtonSettings {
 /// Where an iteration ended.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonOutcome<const K: usize = TRANSFER_UNKNOWNS> {
+    /// The last iterate.
     pub z: SVector<f64, K>,
+    /// Largest terminal-condition residual at `z` (canonical, max norm).
     pub residual: f64,
+    /// Iterations done.
     pub iterations: u32,
+    /// Whether `residual` is within the tolerance.
     pub converged: bool,
     /// The Jacobian at `z`, as the iteration computed it (the homotopy's tangent reuses it).
     pub jacobian: Option<SMatrix<f64, K, K>>,

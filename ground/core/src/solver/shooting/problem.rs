@@ -15,7 +15,9 @@ use crate::solver::pontryagin::{
 
 /// Transfer unknowns: the five initial costates and the final true anomaly nu_f.
 pub const TRANSFER_UNKNOWNS: usize = 6;
+/// Transfer unknowns (lambda_r, lambda_v, lambda_m at t = 0, nu_f), canonical and rad.
 pub type TransferVector = SVector<f64, TRANSFER_UNKNOWNS>;
+/// Jacobian of the transfer residual with respect to [`TransferVector`].
 pub type TransferJacobian = SMatrix<f64, TRANSFER_UNKNOWNS, TRANSFER_UNKNOWNS>;
 
 /// Cartesian (x, y, vx, vy) on an orbit at true anomaly nu, generic so that first and second
@@ -131,6 +133,7 @@ pub trait ShootingProblem<const K: usize> {
         self.residual(eps, z, tolerances).map(|(f, _)| f)
     }
 
+    /// The residual F(z) at homotopy parameter `eps` and its Jacobian dF/dz.
     fn residual(
         &self,
         eps: f64,
@@ -148,7 +151,9 @@ pub trait ShootingProblem<const K: usize> {
 /// The free-anomaly transfer (6 unknowns: lambda_0 and nu_f).
 #[derive(Debug, Clone, Copy)]
 pub struct TransferShooting<'a> {
+    /// The transfer to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
 }
 
@@ -196,8 +201,11 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferShooting<'_> {
 /// whose zero a 1-D search finds.
 #[derive(Debug, Clone, Copy)]
 pub struct PinnedAnomalyTransfer<'a> {
+    /// The transfer to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// Pinned final true anomaly on the target orbit (rad).
     pub nu_f: f64,
 }
 
@@ -253,13 +261,16 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for PinnedAnomalyTransfer<'_> {
 
 /// Rendezvous unknowns: the five initial costates.
 pub const RENDEZVOUS_UNKNOWNS: usize = 5;
+/// Rendezvous unknowns: lambda_r, lambda_v, lambda_m at t = 0, canonical.
 pub type RendezvousVector = SVector<f64, RENDEZVOUS_UNKNOWNS>;
 
 /// The rendezvous (docs/spec.md section 3, TBR): r(tf), v(tf) equal the body's state, lambda_m(tf) = 0.
 /// The body moves on its Keplerian orbit from anomaly nu_f0 at t = 0.
 #[derive(Debug, Clone, Copy)]
 pub struct RendezvousShooting<'a> {
+    /// The rendezvous to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
 }
 
@@ -302,8 +313,11 @@ impl ShootingProblem<RENDEZVOUS_UNKNOWNS> for RendezvousShooting<'_> {
 /// search's continuation in the time of flight): the body is met where it is at that time.
 #[derive(Debug, Clone, Copy)]
 pub struct RendezvousAtTime<'a> {
+    /// The rendezvous to solve.
     pub scenario: &'a Scenario,
+    /// Thrust and exhaust speed, canonical.
     pub spacecraft: CanonicalSpacecraft,
+    /// Time of flight to solve at (t*).
     pub time_of_flight: f64,
 }
 
