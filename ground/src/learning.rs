@@ -457,7 +457,7 @@ impl ExperimentArgs {
     }
 }
 
-fn print_phase(summary: &learn::experiment::PhaseSummary) {
+fn print_phase(summary: &learn::phase::PhaseSummary) {
     println!(
         "{}: {} updates, {} environment steps, {:.0} s, {} demonstration tuples in the buffer",
         summary.folder.display(),
@@ -484,15 +484,13 @@ fn print_phase(summary: &learn::experiment::PhaseSummary) {
 
 fn pretrain_command(args: &ExperimentArgs) -> Result<(), Box<dyn std::error::Error>> {
     let (config, base) = args.load()?;
-    let summary = in_run_folder(&args.out, || {
-        Ok(learn::experiment::pretrain(&config, &base, &args.out)?)
-    })?;
+    let summary = in_run_folder(&args.out, || Ok(learn::pretrain::pretrain(&config, &base, &args.out)?))?;
     print_phase(&summary);
     Ok(())
 }
 
 fn train_command(args: &ExperimentArgs, from_pretrained: bool) -> Result<(), Box<dyn std::error::Error>> {
-    use learn::experiment::{train, Start};
+    use learn::rl::{train, Start};
     let (config, _) = args.load()?;
     let start = if from_pretrained {
         Start::Pretrained
@@ -639,9 +637,7 @@ fn ship_command(
         None => None,
     };
     let shipped = in_run_folder(&args.out, || {
-        Ok(learn::pipeline::ship(
-            &config, &base, checkpoint, &args.out, rounds, notes,
-        )?)
+        Ok(learn::ship::ship(&config, &base, checkpoint, &args.out, rounds, notes)?)
     })?;
     print!("{}", learn::eval::describe(&shipped.monte_carlo));
     println!("{}", learn::export::describe(&shipped.export));

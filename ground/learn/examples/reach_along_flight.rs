@@ -18,7 +18,7 @@ use ground_core::env::{MdpEnv, Transfer};
 use ground_core::solver::SolveOptions;
 use learn::config::ExperimentConfig;
 use learn::eval::load_agent;
-use learn::experiment::policy_batch;
+use learn::phase::policy_batch;
 use onboard::dynamics::SpacecraftState;
 use rayon::prelude::*;
 use shared::scenario::ProblemKind;

@@ -13,7 +13,8 @@ use serde::{Deserialize, Serialize};
 use shared::scenario::Scenario;
 
 use crate::config::{ConfigError, ExperimentConfig};
-use crate::experiment::{policy_batch, ExperimentError};
+use crate::error::ExperimentError;
+use crate::phase::policy_batch;
 use crate::sac::agent::{read_checked_safetensors, Sac};
 use crate::sac::trainer::uniform_action;
 use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};

@@ -18,8 +18,10 @@ use shared::quantize::{DenseWeights, MlpWeights};
 use shared::scenario::Scenario;
 
 use crate::config::ExperimentConfig;
+use crate::error::ExperimentError;
 use crate::eval::load_agent;
-use crate::experiment::{load_demonstrations, policy_batch, ExperimentError};
+use crate::phase::policy_batch;
+use crate::pretrain::load_demonstrations;
 use crate::sac::agent::Sac;
 use ground_core::env::batch::{
     draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats,

@@ -11,13 +11,20 @@
 //! - [`config`]: the experiment config (TOML) with every hyper-parameter, its defaults and checks.
 //! - [`sac`]: the SAC learner: networks, Adam, replay buffer, interaction loop, checkpoints.
 //! - [`cloning`]: the spacecraft's behaviour-cloning errors (on decoded thrust, not raw actions).
-//! - [`experiment`]: the pretraining and RL phases in a run folder, resumable.
+//! - [`run_folder`]: the run folder every stage writes into, and the checks that keep it one
+//!   experiment's; [`error`]: what stops a stage.
+//! - [`phase`]: what pretraining and RL share (evaluations, logs, checkpoints, resumption).
+//! - [`pretrain`]: the demonstrations into the replay buffer, then N_pt updates.
+//! - [`rl`]: SAC in the environment, vanilla or from the pretrained model.
 //! - [`dagger`]: relabelling rounds: fly the policy, re-solve from visited states, retrain.
 //! - [`eval`]: the Monte Carlo evaluation against baselines and the indirect optimum.
 //! - [`export`]: a checkpoint's actor to the onboard f32 and int8 blobs, with their errors.
 //! - [`sil`]: Monte Carlo of a blob in the SIL guidance loop against a dispersed plant.
 //! - [`model`]: shipped models (actor, blobs, card), checked whenever opened.
-//! - [`pipeline`]: the main job (`ground run`) and [`pipeline::ship`] for any checkpoint.
+//! - [`dataset`]: the demonstrations stage (the indirect method's solves into the run folder).
+//! - [`ship`]: Monte Carlo, blobs, SIL and the model folder, for any checkpoint.
+//! - [`report`]: the run's Markdown report.
+//! - [`pipeline`]: the main job and the recipes (`ground run`): every stage, top to bottom.
 //!
 //! # Example
 //!
@@ -47,10 +54,17 @@
 pub mod cloning;
 pub mod config;
 pub mod dagger;
+pub mod dataset;
+pub mod error;
 pub mod eval;
-pub mod experiment;
 pub mod export;
 pub mod model;
+pub mod phase;
 pub mod pipeline;
+pub mod pretrain;
+pub mod report;
+pub mod rl;
+pub mod run_folder;
 pub mod sac;
+pub mod ship;
 pub mod sil;

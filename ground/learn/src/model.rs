@@ -23,8 +23,8 @@ use serde::{Deserialize, Serialize};
 use shared::blob::{ProblemKind, Quantization};
 
 use crate::config::{ExperimentConfig, LookaheadConfig};
+use crate::error::ExperimentError;
 use crate::eval::{eccentricity_line, EccentricityBand, MonteCarloReport, SolvedShare};
-use crate::experiment::ExperimentError;
 use crate::export::{actor_network, blob_file, ExportReport};
 use crate::sac::agent::Sac;
 use crate::sil::SilReport;

@@ -18,8 +18,8 @@ use shared::blob::AlignedBlob;
 use shared::scenario::{ProblemKind, Scenario};
 
 use crate::config::{ConfigError, ExperimentConfig, LookaheadConfig};
+use crate::error::ExperimentError;
 use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, MonteCarloReport};
-use crate::experiment::ExperimentError;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, EnvError};
 use ground_core::io::atomic_write;
@@ -182,59 +182,59 @@ fn outcome<const N: usize>(
     }
 }
 
-/// Flies `blob` on the Monte Carlo's `scenarios` with `dispersions` (flight i's dispersions
-/// drawn from the Monte Carlo seed + i); returns the per-flight outcomes (trajectories recorded
-/// for the first `record` flights), guidance faults and each flight's missed thrust.
+/// How a Monte Carlo of a blob flies, beyond the config: the plant's dispersions, the seed
+/// flight i's draws start from (flight i draws from `seed + i`), how many flights keep their
+/// trajectories, and the onboard aid flown with the network.
+#[derive(Debug, Clone, Copy)]
+pub struct SilFlights<'a> {
+    /// The truth plant's dispersions.
+    pub dispersions: &'a Dispersions,
+    /// Flight i's dispersions are drawn from `seed + i`.
+    pub seed: u64,
+    /// The first `record` flights keep their trajectories.
+    pub record: usize,
+    /// Rollout lookahead around the network (None: the network alone).
+    pub lookahead: Option<&'a LookaheadConfig>,
+}
+
+impl<'a> SilFlights<'a> {
+    /// The config's SIL Monte Carlo: its seed and lookahead, with `dispersions`.
+    pub fn of(config: &'a ExperimentConfig, dispersions: &'a Dispersions, record: usize) -> Self {
+        Self {
+            dispersions,
+            seed: config.seeds.monte_carlo,
+            record,
+            lookahead: config.sil.lookahead.as_ref(),
+        }
+    }
+
+    /// The network alone, with `dispersions` drawn from `seed` on; no trajectory kept.
+    pub fn network_alone(dispersions: &'a Dispersions, seed: u64) -> Self {
+        Self {
+            dispersions,
+            seed,
+            record: 0,
+            lookahead: None,
+        }
+    }
+}
+
+/// Flies `blob` on `scenarios` as `flights` says, transfers or rendezvous as the config's
+/// scenario; returns the per-flight outcomes (trajectories recorded for the first
+/// `flights.record`), guidance faults and each flight's missed thrust.
 pub fn fly_blob(
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
-    dispersions: &Dispersions,
-    record: usize,
-) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    fly_blob_seeded(
-        config,
-        blob,
-        scenarios,
-        dispersions,
-        config.seeds.monte_carlo,
-        record,
-        config.sil.lookahead.as_ref(),
-    )
-}
-
-/// [`fly_blob`] with flight i's dispersions drawn from `dispersion_seed` + i, the network alone
-/// or with `lookahead`; transfers or rendezvous, as the config's scenario.
-pub fn fly_blob_seeded(
-    config: &ExperimentConfig,
-    blob: &[u8],
-    scenarios: &[Scenario],
-    dispersions: &Dispersions,
-    dispersion_seed: u64,
-    record: usize,
-    lookahead: Option<&LookaheadConfig>,
+    flights: &SilFlights,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
     match config.scenario.problem() {
-        ProblemKind::Transfer => fly_blob_as::<TRANSFER_FEATURES, _>(
-            firmware_sim::Transfer,
-            config,
-            blob,
-            scenarios,
-            dispersions,
-            dispersion_seed,
-            record,
-            lookahead,
-        ),
-        ProblemKind::Rendezvous => fly_blob_as::<RENDEZVOUS_FEATURES, _>(
-            firmware_sim::Rendezvous,
-            config,
-            blob,
-            scenarios,
-            dispersions,
-            dispersion_seed,
-            record,
-            lookahead,
-        ),
+        ProblemKind::Transfer => {
+            fly_blob_as::<TRANSFER_FEATURES, _>(firmware_sim::Transfer, config, blob, scenarios, flights)
+        }
+        ProblemKind::Rendezvous => {
+            fly_blob_as::<RENDEZVOUS_FEATURES, _>(firmware_sim::Rendezvous, config, blob, scenarios, flights)
+        }
     }
 }
 
@@ -253,18 +253,20 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
     })
 }
 
-/// [`fly_blob_seeded`] for one problem.
-#[allow(clippy::too_many_arguments)] // fly_blob_seeded's inputs and the problem
+/// [`fly_blob`] for one problem.
 fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     problem: P,
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
-    dispersions: &Dispersions,
-    seed: u64,
-    record: usize,
-    lookahead: Option<&LookaheadConfig>,
+    flights: &SilFlights,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
+    let SilFlights {
+        dispersions,
+        seed,
+        record,
+        lookahead,
+    } = *flights;
     let setup = flight_setup(config, dispersions)?;
     // On a cache line: the host kernels' vector loads then never straddle two.
     let blob = AlignedBlob::new(blob);
@@ -335,7 +337,8 @@ pub fn sil_monte_carlo(
     };
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
     let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
-    let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, dispersions, PLOTTED_FLIGHTS)?;
+    let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
+    let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, &flights)?;
     bar.finish_and_clear();
     let flown_time: f64 = outcomes.iter().map(|o| f64::from(o.steps)).sum::<f64>() * shared::units::STEP;
     let failed = outcomes

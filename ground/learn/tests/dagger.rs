@@ -7,7 +7,8 @@ use std::path::Path;
 
 use common::{scratch_dir, toy_config, toy_dataset};
 use learn::dagger::{dagger, load_relabels, RoundRow};
-use learn::experiment::{pretrain, ExperimentError};
+use learn::error::ExperimentError;
+use learn::pretrain::pretrain;
 use learn::sac::agent::Sac;
 use shared::scenario::ScenarioKind;
 use tch::Device;

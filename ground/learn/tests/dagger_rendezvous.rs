@@ -5,7 +5,7 @@ mod common;
 
 use common::{scratch_dir, toy_config, toy_dataset_of};
 use learn::dagger::{dagger, load_relabels};
-use learn::experiment::pretrain;
+use learn::pretrain::pretrain;
 use shared::scenario::ScenarioKind;
 
 /// Rendezvous rounds relabel with the body where it is at the relabelled step: the relabels

@@ -9,7 +9,7 @@ use ground_core::env::{MdpEnv, Rendezvous, Transfer};
 use learn::config::ExperimentConfig;
 use learn::export::{export, OnboardPolicy};
 use learn::sac::agent::Sac;
-use learn::sil::{fly_blob, sil_monte_carlo};
+use learn::sil::{fly_blob, sil_monte_carlo, SilFlights};
 use onboard::policy::TransferPolicy;
 use shared::blob::{ProblemKind, Quantization};
 
@@ -107,7 +107,13 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
         let policy = OnboardPolicy::load(bytes, ProblemKind::Transfer).unwrap();
         let ground =
             evaluate::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o: &[f32; 10]| policy.act(o), false).unwrap();
-        let (sil, faults, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+        let (sil, faults, missed) = fly_blob(
+            &config,
+            bytes,
+            &scenarios,
+            &SilFlights::of(&config, &Dispersions::NONE, 0),
+        )
+        .unwrap();
         assert_eq!(faults, 0);
         assert!(
             missed.iter().all(|m| m.time == 0.0 && m.last_end.is_none()),
@@ -125,7 +131,13 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
             assert_eq!(g.terminal, s.terminal);
         }
         // With dispersions the flights differ, and the dispersion is really flown.
-        let (dispersed, _, missed) = fly_blob(&config, bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
+        let (dispersed, _, missed) = fly_blob(
+            &config,
+            bytes,
+            &scenarios,
+            &SilFlights::of(&config, &Dispersions::TYPICAL, 0),
+        )
+        .unwrap();
         assert!(missed.iter().any(|m| m.time > 0.0));
         // A flight's last missed thrust is placed exactly when it met any.
         assert!(missed
@@ -171,8 +183,20 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
             cost: 0.0,
         })
     };
-    let (alone, _, _) = fly_blob(&config, &int8_bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
-    let (looked, _, _) = fly_blob(&looking, &int8_bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+    let (alone, _, _) = fly_blob(
+        &config,
+        &int8_bytes,
+        &scenarios,
+        &SilFlights::of(&config, &Dispersions::NONE, 0),
+    )
+    .unwrap();
+    let (looked, _, _) = fly_blob(
+        &looking,
+        &int8_bytes,
+        &scenarios,
+        &SilFlights::of(&looking, &Dispersions::NONE, 0),
+    )
+    .unwrap();
     for (a, l) in alone.iter().zip(&looked) {
         assert!(
             cost(l) <= cost(a),
@@ -228,7 +252,13 @@ threads = 1
         let policy = OnboardPolicy::load(&bytes, ProblemKind::Rendezvous).unwrap();
         let ground =
             evaluate::<MdpEnv<Rendezvous>, _>(&config.env, &scenarios, |o: &[f32; 22]| policy.act(o), false).unwrap();
-        let (sil, faults, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::NONE, 0).unwrap();
+        let (sil, faults, missed) = fly_blob(
+            &config,
+            &bytes,
+            &scenarios,
+            &SilFlights::of(&config, &Dispersions::NONE, 0),
+        )
+        .unwrap();
         assert_eq!(faults, 0);
         assert!(
             missed.iter().all(|m| m.time == 0.0 && m.last_end.is_none()),
@@ -245,7 +275,13 @@ threads = 1
             assert_eq!(g.final_mass.to_bits(), s.final_mass.to_bits());
             assert_eq!(g.terminal, s.terminal);
         }
-        let (dispersed, _, missed) = fly_blob(&config, &bytes, &scenarios, &Dispersions::TYPICAL, 0).unwrap();
+        let (dispersed, _, missed) = fly_blob(
+            &config,
+            &bytes,
+            &scenarios,
+            &SilFlights::of(&config, &Dispersions::TYPICAL, 0),
+        )
+        .unwrap();
         assert!(missed.iter().any(|m| m.time > 0.0));
         // A flight's last missed thrust is placed exactly when it met any.
         assert!(missed

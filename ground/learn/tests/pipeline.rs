@@ -8,8 +8,11 @@ use std::path::{Path, PathBuf};
 
 use common::{scratch_dir, toy_config, toy_dataset};
 use learn::config::ExperimentConfig;
+use learn::error::ExperimentError;
 use learn::eval::monte_carlo;
-use learn::experiment::{pretrain, train, ExperimentError, PhaseState, Start};
+use learn::phase::PhaseState;
+use learn::pretrain::pretrain;
+use learn::rl::{train, Start};
 use learn::sac::agent::{read_checked_safetensors, write_checked_safetensors, CheckpointError, Sac};
 use shared::scenario::ScenarioKind;
 
@@ -141,7 +144,8 @@ fn a_missing_dataset_is_refused_before_any_work() {
 /// and a report whose every link resolves.
 #[test]
 fn main_job_writes_a_report_whose_links_resolve() {
-    use learn::pipeline::{broken_links, run_main_job};
+    use learn::pipeline::run_main_job;
+    use learn::report::broken_links;
     let dir = scratch_dir("main-job");
     let mut config = toy_config(&dir.join("unused"));
     config.pretrain.dataset = None;
@@ -322,7 +326,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let read = learn::dagger::read_rounds(&again.join("dagger")).unwrap();
     assert_eq!((read.rows.len(), read.best_round), (2, summary.best_round));
     let note = "started from the main job's model".to_string();
-    let shipped = learn::pipeline::ship(
+    let shipped = learn::ship::ship(
         &dispersed,
         &dir,
         &again.join("dagger/best.safetensors"),

@@ -7,7 +7,9 @@ mod common;
 use std::path::Path;
 
 use common::{scratch_dir, toy_config, toy_dataset};
-use learn::experiment::{pretrain, train, PhaseState, Start};
+use learn::phase::PhaseState;
+use learn::pretrain::pretrain;
+use learn::rl::{train, Start};
 
 fn bytes(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))

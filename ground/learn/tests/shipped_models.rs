@@ -15,7 +15,7 @@ use ground_core::env::batch::{draw_scenarios, EpisodeOutcome};
 use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use learn::export::blob_file;
 use learn::model::open_model;
-use learn::sil::fly_blob_seeded;
+use learn::sil::{fly_blob, SilFlights};
 use shared::blob::Quantization;
 
 /// Flights per shipped controller.
@@ -58,16 +58,8 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
         let blob = std::fs::read(&blob_path).unwrap();
         let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, FLIGHTS);
         let alone = |blob: &[u8]| {
-            fly_blob_seeded(
-                config,
-                blob,
-                &scenarios,
-                &Dispersions::NONE,
-                config.seeds.monte_carlo,
-                0,
-                None,
-            )
-            .unwrap()
+            let flights = SilFlights::network_alone(&Dispersions::NONE, config.seeds.monte_carlo);
+            fly_blob(config, blob, &scenarios, &flights).unwrap()
         };
         let (outcomes, guidance_faults, _) = alone(&blob);
         assert_eq!(guidance_faults, 0, "{}", dir.display());
@@ -108,17 +100,8 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
             assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
             let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
             let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
-            let seed = config.seeds.monte_carlo;
-            let (looked, faults, _) = fly_blob_seeded(
-                config,
-                &blob,
-                first,
-                &Dispersions::NONE,
-                seed,
-                0,
-                config.sil.lookahead.as_ref(),
-            )
-            .unwrap();
+            let flights = SilFlights::of(config, &Dispersions::NONE, 0);
+            let (looked, faults, _) = fly_blob(config, &blob, first, &flights).unwrap();
             assert_eq!(faults, 0);
             let share = within_accuracy_goal(&looked);
             assert!(

@@ -1,0 +1,161 @@
+//! Pretraining (docs/spec.md section 8): the demonstrations of the config's dataset fill the
+//! replay buffer, then N_pt updates with periodic evaluations; the best model is kept.
+//!
+//! ```text
+//! RUN/pretrain/{best,last}.safetensors  the best (by evaluation) and latest learner state
+//! RUN/pretrain/replay.ltrb              the demonstration buffer handed to RL
+//! RUN/pretrain/{eval,updates}.csv       evaluation rows and loss averages, plus SVG plots
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use crate::config::ExperimentConfig;
+use crate::error::ExperimentError;
+use crate::phase::{load_state, new_agent, Phase, PhaseSummary};
+use crate::run_folder::{prepare_run, save_replay};
+use crate::sac::replay::{sampler, ReplayBuffer, Transition};
+use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
+use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::generate::{dataset_solve_request, read_dataset};
+use ground_core::with_problem;
+
+/// `ground train pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
+/// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
+pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
+    with_problem!(config.scenario.problem(), P => pretrain_for::<P>(config, config_dir, run))
+}
+
+/// The demonstration tuples of the config's dataset (refused when the dataset is of another
+/// problem or arrival margin), with the dataset file and its record count.
+pub fn load_demonstrations<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
+    let file = config.dataset_file(config_dir)?;
+    let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
+    if dataset.manifest.scenario.problem() != P::KIND {
+        return Err(ExperimentError::Mismatch(format!(
+            "dataset {} holds {} trajectories, the config is for {}",
+            file.display(),
+            dataset.manifest.scenario.name(),
+            config.scenario.name()
+        )));
+    }
+    // Relabels are solved with the config's margin: demonstrations of another would teach two
+    // arrival times. The run's request says it; a folder without one (written before it
+    // existed, or a file moved out of its folder) shows it by its records.
+    let request = dataset_solve_request(&file).map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+    let margin = match request {
+        Some(request) => request.arrival_margin_steps,
+        None => dataset
+            .records
+            .iter()
+            .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
+            .max()
+            .unwrap_or(0),
+    };
+    if margin != config.generate.arrival_margin {
+        return Err(ExperimentError::Mismatch(format!(
+            "dataset {} was solved to arrive {margin} steps early, the config asks for generate.arrival_margin = {}",
+            file.display(),
+            config.generate.arrival_margin
+        )));
+    }
+    let filter = config.pretrain.records;
+    let demos = demonstrations::<P>(&dataset.records, &config.env, filter, &default_tolerances());
+    Ok((demos, file, dataset.records.len()))
+}
+
+/// The demonstration tuples of the config's dataset as replay transitions.
+pub fn demonstration_buffer<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+) -> Result<(ReplayBuffer, usize), ExperimentError> {
+    let (demos, file, records) = load_demonstrations::<P>(config, config_dir)?;
+    if demos.transitions.is_empty() {
+        return Err(ExperimentError::Dataset(format!(
+            "{} gave no demonstration tuples ({} records, {} failed, {} filtered out)",
+            file.display(),
+            records,
+            demos.failed.len(),
+            demos.filtered_out
+        )));
+    }
+    let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity.max(demos.transitions.len()));
+    push_demonstrations(&mut buffer, &demos.transitions);
+    Ok((buffer, demos.used))
+}
+
+/// Appends demonstration tuples to a replay buffer, flagged as demonstrations.
+pub fn push_demonstrations<O: AsRef<[f32]>>(
+    buffer: &mut ReplayBuffer,
+    transitions: &[ground_core::demo::Transition<O>],
+) {
+    for t in transitions {
+        buffer.push(&Transition {
+            obs: t.observation.as_ref(),
+            action: &t.action,
+            reward: t.reward as f32,
+            next_obs: t.next_observation.as_ref(),
+            done: t.done,
+            demonstration: true,
+        });
+    }
+}
+
+fn pretrain_for<P: Problem>(
+    config: &ExperimentConfig,
+    config_dir: &Path,
+    run: &Path,
+) -> Result<PhaseSummary, ExperimentError>
+where
+    MdpEnv<P>: Environment,
+{
+    let device = config.device()?;
+    let (buffer, used) = demonstration_buffer::<P>(config, config_dir)?;
+    prepare_run(config, run)?;
+    let dir = run.join("pretrain");
+    let mut agent = new_agent(config, true, P::OBS, device);
+    let mut rng = sampler(config.seeds.train);
+    let state = load_state(&dir.join("state.json"))?.unwrap_or_default();
+    if state.updates > 0 {
+        agent.load(&dir.join("last.safetensors"))?;
+        rng.set_word_pos(state.sampler_word_pos);
+    }
+    let total = config.pretrain.updates;
+    let mut phase = Phase::new(dir.clone(), config, state, total, "pretrain");
+    phase.bar.set_position(phase.state.updates);
+    // A finished phase asked for more updates continues; asked for the same, it only reports.
+    if phase.state.updates < total || phase.state.evaluations.is_empty() {
+        // Evaluate the untrained policy once, so the curve starts at update 0.
+        if phase.state.evaluations.is_empty() {
+            let row = phase.evaluate::<MdpEnv<P>>(&agent, 0)?;
+            phase.state.best = Some(row);
+            agent.save(&dir.join("best.safetensors"))?;
+        }
+        while phase.state.updates < total {
+            let stats = agent.update(&buffer.sample(config.sac.batch_size, &mut rng));
+            phase.record_update(0, &stats);
+            if phase.state.updates.is_multiple_of(config.pretrain.eval_every) || phase.state.updates == total {
+                let row = phase.evaluate::<MdpEnv<P>>(&agent, 0)?;
+                if phase.improves(&row) {
+                    phase.state.best = Some(row);
+                    agent.save(&dir.join("best.safetensors"))?;
+                }
+                phase.checkpoint(&agent, None, &rng)?;
+            }
+        }
+        save_replay(&dir.join("replay.ltrb"), &buffer)?;
+        phase.checkpoint(&agent, None, &rng)?;
+    }
+    phase.bar.finish();
+    Ok(PhaseSummary {
+        folder: dir,
+        updates: phase.state.updates,
+        env_steps: 0,
+        seconds: phase.state.seconds,
+        best: phase.state.best,
+        demonstration_records: used,
+        demonstration_tuples: buffer.demonstration_count(),
+    })
+}
