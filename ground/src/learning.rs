@@ -1,4 +1,4 @@
-//! The learning commands (the `learn` feature, on libtorch), in groups: `ground train rl`
+//! The learning commands (the `learn` feature, on libtorch), in groups: `ground train`
 //! (pretraining, RL, relabelling rounds), `ground model` (Monte Carlo, export, SIL, ship),
 //! `ground run` (the main job or a recipe) and `ground dev` (the learner's sanity check and
 //! benchmark).
@@ -47,7 +47,7 @@ pub enum LearnCommand {
     },
 }
 
-/// `ground train rl`: the learning phases, each resumable in its run folder.
+/// `ground train`: the learning phases, each resumable in its run folder.
 #[derive(Subcommand)]
 pub enum TrainCommand {
     /// Pretraining (docs/spec.md section 8): demonstration tuples from the config's dataset fill the

@@ -4,7 +4,7 @@
 //!   method, datasets, shards and their merge, CCSDS OEM export, the demonstrations' check, the
 //!   cross-check against the direct transcription and the feasibility classification
 //!   ([`trajectories`]).
-//! - With the default `learn` feature ([`learning`]): `ground train rl` (pretraining, RL,
+//! - With the default `learn` feature ([`learning`]): `ground train` (pretraining, RL,
 //!   relabelling rounds), `ground model` (Monte Carlo, export, SIL, ship), `ground run` (the main
 //!   job or any recipe, end to end) and `ground dev` (the learner's sanity check and benchmark).
 

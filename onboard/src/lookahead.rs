@@ -53,26 +53,45 @@ enum Throttle {
     Fixed(f64),
 }
 
-/// What the lookahead weighs; `Default` is the goal of docs/spec.md's accuracy figures.
+/// What the lookahead weighs; `Default` is the goal of docs/spec.md's accuracy figures. The one
+/// definition: the ground's configs read it (feature `serde`: the floor, the fuel weight and the
+/// thrust margin by name, each defaulted; the goals are the evaluation's, the cycle cap the
+/// default, the tolerances the environment's) and the C interface mirrors it.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(default, deny_unknown_fields)
+)]
 pub struct LookaheadSettings {
     /// Position residual that counts as one unit of miss (AU).
+    #[cfg_attr(feature = "serde", serde(skip))]
     pub goal_position: f64,
     /// Velocity residual that counts as one unit of miss (canonical).
+    #[cfg_attr(feature = "serde", serde(skip))]
     pub goal_velocity: f64,
     /// Below this many goal units, a smaller miss is worth nothing more (> 0).
     pub accuracy_floor: f64,
     /// Cost of spending the whole initial mass as propellant, in goal units (>= 0).
     pub fuel_weight: f64,
     /// Integrator settings of the rollouts (the flight propagator's by default).
+    #[cfg_attr(feature = "serde", serde(skip))]
     pub tolerances: Tolerances,
     /// Most cycles a rollout may fly; with more left the network's command is flown unexamined.
+    #[cfg_attr(feature = "serde", serde(skip))]
     pub max_cycles: u32,
     /// Fraction of the thrust the rollouts plan without, in [0, 1): a duty-cycle margin against
     /// thrust the flight will lose (missed-thrust events, a weak thruster). 0 plans with the
     /// nominal thrust, the only setting under which the lookahead never arrives worse than the
     /// network in the nominal model.
+    #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero"))]
     pub thrust_margin: f64,
+}
+
+/// Whether a setting is at its default of zero (left out when written).
+#[cfg(feature = "serde")]
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for LookaheadSettings {

@@ -12,6 +12,7 @@ use crate::sac::agent::CloningLoss;
 use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
+use onboard::lookahead::LookaheadSettings;
 
 /// A whole experiment as one TOML file: the scenario distribution, seeds, environment, learner,
 /// the settings of every phase and the compute. Missing sections take their defaults (the
@@ -283,11 +284,12 @@ pub struct SilConfig {
     /// 1-sigma dispersions of the truth plant (default: `Dispersions::TYPICAL`, see
     /// `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
-    /// Fly the blob with rollout lookahead (`onboard::lookahead`) instead of alone (unset).
-    /// In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0, thrust_margin = 0.05 }`, or `ground model sil
-    /// --lookahead` for the defaults.
+    /// Fly the blob with rollout lookahead (`onboard::lookahead::LookaheadSettings`, its
+    /// fields by name, each defaulted; the rollouts propagate with `[env.integrator]`) instead of
+    /// alone (unset). In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0,
+    /// thrust_margin = 0.05 }`, or `ground model sil --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub lookahead: Option<LookaheadConfig>,
+    pub lookahead: Option<LookaheadSettings>,
 }
 
 impl Default for SilConfig {
@@ -296,48 +298,6 @@ impl Default for SilConfig {
             episodes: 1_000,
             dispersions: firmware_sim::Dispersions::TYPICAL,
             lookahead: None,
-        }
-    }
-}
-
-/// What the rollout lookahead weighs (`onboard::lookahead::LookaheadSettings`): the goal is the
-/// evaluation's (0.01 AU and 0.01), the rollouts use the environment's integrator settings.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LookaheadConfig {
-    /// Below this many goal units a smaller predicted miss is worth nothing more (> 0).
-    pub accuracy_floor: f64,
-    /// Goal units one initial mass of propellant is worth (>= 0).
-    pub fuel_weight: f64,
-    /// Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin).
-    #[serde(skip_serializing_if = "is_zero")]
-    pub thrust_margin: f64,
-}
-
-fn is_zero(x: &f64) -> bool {
-    *x == 0.0
-}
-
-impl Default for LookaheadConfig {
-    fn default() -> Self {
-        let s = onboard::lookahead::LookaheadSettings::default();
-        Self {
-            accuracy_floor: s.accuracy_floor,
-            fuel_weight: s.fuel_weight,
-            thrust_margin: s.thrust_margin,
-        }
-    }
-}
-
-impl LookaheadConfig {
-    /// The onboard settings, rolling out with `tolerances`.
-    pub fn settings(&self, tolerances: onboard::integrator::Tolerances) -> onboard::lookahead::LookaheadSettings {
-        onboard::lookahead::LookaheadSettings {
-            accuracy_floor: self.accuracy_floor,
-            fuel_weight: self.fuel_weight,
-            thrust_margin: self.thrust_margin,
-            tolerances,
-            ..Default::default()
         }
     }
 }
@@ -432,6 +392,15 @@ impl ExperimentConfig {
         toml::to_string_pretty(self).unwrap_or_default()
     }
 
+    /// The onboard lookahead the SIL flies (`[sil] lookahead`), its rollouts propagated with the
+    /// environment's integrator settings.
+    pub fn lookahead_settings(&self) -> Option<LookaheadSettings> {
+        self.sil.lookahead.map(|settings| LookaheadSettings {
+            tolerances: self.env.integrator.tolerances(),
+            ..settings
+        })
+    }
+
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.sac.validate().map_err(|e| ConfigError::Invalid(e.to_string()))?;
@@ -439,9 +408,8 @@ impl ExperimentConfig {
             .dispersions
             .validate()
             .map_err(|e| ConfigError::Invalid(format!("sil.dispersions: {e}")))?;
-        if let Some(lookahead) = &self.sil.lookahead {
+        if let Some(lookahead) = self.lookahead_settings() {
             lookahead
-                .settings(self.env.integrator.tolerances())
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use shared::blob::{ProblemKind, Quantization};
 
-use crate::config::{ExperimentConfig, LookaheadConfig};
+use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
 use crate::eval::{eccentricity_line, EccentricityBand, MonteCarloReport, SolvedShare};
 use crate::export::{actor_network, blob_file, ExportReport};
@@ -32,6 +32,7 @@ use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::Summary;
 use ground_core::io::atomic_write;
 use ground_core::with_problem;
+use onboard::lookahead::LookaheadSettings;
 
 /// The actor's file in a model folder.
 pub const ACTOR_FILE: &str = "actor.safetensors";
@@ -203,7 +204,7 @@ pub struct ModelCard {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LookaheadFigures {
     /// What the lookahead weighed.
-    pub settings: LookaheadConfig,
+    pub settings: LookaheadSettings,
     /// Figures of the nominal Monte Carlo flown with lookahead.
     pub monte_carlo: FlightFigures,
     /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
@@ -395,7 +396,8 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         });
     }
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
-    let export = crate::export::export(&config, dir, &actor, &run.join("export")).map_err(experiment)?;
+    // The card's paths are relative to the folder the producing command ran in: the repository.
+    let export = crate::export::export(&config, Path::new("."), &actor, &run.join("export")).map_err(experiment)?;
     let sil = if config.scenario.problem() == ProblemKind::Transfer {
         let fly = |blob: &Path, folder: &str| {
             crate::sil::sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions, 0)

@@ -170,7 +170,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     export_section(&mut s, &job.export, &job.sil);
     let _ = writeln!(
         s,
-        "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"
+        "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32C. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"
     );
     note_missing_figures(&s, run)
 }

@@ -91,8 +91,8 @@ pub fn ship(
 ) -> Result<Shipped, ExperimentError> {
     let commit = current_commit();
     let dataset_file = config.dataset_file(config_dir)?;
-    // The card's config names the dataset absolutely: a relative path means nothing without
-    // the config's folder, which the card does not keep.
+    // Absolute here, as the config's folder is not kept; the card writes it relative to the
+    // working folder (the repository), where `ground model export --model` finds it again.
     let mut config = config.clone();
     config.pretrain.dataset = Some(std::path::absolute(&dataset_file).unwrap_or(dataset_file.clone()));
     let config = &config;

@@ -17,13 +17,14 @@ use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
 use shared::scenario::{ProblemKind, Scenario};
 
-use crate::config::{ConfigError, ExperimentConfig, LookaheadConfig};
+use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
 use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, MonteCarloReport};
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, EnvError};
 use ground_core::io::atomic_write;
 use ground_core::with_problem;
+use onboard::lookahead::LookaheadSettings;
 
 /// Flights whose paths are drawn.
 const PLOTTED_FLIGHTS: usize = 6;
@@ -107,7 +108,7 @@ pub struct SilReport {
     pub controller: String,
     /// The rollout lookahead the blob flew with (None: the network alone).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lookahead: Option<LookaheadConfig>,
+    pub lookahead: Option<LookaheadSettings>,
     /// The truth plant's dispersions.
     pub dispersions: Dispersions,
     /// Flights flown.
@@ -193,8 +194,9 @@ pub struct SilFlights<'a> {
     pub seed: u64,
     /// The first `record` flights keep their trajectories.
     pub record: usize,
-    /// Rollout lookahead around the network (None: the network alone).
-    pub lookahead: Option<&'a LookaheadConfig>,
+    /// Rollout lookahead around the network (None: the network alone); its rollouts propagate
+    /// with the plant's tolerances, whatever these settings hold.
+    pub lookahead: Option<&'a LookaheadSettings>,
 }
 
 impl<'a> SilFlights<'a> {
@@ -283,10 +285,14 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
             let result = match lookahead {
                 None => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
                 Some(l) => {
+                    // The rollouts propagate as the plant does (`ExperimentConfig::lookahead_settings`).
                     let guide = Lookahead {
                         actor: &controller,
                         spacecraft: setup.spacecraft,
-                        settings: l.settings(setup.tolerances),
+                        settings: LookaheadSettings {
+                            tolerances: setup.tolerances,
+                            ..*l
+                        },
                     };
                     fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
                 }

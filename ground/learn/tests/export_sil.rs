@@ -170,11 +170,7 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     // algorithm's guarantee, in the lookahead's own cost), a refused one still flies thrust off.
     let mut looking = config.clone();
     looking.sil.lookahead = Some(Default::default());
-    let settings = looking
-        .sil
-        .lookahead
-        .unwrap()
-        .settings(config.env.integrator.tolerances());
+    let settings = looking.lookahead_settings().unwrap();
     let cost = |o: &EpisodeOutcome| {
         assert!(o.completed);
         settings.cost(&onboard::lookahead::Prediction {

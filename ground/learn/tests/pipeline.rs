@@ -351,6 +351,13 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert_eq!(lookahead.monte_carlo.episodes as u64, dispersed.evaluate.episodes);
     assert!(shipped.sil.iter().all(|r| r.lookahead == dispersed.sil.lookahead));
     assert!(learn::model::card_markdown(&card).contains("With rollout lookahead"));
+    // Exported again from its own actor (after a blob format change, say): the dataset the card
+    // names is found again, the same weights fly the same SIL figures, and the folder opens.
+    let again = learn::model::reexport_model(&dir.join("ship/model"), &dir.join("reexport")).unwrap();
+    assert_eq!(again.card.sil, card.sil);
+    assert_eq!(again.card.monte_carlo, card.monte_carlo);
+    assert!(again.card.reexported.is_some());
+    learn::model::open_model(&dir.join("ship/model")).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
