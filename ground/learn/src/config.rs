@@ -638,18 +638,31 @@ mod tests {
         assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
     }
 
+    /// configs/ holds recipes a user runs: each parses, validates, opens with a header saying
+    /// what it is for and the command that runs it, and names no path of one machine.
     #[test]
-    fn every_shipped_config_parses_and_validates() {
+    fn every_shipped_config_parses_validates_and_says_what_it_is_for() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
         let mut count = 0;
         for entry in std::fs::read_dir(&dir).unwrap() {
             let path = entry.unwrap().path();
             if path.extension().is_some_and(|e| e == "toml") {
                 ExperimentConfig::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let text = std::fs::read_to_string(&path).unwrap();
+                let header: Vec<&str> = text.lines().take_while(|l| l.starts_with('#')).collect();
+                assert!(header.len() >= 2, "{}: no header comment", path.display());
+                assert!(
+                    header.iter().any(|l| l.contains("ground ")),
+                    "{}: the header names no command",
+                    path.display()
+                );
+                for machine_path in ["/work/", "/tmp/", "/home/", "/root/"] {
+                    assert!(!text.contains(machine_path), "{}: {machine_path}", path.display());
+                }
                 count += 1;
             }
         }
-        assert!(count >= 3, "configs/ holds {count} configs");
+        assert!((3..=12).contains(&count), "configs/ holds {count} configs");
     }
 
     #[test]

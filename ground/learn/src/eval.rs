@@ -334,19 +334,32 @@ where
         true,
     )?;
     bar.finish_and_clear();
-    report_and_write::<P>(config, checkpoint, &scenarios, &policy, &plotted, out, gap_cases, start)
+    let flown = Flown {
+        scenarios: &scenarios,
+        policy: &policy,
+        plotted: &plotted,
+    };
+    report_and_write::<P>(config, checkpoint, &flown, out, gap_cases, start)
+}
+
+/// A policy's Monte Carlo flights, however flown: the scenarios, one outcome per scenario, and
+/// the outcomes whose trajectories are drawn.
+pub struct Flown<'a> {
+    /// The scenarios flown, in order.
+    pub scenarios: &'a [Scenario],
+    /// One outcome per scenario.
+    pub policy: &'a [EpisodeOutcome],
+    /// The outcomes whose paths are plotted (their trajectories recorded).
+    pub plotted: &'a [EpisodeOutcome],
 }
 
 /// The Monte Carlo report of a policy's `outcomes` on `scenarios` (flown by whatever flew it:
 /// the tch actor here, the SIL loop in [`crate::sil`]): the zero-thrust and random baselines on
 /// the same scenarios, the optimality gap on the first ones, the files in `out`.
-#[allow(clippy::too_many_arguments)] // the report's inputs, each needed once
 pub fn report_and_write<P: Problem>(
     config: &ExperimentConfig,
     source: &Path,
-    scenarios: &[Scenario],
-    policy: &[EpisodeOutcome],
-    plotted: &[EpisodeOutcome],
+    flown: &Flown,
     out: &Path,
     gap_cases: Option<u64>,
     start: Instant,
@@ -354,6 +367,11 @@ pub fn report_and_write<P: Problem>(
 where
     MdpEnv<P>: Environment<Obs = P::Obs>,
 {
+    let Flown {
+        scenarios,
+        policy,
+        plotted,
+    } = *flown;
     let seed = config.seeds.monte_carlo;
     let n = scenarios.len() as u64;
     let zero = fly::<P>(config, scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;

@@ -19,7 +19,7 @@ use shared::scenario::{ProblemKind, Scenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
-use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, MonteCarloReport};
+use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, Flown, MonteCarloReport};
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, EnvError};
 use ground_core::io::atomic_write;
@@ -352,12 +352,15 @@ pub fn sil_monte_carlo(
         .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
         .collect();
     let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
+    let flown = Flown {
+        scenarios: &scenarios,
+        policy: &outcomes,
+        plotted: &plotted,
+    };
     let monte_carlo = with_problem!(config.scenario.problem(), P => report_and_write::<P>(
         config,
         blob_path,
-        &scenarios,
-        &outcomes,
-        &plotted,
+        &flown,
         out,
         Some(gap_cases),
         start,
