@@ -78,6 +78,42 @@ use shared::units::STEP;
 
 pub use dispersion::{DispersedPlant, DispersionError, Dispersions};
 
+#[doc(hidden)]
+pub use onboard::features::{RENDEZVOUS_FEATURES as __RENDEZVOUS_FEATURES, TRANSFER_FEATURES as __TRANSFER_FEATURES};
+#[doc(hidden)]
+pub use shared::blob::ProblemKind as __ProblemKind;
+
+/// Evaluates `$body` with the type `$P` naming the loop's [`Problem`] of `$kind` (a
+/// `ProblemKind`) and the constant `$N` its feature count: the one place the flight loop's
+/// problems are listed, so code generic over [`Problem`] is called for a scenario's problem
+/// without a match arm per problem.
+///
+/// ```
+/// use firmware_sim::{with_flight_problem, Problem};
+/// use shared::blob::ProblemKind;
+///
+/// let features = |kind| with_flight_problem!(kind, N, P => (N, P::KIND));
+/// assert_eq!(features(ProblemKind::Transfer), (10, ProblemKind::Transfer));
+/// assert_eq!(features(ProblemKind::Rendezvous), (22, ProblemKind::Rendezvous));
+/// ```
+#[macro_export]
+macro_rules! with_flight_problem {
+    ($kind:expr, $N:ident, $P:ident => $body:expr) => {
+        match $kind {
+            $crate::__ProblemKind::Transfer => {
+                const $N: usize = $crate::__TRANSFER_FEATURES;
+                type $P = $crate::Transfer;
+                $body
+            }
+            $crate::__ProblemKind::Rendezvous => {
+                const $N: usize = $crate::__RENDEZVOUS_FEATURES;
+                type $P = $crate::Rendezvous;
+                $body
+            }
+        }
+    };
+}
+
 /// Hidden width of the flown actors (onboard's `TransferPolicy` and `RendezvousPolicy`).
 const HIDDEN: usize = 256;
 

@@ -9,13 +9,14 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use firmware_sim::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, Problem, SilError};
-use onboard::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+use firmware_sim::{
+    fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup, FlightStep, Problem, SilError,
+};
 use onboard::lookahead::Lookahead;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
-use shared::scenario::{ProblemKind, Scenario};
+use shared::scenario::Scenario;
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
@@ -230,14 +231,9 @@ pub fn fly_blob(
     scenarios: &[Scenario],
     flights: &SilFlights,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    match config.scenario.problem() {
-        ProblemKind::Transfer => {
-            fly_blob_as::<TRANSFER_FEATURES, _>(firmware_sim::Transfer, config, blob, scenarios, flights)
-        }
-        ProblemKind::Rendezvous => {
-            fly_blob_as::<RENDEZVOUS_FEATURES, _>(firmware_sim::Rendezvous, config, blob, scenarios, flights)
-        }
-    }
+    with_flight_problem!(config.scenario.problem(), N, P => {
+        fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
+    })
 }
 
 /// The config's spacecraft, plant tolerances and reward weights, flown with `dispersions`.
@@ -337,10 +333,9 @@ pub fn sil_monte_carlo(
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = match config.scenario.problem() {
-        ProblemKind::Transfer => describe_controller(&Controller::load_transfer(&blob)),
-        ProblemKind::Rendezvous => describe_controller(&Controller::load_rendezvous(&blob)),
-    };
+    let controller = with_flight_problem!(config.scenario.problem(), N, P => {
+        describe_controller(&Controller::<N>::load::<P>(&blob))
+    });
     let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
     let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
