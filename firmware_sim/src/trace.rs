@@ -18,7 +18,7 @@ use onboard::guidance::Guide;
 use shared::blob::Quantization;
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario};
-use shared::spacecraft::Spacecraft;
+use shared::spacecraft::{Spacecraft, SpacecraftError};
 
 use crate::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, FlightSummary, Problem, SilError};
 
@@ -36,6 +36,14 @@ pub struct TraceFlight {
     pub dispersions: Dispersions,
     /// Seed of the dispersions' draws.
     pub seed: u64,
+}
+
+impl TraceFlight {
+    /// The plant the flight flies, wherever it is flown (here, the C interface's replay): the
+    /// thesis spacecraft, default tolerances and reward weights, the flight's dispersions.
+    pub fn setup(&self) -> Result<FlightSetup, SpacecraftError> {
+        Ok(FlightSetup::nominal(Spacecraft::MSR_ERO.canonical()?).dispersed(self.dispersions))
+    }
 }
 
 /// A circular 1 AU -> 1.3 AU transfer (39 steps of 14 days) from nu = 0.3 rad.
@@ -187,12 +195,11 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
         "flight {} seed {} steps {}",
         flight.name, flight.seed, flight.scenario.steps
     )?;
-    let Ok(spacecraft) = Spacecraft::MSR_ERO.canonical() else {
+    let Ok(setup) = flight.setup() else {
         writeln!(w, "end error: invalid spacecraft")?;
         return Err(fmt::Error);
     };
     let mut written = Ok(());
-    let setup = FlightSetup::nominal(spacecraft).dispersed(flight.dispersions);
     let result = fly_observed(problem, actor, &flight.scenario, &setup, flight.seed, |step| {
         if written.is_ok() {
             written = write_step(w, step);

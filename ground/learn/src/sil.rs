@@ -195,9 +195,9 @@ pub struct SilFlights<'a> {
     pub seed: u64,
     /// The first `record` flights keep their trajectories.
     pub record: usize,
-    /// Rollout lookahead around the network (None: the network alone); its rollouts propagate
-    /// with the plant's tolerances, whatever these settings hold.
-    pub lookahead: Option<&'a LookaheadSettings>,
+    /// Rollout lookahead around the network (None: the network alone), as flown: its rollouts'
+    /// tolerances included ([`ExperimentConfig::lookahead_settings`]).
+    pub lookahead: Option<LookaheadSettings>,
 }
 
 impl<'a> SilFlights<'a> {
@@ -207,7 +207,7 @@ impl<'a> SilFlights<'a> {
             dispersions,
             seed: config.seeds.monte_carlo,
             record,
-            lookahead: config.sil.lookahead.as_ref(),
+            lookahead: config.lookahead_settings(),
         }
     }
 
@@ -280,15 +280,11 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
             let lookahead = lookahead.filter(|_| matches!(controller, Controller::Network(_)));
             let result = match lookahead {
                 None => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
-                Some(l) => {
-                    // The rollouts propagate as the plant does (`ExperimentConfig::lookahead_settings`).
+                Some(settings) => {
                     let guide = Lookahead {
                         actor: &controller,
                         spacecraft: setup.spacecraft,
-                        settings: LookaheadSettings {
-                            tolerances: setup.tolerances,
-                            ..*l
-                        },
+                        settings,
                     };
                     fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
                 }

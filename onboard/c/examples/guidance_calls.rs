@@ -25,7 +25,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use firmware_sim::trace::{flights_of, RENDEZVOUS_FLIGHTS, TRANSFER_FLIGHTS};
-use firmware_sim::{fly_observed, Controller, FlightSetup, Problem};
+use firmware_sim::{fly_observed, Controller, Problem};
 use lowthrust::{
     error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
 };
@@ -35,7 +35,6 @@ use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{ProblemKind, Quantization};
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::Scenario;
-use shared::spacecraft::Spacecraft;
 use shared::units::STEP;
 
 /// One guidance call: its inputs and what the Rust controller answered.
@@ -97,14 +96,13 @@ fn flight_calls<const N: usize, P: Problem<N>>(
     // A refused blob flies the SIL in safe mode; through the C interface every step of a policy
     // not loaded is refused with thrust off.
     let loaded = matches!(controller, Controller::Network(_));
-    let spacecraft = Spacecraft::MSR_ERO.canonical().map_err(|e| e.to_string())?;
     let mut calls = Vec::new();
     let mut first = 0;
     for flight in flights_of(problem) {
         let steps = flight.scenario.steps;
         let mut failed = None;
-        // The trace flight itself (firmware_sim::trace::fly flies it with the same arguments).
-        let setup = FlightSetup::nominal(spacecraft).dispersed(flight.dispersions);
+        // The trace flight itself, on the plant firmware_sim::trace::fly flies it on.
+        let setup = flight.setup().map_err(|e| e.to_string())?;
         fly_observed(
             problem,
             controller,
