@@ -455,6 +455,14 @@ impl ExperimentArgs {
             None => Ok((ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?, self.out.clone())),
         }
     }
+
+    /// The config a recipe's shipped learner flies with (its last stage's, see
+    /// `ExperimentConfig::flown`) and the folder its relative paths start from: what the
+    /// commands that fly, export or ship a checkpoint use.
+    fn load_flown(&self) -> Result<(ExperimentConfig, PathBuf), Box<dyn std::error::Error>> {
+        let (config, base) = self.load()?;
+        Ok((config.flown()?, base))
+    }
 }
 
 fn print_phase(summary: &learn::phase::PhaseSummary) {
@@ -552,7 +560,7 @@ impl Flown {
     /// blob (`ground model sil`) instead of its actor (`ground model evaluate`).
     fn resolve(&self, args: &ExperimentArgs, blob: bool) -> CommandResult<(ExperimentConfig, PathBuf)> {
         match self {
-            Self::File(file) => Ok((args.load()?.0, file.clone())),
+            Self::File(file) => Ok((args.load_flown()?.0, file.clone())),
             Self::Model { dir, int8 } => {
                 let model = learn::model::open_model(dir)?;
                 let file = match (blob, int8) {
@@ -561,7 +569,7 @@ impl Flown {
                     (true, true) => model.blob(shared::blob::Quantization::Int8),
                 };
                 let config = match &args.config {
-                    Some(_) => args.load()?.0,
+                    Some(_) => args.load_flown()?.0,
                     None => model.config,
                 };
                 Ok((config, file))
@@ -593,7 +601,7 @@ fn evaluate_command(
 }
 
 fn export_command(args: &ExperimentArgs, checkpoint: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, base) = args.load()?;
+    let (config, base) = args.load_flown()?;
     let report = in_run_folder(&args.out, || {
         Ok(learn::export::export(&config, &base, checkpoint, &args.out)?)
     })?;
@@ -628,7 +636,7 @@ fn ship_command(
     rounds: Option<&Path>,
     notes: &[String],
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, base) = args.load()?;
+    let (config, base) = args.load_flown()?;
     let rounds = match rounds {
         Some(dir) => {
             let summary = learn::dagger::read_rounds(dir)?;

@@ -53,6 +53,53 @@ pub struct ExperimentConfig {
     /// Torch threads, device, and where relabels are solved.
     #[serde(default)]
     pub compute: ComputeConfig,
+    /// Stages after the relabelling rounds (`ground run` only): each runs more rounds under
+    /// settings changed from the stage before, started from that stage's learner; the last
+    /// stage's best is what the run ships. A chain of runs written as one recipe.
+    #[serde(default, rename = "stage", skip_serializing_if = "Vec::is_empty")]
+    pub stages: Vec<Stage>,
+}
+
+/// What a stage's rounds start from: the learner the stage before it ended with.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StageStart {
+    /// The stage before's best round, the whole learner (actor, critics, optimisers).
+    #[default]
+    Best,
+    /// The stage before's best round, its flown actor alone: fresh critics and optimisers, as
+    /// `ground train dagger --from model/actor.safetensors` (for `cloning_only` rounds, or a
+    /// wider network: the actor is widened).
+    BestActor,
+    /// The stage before's last round, the whole learner (the rounds go on where they stopped).
+    Last,
+}
+
+/// One stage of a recipe (`[[stage]]`): a name (its folder, `RUN/stages/NAME`), where its
+/// rounds start, and the sections it changes, written as in the config (`generate = { ... }`,
+/// `[stage.dagger]`); each change applies on top of the stage before. A changed `[generate]`
+/// solves the stage its own demonstrations, which its rounds' buffer starts from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Stage {
+    /// The stage's name: lower-case letters, digits and dashes.
+    pub name: String,
+    /// What its rounds start from (default `best`).
+    #[serde(default)]
+    pub start: StageStart,
+    /// The stage before's completed rounds' relabels become this stage's first rounds (its
+    /// `dagger.rounds` counts them), as `ground train dagger --relabels-from`: the problem they
+    /// were solved for (scenario, seeds, final eps, arrival margin) must not change.
+    #[serde(default)]
+    pub inherit_relabels: bool,
+    /// The sections changed, by name (one of [`Stage::CHANGEABLE`]).
+    #[serde(flatten)]
+    pub changes: toml::Table,
+}
+
+impl Stage {
+    /// The sections a stage may change; the others (scenario, seeds, train, compute) hold for
+    /// the whole recipe.
+    pub const CHANGEABLE: [&'static str; 7] = ["env", "sac", "generate", "pretrain", "dagger", "evaluate", "sil"];
 }
 
 /// Disjoint seeds per phase, so evaluation never sees training scenarios.
@@ -483,6 +530,9 @@ impl ExperimentConfig {
         if !(self.generate.final_eps > 0.0 && self.generate.final_eps <= 1.0) {
             return Err(ConfigError::Invalid("generate.final_eps must be in (0, 1]".into()));
         }
+        if !self.stages.is_empty() {
+            self.staged()?;
+        }
         if self.compute.threads < 1 {
             return Err(ConfigError::Invalid("compute.threads must be at least 1".into()));
         }
@@ -493,6 +543,87 @@ impl ExperimentConfig {
             )));
         }
         Ok(())
+    }
+
+    /// The config each stage runs with, in order: the stage's changes applied on top of the
+    /// config of the stage before (the first: this config), with no stages of its own.
+    pub fn staged(&self) -> Result<Vec<ExperimentConfig>, ConfigError> {
+        let mut before = ExperimentConfig {
+            stages: Vec::new(),
+            ..self.clone()
+        };
+        let mut configs = Vec::with_capacity(self.stages.len());
+        for (i, stage) in self.stages.iter().enumerate() {
+            let at = format!("stage {} ({})", i + 1, stage.name);
+            let invalid = |reason: String| ConfigError::Invalid(format!("{at}: {reason}"));
+            let named = !stage.name.is_empty()
+                && stage
+                    .name
+                    .bytes()
+                    .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+            if !named {
+                return Err(invalid(
+                    "a stage's name is lower-case letters, digits and dashes".into(),
+                ));
+            }
+            if self.stages[..i].iter().any(|s| s.name == stage.name) {
+                return Err(invalid("another stage has this name".into()));
+            }
+            if let Some(key) = stage.changes.keys().find(|k| !Stage::CHANGEABLE.contains(&k.as_str())) {
+                return Err(invalid(format!(
+                    "`{key}` cannot change in a stage; a stage changes {}",
+                    Stage::CHANGEABLE.join(", ")
+                )));
+            }
+            let mut table = toml::Table::try_from(&before).map_err(|e| invalid(e.to_string()))?;
+            merge_tables(&mut table, &stage.changes);
+            let config: ExperimentConfig = table.try_into().map_err(|e: toml::de::Error| invalid(e.to_string()))?;
+            config.validate().map_err(|e| invalid(e.to_string()))?;
+            if config.dagger.rounds == 0 {
+                return Err(invalid("dagger.rounds is 0: a stage runs relabelling rounds".into()));
+            }
+            let rounds_before = before.dagger.rounds > 0;
+            if stage.start == StageStart::Last && !rounds_before {
+                return Err(invalid(
+                    "start = \"last\" needs relabelling rounds in the stage before".into(),
+                ));
+            }
+            if stage.inherit_relabels {
+                if !rounds_before {
+                    return Err(invalid(
+                        "inherit_relabels needs relabelling rounds in the stage before".into(),
+                    ));
+                }
+                if config.relabel_problem() != before.relabel_problem() {
+                    return Err(invalid(
+                        "inherit_relabels: the relabels were solved for another problem (final eps or arrival margin changed)"
+                            .into(),
+                    ));
+                }
+                if config.dagger.rounds <= before.dagger.rounds {
+                    return Err(invalid(format!(
+                        "dagger.rounds ({}) counts the {} inherited rounds: no round of its own would run",
+                        config.dagger.rounds, before.dagger.rounds
+                    )));
+                }
+            }
+            let learner = |c: &ExperimentConfig| (c.sac.hidden.clone(), c.sac.actor_averaging > 0.0);
+            if stage.start != StageStart::BestActor && learner(&config) != learner(&before) {
+                return Err(invalid(
+                    "sac.hidden or actor averaging changes: start = \"best-actor\" (the actor, widened) is the only learner that fits"
+                        .into(),
+                ));
+            }
+            configs.push(config.clone());
+            before = config;
+        }
+        Ok(configs)
+    }
+
+    /// The config the recipe's shipped learner was trained and is flown with: its last stage's,
+    /// or itself without stages.
+    pub fn flown(&self) -> Result<ExperimentConfig, ConfigError> {
+        Ok(self.staged()?.pop().unwrap_or_else(|| self.clone()))
     }
 
     /// The pretraining dataset file, checked to exist (relative paths are taken from `base`).
@@ -562,6 +693,18 @@ impl ExperimentConfig {
             })
         } else {
             Ok(tch::Device::Cpu)
+        }
+    }
+}
+
+/// `changes` written over `table`: tables merged key by key, any other value replaced.
+fn merge_tables(table: &mut toml::Table, changes: &toml::Table) {
+    for (key, value) in changes {
+        match (table.get_mut(key), value) {
+            (Some(toml::Value::Table(inner)), toml::Value::Table(change)) => merge_tables(inner, change),
+            _ => {
+                table.insert(key.clone(), value.clone());
+            }
         }
     }
 }
@@ -663,6 +806,76 @@ mod tests {
             }
         }
         assert!((3..=12).contains(&count), "configs/ holds {count} configs");
+    }
+
+    /// A recipe's stages: each applies its changes on top of the stage before, round-trips
+    /// through the run folder's TOML, and a stage that could not run is refused at parse time
+    /// with the stage named.
+    #[test]
+    fn stages_change_the_config_stage_by_stage_and_impossible_ones_are_refused() {
+        let base = "scenario = \"transfer-hard\"\n[generate]\ncount = 50\n[dagger]\nrounds = 4\nfractions = [0.5]\n";
+        let text = format!(
+            "{base}\n[[stage]]\nname = \"margin\"\nstart = \"best-actor\"\ngenerate = {{ arrival_margin = 2 }}\n\
+             [stage.dagger]\nrounds = 6\ncloning_only = true\n\n[[stage]]\nname = \"near\"\nstart = \"last\"\n\
+             inherit_relabels = true\ndagger = {{ rounds = 9, max_miss = 10.0 }}\nsil = {{ lookahead = {{ accuracy_floor = 0.5 }} }}\n"
+        );
+        let recipe = ExperimentConfig::from_toml(&text).unwrap();
+        assert_eq!(ExperimentConfig::from_toml(&recipe.to_toml()).unwrap(), recipe);
+        let staged = recipe.staged().unwrap();
+        assert_eq!(staged.len(), 2);
+        let (margin, near) = (&staged[0], &staged[1]);
+        // Changed keys change; the rest of a changed section and the other sections carry over.
+        assert_eq!((margin.generate.arrival_margin, margin.generate.count), (2, 50));
+        assert_eq!((margin.dagger.rounds, margin.dagger.cloning_only), (6, true));
+        assert_eq!(margin.dagger.fractions, vec![0.5]);
+        assert!(margin.stages.is_empty() && margin.sil.lookahead.is_none());
+        assert_eq!((near.dagger.rounds, near.dagger.max_miss), (9, Some(10.0)));
+        assert!(near.dagger.cloning_only, "a change holds for the stages after it");
+        assert_eq!(near.generate, margin.generate);
+        assert_eq!(near.sil.lookahead.map(|l| l.accuracy_floor), Some(0.5));
+        assert_eq!(recipe.flown().unwrap(), *near);
+        let plain = ExperimentConfig::from_toml(base).unwrap();
+        assert_eq!(plain.flown().unwrap(), plain);
+
+        let refused = [
+            ("seeds = { train = 5 }", "cannot change in a stage"),
+            ("dagger = { rounds = 0 }", "dagger.rounds is 0"),
+            ("dagger = { rounds = 9, max_miss = 0.5 }", "dagger.max_miss"),
+            ("dagger = { rounds = 9, surprise = 1 }", "unknown field"),
+            (
+                "inherit_relabels = true\ngenerate = { arrival_margin = 1 }\ndagger = { rounds = 9 }",
+                "another problem",
+            ),
+            ("inherit_relabels = true\ndagger = { rounds = 4 }", "inherited rounds"),
+            ("sac = { hidden = [512, 512] }\ndagger = { rounds = 9 }", "best-actor"),
+        ];
+        for (stage, reason) in refused {
+            let text = format!("{base}\n[[stage]]\nname = \"x\"\n{stage}\n");
+            match ExperimentConfig::from_toml(&text) {
+                Err(ConfigError::Invalid(message)) | Err(ConfigError::Parse(message)) => {
+                    assert!(
+                        message.contains(reason) && message.contains("stage 1 (x)"),
+                        "{stage}: {message}"
+                    )
+                }
+                Ok(_) => panic!("accepted: {stage}"),
+                Err(e) => panic!("{stage}: {e}"),
+            }
+        }
+        // A wider network from the stage before's actor alone is a stage that fits.
+        let wider =
+            format!("{base}\n[[stage]]\nname = \"wide\"\nstart = \"best-actor\"\nsac = {{ hidden = [512, 512] }}\n");
+        assert_eq!(
+            ExperimentConfig::from_toml(&wider).unwrap().flown().unwrap().sac.hidden,
+            vec![512, 512]
+        );
+        let no_rounds =
+            "scenario = \"transfer-hard\"\n[[stage]]\nname = \"y\"\nstart = \"last\"\ndagger = { rounds = 2 }\n";
+        assert!(ExperimentConfig::from_toml(no_rounds).is_err());
+        for name in ["", "Upper", "a/b", "x\n[[stage]]\nname = \"x\""] {
+            let text = format!("{base}\n[[stage]]\nname = \"{name}\"\ndagger = {{ rounds = 9 }}\n");
+            assert!(ExperimentConfig::from_toml(&text).is_err(), "name {name:?} accepted");
+        }
     }
 
     #[test]

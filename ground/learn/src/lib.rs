@@ -17,6 +17,7 @@
 //! - [`pretrain`]: the demonstrations into the replay buffer, then N_pt updates.
 //! - [`rl`]: SAC in the environment, vanilla or from the pretrained model.
 //! - [`dagger`]: relabelling rounds: fly the policy, re-solve from visited states, retrain.
+//! - [`stages`]: a recipe's stages: more rounds under changed settings, each from the last.
 //! - [`eval`]: the Monte Carlo evaluation against baselines and the indirect optimum.
 //! - [`export`]: a checkpoint's actor to the onboard f32 and int8 blobs, with their errors.
 //! - [`sil`]: Monte Carlo of a blob in the SIL guidance loop against a dispersed plant.
@@ -68,3 +69,4 @@ pub mod run_folder;
 pub mod sac;
 pub mod ship;
 pub mod sil;
+pub mod stages;

@@ -585,7 +585,7 @@ pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelEr
         .map_err(|e| ModelError::Experiment(Box::new(e)))
 }
 
-fn obs_dim(kind: ProblemKind) -> usize {
+pub(crate) fn obs_dim(kind: ProblemKind) -> usize {
     use ground_core::env::Problem;
     with_problem!(kind, P => P::OBS)
 }

@@ -1,6 +1,7 @@
 //! The main job and the recipes (`ground run`), top to bottom: demonstrations by the indirect
 //! method, pretraining, RL from the pretrained model, relabelling rounds (when the config's
-//! `[dagger]` has rounds), Monte Carlo evaluation, then the ship stage (onboard blobs flown in
+//! `[dagger]` has rounds), the recipe's stages (`[[stage]]`: more rounds under changed
+//! settings), Monte Carlo evaluation, then the ship stage (onboard blobs flown in
 //! the software-in-the-loop against a dispersed plant, the model folder) and the report. All in
 //! one run folder; each stage resumes exactly from what an interrupted run left.
 
@@ -20,6 +21,7 @@ use crate::report::report_markdown;
 use crate::rl::{train, Start};
 use crate::ship::{export_and_ship, Lineage};
 use crate::sil::SilReport;
+use crate::stages::{run_stage, StageInput, StageSummary};
 use ground_core::generate::{CrossCheckSummary, Summary};
 use ground_core::io::atomic_write;
 
@@ -39,6 +41,8 @@ pub struct MainJob {
     pub train: PhaseSummary,
     /// The relabelling rounds, when the config has any.
     pub dagger: Option<DaggerSummary>,
+    /// The recipe's stages after them, in order (`RUN/stages/NAME`).
+    pub stages: Vec<StageSummary>,
     /// The Monte Carlo of the best model (`RUN/mc`).
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
@@ -49,7 +53,7 @@ pub struct MainJob {
     pub sil: [SilReport; 2],
     /// Wall time of each stage run, s, by name (this invocation's: a resumed stage counts only
     /// what it still had to do).
-    pub stage_seconds: Vec<(&'static str, f64)>,
+    pub stage_seconds: Vec<(String, f64)>,
 }
 
 /// Runs every stage into `run` and writes `run/report.md`.
@@ -58,9 +62,11 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     config.device()?;
     // The code this run is built from: read now, as the tree may change while it runs.
     let commit = current_commit();
+    let recipe = config;
+    let recipe_stages = config.staged()?;
     let mut config = config.clone();
     let relabel = config.dagger.rounds > 0;
-    let stages = 5 + usize::from(relabel);
+    let stages = 5 + usize::from(relabel) + recipe_stages.len();
     let mut stage = 0;
     let mut next = |what: String| {
         stage += 1;
@@ -79,7 +85,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let (dataset, crosscheck) = demonstrations(&config, &dataset_dir)?;
     // Absolute, so the config's relative-path base cannot apply twice.
     config.pretrain.dataset = Some(std::path::absolute(&dataset_dir).unwrap_or(dataset_dir.clone()));
-    stage_seconds.push(("dataset", t.elapsed().as_secs_f64()));
+    stage_seconds.push(("dataset".into(), t.elapsed().as_secs_f64()));
 
     // 2. Pretraining on the demonstrations.
     let t = Instant::now();
@@ -88,7 +94,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         config.pretrain.updates
     ));
     let pre = pretrain(&config, run, run)?;
-    stage_seconds.push(("pretraining", t.elapsed().as_secs_f64()));
+    stage_seconds.push(("pretraining".into(), t.elapsed().as_secs_f64()));
 
     // 3. RL from the pretrained model.
     let t = Instant::now();
@@ -97,7 +103,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         config.train.env_steps
     ));
     let rl = train(&config, run, Start::Pretrained)?;
-    stage_seconds.push(("RL", t.elapsed().as_secs_f64()));
+    stage_seconds.push(("RL".into(), t.elapsed().as_secs_f64()));
     let mut best = rl.folder.join("best.safetensors");
 
     // 4. Relabelling rounds from RL's best model.
@@ -115,35 +121,59 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         ));
         let summary = dagger(&config, run, run, &best, None)?;
         best = summary.folder.join("best.safetensors");
-        stage_seconds.push(("relabelling", t.elapsed().as_secs_f64()));
+        stage_seconds.push(("relabelling".into(), t.elapsed().as_secs_f64()));
         Some(summary)
     } else {
         None
     };
 
-    // 5. Monte Carlo of the best model.
-    let t = Instant::now();
-    next(format!("Monte Carlo: {} episodes", config.evaluate.episodes));
-    let mc = monte_carlo(&config, &best, &run.join("mc"), None, None)?;
-    stage_seconds.push(("Monte Carlo", t.elapsed().as_secs_f64()));
+    // 5. The recipe's stages, each from the learner the one before ended with.
+    let mut input = StageInput {
+        config: config.clone(),
+        folder: run.to_path_buf(),
+        best: best.clone(),
+        rounds: rounds.clone(),
+        dataset: dataset.clone(),
+    };
+    let mut stage_runs = Vec::new();
+    for (stage, stage_config) in recipe.stages.iter().zip(&recipe_stages) {
+        let t = Instant::now();
+        next(format!(
+            "stage {}: relabelling rounds to {}",
+            stage.name, stage_config.dagger.rounds
+        ));
+        let (summary, after) = run_stage(stage, stage_config, run, &input)?;
+        stage_seconds.push((format!("stage {}", stage.name), t.elapsed().as_secs_f64()));
+        stage_runs.push(summary);
+        input = after;
+    }
+    // The last stage's learner, flown with its config.
+    let best = input.best;
+    let (flown, flown_dataset) = (input.config, input.dataset);
 
-    // 6. Onboard blobs, flown in the SIL loop against the dispersed plant.
+    // 6. Monte Carlo of the best model.
+    let t = Instant::now();
+    next(format!("Monte Carlo: {} episodes", flown.evaluate.episodes));
+    let mc = monte_carlo(&flown, &best, &run.join("mc"), None, None)?;
+    stage_seconds.push(("Monte Carlo".into(), t.elapsed().as_secs_f64()));
+
+    // 7. Onboard blobs, flown in the SIL loop against the dispersed plant.
     let t = Instant::now();
     next(format!(
         "export f32 + int8 blobs, SIL: {} dispersed flights each",
-        config.sil.episodes
+        flown.sil.episodes
     ));
-    let rounds_run = rounds
-        .as_ref()
-        .map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round));
+    let last_rounds = stage_runs.last().map(|s| &s.rounds).or(rounds.as_ref());
+    let rounds_run = last_rounds.map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round));
+    let notes: Vec<String> = stage_runs.iter().map(StageSummary::lineage_line).collect();
     let lineage = Lineage {
         commit: &commit,
-        dataset: &dataset,
+        dataset: &flown_dataset,
         rounds: rounds_run,
-        notes: &[],
+        notes: &notes,
     };
-    let (export, sil, model) = export_and_ship(&config, run, run, &best, &mc, &lineage)?;
-    stage_seconds.push(("export and SIL", t.elapsed().as_secs_f64()));
+    let (export, sil, model) = export_and_ship(&flown, run, run, &best, &mc, &lineage)?;
+    stage_seconds.push(("export and SIL".into(), t.elapsed().as_secs_f64()));
 
     let job = MainJob {
         report: run.join("report.md"),
@@ -152,6 +182,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         pretrain: pre,
         train: rl,
         dagger: rounds,
+        stages: stage_runs,
         monte_carlo: mc,
         export,
         model,

@@ -140,7 +140,18 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         s.push('\n');
     }
     if let Some(rounds) = &job.dagger {
-        rounds_section(&mut s, rounds);
+        let _ = writeln!(s, "## Relabelling rounds\n");
+        rounds_section(&mut s, rounds, "dagger");
+    }
+    for stage in &job.stages {
+        let _ = writeln!(s, "## Stage {}\n", stage.name);
+        let _ = writeln!(
+            s,
+            "Its config, the recipe's with the stage's changes: [config.toml](stages/{0}/config.toml); {1}.\n",
+            stage.name,
+            stage.lineage_line()
+        );
+        rounds_section(&mut s, &stage.rounds, &format!("stages/{}/dagger", stage.name));
     }
     let _ = writeln!(s, "## Monte Carlo ({} episodes, seed {})\n", mc.episodes, mc.seed);
     let _ = writeln!(
@@ -175,8 +186,8 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
     note_missing_figures(&s, run)
 }
 
-fn rounds_section(s: &mut String, rounds: &DaggerSummary) {
-    let _ = writeln!(s, "## Relabelling rounds\n");
+/// The rounds' table and figures; `folder` is their folder relative to the report.
+fn rounds_section(s: &mut String, rounds: &DaggerSummary, folder: &str) {
     let _ = writeln!(
         s,
         "Each round flies the policy, re-solves the optimal rest of the flights that miss the most from the states they visited, adds those tuples to the demonstrations and updates (docs/design/learning.md). The round scoring best is kept: round {} of {}.\n",
@@ -203,8 +214,8 @@ fn rounds_section(s: &mut String, rounds: &DaggerSummary) {
             r.seconds
         );
     }
-    let _ = writeln!(s, "\nPer-round figures: [rounds.csv](dagger/rounds.csv).\n");
-    let _ = writeln!(s, "![relabelling rounds](dagger/rounds.svg)\n");
+    let _ = writeln!(s, "\nPer-round figures: [rounds.csv]({folder}/rounds.csv).\n");
+    let _ = writeln!(s, "![relabelling rounds]({folder}/rounds.svg)\n");
 }
 
 fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
