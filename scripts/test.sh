@@ -3,7 +3,8 @@
 # panic-freedom lints included) and tests, first of everything that needs no PyTorch, then
 # installs PyTorch and does the same for the learning stack; the Cortex-M4F build and QEMU run;
 # the C interface hosted by C programs on the host and on the Cortex-M4F; the dataset array and a
-# relabelling round's array on a single-node Slurm cluster; the fuzzer of the blob loaders and the C interface.
+# relabelling round's array on a single-node Slurm cluster; the Python package and its tests; the
+# fuzzer of the blob loaders and the C interface.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -54,6 +55,10 @@ bash scripts/c-sil.sh
 step "Slurm: the dataset array on a single-node cluster, cancelled, resumed, merged, equal to a single run; a relabelling round's array equal to the round solved here"
 cargo build --release -p lowthrust-ground
 bash scripts/slurm-ci.sh
+
+step "Python package: an abi3 wheel built by maturin, installed into the project venv; pytest (Gymnasium checker, bit equality with the Rust environments, the solver against the CLI)"
+.venv/bin/pip install -q "./python[test]"
+LOWTHRUST_GROUND="$PWD/target/release/ground" .venv/bin/python -m pytest -q python/tests
 
 step "fuzzing the blob loader and the C entry points: 10 million inputs, no crash, no altered blob accepted"
 cargo run -q --profile c-release -p lowthrust-onboard-c --example fuzz -- --inputs 10000000

@@ -1,0 +1,51 @@
+//! `lowthrust._lowthrust`: the project's Rust crates from Python. The Python package
+//! (`python/lowthrust`) wraps it into Gymnasium environments; this module holds what runs in
+//! Rust:
+//!
+//! - [`env`]: the transfer and rendezvous MDPs (`Env`, and `VecEnv` stepping many episodes per
+//!   call in parallel), exactly `ground_core::env`'s.
+//! - [`solver`]: the scenario draws, the indirect method (`solve`), dataset generation and
+//!   reading a dataset as numpy arrays.
+//!
+//! Every failure is a `lowthrust.LowThrustError` (a `ValueError`) with the Rust error's
+//! message; nothing here panics on any input.
+
+use pyo3::prelude::*;
+
+mod env;
+mod solver;
+
+pyo3::create_exception!(
+    _lowthrust,
+    LowThrustError,
+    pyo3::exceptions::PyValueError,
+    "A refused input or a failed computation in the Rust crates; the message says why."
+);
+
+/// A Rust error as a Python exception.
+pub(crate) fn refused(error: impl std::fmt::Display) -> PyErr {
+    LowThrustError::new_err(error.to_string())
+}
+
+/// The scenario distribution of a name (`transfer-circular`, ...).
+pub(crate) fn scenario_kind(name: &str) -> PyResult<shared::scenario::ScenarioKind> {
+    name.parse().map_err(|_| {
+        let known: Vec<&str> = shared::scenario::ScenarioKind::ALL.iter().map(|k| k.name()).collect();
+        refused(format!("unknown scenario {name:?}; one of {}", known.join(", ")))
+    })
+}
+
+#[pymodule]
+fn _lowthrust(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("LowThrustError", m.py().get_type::<LowThrustError>())?;
+    m.add(
+        "SCENARIOS",
+        shared::scenario::ScenarioKind::ALL.map(|k| k.name()).to_vec(),
+    )?;
+    m.add("STEP", shared::units::STEP)?;
+    m.add("TIME_UNIT_S", shared::units::TIME_UNIT_S)?;
+    m.add("AU_M", shared::units::AU_M)?;
+    env::register(m)?;
+    solver::register(m)?;
+    Ok(())
+}

@@ -1,0 +1,243 @@
+//! The scenarios, the indirect method and the datasets from Python: `draw_scenario`, `solve`
+//! (one scenario, `ground data solve`), `generate` (a family in parallel, `ground data
+//! generate`, the same files) and `read_dataset` (a dataset as numpy arrays).
+
+use std::path::PathBuf;
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use ground_core::generate::{generate as generate_records, read_dataset as read_records, Manifest, Shard};
+use ground_core::solver::record::{TrajectoryRecord, TrajectorySample};
+use ground_core::solver::{solve_arriving_early, SolveOptions};
+use shared::scenario::Scenario;
+use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
+
+use crate::{refused, scenario_kind};
+
+fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item(
+        "problem",
+        match scenario.problem {
+            shared::scenario::ProblemKind::Transfer => "transfer",
+            shared::scenario::ProblemKind::Rendezvous => "rendezvous",
+        },
+    )?;
+    let initial = PyDict::new(py);
+    initial.set_item("a", scenario.initial.shape.a)?;
+    initial.set_item("e", scenario.initial.shape.e)?;
+    initial.set_item("omega", scenario.initial.shape.omega)?;
+    initial.set_item("nu", scenario.initial.nu)?;
+    d.set_item("initial", initial)?;
+    let target = PyDict::new(py);
+    target.set_item("a", scenario.target.a)?;
+    target.set_item("e", scenario.target.e)?;
+    target.set_item("omega", scenario.target.omega)?;
+    d.set_item("target", target)?;
+    d.set_item("target_nu0", scenario.target_nu0)?;
+    d.set_item("steps", scenario.steps)?;
+    Ok(d)
+}
+
+/// Scenario `index` of the stream `seed` of the distribution `kind` (docs/spec.md section 4):
+/// `problem`, `initial` (`a`, `e`, `omega`, `nu`), `target` (`a`, `e`, `omega`), `target_nu0`
+/// (rendezvous: the body's anomaly at departure) and `steps` N (14-day steps).
+#[pyfunction]
+fn draw_scenario<'py>(py: Python<'py>, kind: &str, seed: u64, index: u64) -> PyResult<Bound<'py, PyDict>> {
+    scenario_dict(py, &scenario_kind(kind)?.draw(seed, index))
+}
+
+fn canonical(spacecraft: &Spacecraft) -> PyResult<CanonicalSpacecraft> {
+    spacecraft
+        .canonical()
+        .map_err(|e| refused(format!("spacecraft: {e:?}")))
+}
+
+/// The default spacecraft (thesis Table 4.1) in canonical units: `thrust` (T / m0, AU/t*^2)
+/// and `exhaust_speed` (g0 Isp, AU/t*).
+#[pyfunction]
+fn spacecraft<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    let sc = canonical(&Spacecraft::default())?;
+    let d = PyDict::new(py);
+    d.set_item("thrust", sc.thrust)?;
+    d.set_item("exhaust_speed", sc.exhaust_speed)?;
+    Ok(d)
+}
+
+fn options(final_eps: Option<f64>, arrival_margin: u32) -> PyResult<SolveOptions> {
+    let mut options = SolveOptions {
+        arrival_margin_steps: arrival_margin,
+        ..SolveOptions::default()
+    };
+    if let Some(eps) = final_eps {
+        if !(eps > 0.0 && eps <= 1.0) {
+            return Err(refused(format!("final_eps must be in (0, 1], not {eps}")));
+        }
+        options.final_eps = eps;
+    }
+    Ok(options)
+}
+
+/// Samples as arrays: `t` (k,), `state` (k, 5: x, y, vx, vy, m), `throttle` (k,), `direction`
+/// (k, 2, inertial), `direction_polar` (k, 2: radial, transverse).
+fn samples_dict<'py>(py: Python<'py>, samples: &[TrajectorySample]) -> PyResult<Bound<'py, PyDict>> {
+    let k = samples.len();
+    let d = PyDict::new(py);
+    d.set_item("t", PyArray1::from_iter(py, samples.iter().map(|s| s.t)))?;
+    let state: Vec<f64> = samples
+        .iter()
+        .flat_map(|s| [s.r[0], s.r[1], s.v[0], s.v[1], s.m])
+        .collect();
+    d.set_item(
+        "state",
+        Array2::from_shape_vec((k, 5), state).map_err(refused)?.into_pyarray(py),
+    )?;
+    d.set_item("throttle", PyArray1::from_iter(py, samples.iter().map(|s| s.throttle)))?;
+    let pairs = |f: fn(&TrajectorySample) -> [f64; 2]| {
+        Array2::from_shape_vec((k, 2), samples.iter().flat_map(f).collect()).map_err(refused)
+    };
+    d.set_item("direction", pairs(|s| s.direction)?.into_pyarray(py))?;
+    d.set_item("direction_polar", pairs(|s| s.direction_polar)?.into_pyarray(py))?;
+    Ok(d)
+}
+
+fn record_dict<'py>(py: Python<'py>, record: &TrajectoryRecord) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("kind", record.kind.name())?;
+    d.set_item("seed", record.seed)?;
+    d.set_item("index", record.index)?;
+    d.set_item("scenario", scenario_dict(py, &record.scenario)?)?;
+    d.set_item("converged", record.converged)?;
+    d.set_item("failure", record.failure.clone())?;
+    d.set_item("costates", PyArray1::from_slice(py, &record.costates))?;
+    d.set_item("final_anomaly", record.final_anomaly)?;
+    d.set_item("final_eps", record.final_eps)?;
+    d.set_item("final_mass", record.final_mass)?;
+    d.set_item("thrust_arcs", record.thrust_arcs)?;
+    d.set_item("residual", record.residual)?;
+    d.set_item("seconds", record.seconds)?;
+    d.set_item("steps", samples_dict(py, &record.steps)?)?;
+    d.set_item("ephemeris", samples_dict(py, &record.ephemeris)?)?;
+    Ok(d)
+}
+
+/// Solves scenario `index` of the stream `seed` of `kind` by the indirect method (multi-start,
+/// energy-to-fuel homotopy to `final_eps`, default the project's; arriving `arrival_margin`
+/// steps early where that converges), as `ground data solve`. Returns the record: `converged`,
+/// `failure`, `final_mass`, `costates` (5: lambda_r, lambda_v, lambda_m), the solution at each
+/// step boundary (`steps`) and on a fine grid (`ephemeris`). Never raises for a scenario that
+/// does not converge: `converged` says so.
+#[pyfunction]
+#[pyo3(signature = (kind, seed, index, final_eps=None, arrival_margin=0))]
+fn solve<'py>(
+    py: Python<'py>,
+    kind: &str,
+    seed: u64,
+    index: u64,
+    final_eps: Option<f64>,
+    arrival_margin: u32,
+) -> PyResult<Bound<'py, PyDict>> {
+    let kind = scenario_kind(kind)?;
+    let options = options(final_eps, arrival_margin)?;
+    let sc = canonical(&Spacecraft::default())?;
+    let scenario = kind.draw(seed, index);
+    let record = py.detach(|| solve_arriving_early(kind, seed, index, &scenario, &sc, &options));
+    record_dict(py, &record)
+}
+
+/// Solves scenarios `0..count` of the stream `seed` of `kind` into the folder `out` on every
+/// core, resuming what a stopped run left, exactly as `ground data generate` (the same files).
+/// Returns the run's summary (`summary.json`) as a dict.
+#[pyfunction]
+#[pyo3(signature = (kind, seed, count, out, final_eps=None, arrival_margin=0))]
+fn generate<'py>(
+    py: Python<'py>,
+    kind: &str,
+    seed: u64,
+    count: u64,
+    out: PathBuf,
+    final_eps: Option<f64>,
+    arrival_margin: u32,
+) -> PyResult<Bound<'py, PyAny>> {
+    let manifest = Manifest {
+        scenario: scenario_kind(kind)?,
+        seed,
+        count,
+    };
+    if count == 0 {
+        return Err(refused("count must be at least 1"));
+    }
+    let options = options(final_eps, arrival_margin)?;
+    let sc = canonical(&Spacecraft::default())?;
+    let summary = py
+        .detach(|| generate_records(manifest, Shard::WHOLE, &out, &sc, &options, false))
+        .map_err(refused)?;
+    let json = serde_json_string(&summary)?;
+    py.import("json")?.call_method1("loads", (json,))
+}
+
+fn serde_json_string(value: &impl serde::Serialize) -> PyResult<String> {
+    serde_json::to_string(value).map_err(refused)
+}
+
+/// A dataset (`dataset.ltds`, or the folder of a `generate` run) as numpy arrays, records in
+/// index order: per record `index`, `converged`, `final_mass`, `final_eps`, `costates` (n, 5),
+/// `steps` (n: N per record); the step-boundary samples of every record one after another
+/// (`t`, `state` (m, 5), `throttle`, `direction`, `direction_polar`, see `solve`), record i's
+/// rows `offsets[i]:offsets[i + 1]`.
+#[pyfunction]
+fn read_dataset<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
+    let file = if path.is_dir() { path.join("dataset.ltds") } else { path };
+    let dataset = read_records(&file).map_err(refused)?;
+    let records = &dataset.records;
+    let d = PyDict::new(py);
+    d.set_item("kind", dataset.manifest.scenario.name())?;
+    d.set_item("seed", dataset.manifest.seed)?;
+    d.set_item("index", PyArray1::from_iter(py, records.iter().map(|r| r.index)))?;
+    d.set_item(
+        "converged",
+        PyArray1::from_iter(py, records.iter().map(|r| r.converged)),
+    )?;
+    d.set_item(
+        "final_mass",
+        PyArray1::from_iter(py, records.iter().map(|r| r.final_mass)),
+    )?;
+    d.set_item(
+        "final_eps",
+        PyArray1::from_iter(py, records.iter().map(|r| r.final_eps)),
+    )?;
+    let costates: Vec<f64> = records.iter().flat_map(|r| r.costates).collect();
+    d.set_item(
+        "costates",
+        Array2::from_shape_vec((records.len(), 5), costates)
+            .map_err(refused)?
+            .into_pyarray(py),
+    )?;
+    d.set_item(
+        "steps",
+        PyArray1::from_iter(py, records.iter().map(|r| r.scenario.steps)),
+    )?;
+    let mut offsets = vec![0u64];
+    let mut samples = Vec::new();
+    for record in records {
+        samples.extend_from_slice(&record.steps);
+        offsets.push(samples.len() as u64);
+    }
+    d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
+    for (key, value) in samples_dict(py, &samples)?.iter() {
+        d.set_item(key, value)?;
+    }
+    Ok(d)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(draw_scenario, m)?)?;
+    m.add_function(wrap_pyfunction!(spacecraft, m)?)?;
+    m.add_function(wrap_pyfunction!(solve, m)?)?;
+    m.add_function(wrap_pyfunction!(generate, m)?)?;
+    m.add_function(wrap_pyfunction!(read_dataset, m)?)?;
+    Ok(())
+}
