@@ -56,8 +56,8 @@ step "Slurm: the dataset array on a single-node cluster, cancelled, resumed, mer
 cargo build --release -p lowthrust-ground
 bash scripts/slurm-ci.sh
 
-step "Python package: an abi3 wheel built by maturin, installed into the project venv; pytest (Gymnasium checker, bit equality with the Rust environments, the solver against the CLI)"
-.venv/bin/pip install -q "./python[test]"
+step "Python package: an abi3 wheel built by maturin, installed into the project venv; pytest (Gymnasium checker, bit equality with the Rust environments, a numpy MDP, the solver against the CLI, shipped models, SIL and ONNX, Stable-Baselines3)"
+.venv/bin/pip install -q "./python[test,sb3]"
 LOWTHRUST_GROUND="$PWD/target/release/ground" .venv/bin/python -m pytest -q python/tests
 
 step "fuzzing the blob loader and the C entry points: 10 million inputs, no crash, no altered blob accepted"

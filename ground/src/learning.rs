@@ -103,8 +103,9 @@ pub enum ModelCommand {
         #[arg(long)]
         gap_cases: Option<u64>,
     },
-    /// Onboard weight blobs (f32 and int8) from a checkpoint's actor, with the action error of
-    /// each against the trained actor and their closed-loop Monte Carlo (OUT/export.json).
+    /// Onboard weight blobs (f32 and int8) and the actor as ONNX (OUT/actor.onnx) from a
+    /// checkpoint's actor, with the action error of each blob against the trained actor and
+    /// their closed-loop Monte Carlo (OUT/export.json).
     Export {
         #[command(flatten)]
         experiment: ExperimentArgs,
@@ -116,6 +117,10 @@ pub enum ModelCommand {
         /// card's SIL figures (after a blob format change); --out holds the export and SIL runs.
         #[arg(long)]
         model: Option<PathBuf>,
+        /// With --model: only add the actor's ONNX model (actor.onnx) to the folder and bind
+        /// it in the card; the blobs, actor and figures stay as they are (--out is not written).
+        #[arg(long, requires = "model")]
+        onnx_only: bool,
     },
     /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported
     /// and flown in the SIL loop (OUT/export, OUT/sil-*), and the model folder OUT/model
@@ -264,7 +269,18 @@ fn run_model(command: ModelCommand) -> CommandResult {
             experiment,
             checkpoint,
             model,
+            onnx_only,
         } => match (checkpoint, model) {
+            (_, Some(model)) if onnx_only => {
+                let card = learn::model::add_onnx(&model)?;
+                println!(
+                    "{} now holds {} (CRC-32C {})",
+                    model.display(),
+                    learn::model::ONNX_FILE,
+                    card.files.get(learn::model::ONNX_FILE).map_or("?", String::as_str)
+                );
+                Ok(())
+            }
             (_, Some(model)) => reexport_command(&experiment, &model),
             (Some(checkpoint), None) => export_command(&experiment, &checkpoint),
             (None, None) => Err("give --checkpoint or --model".into()),

@@ -8,6 +8,8 @@ The project's Rust crates through a compiled module (no PyTorch needed):
   forms that step every episode in Rust in one call;
 - the indirect method: ``solve`` one scenario, ``generate`` a family in parallel (the files of
   ``ground data generate``), ``read_dataset`` as numpy arrays;
+- shipped models: ``open_model`` (checked against its card), a blob's ``Policy`` flown by the
+  onboard kernels, ``fly_sil`` in the software-in-the-loop against a dispersed plant;
 - ``draw_scenario`` and the canonical units (``STEP``, ``TIME_UNIT_S``, ``AU_M``).
 
 Units are canonical: AU, t* = sqrt(AU^3 / mu_sun) (``TIME_UNIT_S`` seconds), masses in m0.
@@ -20,9 +22,12 @@ from lowthrust._lowthrust import (
     TIME_UNIT_S,
     Env,
     LowThrustError,
+    Policy,
     VecEnv,
     draw_scenario,
+    fly_sil,
     generate,
+    open_model,
     read_dataset,
     reference_rollout,
     solve,
@@ -40,9 +45,12 @@ __all__ = [
     "LowThrustEnv",
     "LowThrustError",
     "LowThrustVecEnv",
+    "Policy",
     "VecEnv",
     "draw_scenario",
+    "fly_sil",
     "generate",
+    "open_model",
     "read_dataset",
     "reference_rollout",
     "register_envs",

@@ -13,6 +13,7 @@
 use pyo3::prelude::*;
 
 mod env;
+mod model;
 mod solver;
 
 pyo3::create_exception!(
@@ -47,5 +48,6 @@ fn _lowthrust(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("AU_M", shared::units::AU_M)?;
     env::register(m)?;
     solver::register(m)?;
+    model::register(m)?;
     Ok(())
 }

@@ -21,6 +21,9 @@
 //! - [`crosscheck`]: dataset records checked against the direct transcription, and repaired
 //!   where it finds a heavier final mass.
 //! - [`oem`]: CCSDS OEM (KVN) export of a record, with its thrust profile.
+//! - [`actor_file`]: the learner's checked safetensors files read without PyTorch (a shipped
+//!   actor's layers); [`onnx`]: an actor as an ONNX model; [`model_files`]: a shipped model
+//!   folder's files checked against its card.
 //! - [`plot`]: SVG figures of solved transfers: paths coloured by thrust, throttle along the
 //!   homotopy.
 //! - [`charts`]: SVG charts of the learning stack: learning curves, histograms, flown paths.
@@ -65,13 +68,16 @@
 
 #![deny(missing_docs)]
 
+pub mod actor_file;
 pub mod charts;
 pub mod crosscheck;
 pub mod demo;
 pub mod env;
 pub mod generate;
 pub mod io;
+pub mod model_files;
 pub mod oem;
+pub mod onnx;
 pub mod plot;
 pub mod progress;
 pub mod solver;

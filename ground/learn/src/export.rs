@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use serde::{Deserialize, Serialize};
-use shared::blob::{Activation, AlignedBlob, ProblemKind, Quantization};
-use shared::quantize::{DenseWeights, MlpWeights};
+use shared::blob::{AlignedBlob, ProblemKind, Quantization};
+use shared::quantize::MlpWeights;
 use shared::scenario::Scenario;
 
 use crate::config::ExperimentConfig;
@@ -103,6 +103,8 @@ pub struct ExportReport {
     pub closed_loop_episodes: usize,
     /// |int8 mean reward - f32 mean reward| / |f32 mean reward| (the goal: at most 2 %).
     pub int8_reward_difference: f64,
+    /// The actor's deterministic action as an ONNX model (`actor.onnx`, the f32 blob's weights).
+    pub onnx: PathBuf,
 }
 
 /// The f32 blob flies the trained actor: its largest action error on the held-out states.
@@ -135,56 +137,19 @@ impl ExportReport {
 
 /// The actor mean network of an agent (`l0`, `l1`, ..., `mean`; tanh on the output).
 pub fn actor_network(agent: &Sac, kind: ProblemKind) -> Result<MlpWeights, ExperimentError> {
-    let weights = agent.actor_weights();
-    let mut names: Vec<String> = (0..)
-        .map(|i| format!("l{i}"))
-        .take_while(|n| weights.contains_key(&format!("{n}.weight")))
+    let tensors = agent
+        .actor_weights()
+        .into_iter()
+        .map(|(name, (shape, values))| (name, (shape.iter().map(|&d| d as usize).collect(), values)))
         .collect();
-    names.push("mean".into());
-    let count = names.len();
-    let layers = names
-        .iter()
-        .enumerate()
-        .map(|(i, name)| {
-            let missing = || ExperimentError::Mismatch(format!("checkpoint actor has no {name} layer"));
-            let (shape, w) = weights.get(&format!("{name}.weight")).ok_or_else(missing)?;
-            let (_, b) = weights.get(&format!("{name}.bias")).ok_or_else(missing)?;
-            let [outputs, inputs] = shape[..] else {
-                return Err(ExperimentError::Mismatch(format!(
-                    "actor {name}.weight has shape {shape:?}"
-                )));
-            };
-            Ok(DenseWeights {
-                inputs: inputs as usize,
-                outputs: outputs as usize,
-                weights: w.clone(),
-                bias: b.clone(),
-                activation: if i + 1 == count {
-                    Activation::Tanh
-                } else {
-                    Activation::Relu
-                },
-            })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(MlpWeights { kind, layers })
+    ground_core::actor_file::actor_layers(kind, &tensors).map_err(ExperimentError::Mismatch)
 }
 
-/// File names of the blobs in an export folder.
-pub fn blob_file(kind: ProblemKind, quantization: Quantization) -> String {
-    let problem = match kind {
-        ProblemKind::Transfer => "transfer",
-        ProblemKind::Rendezvous => "rendezvous",
-    };
-    let q = match quantization {
-        Quantization::F32 => "f32",
-        Quantization::Int8 => "int8",
-    };
-    format!("{problem}-{q}.blob")
-}
+pub use ground_core::model_files::blob_file;
 
-/// `ground model export`: writes `transfer-f32.blob` / `transfer-int8.blob` (or `rendezvous-*`) and
-/// `export.json` into `out`. `config_dir` resolves the config's relative dataset path.
+/// `ground model export`: writes `transfer-f32.blob` / `transfer-int8.blob` (or `rendezvous-*`),
+/// `actor.onnx` (the deterministic action, for onnxruntime and the like) and `export.json` into
+/// `out`. `config_dir` resolves the config's relative dataset path.
 pub fn export(
     config: &ExperimentConfig,
     config_dir: &Path,
@@ -280,8 +245,13 @@ where
     let f32 = reports
         .pop()
         .ok_or_else(|| ExperimentError::Mismatch("no f32 report".into()))?;
+    let onnx = out.join(ground_core::model_files::ONNX_FILE);
+    let onnx_bytes = ground_core::onnx::actor_onnx(&network, &[("provenance", &provenance)])
+        .map_err(|e| ExperimentError::Mismatch(format!("ONNX export: {e}")))?;
+    atomic_write(&onnx, &onnx_bytes).map_err(|e| ExperimentError::Io(onnx.clone(), e))?;
     let (rf, ri) = (f32.closed_loop.total_reward.mean, int8.closed_loop.total_reward.mean);
     let report = ExportReport {
+        onnx,
         checkpoint: checkpoint.to_path_buf(),
         problem: config.scenario.name().to_string(),
         calibration_states: calibration.len(),

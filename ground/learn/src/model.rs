@@ -6,13 +6,15 @@
 //!                      actor.log_std.*), with its CRC-32 in the safetensors metadata
 //! transfer-f32.blob    the onboard blobs (`ground model export`), flown by `ground model sil`
 //! transfer-int8.blob
+//! actor.onnx           the actor's deterministic action as an ONNX model
 //! card.json            the card for machines: config, commit, command, data, figures, and the
 //!                      CRC-32C of every file above
 //! card.md              the same for people
 //! ```
 //!
 //! [`open_model`] checks every file against the card's CRC-32C and that the f32 blob holds
-//! exactly the actor's weights (it re-encodes them); `ground model evaluate --model` and `ground model sil
+//! exactly the actor's weights (it re-encodes them; both checks are
+//! `ground_core::model_files`', which the Python package runs too); `ground model evaluate --model` and `ground model sil
 //! --model` fly only what passed.
 
 use std::collections::BTreeMap;
@@ -25,28 +27,23 @@ use shared::blob::{ProblemKind, Quantization};
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
 use crate::eval::{eccentricity_line, EccentricityBand, MonteCarloReport, SolvedShare};
-use crate::export::{actor_network, blob_file, ExportReport};
+use crate::export::{blob_file, ExportReport};
 use crate::sac::agent::Sac;
 use crate::sil::SilReport;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::Summary;
 use ground_core::io::atomic_write;
+use ground_core::model_files::{verify_model_files, ModelFilesError};
 use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
 
-/// The actor's file in a model folder.
-pub const ACTOR_FILE: &str = "actor.safetensors";
+pub use ground_core::model_files::{ACTOR_FILE, ONNX_FILE};
 /// The card for machines.
 pub const CARD_JSON: &str = "card.json";
 /// The card for people.
 pub const CARD_MD: &str = "card.md";
 /// Version of the card's layout.
 pub const CARD_FORMAT: u32 = 2;
-
-/// The files' checksum: CRC-32C, not the blobs' own CRC-32 (ISO-HDLC). A blob ends with the
-/// CRC-32 of its payload, so the CRC-32 of the whole file is the same for every blob of one
-/// layout and would bind none of them; format 1 cards carried that CRC-32.
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 
 /// Why a model folder was refused.
 #[derive(Debug, thiserror::Error)]
@@ -230,11 +227,52 @@ impl LookaheadFigures {
 }
 
 fn crc_of(path: &Path) -> Result<String, ModelError> {
-    let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    Ok(format!("{:08x}", CRC.checksum(&bytes)))
+    ground_core::model_files::file_checksum(path).map_err(ModelError::from)
+}
+
+impl From<ModelFilesError> for ModelError {
+    fn from(error: ModelFilesError) -> Self {
+        match error {
+            ModelFilesError::Io { path, source } => Self::Io { path, source },
+            ModelFilesError::Checksum { path, found, recorded } => Self::Checksum { path, found, recorded },
+            ModelFilesError::Incomplete { dir, missing } => Self::Incomplete {
+                dir,
+                reason: format!("the card lists no {missing}"),
+            },
+            ModelFilesError::BlobDisagrees { path } => Self::BlobDisagrees { path },
+            ModelFilesError::Actor(e) => Self::Experiment(Box::new(ExperimentError::Mismatch(e.to_string()))),
+        }
+    }
+}
+
+/// Writes the actor's ONNX model into the folder `dir` from its actor file (the provenance of
+/// its f32 blob in the model's metadata) and returns the file's CRC-32C.
+fn write_onnx(dir: &Path, kind: ProblemKind) -> Result<String, ModelError> {
+    let network = ground_core::actor_file::read_actor(&dir.join(ACTOR_FILE), kind).map_err(ModelFilesError::from)?;
+    let f32_path = dir.join(blob_file(kind, Quantization::F32));
+    let blob = std::fs::read(&f32_path).map_err(io(&f32_path))?;
+    let provenance = shared::blob::decode(&blob)
+        .map(|b| b.provenance.to_string())
+        .map_err(|_| ModelError::BlobDisagrees { path: f32_path.clone() })?;
+    let bytes = ground_core::onnx::actor_onnx(&network, &[("provenance", &provenance)])
+        .map_err(|e| ModelError::Experiment(Box::new(ExperimentError::Mismatch(e.to_string()))))?;
+    let path = dir.join(ONNX_FILE);
+    atomic_write(&path, &bytes).map_err(io(&path))?;
+    crc_of(&path)
+}
+
+/// `ground model export --model DIR --onnx-only`: adds the actor's ONNX model to a shipped
+/// model folder and binds it in the card (the blobs, the actor and the figures untouched), and
+/// writes card.md again from card.json (after a change of the card's layout for people). The
+/// folder's files must match its card first.
+pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
+    let (mut card, config) = read_card(dir)?;
+    let kind = config.scenario.problem();
+    verify_model_files(dir, kind, &card.files)?;
+    let crc = write_onnx(dir, kind)?;
+    card.files.insert(ONNX_FILE.to_string(), crc);
+    write_cards(dir, &card)?;
+    Ok(card)
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
@@ -302,7 +340,11 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         .map_err(|e| ModelError::Experiment(Box::new(e.into())))?;
     let mut files = BTreeMap::new();
     files.insert(ACTOR_FILE.to_string(), crc_of(&dir.join(ACTOR_FILE))?);
-    for blob in [&sources.export.f32.file, &sources.export.int8.file] {
+    for blob in [
+        &sources.export.f32.file,
+        &sources.export.int8.file,
+        &sources.export.onnx,
+    ] {
         let name = blob
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -409,7 +451,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     } else {
         Vec::new()
     };
-    for blob in [&export.f32.file, &export.int8.file] {
+    for blob in [&export.f32.file, &export.int8.file, &export.onnx] {
         let name = blob
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -509,42 +551,7 @@ impl ShippedModel {
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     let (card, config) = read_card(dir)?;
-    let kind = config.scenario.problem();
-    for needed in [
-        ACTOR_FILE.to_string(),
-        blob_file(kind, Quantization::F32),
-        blob_file(kind, Quantization::Int8),
-    ] {
-        if !card.files.contains_key(&needed) {
-            return Err(ModelError::Incomplete {
-                dir: dir.to_path_buf(),
-                reason: format!("the card lists no {needed}"),
-            });
-        }
-    }
-    for (name, recorded) in &card.files {
-        let path = dir.join(name);
-        let found = crc_of(&path)?;
-        if &found != recorded {
-            return Err(ModelError::Checksum {
-                path,
-                found,
-                recorded: recorded.clone(),
-            });
-        }
-    }
-    let f32_path = dir.join(blob_file(kind, Quantization::F32));
-    let shipped = std::fs::read(&f32_path).map_err(io(&f32_path))?;
-    let provenance = shared::blob::decode(&shipped)
-        .map(|b| b.provenance.to_string())
-        .map_err(|_| ModelError::BlobDisagrees { path: f32_path.clone() })?;
-    let agent = load_actor(&config, &dir.join(ACTOR_FILE))?;
-    let rebuilt = actor_network(&agent, kind)
-        .ok()
-        .and_then(|net| net.f32_blob(&provenance).ok());
-    if rebuilt.as_deref() != Some(shipped.as_slice()) {
-        return Err(ModelError::BlobDisagrees { path: f32_path });
-    }
+    verify_model_files(dir, config.scenario.problem(), &card.files)?;
     // card.md is what people read: it must say what card.json, the bound record, says.
     let md = dir.join(CARD_MD);
     let written = std::fs::read_to_string(&md).map_err(io(&md))?;
@@ -639,9 +646,89 @@ fn against_the_optimum(
     }
 }
 
-/// The card for people.
+/// The Gymnasium id of a scenario distribution's environment (the Python package's).
+fn environment_id(scenario: &str) -> String {
+    let camel: String = scenario
+        .split('-')
+        .map(|w| {
+            let mut c = w.chars();
+            c.next().map_or(String::new(), |f| f.to_uppercase().chain(c).collect())
+        })
+        .collect();
+    format!("lowthrust/{camel}-v0")
+}
+
+/// The card's front matter in the YAML a model hub reads (Hugging Face's model card metadata):
+/// tags, and a `model-index` with the Monte Carlo's share within each tolerance, the overspend,
+/// the SIL and the lookahead figures as metrics.
+fn front_matter(card: &ModelCard) -> String {
+    let mut s = String::from("---\nlibrary_name: lowthrust\nlicense: mit\ntags:\n- reinforcement-learning\n- spacecraft-guidance\n- low-thrust\n- onnx\nmodel-index:\n");
+    let _ = writeln!(s, "- name: {}\n  results:", card.scenario);
+    let environment = environment_id(&card.scenario);
+    let mut result = |name: &str, metrics: &[(String, String, f64)]| {
+        let _ = writeln!(
+            s,
+            "  - task:\n      type: reinforcement-learning\n      name: low-thrust guidance\n    dataset:\n      type: {environment}\n      name: \"{name}\"\n    metrics:"
+        );
+        for (kind, label, value) in metrics {
+            let _ = writeln!(s, "    - type: {kind}\n      name: \"{label}\"\n      value: {value}");
+        }
+    };
+    let shares = |figures: &FlightFigures, what: &str| -> Vec<(String, String, f64)> {
+        figures
+            .within
+            .iter()
+            .map(|(t, share)| {
+                (
+                    format!("within_{t}"),
+                    format!("{what}: share within {t} AU and {t} of the velocity unit"),
+                    *share,
+                )
+            })
+            .collect()
+    };
+    let mut mc = shares(&card.monte_carlo, "Monte Carlo");
+    if let Some((_, median, p95)) = card.overspend {
+        mc.push((
+            "overspend_median".into(),
+            "propellant overspend against the indirect optimum, median".into(),
+            median,
+        ));
+        mc.push((
+            "overspend_p95".into(),
+            "propellant overspend against the indirect optimum, p95".into(),
+            p95,
+        ));
+    }
+    result(
+        &format!(
+            "{} Monte Carlo, {} episodes, seed {}",
+            card.scenario, card.monte_carlo.episodes, card.monte_carlo_seed
+        ),
+        &mc,
+    );
+    for (blob, figures) in &card.sil {
+        result(
+            &format!("{blob} in the SIL, {} dispersed flights", figures.episodes),
+            &shares(figures, "SIL with dispersions"),
+        );
+    }
+    if let Some(lookahead) = &card.lookahead {
+        result(
+            &format!(
+                "f32 blob with rollout lookahead, {} nominal flights",
+                lookahead.monte_carlo.episodes
+            ),
+            &shares(&lookahead.monte_carlo, "with lookahead"),
+        );
+    }
+    s.push_str("---\n\n");
+    s
+}
+
+/// The card for people, opening with the metadata a model hub reads ([`front_matter`]).
 pub fn card_markdown(card: &ModelCard) -> String {
-    let mut s = String::new();
+    let mut s = front_matter(card);
     let _ = writeln!(s, "# Model card: {}\n", card.scenario);
     let _ = writeln!(
         s,

@@ -215,6 +215,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let model_dir = run.join("model");
     let model = learn::model::open_model(&model_dir).unwrap();
     assert_eq!(model.card.rounds, Some((1, rounds.best_round)));
+    // The actor as ONNX beside the blobs, bound by the card like them.
+    assert!(model.card.files.contains_key(learn::model::ONNX_FILE));
+    assert!(run.join("export/actor.onnx").is_file());
     assert_eq!(model.card.sil.len(), 2);
     let created = model.card.created.as_bytes();
     assert!(

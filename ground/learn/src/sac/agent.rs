@@ -52,25 +52,9 @@ pub enum CheckpointError {
     NonFinite(String),
 }
 
-/// The safetensors metadata key of a checkpoint's checksum.
-const CHECKSUM_KEY: &str = "crc32";
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
-/// CRC-32 of every tensor's name, dtype, shape and bytes, in name order.
-fn tensors_checksum(tensors: &safetensors::SafeTensors) -> u32 {
-    let mut named = tensors.tensors();
-    named.sort_by(|a, b| a.0.cmp(&b.0));
-    let mut digest = CRC.digest();
-    for (name, view) in &named {
-        digest.update(name.as_bytes());
-        digest.update(format!("{:?}", view.dtype()).as_bytes());
-        for d in view.shape() {
-            digest.update(&(*d as u64).to_le_bytes());
-        }
-        digest.update(view.data());
-    }
-    digest.finalize()
-}
+// The checksum of the learner's safetensors files is ground-core's, which reads them without
+// PyTorch too.
+use ground_core::actor_file::{tensors_checksum, verify_checksum, ActorFileError, CHECKSUM_KEY};
 
 /// Reads a file written by [`write_checked_safetensors`]: the tensors if the checksum matches
 /// and every float is finite.
@@ -78,21 +62,12 @@ pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, Ch
     use safetensors::tensor::Dtype;
     let bytes = std::fs::read(path)
         .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))?;
-    let format = |e: safetensors::SafeTensorError| CheckpointError::Format(format!("{}: {e:?}", path.display()));
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(format)?;
-    let tensors = safetensors::SafeTensors::deserialize(&bytes).map_err(format)?;
-    let recorded = header
-        .metadata()
-        .as_ref()
-        .and_then(|m| m.get(CHECKSUM_KEY))
-        .ok_or_else(|| CheckpointError::Corrupt(format!("{} carries no checksum", path.display())))?;
-    let found = format!("{:08x}", tensors_checksum(&tensors));
-    if *recorded != found {
-        return Err(CheckpointError::Corrupt(format!(
-            "{}: checksum {found}, recorded {recorded}",
-            path.display()
-        )));
-    }
+    verify_checksum(&bytes, path).map_err(|e| match e {
+        ActorFileError::Corrupt(why) => CheckpointError::Corrupt(why),
+        other => CheckpointError::Format(other.to_string()),
+    })?;
+    let tensors = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| CheckpointError::Format(format!("{}: {e:?}", path.display())))?;
     let mut out = Vec::new();
     for (name, view) in tensors.tensors() {
         let kind = match view.dtype() {

@@ -1,0 +1,248 @@
+//! Shipped models and blobs from Python: `Policy` (an onboard weight blob flown by the onboard
+//! crate's f32 or int8 kernels), `open_model` (a `models/NAME` folder checked against its card
+//! as the command line checks it: every file's CRC-32C, the f32 blob equal to the actor) and
+//! `fly_sil` (a blob in the software-in-the-loop guidance loop against the nominal or the
+//! dispersed plant, as `ground model sil`).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+use rayon::prelude::*;
+
+use firmware_sim::{fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup};
+use ground_core::model_files::{blob_file, verify_model_files, ACTOR_FILE, ONNX_FILE};
+use onboard::guidance::Actor;
+use shared::blob::{AlignedBlob, ProblemKind, Quantization};
+use shared::spacecraft::Spacecraft;
+
+use crate::{refused, scenario_kind};
+
+fn problem_name(kind: ProblemKind) -> &'static str {
+    match kind {
+        ProblemKind::Transfer => "transfer",
+        ProblemKind::Rendezvous => "rendezvous",
+    }
+}
+
+/// An onboard weight blob (f32 or int8), checked as flight software checks it at load (magic,
+/// version, CRC-32, problem, shape), flown by the onboard kernels.
+#[pyclass(module = "lowthrust._lowthrust")]
+pub struct Policy {
+    blob: AlignedBlob,
+    kind: ProblemKind,
+    quantization: Quantization,
+}
+
+impl Policy {
+    fn load(bytes: &[u8]) -> PyResult<Self> {
+        let decoded = shared::blob::decode(bytes).map_err(|e| refused(format!("blob refused: {e:?}")))?;
+        let (kind, quantization) = (decoded.kind, decoded.quantization);
+        let blob = AlignedBlob::new(bytes);
+        // The loader flight software runs: a blob it refuses is refused here too.
+        with_flight_problem!(kind, N, P => {
+            if let Controller::<N>::SafeMode(e) = Controller::<N>::load::<P>(blob.bytes()) {
+                return Err(refused(format!("blob refused by the onboard loader: {e:?}")));
+            }
+        });
+        Ok(Self {
+            blob,
+            kind,
+            quantization,
+        })
+    }
+}
+
+#[pymethods]
+impl Policy {
+    /// `Policy(blob)`: the blob's bytes.
+    #[new]
+    fn new(blob: &[u8]) -> PyResult<Self> {
+        Self::load(blob)
+    }
+
+    /// The blob in the file at `path`.
+    #[staticmethod]
+    fn from_file(path: PathBuf) -> PyResult<Self> {
+        let bytes = std::fs::read(&path).map_err(|e| refused(format!("{}: {e}", path.display())))?;
+        Self::load(&bytes)
+    }
+
+    /// The deterministic actions of observations `(n, features)` float32: `(n, 3)` float32 in
+    /// [-1, 1], computed by the onboard kernels as in flight.
+    fn act<'py>(
+        &self,
+        py: Python<'py>,
+        observations: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let [n, width] = observations.shape() else {
+            return Err(refused("observations must be (n, features)"));
+        };
+        let (n, width) = (*n, *width);
+        let inputs = observations.as_slice()?;
+        if !inputs.iter().all(|x| x.is_finite()) {
+            return Err(refused("an observation has a NaN or infinite component"));
+        }
+        let blob = self.blob.bytes();
+        let actions = with_flight_problem!(self.kind, N, P => {
+            if width != N {
+                return Err(refused(format!("observations of {width} features, this {} network takes {N}", problem_name(self.kind))));
+            }
+            let controller = Controller::<N>::load::<P>(blob);
+            py.detach(|| {
+                inputs
+                    .par_chunks_exact(N)
+                    .flat_map_iter(|x| {
+                        let x: &[f32; N] = x.try_into().unwrap_or(&[0.0; N]);
+                        controller.act(x)
+                    })
+                    .collect::<Vec<f32>>()
+            })
+        });
+        Ok(Array2::from_shape_vec((n, 3), actions)
+            .map_err(refused)?
+            .into_pyarray(py))
+    }
+
+    /// `"transfer"` or `"rendezvous"`.
+    #[getter]
+    fn problem(&self) -> &'static str {
+        problem_name(self.kind)
+    }
+
+    /// `"f32"` or `"int8"`.
+    #[getter]
+    fn quantization(&self) -> &'static str {
+        match self.quantization {
+            Quantization::F32 => "f32",
+            Quantization::Int8 => "int8",
+        }
+    }
+
+    /// The blob's bytes.
+    #[getter]
+    fn blob<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, self.blob.bytes())
+    }
+}
+
+/// Opens the model folder `dir` (`models/NAME`): its card.json is read, every file it lists
+/// must have the CRC-32C it records, the actor and both blobs must be listed, and the f32 blob
+/// must hold exactly the actor's weights. Returns a dict: `scenario`, `card` (card.json as a
+/// dict), `f32` and `int8` (`Policy`), `files` (paths of the actor, the blobs and, when the
+/// folder has it, `onnx`).
+#[pyfunction]
+fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>> {
+    let card_path = dir.join("card.json");
+    let text = std::fs::read_to_string(&card_path).map_err(|e| refused(format!("{}: {e}", card_path.display())))?;
+    let card: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| refused(format!("{}: {e}", card_path.display())))?;
+    let bad = |what: &str| refused(format!("{}: {what}", card_path.display()));
+    let scenario = card["scenario"].as_str().ok_or_else(|| bad("no scenario"))?;
+    let kind = scenario_kind(scenario)?.problem();
+    let files: BTreeMap<String, String> =
+        serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
+    let checked = py.detach(|| verify_model_files(&dir, kind, &files)).map_err(refused)?;
+    let d = PyDict::new(py);
+    d.set_item("scenario", scenario)?;
+    d.set_item("card", py.import("json")?.call_method1("loads", (text,))?)?;
+    d.set_item("f32", Policy::load(&checked.f32_blob)?)?;
+    d.set_item("int8", Policy::load(&checked.int8_blob)?)?;
+    let paths = PyDict::new(py);
+    paths.set_item("actor", dir.join(ACTOR_FILE))?;
+    paths.set_item("f32", dir.join(blob_file(kind, Quantization::F32)))?;
+    paths.set_item("int8", dir.join(blob_file(kind, Quantization::Int8)))?;
+    if files.contains_key(ONNX_FILE) {
+        paths.set_item("onnx", dir.join(ONNX_FILE))?;
+    }
+    d.set_item("files", paths)?;
+    Ok(d)
+}
+
+/// How a SIL flight ended.
+struct FlightEnd {
+    dr: f64,
+    dv: f64,
+    mass: f64,
+    reward: f64,
+    faults: u32,
+}
+
+/// Flies `policy` in the SIL guidance loop on scenarios `0..episodes` of the stream `seed` of
+/// `kind` (flight i's dispersions drawn from `seed + i`, as `ground model sil` does), against
+/// the nominal plant or (`dispersed`) the typical dispersions: navigation noise, thrust
+/// magnitude and pointing errors, missed-thrust events. Returns per-flight arrays: `dr`, `dv`
+/// (terminal residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
+#[pyfunction]
+#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true))]
+fn fly_sil<'py>(
+    py: Python<'py>,
+    policy: &Policy,
+    kind: &str,
+    seed: u64,
+    episodes: u64,
+    dispersed: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let kind = scenario_kind(kind)?;
+    if kind.problem() != policy.kind {
+        return Err(refused(format!(
+            "a {} blob cannot fly {} scenarios",
+            policy.problem(),
+            kind.name()
+        )));
+    }
+    let spacecraft = Spacecraft::default()
+        .canonical()
+        .map_err(|e| refused(format!("spacecraft: {e:?}")))?;
+    let setup = FlightSetup::nominal(spacecraft).dispersed(if dispersed {
+        Dispersions::TYPICAL
+    } else {
+        Dispersions::NONE
+    });
+    let blob = policy.blob.bytes();
+    let flights: Vec<Result<FlightEnd, String>> = with_flight_problem!(kind.problem(), N, P => {
+        let controller = Controller::<N>::load::<P>(blob);
+        py.detach(|| {
+            (0..episodes)
+                .into_par_iter()
+                .map(|i| {
+                    let scenario = kind.draw(seed, i);
+                    let summary = fly_observed(P::default(), &controller, &scenario, &setup, seed.wrapping_add(i), |_| ())
+                        .map_err(|e| e.to_string())?;
+                    let res = summary.final_residuals.ok_or("no cycle flown")?;
+                    Ok(FlightEnd {
+                        dr: res.position,
+                        dv: res.velocity,
+                        mass: summary.final_state.m,
+                        reward: summary.total_reward,
+                        faults: summary.guidance_faults,
+                    })
+                })
+                .collect()
+        })
+    });
+    let completed: Vec<bool> = flights.iter().map(Result::is_ok).collect();
+    let value =
+        |f: fn(&FlightEnd) -> f64| -> Vec<f64> { flights.iter().map(|r| r.as_ref().map_or(f64::NAN, f)).collect() };
+    let d = PyDict::new(py);
+    d.set_item("dr", PyArray1::from_vec(py, value(|r| r.dr)))?;
+    d.set_item("dv", PyArray1::from_vec(py, value(|r| r.dv)))?;
+    d.set_item("final_mass", PyArray1::from_vec(py, value(|r| r.mass)))?;
+    d.set_item("total_reward", PyArray1::from_vec(py, value(|r| r.reward)))?;
+    d.set_item(
+        "guidance_faults",
+        PyArray1::from_vec(py, value(|r| f64::from(r.faults))),
+    )?;
+    d.set_item("completed", PyArray1::from_vec(py, completed))?;
+    Ok(d)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Policy>()?;
+    m.add_function(wrap_pyfunction!(open_model, m)?)?;
+    m.add_function(wrap_pyfunction!(fly_sil, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,165 @@
+"""Shipped models from Python: opened against their cards as the command line opens them,
+flown in the SIL to the card's figures bit for bit, flown in the Gymnasium environment at the
+card's share within sampling error, and their ONNX actors checked (onnx.checker, onnxruntime
+against an independent float32 forward pass of the actor's weights)."""
+
+import json
+import shutil
+import struct
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import lowthrust
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+SHIPPED = sorted(p.name for p in MODELS.iterdir() if (p / "card.json").is_file())
+
+
+def _within(dr, dv, tolerance=0.01):
+    return (np.asarray(dr) < tolerance) & (np.asarray(dv) < tolerance)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_shipped_model_opens_against_its_card(name):
+    model = lowthrust.open_model(MODELS / name)
+    assert model["scenario"] == model["card"]["scenario"]
+    assert model["f32"].quantization == "f32" and model["int8"].quantization == "int8"
+    assert "onnx" in model["files"], "every shipped model carries its ONNX actor"
+
+
+def test_a_model_whose_files_disagree_with_its_card_is_refused(tmp_path):
+    copy = tmp_path / "model"
+    shutil.copytree(MODELS / "transfer-circular", copy)
+    blob = copy / "transfer-int8.blob"
+    data = bytearray(blob.read_bytes())
+    data[-1] ^= 1
+    blob.write_bytes(bytes(data))
+    with pytest.raises(lowthrust.LowThrustError, match="CRC-32C"):
+        lowthrust.open_model(copy)
+    shutil.copy(MODELS / "transfer-circular" / "transfer-int8.blob", blob)
+    lowthrust.open_model(copy)
+    (copy / "actor.onnx").unlink()
+    with pytest.raises(lowthrust.LowThrustError, match="actor.onnx"):
+        lowthrust.open_model(copy)
+    (copy / "card.json").write_text("{ not a card")
+    with pytest.raises(lowthrust.LowThrustError, match="card.json"):
+        lowthrust.open_model(copy)
+    with pytest.raises(lowthrust.LowThrustError, match="blob refused"):
+        lowthrust.Policy(b"LTGB" + bytes(100))
+
+
+@pytest.mark.parametrize("quantization", ["f32", "int8"])
+def test_the_sil_from_python_flies_the_cards_figures(quantization):
+    """The dispersed SIL Monte Carlo of the card (1,000 flights, typical dispersions, the Monte
+    Carlo seed), flown again from Python: the same share within each tolerance, the same
+    medians."""
+    model = lowthrust.open_model(MODELS / "transfer-circular-dispersed")
+    figures = dict(model["card"]["sil"])[f"transfer-{quantization}.blob"]
+    flown = lowthrust.fly_sil(model[quantization], "transfer-circular", 2000003, figures["episodes"], dispersed=True)
+    assert flown["completed"].all()
+    for tolerance, share in figures["within"]:
+        assert _within(flown["dr"], flown["dv"], tolerance).mean() == pytest.approx(share, abs=1e-12)
+    # The project's percentiles are nearest-rank.
+    p50 = lambda v: np.sort(v)[int(np.ceil(0.5 * len(v))) - 1]  # noqa: E731
+    assert p50(flown["dr"]) == figures["dr_p50"] and p50(flown["dv"]) == figures["dv_p50"]
+    assert flown["final_mass"].mean() == pytest.approx(figures["final_mass_mean"], rel=1e-12)
+
+
+def test_a_shipped_actor_flies_the_python_environment_at_its_cards_share():
+    """The f32 blob (the actor to 1e-4 in its actions) flown through gym.make on the first 1,000
+    Monte Carlo scenarios: the card's share of 10,000 within three standard errors."""
+    model = lowthrust.open_model(MODELS / "transfer-circular")
+    card_share = dict(map(tuple, model["card"]["monte_carlo"]["within"]))[0.01]
+    env = gym.make("lowthrust/TransferCircular-v0")
+    hits, n = 0, 1000
+    obs, _ = env.reset(seed=2000003)
+    for episode in range(n):
+        if episode:
+            obs, _ = env.reset()
+        while True:
+            action = model["f32"].act(obs[None, :])[0]
+            obs, _, terminated, _, info = env.step(action)
+            if terminated:
+                hits += bool(_within(info["dr"], info["dv"]))
+                break
+    sigma = np.sqrt(card_share * (1 - card_share) / n)
+    assert abs(hits / n - card_share) < 3 * sigma, (hits / n, card_share)
+
+
+def _actor_weights(path):
+    """The actor's tensors read straight from its safetensors file (no library)."""
+    raw = Path(path).read_bytes()
+    (size,) = struct.unpack("<Q", raw[:8])
+    header = json.loads(raw[8 : 8 + size])
+    data = raw[8 + size :]
+    return {
+        name: np.frombuffer(data[slice(*info["data_offsets"])], dtype=np.float32).reshape(info["shape"])
+        for name, info in header.items()
+        if name != "__metadata__"
+    }
+
+
+def _forward(weights, x):
+    """The deterministic action in float32: ReLU hidden layers, tanh of the mean head."""
+    layer = 0
+    while f"actor.l{layer}.weight" in weights:
+        x = np.maximum(x @ weights[f"actor.l{layer}.weight"].T + weights[f"actor.l{layer}.bias"], np.float32(0))
+        layer += 1
+    return np.tanh(x @ weights["actor.mean.weight"].T + weights["actor.mean.bias"])
+
+
+def _visited_observations(model, scenario, count):
+    """Observations the model's own flights visit (the Monte Carlo scenarios, in order)."""
+    env = lowthrust.Env(scenario)
+    observations, index = [], 0
+    while len(observations) < count:
+        obs = env.reset(2000003, index)
+        while not env.done:
+            observations.append(obs)
+            obs, _, _, _ = env.step(model["f32"].act(obs[None, :])[0])
+        index += 1
+    return np.array(observations[:count], dtype=np.float32)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_onnx_actor_passes_the_checker_and_acts_as_the_actor(name):
+    onnx = pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    model = lowthrust.open_model(MODELS / name)
+    path = model["files"]["onnx"]
+    onnx.checker.check_model(onnx.load(path), full_check=True)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    observations = _visited_observations(model, model["scenario"], 10_000)
+    actions = session.run(["action"], {"observation": observations})[0]
+    assert actions.shape == (10_000, 3) and actions.dtype == np.float32
+    reference = _forward(_actor_weights(model["files"]["actor"]), observations)
+    assert np.abs(actions - reference).max() <= 1e-6
+    # The onboard f32 kernels sum in another order: within the export's criterion (1e-4).
+    assert np.abs(actions - model["f32"].act(observations)).max() <= 1e-4
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_card_opens_with_the_metadata_a_model_hub_reads(name):
+    """card.md's YAML front matter: a model-index whose metrics are the card's own figures."""
+    yaml = pytest.importorskip("yaml")
+    text = (MODELS / name / "card.md").read_text()
+    assert text.startswith("---\n")
+    meta = yaml.safe_load(text.split("---\n")[1])
+    card = json.loads((MODELS / name / "card.json").read_text())
+    assert meta["library_name"] == "lowthrust" and "onnx" in meta["tags"]
+    (entry,) = meta["model-index"]
+    assert entry["name"] == card["scenario"]
+    results = entry["results"]
+    assert len(results) == 1 + len(card["sil"]) + ("lookahead" in card)
+    assert gym.spec(results[0]["dataset"]["type"]).kwargs["scenario"] == card["scenario"]
+    monte_carlo = {m["type"]: m["value"] for m in results[0]["metrics"]}
+    for tolerance, share in card["monte_carlo"]["within"]:
+        assert monte_carlo[f"within_{tolerance}"] == share
+    if card["overspend"]:
+        assert monte_carlo["overspend_median"] == card["overspend"][1]
+    for result, (blob, figures) in zip(results[1:], card["sil"]):
+        assert blob in result["dataset"]["name"]
+        assert [m["value"] for m in result["metrics"]] == [share for _, share in figures["within"]]
