@@ -726,7 +726,7 @@ fn front_matter(card: &ModelCard) -> String {
     s
 }
 
-/// The card for people, opening with the metadata a model hub reads ([`front_matter`]).
+/// The card for people, opening with the metadata a model hub reads (a YAML front matter).
 pub fn card_markdown(card: &ModelCard) -> String {
     let mut s = front_matter(card);
     let _ = writeln!(s, "# Model card: {}\n", card.scenario);
