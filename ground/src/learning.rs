@@ -168,6 +168,11 @@ pub enum ModelCommand {
         /// (replaces the config's).
         #[arg(long)]
         thrust_margin: Option<f64>,
+        /// Fly the last N cycles (1 to 4) with terminal targeting (onboard::terminal): the
+        /// remaining commands solved for the arrival each cycle (replaces the config's
+        /// [sil] terminal cycles).
+        #[arg(long)]
+        terminal: Option<u32>,
         /// Solve the first N flights' scenarios by the indirect method: the optimality gap and
         /// the share within the goal where solved, by eccentricity band (default 0: none).
         #[arg(long, default_value_t = 0)]
@@ -300,6 +305,7 @@ fn run_model(command: ModelCommand) -> CommandResult {
             no_dispersions,
             lookahead,
             thrust_margin,
+            terminal,
             gap_cases,
             allow_safe_mode,
         } => sil_command(
@@ -310,6 +316,7 @@ fn run_model(command: ModelCommand) -> CommandResult {
                 no_dispersions,
                 lookahead,
                 thrust_margin,
+                terminal,
                 gap_cases,
                 allow_safe_mode,
             },
@@ -680,6 +687,7 @@ struct SilFlags {
     no_dispersions: bool,
     lookahead: bool,
     thrust_margin: Option<f64>,
+    terminal: Option<u32>,
     gap_cases: u64,
     allow_safe_mode: bool,
 }
@@ -694,12 +702,20 @@ fn sil_command(
         no_dispersions,
         lookahead,
         thrust_margin,
+        terminal,
         gap_cases,
         allow_safe_mode,
     } = flags;
     let (mut config, blob) = flown.resolve(args, true)?;
     if lookahead && config.sil.lookahead.is_none() {
         config.sil.lookahead = Some(Default::default());
+    }
+    if let Some(cycles) = terminal {
+        config.sil.terminal = Some(learn::config::TerminalSettings {
+            cycles,
+            ..config.sil.terminal.unwrap_or_default()
+        });
+        config.validate()?;
     }
     if let Some(margin) = thrust_margin {
         let settings = config

@@ -140,6 +140,10 @@ pub trait TargetFeatures<const N: usize> {
     fn features_after(&self, state: &SpacecraftState, elapsed: f64, time_to_go: f64) -> Result<[f64; N], FeatureError>;
     /// The residuals read off the features.
     fn residuals(features: &[f64; N]) -> Residuals;
+    /// The residuals' components, position ones first (AU, then AU/t*): what
+    /// [`crate::terminal`] drives to zero. A transfer's are the radius and polar velocity
+    /// differences to the target orbit at the spacecraft's polar angle, and a last 0.
+    fn miss(features: &[f64; N]) -> [f64; 4];
 }
 
 /// A transfer's target orbit does not move (docs/spec.md section 5).
@@ -155,6 +159,11 @@ impl TargetFeatures<TRANSFER_FEATURES> for OrbitShape {
 
     fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
         transfer_residuals(features)
+    }
+
+    fn miss(f: &[f64; TRANSFER_FEATURES]) -> [f64; 4] {
+        let [r, _, _, v_r, v_theta, _, r_t, v_r_t, v_theta_t, _] = *f;
+        [r_t - r, v_r_t - v_r, v_theta_t - v_theta, 0.0]
     }
 }
 
@@ -176,6 +185,11 @@ impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
 
     fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
         rendezvous_residuals(features)
+    }
+
+    fn miss(f: &[f64; RENDEZVOUS_FEATURES]) -> [f64; 4] {
+        let [.., dx, dy, dvx, dvy, _, _, _, _] = *f;
+        [dx, dy, dvx, dvy]
     }
 }
 

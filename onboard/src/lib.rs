@@ -94,3 +94,4 @@ pub mod integrator;
 pub mod kepler;
 pub mod lookahead;
 pub mod policy;
+pub mod terminal;

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use firmware_sim::{fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup};
 use ground_core::model_files::{blob_file, verify_model_files, ACTOR_FILE, ONNX_FILE};
 use onboard::guidance::Actor;
+use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, ProblemKind, Quantization};
 use shared::spacecraft::Spacecraft;
 
@@ -174,10 +175,12 @@ struct FlightEnd {
 /// Flies `policy` in the SIL guidance loop on scenarios `0..episodes` of the stream `seed` of
 /// `kind` (flight i's dispersions drawn from `seed + i`, as `ground model sil` does), against
 /// the nominal plant or (`dispersed`) the typical dispersions: navigation noise, thrust
-/// magnitude and pointing errors, missed-thrust events. Returns per-flight arrays: `dr`, `dv`
-/// (terminal residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
+/// magnitude and pointing errors, missed-thrust events. With `terminal_cycles` the last that
+/// many cycles (1 to 4) are flown with terminal targeting (`onboard::terminal`). Returns
+/// per-flight arrays: `dr`, `dv` (terminal residuals), `final_mass`, `total_reward`,
+/// `guidance_faults`, `completed`.
 #[pyfunction]
-#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true))]
+#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None))]
 fn fly_sil<'py>(
     py: Python<'py>,
     policy: &Policy,
@@ -185,8 +188,22 @@ fn fly_sil<'py>(
     seed: u64,
     episodes: u64,
     dispersed: bool,
+    terminal_cycles: Option<u32>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let kind = scenario_kind(kind)?;
+    let terminal = match terminal_cycles {
+        None => None,
+        Some(cycles) => {
+            let settings = TerminalSettings {
+                cycles,
+                ..TerminalSettings::default()
+            };
+            settings
+                .validate()
+                .map_err(|_| refused(format!("terminal_cycles must be 1 to {MAX_CYCLES}, not {cycles}")))?;
+            Some(settings)
+        }
+    };
     if kind.problem() != policy.kind {
         return Err(refused(format!(
             "a {} blob cannot fly {} scenarios",
@@ -210,8 +227,20 @@ fn fly_sil<'py>(
                 .into_par_iter()
                 .map(|i| {
                     let scenario = kind.draw(seed, i);
-                    let summary = fly_observed(P::default(), &controller, &scenario, &setup, seed.wrapping_add(i), |_| ())
-                        .map_err(|e| e.to_string())?;
+                    let flight_seed = seed.wrapping_add(i);
+                    let summary = match terminal {
+                        None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
+                        Some(settings) => {
+                            let guide = Terminal {
+                                actor: &controller,
+                                spacecraft,
+                                settings,
+                                lookahead: None,
+                            };
+                            fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
+                        }
+                    }
+                    .map_err(|e| e.to_string())?;
                     let res = summary.final_residuals.ok_or("no cycle flown")?;
                     Ok(FlightEnd {
                         dr: res.position,

@@ -13,6 +13,7 @@ use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
 use onboard::lookahead::LookaheadSettings;
+pub use onboard::terminal::TerminalSettings;
 
 /// A whole experiment as one TOML file: the scenario distribution, seeds, environment, learner,
 /// the settings of every phase and the compute. Missing sections take their defaults (the
@@ -337,6 +338,12 @@ pub struct SilConfig {
     /// thrust_margin = 0.05 }`, or `ground model sil --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadSettings>,
+    /// Fly the blob's last cycles with terminal targeting (`onboard::terminal::TerminalSettings`:
+    /// `cycles`, `iterations`, each defaulted; the rollouts propagate with `[env.integrator]`),
+    /// the cycles before as without it (the network, or with `lookahead`). In a TOML config:
+    /// `terminal = { cycles = 3 }`, or `ground model sil --terminal 3`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub terminal: Option<TerminalSettings>,
 }
 
 impl Default for SilConfig {
@@ -345,6 +352,7 @@ impl Default for SilConfig {
             episodes: 1_000,
             dispersions: firmware_sim::Dispersions::TYPICAL,
             lookahead: None,
+            terminal: None,
         }
     }
 }
@@ -448,6 +456,15 @@ impl ExperimentConfig {
         })
     }
 
+    /// The terminal targeting the SIL flies (`[sil] terminal`), its rollouts propagated with the
+    /// environment's integrator settings.
+    pub fn terminal_settings(&self) -> Option<TerminalSettings> {
+        self.sil.terminal.map(|settings| TerminalSettings {
+            tolerances: self.env.integrator.tolerances(),
+            ..settings
+        })
+    }
+
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
         self.sac.validate().map_err(|e| ConfigError::Invalid(e.to_string()))?;
@@ -459,6 +476,12 @@ impl ExperimentConfig {
             lookahead
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
+        }
+        if self.terminal_settings().is_some_and(|t| t.validate().is_err()) {
+            return Err(ConfigError::Invalid(format!(
+                "sil.terminal: cycles must be 1 to {}, iterations at least 1",
+                onboard::terminal::MAX_CYCLES
+            )));
         }
         self.env
             .spacecraft
@@ -754,6 +777,10 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { accuracy_floor = 0.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { fuel_weight = -1.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { thrust_margin = 1.0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 5 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { iterations = 0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
         ];
         for text in bad {
@@ -773,6 +800,24 @@ mod tests {
             err.to_string(),
             "config is invalid: sac.initial_log_temperature (1) is above sac.max_log_temperature (Some(0.0))"
         );
+    }
+
+    /// `[sil] terminal` reads its two settings by name and takes the environment's integrator
+    /// for its rollouts, as the lookahead does.
+    #[test]
+    fn terminal_targeting_reads_its_cycles_and_flies_with_the_environments_integrator() {
+        let c = ExperimentConfig::from_toml(
+            "scenario = \"transfer-circular\"\n[env.integrator]\nrelative = 1e-10\n[sil]\nterminal = { cycles = 2 }",
+        )
+        .unwrap();
+        let t = c.terminal_settings().unwrap();
+        assert_eq!((t.cycles, t.iterations), (2, TerminalSettings::default().iterations));
+        assert_eq!(t.tolerances, c.env.integrator.tolerances());
+        assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+        assert!(ExperimentConfig::from_toml("scenario = \"transfer-circular\"")
+            .unwrap()
+            .terminal_settings()
+            .is_none());
     }
 
     #[test]

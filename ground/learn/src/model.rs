@@ -36,6 +36,7 @@ use ground_core::io::atomic_write;
 use ground_core::model_files::{verify_model_files, ModelFilesError};
 use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
+use onboard::terminal::TerminalSettings;
 
 pub use ground_core::model_files::{ACTOR_FILE, ONNX_FILE};
 /// The card for machines.
@@ -195,6 +196,9 @@ pub struct ModelCard {
     /// Monte Carlo; the SIL rows above are then flown with it too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadFigures>,
+    /// The terminal targeting the SIL rows flew their last cycles with (`[sil] terminal`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub terminal: Option<TerminalSettings>,
 }
 
 /// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
@@ -379,6 +383,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         where_solved: mc.where_solved,
         by_eccentricity: mc.accuracy_by_eccentricity.clone(),
         lookahead: sources.lookahead.and_then(LookaheadFigures::of),
+        terminal: config.terminal_settings(),
     };
     write_cards(dir, &card)?;
     Ok(card)
@@ -761,8 +766,12 @@ pub fn card_markdown(card: &ModelCard) -> String {
         .collect();
     let _ = writeln!(
         s,
-        "## Figures\n\nMonte Carlo seed {}; SIL: the blobs flown by the onboard guidance loop against the dispersed plant of the config's `[sil]`.\n",
-        card.monte_carlo_seed
+        "## Figures\n\nMonte Carlo seed {}; SIL: the blobs flown by the onboard guidance loop against the dispersed plant of the config's `[sil]`{}.\n",
+        card.monte_carlo_seed,
+        card.terminal.map_or(String::new(), |t| format!(
+            ", their last {} cycles with terminal targeting (`onboard::terminal`: the remaining commands solved for the arrival each cycle)",
+            t.cycles
+        ))
     );
     let _ = writeln!(
         s,

@@ -26,6 +26,7 @@ use ground_core::env::{step_reward, EnvError};
 use ground_core::io::atomic_write;
 use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
+use onboard::terminal::{Terminal, TerminalSettings};
 
 /// Flights whose paths are drawn.
 const PLOTTED_FLIGHTS: usize = 6;
@@ -110,6 +111,9 @@ pub struct SilReport {
     /// The rollout lookahead the blob flew with (None: the network alone).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadSettings>,
+    /// The terminal targeting its last cycles flew with (None: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub terminal: Option<TerminalSettings>,
     /// The truth plant's dispersions.
     pub dispersions: Dispersions,
     /// Flights flown.
@@ -198,6 +202,9 @@ pub struct SilFlights<'a> {
     /// Rollout lookahead around the network (None: the network alone), as flown: its rollouts'
     /// tolerances included ([`ExperimentConfig::lookahead_settings`]).
     pub lookahead: Option<LookaheadSettings>,
+    /// Terminal targeting of the last cycles (None: none), as flown
+    /// ([`ExperimentConfig::terminal_settings`]).
+    pub terminal: Option<TerminalSettings>,
 }
 
 impl<'a> SilFlights<'a> {
@@ -208,6 +215,7 @@ impl<'a> SilFlights<'a> {
             seed: config.seeds.monte_carlo,
             record,
             lookahead: config.lookahead_settings(),
+            terminal: config.terminal_settings(),
         }
     }
 
@@ -218,6 +226,7 @@ impl<'a> SilFlights<'a> {
             seed,
             record: 0,
             lookahead: None,
+            terminal: None,
         }
     }
 }
@@ -264,6 +273,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
         seed,
         record,
         lookahead,
+        terminal,
     } = *flights;
     let setup = flight_setup(config, dispersions)?;
     // On a cache line: the host kernels' vector loads then never straddle two.
@@ -276,15 +286,26 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
             let mut steps = Vec::with_capacity(scenario.steps as usize);
             let flight_seed = seed.wrapping_add(i as u64);
             let keep = |k: &FlightStep<N>| steps.push(*k);
-            // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with.
-            let lookahead = lookahead.filter(|_| matches!(controller, Controller::Network(_)));
-            let result = match lookahead {
-                None => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
-                Some(settings) => {
+            // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with
+            // or to target.
+            let network = matches!(controller, Controller::Network(_));
+            let lookahead = lookahead.filter(|_| network);
+            let result = match (terminal.filter(|_| network), lookahead) {
+                (None, None) => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
+                (None, Some(settings)) => {
                     let guide = Lookahead {
                         actor: &controller,
                         spacecraft: setup.spacecraft,
                         settings,
+                    };
+                    fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
+                }
+                (Some(settings), lookahead) => {
+                    let guide = Terminal {
+                        actor: &controller,
+                        spacecraft: setup.spacecraft,
+                        settings,
+                        lookahead,
                     };
                     fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
                 }
@@ -360,6 +381,7 @@ pub fn sil_monte_carlo(
         blob: blob_path.to_path_buf(),
         controller,
         lookahead: config.sil.lookahead,
+        terminal: config.sil.terminal,
         dispersions: *dispersions,
         flights: outcomes.len(),
         failed,
@@ -407,13 +429,16 @@ fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String
 /// A short summary of a SIL Monte Carlo.
 pub fn describe(report: &SilReport) -> String {
     let p = &report.monte_carlo.policy;
-    let controller = match &report.lookahead {
+    let mut controller = match &report.lookahead {
         Some(l) => format!(
             "{} with lookahead, accuracy floor {}, fuel weight {}, thrust margin {}",
             report.controller, l.accuracy_floor, l.fuel_weight, l.thrust_margin
         ),
         None => report.controller.clone(),
     };
+    if let Some(t) = &report.terminal {
+        controller += &format!(", terminal targeting of the last {} cycles", t.cycles);
+    }
     let mut text = format!(
         "SIL: {} flights of {} ({}), {} failed, {} guidance faults, {:.2} % of the time in missed thrust\n\
          reward {:.4} +- {:.4} (zero thrust {:.4}); final mass {:.4}; |dr| p50/p95 {:.4}/{:.4} AU; |dv| p50/p95 {:.4}/{:.4}; {:.1} % within 0.01 AU / 0.01",

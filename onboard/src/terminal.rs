@@ -1,0 +1,598 @@
+//! Terminal targeting: over the last cycles of a flight the commands still to fly are solved
+//! for the arrival with the onboard propagator, instead of left to the network.
+//!
+//! With `k <= settings.cycles` cycles to go, the plan is the `k` thrust vectors
+//! `tau_j = u_j (alpha_r, alpha_theta)_j` (each held for its cycle in the local polar frame, as
+//! every command is; `|tau_j| <= 1`), started from the commands the network would fly along its
+//! own nominal continuation. The arrival's miss vector `e` (position then velocity components,
+//! each over its goal: a transfer's radius and polar velocity differences to the target orbit at
+//! the spacecraft's polar angle, a rendezvous's Cartesian differences to the body) is driven to
+//! zero by damped Gauss-Newton (Levenberg-Marquardt) steps, the Jacobian by forward differences:
+//!
+//! `d tau = -J^T (J J^T + lambda I)^-1 e`
+//!
+//! the minimum-norm change of the plan where it has more unknowns than conditions (two per
+//! cycle against three or four), least squares on the last cycle. A step that does not lower
+//! `|e|` is refused and lambda raised. The plan's first command is flown; the next cycle solves
+//! again from the navigation state, so errors of the plant are corrected while cycles remain.
+//! The network's command is flown instead whenever the solved plan does not predict a smaller
+//! miss than the network's own continuation, or any rollout fails.
+//!
+//! The work per cycle is at most `iterations x (2 k + 2)` rollouts of `k` cycles; no
+//! allocation, no panic.
+
+use shared::spacecraft::CanonicalSpacecraft;
+use shared::units::STEP;
+
+use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
+use crate::guidance::{command_at, Actor, GuidanceError, Guide, TargetFeatures};
+use crate::integrator::Tolerances;
+use crate::lookahead::{lookahead_step, LookaheadSettings};
+
+/// Most cycles a plan solves for.
+pub const MAX_CYCLES: usize = 4;
+/// Components of the miss vector (position then velocity; a transfer's last one is 0).
+pub const MISS_LEN: usize = 4;
+
+/// What terminal targeting does; `Default` targets the last 3 cycles with up to 8 iterations.
+/// The ground's configs read it (feature `serde`: `cycles` and `iterations` by name, each
+/// defaulted; the goals are the evaluation's, the tolerances the environment's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Serialize, serde::Deserialize),
+    serde(default, deny_unknown_fields)
+)]
+pub struct TerminalSettings {
+    /// Cycles to go from which the plan is solved (1 to [`MAX_CYCLES`]).
+    pub cycles: u32,
+    /// Gauss-Newton iterations per guidance cycle, at most.
+    pub iterations: u32,
+    /// Position residual that counts as one unit of miss (AU; default 0.01, the goal).
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub goal_position: f64,
+    /// Velocity residual that counts as one unit of miss (AU/t*; default 0.01).
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub goal_velocity: f64,
+    /// Tolerances of the rollouts' propagation (default: the onboard ones).
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub tolerances: Tolerances,
+}
+
+impl Default for TerminalSettings {
+    fn default() -> Self {
+        Self {
+            cycles: 3,
+            iterations: 8,
+            goal_position: 0.01,
+            goal_velocity: 0.01,
+            tolerances: Tolerances::default(),
+        }
+    }
+}
+
+/// Settings out of range: cycles not in 1..=[`MAX_CYCLES`], no iteration, a goal not finite
+/// and positive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct InvalidTerminalSettings;
+
+impl TerminalSettings {
+    /// Checks the ranges of [`InvalidTerminalSettings`].
+    pub fn validate(&self) -> Result<(), InvalidTerminalSettings> {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        let cycles = usize::try_from(self.cycles).unwrap_or(usize::MAX);
+        if (1..=MAX_CYCLES).contains(&cycles)
+            && self.iterations > 0
+            && positive(self.goal_position)
+            && positive(self.goal_velocity)
+        {
+            Ok(())
+        } else {
+            Err(InvalidTerminalSettings)
+        }
+    }
+}
+
+/// One terminal-targeting cycle: what was flown and why (telemetry).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TerminalDecision {
+    /// The command to hold for the cycle.
+    pub command: ThrustCommand,
+    /// The network's own command.
+    pub network: ThrustCommand,
+    /// Whether the solved plan's command is flown (false: the network's).
+    pub solved: bool,
+    /// Predicted miss |e| (in goal units) of the network's continuation, when it was flown out.
+    pub network_miss: Option<f64>,
+    /// Predicted miss of the plan flown, when a plan was solved.
+    pub planned_miss: Option<f64>,
+}
+
+/// A plan: the thrust vector of each remaining cycle (radial, transverse), `|tau| <= 1`.
+type Plan = [[f64; 2]; MAX_CYCLES];
+
+fn command_of(tau: &[f64; 2]) -> ThrustCommand {
+    let norm = libm::hypot(tau[0], tau[1]);
+    // A NaN norm is thrust off too.
+    if norm.is_nan() || norm <= 1e-12 {
+        return ThrustCommand::OFF;
+    }
+    ThrustCommand {
+        throttle: norm.min(1.0),
+        alpha_r: tau[0] / norm,
+        alpha_theta: tau[1] / norm,
+    }
+}
+
+fn tau_of(command: &ThrustCommand) -> [f64; 2] {
+    [
+        command.throttle * command.alpha_r,
+        command.throttle * command.alpha_theta,
+    ]
+}
+
+/// The cycle's duration: whole cycles are STEP, a last partial one is what remains.
+fn duration(time_to_go: f64, start: f64) -> f64 {
+    let remaining = time_to_go - start;
+    if remaining >= STEP * (1.0 - 1e-9) {
+        STEP
+    } else {
+        remaining
+    }
+}
+
+/// Everything a rollout needs besides its plan.
+struct Problem<'a, T> {
+    target: &'a T,
+    spacecraft: &'a CanonicalSpacecraft,
+    settings: &'a TerminalSettings,
+    navigation: &'a SpacecraftState,
+    time_to_go: f64,
+    cycles: usize,
+}
+
+impl<T> Problem<'_, T> {
+    /// The miss vector, in goal units, of flying `plan` to the arrival (None if a propagation
+    /// fails or the arrival's features are refused).
+    fn miss<const N: usize>(&self, plan: &Plan) -> Option<[f64; MISS_LEN]>
+    where
+        T: TargetFeatures<N>,
+    {
+        let mut state = *self.navigation;
+        for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
+            let start = cycle as f64 * STEP;
+            let dt = duration(self.time_to_go, start);
+            state = propagate(&state, &command_of(tau), self.spacecraft, dt, &self.settings.tolerances).ok()?;
+        }
+        let features = self.target.features_after(&state, self.time_to_go, 0.0).ok()?;
+        let [x, y, vx, vy] = T::miss(&features);
+        let (gp, gv) = (self.settings.goal_position, self.settings.goal_velocity);
+        let e = [x / gp, y / gp, vx / gv, vy / gv];
+        e.iter().all(|v| v.is_finite()).then_some(e)
+    }
+}
+
+fn norm(e: &[f64; MISS_LEN]) -> f64 {
+    libm::sqrt(e.iter().map(|v| v * v).sum::<f64>())
+}
+
+/// Solves `a x = b` for a symmetric positive definite 4 x 4 `a` (Cholesky); None if it is not.
+fn solve4(a: &[[f64; MISS_LEN]; MISS_LEN], b: &[f64; MISS_LEN]) -> Option<[f64; MISS_LEN]> {
+    let mut l = [[0.0f64; MISS_LEN]; MISS_LEN];
+    for i in 0..MISS_LEN {
+        for j in 0..=i {
+            let mut sum = *a.get(i)?.get(j)?;
+            for k in 0..j {
+                sum -= l.get(i)?.get(k)? * l.get(j)?.get(k)?;
+            }
+            let value = if i == j {
+                if sum.is_nan() || sum <= 0.0 {
+                    return None;
+                }
+                libm::sqrt(sum)
+            } else {
+                sum / l.get(j)?.get(j)?
+            };
+            *l.get_mut(i)?.get_mut(j)? = value;
+        }
+    }
+    // L z = b, then L^T x = z.
+    let mut z = [0.0f64; MISS_LEN];
+    for i in 0..MISS_LEN {
+        let mut sum = *b.get(i)?;
+        for k in 0..i {
+            sum -= l.get(i)?.get(k)? * z.get(k)?;
+        }
+        *z.get_mut(i)? = sum / l.get(i)?.get(i)?;
+    }
+    let mut x = [0.0f64; MISS_LEN];
+    for i in (0..MISS_LEN).rev() {
+        let mut sum = *z.get(i)?;
+        for k in i + 1..MISS_LEN {
+            sum -= l.get(k)?.get(i)? * x.get(k)?;
+        }
+        *x.get_mut(i)? = sum / l.get(i)?.get(i)?;
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Each cycle's thrust vector clipped to the unit disk.
+fn clip(plan: &mut Plan) {
+    for tau in plan.iter_mut() {
+        let n = libm::hypot(tau[0], tau[1]);
+        if n > 1.0 {
+            tau[0] /= n;
+            tau[1] /= n;
+        }
+    }
+}
+
+/// Unknown `u` of a plan: component `u mod 2` of cycle `u / 2`'s thrust vector.
+fn component(plan: &mut Plan, u: usize) -> Option<&mut f64> {
+    plan.as_flattened_mut().get_mut(u)
+}
+
+/// Forward-difference step of the thrust vectors' components.
+const DIFFERENCE: f64 = 1e-7;
+
+/// Damped Gauss-Newton on `plan` (see the module documentation); returns the best plan found
+/// and its miss vector.
+fn solve<const N: usize, T: TargetFeatures<N>>(
+    problem: &Problem<'_, T>,
+    mut plan: Plan,
+    mut e: [f64; MISS_LEN],
+) -> (Plan, [f64; MISS_LEN]) {
+    let unknowns = 2 * problem.cycles;
+    let mut lambda = 1e-6;
+    for _ in 0..problem.settings.iterations {
+        // Within a thousandth of the goal there is nothing left worth a propagation.
+        if norm(&e) < 1e-3 {
+            break;
+        }
+        // J: MISS_LEN rows, one column per unknown (cycle j, component c).
+        let mut jacobian = [[0.0f64; 2 * MAX_CYCLES]; MISS_LEN];
+        let mut ok = true;
+        for u in 0..unknowns {
+            let mut moved = plan;
+            if let Some(v) = component(&mut moved, u) {
+                *v += DIFFERENCE;
+            }
+            let Some(em) = problem.miss(&moved) else {
+                ok = false;
+                break;
+            };
+            for (row, (a, b)) in jacobian.iter_mut().zip(em.iter().zip(e.iter())) {
+                if let Some(slot) = row.get_mut(u) {
+                    *slot = (a - b) / DIFFERENCE;
+                }
+            }
+        }
+        if !ok {
+            break;
+        }
+        // J J^T + lambda (1 + diag) I.
+        let mut normal = [[0.0f64; MISS_LEN]; MISS_LEN];
+        for (i, row_i) in jacobian.iter().enumerate() {
+            for (k, row_k) in jacobian.iter().enumerate() {
+                let dot: f64 = row_i.iter().zip(row_k.iter()).take(unknowns).map(|(a, b)| a * b).sum();
+                if let Some(slot) = normal.get_mut(i).and_then(|r| r.get_mut(k)) {
+                    *slot = dot;
+                }
+            }
+        }
+        let mut improved = false;
+        // A few tries with more damping before the iteration gives up.
+        for _ in 0..4 {
+            let mut damped = normal;
+            for (i, row) in damped.iter_mut().enumerate() {
+                if let Some(d) = row.get_mut(i) {
+                    *d += lambda * (1.0 + *d);
+                }
+            }
+            let Some(y) = solve4(&damped, &e) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut candidate = plan;
+            for u in 0..unknowns {
+                let step: f64 = jacobian
+                    .iter()
+                    .zip(y.iter())
+                    .map(|(row, yi)| row.get(u).unwrap_or(&0.0) * yi)
+                    .sum();
+                if let Some(v) = component(&mut candidate, u) {
+                    *v -= step;
+                }
+            }
+            clip(&mut candidate);
+            match problem.miss(&candidate) {
+                Some(ec) if norm(&ec) < norm(&e) => {
+                    plan = candidate;
+                    e = ec;
+                    lambda = (lambda / 10.0).max(1e-12);
+                    improved = true;
+                    break;
+                }
+                _ => lambda *= 10.0,
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+    (plan, e)
+}
+
+/// One guidance cycle with terminal targeting: the network's command at `navigation` (refused
+/// inputs and non-finite actions are errors, as in [`crate::guidance`]); with `1 ..=
+/// settings.cycles` cycles to go (`time_to_go` cut into 14-day cycles, the last possibly
+/// shorter), the first command of the solved plan when it predicts a smaller miss than the
+/// network's own continuation.
+pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+    actor: &A,
+    navigation: &SpacecraftState,
+    target: &T,
+    time_to_go: f64,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &TerminalSettings,
+) -> Result<TerminalDecision, GuidanceError> {
+    let network = command_at(actor, target, navigation, 0.0, time_to_go)?;
+    let mut decision = TerminalDecision {
+        command: network,
+        network,
+        solved: false,
+        network_miss: None,
+        planned_miss: None,
+    };
+    let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+    if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.cycles)) {
+        return Ok(decision);
+    }
+    let cycles = cycles as usize;
+    // The network's continuation, flown nominally: the plan's start.
+    let mut plan: Plan = [[0.0; 2]; MAX_CYCLES];
+    let mut state = *navigation;
+    for (cycle, tau) in plan.iter_mut().take(cycles).enumerate() {
+        let start = cycle as f64 * STEP;
+        let command = if cycle == 0 {
+            network
+        } else {
+            match command_at(actor, target, &state, start, time_to_go - start) {
+                Ok(c) => c,
+                Err(_) => return Ok(decision),
+            }
+        };
+        *tau = tau_of(&command);
+        match propagate(
+            &state,
+            &command,
+            spacecraft,
+            duration(time_to_go, start),
+            &settings.tolerances,
+        ) {
+            Ok(next) => state = next,
+            Err(_) => return Ok(decision),
+        }
+    }
+    let problem = Problem {
+        target,
+        spacecraft,
+        settings,
+        navigation,
+        time_to_go,
+        cycles,
+    };
+    let Some(e0) = problem.miss(&plan) else {
+        return Ok(decision);
+    };
+    decision.network_miss = Some(norm(&e0));
+    let (solved, e) = solve(&problem, plan, e0);
+    if norm(&e) < norm(&e0) {
+        decision.command = command_of(&solved[0]);
+        decision.solved = true;
+        decision.planned_miss = Some(norm(&e));
+    }
+    Ok(decision)
+}
+
+/// An actor flown with terminal targeting over its last cycles: what flight software holds to
+/// call [`terminal_step`] each cycle (it implements [`crate::guidance::Guide`]). Before them it
+/// flies the network, or the network with rollout lookahead when `lookahead` is set.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Terminal<A> {
+    /// The network.
+    pub actor: A,
+    /// The nominal spacecraft of the rollouts.
+    pub spacecraft: CanonicalSpacecraft,
+    /// How many cycles, how many iterations.
+    pub settings: TerminalSettings,
+    /// Rollout lookahead before the terminal cycles (None: the network alone).
+    pub lookahead: Option<LookaheadSettings>,
+}
+
+impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal<A> {
+    fn command(
+        &self,
+        navigation: &SpacecraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        let (actor, spacecraft) = (&self.actor, &self.spacecraft);
+        let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+        match self.lookahead {
+            Some(settings) if cycles > f64::from(self.settings.cycles) => {
+                lookahead_step(actor, navigation, target, time_to_go, spacecraft, &settings).map(|d| d.command)
+            }
+            _ => terminal_step(actor, navigation, target, time_to_go, spacecraft, &self.settings).map(|d| d.command),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::features::encode_action;
+    use crate::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+    use crate::guidance::tests::Tangential;
+    use crate::kepler::coast;
+    use shared::orbit::{CartesianState, OrbitShape};
+    use shared::spacecraft::Spacecraft;
+
+    fn spacecraft() -> CanonicalSpacecraft {
+        Spacecraft::MSR_ERO.canonical().unwrap()
+    }
+
+    /// The known commands of [`reachable`]'s three cycles, as thrust vectors.
+    const PLAN: [[f64; 2]; 3] = [[0.3, 0.6], [0.0, 0.8], [-0.2, 0.4]];
+
+    /// A network that is nearly right: each cycle (read off the time to go, the feature
+    /// `TTG`) it commands [`PLAN`]'s thrust at 90 % and turned by 4 degrees, so it misses the
+    /// arrival [`PLAN`] reaches by a few hundredths of an AU (as a trained network misses by
+    /// thousandths).
+    struct NearlyRight<const TTG: usize>;
+    impl<const N: usize, const TTG: usize> Actor<N> for NearlyRight<TTG> {
+        fn act(&self, features: &[f32; N]) -> [f32; 3] {
+            let to_go = (f64::from(features[TTG]) / STEP).round() as usize;
+            let tau = PLAN[3 - to_go.clamp(1, 3)];
+            let (s, c) = (libm::sin(0.07), libm::cos(0.07));
+            let turned = [0.9 * (tau[0] * c + tau[1] * s), 0.9 * (tau[1] * c - tau[0] * s)];
+            encode_action(&command_of(&turned)).map(|a| a as f32)
+        }
+    }
+
+    /// Three cycles of known commands from a 1 AU circular orbit: the start and where they
+    /// arrive. A target set there is met exactly by those commands, so a solution exists.
+    fn reachable() -> (SpacecraftState, SpacecraftState) {
+        let start = SpacecraftState::from_cartesian(
+            &OrbitShape {
+                a: 1.0,
+                e: 0.0,
+                omega: 0.0,
+            }
+            .cartesian_at(0.3),
+            1.0,
+        );
+        let mut arrival = start;
+        for tau in PLAN {
+            arrival = propagate(&arrival, &command_of(&tau), &spacecraft(), STEP, &Tolerances::default()).unwrap();
+        }
+        (start, arrival)
+    }
+
+    /// Flies three cycles from `start` with `guide`; `target(k)` is the target as flight
+    /// software knows it at cycle k. Returns the arrival.
+    fn fly<const N: usize, T: TargetFeatures<N>>(
+        guide: &impl Guide<N, T>,
+        start: SpacecraftState,
+        target: impl Fn(u32) -> T,
+    ) -> SpacecraftState {
+        let mut state = start;
+        for k in 0..3u32 {
+            let time_to_go = f64::from(3 - k) * STEP;
+            let command = guide.command(&state, &target(k), time_to_go).unwrap();
+            state = propagate(&state, &command, &spacecraft(), STEP, &Tolerances::default()).unwrap();
+        }
+        state
+    }
+
+    /// A transfer whose target orbit the flight can reach in its last three cycles: the nearly
+    /// right network misses it; terminal targeting meets it within a thousandth of the goal
+    /// (its stopping rule), the orbit's own elements as reference.
+    #[test]
+    fn a_reachable_target_orbit_is_met() {
+        let (start, arrival) = reachable();
+        let target = CartesianState {
+            r: arrival.r,
+            v: arrival.v,
+        }
+        .elements()
+        .unwrap()
+        .shape;
+        let miss = |state: &SpacecraftState| {
+            OrbitShape::residuals(
+                &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, state, 0.0, 0.0).unwrap(),
+            )
+        };
+        let alone = fly::<TRANSFER_FEATURES, _>(&NearlyRight::<9>, start, |_| target);
+        let off = miss(&alone);
+        assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+        let guide = Terminal {
+            actor: NearlyRight::<9>,
+            spacecraft: spacecraft(),
+            settings: TerminalSettings::default(),
+            lookahead: None,
+        };
+        let met = miss(&fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target));
+        assert!(met.position < 1e-5 && met.velocity < 1e-5, "{met:?}");
+    }
+
+    /// A rendezvous with a body that the last three cycles can meet (the arrival coasted back
+    /// to the epoch): met in position and velocity within a thousandth of the goal.
+    #[test]
+    fn a_reachable_body_is_met() {
+        let (start, arrival) = reachable();
+        let at_arrival = CartesianState {
+            r: arrival.r,
+            v: arrival.v,
+        };
+        let epoch = coast(&at_arrival, -3.0 * STEP).unwrap();
+        let body = |k: u32| coast(&epoch, f64::from(k) * STEP).unwrap();
+        let guide = Terminal {
+            actor: NearlyRight::<20>,
+            spacecraft: spacecraft(),
+            settings: TerminalSettings::default(),
+            lookahead: None,
+        };
+        let end = fly::<RENDEZVOUS_FEATURES, _>(&guide, start, body);
+        let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &end, 0.0, 0.0).unwrap();
+        let met = CartesianState::residuals(&features);
+        assert!(met.position < 1e-5 && met.velocity < 1e-5, "{met:?}");
+        let alone = fly::<RENDEZVOUS_FEATURES, _>(&NearlyRight::<20>, start, body);
+        let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &alone, 0.0, 0.0).unwrap();
+        let off = CartesianState::residuals(&features);
+        assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+    }
+
+    /// Outside its last cycles, with settings out of range, or with a network that cannot be
+    /// improved on, the network's command is flown unchanged.
+    #[test]
+    fn the_network_flies_unless_a_solved_plan_predicts_a_smaller_miss() {
+        let (start, arrival) = reachable();
+        let target = CartesianState {
+            r: arrival.r,
+            v: arrival.v,
+        }
+        .elements()
+        .unwrap()
+        .shape;
+        let settings = TerminalSettings::default();
+        let decide = |time_to_go: f64, settings: &TerminalSettings| {
+            terminal_step::<TRANSFER_FEATURES, _, _>(&Tangential, &start, &target, time_to_go, &spacecraft(), settings)
+                .unwrap()
+        };
+        let early = decide(10.0 * STEP, &settings);
+        assert!(!early.solved && early.command == early.network && early.network_miss.is_none());
+        for bad in [
+            TerminalSettings { cycles: 0, ..settings },
+            TerminalSettings { cycles: 9, ..settings },
+            TerminalSettings {
+                iterations: 0,
+                ..settings
+            },
+            TerminalSettings {
+                goal_position: f64::NAN,
+                ..settings
+            },
+        ] {
+            assert!(bad.validate().is_err());
+            assert!(!decide(3.0 * STEP, &bad).solved);
+        }
+        let late = decide(3.0 * STEP, &settings);
+        assert!(late.solved);
+        assert!(
+            late.planned_miss.unwrap() < 1e-3 && late.network_miss.unwrap() > 1.0,
+            "{late:?}"
+        );
+        assert!(late.command.validate().is_ok());
+    }
+}
