@@ -117,6 +117,10 @@ enum lt_status
   // the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
   // and >= 0, the thrust margin in [0, 1)).
   LT_ERR_INPUT_LOOKAHEAD = -46,
+  // Terminal targeting refused: the spacecraft's thrust or exhaust speed is not finite and
+  // positive, or the settings are unusable (cycles 1 to 4, at least one iteration, goals
+  // finite and > 0).
+  LT_ERR_INPUT_TERMINAL = -47,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -227,6 +231,32 @@ typedef struct lt_lookahead_report {
   // The predicted arrival's cost (goal units).
   double predicted_cost;
 } lt_lookahead_report;
+
+// What terminal targeting does (`lt_terminal_defaults` fills the defaults).
+typedef struct lt_terminal_settings {
+  // Position residual counted as one unit of miss (AU); default 0.01.
+  double goal_position;
+  // Velocity residual counted as one unit of miss (AU/t*); default 0.01.
+  double goal_velocity;
+  // Cycles to go from which the remaining commands are solved (1 to 4); default 3.
+  uint32_t cycles;
+  // Gauss-Newton iterations per cycle, at most; default 8.
+  uint32_t iterations;
+} lt_terminal_settings;
+
+// What one terminal-targeting cycle decided, for telemetry.
+typedef struct lt_terminal_report {
+  // The network's own command.
+  struct lt_thrust_command network;
+  // 1 when the solved plan's command is flown, 0 when the network's.
+  uint32_t solved;
+  // 1 when the network's continuation was flown out (its miss below is valid), else 0.
+  uint32_t predicted_valid;
+  // Predicted miss of the network's continuation, in goal units.
+  double network_miss;
+  // Predicted miss of the plan flown, in goal units (NaN when none was solved).
+  double planned_miss;
+} lt_terminal_report;
 
 // What a loaded policy flies.
 typedef struct lt_policy_info {
@@ -342,6 +372,49 @@ lt_status lt_rendezvous_lookahead_step(const struct lt_policy *policy,
                                        const struct lt_lookahead_settings *settings,
                                        struct lt_thrust_command *command,
                                        struct lt_lookahead_report *report);
+
+// Writes the default terminal-targeting settings to `*out`. Returns `LT_OK`, or
+// `LT_ERR_NULL_POINTER`.
+//
+// # Safety
+// `out` is null or valid for writing an `lt_terminal_settings` (any alignment).
+lt_status lt_terminal_defaults(struct lt_terminal_settings *out);
+
+// One transfer guidance cycle with terminal targeting (`onboard::terminal::terminal_step`):
+// with `settings.cycles` cycles to go or fewer, the remaining commands are solved for the
+// arrival with the onboard propagator and `spacecraft` (damped Gauss-Newton from the network's
+// continuation) and the plan's first command returned when it predicts a smaller miss than
+// the network's; with more cycles to go, the network's command. At most `iterations x (2 k +
+// 2)` propagations of the k cycles left: run it at the guidance rate.
+//
+// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_TERMINAL` for an unusable spacecraft or
+// settings; `report` may be null, else it receives the decision (nothing predicted on error).
+//
+// # Safety
+// As `lt_transfer_step`; `spacecraft` and `settings` are null or valid for reading their
+// structs, `report` null or valid for writing an `lt_terminal_report`.
+lt_status lt_transfer_terminal_step(const struct lt_policy *policy,
+                                    const struct lt_navigation_state *navigation,
+                                    const struct lt_target_orbit *target,
+                                    double time_to_go,
+                                    const struct lt_spacecraft *spacecraft,
+                                    const struct lt_terminal_settings *settings,
+                                    struct lt_thrust_command *command,
+                                    struct lt_terminal_report *report);
+
+// One rendezvous guidance cycle with terminal targeting: as `lt_transfer_terminal_step`, with
+// the target body's state now (the rollouts coast it).
+//
+// # Safety
+// As `lt_transfer_terminal_step`.
+lt_status lt_rendezvous_terminal_step(const struct lt_policy *policy,
+                                      const struct lt_navigation_state *navigation,
+                                      const struct lt_body_state *body,
+                                      double time_to_go,
+                                      const struct lt_spacecraft *spacecraft,
+                                      const struct lt_terminal_settings *settings,
+                                      struct lt_thrust_command *command,
+                                      struct lt_terminal_report *report);
 
 // Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
 // Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.

@@ -108,10 +108,14 @@ pub enum lt_status {
     /// the settings are unusable (goals and floor must be finite and > 0, the fuel weight finite
     /// and >= 0, the thrust margin in [0, 1)).
     LT_ERR_INPUT_LOOKAHEAD = -46,
+    /// Terminal targeting refused: the spacecraft's thrust or exhaust speed is not finite and
+    /// positive, or the settings are unusable (cycles 1 to 4, at least one iteration, goals
+    /// finite and > 0).
+    LT_ERR_INPUT_TERMINAL = -47,
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 41] = [
+const ERROR_NAMES: [(lt_status, &CStr); 42] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -153,6 +157,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 41] = [
     (LT_ERR_INPUT_TIME_TO_GO, c"input_time_to_go"),
     (LT_ERR_NON_FINITE_ACTION, c"non_finite_action"),
     (LT_ERR_INPUT_LOOKAHEAD, c"input_lookahead"),
+    (LT_ERR_INPUT_TERMINAL, c"input_terminal"),
 ];
 
 /// What `error_name` says for a value that is not a code.

@@ -12,6 +12,9 @@
 //!   lookahead (`onboard::lookahead`): candidate commands around the network's flown to the
 //!   arrival with the onboard propagator, the cheapest predicted arrival commanded;
 //!   `lt_lookahead_defaults` fills its settings.
+//! - `lt_transfer_terminal_step`, `lt_rendezvous_terminal_step`: the same cycle with terminal
+//!   targeting (`onboard::terminal`): over the last cycles the remaining commands are solved for
+//!   the arrival; `lt_terminal_defaults` fills its settings.
 //! - `lt_policy_describe`, `lt_error_name`: what a policy flies, and a name for each code.
 //!
 //! **No panic crosses the boundary.** Every entry point checks its pointers (null, the policy's
@@ -88,6 +91,7 @@ use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError, TargetFea
 use onboard::lookahead::{lookahead_step, Decision, LookaheadSettings};
 use onboard::policy::Mlp;
 use onboard::policy::{RendezvousPolicy, TransferPolicy};
+use onboard::terminal::{terminal_step, TerminalDecision, TerminalSettings};
 use shared::blob::{ProblemKind, Quantization, FORMAT_VERSION};
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::spacecraft::CanonicalSpacecraft;
@@ -758,6 +762,215 @@ pub unsafe extern "C" fn lt_rendezvous_lookahead_step(
     }
 }
 
+/// What terminal targeting does (`lt_terminal_defaults` fills the defaults).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_terminal_settings {
+    /// Position residual counted as one unit of miss (AU); default 0.01.
+    pub goal_position: f64,
+    /// Velocity residual counted as one unit of miss (AU/t*); default 0.01.
+    pub goal_velocity: f64,
+    /// Cycles to go from which the remaining commands are solved (1 to 4); default 3.
+    pub cycles: u32,
+    /// Gauss-Newton iterations per cycle, at most; default 8.
+    pub iterations: u32,
+}
+
+/// What one terminal-targeting cycle decided, for telemetry.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_terminal_report {
+    /// The network's own command.
+    pub network: lt_thrust_command,
+    /// 1 when the solved plan's command is flown, 0 when the network's.
+    pub solved: u32,
+    /// 1 when the network's continuation was flown out (its miss below is valid), else 0.
+    pub predicted_valid: u32,
+    /// Predicted miss of the network's continuation, in goal units.
+    pub network_miss: f64,
+    /// Predicted miss of the plan flown, in goal units (NaN when none was solved).
+    pub planned_miss: f64,
+}
+
+impl From<lt_terminal_settings> for TerminalSettings {
+    fn from(s: lt_terminal_settings) -> Self {
+        Self {
+            goal_position: s.goal_position,
+            goal_velocity: s.goal_velocity,
+            cycles: s.cycles,
+            iterations: s.iterations,
+            ..Self::default()
+        }
+    }
+}
+
+/// Writes the default terminal-targeting settings to `*out`. Returns `LT_OK`, or
+/// `LT_ERR_NULL_POINTER`.
+///
+/// # Safety
+/// `out` is null or valid for writing an `lt_terminal_settings` (any alignment).
+#[no_mangle]
+pub unsafe extern "C" fn lt_terminal_defaults(out: *mut lt_terminal_settings) -> lt_status {
+    if out.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    let d = TerminalSettings::default();
+    let settings = lt_terminal_settings {
+        goal_position: d.goal_position,
+        goal_velocity: d.goal_velocity,
+        cycles: d.cycles,
+        iterations: d.iterations,
+    };
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(out, settings) };
+    LT_OK
+}
+
+/// Terminal targeting's spacecraft and settings, checked.
+///
+/// # Safety
+/// Each pointer is null or valid for reading its struct.
+unsafe fn terminal_inputs(
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_terminal_settings,
+) -> Result<(CanonicalSpacecraft, TerminalSettings), lt_status> {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let (spacecraft, settings) = unsafe { (read_input(spacecraft)?, read_input(settings)?) };
+    let spacecraft = CanonicalSpacecraft {
+        thrust: spacecraft.thrust,
+        exhaust_speed: spacecraft.exhaust_speed,
+    };
+    let settings = TerminalSettings::from(settings);
+    if !spacecraft.is_valid() || settings.validate().is_err() {
+        return Err(LT_ERR_INPUT_TERMINAL);
+    }
+    Ok((spacecraft, settings))
+}
+
+/// One terminal-targeting cycle of `actor` towards `target`, and its report.
+fn targeted<const N: usize, const H1: usize, const H2: usize, T: TargetFeatures<N>>(
+    actor: &Mlp<'_, N, H1, H2, 3>,
+    navigation: &SpacecraftState,
+    target: &T,
+    time_to_go: f64,
+    inputs: (CanonicalSpacecraft, TerminalSettings),
+) -> Result<(lt_thrust_command, lt_terminal_report), lt_status> {
+    let decision: TerminalDecision = terminal_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1)
+        .map_err(|e| guidance_error_code(&e))?;
+    let report = lt_terminal_report {
+        network: decision.network.into(),
+        solved: u32::from(decision.solved),
+        predicted_valid: u32::from(decision.network_miss.is_some()),
+        network_miss: decision.network_miss.unwrap_or(f64::NAN),
+        planned_miss: decision.planned_miss.unwrap_or(f64::NAN),
+    };
+    Ok((decision.command.into(), report))
+}
+
+/// Writes a terminal-targeting cycle's outcome: the command (thrust off on error) and, when
+/// `report` is not null, its report (on error: the thrust-off command, nothing predicted).
+///
+/// # Safety
+/// `command` and `report` are null or valid for writing their structs.
+unsafe fn finish_terminal(
+    command: *mut lt_thrust_command,
+    report: *mut lt_terminal_report,
+    result: Result<(lt_thrust_command, lt_terminal_report), lt_status>,
+) -> lt_status {
+    let written = match result {
+        Ok((_, r)) => r,
+        Err(_) => lt_terminal_report {
+            network: THRUST_OFF,
+            solved: 0,
+            predicted_valid: 0,
+            network_miss: f64::NAN,
+            planned_miss: f64::NAN,
+        },
+    };
+    if !report.is_null() {
+        // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+        unsafe { ptr::write_unaligned(report, written) };
+    }
+    // SAFETY: the caller's contract on `command`, passed on.
+    unsafe { finish(command, result.map(|(c, _)| c)) }
+}
+
+/// One transfer guidance cycle with terminal targeting (`onboard::terminal::terminal_step`):
+/// with `settings.cycles` cycles to go or fewer, the remaining commands are solved for the
+/// arrival with the onboard propagator and `spacecraft` (damped Gauss-Newton from the network's
+/// continuation) and the plan's first command returned when it predicts a smaller miss than
+/// the network's; with more cycles to go, the network's command. At most `iterations x (2 k +
+/// 2)` propagations of the k cycles left: run it at the guidance rate.
+///
+/// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_TERMINAL` for an unusable spacecraft or
+/// settings; `report` may be null, else it receives the decision (nothing predicted on error).
+///
+/// # Safety
+/// As `lt_transfer_step`; `spacecraft` and `settings` are null or valid for reading their
+/// structs, `report` null or valid for writing an `lt_terminal_report`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_transfer_terminal_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    target: *const lt_target_orbit,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_terminal_settings,
+    command: *mut lt_thrust_command,
+    report: *mut lt_terminal_report,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, target) = (loaded(policy)?, read_input(navigation)?, read_input(target)?);
+            let inputs = terminal_inputs(spacecraft, settings)?;
+            let Network::Transfer(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            targeted(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
+        })();
+        finish_terminal(command, report, result)
+    }
+}
+
+/// One rendezvous guidance cycle with terminal targeting: as `lt_transfer_terminal_step`, with
+/// the target body's state now (the rollouts coast it).
+///
+/// # Safety
+/// As `lt_transfer_terminal_step`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_rendezvous_terminal_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state,
+    body: *const lt_body_state,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_terminal_settings,
+    command: *mut lt_thrust_command,
+    report: *mut lt_terminal_report,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, body) = (loaded(policy)?, read_input(navigation)?, read_input(body)?);
+            let inputs = terminal_inputs(spacecraft, settings)?;
+            let Network::Rendezvous(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            targeted(
+                actor,
+                &navigation.into(),
+                &CartesianState::from(body),
+                time_to_go,
+                inputs,
+            )
+        })();
+        finish_terminal(command, report, result)
+    }
+}
+
 /// Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
 /// Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.
 ///
@@ -953,6 +1166,7 @@ mod tests {
             LT_ERR_NOT_LOADED,
             LT_ERR_WRONG_POLICY_KIND,
             LT_ERR_INPUT_LOOKAHEAD,
+            LT_ERR_INPUT_TERMINAL,
         ]);
         let distinct: HashSet<lt_status> = codes.iter().copied().collect();
         assert_eq!(distinct.len(), codes.len(), "a code is shared: {codes:?}");

@@ -802,3 +802,164 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
         assert_eq!(bits(&command), bits(&expected.command.into()));
     }
 }
+
+fn terminal_defaults() -> lt_terminal_settings {
+    let mut s = lt_terminal_settings {
+        goal_position: 0.0,
+        goal_velocity: 0.0,
+        cycles: 0,
+        iterations: 0,
+    };
+    assert_eq!(unsafe { lt_terminal_defaults(&mut s) }, LT_OK);
+    s
+}
+
+/// The C terminal-targeting steps command the onboard `terminal_step`'s bits, report its
+/// decision, and refuse unusable settings with their own code and thrust off.
+#[test]
+fn terminal_steps_are_the_onboard_terminal_targeting_bit_for_bit_and_refuse_unusable_settings() {
+    use onboard::terminal::{terminal_step, TerminalSettings};
+    let settings = terminal_defaults();
+    let d = TerminalSettings::default();
+    assert_eq!(
+        (
+            settings.goal_position,
+            settings.goal_velocity,
+            settings.cycles,
+            settings.iterations
+        ),
+        (d.goal_position, d.goal_velocity, d.cycles, d.iterations)
+    );
+    let sc = spacecraft();
+    let canonical = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
+    let bytes = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let (status, policy) = load_transfer(&bytes);
+    assert_eq!(status, LT_OK);
+    let rust = TransferPolicy::from_bytes(&bytes, ProblemKind::Transfer).unwrap();
+    let mut solved = 0;
+    // Cycles to go from half of one to four and a half: inside the last 3 and outside.
+    for (k, (nav, _)) in states(8).into_iter().enumerate() {
+        let ttg = 0.2408 * (0.5 + k as f64 / 2.0);
+        let mut command = STALE;
+        let mut report = std::mem::MaybeUninit::<lt_terminal_report>::uninit();
+        let status = unsafe {
+            lt_transfer_terminal_step(
+                &policy,
+                &nav,
+                &TARGET,
+                ttg,
+                &sc,
+                &settings,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        assert_eq!(status, LT_OK);
+        let report = unsafe { report.assume_init() };
+        let expected = terminal_step(
+            &rust,
+            &SpacecraftState::from(nav),
+            &OrbitShape::from(TARGET),
+            ttg,
+            &canonical,
+            &d,
+        )
+        .unwrap();
+        assert_eq!(bits(&command), bits(&expected.command.into()));
+        assert_eq!(bits(&report.network), bits(&expected.network.into()));
+        assert_eq!(report.solved, u32::from(expected.solved));
+        assert_eq!(report.predicted_valid, u32::from(expected.network_miss.is_some()));
+        assert_eq!(
+            report.network_miss.to_bits(),
+            expected.network_miss.unwrap_or(f64::NAN).to_bits()
+        );
+        solved += report.solved;
+        let mut again = STALE;
+        let status = unsafe {
+            lt_transfer_terminal_step(&policy, &nav, &TARGET, ttg, &sc, &settings, &mut again, ptr::null_mut())
+        };
+        assert_eq!((status, bits(&again)), (LT_OK, bits(&command)));
+    }
+    // Made-up weights miss: inside the last cycles a plan is solved somewhere.
+    assert!(solved > 0);
+    let nav = states(1)[0].0;
+    for (spacecraft, settings) in [
+        (lt_spacecraft { thrust: f64::NAN, ..sc }, terminal_defaults()),
+        (
+            sc,
+            lt_terminal_settings {
+                cycles: 0,
+                ..terminal_defaults()
+            },
+        ),
+        (
+            sc,
+            lt_terminal_settings {
+                cycles: 5,
+                ..terminal_defaults()
+            },
+        ),
+        (
+            sc,
+            lt_terminal_settings {
+                iterations: 0,
+                ..terminal_defaults()
+            },
+        ),
+        (
+            sc,
+            lt_terminal_settings {
+                goal_position: f64::NAN,
+                ..terminal_defaults()
+            },
+        ),
+    ] {
+        let mut command = STALE;
+        let mut report = std::mem::MaybeUninit::<lt_terminal_report>::uninit();
+        let status = unsafe {
+            lt_transfer_terminal_step(
+                &policy,
+                &nav,
+                &TARGET,
+                0.5,
+                &spacecraft,
+                &settings,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        assert_eq!(status, LT_ERR_INPUT_TERMINAL);
+        assert_thrust_off(&command);
+        let report = unsafe { report.assume_init() };
+        assert_eq!((report.solved, report.predicted_valid), (0, 0));
+    }
+    let mut command = STALE;
+    let status = unsafe {
+        lt_rendezvous_terminal_step(&policy, &nav, &BODY, 0.5, &sc, &settings, &mut command, ptr::null_mut())
+    };
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_thrust_off(&command);
+    assert_eq!(unsafe { lt_terminal_defaults(ptr::null_mut()) }, LT_ERR_NULL_POINTER);
+    // A rendezvous policy: the onboard terminal targeting's command, bit for bit.
+    let bytes = int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS);
+    let (status, policy) = load_rendezvous(&bytes);
+    assert_eq!(status, LT_OK);
+    let rust = RendezvousPolicy::from_bytes(&bytes, ProblemKind::Rendezvous).unwrap();
+    for (nav, _) in states(3) {
+        let mut command = STALE;
+        let status = unsafe {
+            lt_rendezvous_terminal_step(&policy, &nav, &BODY, 0.6, &sc, &settings, &mut command, ptr::null_mut())
+        };
+        assert_eq!(status, LT_OK);
+        let expected = terminal_step(
+            &rust,
+            &SpacecraftState::from(nav),
+            &CartesianState::from(BODY),
+            0.6,
+            &canonical,
+            &d,
+        )
+        .unwrap();
+        assert_eq!(bits(&command), bits(&expected.command.into()));
+    }
+}
