@@ -31,6 +31,9 @@ use crate::lookahead::{lookahead_step, LookaheadSettings};
 
 /// Most cycles a plan solves for.
 pub const MAX_CYCLES: usize = 4;
+/// Most Gauss-Newton iterations a cycle may be allowed: the work stays bounded whatever a
+/// caller asks for.
+pub const MAX_ITERATIONS: u32 = 64;
 /// Components of the miss vector (position then velocity; a transfer's last one is 0).
 pub const MISS_LEN: usize = 4;
 
@@ -71,8 +74,8 @@ impl Default for TerminalSettings {
     }
 }
 
-/// Settings out of range: cycles not in 1..=[`MAX_CYCLES`], no iteration, a goal not finite
-/// and positive.
+/// Settings out of range: cycles not in 1..=[`MAX_CYCLES`], iterations not in
+/// 1..=[`MAX_ITERATIONS`], a goal not finite and positive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InvalidTerminalSettings;
 
@@ -82,7 +85,7 @@ impl TerminalSettings {
         let positive = |x: f64| x.is_finite() && x > 0.0;
         let cycles = usize::try_from(self.cycles).unwrap_or(usize::MAX);
         if (1..=MAX_CYCLES).contains(&cycles)
-            && self.iterations > 0
+            && (1..=MAX_ITERATIONS).contains(&self.iterations)
             && positive(self.goal_position)
             && positive(self.goal_velocity)
         {
@@ -577,6 +580,10 @@ mod tests {
             TerminalSettings { cycles: 9, ..settings },
             TerminalSettings {
                 iterations: 0,
+                ..settings
+            },
+            TerminalSettings {
+                iterations: MAX_ITERATIONS + 1,
                 ..settings
             },
             TerminalSettings {

@@ -479,8 +479,9 @@ impl ExperimentConfig {
         }
         if self.terminal_settings().is_some_and(|t| t.validate().is_err()) {
             return Err(ConfigError::Invalid(format!(
-                "sil.terminal: cycles must be 1 to {}, iterations at least 1",
-                onboard::terminal::MAX_CYCLES
+                "sil.terminal: cycles must be 1 to {}, iterations 1 to {}",
+                onboard::terminal::MAX_CYCLES,
+                onboard::terminal::MAX_ITERATIONS
             )));
         }
         self.env

@@ -2,9 +2,9 @@
 //! bytes, and bit flips, byte edits, truncations, extensions and splices of real blobs), each
 //! given to `shared::blob::decode`, to both policy loaders and to `lt_transfer_load` /
 //! `lt_rendezvous_load`; every loaded policy is flown through `lt_*_step` with hostile
-//! navigation inputs (now and then through `lt_transfer_lookahead_step` too, with hostile
-//! spacecraft and settings as well), and the C entry points are called with null, misaligned and impossible
-//! arguments.
+//! navigation inputs (now and then through `lt_transfer_lookahead_step` and
+//! `lt_transfer_terminal_step` too, with hostile spacecraft and settings as well), and the C
+//! entry points are called with null, misaligned and impossible arguments.
 //!
 //! ```text
 //! cargo run --profile c-release -p lowthrust-onboard-c --example fuzz -- [--inputs N] [--seed S] [--threads T] [--replay I]
@@ -37,9 +37,10 @@ use lowthrust::{
     error::{guidance_error_code, policy_error_code},
     lt_body_state, lt_lookahead_defaults, lt_lookahead_settings, lt_navigation_state, lt_policy, lt_policy_describe,
     lt_policy_info, lt_rendezvous_load, lt_rendezvous_step, lt_spacecraft, lt_status, lt_target_orbit,
-    lt_thrust_command, lt_transfer_load, lt_transfer_lookahead_step, lt_transfer_step, LT_ERR_BLOB_LENGTH,
-    LT_ERR_INPUT_LOOKAHEAD, LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND,
-    LT_OK, LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_TRANSFER,
+    lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer_load, lt_transfer_lookahead_step,
+    lt_transfer_step, lt_transfer_terminal_step, LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL,
+    LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK,
+    LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_TRANSFER,
 };
 use onboard::dynamics::SpacecraftState;
 use onboard::guidance::{rendezvous_step, transfer_step};
@@ -458,6 +459,10 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
         if kind == ProblemKind::Transfer && rng.chance(0.002) {
             lookahead(rng, policy, &transfer_actor, &nav, time_to_go)?;
         }
+        // As rarely, through terminal targeting with hostile spacecraft and settings.
+        if kind == ProblemKind::Transfer && rng.chance(0.002) {
+            terminal(rng, policy, &transfer_actor, &nav, time_to_go)?;
+        }
         // The other kind's step on this policy is refused, with thrust off.
         let code = match kind {
             ProblemKind::Transfer => {
@@ -587,6 +592,111 @@ fn lookahead(
         Ok(())
     } else {
         Err(format!("C lookahead gave {code:?} {command:?}, Rust {rust:?}"))
+    }
+}
+
+/// One transfer terminal-targeting cycle with hostile spacecraft and settings: the C call
+/// agrees with the Rust step it wraps, refuses unusable spacecraft or settings with its code and
+/// thrust off, and commands a valid command otherwise.
+fn terminal(
+    rng: &mut Rng,
+    policy: &lt_policy,
+    actor: &Option<Result<TransferPolicy<'_>, onboard::policy::PolicyError>>,
+    nav: &lt_navigation_state,
+    time_to_go: f64,
+) -> Result<(), String> {
+    use onboard::terminal::{terminal_step, TerminalSettings};
+    let mut settings = MaybeUninit::<lt_terminal_settings>::uninit();
+    // SAFETY: a valid pointer to writable storage.
+    if unsafe { lt_terminal_defaults(settings.as_mut_ptr()) } != LT_OK {
+        return Err("lt_terminal_defaults failed".into());
+    }
+    // SAFETY: written by lt_terminal_defaults.
+    let mut settings = unsafe { settings.assume_init() };
+    settings.cycles = [0, 1, 2, 3, 4, 5, u32::MAX][rng.below(7)];
+    settings.iterations = [0, 1, 8, 64, 65, u32::MAX][rng.below(6)];
+    settings.goal_position = if rng.chance(0.8) { 0.01 } else { hostile(rng, 0.0, 0.1) };
+    let canonical = shared::spacecraft::Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("{e:?}"))?;
+    let spacecraft = lt_spacecraft {
+        thrust: if rng.chance(0.9) {
+            canonical.thrust
+        } else {
+            hostile(rng, 0.0, 1.0)
+        },
+        exhaust_speed: canonical.exhaust_speed,
+    };
+    let target = lt_target_orbit {
+        a: hostile(rng, 0.5, 2.0),
+        e: hostile(rng, 0.0, 0.9),
+        omega: hostile(rng, -4.0, 4.0),
+    };
+    // Within the last cycles as often as not (a huge time to go flies the network unexamined).
+    let time_to_go = if rng.chance(0.5) {
+        time_to_go.min(1.0)
+    } else {
+        time_to_go
+    };
+    let mut command = lt_thrust_command {
+        throttle: f64::NAN,
+        alpha_r: f64::NAN,
+        alpha_theta: f64::NAN,
+    };
+    // SAFETY: every pointer is a valid reference; the report may be null.
+    let code = unsafe {
+        lt_transfer_terminal_step(
+            policy,
+            nav,
+            &target,
+            time_to_go,
+            &spacecraft,
+            &settings,
+            &mut command,
+            std::ptr::null_mut(),
+        )
+    };
+    check_command(code, &command)?;
+    let rust_settings = TerminalSettings {
+        goal_position: settings.goal_position,
+        goal_velocity: settings.goal_velocity,
+        cycles: settings.cycles,
+        iterations: settings.iterations,
+        ..TerminalSettings::default()
+    };
+    let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
+        thrust: spacecraft.thrust,
+        exhaust_speed: spacecraft.exhaust_speed,
+    };
+    if !rust_spacecraft.is_valid() || rust_settings.validate().is_err() {
+        return if code == LT_ERR_INPUT_TERMINAL {
+            Ok(())
+        } else {
+            Err(format!("unusable terminal-targeting inputs gave {code:?}"))
+        };
+    }
+    let actor = actor
+        .as_ref()
+        .ok_or("no transfer policy")?
+        .as_ref()
+        .map_err(|e| format!("Rust refused: {e}"))?;
+    let state: SpacecraftState = (*nav).into();
+    let rust = terminal_step(
+        actor,
+        &state,
+        &OrbitShape::from(target),
+        time_to_go,
+        &rust_spacecraft,
+        &rust_settings,
+    );
+    let agrees = match &rust {
+        Ok(d) => code == LT_OK && same_command(&command, &lt_thrust_command::from(d.command)),
+        Err(e) => code == guidance_error_code(e),
+    };
+    if agrees {
+        Ok(())
+    } else {
+        Err(format!("C terminal targeting gave {code:?} {command:?}, Rust {rust:?}"))
     }
 }
 

@@ -118,8 +118,8 @@ enum lt_status
   // and >= 0, the thrust margin in [0, 1)).
   LT_ERR_INPUT_LOOKAHEAD = -46,
   // Terminal targeting refused: the spacecraft's thrust or exhaust speed is not finite and
-  // positive, or the settings are unusable (cycles 1 to 4, at least one iteration, goals
-  // finite and > 0).
+  // positive, or the settings are unusable (cycles 1 to 4, iterations 1 to 64, goals finite
+  // and > 0).
   LT_ERR_INPUT_TERMINAL = -47,
 };
 #ifndef __cplusplus
@@ -240,7 +240,7 @@ typedef struct lt_terminal_settings {
   double goal_velocity;
   // Cycles to go from which the remaining commands are solved (1 to 4); default 3.
   uint32_t cycles;
-  // Gauss-Newton iterations per cycle, at most; default 8.
+  // Gauss-Newton iterations per cycle, at most (1 to 64); default 8.
   uint32_t iterations;
 } lt_terminal_settings;
 

@@ -772,7 +772,7 @@ pub struct lt_terminal_settings {
     pub goal_velocity: f64,
     /// Cycles to go from which the remaining commands are solved (1 to 4); default 3.
     pub cycles: u32,
-    /// Gauss-Newton iterations per cycle, at most; default 8.
+    /// Gauss-Newton iterations per cycle, at most (1 to 64); default 8.
     pub iterations: u32,
 }
 
