@@ -5,6 +5,7 @@
 //! software) then commands thrust off; a NaN never reaches the thrusters.
 
 use shared::orbit::{CartesianState, OrbitShape};
+use shared::units::STEP;
 
 use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
@@ -190,6 +191,24 @@ impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
     fn miss(f: &[f64; RENDEZVOUS_FEATURES]) -> [f64; 4] {
         let [.., dx, dy, dvx, dvy, _, _, _, _] = *f;
         [dx, dy, dvx, dvy]
+    }
+}
+
+/// Guidance cycles left in `time_to_go`: whole 14-day cycles, the last one possibly partial (a
+/// sliver below 1e-9 of a cycle is rounding). How the onboard aids count their horizon.
+pub(crate) fn cycles_left(time_to_go: f64) -> f64 {
+    libm::ceil(time_to_go / STEP - 1e-9)
+}
+
+/// The duration of the cycle that starts `start` after now with `time_to_go` left: whole cycles
+/// are exactly STEP, as the flight holds them; only a last partial one is shorter (a remainder
+/// within rounding of STEP is a whole cycle). How the onboard aids' rollouts cut the time.
+pub(crate) fn cycle_duration(time_to_go: f64, start: f64) -> f64 {
+    let remaining = time_to_go - start;
+    if remaining >= STEP * (1.0 - 1e-9) {
+        STEP
+    } else {
+        remaining
     }
 }
 

@@ -28,7 +28,7 @@ use shared::units::STEP;
 
 use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
 use crate::features::Residuals;
-use crate::guidance::{command_at, Actor, GuidanceError, TargetFeatures};
+use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, GuidanceError, TargetFeatures};
 use crate::integrator::Tolerances;
 
 /// Throttle offsets of the candidates from the network's throttle (clamped to [0, 1]); the last
@@ -213,14 +213,7 @@ fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     let mut command = *first;
     for cycle in 0..cycles {
         let start = f64::from(cycle) * STEP;
-        // Whole cycles are exactly STEP, as the flight holds them; only a last partial one is
-        // shorter (a remainder within rounding of STEP is a whole cycle).
-        let remaining = time_to_go - start;
-        let duration = if remaining >= STEP * (1.0 - 1e-9) {
-            STEP
-        } else {
-            remaining
-        };
+        let duration = cycle_duration(time_to_go, start);
         if cycle > 0 {
             command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
         }
@@ -258,8 +251,7 @@ pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         predicted: None,
         network_predicted: None,
     };
-    // Whole cycles left, the last one possibly partial; a sliver below 1e-9 STEP is rounding.
-    let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+    let cycles = cycles_left(time_to_go);
     if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.max_cycles)) {
         return Ok(decision);
     }

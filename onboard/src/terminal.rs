@@ -25,7 +25,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
 use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
-use crate::guidance::{command_at, Actor, GuidanceError, Guide, TargetFeatures};
+use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, GuidanceError, Guide, TargetFeatures};
 use crate::integrator::Tolerances;
 use crate::lookahead::{lookahead_step, LookaheadSettings};
 
@@ -134,16 +134,6 @@ fn tau_of(command: &ThrustCommand) -> [f64; 2] {
     ]
 }
 
-/// The cycle's duration: whole cycles are STEP, a last partial one is what remains.
-fn duration(time_to_go: f64, start: f64) -> f64 {
-    let remaining = time_to_go - start;
-    if remaining >= STEP * (1.0 - 1e-9) {
-        STEP
-    } else {
-        remaining
-    }
-}
-
 /// Everything a rollout needs besides its plan.
 struct Problem<'a, T> {
     target: &'a T,
@@ -164,7 +154,7 @@ impl<T> Problem<'_, T> {
         let mut state = *self.navigation;
         for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
             let start = cycle as f64 * STEP;
-            let dt = duration(self.time_to_go, start);
+            let dt = cycle_duration(self.time_to_go, start);
             state = propagate(&state, &command_of(tau), self.spacecraft, dt, &self.settings.tolerances).ok()?;
         }
         let features = self.target.features_after(&state, self.time_to_go, 0.0).ok()?;
@@ -347,7 +337,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         network_miss: None,
         planned_miss: None,
     };
-    let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+    let cycles = cycles_left(time_to_go);
     if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.cycles)) {
         return Ok(decision);
     }
@@ -370,7 +360,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
             &state,
             &command,
             spacecraft,
-            duration(time_to_go, start),
+            cycle_duration(time_to_go, start),
             &settings.tolerances,
         ) {
             Ok(next) => state = next,
@@ -421,7 +411,7 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal
         time_to_go: f64,
     ) -> Result<ThrustCommand, GuidanceError> {
         let (actor, spacecraft) = (&self.actor, &self.spacecraft);
-        let cycles = libm::ceil(time_to_go / STEP - 1e-9);
+        let cycles = cycles_left(time_to_go);
         match self.lookahead {
             Some(settings) if cycles > f64::from(self.settings.cycles) => {
                 lookahead_step(actor, navigation, target, time_to_go, spacecraft, &settings).map(|d| d.command)
@@ -482,6 +472,11 @@ mod tests {
         (start, arrival)
     }
 
+    /// The orbit the spacecraft is on at `state` (the transfer target [`reachable`] meets).
+    fn orbit_through(state: &SpacecraftState) -> OrbitShape {
+        CartesianState { r: state.r, v: state.v }.elements().unwrap().shape
+    }
+
     /// Flies three cycles from `start` with `guide`; `target(k)` is the target as flight
     /// software knows it at cycle k. Returns the arrival.
     fn fly<const N: usize, T: TargetFeatures<N>>(
@@ -504,13 +499,7 @@ mod tests {
     #[test]
     fn a_reachable_target_orbit_is_met() {
         let (start, arrival) = reachable();
-        let target = CartesianState {
-            r: arrival.r,
-            v: arrival.v,
-        }
-        .elements()
-        .unwrap()
-        .shape;
+        let target = orbit_through(&arrival);
         let miss = |state: &SpacecraftState| {
             OrbitShape::residuals(
                 &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, state, 0.0, 0.0).unwrap(),
@@ -561,13 +550,7 @@ mod tests {
     #[test]
     fn the_network_flies_unless_a_solved_plan_predicts_a_smaller_miss() {
         let (start, arrival) = reachable();
-        let target = CartesianState {
-            r: arrival.r,
-            v: arrival.v,
-        }
-        .elements()
-        .unwrap()
-        .shape;
+        let target = orbit_through(&arrival);
         let settings = TerminalSettings::default();
         let decide = |time_to_go: f64, settings: &TerminalSettings| {
             terminal_step::<TRANSFER_FEATURES, _, _>(&Tangential, &start, &target, time_to_go, &spacecraft(), settings)
