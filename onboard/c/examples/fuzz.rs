@@ -491,6 +491,28 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
     Ok(())
 }
 
+/// The spacecraft (now and then a hostile thrust) and target orbit an onboard aid's cycle is
+/// fuzzed with.
+fn hostile_aid_inputs(rng: &mut Rng) -> Result<(lt_spacecraft, lt_target_orbit), String> {
+    let canonical = shared::spacecraft::Spacecraft::MSR_ERO
+        .canonical()
+        .map_err(|e| format!("{e:?}"))?;
+    let spacecraft = lt_spacecraft {
+        thrust: if rng.chance(0.9) {
+            canonical.thrust
+        } else {
+            hostile(rng, 0.0, 1.0)
+        },
+        exhaust_speed: canonical.exhaust_speed,
+    };
+    let target = lt_target_orbit {
+        a: hostile(rng, 0.5, 2.0),
+        e: hostile(rng, 0.0, 0.9),
+        omega: hostile(rng, -4.0, 4.0),
+    };
+    Ok((spacecraft, target))
+}
+
 /// One transfer lookahead cycle with hostile spacecraft and settings: the C call agrees with
 /// the Rust lookahead it wraps, refuses unusable spacecraft or settings with its code and thrust
 /// off, and commands a valid command otherwise.
@@ -513,22 +535,7 @@ fn lookahead(
     settings.fuel_weight = hostile(rng, 0.0, 10.0);
     settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
     settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
-    let canonical = shared::spacecraft::Spacecraft::MSR_ERO
-        .canonical()
-        .map_err(|e| format!("{e:?}"))?;
-    let spacecraft = lt_spacecraft {
-        thrust: if rng.chance(0.9) {
-            canonical.thrust
-        } else {
-            hostile(rng, 0.0, 1.0)
-        },
-        exhaust_speed: canonical.exhaust_speed,
-    };
-    let target = lt_target_orbit {
-        a: hostile(rng, 0.5, 2.0),
-        e: hostile(rng, 0.0, 0.9),
-        omega: hostile(rng, -4.0, 4.0),
-    };
+    let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // At most 12 t* ahead (50 cycles): a hostile huge time to go flies the network unexamined.
     let time_to_go = time_to_go.min(12.0);
     let mut command = lt_thrust_command {
@@ -616,22 +623,7 @@ fn terminal(
     settings.cycles = [0, 1, 2, 3, 4, 5, u32::MAX][rng.below(7)];
     settings.iterations = [0, 1, 8, 64, 65, u32::MAX][rng.below(6)];
     settings.goal_position = if rng.chance(0.8) { 0.01 } else { hostile(rng, 0.0, 0.1) };
-    let canonical = shared::spacecraft::Spacecraft::MSR_ERO
-        .canonical()
-        .map_err(|e| format!("{e:?}"))?;
-    let spacecraft = lt_spacecraft {
-        thrust: if rng.chance(0.9) {
-            canonical.thrust
-        } else {
-            hostile(rng, 0.0, 1.0)
-        },
-        exhaust_speed: canonical.exhaust_speed,
-    };
-    let target = lt_target_orbit {
-        a: hostile(rng, 0.5, 2.0),
-        e: hostile(rng, 0.0, 0.9),
-        omega: hostile(rng, -4.0, 4.0),
-    };
+    let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // Within the last cycles as often as not (a huge time to go flies the network unexamined).
     let time_to_go = if rng.chance(0.5) {
         time_to_go.min(1.0)

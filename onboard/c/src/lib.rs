@@ -613,6 +613,35 @@ pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) 
     LT_OK
 }
 
+impl From<lt_spacecraft> for CanonicalSpacecraft {
+    fn from(s: lt_spacecraft) -> Self {
+        Self {
+            thrust: s.thrust,
+            exhaust_speed: s.exhaust_speed,
+        }
+    }
+}
+
+/// An onboard aid's spacecraft and settings (lookahead, terminal targeting), read and checked:
+/// `refused` when the spacecraft is not valid or `usable` refuses the settings.
+///
+/// # Safety
+/// Each pointer is null or valid for reading its struct.
+unsafe fn aid_inputs<C: Copy, S: From<C>>(
+    spacecraft: *const lt_spacecraft,
+    settings: *const C,
+    usable: impl FnOnce(&S) -> bool,
+    refused: lt_status,
+) -> Result<(CanonicalSpacecraft, S), lt_status> {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let (spacecraft, settings) = unsafe { (read_input(spacecraft)?, read_input(settings)?) };
+    let (spacecraft, settings) = (CanonicalSpacecraft::from(spacecraft), S::from(settings));
+    if !spacecraft.is_valid() || !usable(&settings) {
+        return Err(refused);
+    }
+    Ok((spacecraft, settings))
+}
+
 /// The lookahead's spacecraft and settings, checked.
 ///
 /// # Safety
@@ -621,17 +650,9 @@ unsafe fn lookahead_inputs(
     spacecraft: *const lt_spacecraft,
     settings: *const lt_lookahead_settings,
 ) -> Result<(CanonicalSpacecraft, LookaheadSettings), lt_status> {
+    let usable = |s: &LookaheadSettings| s.validate().is_ok();
     // SAFETY: the caller's contract on each pointer, passed on.
-    let (spacecraft, settings) = unsafe { (read_input(spacecraft)?, read_input(settings)?) };
-    let spacecraft = CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
-    };
-    let settings = LookaheadSettings::from(settings);
-    if !spacecraft.is_valid() || settings.validate().is_err() {
-        return Err(LT_ERR_INPUT_LOOKAHEAD);
-    }
-    Ok((spacecraft, settings))
+    unsafe { aid_inputs(spacecraft, settings, usable, LT_ERR_INPUT_LOOKAHEAD) }
 }
 
 /// One lookahead cycle of `actor` towards `target`, and its report.
@@ -657,28 +678,29 @@ fn looked_ahead<const N: usize, const H1: usize, const H2: usize, T: TargetFeatu
     Ok((decision.command.into(), report))
 }
 
-/// Writes a lookahead cycle's outcome: the command (thrust off on error) and, when `report` is
-/// not null, its report (on error: the thrust-off command, nothing predicted).
+/// The lookahead report of a refused cycle: the thrust-off command, nothing predicted.
+const LOOKAHEAD_REFUSED: lt_lookahead_report = lt_lookahead_report {
+    network: THRUST_OFF,
+    chosen: 0,
+    predicted_valid: 0,
+    predicted_position: f64::NAN,
+    predicted_velocity: f64::NAN,
+    predicted_mass: f64::NAN,
+    predicted_cost: f64::NAN,
+};
+
+/// Writes an aided cycle's outcome: the command (thrust off on error) and, when `report` is not
+/// null, its report (`refused` on error).
 ///
 /// # Safety
 /// `command` and `report` are null or valid for writing their structs.
-unsafe fn finish_lookahead(
+unsafe fn finish_with_report<R: Copy>(
     command: *mut lt_thrust_command,
-    report: *mut lt_lookahead_report,
-    result: Result<(lt_thrust_command, lt_lookahead_report), lt_status>,
+    report: *mut R,
+    result: Result<(lt_thrust_command, R), lt_status>,
+    refused: R,
 ) -> lt_status {
-    let written = match result {
-        Ok((_, r)) => r,
-        Err(_) => lt_lookahead_report {
-            network: THRUST_OFF,
-            chosen: 0,
-            predicted_valid: 0,
-            predicted_position: f64::NAN,
-            predicted_velocity: f64::NAN,
-            predicted_mass: f64::NAN,
-            predicted_cost: f64::NAN,
-        },
-    };
+    let written = result.map_or(refused, |(_, r)| r);
     if !report.is_null() {
         // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
         unsafe { ptr::write_unaligned(report, written) };
@@ -721,7 +743,7 @@ pub unsafe extern "C" fn lt_transfer_lookahead_step(
             };
             looked_ahead(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
         })();
-        finish_lookahead(command, report, result)
+        finish_with_report(command, report, result, LOOKAHEAD_REFUSED)
     }
 }
 
@@ -758,7 +780,7 @@ pub unsafe extern "C" fn lt_rendezvous_lookahead_step(
                 inputs,
             )
         })();
-        finish_lookahead(command, report, result)
+        finish_with_report(command, report, result, LOOKAHEAD_REFUSED)
     }
 }
 
@@ -834,17 +856,9 @@ unsafe fn terminal_inputs(
     spacecraft: *const lt_spacecraft,
     settings: *const lt_terminal_settings,
 ) -> Result<(CanonicalSpacecraft, TerminalSettings), lt_status> {
+    let usable = |s: &TerminalSettings| s.validate().is_ok();
     // SAFETY: the caller's contract on each pointer, passed on.
-    let (spacecraft, settings) = unsafe { (read_input(spacecraft)?, read_input(settings)?) };
-    let spacecraft = CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
-    };
-    let settings = TerminalSettings::from(settings);
-    if !spacecraft.is_valid() || settings.validate().is_err() {
-        return Err(LT_ERR_INPUT_TERMINAL);
-    }
-    Ok((spacecraft, settings))
+    unsafe { aid_inputs(spacecraft, settings, usable, LT_ERR_INPUT_TERMINAL) }
 }
 
 /// One terminal-targeting cycle of `actor` towards `target`, and its report.
@@ -867,33 +881,14 @@ fn targeted<const N: usize, const H1: usize, const H2: usize, T: TargetFeatures<
     Ok((decision.command.into(), report))
 }
 
-/// Writes a terminal-targeting cycle's outcome: the command (thrust off on error) and, when
-/// `report` is not null, its report (on error: the thrust-off command, nothing predicted).
-///
-/// # Safety
-/// `command` and `report` are null or valid for writing their structs.
-unsafe fn finish_terminal(
-    command: *mut lt_thrust_command,
-    report: *mut lt_terminal_report,
-    result: Result<(lt_thrust_command, lt_terminal_report), lt_status>,
-) -> lt_status {
-    let written = match result {
-        Ok((_, r)) => r,
-        Err(_) => lt_terminal_report {
-            network: THRUST_OFF,
-            solved: 0,
-            predicted_valid: 0,
-            network_miss: f64::NAN,
-            planned_miss: f64::NAN,
-        },
-    };
-    if !report.is_null() {
-        // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
-        unsafe { ptr::write_unaligned(report, written) };
-    }
-    // SAFETY: the caller's contract on `command`, passed on.
-    unsafe { finish(command, result.map(|(c, _)| c)) }
-}
+/// The terminal-targeting report of a refused cycle: the thrust-off command, nothing predicted.
+const TERMINAL_REFUSED: lt_terminal_report = lt_terminal_report {
+    network: THRUST_OFF,
+    solved: 0,
+    predicted_valid: 0,
+    network_miss: f64::NAN,
+    planned_miss: f64::NAN,
+};
 
 /// One transfer guidance cycle with terminal targeting (`onboard::terminal::terminal_step`):
 /// with `settings.cycles` cycles to go or fewer, the remaining commands are solved for the
@@ -930,7 +925,7 @@ pub unsafe extern "C" fn lt_transfer_terminal_step(
             };
             targeted(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
         })();
-        finish_terminal(command, report, result)
+        finish_with_report(command, report, result, TERMINAL_REFUSED)
     }
 }
 
@@ -967,7 +962,7 @@ pub unsafe extern "C" fn lt_rendezvous_terminal_step(
                 inputs,
             )
         })();
-        finish_terminal(command, report, result)
+        finish_with_report(command, report, result, TERMINAL_REFUSED)
     }
 }
 
