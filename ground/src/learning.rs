@@ -732,6 +732,15 @@ fn sil_command(
     } else {
         config.sil.dispersions
     };
+    // A blob the flight software refuses would fly every flight thrust off: refused before
+    // anything is written, unless that is what was asked for.
+    if let (Some(why), false) = (learn::sil::blob_refusal(&config, blob)?, allow_safe_mode) {
+        return Err(format!(
+            "{}: the flight software refuses the blob ({why}); every flight would run in safe mode (thrust off): --allow-safe-mode flies them so",
+            blob.display()
+        )
+        .into());
+    }
     let report = in_run_folder(&args.out, || {
         Ok(learn::sil::sil_monte_carlo(
             &config,
@@ -744,11 +753,5 @@ fn sil_command(
     })?;
     println!("{}", learn::sil::describe(&report));
     println!("written to {}", args.out.display());
-    match report.controller.strip_prefix("safe mode: ") {
-        Some(why) if !allow_safe_mode => Err(format!(
-            "the blob was refused ({why}) and every flight ran in safe mode (thrust off); --allow-safe-mode accepts that"
-        )
-        .into()),
-        _ => Ok(()),
-    }
+    Ok(())
 }

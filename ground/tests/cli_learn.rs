@@ -156,10 +156,12 @@ fn a_blob_refused_by_the_sil_is_a_failed_command_unless_safe_mode_is_allowed() {
     };
     let strict = args("strict");
     refused(&strict.iter().map(String::as_str).collect::<Vec<_>>(), "safe mode");
+    assert!(!dir.join("strict").exists(), "a refused SIL left its folder behind");
     let mut allowed = args("allowed");
     allowed.push("--allow-safe-mode".into());
     let out = ground(&allowed.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(dir.join("allowed").join("sil.json").is_file());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -215,8 +217,11 @@ fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
                 "{err}"
             );
         }
-        // The blobs and their figures stay for study either way.
-        assert!(out.join("export.json").is_file());
+        // The blobs and their figures stay for study either way; export.json says which it was.
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("export.json")).unwrap()).unwrap();
+        assert_eq!(report["passed"], ok, "{report}");
+        assert_eq!(report["failed"].as_array().unwrap().is_empty(), ok, "{report}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

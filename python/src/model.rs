@@ -14,7 +14,7 @@ use pyo3::types::{PyBytes, PyDict};
 use rayon::prelude::*;
 
 use firmware_sim::{fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup};
-use ground_core::model_files::{blob_file, verify_model_files, ACTOR_FILE, ONNX_FILE};
+use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
 use onboard::guidance::Actor;
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, ProblemKind, Quantization};
@@ -139,8 +139,7 @@ impl Policy {
 fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>> {
     let card_path = dir.join("card.json");
     let text = std::fs::read_to_string(&card_path).map_err(|e| refused(format!("{}: {e}", card_path.display())))?;
-    let card: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| refused(format!("{}: {e}", card_path.display())))?;
+    let card = read_sealed_card(&card_path, &text).map_err(refused)?;
     let bad = |what: &str| refused(format!("{}: {what}", card_path.display()));
     let scenario = card["scenario"].as_str().ok_or_else(|| bad("no scenario"))?;
     let kind = scenario_kind(scenario)?.problem();

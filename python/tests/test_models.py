@@ -44,6 +44,17 @@ def test_a_model_whose_files_disagree_with_its_card_is_refused(tmp_path):
     (copy / "actor.onnx").unlink()
     with pytest.raises(lowthrust.LowThrustError, match="actor.onnx"):
         lowthrust.open_model(copy)
+    shutil.copy(MODELS / "transfer-circular" / "actor.onnx", copy / "actor.onnx")
+    # The card binds itself: a hand edit of its config or of a figure is refused.
+    card = (copy / "card.json").read_text()
+    for edit in ("max_thrust_n = 1.33", '"completed": 10000'):
+        assert edit in card, edit
+        edited = card.replace(edit, edit.replace("1.33", "2.5").replace("10000", "10001"), 1)
+        (copy / "card.json").write_text(edited)
+        with pytest.raises(lowthrust.LowThrustError, match="changed after it was written"):
+            lowthrust.open_model(copy)
+    (copy / "card.json").write_text(card)
+    lowthrust.open_model(copy)
     (copy / "card.json").write_text("{ not a card")
     with pytest.raises(lowthrust.LowThrustError, match="card.json"):
         lowthrust.open_model(copy)

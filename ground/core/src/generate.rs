@@ -184,6 +184,22 @@ pub enum GenerateError {
         /// The run's.
         wanted: u32,
     },
+    /// Writing a solved record failed (a full disk): the run stopped solving there.
+    #[error(
+        "{path}: {source}: the run stopped at its first failed write ({unwritten} record(s) solved in flight not written); \
+         the {written} records written stay, and the same command resumes from them",
+        path = .path.display()
+    )]
+    RecordWrite {
+        /// The record that could not be written.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+        /// Records solved but not written (the failed one and those in flight beside it).
+        unwritten: usize,
+        /// Records of the run on disk (resumed or written).
+        written: usize,
+    },
     /// This record, journal or dataset file fails its magic, version, checksum or decoding.
     #[error("{path}: {1}", path = .0.display())]
     Corrupt(PathBuf, ContainerError),
@@ -926,7 +942,10 @@ pub fn generate_in(
     let bar = count_bar(indices.len(), "solved", show_progress);
     let resumed = AtomicUsize::new(0);
     let converged = AtomicUsize::new(0);
-    let results: Vec<Result<TrajectoryRecord, GenerateError>> = indices
+    let (written, unwritten) = (AtomicUsize::new(0), AtomicUsize::new(0));
+    // Collected into a Result, the parallel loop takes no new index after the first error: a
+    // failed write (a full disk) stops the run instead of solving records it cannot keep.
+    let results: Result<Vec<TrajectoryRecord>, GenerateError> = indices
         .par_iter()
         .map(|&index| {
             let path = record_path(out, index);
@@ -940,7 +959,10 @@ pub fn generate_in(
             }
             let scenario = manifest.scenario.draw(manifest.seed, index);
             let record = solve_arriving_early(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
-            write_record(&path, &record)?;
+            write_record(&path, &record).inspect_err(|_| {
+                unwritten.fetch_add(1, Ordering::Relaxed);
+            })?;
+            written.fetch_add(1, Ordering::Relaxed);
             if record.converged {
                 converged.fetch_add(1, Ordering::Relaxed);
             }
@@ -950,7 +972,15 @@ pub fn generate_in(
         })
         .collect();
     bar.finish();
-    let mut records = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let mut records = results.map_err(|e| match e {
+        GenerateError::Io(path, source) if path.starts_with(out.join("records")) => GenerateError::RecordWrite {
+            path,
+            source,
+            unwritten: unwritten.load(Ordering::Relaxed),
+            written: written.load(Ordering::Relaxed) + resumed.load(Ordering::Relaxed),
+        },
+        other => other,
+    })?;
     records.sort_by_key(|r| r.index);
     if show_progress {
         eprintln!(

@@ -16,16 +16,51 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> io::Result<()> {
     let name = path
         .file_name()
         .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "path has no file name"))?;
-    let mut tmp = PathBuf::from(dir);
-    tmp.push(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
-    {
-        let mut f = File::create(&tmp)?;
+    let tmp = dir.join(temporary_name(&name.to_string_lossy()));
+    let written = File::create(&tmp).and_then(|mut f| {
         f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    fs::rename(&tmp, path).inspect_err(|_| {
+        f.sync_all()
+    });
+    // A failed write (a full disk) or rename leaves no part behind.
+    written.and_then(|()| fs::rename(&tmp, path)).inspect_err(|_| {
         let _ = fs::remove_file(&tmp);
     })
+}
+
+/// The temporary file [`atomic_write`] writes `name` through: `.NAME.PID.tmp`.
+fn temporary_name(name: &str) -> String {
+    format!(".{name}.{}.tmp", std::process::id())
+}
+
+/// Is `name` one of [`atomic_write`]'s temporary files (of any process)?
+fn is_temporary_name(name: &str) -> bool {
+    let Some(stem) = name.strip_prefix('.').and_then(|n| n.strip_suffix(".tmp")) else {
+        return false;
+    };
+    stem.rsplit_once('.')
+        .is_some_and(|(file, pid)| !file.is_empty() && !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+}
+
+/// Removes the temporary files a process that stopped mid-write left in `dir` and its
+/// subfolders (a kill, a power cut), leaving any subfolder that is a run folder of its own (it
+/// has a lock file) to its holder. Called by the holder of `dir`, so no writer is mid-write.
+fn remove_stale_temporaries(dir: &Path) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        if kind.is_dir() {
+            if !path.join(LOCK_FILE).exists() {
+                remove_stale_temporaries(&path);
+            }
+        } else if kind.is_file() && is_temporary_name(&entry.file_name().to_string_lossy()) {
+            let _ = fs::remove_file(&path);
+        }
+    }
 }
 
 /// An output path whose parent folder is not there.
@@ -156,7 +191,8 @@ pub struct RunLock {
 
 impl RunLock {
     /// Holds `dir` (created if missing), or refuses if another holder has it. Two holds of one
-    /// folder conflict even inside one process.
+    /// folder conflict even inside one process. The new holder removes the temporary files of
+    /// writes that a stopped process left unfinished in the folder.
     pub fn acquire(dir: &Path) -> Result<Self, LockError> {
         let io_err = |source| LockError::Io {
             dir: dir.to_path_buf(),
@@ -192,6 +228,7 @@ impl RunLock {
             file.seek(io::SeekFrom::Start(0))?;
             write!(file, "pid {}", std::process::id())
         });
+        remove_stale_temporaries(dir);
         Ok(Self {
             file,
             dir: dir.to_path_buf(),
@@ -230,6 +267,44 @@ mod tests {
         assert_eq!(again.dir(), dir.join("run"));
         drop((other, again));
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_new_holder_removes_the_temporaries_a_stopped_writer_left() {
+        let dir = std::env::temp_dir().join(format!("lowthrust-stale-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let run = dir.join("run");
+        for folder in ["records", "stage/deeper", "held"] {
+            fs::create_dir_all(run.join(folder)).unwrap();
+        }
+        // What a killed writer leaves: its temporaries, beside files that only look alike.
+        let stale = [
+            ".000068.rec.4242.tmp",
+            "records/.000068.rec.4242.tmp",
+            "stage/deeper/.dataset.ltds.7.tmp",
+        ];
+        let kept = [
+            "000068.rec",
+            "notes.tmp",
+            ".hidden",
+            "records/.x.tmp",
+            "records/.a.12b.tmp",
+            "held/.000001.rec.99.tmp",
+        ];
+        for name in stale.iter().chain(&kept) {
+            fs::write(run.join(name), "x").unwrap();
+        }
+        // A subfolder with its own lock is another run folder: its holder cleans it.
+        fs::write(run.join("held").join(LOCK_FILE), "").unwrap();
+        let hold = RunLock::acquire(&run).unwrap();
+        for name in stale {
+            assert!(!run.join(name).exists(), "{name} left behind");
+        }
+        for name in kept {
+            assert!(run.join(name).exists(), "{name} removed");
+        }
+        drop(hold);
+        fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

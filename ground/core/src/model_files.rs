@@ -71,6 +71,114 @@ pub enum ModelFilesError {
     /// The actor file is refused (checksum, format, layout).
     #[error(transparent)]
     Actor(#[from] ActorFileError),
+    /// card.json is not a JSON object.
+    #[error("{}: the card does not parse: {reason}", .path.display())]
+    CardUnreadable {
+        /// The card.json file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// card.json's content is not what its writer sealed: edited by hand after it was written.
+    #[error(
+        "{}: the card was changed after it was written (its content's CRC-32C is {found}, its seal {recorded}); \
+         a card is written by `ground model ship` or `ground model export --model`, never by hand",
+        .path.display()
+    )]
+    CardEdited {
+        /// The card.json file.
+        path: PathBuf,
+        /// The CRC-32C of its content.
+        found: String,
+        /// The seal it carries.
+        recorded: String,
+    },
+}
+
+/// The key of card.json that holds the card's seal: the CRC-32C of the rest of its content.
+pub const CARD_SEAL: &str = "seal";
+
+/// The seal of a card: the CRC-32C (8 hex digits) of its content, every key but the seal, as
+/// canonical JSON (object keys sorted, no spaces). A change of any value, key or element changes
+/// it; the layout of the file (indentation, key order) does not.
+pub fn card_seal(card: &serde_json::Value) -> String {
+    fn canonical(value: &serde_json::Value, top: bool, out: &mut String) {
+        match value {
+            serde_json::Value::Object(map) => {
+                let mut keys: Vec<&String> = map.keys().filter(|k| !(top && *k == CARD_SEAL)).collect();
+                keys.sort();
+                out.push('{');
+                for (i, key) in keys.into_iter().enumerate() {
+                    if i > 0 {
+                        out.push(',');
+                    }
+                    out.push_str(&serde_json::Value::String(key.clone()).to_string());
+                    out.push(':');
+                    canonical(&map[key], false, out);
+                }
+                out.push('}');
+            }
+            serde_json::Value::Array(items) => {
+                out.push('[');
+                for (i, item) in items.iter().enumerate() {
+                    if i > 0 {
+                        out.push(',');
+                    }
+                    canonical(item, false, out);
+                }
+                out.push(']');
+            }
+            scalar => out.push_str(&scalar.to_string()),
+        }
+    }
+    let mut text = String::new();
+    canonical(card, true, &mut text);
+    format!("{:08x}", CRC.checksum(text.as_bytes()))
+}
+
+/// Reads card.json's text as its writer sealed it: refused unless it parses as an object whose
+/// seal is the CRC-32C of its content ([`card_seal`]).
+pub fn read_sealed_card(path: &Path, text: &str) -> Result<serde_json::Value, ModelFilesError> {
+    let card: serde_json::Value = serde_json::from_str(text).map_err(|e| ModelFilesError::CardUnreadable {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    if !card.is_object() {
+        return Err(ModelFilesError::CardUnreadable {
+            path: path.to_path_buf(),
+            reason: "not a JSON object".into(),
+        });
+    }
+    let recorded = card
+        .get(CARD_SEAL)
+        .and_then(|s| s.as_str())
+        .unwrap_or("none")
+        .to_string();
+    let found = card_seal(&card);
+    if found != recorded {
+        return Err(ModelFilesError::CardEdited {
+            path: path.to_path_buf(),
+            found,
+            recorded,
+        });
+    }
+    Ok(card)
+}
+
+/// The seal of the card whose JSON text (its seal empty or absent) is `unsealed`: computed on
+/// the text as a reader parses it, so the reader of the sealed file computes the same.
+pub fn seal_of_text(unsealed: &str) -> Result<String, serde_json::Error> {
+    Ok(card_seal(&serde_json::from_str(unsealed)?))
+}
+
+/// The text of a card sealed: `card` (an object) written as pretty JSON with its seal.
+pub fn sealed_card_text(card: &serde_json::Value) -> Result<String, serde_json::Error> {
+    let seal = seal_of_text(&serde_json::to_string_pretty(card)?)?;
+    let mut card = card.clone();
+    if let Some(map) = card.as_object_mut() {
+        map.insert(CARD_SEAL.into(), serde_json::Value::String(seal));
+    }
+    serde_json::to_string_pretty(&card)
 }
 
 /// The CRC-32C of a file's bytes, as a card records it (8 hex digits).
@@ -134,4 +242,63 @@ pub fn verify_model_files(
         return Err(ModelFilesError::BlobDisagrees { path: f32_path });
     }
     Ok(ModelFiles { f32_blob, int8_blob })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn card() -> serde_json::Value {
+        serde_json::json!({
+            "format": 3,
+            "config": "[env.spacecraft]\nmax_thrust_n = 1.33\n",
+            "monte_carlo": { "within": [[0.01, 0.969], [0.001, 0.044]], "dr_p50": 0.0027 },
+            "files": { "actor.safetensors": "0a1b2c3d" },
+            "notes": ["first", "second"],
+            "lookahead": null,
+            "tiny": 1.2345678901234567e-300,
+        })
+    }
+
+    #[test]
+    fn a_sealed_card_reads_back_and_any_edit_of_its_content_is_refused() {
+        let path = Path::new("card.json");
+        let text = sealed_card_text(&card()).unwrap();
+        let read = read_sealed_card(path, &text).unwrap();
+        assert_eq!(read.get(CARD_SEAL).and_then(|s| s.as_str()).map(str::len), Some(8));
+        // The layout is not content: compact, or keys in another order, the card still reads.
+        let compact = serde_json::to_string(&read).unwrap();
+        read_sealed_card(path, &compact).unwrap();
+        let edits: [(&str, &str); 7] = [
+            ("max_thrust_n = 1.33", "max_thrust_n = 2.5"),
+            ("0.969", "0.979"),
+            ("0.0027", "0.0026"),
+            ("0a1b2c3d", "0a1b2c3e"),
+            ("\"second\"", "\"second\", \"third\""),
+            ("\"lookahead\": null", "\"lookahead\": null, \"added\": 1"),
+            ("\"format\": 3", "\"format\": 4"),
+        ];
+        for (from, to) in edits {
+            assert!(text.contains(from), "{from}");
+            let edited = text.replacen(from, to, 1);
+            assert!(
+                matches!(read_sealed_card(path, &edited), Err(ModelFilesError::CardEdited { .. })),
+                "edit {from} -> {to} accepted"
+            );
+        }
+        // A card without its seal, or not a card at all.
+        let mut unsealed = read.clone();
+        unsealed.as_object_mut().unwrap().remove(CARD_SEAL);
+        let unsealed = serde_json::to_string(&unsealed).unwrap();
+        assert!(matches!(
+            read_sealed_card(path, &unsealed),
+            Err(ModelFilesError::CardEdited { .. })
+        ));
+        for bad in ["{ not json", "[1, 2]"] {
+            assert!(matches!(
+                read_sealed_card(path, bad),
+                Err(ModelFilesError::CardUnreadable { .. })
+            ));
+        }
+    }
 }

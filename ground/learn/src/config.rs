@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use shared::scenario::ScenarioKind;
+use shared::spacecraft::SpacecraftError;
 
 use crate::cloning::CloningTarget;
 use crate::sac::agent::CloningLoss;
@@ -484,10 +485,15 @@ impl ExperimentConfig {
                 onboard::terminal::MAX_ITERATIONS
             )));
         }
-        self.env
-            .spacecraft
-            .canonical()
-            .map_err(|e| ConfigError::Invalid(format!("env.spacecraft: {e:?}")))?;
+        let craft = &self.env.spacecraft;
+        craft.canonical().map_err(|e| {
+            let (key, value) = match e {
+                SpacecraftError::Thrust => ("max_thrust_n", craft.max_thrust_n),
+                SpacecraftError::SpecificImpulse => ("isp_s", craft.isp_s),
+                SpacecraftError::Mass => ("initial_mass_kg", craft.initial_mass_kg),
+            };
+            ConfigError::Invalid(format!("env.spacecraft.{key} = {value}: {e}"))
+        })?;
         let positive = |name: &str, v: u64| {
             if v == 0 {
                 Err(ConfigError::Invalid(format!("{name} must be positive")))
@@ -506,13 +512,18 @@ impl ExperimentConfig {
                 return Err(ConfigError::Invalid("compute.slurm.sbatch is empty".into()));
             }
         }
+        positive("pretrain.updates", self.pretrain.updates)?;
+        positive("train.env_steps", self.train.env_steps)?;
         positive("pretrain.eval_every", self.pretrain.eval_every)?;
         positive("train.eval_every", self.train.eval_every)?;
         positive("train.eval_episodes", self.train.eval_episodes)?;
         positive("evaluate.episodes", self.evaluate.episodes)?;
         positive("sil.episodes", self.sil.episodes)?;
         if !(self.pretrain.behaviour_cloning.is_finite() && self.pretrain.behaviour_cloning >= 0.0) {
-            return Err(ConfigError::Invalid("pretrain.behaviour_cloning must be >= 0".into()));
+            return Err(ConfigError::Invalid(format!(
+                "pretrain.behaviour_cloning must be a finite weight >= 0, got {}",
+                self.pretrain.behaviour_cloning
+            )));
         }
         if self.pretrain.cloning_target != CloningTarget::Action && self.pretrain.mode != PretrainMode::BehaviourCloning
         {
@@ -783,10 +794,27 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { iterations = 0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
+            "scenario = \"transfer-circular\"\n[pretrain]\nupdates = 0",
+            "scenario = \"transfer-circular\"\n[train]\nenv_steps = 0",
         ];
         for text in bad {
             assert!(ExperimentConfig::from_toml(text).is_err(), "accepted: {text}");
         }
+        // A refusal names the key and the value.
+        let err = ExperimentConfig::from_toml(
+            "scenario = \"transfer-circular\"\n[env.spacecraft]\nmax_thrust_n = -1.0\nisp_s = 3872.0\ninitial_mass_kg = 3366.0",
+        )
+        .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: env.spacecraft.max_thrust_n = -1: maximum thrust must be finite and > 0 N"
+        );
+        let err = ExperimentConfig::from_toml("scenario = \"transfer-circular\"\n[pretrain]\nbehaviour_cloning = nan")
+            .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "config is invalid: pretrain.behaviour_cloning must be a finite weight >= 0, got NaN"
+        );
         // The learner's own checks keep their messages.
         let err = ExperimentConfig::from_toml("scenario = \"transfer-circular\"\n[sac]\ndiscount = 1.5").unwrap_err();
         assert_eq!(

@@ -105,6 +105,11 @@ pub struct ExportReport {
     pub int8_reward_difference: f64,
     /// The actor's deterministic action as an ONNX model (`actor.onnx`, the f32 blob's weights).
     pub onnx: PathBuf,
+    /// Both blobs meet the export's accuracy criteria: a script reading export.json alone tells
+    /// a failed export (its blobs kept for study) from a good one.
+    pub passed: bool,
+    /// The criteria not met, in words with their figures ([`ExportReport::failed_criteria`]).
+    pub failed: Vec<String>,
 }
 
 /// The f32 blob flies the trained actor: its largest action error on the held-out states.
@@ -250,7 +255,7 @@ where
         .map_err(|e| ExperimentError::Mismatch(format!("ONNX export: {e}")))?;
     atomic_write(&onnx, &onnx_bytes).map_err(|e| ExperimentError::Io(onnx.clone(), e))?;
     let (rf, ri) = (f32.closed_loop.total_reward.mean, int8.closed_loop.total_reward.mean);
-    let report = ExportReport {
+    let mut report = ExportReport {
         onnx,
         checkpoint: checkpoint.to_path_buf(),
         problem: config.scenario.name().to_string(),
@@ -261,7 +266,11 @@ where
         int8_reward_difference: (ri - rf).abs() / rf.abs().max(f64::MIN_POSITIVE),
         f32,
         int8,
+        passed: false,
+        failed: Vec::new(),
     };
+    report.failed = report.failed_criteria();
+    report.passed = report.failed.is_empty();
     let path = out.join("export.json");
     atomic_write(&path, &serde_json::to_vec_pretty(&report).unwrap_or_default())
         .map_err(|e| ExperimentError::Io(path, e))?;

@@ -43,8 +43,10 @@ pub use ground_core::model_files::{ACTOR_FILE, ONNX_FILE};
 pub const CARD_JSON: &str = "card.json";
 /// The card for people.
 pub const CARD_MD: &str = "card.md";
-/// Version of the card's layout.
-pub const CARD_FORMAT: u32 = 2;
+/// Version of the card's layout: 3 is sealed (`seal`, the CRC-32C of the rest of its content).
+pub const CARD_FORMAT: u32 = 3;
+/// The last layout without a seal, which the commands that write a card again accept.
+const UNSEALED_CARD_FORMAT: u32 = 2;
 
 /// Why a model folder was refused.
 #[derive(Debug, thiserror::Error)]
@@ -71,8 +73,19 @@ pub enum ModelError {
         /// The card.md file.
         path: PathBuf,
     },
+    /// card.json's content is not what its writer sealed: edited by hand after it was written.
+    #[error(transparent)]
+    CardEdited(ModelFilesError),
     /// The card is of another layout than [`CARD_FORMAT`].
-    #[error("{}: card format {found}, this version reads {CARD_FORMAT}", .path.display())]
+    #[error(
+        "{}: card format {found}, this version reads {CARD_FORMAT}{}",
+        .path.display(),
+        if *.found == UNSEALED_CARD_FORMAT {
+            " (format 2 is not sealed: `ground model export --model DIR --onnx-only --out RUN` checks the folder's files and seals its card)"
+        } else {
+            ""
+        }
+    )]
     Format {
         /// The card.json file.
         path: PathBuf,
@@ -199,6 +212,10 @@ pub struct ModelCard {
     /// The terminal targeting the SIL rows flew their last cycles with (`[sil] terminal`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub terminal: Option<TerminalSettings>,
+    /// The CRC-32C of the rest of the card's content (`ground_core::model_files::card_seal`),
+    /// set when it is written: a card edited by hand is refused.
+    #[serde(default)]
+    pub seal: String,
 }
 
 /// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
@@ -245,6 +262,8 @@ impl From<ModelFilesError> for ModelError {
             },
             ModelFilesError::BlobDisagrees { path } => Self::BlobDisagrees { path },
             ModelFilesError::Actor(e) => Self::Experiment(Box::new(ExperimentError::Mismatch(e.to_string()))),
+            ModelFilesError::CardUnreadable { path, reason } => Self::Card { path, reason },
+            edited @ ModelFilesError::CardEdited { .. } => Self::CardEdited(edited),
         }
     }
 }
@@ -270,12 +289,12 @@ fn write_onnx(dir: &Path, kind: ProblemKind) -> Result<String, ModelError> {
 /// writes card.md again from card.json (after a change of the card's layout for people). The
 /// folder's files must match its card first.
 pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
-    let (mut card, config) = read_card(dir)?;
+    let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
     let kind = config.scenario.problem();
     verify_model_files(dir, kind, &card.files)?;
     let crc = write_onnx(dir, kind)?;
     card.files.insert(ONNX_FILE.to_string(), crc);
-    write_cards(dir, &card)?;
+    write_cards(dir, &mut card)?;
     Ok(card)
 }
 
@@ -359,7 +378,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         files.insert(name, crc_of(&target)?);
     }
     let mc = sources.monte_carlo;
-    let card = ModelCard {
+    let mut card = ModelCard {
         format: CARD_FORMAT,
         scenario: config.scenario.name().to_string(),
         command: portable_command(),
@@ -384,8 +403,9 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         by_eccentricity: mc.accuracy_by_eccentricity.clone(),
         lookahead: sources.lookahead.and_then(LookaheadFigures::of),
         terminal: config.terminal_settings(),
+        seal: String::new(),
     };
-    write_cards(dir, &card)?;
+    write_cards(dir, &mut card)?;
     Ok(card)
 }
 
@@ -404,12 +424,18 @@ fn sil_figures(sil: &[SilReport]) -> Vec<(String, FlightFigures)> {
 }
 
 /// Writes card.json and card.md, then opens the folder with every reader's checks.
-fn write_cards(dir: &Path, card: &ModelCard) -> Result<(), ModelError> {
-    let json = serde_json::to_vec_pretty(card).map_err(|e| ModelError::Card {
+fn write_cards(dir: &Path, card: &mut ModelCard) -> Result<(), ModelError> {
+    let unwritable = |e: serde_json::Error| ModelError::Card {
         path: dir.join(CARD_JSON),
         reason: e.to_string(),
-    })?;
-    atomic_write(&dir.join(CARD_JSON), &json).map_err(io(&dir.join(CARD_JSON)))?;
+    };
+    card.format = CARD_FORMAT;
+    card.seal = String::new();
+    card.seal = serde_json::to_string_pretty(&*card)
+        .and_then(|unsealed| ground_core::model_files::seal_of_text(&unsealed))
+        .map_err(unwritable)?;
+    let json = serde_json::to_string_pretty(&*card).map_err(unwritable)?;
+    atomic_write(&dir.join(CARD_JSON), json.as_bytes()).map_err(io(&dir.join(CARD_JSON)))?;
     atomic_write(&dir.join(CARD_MD), card_markdown(card).as_bytes()).map_err(io(&dir.join(CARD_MD)))?;
     open_model(dir)?;
     Ok(())
@@ -431,7 +457,7 @@ pub struct Reexport {
 /// file checksums. The export and SIL Monte Carlos are written under `run`. The folder's files
 /// other than the blobs must still match the card; its blobs may be of an older format.
 pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
-    let (mut card, config) = read_card(dir)?;
+    let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
     let actor = dir.join(ACTOR_FILE);
     let recorded = card.files.get(ACTOR_FILE).cloned().unwrap_or_default();
     let found = crc_of(&actor)?;
@@ -471,7 +497,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
     card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
     card.reexported = Some((portable_command(), current_commit(), utc_date()));
-    write_cards(dir, &card)?;
+    write_cards(dir, &mut card)?;
     Ok(Reexport { card, export, sil })
 }
 
@@ -555,7 +581,7 @@ impl ShippedModel {
 /// every file it lists is there with its CRC-32C, both blobs are listed, and the f32 blob holds
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
-    let (card, config) = read_card(dir)?;
+    let (card, config) = read_card(dir, Unsealed::Refused)?;
     verify_model_files(dir, config.scenario.problem(), &card.files)?;
     // card.md is what people read: it must say what card.json, the bound record, says.
     let md = dir.join(CARD_MD);
@@ -570,20 +596,36 @@ pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     })
 }
 
-/// The card of the model folder `dir` and its config, parsed and of this format.
-fn read_card(dir: &Path) -> Result<(ModelCard, ExperimentConfig), ModelError> {
+/// Whether a card of the last unsealed layout is read (by the commands that check the folder's
+/// files and write the card again, sealed).
+#[derive(Clone, Copy, PartialEq)]
+enum Unsealed {
+    Accepted,
+    Refused,
+}
+
+/// The card of the model folder `dir` and its config: of this format and sealed (or, where
+/// `unsealed` accepts it, of the last unsealed format), parsed, its config valid.
+fn read_card(dir: &Path, unsealed: Unsealed) -> Result<(ModelCard, ExperimentConfig), ModelError> {
     let card_path = dir.join(CARD_JSON);
-    let bytes = std::fs::read(&card_path).map_err(io(&card_path))?;
-    let card: ModelCard = serde_json::from_slice(&bytes).map_err(|e| ModelError::Card {
+    let text = std::fs::read_to_string(&card_path).map_err(io(&card_path))?;
+    let unreadable = |reason: String| ModelError::Card {
         path: card_path.clone(),
-        reason: e.to_string(),
-    })?;
-    if card.format != CARD_FORMAT {
-        return Err(ModelError::Format {
-            path: card_path,
-            found: card.format,
-        });
-    }
+        reason,
+    };
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| unreadable(e.to_string()))?;
+    let format = value.get("format").and_then(serde_json::Value::as_u64).unwrap_or(0);
+    let value = match format {
+        f if f == u64::from(CARD_FORMAT) => ground_core::model_files::read_sealed_card(&card_path, &text)?,
+        f if f == u64::from(UNSEALED_CARD_FORMAT) && unsealed == Unsealed::Accepted => value,
+        _ => {
+            return Err(ModelError::Format {
+                path: card_path,
+                found: u32::try_from(format).unwrap_or(u32::MAX),
+            })
+        }
+    };
+    let card: ModelCard = serde_json::from_value(value).map_err(|e| unreadable(e.to_string()))?;
     let config = ExperimentConfig::from_toml(&card.config).map_err(|e| ModelError::Card {
         path: dir.join(CARD_JSON),
         reason: format!("its config: {e}"),
@@ -737,7 +779,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
     let _ = writeln!(s, "# Model card: {}\n", card.scenario);
     let _ = writeln!(
         s,
-        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32C in [card.json](card.json); `ground model evaluate --model` and `ground model sil --model` refuse a folder whose files disagree.\n",
+        "Produced on {} by `{}` at commit `{}`. The files are bound by their CRC-32C in [card.json](card.json), which is sealed by the CRC-32C of its own content; `ground model evaluate --model` and `ground model sil --model` refuse a folder whose files disagree or whose card was edited.\n",
         card.created, card.command, card.commit
     );
     if let Some((command, commit, date)) = &card.reexported {

@@ -418,6 +418,18 @@ pub fn lookahead_monte_carlo(
     .map(Some)
 }
 
+/// Why the flight software would refuse the blob at `blob_path` for the config's problem
+/// (None: it loads and flies). A refused blob flies its flights in safe mode, thrust off.
+pub fn blob_refusal(config: &ExperimentConfig, blob_path: &Path) -> Result<Option<String>, ExperimentError> {
+    let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
+    Ok(with_flight_problem!(config.scenario.problem(), N, P => {
+        match Controller::<N>::load::<P>(&blob) {
+            Controller::Network(_) => None,
+            Controller::SafeMode(e) => Some(e.to_string()),
+        }
+    }))
+}
+
 /// "f32", "int8", or "safe mode: <why the blob was refused>".
 fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String {
     match controller {

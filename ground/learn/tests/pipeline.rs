@@ -286,11 +286,46 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let mut card = model.card.clone();
     let crc = card_checksum(&std::fs::read(swapped.join("actor.safetensors")).unwrap());
     card.files.insert("actor.safetensors".into(), crc);
-    std::fs::write(swapped.join("card.json"), serde_json::to_vec(&card).unwrap()).unwrap();
+    let sealed = |card: &learn::model::ModelCard| {
+        ground_core::model_files::sealed_card_text(&serde_json::to_value(card).unwrap()).unwrap()
+    };
+    std::fs::write(swapped.join("card.json"), sealed(&card)).unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),
         Err(learn::model::ModelError::BlobDisagrees { .. })
     ));
+    // A card.json edited by hand: its config (the thrust it flies with) or a figure.
+    let hand_edited = copy("model-hand-edited");
+    let card_text = std::fs::read_to_string(hand_edited.join("card.json")).unwrap();
+    let thrust = format!("max_thrust_n = {}", config.env.spacecraft.max_thrust_n);
+    let completed = format!("\"completed\": {}", model.card.monte_carlo.completed);
+    for (from, to) in [
+        (thrust.clone(), "max_thrust_n = 2.5".to_string()),
+        (completed.clone(), "\"completed\": 1".to_string()),
+    ] {
+        assert!(card_text.contains(&from), "{from}");
+        std::fs::write(hand_edited.join("card.json"), card_text.replacen(&from, &to, 1)).unwrap();
+        match learn::model::open_model(&hand_edited) {
+            Err(e @ learn::model::ModelError::CardEdited(_)) => {
+                assert!(e.to_string().contains("changed after it was written"), "{e}")
+            }
+            other => panic!("{from} -> {to}: {other:?}"),
+        }
+    }
+    // A card of the unsealed layout is refused by readers, and sealed by the rewriting command.
+    let old = learn::model::ModelCard {
+        format: 2,
+        ..model.card.clone()
+    };
+    std::fs::write(hand_edited.join("card.json"), serde_json::to_vec_pretty(&old).unwrap()).unwrap();
+    match learn::model::open_model(&hand_edited) {
+        Err(e @ learn::model::ModelError::Format { found: 2, .. }) => {
+            assert!(e.to_string().contains("--onnx-only"), "{e}")
+        }
+        other => panic!("an unsealed card: {other:?}"),
+    }
+    learn::model::add_onnx(&hand_edited).unwrap();
+    assert_eq!(learn::model::open_model(&hand_edited).unwrap().card, model.card);
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),

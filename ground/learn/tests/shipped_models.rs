@@ -114,3 +114,22 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
         }
     }
 }
+
+/// The checkpoint writer is a file format: every shipped actor, loaded and written again, is the
+/// same bytes (tensor order, metadata and checksum included).
+#[test]
+fn every_shipped_actor_written_again_is_the_same_file() {
+    let out = std::env::temp_dir().join(format!("lowthrust-actor-rewrite-{}", std::process::id()));
+    for dir in shipped_models() {
+        let model = open_model(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+        let agent = learn::model::load_actor(&model.config, &model.actor()).unwrap();
+        let again = out.join(dir.file_name().unwrap()).join("actor.safetensors");
+        agent.save_flown_actor(&again).unwrap();
+        assert!(
+            std::fs::read(&again).unwrap() == std::fs::read(model.actor()).unwrap(),
+            "{}: written again differs",
+            dir.display()
+        );
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+}

@@ -92,32 +92,43 @@ pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, Ch
 /// Writes CPU tensors as safetensors with their checksum in the metadata, atomically (PyTorch
 /// opens the file with `safetensors.torch.load_file` as any other).
 pub fn write_checked_safetensors(tensors: &[(String, Tensor)], path: &Path) -> Result<(), CheckpointError> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(CheckpointError::Io)?;
+    use safetensors::tensor::{Dtype, TensorView};
+    // The file is built in memory and written once, atomically: a failed write (a full disk)
+    // is an I/O error naming the file, and leaves neither a part nor a temporary behind.
+    let mut raw = Vec::with_capacity(tensors.len());
+    for (name, tensor) in tensors {
+        let cpu = tensor.to_device(Device::Cpu).contiguous();
+        let dtype = match cpu.kind() {
+            Kind::Float => Dtype::F32,
+            Kind::Int64 => Dtype::I64,
+            other => {
+                return Err(CheckpointError::Format(format!(
+                    "tensor {name} is {other:?}: f32 and i64 only"
+                )))
+            }
+        };
+        let mut bytes = vec![0u8; cpu.numel() * cpu.kind().elt_size_in_bytes()];
+        cpu.f_copy_data_u8(&mut bytes, cpu.numel())
+            .map_err(|e| CheckpointError::Format(format!("tensor {name}: {e}")))?;
+        let shape: Vec<usize> = cpu.size().iter().map(|&d| d as usize).collect();
+        raw.push((name.as_str(), dtype, shape, bytes));
     }
-    let tmp = path.with_extension("safetensors.tmp");
-    let cpu: Vec<(String, Tensor)> = tensors
+    let views = raw
         .iter()
-        .map(|(n, t)| (n.clone(), t.to_device(Device::Cpu)))
-        .collect();
-    // tch writes the tensors; the checksum is then computed over what it wrote, and the file
-    // written again with it.
-    Tensor::write_safetensors(&cpu, &tmp).map_err(|e| CheckpointError::Format(e.to_string()))?;
-    let plain = std::fs::read(&tmp).map_err(CheckpointError::Io)?;
+        .map(|(name, dtype, shape, bytes)| {
+            TensorView::new(*dtype, shape.clone(), bytes)
+                .map(|view| (*name, view))
+                .map_err(|e| CheckpointError::Format(format!("tensor {name}: {e:?}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let plain = safetensors::serialize(views, &None).map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
     let parsed =
         safetensors::SafeTensors::deserialize(&plain).map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
     let metadata = HashMap::from([(CHECKSUM_KEY.to_string(), format!("{:08x}", tensors_checksum(&parsed)))]);
     let checked = safetensors::serialize(parsed.tensors(), &Some(metadata))
         .map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
-    let written = std::fs::File::create(&tmp).and_then(|mut f| {
-        use std::io::Write;
-        f.write_all(&checked)?;
-        f.sync_all()
-    });
-    written.and_then(|()| std::fs::rename(&tmp, path)).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        CheckpointError::Io(e)
-    })
+    ground_core::io::atomic_write(path, &checked)
+        .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))
 }
 
 /// Streams of the torch generator, one per use, so each draw is a function of the seed and a
@@ -1435,6 +1446,21 @@ mod tests {
             other.load(&dir.join("absent.safetensors")),
             Err(CheckpointError::Io(_))
         ));
+        // A write that fails (here: the folder is a file) is an I/O error naming the file, not
+        // a format error, and leaves nothing behind.
+        let not_a_folder = dir.join("file");
+        std::fs::write(&not_a_folder, b"x").unwrap();
+        let target = not_a_folder.join("checkpoint.safetensors");
+        match sac.save(&target) {
+            Err(CheckpointError::Io(e)) => assert!(e.to_string().contains(&*target.to_string_lossy()), "{e}"),
+            other => panic!("a failed write reported as {other:?}"),
+        }
+        let mut names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["agent.safetensors", "broken.safetensors", "file"]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
