@@ -190,6 +190,17 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
     actor: &A,
     flight: &TraceFlight,
 ) -> Result<Result<FlightSummary, SilError>, fmt::Error> {
+    fly_observing(w, problem, actor, flight, |_| {})
+}
+
+/// [`fly`], each step also handed to `also` (after its line is written).
+pub fn fly_observing<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
+    w: &mut W,
+    problem: P,
+    actor: &A,
+    flight: &TraceFlight,
+    mut also: impl FnMut(&FlightStep<N>),
+) -> Result<Result<FlightSummary, SilError>, fmt::Error> {
     writeln!(
         w,
         "flight {} seed {} steps {}",
@@ -204,6 +215,7 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
         if written.is_ok() {
             written = write_step(w, step);
         }
+        also(step);
     });
     written?;
     write_end(w, &result)?;

@@ -196,7 +196,7 @@ impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
 
 /// Guidance cycles left in `time_to_go`: whole 14-day cycles, the last one possibly partial (a
 /// sliver below 1e-9 of a cycle is rounding). How the onboard aids count their horizon.
-pub(crate) fn cycles_left(time_to_go: f64) -> f64 {
+pub fn cycles_left(time_to_go: f64) -> f64 {
     libm::ceil(time_to_go / STEP - 1e-9)
 }
 

@@ -18,7 +18,8 @@
 //! The network's command is flown instead whenever the solved plan does not predict a smaller
 //! miss than the network's own continuation, or any rollout fails.
 //!
-//! The work per cycle is at most `iterations x (2 k + 2)` rollouts of `k` cycles; no
+//! The work per cycle is at most `2 + iterations x (2 k + 4)` rollouts of `k` cycles
+//! ([`TerminalDecision::rollouts`] counts them); no
 //! allocation, no panic.
 
 use shared::spacecraft::CanonicalSpacecraft;
@@ -37,7 +38,8 @@ pub const MAX_ITERATIONS: u32 = 64;
 /// Components of the miss vector (position then velocity; a transfer's last one is 0).
 pub const MISS_LEN: usize = 4;
 
-/// What terminal targeting does; `Default` targets the last 3 cycles with up to 8 iterations.
+/// What terminal targeting does; `Default` targets the last 3 cycles with up to 5 iterations:
+/// at most 52 rollouts of 3 cycles, within 100 million Cortex-M4F instructions a cycle.
 /// The ground's configs read it (feature `serde`: `cycles` and `iterations` by name, each
 /// defaulted; the goals are the evaluation's, the tolerances the environment's).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,7 +68,7 @@ impl Default for TerminalSettings {
     fn default() -> Self {
         Self {
             cycles: 3,
-            iterations: 8,
+            iterations: 5,
             goal_position: 0.01,
             goal_velocity: 0.01,
             tolerances: Tolerances::default(),
@@ -109,6 +111,9 @@ pub struct TerminalDecision {
     pub network_miss: Option<f64>,
     /// Predicted miss of the plan flown, when a plan was solved.
     pub planned_miss: Option<f64>,
+    /// Rollouts of the remaining cycles propagated this cycle (the network's continuation
+    /// included): the cycle's work, at most `2 + iterations x (2 k + 4)` for `k` cycles to go.
+    pub rollouts: u32,
 }
 
 /// A plan: the thrust vector of each remaining cycle (radial, transverse), `|tau| <= 1`.
@@ -142,6 +147,8 @@ struct Problem<'a, T> {
     navigation: &'a SpacecraftState,
     time_to_go: f64,
     cycles: usize,
+    /// Rollouts flown so far.
+    rollouts: core::cell::Cell<u32>,
 }
 
 impl<T> Problem<'_, T> {
@@ -151,6 +158,7 @@ impl<T> Problem<'_, T> {
     where
         T: TargetFeatures<N>,
     {
+        self.rollouts.set(self.rollouts.get().saturating_add(1));
         let mut state = *self.navigation;
         for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
             let start = cycle as f64 * STEP;
@@ -336,6 +344,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         solved: false,
         network_miss: None,
         planned_miss: None,
+        rollouts: 0,
     };
     let cycles = cycles_left(time_to_go);
     if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.cycles)) {
@@ -345,6 +354,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     // The network's continuation, flown nominally: the plan's start.
     let mut plan: Plan = [[0.0; 2]; MAX_CYCLES];
     let mut state = *navigation;
+    decision.rollouts = 1;
     for (cycle, tau) in plan.iter_mut().take(cycles).enumerate() {
         let start = cycle as f64 * STEP;
         let command = if cycle == 0 {
@@ -374,12 +384,16 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         navigation,
         time_to_go,
         cycles,
+        rollouts: core::cell::Cell::new(decision.rollouts),
     };
-    let Some(e0) = problem.miss(&plan) else {
+    let e0 = problem.miss(&plan);
+    decision.rollouts = problem.rollouts.get();
+    let Some(e0) = e0 else {
         return Ok(decision);
     };
     decision.network_miss = Some(norm(&e0));
     let (solved, e) = solve(&problem, plan, e0);
+    decision.rollouts = problem.rollouts.get();
     if norm(&e) < norm(&e0) {
         decision.command = command_of(&solved[0]);
         decision.solved = true;
@@ -584,5 +598,18 @@ mod tests {
             "{late:?}"
         );
         assert!(late.command.validate().is_ok());
+        // The cycle's work is counted and within the settings' bound; outside the last cycles
+        // there is none.
+        assert_eq!(early.rollouts, 0);
+        for iterations in [1, 2, 5, 8] {
+            let settings = TerminalSettings { iterations, ..settings };
+            for k in 1..=3u32 {
+                let d = decide(f64::from(k) * STEP, &settings);
+                assert!(
+                    d.rollouts >= 2 && d.rollouts <= 2 + iterations * (2 * k + 4),
+                    "{k} cycles, {iterations} iterations: {d:?}"
+                );
+            }
+        }
     }
 }

@@ -2,14 +2,18 @@
 //! `COUNT` Monte Carlo scenarios (seed 2000003), alone and with `onboard::terminal` over its last
 //! `CYCLES` cycles, nominal or with the typical dispersions; prints the share within 0.01,
 //! 0.005, 0.001 and 0.0001 AU (and of the velocity unit), the median residuals and the mean
-//! final mass of each.
+//! final mass of each, and the rollouts terminal targeting propagated per cycle by cycles to go
+//! (its work: multiply by the Cortex-M4F's instructions per rollout cycle).
 //!
-//! `cargo run --release -p lowthrust-tests --example terminal_accuracy -- MODEL KIND COUNT CYCLES [dispersed]`
+//! `cargo run --release -p lowthrust-tests --example terminal_accuracy -- MODEL KIND COUNT CYCLES [ITERATIONS] [dispersed]`
 //! e.g. `-- models/transfer-circular transfer-circular 1000 3`.
 
+use std::sync::Mutex;
+
 use firmware_sim::{fly, with_flight_problem, Controller, Dispersions, FlightSetup, Problem};
-use onboard::guidance::Guide;
-use onboard::terminal::{Terminal, TerminalSettings};
+use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::guidance::{cycles_left, Actor, GuidanceError, Guide, TargetFeatures};
+use onboard::terminal::{terminal_step, Terminal, TerminalSettings};
 use shared::blob::AlignedBlob;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
@@ -17,12 +21,16 @@ use shared::spacecraft::Spacecraft;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [model, kind, count, cycles, rest @ ..] = args.as_slice() else {
-        return Err("usage: MODEL KIND COUNT CYCLES [dispersed]".into());
+        return Err("usage: MODEL KIND COUNT CYCLES [ITERATIONS] [dispersed]".into());
     };
     let kind: ScenarioKind = kind.parse().map_err(|_| "unknown scenario")?;
     let count: u64 = count.parse()?;
     let cycles: u32 = cycles.parse()?;
-    let dispersed = rest.first().is_some_and(|a| a == "dispersed");
+    let dispersed = rest.iter().any(|a| a == "dispersed");
+    let iterations = match rest.iter().find(|a| *a != "dispersed") {
+        Some(n) => n.parse()?,
+        None => TerminalSettings::default().iterations,
+    };
     let problem = match kind.problem() {
         shared::blob::ProblemKind::Transfer => "transfer",
         shared::blob::ProblemKind::Rendezvous => "rendezvous",
@@ -37,13 +45,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     });
     let settings = TerminalSettings {
         cycles,
+        iterations,
         ..TerminalSettings::default()
     };
     with_flight_problem!(kind.problem(), N, P => {
         let controller = Controller::<N>::load::<P>(blob.bytes());
         let terminal = Terminal { actor: &controller, spacecraft, settings, lookahead: None };
         report("network alone", kind, count, &setup, &controller, P::default());
-        report(&format!("terminal targeting, last {cycles} cycles"), kind, count, &setup, &terminal, P::default());
+        let counted = Counted { terminal, rollouts: Mutex::new(Vec::new()) };
+        report(
+            &format!("terminal targeting, last {cycles} cycles, {iterations} iterations"),
+            kind,
+            count,
+            &setup,
+            &counted,
+            P::default(),
+        );
+        counted.print();
     });
     Ok(())
 }
@@ -95,4 +113,55 @@ fn report<const N: usize, P: Problem<N> + Send + Sync, G: Guide<N, P::Target> + 
         ends.iter().map(|e| e.2).sum::<f64>() / n,
         start.elapsed().as_secs_f64()
     );
+}
+
+/// Terminal targeting that keeps each terminal cycle's (cycles to go, rollouts).
+struct Counted<A> {
+    terminal: Terminal<A>,
+    rollouts: Mutex<Vec<(u32, u32)>>,
+}
+
+impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Counted<A> {
+    fn command(
+        &self,
+        navigation: &SpacecraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        let Terminal {
+            actor,
+            spacecraft,
+            settings,
+            ..
+        } = &self.terminal;
+        let decision = terminal_step(actor, navigation, target, time_to_go, spacecraft, settings)?;
+        if decision.rollouts > 0 {
+            if let Ok(mut kept) = self.rollouts.lock() {
+                kept.push((cycles_left(time_to_go) as u32, decision.rollouts));
+            }
+        }
+        Ok(decision.command)
+    }
+}
+
+impl<A> Counted<A> {
+    fn print(&self) {
+        let Ok(kept) = self.rollouts.lock() else {
+            return;
+        };
+        for k in 1..=self.terminal.settings.cycles {
+            let mut n: Vec<u32> = kept.iter().filter(|(c, _)| *c == k).map(|(_, r)| *r).collect();
+            n.sort_unstable();
+            if let (Some(max), false) = (n.last(), n.is_empty()) {
+                let at = |q: f64| n[((n.len() - 1) as f64 * q) as usize];
+                println!(
+                    "  {k} cycle(s) to go: {} cycles, rollouts of {k} cycle(s) p50 {} p99 {} max {max} (bound {})",
+                    n.len(),
+                    at(0.5),
+                    at(0.99),
+                    2 + self.terminal.settings.iterations * (2 * k + 4)
+                );
+            }
+        }
+    }
 }

@@ -66,6 +66,11 @@ const REPEATS: u32 = 64;
 /// Cycles left in the measured lookahead cycle: 26 rollouts of 4 cycles (one measurement stays
 /// well inside the SysTick's 2^24 ticks).
 const LOOKAHEAD_CYCLES: u32 = 4;
+/// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
+const TERMINAL_CYCLES: u32 = 3;
+
+/// The first trace flight's navigation state with 1 ..= [`TERMINAL_CYCLES`] cycles to go.
+type TerminalStates = [Option<onboard::dynamics::SpacecraftState>; TERMINAL_CYCLES as usize];
 
 #[entry]
 fn main() -> ! {
@@ -85,10 +90,10 @@ fn run(out: &mut semi::Out) -> core::fmt::Result {
     let blob: &'static [u8] = &BLOB.0;
     let controller = FlownController::load::<Flown>(blob);
     let counted = Counted::new(&controller, &counter);
-    fly(out, blob, &controller, &counted)?;
+    let terminal_states = fly(out, blob, &controller, &counted)?;
     // The flights' stack peak, before the measurements add their own frames.
     let flight_stack = stack::high_water();
-    measure(out, &counter, &controller, &counted)?;
+    measure(out, &counter, &controller, &counted, &terminal_states)?;
     writeln!(
         out,
         "{COMMENT} stack: {} bytes reserved, high-water mark {flight_stack} bytes in flight, {} bytes with the \
@@ -105,13 +110,22 @@ fn fly(
     blob: &[u8],
     controller: &FlownController<'_>,
     counted: &Counted<'_, FlownController<'_>, FEATURES>,
-) -> core::fmt::Result {
+) -> Result<TerminalStates, core::fmt::Error> {
     trace::write_header(out, blob, controller)?;
-    for flight in trace::flights_of(Flown) {
+    let mut terminal_states = [None; TERMINAL_CYCLES as usize];
+    for (i, flight) in trace::flights_of(Flown).iter().enumerate() {
+        let steps = flight.scenario.steps;
         // The flight's outcome is in its `end` line.
-        let _flown = trace::fly(out, Flown, counted, flight)?;
+        let _flown = trace::fly_observing(out, Flown, counted, flight, |step| {
+            // Where the first flight's navigation stands with 1 ..= TERMINAL_CYCLES to go.
+            let to_go = steps.saturating_sub(step.index);
+            let slot = to_go.checked_sub(1).and_then(|k| terminal_states.get_mut(k as usize));
+            if let (0, Some(slot)) = (i, slot) {
+                *slot = Some(step.navigation);
+            }
+        })?;
     }
-    Ok(())
+    Ok(terminal_states)
 }
 
 /// The measurements, as comment lines (not compared with the host).
@@ -121,6 +135,7 @@ fn measure(
     counter: &Counter,
     controller: &FlownController<'_>,
     counted: &Counted<'_, FlownController<'_>, FEATURES>,
+    terminal_states: &TerminalStates,
 ) -> core::fmt::Result {
     let (empty, looped) = counter::calibrate(counter, CALIBRATION_LOOP);
     writeln!(
@@ -158,6 +173,7 @@ fn measure(
         (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
     )?;
     lookahead(out, counter, controller)?;
+    terminal(out, counter, controller, terminal_states)?;
     // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
     #[cfg(feature = "profile")]
     if let Controller::Network(policy) = controller {
@@ -199,6 +215,51 @@ fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownControlle
         total / rollout_cycles,
         decision.map_or(-1, |d| d.chosen as i64)
     )
+}
+
+/// Terminal targeting (`onboard::terminal`, default settings) over the last
+/// [`TERMINAL_CYCLES`] cycles of the first trace flight, from where its navigation stood: each
+/// cycle's instructions, the rollouts it propagated and so the instructions per rollout cycle,
+/// and the settings' bound (their most rollouts at that cost).
+#[inline(never)]
+fn terminal(
+    out: &mut semi::Out,
+    counter: &Counter,
+    controller: &FlownController<'_>,
+    states: &TerminalStates,
+) -> core::fmt::Result {
+    use firmware_sim::Problem;
+    use onboard::terminal::{terminal_step, TerminalSettings};
+
+    let Some(flight) = trace::flights_of(Flown).first() else {
+        return Ok(());
+    };
+    let (Ok(target), Ok(spacecraft)) = (
+        <Flown as Problem<FEATURES>>::target(&flight.scenario, 0),
+        shared::spacecraft::Spacecraft::MSR_ERO.canonical(),
+    ) else {
+        return writeln!(out, "{COMMENT} terminal targeting: no target or spacecraft");
+    };
+    let settings = TerminalSettings::default();
+    for (to_go, state) in (1..TERMINAL_CYCLES + 1).zip(states.iter()).rev() {
+        let Some(state) = state else {
+            continue;
+        };
+        let time_to_go = f64::from(to_go) * shared::units::STEP;
+        let start = counter.now();
+        let decision = terminal_step(controller, state, &target, time_to_go, &spacecraft, &settings);
+        let total = u64::from(Counter::ticks(start, counter.now())) * u64::from(INSTRUCTIONS_PER_TICK);
+        let rollouts = decision.map_or(0, |d| d.rollouts);
+        let per_cycle = total / u64::from(rollouts.max(1) * to_go);
+        let bound = 2 + settings.iterations * (2 * to_go + 4);
+        writeln!(
+            out,
+            "{COMMENT} instructions per terminal-targeting cycle, {to_go} cycle(s) to go: {total} ({rollouts} \
+             rollouts, {per_cycle} per rollout cycle; the settings' most, {bound} rollouts: {})",
+            u64::from(bound * to_go) * per_cycle
+        )?;
+    }
+    Ok(())
 }
 
 /// Sorts the (at most [`MAX_SAMPLES`]) tick counts for their median: a few lines instead of
