@@ -121,6 +121,12 @@ pub enum ModelCommand {
         /// it in the card; the blobs, actor and figures stay as they are (--out is not written).
         #[arg(long, requires = "model")]
         onnx_only: bool,
+        /// With --model: fly the folder's blobs, unchanged, in the SIL loop with terminal
+        /// targeting over their last K cycles (0: without) and record it in the card (its
+        /// config's [sil] terminal, its SIL rows, a note); the actor, blobs and Monte Carlo stay
+        /// as they are; --out holds the SIL runs.
+        #[arg(long, value_name = "K", requires = "model", conflicts_with = "onnx_only")]
+        terminal_cycles: Option<u32>,
     },
     /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported
     /// and flown in the SIL loop (OUT/export, OUT/sil-*), and the model folder OUT/model
@@ -275,7 +281,24 @@ fn run_model(command: ModelCommand) -> CommandResult {
             checkpoint,
             model,
             onnx_only,
+            terminal_cycles,
         } => match (checkpoint, model) {
+            (_, Some(model)) if terminal_cycles.is_some() => {
+                let cycles = terminal_cycles.unwrap_or_default();
+                let (card, sil) = in_run_folder(&experiment.out, || {
+                    Ok(learn::model::fly_terminal(&model, &experiment.out, cycles)?)
+                })?;
+                for report in &sil {
+                    println!("{}", learn::sil::describe(report));
+                }
+                println!(
+                    "{} updated ({} SIL rows); runs in {}",
+                    model.display(),
+                    card.sil.len(),
+                    experiment.out.display()
+                );
+                Ok(())
+            }
             (_, Some(model)) if onnx_only => {
                 let card = learn::model::add_onnx(&model)?;
                 println!(

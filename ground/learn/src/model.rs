@@ -298,6 +298,47 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
     Ok(card)
 }
 
+/// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
+/// flown in the SIL loop with terminal targeting over their last `K` cycles (0: without), which
+/// the card then records: its config's `[sil] terminal`, its SIL rows (flown under `RUN`) and a
+/// note of the command. The actor, the blobs and the Monte Carlo stay as they are. The folder's
+/// files must match its card first.
+pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
+    let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
+    let kind = config.scenario.problem();
+    verify_model_files(dir, kind, &card.files)?;
+    let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
+    config.sil.terminal = (cycles > 0).then(|| TerminalSettings {
+        cycles,
+        ..config.sil.terminal.unwrap_or_default()
+    });
+    config.validate().map_err(|e| experiment(e.into()))?;
+    let sil = [Quantization::F32, Quantization::Int8]
+        .into_iter()
+        .map(|q| {
+            let blob = dir.join(blob_file(kind, q));
+            let folder = format!("sil-{}", if q == Quantization::F32 { "f32" } else { "int8" });
+            crate::sil::sil_monte_carlo(&config, &blob, &run.join(folder), None, &config.sil.dispersions, 0)
+                .map_err(experiment)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    card.sil = sil_figures(&sil);
+    card.terminal = config.terminal_settings();
+    card.config = portable_config(&config);
+    let flown = match cycles {
+        0 => "without terminal targeting".to_string(),
+        k => format!("with terminal targeting of the last {k} cycles"),
+    };
+    card.notes.push(format!(
+        "The SIL rows are the same blobs flown {flown}, by `{}` at commit `{}` on {}; the actor, the blobs and the Monte Carlo are unchanged.",
+        portable_command(),
+        current_commit(),
+        utc_date()
+    ));
+    write_cards(dir, &mut card)?;
+    Ok((card, sil))
+}
+
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ModelError + '_ {
     move |source| ModelError::Io {
         path: path.to_path_buf(),

@@ -326,6 +326,30 @@ fn main_job_writes_a_report_whose_links_resolve() {
     }
     learn::model::add_onnx(&hand_edited).unwrap();
     assert_eq!(learn::model::open_model(&hand_edited).unwrap().card, model.card);
+    // The same blobs flown with terminal targeting: the card records it, its files and Monte
+    // Carlo unchanged, and its config flies its SIL rows again.
+    let aided = copy("model-terminal");
+    let (card, sil) = learn::model::fly_terminal(&aided, &dir.join("terminal-runs"), 3).unwrap();
+    assert_eq!(card.terminal.map(|t| t.cycles), Some(3));
+    assert_eq!(
+        (&card.files, &card.monte_carlo),
+        (&model.card.files, &model.card.monte_carlo)
+    );
+    assert!(sil.iter().all(|r| r.terminal.is_some_and(|t| t.cycles == 3)));
+    let reopened = learn::model::open_model(&aided).unwrap();
+    assert_eq!(reopened.card, card);
+    let again = learn::sil::sil_monte_carlo(
+        &reopened.config,
+        &reopened.blob(shared::blob::Quantization::F32),
+        &dir.join("terminal-again"),
+        None,
+        &reopened.config.sil.dispersions,
+        0,
+    )
+    .unwrap();
+    assert_eq!(reopened.card.sil[0].1.within, again.monte_carlo.within_tolerances);
+    let (without, _) = learn::model::fly_terminal(&aided, &dir.join("terminal-off"), 0).unwrap();
+    assert_eq!((without.terminal, without.sil), (None, model.card.sil.clone()));
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),
