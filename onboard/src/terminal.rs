@@ -13,14 +13,17 @@
 //!
 //! the minimum-norm change of the plan where it has more unknowns than conditions (two per
 //! cycle against three or four), least squares on the last cycle. A step that does not lower
-//! `|e|` is refused and lambda raised. The plan's first command is flown; the next cycle solves
+//! `|e|` is refused and lambda raised. Once the arrival is met (`|e| < 1e-3`), the iterations
+//! left lower the plan's propellant (the throttles times the cycles' durations): a step down its
+//! gradient projected on the null space of `J` (`p = g - J^T (J J^T)^-1 J g`, which leaves the
+//! arrival unmoved to first order), then one Gauss-Newton correction, kept only if the plan
+//! still meets the arrival and commands less. The plan's first command is flown; the next cycle solves
 //! again from the navigation state, so errors of the plant are corrected while cycles remain.
 //! The network's command is flown instead whenever the solved plan does not predict a smaller
 //! miss than the network's own continuation, or any rollout fails.
 //!
 //! The work per cycle is at most `2 + iterations x (2 k + 4)` rollouts of `k` cycles
-//! ([`TerminalDecision::rollouts`] counts them); no
-//! allocation, no panic.
+//! ([`TerminalDecision::rollouts`] counts them); no allocation, no panic.
 
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
@@ -38,8 +41,8 @@ pub const MAX_ITERATIONS: u32 = 64;
 /// Components of the miss vector (position then velocity; a transfer's last one is 0).
 pub const MISS_LEN: usize = 4;
 
-/// What terminal targeting does; `Default` targets the last 3 cycles with up to 5 iterations:
-/// at most 52 rollouts of 3 cycles, within 100 million Cortex-M4F instructions a cycle.
+/// What terminal targeting does; `Default` targets the last 4 cycles with up to 3 iterations:
+/// at most 38 rollouts of 4 cycles, within 100 million Cortex-M4F instructions a cycle.
 /// The ground's configs read it (feature `serde`: `cycles` and `iterations` by name, each
 /// defaulted; the goals are the evaluation's, the tolerances the environment's).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -51,7 +54,8 @@ pub const MISS_LEN: usize = 4;
 pub struct TerminalSettings {
     /// Cycles to go from which the plan is solved (1 to [`MAX_CYCLES`]).
     pub cycles: u32,
-    /// Gauss-Newton iterations per guidance cycle, at most.
+    /// Iterations per guidance cycle, at most: Gauss-Newton steps, then, with the arrival met,
+    /// propellant-lowering steps.
     pub iterations: u32,
     /// Position residual that counts as one unit of miss (AU; default 0.01, the goal).
     #[cfg_attr(feature = "serde", serde(skip))]
@@ -67,8 +71,8 @@ pub struct TerminalSettings {
 impl Default for TerminalSettings {
     fn default() -> Self {
         Self {
-            cycles: 3,
-            iterations: 5,
+            cycles: 4,
+            iterations: 3,
             goal_position: 0.01,
             goal_velocity: 0.01,
             tolerances: Tolerances::default(),
@@ -236,8 +240,98 @@ fn component(plan: &mut Plan, u: usize) -> Option<&mut f64> {
 /// Forward-difference step of the thrust vectors' components.
 const DIFFERENCE: f64 = 1e-7;
 
-/// Damped Gauss-Newton on `plan` (see the module documentation); returns the best plan found
-/// and its miss vector.
+/// Within this miss (in goal units) the arrival is met: no Gauss-Newton step is worth a
+/// propagation, and a cheaper plan must stay within it.
+const MET: f64 = 1e-3;
+
+/// The miss's Jacobian by forward differences at `plan` (miss `e`): MISS_LEN rows, one column
+/// per unknown (cycle j, component c); None if a rollout fails.
+fn jacobian<const N: usize, T: TargetFeatures<N>>(
+    problem: &Problem<'_, T>,
+    plan: &Plan,
+    e: &[f64; MISS_LEN],
+) -> Option<[[f64; 2 * MAX_CYCLES]; MISS_LEN]> {
+    let mut jacobian = [[0.0f64; 2 * MAX_CYCLES]; MISS_LEN];
+    for u in 0..2 * problem.cycles {
+        let mut moved = *plan;
+        if let Some(v) = component(&mut moved, u) {
+            *v += DIFFERENCE;
+        }
+        let em = problem.miss(&moved)?;
+        for (row, (a, b)) in jacobian.iter_mut().zip(em.iter().zip(e.iter())) {
+            if let Some(slot) = row.get_mut(u) {
+                *slot = (a - b) / DIFFERENCE;
+            }
+        }
+    }
+    Some(jacobian)
+}
+
+/// `J v` for a vector `v` of the unknowns.
+fn apply(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN], v: &[f64; 2 * MAX_CYCLES]) -> [f64; MISS_LEN] {
+    jacobian.map(|row| row.iter().zip(v.iter()).map(|(a, b)| a * b).sum())
+}
+
+/// `J^T y` over the first `unknowns` unknowns.
+fn apply_transposed(
+    jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN],
+    y: &[f64; MISS_LEN],
+    unknowns: usize,
+) -> [f64; 2 * MAX_CYCLES] {
+    let mut out = [0.0f64; 2 * MAX_CYCLES];
+    for (u, slot) in out.iter_mut().enumerate().take(unknowns) {
+        *slot = jacobian
+            .iter()
+            .zip(y.iter())
+            .map(|(row, yi)| row.get(u).unwrap_or(&0.0) * yi)
+            .sum();
+    }
+    out
+}
+
+/// `J J^T + lambda (1 + diag) I`.
+fn normal_matrix(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN], lambda: f64) -> [[f64; MISS_LEN]; MISS_LEN] {
+    let mut normal = [[0.0f64; MISS_LEN]; MISS_LEN];
+    for (i, row_i) in jacobian.iter().enumerate() {
+        for (k, row_k) in jacobian.iter().enumerate() {
+            let dot: f64 = row_i.iter().zip(row_k.iter()).map(|(a, b)| a * b).sum();
+            if let Some(slot) = normal.get_mut(i).and_then(|r| r.get_mut(k)) {
+                *slot = dot;
+            }
+        }
+    }
+    for (i, row) in normal.iter_mut().enumerate() {
+        if let Some(d) = row.get_mut(i) {
+            *d += lambda * (1.0 + *d);
+        }
+    }
+    normal
+}
+
+/// `plan` moved by `-step` (the unknowns' order) and clipped to the unit disks.
+fn moved_by(plan: &Plan, step: &[f64; 2 * MAX_CYCLES], unknowns: usize) -> Plan {
+    let mut moved = *plan;
+    for (u, d) in step.iter().enumerate().take(unknowns) {
+        if let Some(v) = component(&mut moved, u) {
+            *v -= d;
+        }
+    }
+    clip(&mut moved);
+    moved
+}
+
+/// The propellant a plan commands, as throttle times duration summed over its cycles.
+fn fuel<T>(problem: &Problem<'_, T>, plan: &Plan) -> f64 {
+    plan.iter()
+        .take(problem.cycles)
+        .enumerate()
+        .map(|(cycle, tau)| libm::hypot(tau[0], tau[1]) * cycle_duration(problem.time_to_go, cycle as f64 * STEP))
+        .sum()
+}
+
+/// Damped Gauss-Newton on `plan` (see the module documentation), then, with the arrival met
+/// and iterations left, steps that lower the plan's propellant along the miss's null space and
+/// keep it met; returns the best plan found and its miss vector.
 fn solve<const N: usize, T: TargetFeatures<N>>(
     problem: &Problem<'_, T>,
     mut plan: Plan,
@@ -245,67 +339,20 @@ fn solve<const N: usize, T: TargetFeatures<N>>(
 ) -> (Plan, [f64; MISS_LEN]) {
     let unknowns = 2 * problem.cycles;
     let mut lambda = 1e-6;
-    for _ in 0..problem.settings.iterations {
-        // Within a thousandth of the goal there is nothing left worth a propagation.
-        if norm(&e) < 1e-3 {
-            break;
-        }
-        // J: MISS_LEN rows, one column per unknown (cycle j, component c).
-        let mut jacobian = [[0.0f64; 2 * MAX_CYCLES]; MISS_LEN];
-        let mut ok = true;
-        for u in 0..unknowns {
-            let mut moved = plan;
-            if let Some(v) = component(&mut moved, u) {
-                *v += DIFFERENCE;
-            }
-            let Some(em) = problem.miss(&moved) else {
-                ok = false;
-                break;
-            };
-            for (row, (a, b)) in jacobian.iter_mut().zip(em.iter().zip(e.iter())) {
-                if let Some(slot) = row.get_mut(u) {
-                    *slot = (a - b) / DIFFERENCE;
-                }
-            }
-        }
-        if !ok {
-            break;
-        }
-        // J J^T + lambda (1 + diag) I.
-        let mut normal = [[0.0f64; MISS_LEN]; MISS_LEN];
-        for (i, row_i) in jacobian.iter().enumerate() {
-            for (k, row_k) in jacobian.iter().enumerate() {
-                let dot: f64 = row_i.iter().zip(row_k.iter()).take(unknowns).map(|(a, b)| a * b).sum();
-                if let Some(slot) = normal.get_mut(i).and_then(|r| r.get_mut(k)) {
-                    *slot = dot;
-                }
-            }
-        }
+    let mut iterations = 0;
+    while iterations < problem.settings.iterations && norm(&e) >= MET {
+        iterations += 1;
+        let Some(jacobian) = jacobian(problem, &plan, &e) else {
+            return (plan, e);
+        };
         let mut improved = false;
         // A few tries with more damping before the iteration gives up.
         for _ in 0..4 {
-            let mut damped = normal;
-            for (i, row) in damped.iter_mut().enumerate() {
-                if let Some(d) = row.get_mut(i) {
-                    *d += lambda * (1.0 + *d);
-                }
-            }
-            let Some(y) = solve4(&damped, &e) else {
+            let Some(y) = solve4(&normal_matrix(&jacobian, lambda), &e) else {
                 lambda *= 10.0;
                 continue;
             };
-            let mut candidate = plan;
-            for u in 0..unknowns {
-                let step: f64 = jacobian
-                    .iter()
-                    .zip(y.iter())
-                    .map(|(row, yi)| row.get(u).unwrap_or(&0.0) * yi)
-                    .sum();
-                if let Some(v) = component(&mut candidate, u) {
-                    *v -= step;
-                }
-            }
-            clip(&mut candidate);
+            let candidate = moved_by(&plan, &apply_transposed(&jacobian, &y, unknowns), unknowns);
             match problem.miss(&candidate) {
                 Some(ec) if norm(&ec) < norm(&e) => {
                     plan = candidate;
@@ -318,6 +365,78 @@ fn solve<const N: usize, T: TargetFeatures<N>>(
             }
         }
         if !improved {
+            return (plan, e);
+        }
+    }
+    lower_fuel(problem, plan, e, problem.settings.iterations - iterations)
+}
+
+/// Up to `iterations` steps of a met plan down the propellant's gradient projected on the
+/// miss's null space (`p = g - J^T (J J^T)^-1 J g`, the change that leaves the arrival unmoved
+/// to first order), each followed by a Gauss-Newton correction and kept only if the plan
+/// still meets the arrival and commands less propellant. Each costs at most 2k + 2 rollouts.
+fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
+    problem: &Problem<'_, T>,
+    mut plan: Plan,
+    mut e: [f64; MISS_LEN],
+    iterations: u32,
+) -> (Plan, [f64; MISS_LEN]) {
+    let unknowns = 2 * problem.cycles;
+    for _ in 0..iterations {
+        if norm(&e) >= MET {
+            break;
+        }
+        let Some(jacobian) = jacobian(problem, &plan, &e) else {
+            break;
+        };
+        // The propellant's gradient: each cycle's duration along its thrust vector.
+        let mut gradient = [0.0f64; 2 * MAX_CYCLES];
+        for (cycle, tau) in plan.iter().take(problem.cycles).enumerate() {
+            let n = libm::hypot(tau[0], tau[1]);
+            if n > 1e-9 {
+                let dt = cycle_duration(problem.time_to_go, cycle as f64 * STEP);
+                if let Some(g) = gradient.get_mut(2 * cycle..2 * cycle + 2) {
+                    g.copy_from_slice(&[dt * tau[0] / n, dt * tau[1] / n]);
+                }
+            }
+        }
+        let Some(y) = solve4(&normal_matrix(&jacobian, 1e-12), &apply(&jacobian, &gradient)) else {
+            break;
+        };
+        let back = apply_transposed(&jacobian, &y, unknowns);
+        let mut projected = [0.0f64; 2 * MAX_CYCLES];
+        for ((p, g), b) in projected.iter_mut().zip(gradient.iter()).zip(back.iter()) {
+            *p = g - b;
+        }
+        let largest = projected.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if !largest.is_finite() || largest <= 1e-12 {
+            break;
+        }
+        let before = fuel(problem, &plan);
+        let mut lowered = false;
+        // The first try moves some thrust vector component by a tenth, the second by a fortieth.
+        for scale in [0.1, 0.025] {
+            let step = projected.map(|p| p * scale / largest);
+            let trial = moved_by(&plan, &step, unknowns);
+            let Some(et) = problem.miss(&trial) else {
+                break;
+            };
+            // Back onto the arrival: one Gauss-Newton correction from the trial plan.
+            let Some(y) = solve4(&normal_matrix(&jacobian, 1e-12), &et) else {
+                break;
+            };
+            let corrected = moved_by(&trial, &apply_transposed(&jacobian, &y, unknowns), unknowns);
+            match problem.miss(&corrected) {
+                Some(ec) if norm(&ec) < MET && fuel(problem, &corrected) < before => {
+                    plan = corrected;
+                    e = ec;
+                    lowered = true;
+                    break;
+                }
+                _ => {}
+            }
+        }
+        if !lowered {
             break;
         }
     }
@@ -528,8 +647,45 @@ mod tests {
             settings: TerminalSettings::default(),
             lookahead: None,
         };
-        let met = miss(&fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target));
+        let end = fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target);
+        let met = miss(&end);
         assert!(met.position < 1e-5 && met.velocity < 1e-5, "{met:?}");
+    }
+
+    /// The propellant phase on a plan that meets the arrival (the commands that built the
+    /// target): a transfer leaves it three degrees of freedom beyond its three conditions, and
+    /// the phase finds a cheaper plan that still meets the orbit when flown.
+    #[test]
+    fn the_propellant_phase_lowers_a_met_plan_and_keeps_it_met() {
+        let (start, arrival) = reachable();
+        let target = orbit_through(&arrival);
+        let (craft, settings) = (spacecraft(), TerminalSettings::default());
+        let problem = Problem {
+            target: &target,
+            spacecraft: &craft,
+            settings: &settings,
+            navigation: &start,
+            time_to_go: 3.0 * STEP,
+            cycles: 3,
+            rollouts: core::cell::Cell::new(0),
+        };
+        let mut plan: Plan = [[0.0; 2]; MAX_CYCLES];
+        plan[..3].copy_from_slice(&PLAN);
+        let e = problem.miss::<TRANSFER_FEATURES>(&plan).unwrap();
+        assert!(norm(&e) < MET, "{e:?}");
+        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, _>(&problem, plan, e, 8);
+        assert!(norm(&met) < MET, "{met:?}");
+        let (before, after) = (fuel(&problem, &plan), fuel(&problem, &lowered));
+        assert!(after < 0.99 * before, "propellant {after} against {before}");
+        let mut state = start;
+        for tau in lowered.iter().take(3) {
+            state = propagate(&state, &command_of(tau), &craft, STEP, &Tolerances::default()).unwrap();
+        }
+        let flown = OrbitShape::residuals(
+            &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, &state, 0.0, 0.0).unwrap(),
+        );
+        assert!(flown.position < 1e-5 && flown.velocity < 1e-5, "{flown:?}");
+        assert!(state.m > arrival.m, "final mass {} against {}", state.m, arrival.m);
     }
 
     /// A rendezvous with a body that the last three cycles can meet (the arrival coasted back
@@ -565,7 +721,11 @@ mod tests {
     fn the_network_flies_unless_a_solved_plan_predicts_a_smaller_miss() {
         let (start, arrival) = reachable();
         let target = orbit_through(&arrival);
-        let settings = TerminalSettings::default();
+        // A tangential network misses by more than two goals: enough iterations to meet it.
+        let settings = TerminalSettings {
+            iterations: 8,
+            ..TerminalSettings::default()
+        };
         let decide = |time_to_go: f64, settings: &TerminalSettings| {
             terminal_step::<TRANSFER_FEATURES, _, _>(&Tangential, &start, &target, time_to_go, &spacecraft(), settings)
                 .unwrap()

@@ -67,7 +67,7 @@ const REPEATS: u32 = 64;
 /// well inside the SysTick's 2^24 ticks).
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
-const TERMINAL_CYCLES: u32 = 3;
+const TERMINAL_CYCLES: u32 = 4;
 
 /// The first trace flight's navigation state with 1 ..= [`TERMINAL_CYCLES`] cycles to go.
 type TerminalStates = [Option<onboard::dynamics::SpacecraftState>; TERMINAL_CYCLES as usize];

@@ -238,9 +238,10 @@ typedef struct lt_terminal_settings {
   double goal_position;
   // Velocity residual counted as one unit of miss (AU/t*); default 0.01.
   double goal_velocity;
-  // Cycles to go from which the remaining commands are solved (1 to 4); default 3.
+  // Cycles to go from which the remaining commands are solved (1 to 4); default 4.
   uint32_t cycles;
-  // Gauss-Newton iterations per cycle, at most (1 to 64); default 5.
+  // Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering
+  // steps once the arrival is met; default 3.
   uint32_t iterations;
 } lt_terminal_settings;
 
@@ -386,7 +387,7 @@ lt_status lt_terminal_defaults(struct lt_terminal_settings *out);
 // continuation) and the plan's first command returned when it predicts a smaller miss than
 // the network's; with more cycles to go, the network's command. At most
 // `2 + iterations x (2 k + 4)` propagations of the k cycles left (with the defaults at most
-// about 93 million Cortex-M4F instructions, at 3 cycles to go): run it at the guidance rate.
+// about 89 million Cortex-M4F instructions, at 4 cycles to go): run it at the guidance rate.
 //
 // Returns as `lt_transfer_step`, and `LT_ERR_INPUT_TERMINAL` for an unusable spacecraft or
 // settings; `report` may be null, else it receives the decision (nothing predicted on error).

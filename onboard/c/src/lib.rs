@@ -792,9 +792,10 @@ pub struct lt_terminal_settings {
     pub goal_position: f64,
     /// Velocity residual counted as one unit of miss (AU/t*); default 0.01.
     pub goal_velocity: f64,
-    /// Cycles to go from which the remaining commands are solved (1 to 4); default 3.
+    /// Cycles to go from which the remaining commands are solved (1 to 4); default 4.
     pub cycles: u32,
-    /// Gauss-Newton iterations per cycle, at most (1 to 64); default 5.
+    /// Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering
+    /// steps once the arrival is met; default 3.
     pub iterations: u32,
 }
 
@@ -896,7 +897,7 @@ const TERMINAL_REFUSED: lt_terminal_report = lt_terminal_report {
 /// continuation) and the plan's first command returned when it predicts a smaller miss than
 /// the network's; with more cycles to go, the network's command. At most
 /// `2 + iterations x (2 k + 4)` propagations of the k cycles left (with the defaults at most
-/// about 93 million Cortex-M4F instructions, at 3 cycles to go): run it at the guidance rate.
+/// about 89 million Cortex-M4F instructions, at 4 cycles to go): run it at the guidance rate.
 ///
 /// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_TERMINAL` for an unusable spacecraft or
 /// settings; `report` may be null, else it receives the decision (nothing predicted on error).
