@@ -299,7 +299,8 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
 }
 
 /// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
-/// flown in the SIL loop with terminal targeting over their last `K` cycles (0: without), which
+/// flown in the SIL loop with terminal targeting over their last `K` cycles (its other settings
+/// the defaults; 0: without), which
 /// the card then records: its config's `[sil] terminal`, its SIL rows (flown under `RUN`) and a
 /// note of the command. The actor, the blobs and the Monte Carlo stay as they are. The folder's
 /// files must match its card first.
@@ -310,7 +311,7 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     config.sil.terminal = (cycles > 0).then(|| TerminalSettings {
         cycles,
-        ..config.sil.terminal.unwrap_or_default()
+        ..TerminalSettings::default()
     });
     config.validate().map_err(|e| experiment(e.into()))?;
     let sil = [Quantization::F32, Quantization::Int8]
