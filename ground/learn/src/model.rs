@@ -298,6 +298,9 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
     Ok(card)
 }
 
+/// How a card's note on SIL rows flown again by [`fly_terminal`] begins.
+const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
+
 /// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
 /// flown in the SIL loop with terminal targeting over their last `K` cycles (its other settings
 /// the defaults; 0: without), which
@@ -330,8 +333,10 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
         0 => "without terminal targeting".to_string(),
         k => format!("with terminal targeting of the last {k} cycles"),
     };
+    // The rows are flown once more: an earlier such note no longer describes them.
+    card.notes.retain(|note| !note.starts_with(REFLOWN_NOTE));
     card.notes.push(format!(
-        "The SIL rows are the same blobs flown {flown}, by `{}` at commit `{}` on {}; the actor, the blobs and the Monte Carlo are unchanged.",
+        "{REFLOWN_NOTE} {flown}, by `{}` at commit `{}` on {}; the actor, the blobs and the Monte Carlo are unchanged.",
         portable_command(),
         current_commit(),
         utc_date()

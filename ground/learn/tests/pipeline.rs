@@ -350,6 +350,8 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert_eq!(reopened.card.sil[0].1.within, again.monte_carlo.within_tolerances);
     let (without, _) = learn::model::fly_terminal(&aided, &dir.join("terminal-off"), 0).unwrap();
     assert_eq!((without.terminal, without.sil), (None, model.card.sil.clone()));
+    // One note says how the rows were flown: the latest.
+    assert_eq!(without.notes.len(), model.card.notes.len() + 1, "{:?}", without.notes);
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),
