@@ -182,11 +182,11 @@ def test_every_card_opens_with_the_metadata_a_model_hub_reads(name):
 
 def test_terminal_targeting_from_python_brings_arrivals_within_a_thousandth():
     """The shipped transfer network flown nominally on 200 Monte Carlo scenarios, alone and with
-    its last three cycles targeted (onboard::terminal): the share within 0.001 AU and 0.001."""
+    its last four cycles targeted (onboard::terminal): the share within 0.001 AU and 0.001."""
     model = lowthrust.open_model(MODELS / "transfer-circular")
     alone = lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 200, dispersed=False)
-    targeted = lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 200, dispersed=False, terminal_cycles=3)
+    targeted = lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 200, dispersed=False, terminal_cycles=4)
     assert _within(alone["dr"], alone["dv"], 0.001).mean() < 0.05
-    assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.9
+    assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.95
     with pytest.raises(lowthrust.LowThrustError, match="terminal_cycles"):
         lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 10, terminal_cycles=7)

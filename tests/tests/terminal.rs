@@ -1,7 +1,7 @@
 //! Terminal targeting (`onboard::terminal`) flown with the shipped networks in the SIL loop,
 //! nominally, on the first 100 Monte Carlo scenarios: the arrivals it gives against the network
-//! flown alone. Measured (docs/results.md) on 1,000: transfer-circular 3.6 % within 0.001 AU and
-//! 0.001 of the velocity unit alone, 94.9 % with the last 3 cycles targeted.
+//! flown alone. Measured (docs/results.md) on 10,000: transfer-circular 3.5 % within 0.001 AU and
+//! 0.001 of the velocity unit alone, 99.7 % with the last 4 cycles targeted.
 
 use firmware_sim::{fly, Controller, FlightSetup, Problem, Rendezvous, Transfer};
 use onboard::guidance::Guide;
@@ -10,29 +10,34 @@ use shared::blob::AlignedBlob;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
-/// Final (dr, dv) of the first `count` Monte Carlo scenarios flown by `guide`.
+/// Final (dr, dv, mass) of the first `count` Monte Carlo scenarios flown by `guide`.
 fn arrivals<const N: usize, P: Problem<N>>(
     problem: P,
     kind: ScenarioKind,
     guide: &impl Guide<N, P::Target>,
     count: u64,
-) -> Vec<(f64, f64)> {
+) -> Vec<(f64, f64, f64)> {
     let setup = FlightSetup::nominal(Spacecraft::MSR_ERO.canonical().unwrap());
     (0..count)
         .map(|i| {
             let flight = fly(problem, guide, &kind.draw(2_000_003, i), &setup, 2_000_003 + i).unwrap();
             let r = flight.final_residuals().unwrap();
-            (r.position, r.velocity)
+            (r.position, r.velocity, flight.final_state().m)
         })
         .collect()
 }
 
-fn share(arrivals: &[(f64, f64)], tolerance: f64) -> f64 {
+fn share(arrivals: &[(f64, f64, f64)], tolerance: f64) -> f64 {
     arrivals
         .iter()
-        .filter(|(dr, dv)| *dr < tolerance && *dv < tolerance)
+        .filter(|(dr, dv, _)| *dr < tolerance && *dv < tolerance)
         .count() as f64
         / arrivals.len() as f64
+}
+
+/// Mean propellant the targeted flights spent beyond the network's, in initial masses.
+fn extra_propellant(alone: &[(f64, f64, f64)], targeted: &[(f64, f64, f64)]) -> f64 {
+    alone.iter().zip(targeted).map(|(a, t)| a.2 - t.2).sum::<f64>() / alone.len() as f64
 }
 
 fn blob(model: &str, file: &str) -> AlignedBlob {
@@ -59,11 +64,14 @@ fn targeting_the_last_cycles_brings_transfer_arrivals_within_a_thousandth() {
     };
     let targeted = arrivals(Transfer, kind, &guide, 100);
     assert!(share(&alone, 0.001) < 0.05, "{}", share(&alone, 0.001));
-    assert!(share(&targeted, 0.001) >= 0.95, "{}", share(&targeted, 0.001));
+    assert!(share(&targeted, 0.001) >= 0.97, "{}", share(&targeted, 0.001));
     assert!(share(&targeted, 0.01) >= share(&alone, 0.01));
+    // Closing a 0.003 AU miss over four cycles: 0.38 % of the initial mass on 10,000 flights.
+    let extra = extra_propellant(&alone, &targeted);
+    assert!(extra > 0.0 && extra < 0.005, "{extra}");
 }
 
-/// The rendezvous (four conditions on three cycles' six unknowns): most arrivals within a
+/// The rendezvous (four conditions on four cycles' eight unknowns): most arrivals within a
 /// thousandth, from a few alone.
 #[test]
 fn targeting_the_last_cycles_brings_most_rendezvous_within_a_thousandth() {

@@ -342,7 +342,7 @@ pub struct SilConfig {
     /// Fly the blob's last cycles with terminal targeting (`onboard::terminal::TerminalSettings`:
     /// `cycles`, `iterations`, each defaulted; the rollouts propagate with `[env.integrator]`),
     /// the cycles before as without it (the network, or with `lookahead`). In a TOML config:
-    /// `terminal = { cycles = 3 }`, or `ground model sil --terminal 3`.
+    /// `terminal = { cycles = 4 }`, or `ground model sil --terminal 4`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub terminal: Option<TerminalSettings>,
 }
