@@ -271,6 +271,10 @@ pub struct DaggerConfig {
     /// Stop before the budget once a round scores at least this share within the goal on the
     /// scoring episodes (unset: every round of the budget).
     pub stop_at: Option<f64>,
+    /// Stop once this many rounds in a row bring no new best score (unset: never): a plateau
+    /// ends the rounds, and the report says so, instead of spending the rest of the budget.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub patience: Option<u64>,
     /// Training episodes relabelled per round (0: updates only, the control arm).
     pub episodes: u64,
     /// Episodes flown per round to choose the relabelled ones from: the `episodes` that miss
@@ -311,6 +315,7 @@ impl Default for DaggerConfig {
         Self {
             rounds: 0,
             stop_at: None,
+            patience: None,
             episodes: 200,
             candidates: None,
             fractions: vec![0.2, 0.4, 0.6, 0.8],
@@ -556,6 +561,9 @@ impl ExperimentConfig {
                 ));
             }
         }
+        if let Some(patience) = self.dagger.patience {
+            positive("dagger.patience", patience)?;
+        }
         positive("dagger.score_episodes", self.dagger.score_episodes)?;
         if self.dagger.fractions.is_empty() || !self.dagger.fractions.iter().all(|f| *f > 0.0 && *f < 1.0) {
             return Err(ConfigError::Invalid(
@@ -795,6 +803,7 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
             "scenario = \"transfer-circular\"\n[pretrain]\nupdates = 0",
+            "scenario = \"transfer-circular\"\n[dagger]\nrounds = 5\npatience = 0",
             "scenario = \"transfer-circular\"\n[train]\nenv_steps = 0",
         ];
         for text in bad {

@@ -190,9 +190,10 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
 fn rounds_section(s: &mut String, rounds: &DaggerSummary, folder: &str) {
     let _ = writeln!(
         s,
-        "Each round flies the policy, re-solves the optimal rest of the flights that miss the most from the states they visited, adds those tuples to the demonstrations and updates (docs/design/learning.md). The round scoring best is kept: round {} of {}.\n",
+        "Each round flies the policy, re-solves the optimal rest of the flights that miss the most from the states they visited, adds those tuples to the demonstrations and updates (docs/design/learning.md). The round scoring best is kept: round {} of {}. The rounds stopped there: {}.\n",
         rounds.best_round,
-        rounds.rows.last().map_or(0, |r| r.round)
+        rounds.rows.last().map_or(0, |r| r.round),
+        rounds.stopped
     );
     let _ = writeln!(
         s,

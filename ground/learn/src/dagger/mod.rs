@@ -134,6 +134,33 @@ pub struct DaggerSummary {
     pub rows: Vec<RoundRow>,
     /// The round kept as best.safetensors.
     pub best_round: u64,
+    /// Why the rounds ended where they did ([`stop_reason`], or the budget spent; empty when
+    /// read back from the folder by [`read_rounds`]).
+    #[serde(default)]
+    pub stopped: String,
+}
+
+/// Why the rounds stop after `rows` rather than run another: the last round met `stop_at`, or
+/// `patience` rounds in a row brought no new best score. A function of the recorded rounds, so a
+/// resumed run stops where the uninterrupted one did.
+pub fn stop_reason(rows: &[RoundRow], stop_at: Option<f64>, patience: Option<u64>) -> Option<String> {
+    let last = rows.last()?;
+    if let Some(goal) = stop_at.filter(|goal| last.score() >= *goal) {
+        return Some(format!(
+            "round {} scored {:.1} %, the goal {:.1} %",
+            last.round,
+            100.0 * last.score(),
+            100.0 * goal
+        ));
+    }
+    let best = best_row(rows)?;
+    patience.filter(|p| last.round >= best.round + p).map(|p| {
+        format!(
+            "{p} rounds without a new best after round {} ({:.1} %): a plateau",
+            best.round,
+            100.0 * best.score()
+        )
+    })
 }
 
 fn round_file(dir: &Path, round: u64) -> PathBuf {
@@ -288,14 +315,9 @@ fn dagger_for<P: Problem>(
         });
         write_logs(&dir, &rows, &agent, is_best(&rows))?;
     }
-    let reached = |rows: &[RoundRow]| {
-        config
-            .dagger
-            .stop_at
-            .is_some_and(|goal| rows.last().is_some_and(|r| r.score() >= goal))
-    };
+    let stop = |rows: &[RoundRow]| stop_reason(rows, config.dagger.stop_at, config.dagger.patience);
     for round in done + 1..=config.dagger.rounds {
-        if reached(&rows) {
+        if stop(&rows).is_some() {
             break;
         }
         let clock = Instant::now();
@@ -365,10 +387,15 @@ fn dagger_for<P: Problem>(
         write_logs(&dir, &rows, &agent, is_best(&rows))?;
     }
     let best_round = best_row(&rows).map_or(0, |r| r.round);
+    let stopped = stop(&rows).unwrap_or_else(|| format!("the budget of {} rounds spent", config.dagger.rounds));
+    if let Some(reason) = stop(&rows) {
+        println!("rounds stopped: {reason}");
+    }
     Ok(DaggerSummary {
         folder: dir,
         rows,
         best_round,
+        stopped,
     })
 }
 
@@ -385,6 +412,7 @@ pub fn read_rounds(dir: &Path) -> Result<DaggerSummary, ExperimentError> {
         folder: dir.to_path_buf(),
         rows,
         best_round,
+        stopped: String::new(),
     })
 }
 
@@ -444,4 +472,49 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
         &points,
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rounds 0.. scoring `scores`.
+    fn rounds(scores: &[f64]) -> Vec<RoundRow> {
+        let summary = ground_core::env::batch::summarize(&[]);
+        scores
+            .iter()
+            .enumerate()
+            .map(|(round, &within_goal)| RoundRow {
+                round: round as u64,
+                relabels_attempted: 0,
+                relabels_converged: 0,
+                tuples_added: 0,
+                buffer: 0,
+                updates: 0,
+                within_goal,
+                within_goal_dispersed: None,
+                summary,
+                seconds: 0.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_rounds_stop_at_the_goal_or_after_patience_rounds_without_a_new_best() {
+        let climbing = rounds(&[0.2, 0.5, 0.7, 0.9]);
+        assert_eq!(stop_reason(&climbing, None, Some(1)), None);
+        assert_eq!(stop_reason(&climbing, Some(0.95), Some(2)), None);
+        let met = stop_reason(&climbing, Some(0.9), None).unwrap();
+        assert!(met.starts_with("round 3 scored 90.0 %"), "{met}");
+        // Best at round 2; rounds 3 and 4 bring nothing better (an equal score is no new best).
+        let plateau = rounds(&[0.2, 0.5, 0.8, 0.79, 0.8]);
+        assert_eq!(stop_reason(&plateau, None, Some(3)), None);
+        let stopped = stop_reason(&plateau, None, Some(2)).unwrap();
+        assert!(
+            stopped.starts_with("2 rounds without a new best after round 2 (80.0 %)"),
+            "{stopped}"
+        );
+        assert_eq!(stop_reason(&plateau, None, None), None);
+        assert_eq!(stop_reason(&[], Some(0.5), Some(1)), None);
+    }
 }
