@@ -182,23 +182,30 @@ fn measure(
     Ok(())
 }
 
+/// The first trace flight, its target and the nominal spacecraft: what the onboard aids'
+/// measurements fly.
+fn first_flight() -> Option<(
+    &'static trace::TraceFlight,
+    <Flown as firmware_sim::Problem<FEATURES>>::Target,
+    shared::spacecraft::CanonicalSpacecraft,
+)> {
+    use firmware_sim::Problem;
+    let flight = trace::flights_of(Flown).first()?;
+    let target = <Flown as Problem<FEATURES>>::target(&flight.scenario, 0).ok()?;
+    let spacecraft = shared::spacecraft::Spacecraft::MSR_ERO.canonical().ok()?;
+    Some((flight, target, spacecraft))
+}
+
 /// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
 /// start, [`LOOKAHEAD_CYCLES`] cycles before the arrival: its instructions, whole and per rollout
 /// cycle (an inference and a 14-day propagation), from which a cycle with more to go scales.
 #[inline(never)]
 fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownController<'_>) -> core::fmt::Result {
-    use firmware_sim::Problem;
     use onboard::dynamics::SpacecraftState;
     use onboard::lookahead::{lookahead_step, LookaheadSettings, CANDIDATES};
 
-    let Some(flight) = trace::flights_of(Flown).first() else {
-        return Ok(());
-    };
-    let (Ok(target), Ok(spacecraft)) = (
-        <Flown as Problem<FEATURES>>::target(&flight.scenario, 0),
-        shared::spacecraft::Spacecraft::MSR_ERO.canonical(),
-    ) else {
-        return writeln!(out, "{COMMENT} lookahead: no target or spacecraft");
+    let Some((flight, target, spacecraft)) = first_flight() else {
+        return writeln!(out, "{COMMENT} lookahead: no flight, target or spacecraft");
     };
     let state = SpacecraftState::from_cartesian(&flight.scenario.initial.cartesian(), 1.0);
     let time_to_go = f64::from(LOOKAHEAD_CYCLES) * shared::units::STEP;
@@ -228,17 +235,10 @@ fn terminal(
     controller: &FlownController<'_>,
     states: &TerminalStates,
 ) -> core::fmt::Result {
-    use firmware_sim::Problem;
     use onboard::terminal::{terminal_step, TerminalSettings};
 
-    let Some(flight) = trace::flights_of(Flown).first() else {
-        return Ok(());
-    };
-    let (Ok(target), Ok(spacecraft)) = (
-        <Flown as Problem<FEATURES>>::target(&flight.scenario, 0),
-        shared::spacecraft::Spacecraft::MSR_ERO.canonical(),
-    ) else {
-        return writeln!(out, "{COMMENT} terminal targeting: no target or spacecraft");
+    let Some((_, target, spacecraft)) = first_flight() else {
+        return writeln!(out, "{COMMENT} terminal targeting: no flight, target or spacecraft");
     };
     let settings = TerminalSettings::default();
     for (to_go, state) in (1..TERMINAL_CYCLES + 1).zip(states.iter()).rev() {
