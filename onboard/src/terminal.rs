@@ -289,17 +289,23 @@ fn apply_transposed(
     out
 }
 
-/// `J J^T + lambda (1 + diag) I`.
-fn normal_matrix(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN], lambda: f64) -> [[f64; MISS_LEN]; MISS_LEN] {
-    let mut normal = [[0.0f64; MISS_LEN]; MISS_LEN];
+/// `J J^T`.
+fn gram(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN]) -> [[f64; MISS_LEN]; MISS_LEN] {
+    let mut gram = [[0.0f64; MISS_LEN]; MISS_LEN];
     for (i, row_i) in jacobian.iter().enumerate() {
         for (k, row_k) in jacobian.iter().enumerate() {
             let dot: f64 = row_i.iter().zip(row_k.iter()).map(|(a, b)| a * b).sum();
-            if let Some(slot) = normal.get_mut(i).and_then(|r| r.get_mut(k)) {
+            if let Some(slot) = gram.get_mut(i).and_then(|r| r.get_mut(k)) {
                 *slot = dot;
             }
         }
     }
+    gram
+}
+
+/// `gram + lambda (1 + diag) I`.
+fn damped(gram: &[[f64; MISS_LEN]; MISS_LEN], lambda: f64) -> [[f64; MISS_LEN]; MISS_LEN] {
+    let mut normal = *gram;
     for (i, row) in normal.iter_mut().enumerate() {
         if let Some(d) = row.get_mut(i) {
             *d += lambda * (1.0 + *d);
@@ -345,10 +351,11 @@ fn solve<const N: usize, T: TargetFeatures<N>>(
         let Some(jacobian) = jacobian(problem, &plan, &e) else {
             return (plan, e);
         };
+        let gram = gram(&jacobian);
         let mut improved = false;
         // A few tries with more damping before the iteration gives up.
         for _ in 0..4 {
-            let Some(y) = solve4(&normal_matrix(&jacobian, lambda), &e) else {
+            let Some(y) = solve4(&damped(&gram, lambda), &e) else {
                 lambda *= 10.0;
                 continue;
             };
@@ -400,7 +407,9 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
                 }
             }
         }
-        let Some(y) = solve4(&normal_matrix(&jacobian, 1e-12), &apply(&jacobian, &gradient)) else {
+        // One normal matrix for the projection and the corrections back onto the arrival.
+        let normal = damped(&gram(&jacobian), 1e-12);
+        let Some(y) = solve4(&normal, &apply(&jacobian, &gradient)) else {
             break;
         };
         let back = apply_transposed(&jacobian, &y, unknowns);
@@ -422,7 +431,7 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
                 break;
             };
             // Back onto the arrival: one Gauss-Newton correction from the trial plan.
-            let Some(y) = solve4(&normal_matrix(&jacobian, 1e-12), &et) else {
+            let Some(y) = solve4(&normal, &et) else {
                 break;
             };
             let corrected = moved_by(&trial, &apply_transposed(&jacobian, &y, unknowns), unknowns);
