@@ -317,15 +317,10 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
         ..TerminalSettings::default()
     });
     config.validate().map_err(|e| experiment(e.into()))?;
-    let sil = [Quantization::F32, Quantization::Int8]
-        .into_iter()
-        .map(|q| {
-            let blob = dir.join(blob_file(kind, q));
-            let folder = format!("sil-{}", if q == Quantization::F32 { "f32" } else { "int8" });
-            crate::sil::sil_monte_carlo(&config, &blob, &run.join(folder), None, &config.sil.dispersions, 0)
-                .map_err(experiment)
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let blob = |q| dir.join(blob_file(kind, q));
+    let sil = crate::sil::sil_of_blobs(&config, &blob(Quantization::F32), &blob(Quantization::Int8), run)
+        .map_err(experiment)?
+        .to_vec();
     card.sil = sil_figures(&sil);
     card.terminal = config.terminal_settings();
     card.config = portable_config(&config);
@@ -519,13 +514,9 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     // The card's paths are relative to the folder the producing command ran in: the repository.
     let export = crate::export::export(&config, Path::new("."), &actor, &run.join("export")).map_err(experiment)?;
     let sil = if config.scenario.problem() == ProblemKind::Transfer {
-        let fly = |blob: &Path, folder: &str| {
-            crate::sil::sil_monte_carlo(&config, blob, &run.join(folder), None, &config.sil.dispersions, 0)
-        };
-        vec![
-            fly(&export.f32.file, "sil-f32").map_err(experiment)?,
-            fly(&export.int8.file, "sil-int8").map_err(experiment)?,
-        ]
+        crate::sil::sil_of_blobs(&config, &export.f32.file, &export.int8.file, run)
+            .map_err(experiment)?
+            .to_vec()
     } else {
         Vec::new()
     };

@@ -274,7 +274,7 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
     );
     let _ = writeln!(s, "| blob | flights | reward | final mass | dr p50 (AU) | dr p95 (AU) | dv p50 | guidance faults | missed thrust |");
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
-    for (r, folder) in sil.iter().zip(["sil-f32", "sil-int8"]) {
+    for (r, folder) in sil.iter().zip(crate::sil::SIL_FOLDERS) {
         let p = &r.monte_carlo.policy;
         let _ = writeln!(
             s,

@@ -9,7 +9,7 @@ use crate::error::ExperimentError;
 use crate::eval::{monte_carlo, MonteCarloReport};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
-use crate::sil::{lookahead_monte_carlo, sil_monte_carlo, SilReport};
+use crate::sil::{lookahead_monte_carlo, sil_of_blobs, SilReport};
 use ground_core::generate::Summary;
 
 /// Where a shipped learner came from, as its card records it.
@@ -42,9 +42,7 @@ pub(crate) fn export_and_ship(
         notes,
     } = *lineage;
     let export = export(config, config_dir, checkpoint, &run.join("export"))?;
-    let fly =
-        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions, 0);
-    let sil = [fly(&export.f32.file, "sil-f32")?, fly(&export.int8.file, "sil-int8")?];
+    let sil = sil_of_blobs(config, &export.f32.file, &export.int8.file, run)?;
     let lookahead = lookahead_monte_carlo(config, &export.f32.file, &run.join("mc-lookahead"))?;
     let model = write_model(
         &run.join("model"),

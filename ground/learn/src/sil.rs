@@ -396,6 +396,23 @@ pub fn sil_monte_carlo(
     Ok(report)
 }
 
+/// The folders under a run of the f32 and the int8 blob's SIL Monte Carlos ([`sil_of_blobs`]).
+pub const SIL_FOLDERS: [&str; 2] = ["sil-f32", "sil-int8"];
+
+/// The SIL Monte Carlos of a controller's f32 and int8 blobs with the config's dispersions,
+/// written to `run/sil-f32` and `run/sil-int8` ([`SIL_FOLDERS`]): the rows a model card records.
+pub fn sil_of_blobs(
+    config: &ExperimentConfig,
+    f32_blob: &Path,
+    int8_blob: &Path,
+    run: &Path,
+) -> Result<[SilReport; 2], ExperimentError> {
+    let [f32_folder, int8_folder] = SIL_FOLDERS;
+    let fly =
+        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions, 0);
+    Ok([fly(f32_blob, f32_folder)?, fly(int8_blob, int8_folder)?])
+}
+
 /// When the config flies with lookahead (`[sil] lookahead`): the nominal Monte Carlo of `blob`
 /// with it (the config's `[evaluate]` episodes and optimality-gap cases, no dispersions) in
 /// `out`, for the model card. None otherwise.
