@@ -42,8 +42,8 @@ use lowthrust::{
     LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK,
     LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_TRANSFER,
 };
-use onboard::dynamics::SpacecraftState;
-use onboard::guidance::{rendezvous_step, transfer_step};
+use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
 use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{decode, Activation, ProblemKind, FORMAT_VERSION, HEADER_LEN, MAGIC, TRAILER_LEN};
 use shared::orbit::{CartesianState, OrbitShape};
@@ -389,6 +389,26 @@ fn same_command(a: &lt_thrust_command, b: &lt_thrust_command) -> bool {
         && a.alpha_theta.to_bits() == b.alpha_theta.to_bits()
 }
 
+/// Does the C call's outcome (`code`, `command`) equal the Rust step's: its command bit for bit,
+/// or its error's code?
+fn agrees_with_rust(code: lt_status, command: &lt_thrust_command, rust: &Result<ThrustCommand, GuidanceError>) -> bool {
+    match rust {
+        Ok(c) => code == LT_OK && same_command(command, &lt_thrust_command::from(*c)),
+        Err(e) => code == guidance_error_code(e),
+    }
+}
+
+/// The Rust transfer policy the aids' calls are checked against.
+fn loaded_transfer<'a>(
+    actor: &'a Option<Result<TransferPolicy<'_>, onboard::policy::PolicyError>>,
+) -> Result<&'a TransferPolicy<'a>, String> {
+    actor
+        .as_ref()
+        .ok_or("no transfer policy")?
+        .as_ref()
+        .map_err(|e| format!("Rust refused: {e}"))
+}
+
 /// Flies a loaded policy through a few hostile cycles and checks each command against the Rust
 /// guidance step it wraps.
 fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Result<(), String> {
@@ -447,11 +467,7 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
             }
         };
         check_command(code, &command)?;
-        let agrees = match &rust {
-            Ok(c) => code == LT_OK && same_command(&command, &lt_thrust_command::from(*c)),
-            Err(e) => code == guidance_error_code(e),
-        };
-        if !agrees {
+        if !agrees_with_rust(code, &command, &rust) {
             return Err(format!("C step gave {code:?} {command:?}, Rust {rust:?}"));
         }
         // Rarely (a lookahead cycle costs up to 26 x 200 rollout cycles), the same state through
@@ -577,11 +593,7 @@ fn lookahead(
             Err(format!("unusable lookahead inputs gave {code:?}"))
         };
     }
-    let actor = actor
-        .as_ref()
-        .ok_or("no transfer policy")?
-        .as_ref()
-        .map_err(|e| format!("Rust refused: {e}"))?;
+    let actor = loaded_transfer(actor)?;
     let state: SpacecraftState = (*nav).into();
     let rust = lookahead_step(
         actor,
@@ -591,11 +603,7 @@ fn lookahead(
         &rust_spacecraft,
         &rust_settings,
     );
-    let agrees = match &rust {
-        Ok(d) => code == LT_OK && same_command(&command, &lt_thrust_command::from(d.command)),
-        Err(e) => code == guidance_error_code(e),
-    };
-    if agrees {
+    if agrees_with_rust(code, &command, &rust.map(|d| d.command)) {
         Ok(())
     } else {
         Err(format!("C lookahead gave {code:?} {command:?}, Rust {rust:?}"))
@@ -667,11 +675,7 @@ fn terminal(
             Err(format!("unusable terminal-targeting inputs gave {code:?}"))
         };
     }
-    let actor = actor
-        .as_ref()
-        .ok_or("no transfer policy")?
-        .as_ref()
-        .map_err(|e| format!("Rust refused: {e}"))?;
+    let actor = loaded_transfer(actor)?;
     let state: SpacecraftState = (*nav).into();
     let rust = terminal_step(
         actor,
@@ -681,11 +685,7 @@ fn terminal(
         &rust_spacecraft,
         &rust_settings,
     );
-    let agrees = match &rust {
-        Ok(d) => code == LT_OK && same_command(&command, &lt_thrust_command::from(d.command)),
-        Err(e) => code == guidance_error_code(e),
-    };
-    if agrees {
+    if agrees_with_rust(code, &command, &rust.map(|d| d.command)) {
         Ok(())
     } else {
         Err(format!("C terminal targeting gave {code:?} {command:?}, Rust {rust:?}"))
