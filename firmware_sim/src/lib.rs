@@ -74,7 +74,6 @@ use shared::blob::ProblemKind;
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::{Scenario, ScenarioError};
 use shared::spacecraft::CanonicalSpacecraft;
-use shared::units::STEP;
 
 pub use dispersion::{DispersedPlant, DispersionError, Dispersions};
 
@@ -164,7 +163,7 @@ impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
     /// the ground environment uses (`ground_core::env::body_at`), bit for bit.
     fn target(scenario: &Scenario, index: u32) -> Result<CartesianState, SilError> {
         let epoch = scenario.target.cartesian_at(scenario.target_nu0);
-        coast(&epoch, f64::from(index) * STEP).map_err(|error| SilError::Target { index, error })
+        coast(&epoch, scenario.cycle_start(index)).map_err(|error| SilError::Target { index, error })
     }
 }
 
@@ -386,7 +385,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
     // The target at the start of the cycle; the end of one cycle is the start of the next.
     let mut target = P::target(scenario, 0)?;
     for index in 0..scenario.steps {
-        let time_to_go = f64::from(scenario.steps - index) * STEP;
+        let time_to_go = scenario.time_to_go(index);
         let features = target
             .features_after(&state, 0.0, time_to_go)
             .map_err(|error| SilError::Features { index, error })?;
@@ -401,10 +400,10 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
             ..pointed
         };
         // The plant, segment by segment: thrust on, or off inside a missed-thrust event.
-        let cycle_start = f64::from(index) * STEP;
+        let (cycle_start, cycle) = (scenario.cycle_start(index), scenario.cycle);
         let (mut tau, mut missed_thrust) = (0.0, 0.0);
-        while tau < STEP {
-            let (end, thrust_on) = plant.segment(cycle_start, tau, STEP);
+        while tau < cycle {
+            let (end, thrust_on) = plant.segment(cycle_start, tau, cycle);
             let flown = if thrust_on { pointed } else { ThrustCommand::OFF };
             state = propagate(&state, &flown, &actual, end - tau, tolerances)
                 .map_err(|error| SilError::Plant { index, error })?;
@@ -416,7 +415,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         // The end of the cycle as the MDP sees step index + 1 (its time to go, its target).
         target = P::target(scenario, index + 1)?;
         let after = target
-            .features_after(&state, 0.0, f64::from(scenario.steps - index - 1) * STEP)
+            .features_after(&state, 0.0, scenario.time_to_go(index + 1))
             .map_err(|error| SilError::Features { index, error })?;
         let residuals = P::Target::residuals(&after);
         // The reward charges the commanded throttle, as the MDP does.
@@ -524,6 +523,7 @@ mod tests {
     use onboard::kepler::coast;
     use shared::orbit::{OrbitElements, OrbitShape};
     use shared::spacecraft::Spacecraft;
+    use shared::units::STEP;
 
     fn scenario(target_a: f64) -> Scenario {
         let initial = OrbitElements {

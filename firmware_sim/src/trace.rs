@@ -66,6 +66,7 @@ const fn transfer() -> Scenario {
         target_nu0: 0.0,
         // Scenario::steps_for (docs/spec.md section 4): ceil(2 pi 1.3^1.5 / STEP); a test checks it.
         steps: 39,
+        cycle: shared::units::STEP,
     }
 }
 

@@ -95,6 +95,12 @@ enum DataCommand {
     /// a record is re-solved from the direct solution, or, where that does not end heavier, cut
     /// from the demonstrations (not converged, its samples dropped, the evidence as its failure).
     Crosscheck(trajectories::CrossCheckArgs),
+    /// Check a scenario family before spending hours on it: its units, times of flight and
+    /// cycles, the share of a sample of draws the indirect method solves, the unsolved ones
+    /// classified by their minimum time of flight (infeasible or not), the solve time and the
+    /// projected dataset time on this machine, and whether the tank lasts the flight. Exit
+    /// status 1 when no draw was solved.
+    CheckMission(trajectories::CheckMissionArgs),
     /// Classify the unconverged records (transfer or rendezvous) of a finished dataset run by
     /// their minimum time of flight (infeasible, feasible, or unknown) and rewrite the records,
     /// the dataset and the summaries, which then count the infeasible draws apart (about 10 s to
@@ -122,6 +128,7 @@ fn run_data(command: DataCommand) -> Result<(), Box<dyn std::error::Error>> {
         DataCommand::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
         DataCommand::Feasibility { out } => trajectories::feasibility_command(&out),
         DataCommand::Crosscheck(args) => trajectories::crosscheck_command(&args),
+        DataCommand::CheckMission(args) => trajectories::check_mission_command(&args),
     }
 }
 

@@ -8,10 +8,12 @@ use ground_core::generate::{
     generate_in, hold_run, merge, read_dataset, trajectory_difference, Manifest, Shard, Summary,
 };
 use ground_core::io::{atomic_write, require_parent_folder};
+use ground_core::mission::FamilySpec;
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
+use shared::mission::MissionFamily;
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -21,10 +23,10 @@ use shared::units::canonical_to_days;
 #[derive(clap::Args)]
 #[command(allow_negative_numbers = true)]
 pub struct SolveArgs {
-    /// Draw the case from this scenario distribution (with --seed and --index) instead of
-    /// giving the orbits explicitly.
-    #[arg(long)]
-    scenario: Option<ScenarioKind>,
+    /// Draw the case from this scenario family (a preset's name or a mission file; with --seed
+    /// and --index) instead of giving the orbits explicitly.
+    #[arg(long, value_parser = family_argument)]
+    scenario: Option<MissionFamily>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long, default_value_t = 0)]
@@ -63,10 +65,19 @@ pub struct SolveArgs {
     plot: Option<PathBuf>,
 }
 
+/// `--scenario`: a preset's name or a mission file, checked.
+pub fn family_argument(text: &str) -> Result<MissionFamily, String> {
+    FamilySpec::from_argument(text)
+        .and_then(|spec| spec.family())
+        .map_err(|e| e.to_string())
+}
+
 #[derive(clap::Args)]
 pub struct GenerateArgs {
-    #[arg(long)]
-    scenario: ScenarioKind,
+    /// The scenario family: a preset's name (transfer-circular, transfer-hard,
+    /// rendezvous-circular, rendezvous-hard) or a mission file (docs/missions.md).
+    #[arg(long, value_parser = family_argument)]
+    scenario: MissionFamily,
     #[arg(long)]
     count: u64,
     #[arg(long, default_value_t = 0)]
@@ -83,10 +94,111 @@ pub struct GenerateArgs {
     /// Stop the homotopy at the first level below this eps (docs/spec.md: 1e-4).
     #[arg(long, default_value_t = FINAL_EPS)]
     final_eps: f64,
-    /// Solve each draw to arrive this many 14-day steps early (then coasting with its target),
+    /// Solve each draw to arrive this many guidance cycles early (then coasting with its target),
     /// where that converges, on time otherwise: a reserve for thrust lost late in the flight.
     #[arg(long, default_value_t = 0)]
     arrival_margin: u32,
+}
+
+/// `ground data check-mission`: a family checked on a sample of its draws.
+#[derive(clap::Args)]
+pub struct CheckMissionArgs {
+    /// The scenario family: a preset's name or a mission file (docs/missions.md).
+    #[arg(long, value_parser = family_argument)]
+    scenario: MissionFamily,
+    /// Draws to solve and classify.
+    #[arg(long, default_value_t = 20)]
+    sample: u64,
+    /// Seed of the draws.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Maximum thrust, N (default: the thesis's spacecraft, as configs default).
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.max_thrust_n)]
+    thrust_n: f64,
+    /// Specific impulse, s.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.isp_s)]
+    isp_s: f64,
+    /// Initial mass, kg.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.initial_mass_kg)]
+    mass_kg: f64,
+    /// Records of the dataset whose generation time is projected.
+    #[arg(long, default_value_t = 1000)]
+    dataset_count: u64,
+    /// Worker threads, at least 1 (default: all cores).
+    #[arg(long, value_parser = thread_count)]
+    threads: Option<NonZeroUsize>,
+    /// Print one JSON object instead of the summary.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `ground data check-mission`: exit status 1 when no draw of the sample was solved.
+pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let craft = Spacecraft {
+        max_thrust_n: args.thrust_n,
+        isp_s: args.isp_s,
+        initial_mass_kg: args.mass_kg,
+    };
+    let sc = craft
+        .canonical_in(&args.scenario.body.units())
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    if args.sample == 0 {
+        return Err("--sample must be at least 1".into());
+    }
+    if let Some(n) = args.threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n.get()).build_global()?;
+    }
+    let check =
+        ground_core::mission::check_family(&args.scenario, &sc, args.sample, args.seed, &SolveOptions::default());
+    let threads = rayon::current_num_threads();
+    let projected_min = check.solve_seconds[0] * args.dataset_count as f64 / threads as f64 / 60.0;
+    if args.json {
+        let mut value = serde_json::to_value(&check)?;
+        value["projected_dataset_minutes"] = serde_json::json!(projected_min);
+        value["threads"] = serde_json::json!(threads);
+        println!("{value}");
+    } else {
+        let c = &check;
+        println!(
+            "family {}: units {:.6e} m, {:.6e} s, {:.6e} m/s",
+            c.family, c.length_unit_m, c.time_unit_s, c.velocity_unit_m_s
+        );
+        println!(
+            "{} draws: time of flight {:.1} to {:.1} days, {} to {} cycles of {:.3} to {:.3} days",
+            c.sample,
+            c.time_of_flight_days[0],
+            c.time_of_flight_days[1],
+            c.cycles[0],
+            c.cycles[1],
+            c.cycle_days[0],
+            c.cycle_days[1]
+        );
+        println!(
+            "solved {} of {} ({:.0} %), mean final mass {:.4}; unsolved: {} infeasible, {} feasible, {} unclassified",
+            c.converged,
+            c.sample,
+            100.0 * c.converged as f64 / c.sample as f64,
+            c.final_mass_mean,
+            c.infeasible,
+            c.feasible_unsolved,
+            c.unknown
+        );
+        println!(
+            "solve time per draw: mean {:.2} s, longest {:.2} s; a dataset of {} draws: about {:.1} min on {} threads",
+            c.solve_seconds[0], c.solve_seconds[1], args.dataset_count, projected_min, threads
+        );
+        println!(
+            "full thrust over the longest flight burns {:.3} of the initial mass",
+            c.full_thrust_propellant
+        );
+        for warning in &c.warnings {
+            println!("warning: {warning}");
+        }
+    }
+    if check.converged == 0 {
+        return Err(format!("no draw of the sample of {} was solved", check.family).into());
+    }
+    Ok(())
 }
 
 /// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
@@ -99,10 +211,10 @@ fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
 
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let sc = Spacecraft::MSR_ERO
-        .canonical()
+        .canonical_in(&args.scenario.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
     let manifest = Manifest {
-        scenario: args.scenario,
+        family: args.scenario,
         seed: args.seed,
         count: args.count,
     };
@@ -173,9 +285,9 @@ pub fn print_summary(s: &Summary) {
     }
 }
 
-fn scenario_from_args(args: &SolveArgs) -> Result<(ScenarioKind, Scenario), String> {
-    if let Some(kind) = args.scenario {
-        return Ok((kind, kind.draw(args.seed, args.index)));
+fn scenario_from_args(args: &SolveArgs) -> Result<(MissionFamily, Scenario), String> {
+    if let Some(family) = args.scenario {
+        return Ok((family, family.draw(args.seed, args.index)));
     }
     let (Some(a0), Some(af)) = (args.a0, args.af) else {
         return Err("give either --scenario NAME (with --seed/--index) or at least --a0 and --af".into());
@@ -218,15 +330,16 @@ fn scenario_from_args(args: &SolveArgs) -> Result<(ScenarioKind, Scenario), Stri
         target,
         target_nu0: args.nuf0.to_radians(),
         steps,
+        cycle: shared::units::STEP,
     };
     scenario.validate().map_err(|e| e.to_string())?;
-    Ok((kind, scenario))
+    Ok((kind.family(), scenario))
 }
 
 pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>> {
     let (kind, scenario) = scenario_from_args(args)?;
     let sc = Spacecraft::MSR_ERO
-        .canonical()
+        .canonical_in(&kind.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
     // A figure path that cannot be written is refused before the solve, not after it.
     if let Some(path) = &args.plot {

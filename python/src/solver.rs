@@ -106,7 +106,7 @@ fn samples_dict<'py>(py: Python<'py>, samples: &[TrajectorySample]) -> PyResult<
 
 fn record_dict<'py>(py: Python<'py>, record: &TrajectoryRecord) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("kind", record.kind.name())?;
+    d.set_item("kind", record.family.label().as_str())?;
     d.set_item("seed", record.seed)?;
     d.set_item("index", record.index)?;
     d.set_item("scenario", scenario_dict(py, &record.scenario)?)?;
@@ -163,7 +163,7 @@ fn generate<'py>(
     arrival_margin: u32,
 ) -> PyResult<Bound<'py, PyAny>> {
     let manifest = Manifest {
-        scenario: scenario_kind(kind)?,
+        family: scenario_kind(kind)?.family(),
         seed,
         count,
     };
@@ -194,7 +194,7 @@ fn read_dataset<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDi
     let dataset = read_records(&file).map_err(refused)?;
     let records = &dataset.records;
     let d = PyDict::new(py);
-    d.set_item("kind", dataset.manifest.scenario.name())?;
+    d.set_item("kind", dataset.manifest.family.label().as_str())?;
     d.set_item("seed", dataset.manifest.seed)?;
     d.set_item("index", PyArray1::from_iter(py, records.iter().map(|r| r.index)))?;
     d.set_item(

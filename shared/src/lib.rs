@@ -5,8 +5,10 @@
 //!   initial mass, and the 14-day guidance step.
 //! - [`spacecraft`]: thrust, specific impulse and mass, a parameter of every run.
 //! - [`orbit`]: planar Keplerian orbits, polar and Cartesian states (docs/spec.md section 2).
-//! - [`scenario`]: transfer and rendezvous problems and their distributions (docs/spec.md
-//!   section 4).
+//! - [`mission`]: mission families as data: central body and units, orbit ranges, time of
+//!   flight, guidance cycle (docs/spec.md section 4).
+//! - [`scenario`]: transfer and rendezvous problems and the thesis's four distributions
+//!   (docs/spec.md section 4).
 //! - [`blob`]: the weight blob that carries a trained actor to the flight computer
 //!   (docs/spec.md section 10); decoding checks it and borrows its arrays in place.
 //! - `quantize` (feature `std`, the ground side): trained weights to f32 and int8 blobs.
@@ -62,6 +64,7 @@
 #![deny(missing_docs)]
 
 pub mod blob;
+pub mod mission;
 pub mod orbit;
 #[cfg(feature = "std")]
 pub mod quantize;

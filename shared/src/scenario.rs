@@ -1,10 +1,10 @@
-//! Scenario types (docs/spec.md section 4): what a transfer or rendezvous problem is. The
-//! distributions are defined once here and used by both the data generator and the MDP reset.
+//! Scenario types (docs/spec.md section 4): what a transfer or rendezvous problem is, and the
+//! thesis's four distributions as presets of [`MissionFamily`], used by both the data generator
+//! and the MDP reset.
 
-use rand_chacha::ChaCha8Rng;
-use rand_core::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
+use crate::mission::{CentralBody, Cycle, MissionFamily, OrbitRanges, TimeOfFlight};
 use crate::orbit::{OrbitElements, OrbitError, OrbitShape};
 use crate::units::STEP;
 
@@ -17,7 +17,7 @@ pub enum ProblemKind {
     Rendezvous,
 }
 
-/// The four scenario distributions of docs/spec.md section 4.
+/// The four scenario distributions of docs/spec.md section 4: presets of [`MissionFamily`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
@@ -56,7 +56,7 @@ impl ScenarioKind {
     }
 
     /// The problem the distribution's scenarios pose.
-    pub fn problem(self) -> ProblemKind {
+    pub const fn problem(self) -> ProblemKind {
         match self {
             Self::TransferCircular | Self::TransferHard => ProblemKind::Transfer,
             Self::RendezvousCircular | Self::RendezvousHard => ProblemKind::Rendezvous,
@@ -73,34 +73,20 @@ pub struct Range {
     pub hi: f64,
 }
 
-/// The parameter ranges of a scenario distribution (docs/spec.md section 4 table). Both orbits
-/// share them; angles in radians.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ScenarioRanges {
-    /// Semi-major axis (AU), both orbits.
-    pub a: Range,
-    /// Eccentricity, both orbits.
-    pub e: Range,
-    /// Argument of periapsis (rad), both orbits.
-    pub omega: Range,
-    /// Initial anomaly nu0 and, for rendezvous, the target's nuf0.
-    pub nu: Range,
-}
-
 const TWO_PI: f64 = 2.0 * core::f64::consts::PI;
 
 impl ScenarioKind {
-    /// The docs/spec.md section 4 ranges.
-    pub fn ranges(self) -> ScenarioRanges {
+    /// The docs/spec.md section 4 ranges, shared by the departure orbit and the target.
+    pub const fn ranges(self) -> OrbitRanges {
         let full = Range { lo: 0.0, hi: TWO_PI };
         match self {
-            Self::TransferCircular | Self::RendezvousCircular => ScenarioRanges {
+            Self::TransferCircular | Self::RendezvousCircular => OrbitRanges {
                 a: Range { lo: 1.0, hi: 1.52 },
                 e: Range { lo: 1e-4, hi: 1e-4 },
                 omega: Range { lo: 0.0, hi: 0.0 },
                 nu: full,
             },
-            Self::TransferHard | Self::RendezvousHard => ScenarioRanges {
+            Self::TransferHard | Self::RendezvousHard => OrbitRanges {
                 a: Range { lo: 0.39, hi: 1.52 },
                 e: Range { lo: 1e-4, hi: 0.75 },
                 omega: full,
@@ -109,43 +95,27 @@ impl ScenarioKind {
         }
     }
 
-    /// Draws scenario number `index` of the stream `seed`. Each index has its own ChaCha8
-    /// stream, so any shard of a dataset regenerates alone and identically.
-    pub fn draw(self, seed: u64, index: u64) -> Scenario {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        rng.set_stream(index);
-        let ranges = self.ranges();
-        // Always eight draws in this order, whatever is fixed, so the layout never shifts.
-        let mut uniform = |range: Range| {
-            let unit = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-            range.lo + (range.hi - range.lo) * unit
-        };
-        let initial = OrbitElements {
-            shape: OrbitShape {
-                a: uniform(ranges.a),
-                e: uniform(ranges.e),
-                omega: uniform(ranges.omega),
-            },
-            nu: uniform(ranges.nu),
-        };
-        let target = OrbitShape {
-            a: uniform(ranges.a),
-            e: uniform(ranges.e),
-            omega: uniform(ranges.omega),
-        };
-        let target_nu0 = uniform(ranges.nu);
-        Scenario {
+    /// The distribution as a family: the Sun in AU, both orbits in [`Self::ranges`], the longer
+    /// period rounded up to whole 14-day cycles.
+    pub const fn family(self) -> MissionFamily {
+        MissionFamily {
             problem: self.problem(),
-            initial,
-            target,
-            target_nu0,
-            steps: Scenario::steps_for(&initial.shape, &target),
+            body: CentralBody::SUN,
+            departure: self.ranges(),
+            target: self.ranges(),
+            time_of_flight: TimeOfFlight::LongerPeriod,
+            cycle: Cycle::Days(14.0),
         }
+    }
+
+    /// Draws scenario number `index` of the stream `seed` ([`MissionFamily::draw`]).
+    pub fn draw(self, seed: u64, index: u64) -> Scenario {
+        self.family().draw(seed, index)
     }
 }
 
 /// One concrete problem: where the spacecraft starts, where it must go, and in how many
-/// 14-day steps.
+/// guidance cycles of which length.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Scenario {
     /// Transfer or rendezvous.
@@ -156,13 +126,15 @@ pub struct Scenario {
     pub target: OrbitShape,
     /// Rendezvous only: the target body's true anomaly at t = 0 (rad). Ignored for transfers.
     pub target_nu0: f64,
-    /// Number of 14-day steps N; the time of flight is N * STEP.
+    /// Number of guidance cycles (environment steps) N; the time of flight is N * cycle.
     pub steps: u32,
+    /// Length of one guidance cycle, t* (the thesis's 14 days: [`STEP`]).
+    pub cycle: f64,
 }
 
 impl Scenario {
-    /// A transfer from `initial` to any point of `target`, with the docs/spec.md section 4 time of
-    /// flight.
+    /// A heliocentric transfer from `initial` to any point of `target`, with the docs/spec.md
+    /// section 4 time of flight in 14-day cycles.
     pub fn transfer(initial: OrbitElements, target: OrbitShape) -> Self {
         Self {
             problem: ProblemKind::Transfer,
@@ -170,19 +142,35 @@ impl Scenario {
             target,
             target_nu0: 0.0,
             steps: Self::steps_for(&initial.shape, &target),
+            cycle: STEP,
         }
     }
 
     /// Time of flight in t*.
     pub fn time_of_flight(&self) -> f64 {
-        f64::from(self.steps) * STEP
+        f64::from(self.steps) * self.cycle
     }
 
-    /// The docs/spec.md section 4 rule: TOF = max(P0, Pf) rounded up to whole steps.
+    /// Time from cycle `k`'s start to the arrival, t*.
+    pub fn time_to_go(&self, k: u32) -> f64 {
+        f64::from(self.steps.saturating_sub(k)) * self.cycle
+    }
+
+    /// The start of cycle `k`, t* after departure.
+    pub fn cycle_start(&self, k: u32) -> f64 {
+        f64::from(k) * self.cycle
+    }
+
+    /// The docs/spec.md section 4 rule: TOF = max(P0, Pf) rounded up to whole 14-day steps.
     pub fn steps_for(initial: &OrbitShape, target: &OrbitShape) -> u32 {
-        let tof = libm::fmax(initial.period(), target.period());
-        // Saturating float->int conversion: absurd periods cannot wrap around.
-        libm::ceil(tof / STEP - 1e-12) as u32
+        Self::cycles_covering(libm::fmax(initial.period(), target.period()), STEP)
+    }
+
+    /// Whole cycles of `cycle` that cover `time_of_flight` (rounded up; a sliver of 1e-12 of a
+    /// cycle is rounding).
+    pub fn cycles_covering(time_of_flight: f64, cycle: f64) -> u32 {
+        // Saturating float->int conversion: absurd times cannot wrap around.
+        libm::ceil(time_of_flight / cycle - 1e-12) as u32
     }
 
     /// Checks every number of the scenario.
@@ -195,7 +183,16 @@ impl Scenario {
         if self.steps == 0 {
             return Err(ScenarioError::TimeOfFlight);
         }
+        if !(self.cycle.is_finite() && self.cycle > 0.0) {
+            return Err(ScenarioError::Cycle);
+        }
         Ok(())
+    }
+}
+
+impl From<ScenarioKind> for MissionFamily {
+    fn from(kind: ScenarioKind) -> Self {
+        kind.family()
     }
 }
 
@@ -235,8 +232,10 @@ pub enum ScenarioError {
     Initial(OrbitError),
     /// The target orbit is unusable.
     Target(OrbitError),
-    /// The time of flight must be at least one step.
+    /// The time of flight must be at least one cycle.
     TimeOfFlight,
+    /// The cycle must be finite and positive.
+    Cycle,
 }
 
 impl core::fmt::Display for ScenarioError {
@@ -244,7 +243,8 @@ impl core::fmt::Display for ScenarioError {
         match self {
             Self::Initial(e) => write!(f, "initial orbit: {e}"),
             Self::Target(e) => write!(f, "target orbit: {e}"),
-            Self::TimeOfFlight => f.write_str("time of flight must be at least one 14-day step"),
+            Self::TimeOfFlight => f.write_str("time of flight must be at least one guidance cycle"),
+            Self::Cycle => f.write_str("the guidance cycle must be finite and > 0"),
         }
     }
 }
@@ -288,6 +288,7 @@ mod tests {
                 }
                 assert!(inside(s.initial.nu, r.nu) && inside(s.target_nu0, r.nu));
                 assert_eq!(s.steps, Scenario::steps_for(&s.initial.shape, &s.target));
+                assert_eq!(s.cycle, STEP);
             }
         }
     }

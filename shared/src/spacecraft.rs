@@ -3,7 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::units::{ACCELERATION_UNIT_M_S2, G0_M_S2, VELOCITY_UNIT_M_S};
+use crate::mission::Units;
+use crate::units::G0_M_S2;
 
 /// Physical spacecraft description in SI units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -57,8 +58,13 @@ impl Spacecraft {
         initial_mass_kg: 3366.0,
     };
 
-    /// Checks the description and converts it to canonical units.
+    /// Checks the description and converts it to the thesis's heliocentric canonical units.
     pub fn canonical(&self) -> Result<CanonicalSpacecraft, SpacecraftError> {
+        self.canonical_in(&Units::HELIOCENTRIC)
+    }
+
+    /// Checks the description and converts it to the canonical `units` of a central body.
+    pub fn canonical_in(&self, units: &Units) -> Result<CanonicalSpacecraft, SpacecraftError> {
         let positive = |x: f64| x.is_finite() && x > 0.0;
         if !positive(self.max_thrust_n) {
             return Err(SpacecraftError::Thrust);
@@ -70,8 +76,8 @@ impl Spacecraft {
             return Err(SpacecraftError::Mass);
         }
         Ok(CanonicalSpacecraft {
-            thrust: self.max_thrust_n / self.initial_mass_kg / ACCELERATION_UNIT_M_S2,
-            exhaust_speed: self.isp_s * G0_M_S2 / VELOCITY_UNIT_M_S,
+            thrust: self.max_thrust_n / self.initial_mass_kg / units.acceleration_m_s2(),
+            exhaust_speed: self.isp_s * G0_M_S2 / units.velocity_m_s(),
         })
     }
 }

@@ -165,7 +165,7 @@ pub fn repair_record(
     start.fixed_rows_mut::<5>(0).copy_from_slice(&costates);
     start[5] = nu_f.unwrap_or(0.0);
     let repaired = solve_from_energy_start(
-        record.kind,
+        record.family,
         record.seed,
         record.index,
         &record.scenario,

@@ -31,11 +31,11 @@ use onboard::features::{decode_action, ACTION_LEN};
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use shared::mission::{MissionFamily, OrbitRanges};
 use shared::orbit::CartesianState;
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::scenario::{ProblemKind, Range, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
-use shared::units::STEP;
 
 use crate::env::batch::Stats;
 use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Problem};
@@ -244,8 +244,7 @@ fn zoh_controls_from_mass(
         return Err(DemoError::NoSolution);
     }
     let mut spacecraft = config
-        .spacecraft
-        .canonical()
+        .canonical_spacecraft()
         .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
     spacecraft.thrust /= start_mass;
     let params = OptimalControlParams {
@@ -257,14 +256,15 @@ fn zoh_controls_from_mass(
     let mut y: [f64; AUG_LEN] = core::array::from_fn(|i| if i < Y_LEN { y0[i] } else { 0.0 });
     let mut controls = Vec::with_capacity(n as usize);
     for k in 0..n {
-        let (t0, t1) = (f64::from(k) * STEP, f64::from(k + 1) * STEP);
+        let cycle = record.scenario.cycle;
+        let (t0, t1) = (record.scenario.cycle_start(k), record.scenario.cycle_start(k + 1));
         y[Y_LEN..].fill(0.0);
         y = integrate(&system, t0, &y, t1, tolerances)
             .map_err(|error| DemoError::Integration { step: k, error })?
             .0;
         controls.push(ZohControl {
-            w: [y[Y_LEN] / STEP, y[Y_LEN + 1] / STEP],
-            mean_throttle: y[Y_LEN + 2] / STEP,
+            w: [y[Y_LEN] / cycle, y[Y_LEN + 1] / cycle],
+            mean_throttle: y[Y_LEN + 2] / cycle,
         });
         let deviation = record
             .steps
@@ -344,7 +344,7 @@ impl Placement {
     /// or, for a record that arrives early, the scenario it shortened; a record of no draw fills
     /// the episode of its own scenario.
     pub fn whole(record: &TrajectoryRecord) -> Self {
-        let draw = record.kind.draw(record.seed, record.index);
+        let draw = record.family.draw(record.seed, record.index);
         let shortened = Scenario {
             steps: draw.steps,
             ..record.scenario
@@ -363,11 +363,12 @@ impl Placement {
 /// [`Placement`]. `None` when the state has no orbit (not bound), the step leaves no flight, or
 /// (rendezvous) the body's state at that step cannot be computed. The rest departs from the
 /// state's osculating orbit; a rendezvous rest chases the same body from where it is at that
-/// step. A transfer's rest is solved as a general transfer (kind transfer-hard: a near-circular
-/// rest that the near-circular path cannot solve falls back to the general one), a rendezvous's
-/// as rendezvous-hard, with the options' arrival margin ([`solve_arriving_early`]); seed and
-/// index are the caller's, for tracing.
+/// step. The rest is labelled with the episode's `family` less its departure eccentricities (an
+/// osculating orbit may have any: a near-circular rest that the near-circular path cannot solve
+/// falls back to the general one), with the options' arrival margin ([`solve_arriving_early`]);
+/// seed and index are the caller's, for tracing.
 pub fn relabel(
+    family: &MissionFamily,
     (seed, index): (u64, u64),
     episode: &Scenario,
     state: &SpacecraftState,
@@ -378,17 +379,21 @@ pub fn relabel(
     if step >= episode.steps {
         return None;
     }
-    let (kind, target_nu0) = match episode.problem {
-        ProblemKind::Transfer => (ScenarioKind::TransferHard, episode.target_nu0),
+    let label = MissionFamily {
+        departure: OrbitRanges {
+            e: Range { lo: 0.0, hi: 0.99 },
+            ..family.departure
+        },
+        ..*family
+    };
+    let target_nu0 = match episode.problem {
+        ProblemKind::Transfer => episode.target_nu0,
         ProblemKind::Rendezvous => {
             // The body coasts on the target orbit: its polar angle at the step, less the
             // orbit's periapsis angle, is its true anomaly there.
             let body = body_at(episode, step).ok()?;
             let theta = body.r[1].atan2(body.r[0]);
-            (
-                ScenarioKind::RendezvousHard,
-                (theta - episode.target.omega).rem_euclid(2.0 * core::f64::consts::PI),
-            )
+            (theta - episode.target.omega).rem_euclid(2.0 * core::f64::consts::PI)
         }
     };
     let rest = Scenario {
@@ -401,7 +406,7 @@ pub fn relabel(
         thrust: spacecraft.thrust / state.m,
         ..*spacecraft
     };
-    let record = solve_arriving_early(kind, seed, index, &rest, &scaled, options);
+    let record = solve_arriving_early(label, seed, index, &rest, &scaled, options);
     let placement = Placement {
         episode: *episode,
         start_step: step,
@@ -482,7 +487,7 @@ pub fn placed_demonstration<P: Problem>(
             &s_k,
             &control.command(),
             env.spacecraft(),
-            STEP,
+            scenario.cycle,
             &config.integrator.tolerances(),
         )
         .map_err(|error| DemoError::Env(EnvError::Propagation { step: k, error }))?;
@@ -705,7 +710,7 @@ impl core::fmt::Display for MismatchReport {
 /// returns the statistics.
 pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter) -> Result<MismatchReport, DemoError> {
     let file = read_dataset(dataset)?;
-    let problem = file.manifest.scenario.problem();
+    let problem = file.manifest.family.problem;
     let tol = default_tolerances();
     Ok(crate::with_problem!(problem, P => MismatchReport::from_mismatch(
         problem,
@@ -733,6 +738,7 @@ mod tests {
     use crate::solver::record::sample_at;
     use crate::solver::{solve_scenario, SolveOptions};
     use shared::scenario::{Scenario, ScenarioKind};
+    use shared::units::STEP;
 
     /// A short homotopy keeps the solve quick; the tuples are built the same at any eps.
     fn quick_options() -> SolveOptions {
@@ -818,7 +824,16 @@ mod tests {
         let n = whole_record.scenario.steps;
         let k = n / 2;
         let mid = state_of(&whole_record.steps[k as usize]);
-        let (tail_record, placement) = relabel((7, 0), &whole_record.scenario, &mid, k, &sc, &quick_options()).unwrap();
+        let (tail_record, placement) = relabel(
+            &whole_record.family,
+            (7, 0),
+            &whole_record.scenario,
+            &mid,
+            k,
+            &sc,
+            &quick_options(),
+        )
+        .unwrap();
         assert!(tail_record.converged, "{:?}", tail_record.failure);
         assert_eq!(tail_record.final_eps, whole_record.final_eps);
         assert_eq!((placement.start_step, placement.start_mass), (k, mid.m));
@@ -981,7 +996,7 @@ mod tests {
             ..quick_options()
         };
         let mid = state_of(&whole.steps[k as usize]);
-        let (rest, placement) = relabel((7, 0), &whole.scenario, &mid, k, &sc, &options).unwrap();
+        let (rest, placement) = relabel(&whole.family, (7, 0), &whole.scenario, &mid, k, &sc, &options).unwrap();
         assert!(rest.converged, "{:?}", rest.failure);
         assert_eq!(rest.scenario.steps, n - k - 2);
         let demo = placed_demonstration::<Rendezvous>(&rest, &placement, &EnvConfig::default(), &default_tolerances())
@@ -1138,7 +1153,7 @@ mod tests {
         stalled.converged = false;
         let file = DatasetFile {
             manifest: Manifest {
-                scenario: record.kind,
+                family: record.family,
                 seed: record.seed,
                 count: 2,
             },

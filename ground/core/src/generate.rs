@@ -21,6 +21,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use shared::mission::MissionFamily;
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -28,13 +29,29 @@ use crate::crosscheck::{crosscheck_records, cut_record, repair_record, CrossChec
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
 use crate::progress;
 use crate::solver::direct::DirectError;
-use crate::solver::min_time::{classify_draw, Feasibility, DAYS_PER_TIME_UNIT};
-use crate::solver::record::TrajectoryRecord;
+use crate::solver::min_time::{classify_draw, Feasibility};
+use crate::solver::record::{RecordFormat1, TrajectoryRecord};
 use crate::solver::{solve_arriving_early, solve_from_energy_start, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
 const DATASET_MAGIC: [u8; 4] = *b"LTDS";
-const FORMAT_VERSION: u16 = 1;
+/// Format 2: records carry their family and their scenario its cycle. Format 1 (the thesis's
+/// families, 14-day cycles) is still read.
+const FORMAT_VERSION: u16 = 2;
+const FORMAT_1: u16 = 1;
+
+/// Decodes a container of format 2, or of format 1 through its older layout `Old`.
+fn decode_any_format<T: serde::de::DeserializeOwned, Old: serde::de::DeserializeOwned + Into<T>>(
+    magic: [u8; 4],
+    bytes: &[u8],
+) -> Result<T, ContainerError> {
+    match decode_container(magic, FORMAT_VERSION, bytes) {
+        Err(ContainerError::UnsupportedVersion(FORMAT_1)) => {
+            decode_container::<Old>(magic, FORMAT_1, bytes).map(Into::into)
+        }
+        decoded => decoded,
+    }
+}
 
 /// Shard I of N: the indices i with i mod N == I. Disjoint, reproducible, and together all.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -93,9 +110,11 @@ impl FromStr for Shard {
 /// What a run generates; stored as `manifest.json` and checked on resume and merge.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
-    /// Distribution the scenarios are drawn from.
-    pub scenario: ScenarioKind,
-    /// Seed of the draws: index i is `scenario.draw(seed, i)`.
+    /// Family the scenarios are drawn from (`scenario` in manifest.json: a preset's name or the
+    /// family's table).
+    #[serde(rename = "scenario", with = "crate::mission::by_spec")]
+    pub family: MissionFamily,
+    /// Seed of the draws: index i is `family.draw(seed, i)`.
     pub seed: u64,
     /// Number of scenarios: indices 0..count.
     pub count: u64,
@@ -146,6 +165,29 @@ pub struct DatasetFile {
     pub records: Vec<TrajectoryRecord>,
 }
 
+/// A dataset file of format 1.
+#[derive(Deserialize)]
+struct DatasetFormat1 {
+    manifest: (ScenarioKind, u64, u64),
+    shard: Shard,
+    records: Vec<RecordFormat1>,
+}
+
+impl From<DatasetFormat1> for DatasetFile {
+    fn from(old: DatasetFormat1) -> Self {
+        let (kind, seed, count) = old.manifest;
+        Self {
+            manifest: Manifest {
+                family: kind.family(),
+                seed,
+                count,
+            },
+            shard: old.shard,
+            records: old.records.into_iter().map(Into::into).collect(),
+        }
+    }
+}
+
 /// Why a run, merge or dataset read failed.
 #[derive(Debug, thiserror::Error)]
 pub enum GenerateError {
@@ -155,18 +197,18 @@ pub enum GenerateError {
     /// The folder holds a run of another scenario, seed or count.
     #[error(
         "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out (a larger count of the same scenario and seed extends a run)",
-        .found.scenario.name(),
+        .found.family.label(),
         .found.seed,
         .found.count,
-        .wanted.scenario.name(),
+        .wanted.family.label(),
         .wanted.seed,
         .wanted.count
     )]
     ManifestMismatch {
         /// The folder's manifest.
-        found: Manifest,
+        found: Box<Manifest>,
         /// The run's.
-        wanted: Manifest,
+        wanted: Box<Manifest>,
     },
     /// The folder holds records solved to another final eps.
     #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
@@ -256,7 +298,7 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<Option<T>, G
 /// Aggregate figures of a record set (written as summary.json).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
-    /// Distribution name ([`ScenarioKind::name`]).
+    /// Family label ([`MissionFamily::label`]: a preset's name, or `custom-` and its fingerprint).
     pub scenario: String,
     /// Seed of the draws.
     pub seed: u64,
@@ -315,7 +357,7 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
         .filter(|r| !r.converged && r.failure.as_deref().is_some_and(|f| f.starts_with(INFEASIBLE)))
         .count();
     Summary {
-        scenario: manifest.scenario.name().to_string(),
+        scenario: manifest.family.label().to_string(),
         seed: manifest.seed,
         shard,
         records: records.len(),
@@ -362,7 +404,8 @@ pub fn classify_failure(
     }
     let clock = std::time::Instant::now();
     let tof = scenario.time_of_flight();
-    let days = |t: f64| t * DAYS_PER_TIME_UNIT;
+    let units = record.family.body.units();
+    let days = |t: f64| units.to_days(t);
     let verdict = match classify_draw(scenario, spacecraft, options) {
         Feasibility::MinTime { tf_min, .. } if tf_min > tof => format!(
             "{INFEASIBLE} minimum time {:.1} d > TOF {:.1} d (ratio {:.3}, local minimum-time extremal)",
@@ -378,8 +421,15 @@ pub fn classify_failure(
         ),
         Feasibility::Recovered { z } => {
             // The homotopy from the recovered start: a converged record replaces the failure.
-            let solved =
-                solve_from_energy_start(record.kind, record.seed, record.index, scenario, spacecraft, options, z);
+            let solved = solve_from_energy_start(
+                record.family,
+                record.seed,
+                record.index,
+                scenario,
+                spacecraft,
+                options,
+                z,
+            );
             if solved.converged {
                 let seconds = record.seconds + clock.elapsed().as_secs_f64();
                 *record = TrajectoryRecord { seconds, ..solved };
@@ -413,7 +463,7 @@ pub fn classify_run(
         .map(|mut record| {
             let index = record.index;
             let path = record_path(out, index);
-            let scenario = manifest.scenario.draw(manifest.seed, index);
+            let scenario = manifest.family.draw(manifest.seed, index);
             if classify_failure(&mut record, &scenario, spacecraft, options) {
                 write_record(&path, &record)?;
             }
@@ -588,6 +638,21 @@ struct CrossCheckJournal {
     rewrites: Vec<TrajectoryRecord>,
 }
 
+#[derive(Deserialize)]
+struct JournalFormat1 {
+    summary: CrossCheckSummary,
+    rewrites: Vec<RecordFormat1>,
+}
+
+impl From<JournalFormat1> for CrossCheckJournal {
+    fn from(old: JournalFormat1) -> Self {
+        Self {
+            summary: old.summary,
+            rewrites: old.rewrites.into_iter().map(Into::into).collect(),
+        }
+    }
+}
+
 const JOURNAL_MAGIC: [u8; 4] = *b"LTCJ";
 const JOURNAL_FILE: &str = "crosscheck-journal.ltcj";
 
@@ -628,7 +693,7 @@ fn crosscheck_once_stopping(
     }
     let journal = if journal_path.exists() {
         let bytes = fs::read(&journal_path).map_err(io_err(&journal_path))?;
-        let journal: CrossCheckJournal = decode_container(JOURNAL_MAGIC, FORMAT_VERSION, &bytes)
+        let journal: CrossCheckJournal = decode_any_format::<_, JournalFormat1>(JOURNAL_MAGIC, &bytes)
             .map_err(|e| GenerateError::Corrupt(journal_path.clone(), e))?;
         // A journal of the run before it was extended is stale: the extended run is checked.
         (journal.summary.count == manifest.count).then_some(journal)
@@ -723,7 +788,8 @@ fn write_record(path: &Path, record: &TrajectoryRecord) -> Result<(), GenerateEr
 
 fn read_record(path: &Path) -> Result<TrajectoryRecord, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
-    decode_container(RECORD_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+    decode_any_format::<_, RecordFormat1>(RECORD_MAGIC, &bytes)
+        .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
 }
 
 /// Reads a dataset file, refusing anything corrupt or of another format.
@@ -757,7 +823,8 @@ pub fn trajectory_difference(a: &DatasetFile, b: &DatasetFile) -> Option<String>
 /// Reads and checks a dataset file (`dataset.ltds` or a shard's).
 pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
-    decode_container(DATASET_MAGIC, FORMAT_VERSION, &bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+    decode_any_format::<_, DatasetFormat1>(DATASET_MAGIC, &bytes)
+        .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
 }
 
 /// Where the dataset file of a run (whole or shard) lives in its output folder.
@@ -831,7 +898,10 @@ fn read_manifest(out: &Path) -> Result<Option<Manifest>, GenerateError> {
 /// Refuses a folder that holds a run of another manifest; says whether it holds one of `wanted`.
 fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
     match read_manifest(out)? {
-        Some(found) if found != *wanted => Err(GenerateError::ManifestMismatch { found, wanted: *wanted }),
+        Some(found) if found != *wanted => Err(GenerateError::ManifestMismatch {
+            found: Box::new(found),
+            wanted: Box::new(*wanted),
+        }),
         Some(_) => Ok(true),
         None => Ok(false),
     }
@@ -843,7 +913,7 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
 fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
     match check_manifest(out, wanted) {
         Err(GenerateError::ManifestMismatch { found, .. })
-            if found.scenario == wanted.scenario && found.seed == wanted.seed && found.count < wanted.count =>
+            if found.family == wanted.family && found.seed == wanted.seed && found.count < wanted.count =>
         {
             Ok(false)
         }
@@ -951,14 +1021,14 @@ pub fn generate_in(
             let path = record_path(out, index);
             // Resume: a readable record of this run is kept; a corrupt one is solved again.
             if let Ok(r) = read_record(&path) {
-                if r.kind == manifest.scenario && r.seed == manifest.seed && r.index == index {
+                if r.family == manifest.family && r.seed == manifest.seed && r.index == index {
                     resumed.fetch_add(1, Ordering::Relaxed);
                     bar.inc(1);
                     return Ok(r);
                 }
             }
-            let scenario = manifest.scenario.draw(manifest.seed, index);
-            let record = solve_arriving_early(manifest.scenario, manifest.seed, index, &scenario, spacecraft, options);
+            let scenario = manifest.family.draw(manifest.seed, index);
+            let record = solve_arriving_early(manifest.family, manifest.seed, index, &scenario, spacecraft, options);
             write_record(&path, &record).inspect_err(|_| {
                 unwritten.fetch_add(1, Ordering::Relaxed);
             })?;
@@ -1088,15 +1158,15 @@ mod tests {
     #[test]
     fn the_summary_counts_infeasible_records() {
         let manifest = Manifest {
-            scenario: ScenarioKind::TransferHard,
+            family: ScenarioKind::TransferHard.family(),
             seed: 7,
             count: 4,
         };
         let record = |index: u64, converged: bool, failure: Option<&str>| TrajectoryRecord {
-            kind: manifest.scenario,
+            family: manifest.family,
             seed: 7,
             index,
-            scenario: manifest.scenario.draw(7, index),
+            scenario: manifest.family.draw(7, index),
             converged,
             failure: failure.map(String::from),
             costates: [0.0; 5],
@@ -1169,7 +1239,7 @@ mod tests {
         let out = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
         let _ = fs::remove_dir_all(&out);
         let manifest = Manifest {
-            scenario: ScenarioKind::TransferHard,
+            family: ScenarioKind::TransferHard.family(),
             seed: 7,
             count: 1,
         };

@@ -75,6 +75,7 @@ pub mod demo;
 pub mod env;
 pub mod generate;
 pub mod io;
+pub mod mission;
 pub mod model_files;
 pub mod oem;
 pub mod onnx;

@@ -90,6 +90,9 @@ const MAX_NAME_LENGTH: usize = 80;
 /// Why a record could not be exported, or an OEM text could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum OemError {
+    /// The record's family is not heliocentric: the export writes Sun-centred states in AU.
+    #[error("the OEM export writes heliocentric trajectories; this record's family ({0}) goes around another body")]
+    NotHeliocentric(String),
     /// The record's solve did not converge; its samples are not a trajectory.
     #[error(fmt = fmt_not_converged)]
     NotConverged {
@@ -571,6 +574,9 @@ impl OemEphemeris {
 /// Checks a record can be exported: converged, non-empty, finite, time strictly increasing,
 /// positive mass, throttle in [0, 1].
 pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
+    if record.family.body != shared::mission::CentralBody::SUN {
+        return Err(OemError::NotHeliocentric(record.family.label().to_string()));
+    }
     if !record.converged {
         return Err(OemError::NotConverged {
             failure: record.failure.clone(),
@@ -667,7 +673,7 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
     ));
     line(&format!(
         "COMMENT Scenario {} seed {} index {}; final eps {:e}; terminal residual {:e}; thrust arcs {}",
-        record.kind.name(),
+        record.family.label(),
         record.seed,
         record.index,
         record.final_eps,

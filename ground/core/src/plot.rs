@@ -357,7 +357,7 @@ pub(crate) fn record_color(i: usize) -> RGBColor {
 }
 
 fn record_label(rec: &TrajectoryRecord) -> String {
-    format!("{} seed {} #{}", rec.kind.name(), rec.seed, rec.index)
+    format!("{} seed {} #{}", rec.family.label(), rec.seed, rec.index)
 }
 
 fn record_detail(rec: &TrajectoryRecord) -> String {

@@ -50,7 +50,7 @@ fn a_full_disk_stops_the_run_at_its_first_failed_write_and_leaves_no_temporaries
     let dir = std::env::temp_dir().join(format!("lowthrust-full-disk-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let manifest = Manifest {
-        scenario: ScenarioKind::TransferCircular,
+        family: ScenarioKind::TransferCircular.family(),
         seed: 17,
         count: 4,
     };

@@ -36,7 +36,7 @@ fn without_timing(mut records: Vec<TrajectoryRecord>) -> Vec<TrajectoryRecord> {
 fn shards_merge_into_the_single_run_and_restarts_resume() {
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let manifest = Manifest {
-        scenario: ScenarioKind::TransferCircular,
+        family: ScenarioKind::TransferCircular.family(),
         seed: 9,
         count: 5,
     };
@@ -157,7 +157,7 @@ fn shards_merge_into_the_single_run_and_restarts_resume() {
 fn a_run_asked_for_more_scenarios_extends_to_the_single_run_and_fewer_are_refused() {
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let small = Manifest {
-        scenario: ScenarioKind::TransferCircular,
+        family: ScenarioKind::TransferCircular.family(),
         seed: 11,
         count: 2,
     };

@@ -38,7 +38,7 @@ fn circular_record() -> TrajectoryRecord {
         })
         .collect();
     TrajectoryRecord {
-        kind: ScenarioKind::TransferCircular,
+        family: ScenarioKind::TransferCircular.family(),
         seed: 7,
         index: 3,
         scenario: ScenarioKind::TransferCircular.draw(7, 3),

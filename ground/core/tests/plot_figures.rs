@@ -105,7 +105,7 @@ fn synthetic_record() -> TrajectoryRecord {
         })
         .collect();
     TrajectoryRecord {
-        kind: ScenarioKind::TransferCircular,
+        family: ScenarioKind::TransferCircular.family(),
         seed: 0,
         index: 0,
         scenario,

@@ -13,7 +13,7 @@ use shared::scenario::ScenarioKind;
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 
 const MANIFEST: Manifest = Manifest {
-    scenario: ScenarioKind::TransferCircular,
+    family: ScenarioKind::TransferCircular.family(),
     seed: 9,
     count: 1,
 };

@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: reach_along_flight CONFIG ACTOR REACH_CSV COUNT OUT_CSV".into());
     };
     let config = ExperimentConfig::load(Path::new(config))?;
-    if config.scenario.problem() != ProblemKind::Transfer {
+    if config.family.problem != ProblemKind::Transfer {
         return Err("a transfer config is needed (the diagnostic flies the 10-feature transfer MDP)".into());
     }
     let count: usize = count.parse()?;
@@ -47,10 +47,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let agent = load_agent(&config, 10, Path::new(actor))?;
     let scenarios: Vec<_> = solved
         .iter()
-        .map(|&i| config.scenario.draw(config.seeds.monte_carlo, i as u64))
+        .map(|&i| config.family.draw(config.seeds.monte_carlo, i as u64))
         .collect();
     let flown = evaluate_batched::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
-    let spacecraft = config.env.spacecraft.canonical()?;
+    let spacecraft = config.env.canonical_spacecraft()?;
     // As a relabelling round solves them.
     let options = SolveOptions {
         final_eps: config.generate.final_eps,
@@ -72,7 +72,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if n.is_multiple_of(100) {
                 eprintln!("{n}/{}", jobs.len());
             }
-            relabel((0, 0), scenario, &state, step, &spacecraft, &options).map(|(record, _)| record.converged)
+            relabel(&config.family, (0, 0), scenario, &state, step, &spacecraft, &options)
+                .map(|(record, _)| record.converged)
         })
         .collect();
     let mut csv = String::from("index,dr,dv,within_goal");

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use shared::scenario::ScenarioKind;
+use shared::mission::{CentralBody, Cycle, MissionFamily};
 use shared::spacecraft::SpacecraftError;
 
 use crate::cloning::CloningTarget;
@@ -22,8 +22,11 @@ pub use onboard::terminal::TerminalSettings;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExperimentConfig {
-    /// Scenario distribution of docs/spec.md section 4 (training, evaluation and Monte Carlo).
-    pub scenario: ScenarioKind,
+    /// Scenario family (training, evaluation and Monte Carlo): a preset's name (docs/spec.md
+    /// section 4), a mission file's path, or the table (docs/missions.md). Written back as the
+    /// preset's name or the whole table, never as the path, so a run keeps its family.
+    #[serde(rename = "scenario", with = "ground_core::mission::by_spec")]
+    pub family: MissionFamily,
     /// Disjoint seeds of the training, evaluation and Monte Carlo scenario streams.
     #[serde(default)]
     pub seeds: Seeds,
@@ -436,7 +439,9 @@ impl ExperimentConfig {
     /// Parses a TOML config and [`validates`](ExperimentConfig::validate) it; absent sections and
     /// keys take their defaults.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let config: Self = toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string()))?;
+        let mut config: Self = toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string()))?;
+        // The spacecraft flies in the family's canonical units.
+        config.env.body = config.family.body;
         config.validate()?;
         Ok(config)
     }
@@ -483,6 +488,23 @@ impl ExperimentConfig {
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }
+        let heliocentric = self.family.body == CentralBody::SUN;
+        if !(heliocentric && self.family.cycle == Cycle::Days(14.0))
+            && (self.sil.lookahead.is_some() || self.sil.terminal.is_some())
+        {
+            return Err(ConfigError::Invalid(format!(
+                "sil.lookahead / sil.terminal: the onboard aids count 14-day heliocentric cycles, and family {} \
+                 has another cycle or body: fly its network alone (remove the key)",
+                self.family.label()
+            )));
+        }
+        if !heliocentric && self.sil.dispersions != firmware_sim::Dispersions::NONE {
+            return Err(ConfigError::Invalid(format!(
+                "sil.dispersions are heliocentric (AU, v*, days of the Sun's time unit), and family {} goes \
+                 around another body: set every dispersion to 0",
+                self.family.label()
+            )));
+        }
         if self.terminal_settings().is_some_and(|t| t.validate().is_err()) {
             return Err(ConfigError::Invalid(format!(
                 "sil.terminal: cycles must be 1 to {}, iterations 1 to {}",
@@ -491,7 +513,7 @@ impl ExperimentConfig {
             )));
         }
         let craft = &self.env.spacecraft;
-        craft.canonical().map_err(|e| {
+        self.env.canonical_spacecraft().map_err(|e| {
             let (key, value) = match e {
                 SpacecraftError::Thrust => ("max_thrust_n", craft.max_thrust_n),
                 SpacecraftError::SpecificImpulse => ("isp_s", craft.isp_s),
@@ -693,9 +715,9 @@ impl ExperimentConfig {
 
     /// What a run's saved relabels depend on: the scenarios a round flies (scenario and seeds)
     /// and what they are solved to (final eps, arrival margin).
-    pub fn relabel_problem(&self) -> (ScenarioKind, Seeds, f64, u32) {
+    pub fn relabel_problem(&self) -> (MissionFamily, Seeds, f64, u32) {
         (
-            self.scenario,
+            self.family,
             self.seeds,
             self.generate.final_eps,
             self.generate.arrival_margin,
@@ -759,7 +781,7 @@ mod tests {
     #[test]
     fn defaults_equal_the_thesis() {
         let c = ExperimentConfig::from_toml("scenario = \"transfer-circular\"").unwrap();
-        assert_eq!(c.scenario, ScenarioKind::TransferCircular);
+        assert_eq!(c.family, shared::scenario::ScenarioKind::TransferCircular.family());
         assert_eq!(c.sac.learning_rate, 3e-4);
         assert_eq!(c.sac.discount, 0.99);
         assert_eq!(c.sac.replay_capacity, 1_000_000);
@@ -838,6 +860,64 @@ mod tests {
             err.to_string(),
             "config is invalid: sac.initial_log_temperature (1) is above sac.max_log_temperature (Some(0.0))"
         );
+    }
+
+    /// A family as a mission file's path or as a table: the config holds the family, is written
+    /// back with the whole table (a run keeps its family if the file changes), flies the
+    /// spacecraft in the family's units, and refuses what the family cannot fly.
+    #[test]
+    fn a_mission_family_reads_from_a_file_or_a_table_and_is_written_whole() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let file = root.join("configs/missions/venus-inward.toml");
+        let by_file = ExperimentConfig::from_toml(&format!(
+            "scenario = {:?}\n[sil.dispersions]\nmissed_thrust_per_year = 0.0",
+            file.display()
+        ))
+        .unwrap();
+        assert_eq!(by_file.family.cycle, shared::mission::Cycle::Days(7.0));
+        let written = by_file.to_toml();
+        assert!(
+            written.contains("[scenario]") && written.contains("lo_days = 250.0"),
+            "{written}"
+        );
+        assert_eq!(ExperimentConfig::from_toml(&written).unwrap(), by_file);
+        // Around the Earth the spacecraft's canonical thrust is in Earth units.
+        let table = std::fs::read_to_string(&file)
+            .unwrap()
+            .replace("\"sun\"", "\"earth\"")
+            .replace("departure = { a = [0.98, 1.02]", "departure = { a = [1.5, 1.6]");
+        let table = table.replace("target = { a = [0.70, 0.74]", "target = { a = [1.7, 1.8]");
+        let table = table
+            .replace("{ lo_days = 250.0, hi_days = 320.0 }", "{ days = 30.0 }")
+            .replace("days = 7.0", "days = 0.5");
+        let mut toml: toml::Table = toml::from_str(&table).unwrap();
+        let earth: toml::Table = toml::from_str("[sil.dispersions]\nnavigation_position = 0.0\nnavigation_velocity = 0.0\nnavigation_mass = 0.0\nthrust_magnitude = 0.0\npointing = 0.0\nmissed_thrust_per_year = 0.0\nmissed_thrust_days = 0.0").unwrap();
+        let mut config = toml::Table::new();
+        config.insert("scenario".into(), toml::Value::Table(std::mem::take(&mut toml)));
+        config.extend(earth);
+        let around_earth = ExperimentConfig::from_toml(&toml::to_string(&config).unwrap()).unwrap();
+        let thrust = around_earth.env.canonical_spacecraft().unwrap().thrust;
+        let units = shared::mission::CentralBody::EARTH.units();
+        let expected = 1.33 / 3366.0 / units.acceleration_m_s2();
+        assert!((thrust - expected).abs() <= 1e-15 * expected, "{thrust} {expected}");
+        // The onboard aids count 14-day heliocentric cycles; typical dispersions are heliocentric.
+        let aid = ExperimentConfig::from_toml(&format!(
+            "scenario = {:?}\n[sil]\nterminal = {{ cycles = 2 }}",
+            file.display()
+        ))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            aid.contains("sil.lookahead / sil.terminal") && aid.contains("custom-"),
+            "{aid}"
+        );
+        config.remove("sil");
+        let dispersed = ExperimentConfig::from_toml(&toml::to_string(&config).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(dispersed.contains("sil.dispersions are heliocentric"), "{dispersed}");
+        let bad = ExperimentConfig::from_toml("scenario = { problem = \"transfer\", body = \"sun\" }").unwrap_err();
+        assert!(bad.to_string().contains("config does not parse"), "{bad}");
     }
 
     /// `[sil] terminal` reads its two settings by name and takes the environment's integrator

@@ -24,7 +24,7 @@ pub fn demonstrations(
         .canonical()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let manifest = Manifest {
-        scenario: config.scenario,
+        family: config.family,
         seed: config.generate.seed,
         count: config.generate.count,
     };

@@ -265,7 +265,7 @@ pub fn monte_carlo(
     episodes: Option<u64>,
     gap_cases: Option<u64>,
 ) -> Result<MonteCarloReport, ExperimentError> {
-    with_problem!(config.scenario.problem(), P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
+    with_problem!(config.family.problem, P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
 }
 
 /// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a
@@ -323,7 +323,7 @@ where
     }
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let seed = config.seeds.monte_carlo;
-    let scenarios = draw_scenarios(config.scenario, seed, n);
+    let scenarios = draw_scenarios(config.family, seed, n);
     let bar = ground_core::progress::spinner(format!("Monte Carlo: {n} episodes"));
     // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
     let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
@@ -398,7 +398,7 @@ where
         .filter(|g| g.optimal_converged || g.optimal_mass.is_finite())
         .collect();
     let report = MonteCarloReport {
-        scenario: config.scenario.name().to_string(),
+        scenario: config.family.label().to_string(),
         checkpoint: source.to_path_buf(),
         episodes: policy.len(),
         seed,
@@ -424,7 +424,7 @@ where
 
 /// Indirect solutions of `scenarios` (in parallel) against the policy's final masses.
 fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[EpisodeOutcome]) -> Vec<GapRow> {
-    let Ok(spacecraft) = config.env.spacecraft.canonical() else {
+    let Ok(spacecraft) = config.env.canonical_spacecraft() else {
         return Vec::new();
     };
     let options = SolveOptions::default();
@@ -438,7 +438,7 @@ fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[E
         .enumerate()
         .map(|(i, (scenario, flown))| {
             let record = solve_scenario(
-                config.scenario,
+                config.family,
                 config.seeds.monte_carlo,
                 i as u64,
                 scenario,

@@ -161,7 +161,7 @@ pub fn export(
     checkpoint: &Path,
     out: &Path,
 ) -> Result<ExportReport, ExperimentError> {
-    with_problem!(config.scenario.problem(), P => export_for::<P>(config, config_dir, checkpoint, out))
+    with_problem!(config.family.problem, P => export_for::<P>(config, config_dir, checkpoint, out))
 }
 
 /// Network inputs at every state of `episodes` (recorded trajectories).
@@ -195,7 +195,7 @@ where
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let network = actor_network(&agent, P::KIND)?;
     let fly_recorded = |seed: u64| -> Result<Vec<Vec<f32>>, ExperimentError> {
-        let scenarios = draw_scenarios(config.scenario, seed, STATE_EPISODES);
+        let scenarios = draw_scenarios(config.family, seed, STATE_EPISODES);
         let flown = evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
         Ok(visited_inputs::<P>(&scenarios, &flown))
     };
@@ -207,7 +207,7 @@ where
 
     let provenance = format!(
         "{} actor from {} ({} updates)",
-        config.scenario.name(),
+        config.family.label(),
         checkpoint.display(),
         agent.updates
     );
@@ -220,7 +220,7 @@ where
 
     // The trained actor's deterministic actions on the held-out states (one batch).
     let reference = policy_batch(&agent, &held_out);
-    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, config.evaluate.episodes);
+    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, config.evaluate.episodes);
     let mut reports = Vec::new();
     for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
         let aligned = AlignedBlob::new(bytes);
@@ -258,7 +258,7 @@ where
     let mut report = ExportReport {
         onnx,
         checkpoint: checkpoint.to_path_buf(),
-        problem: config.scenario.name().to_string(),
+        problem: config.family.label().to_string(),
         calibration_states: calibration.len(),
         demonstration_states,
         held_out_states: held_out.len(),

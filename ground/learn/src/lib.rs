@@ -37,7 +37,7 @@
 //!
 //! let config = ExperimentConfig::from_toml(EMBEDDED_DEFAULT).unwrap();
 //! config.validate().unwrap();
-//! assert_eq!(config.scenario.name(), "transfer-circular");
+//! assert_eq!(config.family.label().as_str(), "transfer-circular");
 //! assert_eq!(config.generate.count, 200); // demonstrations solved by the indirect method
 //! assert_eq!(config.dagger.rounds, 12); // relabelling rounds, at most
 //!

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use shared::scenario::ScenarioKind;
+use shared::mission::MissionFamily;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
@@ -166,12 +166,12 @@ pub struct PhaseSummary {
 pub fn evaluate_agent<E: Environment>(
     agent: &Sac,
     env: &EnvConfig,
-    kind: ScenarioKind,
+    family: impl Into<MissionFamily>,
     seed: u64,
     count: u64,
     record: bool,
 ) -> Result<Vec<EpisodeOutcome>, EvalError> {
-    let scenarios = draw_scenarios(kind, seed, count);
+    let scenarios = draw_scenarios(family, seed, count);
     evaluate_batched::<E, _>(env, &scenarios, |obs: &[E::Obs]| policy_batch(agent, obs), record)
 }
 
@@ -256,7 +256,7 @@ impl<'a> Phase<'a> {
         let outcomes = evaluate_agent::<E>(
             agent,
             &self.config.env,
-            self.config.scenario,
+            self.config.family,
             self.config.seeds.evaluation,
             self.config.train.eval_episodes,
             false,

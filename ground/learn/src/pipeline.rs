@@ -79,7 +79,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     next(format!(
         "solving {} {} trajectories (indirect method)",
         config.generate.count,
-        config.scenario.name()
+        config.family.label()
     ));
     let dataset_dir = run.join("dataset");
     let (dataset, crosscheck) = demonstrations(&config, &dataset_dir)?;

@@ -22,23 +22,26 @@ use ground_core::with_problem;
 /// `ground train pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
 /// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
 pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
-    with_problem!(config.scenario.problem(), P => pretrain_for::<P>(config, config_dir, run))
+    with_problem!(config.family.problem, P => pretrain_for::<P>(config, config_dir, run))
 }
 
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
-/// problem or arrival margin), with the dataset file and its record count.
+/// problem, central body, guidance cycle or arrival margin), with the dataset file and its
+/// record count.
 pub fn load_demonstrations<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
 ) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
     let file = config.dataset_file(config_dir)?;
     let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
-    if dataset.manifest.scenario.problem() != P::KIND {
+    let (theirs, ours) = (&dataset.manifest.family, &config.family);
+    // Another range of orbits is still the same physics; another body or cycle is not.
+    if theirs.problem != P::KIND || theirs.body != ours.body || theirs.cycle != ours.cycle {
         return Err(ExperimentError::Mismatch(format!(
             "dataset {} holds {} trajectories, the config is for {}",
             file.display(),
-            dataset.manifest.scenario.name(),
-            config.scenario.name()
+            dataset.manifest.family.label(),
+            config.family.label()
         )));
     }
     // Relabels are solved with the config's margin: demonstrations of another would teach two

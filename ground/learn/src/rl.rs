@@ -9,7 +9,7 @@ use std::path::Path;
 
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use shared::scenario::ScenarioKind;
+use shared::mission::MissionFamily;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
@@ -43,7 +43,7 @@ impl Start {
 /// `ground train rl`: RL from scratch or from the pretrained model and its buffer, evaluations
 /// every `train.eval_every` environment steps, best model kept, resumable.
 pub fn train(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError> {
-    with_problem!(config.scenario.problem(), P => train_for::<P>(config, run, start))
+    with_problem!(config.family.problem, P => train_for::<P>(config, run, start))
 }
 
 fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError>
@@ -102,7 +102,7 @@ where
             phase.state.best = Some(row);
             agent.save(&dir.join("best.safetensors"))?;
         }
-        let mut task = ScenarioTask::<MdpEnv<P>>::new(&config.env, config.scenario, config.seeds.train)?;
+        let mut task = ScenarioTask::<MdpEnv<P>>::new(&config.env, config.family, config.seeds.train)?;
         let options = LoopOptions {
             total_steps: total,
             eval_every: config.train.eval_every,
@@ -194,20 +194,20 @@ where
 /// feature domain) ends the episode as terminal with the printed reward's worst value.
 pub struct ScenarioTask<E: Environment> {
     env: E,
-    kind: ScenarioKind,
+    family: MissionFamily,
     seed: u64,
     /// Steps the environment refused, each of which ended its episode.
     pub failed_steps: u64,
 }
 
 impl<E: Environment> ScenarioTask<E> {
-    /// The task on a fresh environment of `config`; episode `e` flies scenario `e` of `kind` drawn
-    /// with `seed`.
-    pub fn new(config: &EnvConfig, kind: ScenarioKind, seed: u64) -> Result<Self, ExperimentError> {
+    /// The task on a fresh environment of `config`; episode `e` flies scenario `e` of `family`
+    /// drawn with `seed`.
+    pub fn new(config: &EnvConfig, family: impl Into<MissionFamily>, seed: u64) -> Result<Self, ExperimentError> {
         let env = E::new(config).map_err(|e| ExperimentError::Mismatch(format!("environment: {e}")))?;
         Ok(Self {
             env,
-            kind,
+            family: family.into(),
             seed,
             failed_steps: 0,
         })
@@ -227,7 +227,7 @@ impl<E: Environment> Episodic for ScenarioTask<E> {
 
     fn reset(&mut self, episode: u64) -> Result<Vec<f32>, EnvError> {
         self.env
-            .reset_drawn(self.kind, self.seed, episode)
+            .reset_drawn(self.family, self.seed, episode)
             .map(|o| o.as_ref().to_vec())
     }
 

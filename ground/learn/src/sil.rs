@@ -240,7 +240,7 @@ pub fn fly_blob(
     scenarios: &[Scenario],
     flights: &SilFlights,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    with_flight_problem!(config.scenario.problem(), N, P => {
+    with_flight_problem!(config.family.problem, N, P => {
         fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
     })
 }
@@ -249,8 +249,7 @@ pub fn fly_blob(
 pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Result<FlightSetup, ExperimentError> {
     let spacecraft = config
         .env
-        .spacecraft
-        .canonical()
+        .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     Ok(FlightSetup {
         spacecraft,
@@ -350,10 +349,10 @@ pub fn sil_monte_carlo(
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = with_flight_problem!(config.scenario.problem(), N, P => {
+    let controller = with_flight_problem!(config.family.problem, N, P => {
         describe_controller(&Controller::<N>::load::<P>(&blob))
     });
-    let scenarios = draw_scenarios(config.scenario, config.seeds.monte_carlo, n);
+    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, n);
     let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
     let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, &flights)?;
@@ -369,7 +368,7 @@ pub fn sil_monte_carlo(
         policy: &outcomes,
         plotted: &plotted,
     };
-    let monte_carlo = with_problem!(config.scenario.problem(), P => report_and_write::<P>(
+    let monte_carlo = with_problem!(config.family.problem, P => report_and_write::<P>(
         config,
         blob_path,
         &flown,
@@ -439,7 +438,7 @@ pub fn lookahead_monte_carlo(
 /// (None: it loads and flies). A refused blob flies its flights in safe mode, thrust off.
 pub fn blob_refusal(config: &ExperimentConfig, blob_path: &Path) -> Result<Option<String>, ExperimentError> {
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
-    Ok(with_flight_problem!(config.scenario.problem(), N, P => {
+    Ok(with_flight_problem!(config.family.problem, N, P => {
         match Controller::<N>::load::<P>(&blob) {
             Controller::Network(_) => None,
             Controller::SafeMode(e) => Some(e.to_string()),

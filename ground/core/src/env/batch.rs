@@ -15,7 +15,8 @@ use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::features::{Residuals, ACTION_LEN};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::{Scenario, ScenarioKind};
+use shared::mission::MissionFamily;
+use shared::scenario::Scenario;
 
 use super::{EnvConfig, EnvError, Environment};
 
@@ -71,9 +72,10 @@ pub enum EvalError {
     },
 }
 
-/// Scenarios 0..count of the stream `seed` of `kind`.
-pub fn draw_scenarios(kind: ScenarioKind, seed: u64, count: u64) -> Vec<Scenario> {
-    (0..count).map(|i| kind.draw(seed, i)).collect()
+/// Scenarios 0..count of the stream `seed` of `family`.
+pub fn draw_scenarios(family: impl Into<MissionFamily>, seed: u64, count: u64) -> Vec<Scenario> {
+    let family = family.into();
+    (0..count).map(|i| family.draw(seed, i)).collect()
 }
 
 /// The running figures of one episode.

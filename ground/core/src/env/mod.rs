@@ -33,11 +33,11 @@ use onboard::features::{
 use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, KeplerError};
 use serde::{Deserialize, Serialize};
+use shared::mission::{CentralBody, MissionFamily};
 use shared::orbit::CartesianState;
 pub use shared::scenario::ProblemKind;
-use shared::scenario::{Scenario, ScenarioError, ScenarioKind};
+use shared::scenario::{Scenario, ScenarioError};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
-use shared::units::STEP;
 
 /// Reward weights of thesis Eq. 4.7-4.8 (docs/spec.md section 5), serialisable.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -220,6 +220,17 @@ pub struct EnvConfig {
     pub non_finite_action: NonFiniteAction,
     /// Integrator accuracy of thrusting steps.
     pub integrator: IntegratorConfig,
+    /// The central body whose canonical units the spacecraft is converted to: set from the
+    /// scenario family, never written in `[env]`.
+    #[serde(skip)]
+    pub body: CentralBody,
+}
+
+impl EnvConfig {
+    /// The spacecraft in the canonical units of [`Self::body`].
+    pub fn canonical_spacecraft(&self) -> Result<CanonicalSpacecraft, SpacecraftError> {
+        self.spacecraft.canonical_in(&self.body.units())
+    }
 }
 
 /// Why an environment call failed. Every failure is one of these, never a panic.
@@ -343,16 +354,16 @@ pub struct Transfer;
 #[derive(Debug, Clone, Copy)]
 pub struct Rendezvous;
 
-/// Time to go at step `step` of `scenario`: (N - step) STEP, clamped at 0.
+/// Time to go at step `step` of `scenario`: (N - step) cycles, clamped at 0.
 pub fn time_to_go(scenario: &Scenario, step: u32) -> f64 {
-    f64::from(scenario.steps.saturating_sub(step)) * STEP
+    scenario.time_to_go(step)
 }
 
 /// The rendezvous body's state at step `step`: its orbit point at `target_nu0`, coasted for
-/// step STEP (from t = 0 every time, so no error accumulates along the episode).
+/// `step` cycles (from t = 0 every time, so no error accumulates along the episode).
 pub fn body_at(scenario: &Scenario, step: u32) -> Result<CartesianState, EnvError> {
     let start = scenario.target.cartesian_at(scenario.target_nu0);
-    coast(&start, f64::from(step) * STEP).map_err(|error| EnvError::Body { step, error })
+    coast(&start, scenario.cycle_start(step)).map_err(|error| EnvError::Body { step, error })
 }
 
 impl Problem for Transfer {
@@ -465,9 +476,13 @@ pub trait Environment: Send {
     fn config(&self) -> &EnvConfig;
     /// Starts an episode of `scenario` at its initial state (m = 1, step 0).
     fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError>;
-    /// Starts an episode of scenario `index` of the stream `seed` of `kind` (docs/spec.md section 4).
-    fn reset_drawn(&mut self, kind: ScenarioKind, seed: u64, index: u64) -> Result<Self::Obs, EnvError> {
-        self.reset(&kind.draw(seed, index))
+    /// Starts an episode of scenario `index` of the stream `seed` of `family` (docs/spec.md
+    /// section 4).
+    fn reset_drawn(&mut self, family: impl Into<MissionFamily>, seed: u64, index: u64) -> Result<Self::Obs, EnvError>
+    where
+        Self: Sized,
+    {
+        self.reset(&family.into().draw(seed, index))
     }
     /// Starts an episode of `scenario` in `state` at step `step` (0..=N; N gives a finished
     /// episode). For demonstrations and tests.
@@ -557,7 +572,7 @@ impl<P: Problem> Environment for MdpEnv<P> {
     type Obs = P::Obs;
 
     fn new(config: &EnvConfig) -> Result<Self, EnvError> {
-        let spacecraft = config.spacecraft.canonical().map_err(EnvError::Spacecraft)?;
+        let spacecraft = config.canonical_spacecraft().map_err(EnvError::Spacecraft)?;
         config.terminal.validate()?;
         let r = &config.reward;
         if ![r.position, r.velocity, r.throttle]
@@ -621,8 +636,14 @@ impl<P: Problem> Environment for MdpEnv<P> {
         // decode_action maps a non-finite action to thrust off itself.
         let command = decode_action(action);
         let k = episode.step;
-        let state = propagate(&episode.state, &command, &self.spacecraft, STEP, &self.tolerances)
-            .map_err(|error| EnvError::Propagation { step: k, error })?;
+        let state = propagate(
+            &episode.state,
+            &command,
+            &self.spacecraft,
+            episode.scenario.cycle,
+            &self.tolerances,
+        )
+        .map_err(|error| EnvError::Propagation { step: k, error })?;
         let step_after = k + 1;
         let features = P::features(&episode.scenario, &state, step_after)?;
         let residuals = P::residuals(&features);

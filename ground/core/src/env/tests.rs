@@ -6,7 +6,8 @@ use super::batch::{draw_scenarios, evaluate, evaluate_batched, run_episode, summ
 use super::*;
 use onboard::features::FeatureError;
 use shared::orbit::{OrbitElements, OrbitShape};
-use shared::units::{G0_M_S2, STEP_SECONDS};
+use shared::scenario::ScenarioKind;
+use shared::units::{G0_M_S2, STEP, STEP_SECONDS};
 
 const COAST: [f32; 3] = [-1.0, 0.0, 1.0];
 const FULL_ALONG_TRACK: [f32; 3] = [1.0, 0.0, 1.0];

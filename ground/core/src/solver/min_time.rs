@@ -963,7 +963,7 @@ where
             why.push(format!("{k} TOF: no energy-optimal solution"));
             continue;
         }
-        let tau0 = f64::from(steps) * shared::units::STEP;
+        let tau0 = f64::from(steps) * scenario.cycle;
         for z0 in starts {
             let followed = follow_time(class, tau0, z0, options, start, work);
             let trace = std::env::var_os("MIN_TIME_TRACE").is_some();

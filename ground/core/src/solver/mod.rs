@@ -16,7 +16,8 @@ use std::time::Instant;
 
 use nalgebra::{Const, DimMin, SMatrix, SVector};
 use onboard::integrator::{IntegrationError, Tolerances};
-use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
+use shared::mission::MissionFamily;
+use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::solver::record::{count_thrust_arcs, sample_at, sample_grids, TrajectoryRecord};
@@ -187,14 +188,14 @@ pub fn transfer_guesses(scenario: &Scenario) -> Vec<TransferVector> {
 /// sampling of the solution. Never fails: a case that
 /// does not converge is returned with `converged = false` and the reason.
 pub fn solve_scenario(
-    kind: ScenarioKind,
+    family: impl Into<MissionFamily>,
     seed: u64,
     index: u64,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> TrajectoryRecord {
-    solve_scenario_from(kind, seed, index, scenario, spacecraft, options, None)
+    solve_scenario_from(family.into(), seed, index, scenario, spacecraft, options, None)
 }
 
 /// [`solve_scenario`] on the scenario shortened by [`SolveOptions::arrival_margin_steps`] where
@@ -206,26 +207,27 @@ pub fn solve_scenario(
 /// margin it loses most of the flights that lose thrust in their last tenth (docs/results.md,
 /// "When the thrust was lost").
 pub fn solve_arriving_early(
-    kind: ScenarioKind,
+    family: impl Into<MissionFamily>,
     seed: u64,
     index: u64,
     scenario: &Scenario,
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> TrajectoryRecord {
+    let family = family.into();
     let margin = options.arrival_margin_steps;
     if margin == 0 || margin >= scenario.steps {
-        return solve_scenario(kind, seed, index, scenario, spacecraft, options);
+        return solve_scenario(family, seed, index, scenario, spacecraft, options);
     }
     let early = Scenario {
         steps: scenario.steps - margin,
         ..*scenario
     };
-    let first = solve_scenario(kind, seed, index, &early, spacecraft, options);
+    let first = solve_scenario(family, seed, index, &early, spacecraft, options);
     if first.converged {
         return first;
     }
-    let mut on_time = solve_scenario(kind, seed, index, scenario, spacecraft, options);
+    let mut on_time = solve_scenario(family, seed, index, scenario, spacecraft, options);
     on_time.seconds += first.seconds;
     if let Some(why) = &mut on_time.failure {
         *why = format!(
@@ -241,7 +243,7 @@ pub fn solve_arriving_early(
 /// [`min_time::classify_transfer`], a direct solution in [`crate::crosscheck::repair_record`])
 /// as the only start of the homotopy instead of the multi-start, and no near-circular path.
 pub fn solve_from_energy_start(
-    kind: ScenarioKind,
+    family: impl Into<MissionFamily>,
     seed: u64,
     index: u64,
     scenario: &Scenario,
@@ -249,11 +251,19 @@ pub fn solve_from_energy_start(
     options: &SolveOptions,
     energy_start: TransferVector,
 ) -> TrajectoryRecord {
-    solve_scenario_from(kind, seed, index, scenario, spacecraft, options, Some(energy_start))
+    solve_scenario_from(
+        family.into(),
+        seed,
+        index,
+        scenario,
+        spacecraft,
+        options,
+        Some(energy_start),
+    )
 }
 
 fn solve_scenario_from(
-    kind: ScenarioKind,
+    family: MissionFamily,
     seed: u64,
     index: u64,
     scenario: &Scenario,
@@ -263,7 +273,7 @@ fn solve_scenario_from(
 ) -> TrajectoryRecord {
     let start = Instant::now();
     let mut record = TrajectoryRecord {
-        kind,
+        family,
         seed,
         index,
         scenario: *scenario,
@@ -287,7 +297,7 @@ fn solve_scenario_from(
     // Near-circular transfers go through `circular` when the homotopy is to reach the small eps
     // where the general path meets the spread throttle (see [`SPREAD_THROTTLE_EPS`]); a short
     // homotopy (tests, figures) stays on the general path, which handles it.
-    let circular_only = kind == ScenarioKind::TransferCircular;
+    let circular_only = every_draw_near_circular(&family);
     if energy_start.is_none()
         && circular::applies(scenario)
         && circular::final_level(options.final_eps) < SPREAD_THROTTLE_EPS
@@ -741,9 +751,18 @@ fn energy_final_mass<const K: usize>(
     final_mass(scenario, spacecraft, z, 1.0, tolerances)
 }
 
+/// Whether every draw of `family` is a near-circular transfer ([`circular::applies`]): then a
+/// failure of the near-circular path is the record's, with no fall-back to the general path.
+fn every_draw_near_circular(family: &MissionFamily) -> bool {
+    family.problem == ProblemKind::Transfer
+        && family.departure.e.hi <= circular::NEAR_CIRCULAR_ECCENTRICITY
+        && family.target.e.hi <= circular::NEAR_CIRCULAR_ECCENTRICITY
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use shared::scenario::ScenarioKind;
     use shared::spacecraft::Spacecraft;
     use shooting::{ShootingProblem, TransferShooting};
 

@@ -1,10 +1,10 @@
 //! Trajectory records (docs/spec.md section 3): what one solved scenario keeps, sampled both at the
-//! thesis's 100 ephemeris epochs and at every 14-day environment step.
+//! thesis's 100 ephemeris epochs and at every guidance cycle's boundary.
 
 use onboard::integrator::{IntegrationError, Tolerances};
 use serde::{Deserialize, Serialize};
-use shared::scenario::{Scenario, ScenarioKind};
-use shared::units::STEP;
+use shared::mission::MissionFamily;
+use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 
 use crate::solver::pontryagin::{idx, optimal_throttle, propagate, switching_function, OptimalControlParams, Y_LEN};
 
@@ -33,9 +33,9 @@ pub struct TrajectorySample {
 /// One solved (or failed) scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrajectoryRecord {
-    /// Distribution the scenario was drawn from (a label only for scenarios given by hand).
-    pub kind: ScenarioKind,
-    /// Seed of the draw: `kind.draw(seed, index)` gave `scenario` (before any arrival margin).
+    /// Family the scenario was drawn from (a label only for scenarios given by hand).
+    pub family: MissionFamily,
+    /// Seed of the draw: `family.draw(seed, index)` gave `scenario` (before any arrival margin).
     pub seed: u64,
     /// Index of the draw in its seed's stream.
     pub index: u64,
@@ -62,12 +62,74 @@ pub struct TrajectoryRecord {
     pub seconds: f64,
     /// `EPHEMERIS_POINTS` samples evenly spread over [0, TOF].
     pub ephemeris: Vec<TrajectorySample>,
-    /// One sample per environment step boundary: k = 0..=N at t = k * STEP.
+    /// One sample per guidance cycle boundary: k = 0..=N at t = k * cycle.
     pub steps: Vec<TrajectorySample>,
     /// How many distinct energy-optimal (eps = 1) solutions the multi-start found: more than
     /// one means several local optima; each was continued and the fuel-optimal solution with
     /// the largest final mass kept.
     pub distinct_energy_optima: u32,
+}
+
+/// A record as format 1 wrote it: the thesis's families by name, every cycle 14 days.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RecordFormat1 {
+    kind: ScenarioKind,
+    seed: u64,
+    index: u64,
+    scenario: ScenarioFormat1,
+    converged: bool,
+    failure: Option<String>,
+    costates: [f64; 5],
+    final_anomaly: Option<f64>,
+    final_eps: f64,
+    final_mass: f64,
+    thrust_arcs: u32,
+    residual: f64,
+    seconds: f64,
+    ephemeris: Vec<TrajectorySample>,
+    steps: Vec<TrajectorySample>,
+    distinct_energy_optima: u32,
+}
+
+/// A scenario as format 1 wrote it: no cycle, which was 14 days.
+#[derive(Debug, Clone, Copy, Deserialize)]
+struct ScenarioFormat1 {
+    problem: ProblemKind,
+    initial: shared::orbit::OrbitElements,
+    target: shared::orbit::OrbitShape,
+    target_nu0: f64,
+    steps: u32,
+}
+
+impl From<RecordFormat1> for TrajectoryRecord {
+    fn from(r: RecordFormat1) -> Self {
+        let s = r.scenario;
+        Self {
+            family: r.kind.family(),
+            seed: r.seed,
+            index: r.index,
+            scenario: Scenario {
+                problem: s.problem,
+                initial: s.initial,
+                target: s.target,
+                target_nu0: s.target_nu0,
+                steps: s.steps,
+                cycle: shared::units::STEP,
+            },
+            converged: r.converged,
+            failure: r.failure,
+            costates: r.costates,
+            final_anomaly: r.final_anomaly,
+            final_eps: r.final_eps,
+            final_mass: r.final_mass,
+            thrust_arcs: r.thrust_arcs,
+            residual: r.residual,
+            seconds: r.seconds,
+            ephemeris: r.ephemeris,
+            steps: r.steps,
+            distinct_energy_optima: r.distinct_energy_optima,
+        }
+    }
 }
 
 /// The sample at a state-costate vector.
@@ -147,7 +209,7 @@ pub fn sample_grids(scenario: &Scenario) -> (Vec<f64>, Vec<f64>) {
     let tof = scenario.time_of_flight();
     let n = EPHEMERIS_POINTS - 1;
     let ephemeris = (0..EPHEMERIS_POINTS).map(|k| tof * k as f64 / n as f64).collect();
-    let steps = (0..=scenario.steps).map(|k| f64::from(k) * STEP).collect();
+    let steps = (0..=scenario.steps).map(|k| scenario.cycle_start(k)).collect();
     (ephemeris, steps)
 }
 

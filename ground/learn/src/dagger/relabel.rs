@@ -68,8 +68,8 @@ pub struct RelabelJob {
 /// Solves one relabel, as [`relabel`] and [`placed_demonstration`] make it.
 pub(crate) fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob) -> Solved {
     let index = first + job.episode;
-    let scenario = config.scenario.draw(config.seeds.train, index);
-    let sc = config.env.spacecraft.canonical().ok()?;
+    let scenario = config.family.draw(config.seeds.train, index);
+    let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
     // to 10.9 % within the goal (docs/results.md).
     let options = SolveOptions {
@@ -83,7 +83,15 @@ pub(crate) fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: 
         v: [vx, vy],
         m,
     };
-    let (record, placement) = relabel((config.seeds.train, index), &scenario, &state, job.step, &sc, &options)?;
+    let (record, placement) = relabel(
+        &config.family,
+        (config.seeds.train, index),
+        &scenario,
+        &state,
+        job.step,
+        &sc,
+        &options,
+    )?;
     if !record.converged {
         return None;
     }
@@ -140,7 +148,7 @@ pub(crate) fn solve_relabels<P: Problem>(
     let first = ROUND_STRIDE * round;
     let candidates = dagger.candidates.unwrap_or(dagger.episodes);
     let scenarios: Vec<Scenario> = (first..first + candidates)
-        .map(|i| config.scenario.draw(config.seeds.train, i))
+        .map(|i| config.family.draw(config.seeds.train, i))
         .collect();
     let flown = if dagger.dispersed {
         // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:

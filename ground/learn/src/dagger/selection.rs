@@ -100,14 +100,14 @@ pub(crate) fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Resul
     let outcomes = evaluate_agent::<MdpEnv<P>>(
         agent,
         &config.env,
-        config.scenario,
+        config.family,
         config.seeds.evaluation,
         config.dagger.score_episodes,
         false,
     )?;
     let within_goal_dispersed = if config.dagger.dispersed {
         let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
-            .map(|i| config.scenario.draw(config.seeds.evaluation, i))
+            .map(|i| config.family.draw(config.seeds.evaluation, i))
             .collect();
         let blob = flown_blob(agent, P::KIND)?;
         let dispersions = &config.sil.dispersions;

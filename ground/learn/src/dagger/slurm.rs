@@ -63,7 +63,7 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
         .map(|i| (i, &request.jobs[i as usize]))
         .collect();
     let solve =
-        |job: &RelabelJob| with_problem!(config.scenario.problem(), P => solve_job::<P>(&config, request.first, job));
+        |job: &RelabelJob| with_problem!(config.family.problem, P => solve_job::<P>(&config, request.first, job));
     let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
     let out = shard_file(request_path, task, tasks);
     let shard = RelabelShard {

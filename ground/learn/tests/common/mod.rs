@@ -25,7 +25,7 @@ pub fn toy_dataset(dir: &Path) -> PathBuf {
 pub fn toy_dataset_of(dir: &Path, scenario: ScenarioKind) -> PathBuf {
     let out = dir.join("dataset");
     let manifest = Manifest {
-        scenario,
+        family: scenario.family(),
         seed: 9,
         count: 2,
     };

@@ -416,6 +416,7 @@ mod tests {
             target,
             target_nu0: 0.0,
             steps: 20,
+            cycle: shared::units::STEP,
         }
     }
 

@@ -1,0 +1,562 @@
+//! Mission families as users write them (docs/missions.md): a preset's name, or a table of the
+//! central body, the two orbits' ranges, the time of flight and the guidance cycle, read from a
+//! config, a shared TOML file or a manifest, checked, and turned into a [`MissionFamily`].
+
+use std::f64::consts::TAU;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use shared::mission::{CentralBody, Cycle, FamilyError, MissionFamily, OrbitRanges, TimeOfFlight};
+use shared::scenario::{ProblemKind, Range, ScenarioKind};
+
+/// A family as written: a preset's name (`"transfer-circular"`), a mission file's path, or the
+/// whole table.
+// Read once per command: the size of the table is of no consequence.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum FamilySpec {
+    /// One of the thesis's four distributions by name, or a mission file's path.
+    Preset(String),
+    /// Every field given.
+    Table(FamilyTable),
+}
+
+/// A family field by field (docs/missions.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FamilyTable {
+    /// `"transfer"` (any point of the target orbit) or `"rendezvous"` (meet the body on it).
+    pub problem: ProblemName,
+    /// The central body: `"sun"`, `"earth"`, `"mars"`, or its figures.
+    pub body: BodySpec,
+    /// The departure orbit's ranges.
+    pub departure: OrbitSpec,
+    /// The target orbit's ranges (its `nu`: the body's anomaly at departure, rendezvous only).
+    pub target: OrbitSpec,
+    /// `"longer-period"` (the thesis's rule), `{ days = D }` or `{ lo_days = A, hi_days = B }`.
+    pub time_of_flight: TimeOfFlightSpec,
+    /// `{ days = D }` or `{ count = N }` cycles over each flight.
+    pub cycle: CycleSpec,
+}
+
+/// The problem, in lower case.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ProblemName {
+    /// Free-anomaly transfer.
+    Transfer,
+    /// Rendezvous.
+    Rendezvous,
+}
+
+/// A central body by preset name or by its figures.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum BodySpec {
+    /// `"sun"` (lengths in AU), `"earth"` or `"mars"` (lengths in equatorial radii).
+    Preset(String),
+    /// mu (m^3/s^2) and the length unit (m).
+    Figures {
+        /// Gravitational parameter, m^3/s^2.
+        mu_m3_s2: f64,
+        /// Length unit, m.
+        length_unit_m: f64,
+    },
+}
+
+/// One orbit's ranges: semi-major axis in length units, angles in radians; each a number
+/// (fixed) or `[lo, hi]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OrbitSpec {
+    /// Semi-major axis, length units.
+    pub a: RangeSpec,
+    /// Eccentricity.
+    pub e: RangeSpec,
+    /// Argument of periapsis, rad (default: any, [0, 2 pi]).
+    #[serde(default = "RangeSpec::full_turn")]
+    pub omega: RangeSpec,
+    /// True anomaly at departure, rad (default: any, [0, 2 pi]).
+    #[serde(default = "RangeSpec::full_turn")]
+    pub nu: RangeSpec,
+}
+
+/// A fixed value or a `[lo, hi]` range.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum RangeSpec {
+    /// Always this value.
+    Fixed(f64),
+    /// Uniform over [lo, hi].
+    Between([f64; 2]),
+}
+
+impl RangeSpec {
+    fn full_turn() -> Self {
+        Self::Between([0.0, TAU])
+    }
+
+    fn range(self) -> Range {
+        match self {
+            Self::Fixed(x) => Range { lo: x, hi: x },
+            Self::Between([lo, hi]) => Range { lo, hi },
+        }
+    }
+
+    fn of(range: Range) -> Self {
+        if range.lo == range.hi {
+            Self::Fixed(range.lo)
+        } else {
+            Self::Between([range.lo, range.hi])
+        }
+    }
+}
+
+/// The time of flight as written.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum TimeOfFlightSpec {
+    /// `"longer-period"`.
+    Rule(TimeOfFlightRule),
+    /// `{ days = D }`.
+    Fixed {
+        /// Days.
+        days: f64,
+    },
+    /// `{ lo_days = A, hi_days = B }`.
+    Drawn {
+        /// Shortest, days.
+        lo_days: f64,
+        /// Longest, days.
+        hi_days: f64,
+    },
+}
+
+/// The thesis's time-of-flight rule by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TimeOfFlightRule {
+    /// The longer of the two periods, rounded up to whole cycles.
+    LongerPeriod,
+}
+
+/// The guidance cycle as written.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum CycleSpec {
+    /// `{ days = D }`.
+    Days {
+        /// Days.
+        days: f64,
+    },
+    /// `{ count = N }` cycles over each flight.
+    Count {
+        /// Cycles a flight.
+        count: u32,
+    },
+}
+
+/// Why a written family is refused.
+#[derive(Debug, thiserror::Error)]
+pub enum MissionError {
+    /// Not a preset's name.
+    #[error("{0:?} is neither a scenario family preset (transfer-circular, transfer-hard, rendezvous-circular, rendezvous-hard) nor a mission file (docs/missions.md)")]
+    UnknownPreset(String),
+    /// Not a body preset's name.
+    #[error("body: unknown central body {0:?}: give sun, earth, mars, or {{ mu_m3_s2 = ..., length_unit_m = ... }}")]
+    UnknownBody(String),
+    /// A field that cannot be posed.
+    #[error("{0}")]
+    Field(#[from] FamilyError),
+    /// A mission file that cannot be read.
+    #[error("{path}: {why}")]
+    File {
+        /// The file.
+        path: String,
+        /// Why it cannot be read.
+        why: String,
+    },
+}
+
+impl FamilySpec {
+    /// The family, checked.
+    pub fn family(&self) -> Result<MissionFamily, MissionError> {
+        let family = match self {
+            Self::Preset(name) => match name.parse::<ScenarioKind>() {
+                Ok(kind) => kind.family(),
+                Err(_) => match Self::from_argument(name)? {
+                    Self::Table(table) => table.family()?,
+                    Self::Preset(_) => return Err(MissionError::UnknownPreset(name.clone())),
+                },
+            },
+            Self::Table(table) => table.family()?,
+        };
+        family.validate()?;
+        Ok(family)
+    }
+
+    /// How a family is written: by its preset's name when it is one.
+    pub fn of(family: &MissionFamily) -> Self {
+        match family.preset_name() {
+            Some(name) => Self::Preset(name.to_string()),
+            None => Self::Table(FamilyTable::of(family)),
+        }
+    }
+
+    /// A preset's name, or else the path of a mission file (TOML, the table at its top level).
+    pub fn from_argument(text: &str) -> Result<Self, MissionError> {
+        if text.parse::<ScenarioKind>().is_ok() {
+            return Ok(Self::Preset(text.to_string()));
+        }
+        if !Path::new(text).is_file() {
+            return Err(MissionError::UnknownPreset(text.to_string()));
+        }
+        read_mission_file(Path::new(text)).map(Self::Table)
+    }
+}
+
+/// Reads a mission file: the table of [`FamilyTable`] at the top level.
+pub fn read_mission_file(path: &Path) -> Result<FamilyTable, MissionError> {
+    let file_error = |why: String| MissionError::File {
+        path: path.display().to_string(),
+        why,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| file_error(e.to_string()))?;
+    toml::from_str(&text).map_err(|e| file_error(e.to_string()))
+}
+
+impl FamilyTable {
+    fn family(&self) -> Result<MissionFamily, MissionError> {
+        let body = match &self.body {
+            BodySpec::Preset(name) => CentralBody::PRESETS
+                .iter()
+                .find(|(preset, _)| preset == name)
+                .map(|(_, body)| *body)
+                .ok_or_else(|| MissionError::UnknownBody(name.clone()))?,
+            BodySpec::Figures {
+                mu_m3_s2,
+                length_unit_m,
+            } => CentralBody {
+                mu_m3_s2: *mu_m3_s2,
+                length_unit_m: *length_unit_m,
+            },
+        };
+        let orbit = |spec: &OrbitSpec| OrbitRanges {
+            a: spec.a.range(),
+            e: spec.e.range(),
+            omega: spec.omega.range(),
+            nu: spec.nu.range(),
+        };
+        Ok(MissionFamily {
+            problem: match self.problem {
+                ProblemName::Transfer => ProblemKind::Transfer,
+                ProblemName::Rendezvous => ProblemKind::Rendezvous,
+            },
+            body,
+            departure: orbit(&self.departure),
+            target: orbit(&self.target),
+            time_of_flight: match self.time_of_flight {
+                TimeOfFlightSpec::Rule(TimeOfFlightRule::LongerPeriod) => TimeOfFlight::LongerPeriod,
+                TimeOfFlightSpec::Fixed { days } => TimeOfFlight::Fixed { days },
+                TimeOfFlightSpec::Drawn { lo_days, hi_days } => TimeOfFlight::Drawn { lo_days, hi_days },
+            },
+            cycle: match self.cycle {
+                CycleSpec::Days { days } => Cycle::Days(days),
+                CycleSpec::Count { count } => Cycle::Count(count),
+            },
+        })
+    }
+
+    /// The table of a family, field by field (bodies that are presets by name).
+    pub fn of(family: &MissionFamily) -> Self {
+        let orbit = |ranges: &OrbitRanges| OrbitSpec {
+            a: RangeSpec::of(ranges.a),
+            e: RangeSpec::of(ranges.e),
+            omega: RangeSpec::of(ranges.omega),
+            nu: RangeSpec::of(ranges.nu),
+        };
+        Self {
+            problem: match family.problem {
+                ProblemKind::Transfer => ProblemName::Transfer,
+                ProblemKind::Rendezvous => ProblemName::Rendezvous,
+            },
+            body: match family.body.preset_name() {
+                Some(name) => BodySpec::Preset(name.to_string()),
+                None => BodySpec::Figures {
+                    mu_m3_s2: family.body.mu_m3_s2,
+                    length_unit_m: family.body.length_unit_m,
+                },
+            },
+            departure: orbit(&family.departure),
+            target: orbit(&family.target),
+            time_of_flight: match family.time_of_flight {
+                TimeOfFlight::LongerPeriod => TimeOfFlightSpec::Rule(TimeOfFlightRule::LongerPeriod),
+                TimeOfFlight::Fixed { days } => TimeOfFlightSpec::Fixed { days },
+                TimeOfFlight::Drawn { lo_days, hi_days } => TimeOfFlightSpec::Drawn { lo_days, hi_days },
+            },
+            cycle: match family.cycle {
+                Cycle::Days(days) => CycleSpec::Days { days },
+                Cycle::Count(count) => CycleSpec::Count { count },
+            },
+        }
+    }
+}
+
+/// `#[serde(with = "...")]` for a [`MissionFamily`] field: written as a [`FamilySpec`] in
+/// human-readable formats (JSON, TOML: a preset by name), as the plain structure in binary ones.
+pub mod by_spec {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+    use shared::mission::MissionFamily;
+
+    use super::FamilySpec;
+
+    /// Serializes `family`.
+    pub fn serialize<S: Serializer>(family: &MissionFamily, serializer: S) -> Result<S::Ok, S::Error> {
+        if serializer.is_human_readable() {
+            FamilySpec::of(family).serialize(serializer)
+        } else {
+            family.serialize(serializer)
+        }
+    }
+
+    /// Deserializes a family, checked.
+    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<MissionFamily, D::Error> {
+        let family = if deserializer.is_human_readable() {
+            FamilySpec::deserialize(deserializer)?
+                .family()
+                .map_err(serde::de::Error::custom)?
+        } else {
+            MissionFamily::deserialize(deserializer)?
+        };
+        family.validate().map_err(serde::de::Error::custom)?;
+        Ok(family)
+    }
+}
+
+/// What [`check_family`] found on a sample of a family's draws: enough to tell, before hours of
+/// work, whether the family can be posed, solved and flown.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FamilyCheck {
+    /// The family's label.
+    pub family: String,
+    /// Canonical units: length (m), time (s), velocity (m/s).
+    pub length_unit_m: f64,
+    /// Time unit, s.
+    pub time_unit_s: f64,
+    /// Velocity unit, m/s.
+    pub velocity_unit_m_s: f64,
+    /// Draws solved.
+    pub sample: usize,
+    /// Shortest and longest time of flight of the sample, days.
+    pub time_of_flight_days: [f64; 2],
+    /// Fewest and most guidance cycles of the sample.
+    pub cycles: [u32; 2],
+    /// Length of a cycle, days: fewest and most (equal unless the cycle is a count).
+    pub cycle_days: [f64; 2],
+    /// Draws the indirect method solved.
+    pub converged: usize,
+    /// Unsolved draws whose minimum time of flight exceeds their time of flight.
+    pub infeasible: usize,
+    /// Unsolved draws shown feasible (a minimum time below their time of flight, or an
+    /// energy-optimal solution at it).
+    pub feasible_unsolved: usize,
+    /// Unsolved draws neither method classified.
+    pub unknown: usize,
+    /// Mean final mass of the solved draws, fraction of m0.
+    pub final_mass_mean: f64,
+    /// Mean and longest solve time per draw, s (one thread).
+    pub solve_seconds: [f64; 2],
+    /// Propellant a flight at full thrust for the longest time of flight of the sample would
+    /// burn, fraction of m0: at 1 or more the tank would empty before the flight ends.
+    pub full_thrust_propellant: f64,
+    /// Warnings: the tank, infeasible or unsolved draws.
+    pub warnings: Vec<String>,
+}
+
+/// Draws `sample` scenarios of `family` (seed `seed`), solves each by the indirect method,
+/// classifies the unsolved ones by their minimum time of flight, and gathers the units, the
+/// times and the tank's reach ([`FamilyCheck`]). Parallel over the draws (rayon).
+pub fn check_family(
+    family: &MissionFamily,
+    spacecraft: &shared::spacecraft::CanonicalSpacecraft,
+    sample: u64,
+    seed: u64,
+    options: &crate::solver::SolveOptions,
+) -> FamilyCheck {
+    use rayon::prelude::*;
+
+    use crate::solver::min_time::{classify_draw, Feasibility};
+    use crate::solver::solve_scenario;
+
+    let units = family.body.units();
+    let solved: Vec<_> = (0..sample)
+        .into_par_iter()
+        .map(|index| {
+            let scenario = family.draw(seed, index);
+            let record = solve_scenario(*family, seed, index, &scenario, spacecraft, options);
+            let verdict = (!record.converged).then(|| {
+                let tof = scenario.time_of_flight();
+                match classify_draw(&scenario, spacecraft, options) {
+                    Feasibility::MinTime { tf_min, .. } if tf_min > tof => Verdict::Infeasible,
+                    Feasibility::Unknown(_) => Verdict::Unknown,
+                    _ => Verdict::Feasible,
+                }
+            });
+            (scenario, record, verdict)
+        })
+        .collect();
+    let count = |v: Verdict| solved.iter().filter(|(_, _, found)| *found == Some(v)).count();
+    let tofs: Vec<f64> = solved.iter().map(|(s, ..)| units.to_days(s.time_of_flight())).collect();
+    let cycles: Vec<u32> = solved.iter().map(|(s, ..)| s.steps).collect();
+    let cycle_days: Vec<f64> = solved.iter().map(|(s, ..)| units.to_days(s.cycle)).collect();
+    let masses: Vec<f64> = solved
+        .iter()
+        .filter(|(_, r, _)| r.converged)
+        .map(|(_, r, _)| r.final_mass)
+        .collect();
+    let seconds: Vec<f64> = solved.iter().map(|(_, r, _)| r.seconds).collect();
+    let extent = |v: &[f64]| {
+        [
+            v.iter().copied().fold(f64::INFINITY, f64::min),
+            v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        ]
+    };
+    let mean = |v: &[f64]| {
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    let longest = solved.iter().map(|(s, ..)| s.time_of_flight()).fold(0.0, f64::max);
+    let full_thrust_propellant = spacecraft.thrust * longest / spacecraft.exhaust_speed;
+    let mut check = FamilyCheck {
+        family: family.label().to_string(),
+        length_unit_m: units.length_m,
+        time_unit_s: units.time_s,
+        velocity_unit_m_s: units.velocity_m_s(),
+        sample: solved.len(),
+        time_of_flight_days: extent(&tofs),
+        cycles: [
+            cycles.iter().copied().min().unwrap_or(0),
+            cycles.iter().copied().max().unwrap_or(0),
+        ],
+        cycle_days: extent(&cycle_days),
+        converged: masses.len(),
+        infeasible: count(Verdict::Infeasible),
+        feasible_unsolved: count(Verdict::Feasible),
+        unknown: count(Verdict::Unknown),
+        final_mass_mean: mean(&masses),
+        solve_seconds: [mean(&seconds), extent(&seconds)[1]],
+        full_thrust_propellant,
+        warnings: Vec::new(),
+    };
+    if full_thrust_propellant >= 1.0 {
+        check.warnings.push(format!(
+            "at full thrust the tank empties after {:.0} days, before the longest flight of the sample ({:.0} days) ends",
+            units.to_days(spacecraft.exhaust_speed / spacecraft.thrust),
+            check.time_of_flight_days[1]
+        ));
+    }
+    if check.infeasible > 0 {
+        check.warnings.push(format!(
+            "{} of {} draws are infeasible at their time of flight: lengthen it or raise the thrust",
+            check.infeasible, check.sample
+        ));
+    }
+    if check.feasible_unsolved + check.unknown > 0 {
+        check.warnings.push(format!(
+            "{} feasible or unclassified draws were not solved: their demonstrations will be missing",
+            check.feasible_unsolved + check.unknown
+        ));
+    }
+    check
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Verdict {
+    Infeasible,
+    Feasible,
+    Unknown,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const INWARD: &str = r#"
+problem = "rendezvous"
+body = "sun"
+departure = { a = [0.95, 1.05], e = [0.0, 0.02] }
+target = { a = [0.70, 0.74], e = [0.0, 0.01] }
+time_of_flight = { lo_days = 250.0, hi_days = 400.0 }
+cycle = { days = 7.0 }
+"#;
+
+    #[test]
+    fn a_table_written_field_by_field_like_a_preset_is_that_preset() {
+        for kind in ScenarioKind::ALL {
+            let table = FamilyTable::of(&kind.family());
+            let text = toml::to_string(&table).unwrap();
+            let read: FamilyTable = toml::from_str(&text).unwrap();
+            let family = FamilySpec::Table(read).family().unwrap();
+            assert_eq!(family, kind.family(), "{text}");
+            assert_eq!(family.draw(11, 4), kind.draw(11, 4));
+            assert_eq!(FamilySpec::of(&family), FamilySpec::Preset(kind.name().into()));
+        }
+    }
+
+    #[test]
+    fn a_mission_file_reads_and_round_trips_through_json() {
+        let table: FamilyTable = toml::from_str(INWARD).unwrap();
+        let family = FamilySpec::Table(table).family().unwrap();
+        assert_eq!(family.problem, ProblemKind::Rendezvous);
+        assert_eq!(family.cycle, Cycle::Days(7.0));
+        assert_eq!(family.departure.omega, Range { lo: 0.0, hi: TAU });
+        #[derive(Serialize, Deserialize)]
+        struct Holder {
+            #[serde(with = "by_spec")]
+            family: MissionFamily,
+        }
+        let json = serde_json::to_string(&Holder { family }).unwrap();
+        let back: Holder = serde_json::from_str(&json).unwrap();
+        assert_eq!(back.family, family);
+        let preset = serde_json::to_string(&Holder {
+            family: ScenarioKind::TransferHard.family(),
+        })
+        .unwrap();
+        assert_eq!(preset, r#"{"family":"transfer-hard"}"#);
+        let binary = postcard::to_stdvec(&Holder { family }).unwrap();
+        assert_eq!(postcard::from_bytes::<Holder>(&binary).unwrap().family, family);
+    }
+
+    #[test]
+    fn bad_tables_are_refused_with_the_field() {
+        let refusal = |edit: &str| {
+            let text = INWARD.replace("e = [0.0, 0.01]", edit);
+            match toml::from_str::<FamilyTable>(&text) {
+                Ok(table) => FamilySpec::Table(table).family().unwrap_err().to_string(),
+                Err(e) => e.to_string(),
+            }
+        };
+        assert!(
+            refusal("e = [0.0, 1.2]").starts_with("target.e:"),
+            "{}",
+            refusal("e = [0.0, 1.2]")
+        );
+        assert!(refusal("e = [0.3, 0.1]").contains("target.e: lo > hi"));
+        assert!(refusal("e = 0.0, color = 3").contains("unknown field"));
+        let body = INWARD.replace("\"sun\"", "\"pluto\"");
+        let table: FamilyTable = toml::from_str(&body).unwrap();
+        assert!(FamilySpec::Table(table)
+            .family()
+            .unwrap_err()
+            .to_string()
+            .contains("pluto"));
+        assert!(matches!(
+            FamilySpec::Preset("transfer-easy".into()).family(),
+            Err(MissionError::UnknownPreset(_))
+        ));
+    }
+}
