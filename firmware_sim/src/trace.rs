@@ -81,11 +81,12 @@ const fn rendezvous() -> Scenario {
     }
 }
 
-/// The two flights of each problem: the nominal plant (the MDP itself), then the dispersed
+/// The three flights of each problem: the nominal plant (the MDP itself), then the dispersed
 /// plant of [`Dispersions::TYPICAL`], whose random draws (ChaCha, Gaussian by libm) must agree
-/// too.
-const fn flights(names: [&'static str; 2], scenario: Scenario) -> [TraceFlight; 2] {
-    let [nominal, dispersed] = names;
+/// too, then the nominal plant guided every 7 days over the same time of flight (a family's
+/// cycle other than the thesis's).
+const fn flights(names: [&'static str; 3], scenario: Scenario) -> [TraceFlight; 3] {
+    let [nominal, dispersed, weekly] = names;
     [
         TraceFlight {
             name: nominal,
@@ -99,17 +100,30 @@ const fn flights(names: [&'static str; 2], scenario: Scenario) -> [TraceFlight; 
             dispersions: Dispersions::TYPICAL,
             seed: 20_261_121,
         },
+        TraceFlight {
+            name: weekly,
+            scenario: Scenario {
+                steps: 2 * scenario.steps,
+                cycle: scenario.cycle / 2.0,
+                ..scenario
+            },
+            dispersions: Dispersions::NONE,
+            seed: 0,
+        },
     ]
 }
 
 /// The transfer image's flights.
-pub const TRANSFER_FLIGHTS: [TraceFlight; 2] = flights(["nominal", "dispersed"], transfer());
+pub const TRANSFER_FLIGHTS: [TraceFlight; 3] = flights(["nominal", "dispersed", "weekly"], transfer());
 
 /// The rendezvous image's flights (named apart, so a trace says which image wrote it).
-pub const RENDEZVOUS_FLIGHTS: [TraceFlight; 2] = flights(["rendezvous-nominal", "rendezvous-dispersed"], rendezvous());
+pub const RENDEZVOUS_FLIGHTS: [TraceFlight; 3] = flights(
+    ["rendezvous-nominal", "rendezvous-dispersed", "rendezvous-weekly"],
+    rendezvous(),
+);
 
 /// The trace's flights of problem `P`.
-pub fn flights_of<const N: usize, P: Problem<N>>(_problem: P) -> &'static [TraceFlight; 2] {
+pub fn flights_of<const N: usize, P: Problem<N>>(_problem: P) -> &'static [TraceFlight; 3] {
     match P::KIND {
         ProblemKind::Transfer => &TRANSFER_FLIGHTS,
         ProblemKind::Rendezvous => &RENDEZVOUS_FLIGHTS,

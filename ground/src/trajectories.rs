@@ -472,8 +472,9 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
         refinements: args.refinements,
         margin: args.margin,
     };
+    let family = read_dataset(&dataset_file(&args.dataset))?.manifest.family;
     let spacecraft = Spacecraft::MSR_ERO
-        .canonical()
+        .canonical_in(&family.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
     let (checks, repaired, cut) = if args.repair {
         let run = crosscheck_run(
@@ -486,12 +487,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
         )?;
         (run.checks, run.repaired, run.cut)
     } else {
-        let file = if args.dataset.is_dir() {
-            args.dataset.join("dataset.ltds")
-        } else {
-            args.dataset.clone()
-        };
-        let dataset = read_dataset(&file)?;
+        let dataset = read_dataset(&dataset_file(&args.dataset))?;
         let checks = crosscheck_records(
             &dataset.records,
             args.count.map(NonZeroUsize::get),
@@ -578,9 +574,19 @@ pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error
     Ok(())
 }
 
+/// The dataset file of `path`: the file itself, or a run folder's `dataset.ltds`.
+fn dataset_file(path: &Path) -> PathBuf {
+    if path.is_dir() {
+        path.join("dataset.ltds")
+    } else {
+        path.to_path_buf()
+    }
+}
+
 pub fn feasibility_command(out: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let family = read_dataset(&dataset_file(out))?.manifest.family;
     let sc = Spacecraft::MSR_ERO
-        .canonical()
+        .canonical_in(&family.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
     // A recovered draw is solved as the run's other records were (its request.json).
     let options = ground_core::generate::run_solve_options(out)?;

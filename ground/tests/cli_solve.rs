@@ -24,7 +24,10 @@ fn invalid_orbits_and_times_are_refused_with_a_clear_message() {
             vec!["data", "solve", "--a0", "1", "--af", "1.3", "--tof-days", "20"],
             "whole number",
         ),
-        (vec!["data", "solve", "--scenario", "transfer-easy"], "unknown scenario"),
+        (
+            vec!["data", "solve", "--scenario", "transfer-easy"],
+            "neither a scenario family preset",
+        ),
         (vec!["data", "solve"], "--scenario"),
     ] {
         let out = ground(&args);

@@ -5,7 +5,6 @@
 //! software) then commands thrust off; a NaN never reaches the thrusters.
 
 use shared::orbit::{CartesianState, OrbitShape};
-use shared::units::STEP;
 
 use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
@@ -194,19 +193,19 @@ impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
     }
 }
 
-/// Guidance cycles left in `time_to_go`: whole 14-day cycles, the last one possibly partial (a
-/// sliver below 1e-9 of a cycle is rounding). How the onboard aids count their horizon.
-pub fn cycles_left(time_to_go: f64) -> f64 {
-    libm::ceil(time_to_go / STEP - 1e-9)
+/// Guidance cycles of length `cycle` left in `time_to_go`: whole cycles, the last one possibly
+/// partial (a sliver below 1e-9 of a cycle is rounding). How the onboard aids count their horizon.
+pub fn cycles_left(time_to_go: f64, cycle: f64) -> f64 {
+    libm::ceil(time_to_go / cycle - 1e-9)
 }
 
 /// The duration of the cycle that starts `start` after now with `time_to_go` left: whole cycles
-/// are exactly STEP, as the flight holds them; only a last partial one is shorter (a remainder
-/// within rounding of STEP is a whole cycle). How the onboard aids' rollouts cut the time.
-pub(crate) fn cycle_duration(time_to_go: f64, start: f64) -> f64 {
+/// are exactly `cycle`, as the flight holds them; only a last partial one is shorter (a remainder
+/// within rounding of `cycle` is a whole cycle). How the onboard aids' rollouts cut the time.
+pub(crate) fn cycle_duration(time_to_go: f64, start: f64, cycle: f64) -> f64 {
     let remaining = time_to_go - start;
-    if remaining >= STEP * (1.0 - 1e-9) {
-        STEP
+    if remaining >= cycle * (1.0 - 1e-9) {
+        cycle
     } else {
         remaining
     }

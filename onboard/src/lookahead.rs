@@ -86,6 +86,9 @@ pub struct LookaheadSettings {
     /// network in the nominal model.
     #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero"))]
     pub thrust_margin: f64,
+    /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub cycle: f64,
 }
 
 /// Whether a setting is at its default of zero (left out when written).
@@ -104,6 +107,7 @@ impl Default for LookaheadSettings {
             tolerances: Tolerances::default(),
             max_cycles: 200,
             thrust_margin: 0.0,
+            cycle: STEP,
         }
     }
 }
@@ -115,7 +119,7 @@ pub struct InvalidSettings;
 impl core::fmt::Display for InvalidSettings {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(
-            "lookahead goals and floor must be finite and > 0, the fuel weight finite and >= 0, the thrust margin in [0, 1)",
+            "lookahead goals, floor and cycle must be finite and > 0, the fuel weight finite and >= 0, the thrust margin in [0, 1)",
         )
     }
 }
@@ -130,6 +134,7 @@ impl LookaheadSettings {
             && self.fuel_weight.is_finite()
             && self.fuel_weight >= 0.0
             && (0.0..1.0).contains(&self.thrust_margin)
+            && positive(self.cycle)
         {
             Ok(())
         } else {
@@ -212,8 +217,8 @@ fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     let mut state = *navigation;
     let mut command = *first;
     for cycle in 0..cycles {
-        let start = f64::from(cycle) * STEP;
-        let duration = cycle_duration(time_to_go, start);
+        let start = f64::from(cycle) * settings.cycle;
+        let duration = cycle_duration(time_to_go, start, settings.cycle);
         if cycle > 0 {
             command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
         }
@@ -232,7 +237,7 @@ fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
 
 /// One guidance cycle with lookahead: the network's command at `navigation` (refused inputs and
 /// non-finite actions are errors, as in [`crate::guidance`]), improved by the rollouts of the
-/// module documentation. `time_to_go` is cut into 14-day cycles from now (the last one shorter
+/// module documentation. `time_to_go` is cut into cycles of `settings.cycle` from now (the last one shorter
 /// when it is not a whole number of them); with more than `settings.max_cycles` cycles left, or
 /// none, the network's command is returned unexamined.
 pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
@@ -251,8 +256,11 @@ pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         predicted: None,
         network_predicted: None,
     };
-    let cycles = cycles_left(time_to_go);
-    if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.max_cycles)) {
+    if settings.validate().is_err() {
+        return Ok(decision);
+    }
+    let cycles = cycles_left(time_to_go, settings.cycle);
+    if !(cycles >= 1.0 && cycles <= f64::from(settings.max_cycles)) {
         return Ok(decision);
     }
     let cycles = cycles as u32;

@@ -66,6 +66,9 @@ pub struct TerminalSettings {
     /// Tolerances of the rollouts' propagation (default: the onboard ones).
     #[cfg_attr(feature = "serde", serde(skip))]
     pub tolerances: Tolerances,
+    /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
+    #[cfg_attr(feature = "serde", serde(skip))]
+    pub cycle: f64,
 }
 
 impl Default for TerminalSettings {
@@ -76,12 +79,13 @@ impl Default for TerminalSettings {
             goal_position: 0.01,
             goal_velocity: 0.01,
             tolerances: Tolerances::default(),
+            cycle: STEP,
         }
     }
 }
 
 /// Settings out of range: cycles not in 1..=[`MAX_CYCLES`], iterations not in
-/// 1..=[`MAX_ITERATIONS`], a goal not finite and positive.
+/// 1..=[`MAX_ITERATIONS`], a goal or the cycle not finite and positive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InvalidTerminalSettings;
 
@@ -94,6 +98,7 @@ impl TerminalSettings {
             && (1..=MAX_ITERATIONS).contains(&self.iterations)
             && positive(self.goal_position)
             && positive(self.goal_velocity)
+            && positive(self.cycle)
         {
             Ok(())
         } else {
@@ -156,6 +161,11 @@ struct Problem<'a, T> {
 }
 
 impl<T> Problem<'_, T> {
+    /// The duration of the plan's cycle `k` (the last one possibly shorter).
+    fn duration(&self, k: usize) -> f64 {
+        cycle_duration(self.time_to_go, k as f64 * self.settings.cycle, self.settings.cycle)
+    }
+
     /// The miss vector, in goal units, of flying `plan` to the arrival (None if a propagation
     /// fails or the arrival's features are refused).
     fn miss<const N: usize>(&self, plan: &Plan) -> Option<[f64; MISS_LEN]>
@@ -165,8 +175,8 @@ impl<T> Problem<'_, T> {
         self.rollouts.set(self.rollouts.get().saturating_add(1));
         let mut state = *self.navigation;
         for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
-            let start = cycle as f64 * STEP;
-            let dt = cycle_duration(self.time_to_go, start);
+            let start = cycle as f64 * self.settings.cycle;
+            let dt = cycle_duration(self.time_to_go, start, self.settings.cycle);
             state = propagate(&state, &command_of(tau), self.spacecraft, dt, &self.settings.tolerances).ok()?;
         }
         let features = self.target.features_after(&state, self.time_to_go, 0.0).ok()?;
@@ -331,7 +341,7 @@ fn fuel<T>(problem: &Problem<'_, T>, plan: &Plan) -> f64 {
     plan.iter()
         .take(problem.cycles)
         .enumerate()
-        .map(|(cycle, tau)| libm::hypot(tau[0], tau[1]) * cycle_duration(problem.time_to_go, cycle as f64 * STEP))
+        .map(|(k, tau)| libm::hypot(tau[0], tau[1]) * problem.duration(k))
         .sum()
 }
 
@@ -401,7 +411,7 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
         for (cycle, tau) in plan.iter().take(problem.cycles).enumerate() {
             let n = libm::hypot(tau[0], tau[1]);
             if n > 1e-9 {
-                let dt = cycle_duration(problem.time_to_go, cycle as f64 * STEP);
+                let dt = problem.duration(cycle);
                 if let Some(g) = gradient.get_mut(2 * cycle..2 * cycle + 2) {
                     g.copy_from_slice(&[dt * tau[0] / n, dt * tau[1] / n]);
                 }
@@ -454,8 +464,8 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
 
 /// One guidance cycle with terminal targeting: the network's command at `navigation` (refused
 /// inputs and non-finite actions are errors, as in [`crate::guidance`]); with `1 ..=
-/// settings.cycles` cycles to go (`time_to_go` cut into 14-day cycles, the last possibly
-/// shorter), the first command of the solved plan when it predicts a smaller miss than the
+/// settings.cycles` cycles to go (`time_to_go` cut into cycles of `settings.cycle`, the last
+/// possibly shorter), the first command of the solved plan when it predicts a smaller miss than the
 /// network's own continuation.
 pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     actor: &A,
@@ -474,8 +484,11 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         planned_miss: None,
         rollouts: 0,
     };
-    let cycles = cycles_left(time_to_go);
-    if settings.validate().is_err() || !(cycles >= 1.0 && cycles <= f64::from(settings.cycles)) {
+    if settings.validate().is_err() {
+        return Ok(decision);
+    }
+    let cycles = cycles_left(time_to_go, settings.cycle);
+    if !(cycles >= 1.0 && cycles <= f64::from(settings.cycles)) {
         return Ok(decision);
     }
     let cycles = cycles as usize;
@@ -484,7 +497,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     let mut state = *navigation;
     decision.rollouts = 1;
     for (cycle, tau) in plan.iter_mut().take(cycles).enumerate() {
-        let start = cycle as f64 * STEP;
+        let start = cycle as f64 * settings.cycle;
         let command = if cycle == 0 {
             network
         } else {
@@ -498,7 +511,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
             &state,
             &command,
             spacecraft,
-            cycle_duration(time_to_go, start),
+            cycle_duration(time_to_go, start, settings.cycle),
             &settings.tolerances,
         ) {
             Ok(next) => state = next,
@@ -553,7 +566,7 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal
         time_to_go: f64,
     ) -> Result<ThrustCommand, GuidanceError> {
         let (actor, spacecraft) = (&self.actor, &self.spacecraft);
-        let cycles = cycles_left(time_to_go);
+        let cycles = cycles_left(time_to_go, self.settings.cycle);
         match self.lookahead {
             Some(settings) if cycles > f64::from(self.settings.cycles) => {
                 lookahead_step(actor, navigation, target, time_to_go, spacecraft, &settings).map(|d| d.command)
@@ -584,10 +597,14 @@ mod tests {
     /// `TTG`) it commands [`PLAN`]'s thrust at 90 % and turned by 4 degrees, so it misses the
     /// arrival [`PLAN`] reaches by a few hundredths of an AU (as a trained network misses by
     /// thousandths).
-    struct NearlyRight<const TTG: usize>;
+    #[derive(Clone, Copy)]
+    struct NearlyRight<const TTG: usize> {
+        /// The guidance cycle the network counts its time to go in.
+        cycle: f64,
+    }
     impl<const N: usize, const TTG: usize> Actor<N> for NearlyRight<TTG> {
         fn act(&self, features: &[f32; N]) -> [f32; 3] {
-            let to_go = (f64::from(features[TTG]) / STEP).round() as usize;
+            let to_go = (f64::from(features[TTG]) / self.cycle).round() as usize;
             let tau = PLAN[3 - to_go.clamp(1, 3)];
             let (s, c) = (libm::sin(0.07), libm::cos(0.07));
             let turned = [0.9 * (tau[0] * c + tau[1] * s), 0.9 * (tau[1] * c - tau[0] * s)];
@@ -597,7 +614,7 @@ mod tests {
 
     /// Three cycles of known commands from a 1 AU circular orbit: the start and where they
     /// arrive. A target set there is met exactly by those commands, so a solution exists.
-    fn reachable() -> (SpacecraftState, SpacecraftState) {
+    fn reachable(cycle: f64) -> (SpacecraftState, SpacecraftState) {
         let start = SpacecraftState::from_cartesian(
             &OrbitShape {
                 a: 1.0,
@@ -609,7 +626,14 @@ mod tests {
         );
         let mut arrival = start;
         for tau in PLAN {
-            arrival = propagate(&arrival, &command_of(&tau), &spacecraft(), STEP, &Tolerances::default()).unwrap();
+            arrival = propagate(
+                &arrival,
+                &command_of(&tau),
+                &spacecraft(),
+                cycle,
+                &Tolerances::default(),
+            )
+            .unwrap();
         }
         (start, arrival)
     }
@@ -625,40 +649,58 @@ mod tests {
         guide: &impl Guide<N, T>,
         start: SpacecraftState,
         target: impl Fn(u32) -> T,
+        cycle: f64,
     ) -> SpacecraftState {
         let mut state = start;
         for k in 0..3u32 {
-            let time_to_go = f64::from(3 - k) * STEP;
+            let time_to_go = f64::from(3 - k) * cycle;
             let command = guide.command(&state, &target(k), time_to_go).unwrap();
-            state = propagate(&state, &command, &spacecraft(), STEP, &Tolerances::default()).unwrap();
+            state = propagate(&state, &command, &spacecraft(), cycle, &Tolerances::default()).unwrap();
         }
         state
     }
 
     /// A transfer whose target orbit the flight can reach in its last three cycles: the nearly
     /// right network misses it; terminal targeting meets it within a thousandth of the goal
-    /// (its stopping rule), the orbit's own elements as reference.
+    /// (its stopping rule), the orbit's own elements as reference; with 14-day cycles and with
+    /// 7-day ones.
     #[test]
     fn a_reachable_target_orbit_is_met() {
-        let (start, arrival) = reachable();
-        let target = orbit_through(&arrival);
-        let miss = |state: &SpacecraftState| {
-            OrbitShape::residuals(
-                &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, state, 0.0, 0.0).unwrap(),
-            )
-        };
-        let alone = fly::<TRANSFER_FEATURES, _>(&NearlyRight::<9>, start, |_| target);
-        let off = miss(&alone);
-        assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
-        let guide = Terminal {
-            actor: NearlyRight::<9>,
-            spacecraft: spacecraft(),
-            settings: TerminalSettings::default(),
-            lookahead: None,
-        };
-        let end = fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target);
-        let met = miss(&end);
-        assert!(met.position < 1e-5 && met.velocity < 1e-5, "{met:?}");
+        for cycle in [STEP, STEP / 2.0] {
+            let (start, arrival) = reachable(cycle);
+            let target = orbit_through(&arrival);
+            let miss = |state: &SpacecraftState| {
+                OrbitShape::residuals(
+                    &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, state, 0.0, 0.0).unwrap(),
+                )
+            };
+            let network = NearlyRight::<9> { cycle };
+            let alone = fly::<TRANSFER_FEATURES, _>(&network, start, |_| target, cycle);
+            let off = miss(&alone);
+            assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+            let guide = Terminal {
+                actor: network,
+                spacecraft: spacecraft(),
+                settings: TerminalSettings {
+                    cycle,
+                    ..TerminalSettings::default()
+                },
+                lookahead: None,
+            };
+            let end = fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target, cycle);
+            let met = miss(&end);
+            assert!(met.position < 1e-5 && met.velocity < 1e-5, "{cycle}: {met:?}");
+            // Counting 14-day cycles in a 7-day flight, the aid plans the wrong horizon.
+            if cycle != STEP {
+                let miscounted = Terminal {
+                    settings: TerminalSettings::default(),
+                    ..guide
+                };
+                let end = fly::<TRANSFER_FEATURES, _>(&miscounted, start, |_| target, cycle);
+                let off = miss(&end);
+                assert!(off.position.max(off.velocity) > 1e-4, "{off:?}");
+            }
+        }
     }
 
     /// The propellant phase on a plan that meets the arrival (the commands that built the
@@ -666,7 +708,7 @@ mod tests {
     /// the phase finds a cheaper plan that still meets the orbit when flown.
     #[test]
     fn the_propellant_phase_lowers_a_met_plan_and_keeps_it_met() {
-        let (start, arrival) = reachable();
+        let (start, arrival) = reachable(STEP);
         let target = orbit_through(&arrival);
         let (craft, settings) = (spacecraft(), TerminalSettings::default());
         let problem = Problem {
@@ -701,34 +743,40 @@ mod tests {
     /// to the epoch): met in position and velocity within a thousandth of the goal.
     #[test]
     fn a_reachable_body_is_met() {
-        let (start, arrival) = reachable();
-        let at_arrival = CartesianState {
-            r: arrival.r,
-            v: arrival.v,
-        };
-        let epoch = coast(&at_arrival, -3.0 * STEP).unwrap();
-        let body = |k: u32| coast(&epoch, f64::from(k) * STEP).unwrap();
-        let guide = Terminal {
-            actor: NearlyRight::<20>,
-            spacecraft: spacecraft(),
-            settings: TerminalSettings::default(),
-            lookahead: None,
-        };
-        let end = fly::<RENDEZVOUS_FEATURES, _>(&guide, start, body);
-        let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &end, 0.0, 0.0).unwrap();
-        let met = CartesianState::residuals(&features);
-        assert!(met.position < 1e-5 && met.velocity < 1e-5, "{met:?}");
-        let alone = fly::<RENDEZVOUS_FEATURES, _>(&NearlyRight::<20>, start, body);
-        let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &alone, 0.0, 0.0).unwrap();
-        let off = CartesianState::residuals(&features);
-        assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+        for cycle in [STEP, STEP / 2.0] {
+            let (start, arrival) = reachable(cycle);
+            let at_arrival = CartesianState {
+                r: arrival.r,
+                v: arrival.v,
+            };
+            let epoch = coast(&at_arrival, -3.0 * cycle).unwrap();
+            let body = |k: u32| coast(&epoch, f64::from(k) * cycle).unwrap();
+            let network = NearlyRight::<20> { cycle };
+            let guide = Terminal {
+                actor: network,
+                spacecraft: spacecraft(),
+                settings: TerminalSettings {
+                    cycle,
+                    ..TerminalSettings::default()
+                },
+                lookahead: None,
+            };
+            let end = fly::<RENDEZVOUS_FEATURES, _>(&guide, start, body, cycle);
+            let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &end, 0.0, 0.0).unwrap();
+            let met = CartesianState::residuals(&features);
+            assert!(met.position < 1e-5 && met.velocity < 1e-5, "{cycle}: {met:?}");
+            let alone = fly::<RENDEZVOUS_FEATURES, _>(&network, start, body, cycle);
+            let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &alone, 0.0, 0.0).unwrap();
+            let off = CartesianState::residuals(&features);
+            assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+        }
     }
 
     /// Outside its last cycles, with settings out of range, or with a network that cannot be
     /// improved on, the network's command is flown unchanged.
     #[test]
     fn the_network_flies_unless_a_solved_plan_predicts_a_smaller_miss() {
-        let (start, arrival) = reachable();
+        let (start, arrival) = reachable(STEP);
         let target = orbit_through(&arrival);
         // A tangential network misses by more than two goals: enough iterations to meet it.
         let settings = TerminalSettings {

@@ -137,7 +137,7 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Counted<
         let decision = terminal_step(actor, navigation, target, time_to_go, spacecraft, settings)?;
         if decision.rollouts > 0 {
             if let Ok(mut kept) = self.rollouts.lock() {
-                kept.push((cycles_left(time_to_go) as u32, decision.rollouts));
+                kept.push((cycles_left(time_to_go, shared::units::STEP) as u32, decision.rollouts));
             }
         }
         Ok(decision.command)

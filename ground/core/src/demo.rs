@@ -711,6 +711,11 @@ impl core::fmt::Display for MismatchReport {
 pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter) -> Result<MismatchReport, DemoError> {
     let file = read_dataset(dataset)?;
     let problem = file.manifest.family.problem;
+    // The spacecraft flies in the units of the dataset's central body.
+    let config = &EnvConfig {
+        body: file.manifest.family.body,
+        ..*config
+    };
     let tol = default_tolerances();
     Ok(crate::with_problem!(problem, P => MismatchReport::from_mismatch(
         problem,

@@ -459,21 +459,32 @@ impl ExperimentConfig {
     }
 
     /// The onboard lookahead the SIL flies (`[sil] lookahead`), its rollouts propagated with the
-    /// environment's integrator settings.
+    /// environment's integrator settings, cycles of the family's length.
     pub fn lookahead_settings(&self) -> Option<LookaheadSettings> {
         self.sil.lookahead.map(|settings| LookaheadSettings {
             tolerances: self.env.integrator.tolerances(),
+            cycle: self.aid_cycle().unwrap_or(f64::NAN),
             ..settings
         })
     }
 
     /// The terminal targeting the SIL flies (`[sil] terminal`), its rollouts propagated with the
-    /// environment's integrator settings.
+    /// environment's integrator settings, cycles of the family's length.
     pub fn terminal_settings(&self) -> Option<TerminalSettings> {
         self.sil.terminal.map(|settings| TerminalSettings {
             tolerances: self.env.integrator.tolerances(),
+            cycle: self.aid_cycle().unwrap_or(f64::NAN),
             ..settings
         })
+    }
+
+    /// The cycle (t*) the onboard aids count: the family's, when it has one length for every
+    /// flight (a cycle in days; the same bits as its scenarios').
+    fn aid_cycle(&self) -> Option<f64> {
+        match self.family.cycle {
+            Cycle::Days(days) => Some(self.family.body.units().days(days)),
+            Cycle::Count(_) => None,
+        }
     }
 
     /// Every check that needs no file system access.
@@ -489,12 +500,10 @@ impl ExperimentConfig {
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }
         let heliocentric = self.family.body == CentralBody::SUN;
-        if !(heliocentric && self.family.cycle == Cycle::Days(14.0))
-            && (self.sil.lookahead.is_some() || self.sil.terminal.is_some())
-        {
+        if self.aid_cycle().is_none() && (self.sil.lookahead.is_some() || self.sil.terminal.is_some()) {
             return Err(ConfigError::Invalid(format!(
-                "sil.lookahead / sil.terminal: the onboard aids count 14-day heliocentric cycles, and family {} \
-                 has another cycle or body: fly its network alone (remove the key)",
+                "sil.lookahead / sil.terminal: the onboard aids count cycles of one length, and family {} \
+                 cuts each flight into a count of cycles: give its cycle in days, or fly its network alone",
                 self.family.label()
             )));
         }
@@ -900,16 +909,31 @@ mod tests {
         let units = shared::mission::CentralBody::EARTH.units();
         let expected = 1.33 / 3366.0 / units.acceleration_m_s2();
         assert!((thrust - expected).abs() <= 1e-15 * expected, "{thrust} {expected}");
-        // The onboard aids count 14-day heliocentric cycles; typical dispersions are heliocentric.
+        // The onboard aids count the family's cycles, of one length; dispersions are heliocentric.
         let aid = ExperimentConfig::from_toml(&format!(
             "scenario = {:?}\n[sil]\nterminal = {{ cycles = 2 }}",
             file.display()
         ))
-        .unwrap_err()
-        .to_string();
+        .unwrap();
+        let weekly = aid.terminal_settings().unwrap().cycle;
+        assert_eq!(weekly, aid.family.draw(1, 0).cycle);
+        assert_eq!(weekly, 7.0 * 86_400.0 / shared::units::TIME_UNIT_S);
+        let mut counted: toml::Table = toml::from_str(&written).unwrap();
+        counted["scenario"]["cycle"] = toml::Value::Table(toml::from_str("count = 40").unwrap());
+        counted["sil"].as_table_mut().unwrap().insert(
+            "terminal".into(),
+            toml::Value::Table(toml::from_str("cycles = 2").unwrap()),
+        );
+        let counted = ExperimentConfig::from_toml(&toml::to_string(&counted).unwrap())
+            .unwrap_err()
+            .to_string();
         assert!(
-            aid.contains("sil.lookahead / sil.terminal") && aid.contains("custom-"),
-            "{aid}"
+            counted.contains("sil.lookahead / sil.terminal") && counted.contains("custom-"),
+            "{counted}"
+        );
+        assert!(
+            counted.contains("sil.lookahead / sil.terminal") && counted.contains("custom-"),
+            "{counted}"
         );
         config.remove("sil");
         let dispersed = ExperimentConfig::from_toml(&toml::to_string(&config).unwrap())

@@ -35,7 +35,6 @@ use onboard::policy::{RendezvousPolicy, TransferPolicy};
 use shared::blob::{ProblemKind, Quantization};
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::scenario::Scenario;
-use shared::units::STEP;
 
 /// One guidance call: its inputs and what the Rust controller answered.
 struct Call {
@@ -99,7 +98,6 @@ fn flight_calls<const N: usize, P: Problem<N>>(
     let mut calls = Vec::new();
     let mut first = 0;
     for flight in flights_of(problem) {
-        let steps = flight.scenario.steps;
         let mut failed = None;
         // The trace flight itself, on the plant firmware_sim::trace::fly flies it on.
         let setup = flight.setup().map_err(|e| e.to_string())?;
@@ -114,7 +112,7 @@ fn flight_calls<const N: usize, P: Problem<N>>(
                     navigation: step.navigation,
                     target,
                     // As fly_observed computes it.
-                    time_to_go: f64::from(steps - step.index) * STEP,
+                    time_to_go: flight.scenario.time_to_go(step.index),
                     outcome: match step.guidance_error {
                         _ if !loaded => Err(LT_ERR_NOT_LOADED),
                         None => Ok(step.command),

@@ -202,6 +202,8 @@ typedef struct lt_lookahead_settings {
   // Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin against
   // missed thrust); default 0.
   double thrust_margin;
+  // Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
+  double cycle;
   // Most cycles a rollout flies; with more left the network's command is flown unexamined.
   uint32_t max_cycles;
 } lt_lookahead_settings;
@@ -238,6 +240,8 @@ typedef struct lt_terminal_settings {
   double goal_position;
   // Velocity residual counted as one unit of miss (AU/t*); default 0.01.
   double goal_velocity;
+  // Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
+  double cycle;
   // Cycles to go from which the remaining commands are solved (1 to 4); default 4.
   uint32_t cycles;
   // Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering

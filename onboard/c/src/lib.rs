@@ -552,6 +552,8 @@ pub struct lt_lookahead_settings {
     /// Fraction of the thrust the rollouts plan without, in [0, 1) (a duty-cycle margin against
     /// missed thrust); default 0.
     pub thrust_margin: f64,
+    /// Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
+    pub cycle: f64,
     /// Most cycles a rollout flies; with more left the network's command is flown unexamined.
     pub max_cycles: u32,
 }
@@ -585,6 +587,7 @@ impl From<lt_lookahead_settings> for LookaheadSettings {
             fuel_weight: s.fuel_weight,
             max_cycles: s.max_cycles,
             thrust_margin: s.thrust_margin,
+            cycle: s.cycle,
             ..Self::default()
         }
     }
@@ -607,6 +610,7 @@ pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) 
         fuel_weight: d.fuel_weight,
         max_cycles: d.max_cycles,
         thrust_margin: d.thrust_margin,
+        cycle: d.cycle,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
     unsafe { ptr::write_unaligned(out, settings) };
@@ -792,6 +796,8 @@ pub struct lt_terminal_settings {
     pub goal_position: f64,
     /// Velocity residual counted as one unit of miss (AU/t*); default 0.01.
     pub goal_velocity: f64,
+    /// Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
+    pub cycle: f64,
     /// Cycles to go from which the remaining commands are solved (1 to 4); default 4.
     pub cycles: u32,
     /// Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering
@@ -822,6 +828,7 @@ impl From<lt_terminal_settings> for TerminalSettings {
             goal_velocity: s.goal_velocity,
             cycles: s.cycles,
             iterations: s.iterations,
+            cycle: s.cycle,
             ..Self::default()
         }
     }
@@ -843,6 +850,7 @@ pub unsafe extern "C" fn lt_terminal_defaults(out: *mut lt_terminal_settings) ->
         goal_velocity: d.goal_velocity,
         cycles: d.cycles,
         iterations: d.iterations,
+        cycle: d.cycle,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
     unsafe { ptr::write_unaligned(out, settings) };

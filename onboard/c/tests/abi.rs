@@ -621,6 +621,7 @@ fn defaults() -> lt_lookahead_settings {
         fuel_weight: 0.0,
         max_cycles: 0,
         thrust_margin: 1.0,
+        cycle: 0.0,
     };
     assert_eq!(unsafe { lt_lookahead_defaults(&mut s) }, LT_OK);
     s
@@ -637,14 +638,16 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
             settings.goal_velocity,
             settings.accuracy_floor,
             settings.fuel_weight,
-            settings.max_cycles
+            settings.max_cycles,
+            settings.cycle
         ),
         (
             d.goal_position,
             d.goal_velocity,
             d.accuracy_floor,
             d.fuel_weight,
-            d.max_cycles
+            d.max_cycles,
+            d.cycle
         )
     );
     let sc = spacecraft();
@@ -809,6 +812,7 @@ fn terminal_defaults() -> lt_terminal_settings {
         goal_velocity: 0.0,
         cycles: 0,
         iterations: 0,
+        cycle: 0.0,
     };
     assert_eq!(unsafe { lt_terminal_defaults(&mut s) }, LT_OK);
     s
@@ -826,9 +830,10 @@ fn terminal_steps_are_the_onboard_terminal_targeting_bit_for_bit_and_refuse_unus
             settings.goal_position,
             settings.goal_velocity,
             settings.cycles,
-            settings.iterations
+            settings.iterations,
+            settings.cycle
         ),
-        (d.goal_position, d.goal_velocity, d.cycles, d.iterations)
+        (d.goal_position, d.goal_velocity, d.cycles, d.iterations, d.cycle)
     );
     let sc = spacecraft();
     let canonical = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
