@@ -33,11 +33,12 @@ from lowthrust._lowthrust import (
     solve,
     spacecraft,
 )
-from lowthrust.envs import ENV_IDS, LowThrustEnv, LowThrustVecEnv, register_envs
+from lowthrust.envs import ENV_IDS, MISSION_ENV_ID, LowThrustEnv, LowThrustVecEnv, register_envs
 
 __all__ = [
     "AU_M",
     "ENV_IDS",
+    "MISSION_ENV_ID",
     "SCENARIOS",
     "STEP",
     "TIME_UNIT_S",

@@ -1,10 +1,13 @@
 """Gymnasium environments of the project's MDPs (docs/spec.md sections 4 to 6).
 
-Each episode is one scenario of a distribution: ``reset(seed=s)`` starts scenario 0 of the
-stream ``s`` and each later reset the next one (``options={"index": i}`` picks scenario ``i``),
-so that ``reset(seed=2000003)`` and the resets after it fly the project's Monte Carlo scenarios
-in order. Without a seed the stream is the project's training stream (seed 1). An episode has N
-14-day steps (its ``steps``) and terminates after the last; it is never truncated.
+Each episode is one scenario of a family: ``reset(seed=s)`` starts scenario 0 of the stream ``s``
+and each later reset the next one (``options={"index": i}`` picks scenario ``i``), so that
+``reset(seed=2000003)`` and the resets after it fly the project's Monte Carlo scenarios in order.
+Without a seed the stream is the project's training stream (seed 1). An episode has N guidance
+cycles (its ``steps``; 14 days each for the thesis's four presets) and terminates after the last;
+it is never truncated. ``lowthrust/Mission-v0`` flies any family: ``gymnasium.make(
+"lowthrust/Mission-v0", scenario=...)`` with a mission file's path or a mission table as TOML text
+(docs/missions.md).
 
 Observation: the features the onboard network sees (float32; 10 for a transfer, 22 for a
 rendezvous). Action: three float32 in [-1, 1]: throttle (a0 + 1) / 2 and the thrust direction
@@ -33,6 +36,9 @@ ENV_IDS = {
     "rendezvous-hard": "lowthrust/RendezvousHard-v0",
 }
 
+#: The Gymnasium id of a family given as a mission (``scenario=`` a file's path or TOML text).
+MISSION_ENV_ID = "lowthrust/Mission-v0"
+
 #: The scenario stream of resets without a seed: the project's training seed.
 TRAINING_SEED = 1
 
@@ -57,10 +63,11 @@ def _actions(action: Any, shape: tuple[int, ...]) -> np.ndarray:
 
 
 class LowThrustEnv(gymnasium.Env):
-    """One scenario distribution's MDP, stepped by the project's Rust environment.
+    """One scenario family's MDP, stepped by the project's Rust environment.
 
-    ``scenario`` is one of ``lowthrust.SCENARIOS``; ``env_config`` the ``[env]`` section of a
-    project config as TOML text (spacecraft, reward weights, terminal-accuracy term, integrator).
+    ``scenario`` is one of ``lowthrust.SCENARIOS``, a mission file's path or a mission table as
+    TOML text (docs/missions.md); ``env_config`` the ``[env]`` section of a project config as TOML
+    text (spacecraft, reward weights, terminal-accuracy term, integrator).
     """
 
     metadata = {"render_modes": []}
@@ -136,9 +143,26 @@ class LowThrustVecEnv(VectorEnv):
         return obs, rewards, done, np.zeros(self.num_envs, dtype=bool), {}
 
 
+def _mission_env(scenario: str, env_config: str | None = None) -> LowThrustEnv:
+    """``lowthrust/Mission-v0``: a family that must be named."""
+    return LowThrustEnv(scenario, env_config)
+
+
+def _mission_vec_env(num_envs: int = 1, scenario: str | None = None, env_config: str | None = None) -> LowThrustVecEnv:
+    if scenario is None:
+        raise TypeError("lowthrust/Mission-v0 needs scenario=: a mission file's path or TOML text")
+    return LowThrustVecEnv(num_envs, scenario, env_config)
+
+
 def register_envs() -> None:
-    """Registers the four environments and their vectorised forms with Gymnasium (done on
-    import; registering again is a no-op)."""
+    """Registers the four presets' environments, ``lowthrust/Mission-v0`` for any family, and
+    their vectorised forms with Gymnasium (done on import; registering again is a no-op)."""
+    if MISSION_ENV_ID not in gymnasium.registry:
+        gymnasium.register(
+            id=MISSION_ENV_ID,
+            entry_point="lowthrust.envs:_mission_env",
+            vector_entry_point="lowthrust.envs:_mission_vec_env",
+        )
     for scenario, env_id in ENV_IDS.items():
         if env_id in gymnasium.registry:
             continue

@@ -12,9 +12,10 @@ use ground_core::env::{EnvConfig, Environment, MdpEnv, Problem, Step};
 use ground_core::with_problem;
 use onboard::dynamics::SpacecraftState;
 use onboard::features::ACTION_LEN;
-use shared::scenario::{Scenario, ScenarioKind};
+use shared::mission::MissionFamily;
+use shared::scenario::Scenario;
 
-use crate::{refused, scenario_kind};
+use crate::{refused, scenario_family};
 
 /// `(observation, reward, done, info)` of `Env.step`.
 type StepResult<'py> = (Bound<'py, PyArray1<f32>>, f64, bool, Bound<'py, PyDict>);
@@ -102,10 +103,14 @@ impl<P: Problem> AnyEnv for MdpEnv<P> {
     }
 }
 
-/// A new environment of `kind`'s problem, with the `[env]` settings of a config (TOML text;
-/// none: the defaults).
-fn new_env(kind: ScenarioKind, config: &EnvConfig) -> PyResult<Box<dyn AnyEnv>> {
-    with_problem!(kind.problem(), P => MdpEnv::<P>::new(config).map(|e| Box::new(e) as Box<dyn AnyEnv>))
+/// A new environment of `family`'s problem, with the `[env]` settings of a config (TOML text;
+/// none: the defaults), its spacecraft in the family's units.
+fn new_env(family: &MissionFamily, config: &EnvConfig) -> PyResult<Box<dyn AnyEnv>> {
+    let config = EnvConfig {
+        body: family.body,
+        ..*config
+    };
+    with_problem!(family.problem, P => MdpEnv::<P>::new(&config).map(|e| Box::new(e) as Box<dyn AnyEnv>))
         .map_err(refused)
 }
 
@@ -133,26 +138,27 @@ fn action_of(action: &[f32]) -> PyResult<[f32; ACTION_LEN]> {
 
 /// One episode at a time of a scenario distribution's MDP (docs/spec.md sections 4 to 6):
 /// `reset(seed, index)` starts scenario `index` of the stream `seed`, `step(action)` flies one
-/// 14-day step.
+/// guidance cycle.
 #[pyclass(module = "lowthrust._lowthrust")]
 pub struct Env {
-    kind: ScenarioKind,
+    kind: MissionFamily,
     env: Box<dyn AnyEnv>,
     steps: u32,
 }
 
 #[pymethods]
 impl Env {
-    /// `Env(kind, env_config=None)`: `kind` one of `SCENARIOS`; `env_config` the `[env]` section
-    /// of a project config as TOML text (spacecraft, reward, terminal term, integrator).
+    /// `Env(kind, env_config=None)`: `kind` one of `SCENARIOS`, a mission file's path or a
+    /// mission table as TOML text (docs/missions.md); `env_config` the `[env]` section of a
+    /// project config as TOML text (spacecraft, reward, terminal term, integrator).
     #[new]
     #[pyo3(signature = (kind, env_config=None))]
     fn new(kind: &str, env_config: Option<&str>) -> PyResult<Self> {
-        let kind = scenario_kind(kind)?;
+        let kind = scenario_family(kind)?;
         let config = self::env_config(env_config)?;
         Ok(Self {
             kind,
-            env: new_env(kind, &config)?,
+            env: new_env(&kind, &config)?,
             steps: 0,
         })
     }
@@ -219,7 +225,7 @@ impl Env {
 /// finished episodes (`reset` with a mask).
 #[pyclass(module = "lowthrust._lowthrust")]
 pub struct VecEnv {
-    kind: ScenarioKind,
+    kind: MissionFamily,
     envs: Vec<Box<dyn AnyEnv>>,
     obs_dim: usize,
 }
@@ -230,13 +236,13 @@ impl VecEnv {
     #[new]
     #[pyo3(signature = (kind, num_envs, env_config=None))]
     fn new(kind: &str, num_envs: usize, env_config: Option<&str>) -> PyResult<Self> {
-        let kind = scenario_kind(kind)?;
+        let kind = scenario_family(kind)?;
         if num_envs == 0 {
             return Err(refused("num_envs must be at least 1"));
         }
         let config = self::env_config(env_config)?;
         let envs = (0..num_envs)
-            .map(|_| new_env(kind, &config))
+            .map(|_| new_env(&kind, &config))
             .collect::<PyResult<Vec<_>>>()?;
         let obs_dim = envs[0].obs_dim();
         Ok(Self { kind, envs, obs_dim })
@@ -375,8 +381,8 @@ fn reference_rollout<'py>(
     actions: PyReadonlyArray2<'py, f32>,
     env_config: Option<&str>,
 ) -> PyResult<Rollout<'py>> {
-    let kind = scenario_kind(kind)?;
-    let mut env = new_env(kind, &self::env_config(env_config)?)?;
+    let kind = scenario_family(kind)?;
+    let mut env = new_env(&kind, &self::env_config(env_config)?)?;
     if actions.shape()[1] != ACTION_LEN {
         return Err(refused("actions must be (k, 3)"));
     }

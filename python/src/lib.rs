@@ -29,6 +29,19 @@ pub(crate) fn refused(error: impl std::fmt::Display) -> PyErr {
 }
 
 /// The scenario distribution of a name (`transfer-circular`, ...).
+/// A scenario family: a preset's name, a mission file's path, or a mission table as TOML text
+/// (docs/missions.md), checked.
+pub(crate) fn scenario_family(text: &str) -> PyResult<shared::mission::MissionFamily> {
+    use ground_core::mission::{FamilySpec, FamilyTable};
+    let spec = if text.contains('=') {
+        let table: FamilyTable = toml::from_str(text).map_err(|e| refused(format!("mission table: {e}")))?;
+        FamilySpec::Table(table)
+    } else {
+        FamilySpec::from_argument(text).map_err(refused)?
+    };
+    spec.family().map_err(refused)
+}
+
 pub(crate) fn scenario_kind(name: &str) -> PyResult<shared::scenario::ScenarioKind> {
     name.parse().map_err(|_| {
         let known: Vec<&str> = shared::scenario::ScenarioKind::ALL.iter().map(|k| k.name()).collect();

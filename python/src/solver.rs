@@ -15,7 +15,7 @@ use ground_core::solver::{solve_arriving_early, SolveOptions};
 use shared::scenario::Scenario;
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 
-use crate::{refused, scenario_kind};
+use crate::{refused, scenario_family};
 
 fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -47,12 +47,12 @@ fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'p
 /// (rendezvous: the body's anomaly at departure) and `steps` N (14-day steps).
 #[pyfunction]
 fn draw_scenario<'py>(py: Python<'py>, kind: &str, seed: u64, index: u64) -> PyResult<Bound<'py, PyDict>> {
-    scenario_dict(py, &scenario_kind(kind)?.draw(seed, index))
+    scenario_dict(py, &scenario_family(kind)?.draw(seed, index))
 }
 
-fn canonical(spacecraft: &Spacecraft) -> PyResult<CanonicalSpacecraft> {
+fn canonical(spacecraft: &Spacecraft, family: &shared::mission::MissionFamily) -> PyResult<CanonicalSpacecraft> {
     spacecraft
-        .canonical()
+        .canonical_in(&family.body.units())
         .map_err(|e| refused(format!("spacecraft: {e:?}")))
 }
 
@@ -60,7 +60,10 @@ fn canonical(spacecraft: &Spacecraft) -> PyResult<CanonicalSpacecraft> {
 /// and `exhaust_speed` (g0 Isp, AU/t*).
 #[pyfunction]
 fn spacecraft<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-    let sc = canonical(&Spacecraft::default())?;
+    let sc = canonical(
+        &Spacecraft::default(),
+        &shared::scenario::ScenarioKind::TransferCircular.family(),
+    )?;
     let d = PyDict::new(py);
     d.set_item("thrust", sc.thrust)?;
     d.set_item("exhaust_speed", sc.exhaust_speed)?;
@@ -140,9 +143,9 @@ fn solve<'py>(
     final_eps: Option<f64>,
     arrival_margin: u32,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let kind = scenario_kind(kind)?;
+    let kind = scenario_family(kind)?;
     let options = options(final_eps, arrival_margin)?;
-    let sc = canonical(&Spacecraft::default())?;
+    let sc = canonical(&Spacecraft::default(), &kind)?;
     let scenario = kind.draw(seed, index);
     let record = py.detach(|| solve_arriving_early(kind, seed, index, &scenario, &sc, &options));
     record_dict(py, &record)
@@ -163,7 +166,7 @@ fn generate<'py>(
     arrival_margin: u32,
 ) -> PyResult<Bound<'py, PyAny>> {
     let manifest = Manifest {
-        family: scenario_kind(kind)?.family(),
+        family: scenario_family(kind)?,
         seed,
         count,
     };
@@ -171,7 +174,7 @@ fn generate<'py>(
         return Err(refused("count must be at least 1"));
     }
     let options = options(final_eps, arrival_margin)?;
-    let sc = canonical(&Spacecraft::default())?;
+    let sc = canonical(&Spacecraft::default(), &manifest.family)?;
     let summary = py
         .detach(|| generate_records(manifest, Shard::WHOLE, &out, &sc, &options, false))
         .map_err(refused)?;

@@ -53,6 +53,39 @@ def test_transitions_equal_the_rust_environments_bit_for_bit(scenario, env_id):
         assert 0.0 < info["mass"] <= 1.0 and info["dr"] >= 0.0
 
 
+VENUS_INWARD = """
+problem = "transfer"
+body = "sun"
+departure = { a = [0.98, 1.02], e = [0.0, 0.01] }
+target = { a = [0.70, 0.74], e = [0.0, 0.01] }
+time_of_flight = { lo_days = 250.0, hi_days = 320.0 }
+cycle = { days = 7.0 }
+"""
+
+
+def test_a_mission_family_is_an_environment_equal_to_the_rust_one():
+    """A family given as a mission table: Gymnasium's checker, 7-day cycles over a drawn time of
+    flight, transitions equal to the Rust environment's bit for bit; a bad table is refused."""
+    env = gym.make(lowthrust.MISSION_ENV_ID, scenario=VENUS_INWARD)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*infinity.*")
+        check_env(env.unwrapped, skip_render_check=True)
+    rng = np.random.default_rng(8)
+    for index in range(2):
+        actions, observations, rewards, _ = _fly(env, 12, rng, index)
+        ref_obs, ref_rewards = lowthrust.reference_rollout(VENUS_INWARD, 12, index, actions)
+        assert np.array_equal(observations, ref_obs) and np.array_equal(rewards, ref_rewards)
+        drawn = lowthrust.draw_scenario(VENUS_INWARD, 12, index)["steps"]
+        assert len(actions) == drawn and 36 <= drawn <= 46
+        # The first observation's time to go (the last transfer feature) is the flight's, in t*.
+        days = observations[0][-1] * lowthrust.TIME_UNIT_S / 86400.0
+        assert abs(days - 7.0 * drawn) < 1e-3 * days
+    with pytest.raises(lowthrust.LowThrustError, match="target.e"):
+        lowthrust.LowThrustEnv(VENUS_INWARD.replace("e = [0.0, 0.01] }\ntime", "e = [0.0, 1.5] }\ntime"))
+    with pytest.raises(TypeError):
+        gym.make(lowthrust.MISSION_ENV_ID)
+
+
 def test_resets_walk_the_seeds_scenarios_in_order():
     env = gym.make("lowthrust/TransferHard-v0")
     _, first = env.reset(seed=2000003)
@@ -114,7 +147,7 @@ def test_bad_input_is_a_python_exception_with_the_reason():
             env.step(bad)
     # A float64 action is taken as the float32 the network would give.
     env.step(np.array([0.5, 0.0, 1.0]))
-    with pytest.raises(lowthrust.LowThrustError, match="unknown scenario"):
+    with pytest.raises(lowthrust.LowThrustError, match="neither a scenario family preset"):
         lowthrust.Env("warp-drive")
     with pytest.raises(lowthrust.LowThrustError, match="env config"):
         lowthrust.Env("transfer-circular", "[spacecraft]\nmax_thrust = 1.0")

@@ -87,7 +87,7 @@ def test_the_command_line_writes_the_same_dataset(tmp_path):
 def test_bad_solver_input_is_refused():
     with pytest.raises(lowthrust.LowThrustError, match="final_eps"):
         lowthrust.solve("transfer-circular", 7, 0, final_eps=0.0)
-    with pytest.raises(lowthrust.LowThrustError, match="unknown scenario"):
+    with pytest.raises(lowthrust.LowThrustError, match="neither a scenario family preset"):
         lowthrust.draw_scenario("transfer-elliptic", 1, 0)
     with pytest.raises(lowthrust.LowThrustError):
         lowthrust.read_dataset("/nonexistent/dataset")
