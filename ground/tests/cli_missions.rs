@@ -1,0 +1,142 @@
+//! Mission files from the outside: `ground data check-mission` reports a family's units, times,
+//! solved share and tank on a sample, a family that cannot be posed is refused before any work
+//! with its field named, and `generate` takes the file where a preset's name goes.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ground(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_ground")).args(args).output().unwrap()
+}
+
+fn venus_inward() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/venus-inward.toml")
+}
+
+fn temp(name: &str) -> PathBuf {
+    let path = std::env::temp_dir().join(format!("lowthrust-cli-mission-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&path);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+#[test]
+fn check_mission_reports_the_family_on_a_sample() {
+    let file = venus_inward();
+    let out = ground(&[
+        "data",
+        "check-mission",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--sample",
+        "4",
+        "--threads",
+        "1",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["family"].as_str().unwrap().starts_with("custom-"));
+    assert_eq!(v["sample"], 4);
+    assert_eq!(v["length_unit_m"], 149_597_870_700.0);
+    // 250 to 320 days drawn, rounded up to whole 7-day cycles.
+    let tof = v["time_of_flight_days"].as_array().unwrap();
+    let (lo, hi) = (tof[0].as_f64().unwrap(), tof[1].as_f64().unwrap());
+    assert!(250.0 <= lo && lo <= hi && hi < 327.0, "{tof:?}");
+    assert_eq!(v["cycle_days"][0].as_f64().unwrap(), 7.0);
+    let converged = v["converged"].as_u64().unwrap();
+    let others = ["infeasible", "feasible_unsolved", "unknown"].map(|k| v[k].as_u64().unwrap());
+    assert_eq!(converged + others.iter().sum::<u64>(), 4);
+    assert!(converged >= 3, "{v}");
+    // The thesis spacecraft at full thrust for the longest flight: T t / c of the initial mass.
+    let burned = v["full_thrust_propellant"].as_f64().unwrap();
+    let sc = shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap();
+    let expected = sc.thrust * hi * 86_400.0 / shared::units::TIME_UNIT_S / sc.exhaust_speed;
+    assert!((burned - expected).abs() < 1e-9 * expected, "{burned} {expected}");
+    assert!(v["warnings"].as_array().unwrap().is_empty());
+    // A spacecraft whose tank empties before the flight ends is warned of.
+    let out = ground(&[
+        "data",
+        "check-mission",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--sample",
+        "2",
+        "--thrust-n",
+        "5",
+        "--isp-s",
+        "1000",
+        "--mass-kg",
+        "600",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("warning: at full thrust the tank empties"), "{text}");
+}
+
+#[test]
+fn a_family_that_cannot_be_posed_is_refused_before_any_work_with_its_field() {
+    let text = std::fs::read_to_string(venus_inward()).unwrap();
+    for (edit, needle) in [
+        (
+            text.replace("a = [0.70, 0.74]", "a = [0.74, 0.70]"),
+            "target.a: lo > hi",
+        ),
+        (
+            text.replace("a = [0.98, 1.02], e = [0.0, 0.01]", "a = [0.98, 1.02], e = [0.0, 1.0]"),
+            "departure.e",
+        ),
+        (text.replace("days = 7.0", "days = 400.0"), "cycle.days"),
+        (text.replace("days = 7.0", "days = -1.0"), "cycle.days"),
+        (text.replace("\"sun\"", "\"vulcan\""), "vulcan"),
+        (text.replace("lo_days = 250.0", "lo_days = 0.0"), "time_of_flight.days"),
+        (text.replace("problem = \"transfer\"", "problem = \"flyby\""), "flyby"),
+    ] {
+        assert_ne!(edit, text, "{needle}: the edit did not apply");
+        let file = temp("bad.toml");
+        std::fs::write(&file, &edit).unwrap();
+        let out_dir = temp("bad-run");
+        let out = ground(&[
+            "data",
+            "generate",
+            "--scenario",
+            file.to_str().unwrap(),
+            "--count",
+            "2",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(needle), "{needle}: {err}");
+        assert!(!out_dir.exists(), "a refused command left {}", out_dir.display());
+        let _ = std::fs::remove_file(&file);
+    }
+}
+
+#[test]
+fn generate_takes_a_mission_file_and_records_its_family() {
+    let out_dir = temp("venus");
+    let file = venus_inward();
+    let out = ground(&[
+        "data",
+        "generate",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--count",
+        "2",
+        "--threads",
+        "1",
+        "--final-eps",
+        "0.3",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["scenario"]["cycle"]["days"], 7.0);
+    assert_eq!(manifest["scenario"]["body"], "sun");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["scenario"].as_str().unwrap().starts_with("custom-"));
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
