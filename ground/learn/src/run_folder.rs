@@ -59,6 +59,14 @@ pub fn check_run(config: &ExperimentConfig, run: &Path) -> Result<(), Experiment
     // What the folder's checkpoints and saved relabels depend on (an averaged actor is part of
     // the checkpoints).
     let same = |c: &ExperimentConfig| (c.relabel_problem(), c.sac.hidden.clone(), c.sac.actor_averaging > 0.0);
+    if previous.family != config.family {
+        return Err(ExperimentError::Mismatch(format!(
+            "{} holds a run of scenario family {}, not {}: its checkpoints and relabels fly another family; use a new folder",
+            run.display(),
+            previous.family.label(),
+            config.family.label()
+        )));
+    }
     if same(&previous) != same(config) {
         return Err(ExperimentError::Mismatch(format!(
             "{} holds a run of another experiment (scenario, network, seeds, actor averaging, final eps or arrival margin differ); use a new folder",
@@ -103,6 +111,18 @@ mod tests {
         let other_eps =
             ExperimentConfig::from_toml("scenario = \"rendezvous-circular\"\n[generate]\nfinal_eps = 0.25\n").unwrap();
         assert!(matches!(check_run(&other_eps, &run), Err(ExperimentError::Mismatch(_))));
+        // Another family: both named.
+        let weekly = ExperimentConfig::from_toml(&format!(
+            "[scenario]\nproblem = \"rendezvous\"\nbody = \"sun\"\ndeparture = {{ a = [1.0, 1.52], e = 1e-4, omega = 0.0 }}\n\
+             target = {{ a = [1.0, 1.52], e = 1e-4, omega = 0.0 }}\ntime_of_flight = \"longer-period\"\ncycle = {{ days = 7.0 }}\n{}",
+            base.trim_start_matches("scenario = \"rendezvous-circular\"\n")
+        ))
+        .unwrap();
+        let refused = check_run(&weekly, &run).unwrap_err().to_string();
+        assert!(
+            refused.contains("rendezvous-circular") && refused.contains(weekly.family.label().as_str()),
+            "{refused}"
+        );
         std::fs::remove_dir_all(&run).unwrap();
     }
 }
