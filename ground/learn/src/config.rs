@@ -27,6 +27,10 @@ pub struct ExperimentConfig {
     /// preset's name or the whole table, never as the path, so a run keeps its family.
     #[serde(rename = "scenario", with = "ground_core::mission::by_spec")]
     pub family: MissionFamily,
+    /// The name of the experiment's controller in its report and model card (letters, digits,
+    /// `.`, `_`, `-`; default: the family's, a preset's name or `custom-` and its fingerprint).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
     /// Disjoint seeds of the training, evaluation and Monte Carlo scenario streams.
     #[serde(default)]
     pub seeds: Seeds,
@@ -487,8 +491,21 @@ impl ExperimentConfig {
         }
     }
 
+    /// The controller's name: [`Self::name`], or the family's label.
+    pub fn display_name(&self) -> String {
+        self.name.clone().unwrap_or_else(|| self.family.label().to_string())
+    }
+
     /// Every check that needs no file system access.
     pub fn validate(&self) -> Result<(), ConfigError> {
+        if let Some(name) = &self.name {
+            let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-');
+            if name.is_empty() || name.len() > 64 || !name.chars().all(allowed) {
+                return Err(ConfigError::Invalid(format!(
+                    "name = {name:?}: 1 to 64 letters, digits, '.', '_' or '-'"
+                )));
+            }
+        }
         self.sac.validate().map_err(|e| ConfigError::Invalid(e.to_string()))?;
         self.sil
             .dispersions
@@ -829,6 +846,8 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { fuel_weight = -1.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nlookahead = { thrust_margin = 1.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 0 }",
+            "scenario = \"transfer-circular\"\nname = \"two words\"",
+            "scenario = \"transfer-circular\"\nname = \"\"",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 5 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { iterations = 0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",

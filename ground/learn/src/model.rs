@@ -422,7 +422,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
     let mc = sources.monte_carlo;
     let mut card = ModelCard {
         format: CARD_FORMAT,
-        scenario: config.family.label().to_string(),
+        scenario: config.display_name(),
         command: portable_command(),
         commit: sources.commit.to_string(),
         created: utc_date(),
@@ -731,8 +731,12 @@ fn against_the_optimum(
     }
 }
 
-/// The Gymnasium id of a scenario distribution's environment (the Python package's).
+/// The Gymnasium id of a model's environment (the Python package's): a preset's own, else the
+/// id that flies any mission family.
 fn environment_id(scenario: &str) -> String {
+    if scenario.parse::<shared::scenario::ScenarioKind>().is_err() {
+        return "lowthrust/Mission-v0".to_string();
+    }
     let camel: String = scenario
         .split('-')
         .map(|w| {

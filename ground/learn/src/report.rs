@@ -51,7 +51,7 @@ fn phase_line(name: &str, p: &PhaseSummary) -> String {
 pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> String {
     let (dataset, pre, rl, mc) = (&job.dataset, &job.pretrain, &job.train, &job.monte_carlo);
     let mut s = String::new();
-    let _ = writeln!(s, "# Run report: {}\n", config.family.label());
+    let _ = writeln!(s, "# Run report: {}\n", config.display_name());
     let stages: Vec<String> = job
         .stage_seconds
         .iter()
