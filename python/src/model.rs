@@ -20,7 +20,7 @@ use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, ProblemKind, Quantization};
 use shared::spacecraft::Spacecraft;
 
-use crate::{refused, scenario_kind};
+use crate::{refused, scenario_family, scenario_kind};
 
 fn problem_name(kind: ProblemKind) -> &'static str {
     match kind {
@@ -132,22 +132,40 @@ impl Policy {
 
 /// Opens the model folder `dir` (`models/NAME`): its card.json is read, every file it lists
 /// must have the CRC-32C it records, the actor and both blobs must be listed, and the f32 blob
-/// must hold exactly the actor's weights. Returns a dict: `scenario`, `card` (card.json as a
-/// dict), `f32` and `int8` (`Policy`), `files` (paths of the actor, the blobs and, when the
-/// folder has it, `onnx`).
+/// must hold exactly the actor's weights. Returns a dict: `name` (the card's), `scenario` (its
+/// family: a preset's name or the family's table as TOML text), `env_config` (its `[env]` as
+/// TOML text: spacecraft, reward), `card` (card.json as a dict), `f32` and `int8` (`Policy`),
+/// `files` (paths of the actor, the blobs and, when the folder has it, `onnx`).
 #[pyfunction]
 fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>> {
     let card_path = dir.join("card.json");
     let text = std::fs::read_to_string(&card_path).map_err(|e| refused(format!("{}: {e}", card_path.display())))?;
     let card = read_sealed_card(&card_path, &text).map_err(refused)?;
     let bad = |what: &str| refused(format!("{}: {what}", card_path.display()));
-    let scenario = card["scenario"].as_str().ok_or_else(|| bad("no scenario"))?;
-    let kind = scenario_kind(scenario)?.problem();
+    let name = card["scenario"].as_str().ok_or_else(|| bad("no scenario"))?;
+    // The family and the environment the model flies, from the card's config: a preset's name,
+    // or the family's table as TOML text (what `Env` takes either way).
+    let config: toml::Table = card["config"]
+        .as_str()
+        .ok_or_else(|| bad("no config"))
+        .and_then(|c| toml::from_str(c).map_err(|e| bad(&format!("its config does not read: {e}"))))?;
+    let scenario = match config.get("scenario") {
+        Some(toml::Value::String(preset)) => preset.clone(),
+        Some(toml::Value::Table(table)) => toml::to_string(table).map_err(|e| bad(&e.to_string()))?,
+        _ => return Err(bad("its config has no scenario")),
+    };
+    let kind = scenario_family(&scenario)?.problem;
+    let env_config = match config.get("env") {
+        Some(toml::Value::Table(env)) => toml::to_string(env).map_err(|e| bad(&e.to_string()))?,
+        _ => String::new(),
+    };
     let files: BTreeMap<String, String> =
         serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
     let checked = py.detach(|| verify_model_files(&dir, kind, &files)).map_err(refused)?;
     let d = PyDict::new(py);
+    d.set_item("name", name)?;
     d.set_item("scenario", scenario)?;
+    d.set_item("env_config", env_config)?;
     d.set_item("card", py.import("json")?.call_method1("loads", (text,))?)?;
     d.set_item("f32", Policy::load(&checked.f32_blob)?)?;
     d.set_item("int8", Policy::load(&checked.int8_blob)?)?;
