@@ -80,6 +80,15 @@ def test_a_mission_family_is_an_environment_equal_to_the_rust_one():
         # The first observation's time to go (the last transfer feature) is the flight's, in t*.
         days = observations[0][-1] * lowthrust.TIME_UNIT_S / 86400.0
         assert abs(days - 7.0 * drawn) < 1e-3 * days
+    # Its vectorised form: each slot the Rust flight of the scenario it drew.
+    venv = gym.make_vec(
+        lowthrust.MISSION_ENV_ID, num_envs=3, vectorization_mode="vector_entry_point", scenario=VENUS_INWARD
+    )
+    obs, _ = venv.reset(seed=12)
+    assert obs.shape == (3, 10)
+    for i in range(3):
+        ref_obs, _ = lowthrust.reference_rollout(VENUS_INWARD, 12, i, np.zeros((0, 3), dtype=np.float32))
+        assert np.array_equal(obs[i], ref_obs[0])
     with pytest.raises(lowthrust.LowThrustError, match="target.e"):
         lowthrust.LowThrustEnv(VENUS_INWARD.replace("e = [0.0, 0.01] }\ntime", "e = [0.0, 1.5] }\ntime"))
     with pytest.raises(TypeError):

@@ -450,10 +450,26 @@ impl ExperimentConfig {
         Ok(config)
     }
 
-    /// Reads and parses the config file at `path` ([`ExperimentConfig::from_toml`]).
+    /// Reads and parses the config file at `path` ([`ExperimentConfig::from_toml`]); a mission
+    /// file named by `scenario` is found beside the config (its path relative to the config's
+    /// folder) and read into it.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read(path.to_path_buf(), e))?;
-        Self::from_toml(&text)
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| ConfigError::Parse(e.to_string()))?;
+        let mission = match table.get("scenario") {
+            Some(toml::Value::String(name)) if name.parse::<shared::scenario::ScenarioKind>().is_err() => {
+                Some(path.parent().unwrap_or(Path::new(".")).join(name))
+            }
+            _ => None,
+        };
+        let Some(mission) = mission.filter(|m| m.is_file()) else {
+            return Self::from_toml(&text);
+        };
+        let family = ground_core::mission::read_mission_file(&mission)
+            .map_err(|e| ConfigError::Invalid(format!("scenario: {e}")))?;
+        let value = toml::Value::try_from(family).map_err(|e| ConfigError::Parse(e.to_string()))?;
+        table.insert("scenario".into(), value);
+        Self::from_toml(&toml::to_string(&table).map_err(|e| ConfigError::Parse(e.to_string()))?)
     }
 
     /// The config as TOML with every value written out (defaults included); it parses back to an
