@@ -42,13 +42,6 @@ pub(crate) fn scenario_family(text: &str) -> PyResult<shared::mission::MissionFa
     spec.family().map_err(refused)
 }
 
-pub(crate) fn scenario_kind(name: &str) -> PyResult<shared::scenario::ScenarioKind> {
-    name.parse().map_err(|_| {
-        let known: Vec<&str> = shared::scenario::ScenarioKind::ALL.iter().map(|k| k.name()).collect();
-        refused(format!("unknown scenario {name:?}; one of {}", known.join(", ")))
-    })
-}
-
 #[pymodule]
 fn _lowthrust(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("LowThrustError", m.py().get_type::<LowThrustError>())?;

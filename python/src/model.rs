@@ -14,13 +14,13 @@ use pyo3::types::{PyBytes, PyDict};
 use rayon::prelude::*;
 
 use firmware_sim::{fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup};
+use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
 use onboard::guidance::Actor;
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, ProblemKind, Quantization};
-use shared::spacecraft::Spacecraft;
 
-use crate::{refused, scenario_family, scenario_kind};
+use crate::{refused, scenario_family};
 
 fn problem_name(kind: ProblemKind) -> &'static str {
     match kind {
@@ -190,14 +190,17 @@ struct FlightEnd {
 }
 
 /// Flies `policy` in the SIL guidance loop on scenarios `0..episodes` of the stream `seed` of
-/// `kind` (flight i's dispersions drawn from `seed + i`, as `ground model sil` does), against
-/// the nominal plant or (`dispersed`) the typical dispersions: navigation noise, thrust
-/// magnitude and pointing errors, missed-thrust events. With `terminal_cycles` the last that
-/// many cycles (1 to 4) are flown with terminal targeting (`onboard::terminal`). Returns
-/// per-flight arrays: `dr`, `dv` (terminal residuals), `final_mass`, `total_reward`,
-/// `guidance_faults`, `completed`.
+/// the family `kind` (a preset's name, a mission file or table; flight i's dispersions drawn
+/// from `seed + i`, as `ground model sil` does), against the nominal plant or (`dispersed`) the
+/// typical dispersions: navigation noise, thrust magnitude and pointing errors, missed-thrust
+/// events. With `terminal_cycles` the last that many cycles (1 to 4) are flown with terminal
+/// targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
+/// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
+/// weights, as the model's own SIL flew them. Returns per-flight arrays: `dr`, `dv` (terminal
+/// residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
 #[pyfunction]
-#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None))]
+#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None, env_config=None))]
+#[allow(clippy::too_many_arguments)] // the Python signature's keywords
 fn fly_sil<'py>(
     py: Python<'py>,
     policy: &Policy,
@@ -206,13 +209,33 @@ fn fly_sil<'py>(
     episodes: u64,
     dispersed: bool,
     terminal_cycles: Option<u32>,
+    env_config: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let kind = scenario_kind(kind)?;
+    let kind = scenario_family(kind)?;
+    let env = match env_config {
+        None => EnvConfig::default(),
+        Some(text) => toml::from_str(text).map_err(|e| refused(format!("env config: {e}")))?,
+    };
+    let env = EnvConfig { body: kind.body, ..env };
+    if dispersed && kind.body != shared::mission::CentralBody::SUN {
+        return Err(refused(
+            "the SIL's typical dispersions are heliocentric (AU, v*, days): fly a family around another body with dispersed=False",
+        ));
+    }
+    let cycle = match kind.cycle {
+        shared::mission::Cycle::Days(days) => Some(kind.body.units().days(days)),
+        shared::mission::Cycle::Count(_) => None,
+    };
     let terminal = match terminal_cycles {
         None => None,
         Some(cycles) => {
+            let cycle = cycle.ok_or_else(|| {
+                refused("terminal targeting counts cycles of one length; this family cuts each flight into a count of cycles")
+            })?;
             let settings = TerminalSettings {
                 cycles,
+                cycle,
+                tolerances: env.integrator.tolerances(),
                 ..TerminalSettings::default()
             };
             settings
@@ -221,23 +244,28 @@ fn fly_sil<'py>(
             Some(settings)
         }
     };
-    if kind.problem() != policy.kind {
+    if kind.problem != policy.kind {
         return Err(refused(format!(
             "a {} blob cannot fly {} scenarios",
             policy.problem(),
-            kind.name()
+            kind.label()
         )));
     }
-    let spacecraft = Spacecraft::default()
-        .canonical()
+    let spacecraft = env
+        .canonical_spacecraft()
         .map_err(|e| refused(format!("spacecraft: {e:?}")))?;
-    let setup = FlightSetup::nominal(spacecraft).dispersed(if dispersed {
-        Dispersions::TYPICAL
-    } else {
-        Dispersions::NONE
-    });
+    let setup = FlightSetup {
+        spacecraft,
+        tolerances: env.integrator.tolerances(),
+        weights: env.reward.weights(),
+        dispersions: if dispersed {
+            Dispersions::TYPICAL
+        } else {
+            Dispersions::NONE
+        },
+    };
     let blob = policy.blob.bytes();
-    let flights: Vec<Result<FlightEnd, String>> = with_flight_problem!(kind.problem(), N, P => {
+    let flights: Vec<Result<FlightEnd, String>> = with_flight_problem!(kind.problem, N, P => {
         let controller = Controller::<N>::load::<P>(blob);
         py.detach(|| {
             (0..episodes)

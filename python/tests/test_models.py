@@ -66,16 +66,24 @@ def test_a_model_whose_files_disagree_with_its_card_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("quantization", ["f32", "int8"])
-def test_the_sil_from_python_flies_the_cards_figures(quantization):
+@pytest.mark.parametrize("name", ["transfer-circular-dispersed", "venus-inward"])
+def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     """The dispersed SIL Monte Carlo of the card (1,000 flights, typical dispersions, the Monte
-    Carlo seed), flown again from Python: the same share within each tolerance, the same
-    medians."""
-    model = lowthrust.open_model(MODELS / "transfer-circular-dispersed")
+    Carlo seed), flown again from Python with the model's family and [env]: the same share within
+    each tolerance, the same medians; for a preset and for a mission family (7-day cycles,
+    another spacecraft)."""
+    model = lowthrust.open_model(MODELS / name)
     figures = dict(model["card"]["sil"])[f"transfer-{quantization}.blob"]
     # The card's SIL flies the last cycles with terminal targeting.
     cycles = model["card"]["terminal"]["cycles"]
     flown = lowthrust.fly_sil(
-        model[quantization], "transfer-circular", 2000003, figures["episodes"], dispersed=True, terminal_cycles=cycles
+        model[quantization],
+        model["scenario"],
+        2000003,
+        figures["episodes"],
+        dispersed=True,
+        terminal_cycles=cycles,
+        env_config=model["env_config"],
     )
     assert flown["completed"].all()
     for tolerance, share in figures["within"]:
