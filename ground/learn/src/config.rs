@@ -1023,6 +1023,34 @@ mod tests {
         assert!(bad.to_string().contains("config does not parse"), "{bad}");
     }
 
+    /// A blob flies its own family: the config's mission is accepted, a format-3 blob (the
+    /// thesis's) only by families of the thesis's units and cycle, another family's refused with
+    /// both named.
+    #[test]
+    fn a_blob_of_another_family_is_refused_with_both_named() {
+        let preset = ExperimentConfig::from_toml("scenario = \"transfer-circular\"").unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let weekly = ExperimentConfig::load(&root.join("configs/venus-inward.toml")).unwrap();
+        assert_eq!(preset.mission_refusal(&preset.blob_mission()), None);
+        assert_eq!(weekly.mission_refusal(&weekly.blob_mission()), None);
+        assert_eq!(preset.mission_refusal(&BlobMission::THESIS), None);
+        let old = weekly.mission_refusal(&BlobMission::THESIS).unwrap();
+        assert!(
+            old.contains("blob format 3") && old.contains(weekly.family.label().as_str()),
+            "{old}"
+        );
+        let other = preset.mission_refusal(&weekly.blob_mission()).unwrap();
+        assert!(
+            other.contains(weekly.family.label().as_str()) && other.contains("transfer-circular"),
+            "{other}"
+        );
+        let hard = ExperimentConfig::from_toml("scenario = \"transfer-hard\"").unwrap();
+        let named = hard.mission_refusal(&preset.blob_mission()).unwrap();
+        assert!(named.contains("family transfer-circular, not transfer-hard"), "{named}");
+        // The mission's cycle is the aids' and the scenarios' own.
+        assert_eq!(weekly.blob_mission().cycle, weekly.family.draw(1, 2).cycle);
+    }
+
     /// `[sil] terminal` reads its two settings by name and takes the environment's integrator
     /// for its rollouts, as the lookahead does.
     #[test]
