@@ -37,8 +37,10 @@ impl core::fmt::Display for KeplerError {
 
 impl core::error::Error for KeplerError {}
 
-/// Most iterations of the universal Kepler equation solver.
-const MAX_ITERATIONS: u32 = 100;
+/// Most iterations of the universal Kepler equation solver: room for a one-sided doubling walk
+/// and a full bisection of f64's range after it (a near-parabolic hyperbola swinging through
+/// periapsis took 101 to 120).
+const MAX_ITERATIONS: u32 = 200;
 /// Laguerre-Conway order parameter (the usual n = 5).
 const LAGUERRE_N: f64 = 5.0;
 /// Convergence: last correction below this fraction of |chi|.

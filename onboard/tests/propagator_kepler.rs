@@ -213,6 +213,28 @@ fn coast_converges_when_the_last_step_lands_on_the_bracket() {
     assert!(vel_err(&got, &want) < 2e-14, "vel err {:e}", vel_err(&got, &want));
 }
 
+/// A case the random search found (near-parabolic, the flight through periapsis): it must
+/// converge and match the hyperbolic Kepler equation.
+#[test]
+fn a_near_parabolic_hyperbola_through_periapsis_converges() {
+    let (a, e, w, m0, dt) = (
+        -4.330783478631188,
+        1.0546457200591761,
+        0.0,
+        -5.69739516932233,
+        21.23954257857384,
+    );
+    let s0 = hyperbolic(a, e, w, m0);
+    let got = coast(&s0, dt).unwrap();
+    let want = hyperbolic(a, e, w, m0 + (-a).powf(-1.5) * dt);
+    let r = want.r[0].hypot(want.r[1]);
+    assert!(
+        pos_err(&got, &want) < 5e-12 * r,
+        "pos err {:e} at r {r}",
+        pos_err(&got, &want)
+    );
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
 
