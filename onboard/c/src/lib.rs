@@ -1108,7 +1108,6 @@ mod tests {
                 len: 2,
                 weights_offset: 97,
             },
-            BlobError::BadMission,
         ]
     }
 

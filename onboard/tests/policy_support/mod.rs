@@ -171,7 +171,6 @@ impl OwnedNet {
             quantization: self.quantization,
             provenance: "policy tests",
             layers,
-            mission: blob::BlobMission::THESIS,
         }
     }
 
