@@ -222,10 +222,7 @@ fn fly_sil<'py>(
             "the SIL's typical dispersions are heliocentric (AU, v*, days): fly a family around another body with dispersed=False",
         ));
     }
-    let cycle = match kind.cycle {
-        shared::mission::Cycle::Days(days) => Some(kind.body.units().days(days)),
-        shared::mission::Cycle::Count(_) => None,
-    };
+    let cycle = kind.fixed_cycle();
     let terminal = match terminal_cycles {
         None => None,
         Some(cycles) => {

@@ -348,10 +348,19 @@ impl MissionFamily {
     pub fn cycles_of(&self, time_of_flight: f64) -> (u32, f64) {
         match self.cycle {
             Cycle::Days(days) => {
-                let cycle = days * DAY_S / self.body.units().time_s;
+                let cycle = self.body.units().days(days);
                 (Scenario::cycles_covering(time_of_flight, cycle), cycle)
             }
             Cycle::Count(n) => (n, time_of_flight / f64::from(n)),
+        }
+    }
+
+    /// The cycle's length (t*) when every flight of the family has the same one (a cycle in
+    /// days); `None` for a count of cycles over each flight. What the onboard aids count.
+    pub fn fixed_cycle(&self) -> Option<f64> {
+        match self.cycle {
+            Cycle::Days(days) => Some(self.body.units().days(days)),
+            Cycle::Count(_) => None,
         }
     }
 

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use shared::mission::{CentralBody, Cycle, MissionFamily};
+use shared::mission::{CentralBody, MissionFamily};
 use shared::spacecraft::SpacecraftError;
 
 use crate::cloning::CloningTarget;
@@ -501,10 +501,7 @@ impl ExperimentConfig {
     /// The cycle (t*) the onboard aids count: the family's, when it has one length for every
     /// flight (a cycle in days; the same bits as its scenarios').
     fn aid_cycle(&self) -> Option<f64> {
-        match self.family.cycle {
-            Cycle::Days(days) => Some(self.family.body.units().days(days)),
-            Cycle::Count(_) => None,
-        }
+        self.family.fixed_cycle()
     }
 
     /// The controller's name: [`Self::name`], or the family's label.
