@@ -32,7 +32,9 @@
 //!   ground).
 //!
 //! Versions: 1 quantized int8 activations to ±127; 2 to 16 bits; 3 keeps the first and last
-//! layers of an `Int8` network in f32 and aligns the weight arrays.
+//! layers of an `Int8` network in f32 and aligns the weight arrays; 4 ends the payload with the
+//! mission the network flies ([`BlobMission`]: its guidance cycle, canonical units and family).
+//! Version 3 is still read, as the thesis's mission ([`BlobMission::THESIS`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -40,8 +42,11 @@ pub use crate::scenario::ProblemKind;
 
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"LTGB";
-/// The format version this crate reads and writes.
-pub const FORMAT_VERSION: u16 = 3;
+/// The format version this crate writes (and reads).
+pub const FORMAT_VERSION: u16 = 4;
+/// The older format version this crate still reads: a network without its mission, read as the
+/// thesis's ([`BlobMission::THESIS`]).
+pub const FORMAT_3: u16 = 3;
 /// Each weight array starts at a multiple of this many bytes from the start of the blob: a
 /// cache line, which covers the Cortex-M4F's word alignment too.
 pub const WEIGHT_ALIGN: usize = 64;
@@ -154,6 +159,45 @@ pub struct LayerBlob<'a> {
     pub input_scale: f32,
 }
 
+/// What the flight code must know of the mission a network was trained for: the length of its
+/// guidance cycle and the canonical units its features are in (docs/missions.md), and the
+/// family's fingerprint, so that a blob is never flown for another family unnoticed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BlobMission {
+    /// The guidance cycle, t* (0 when the family cuts each flight into a count of cycles: the
+    /// length differs per flight and the flight software gives it).
+    pub cycle: f64,
+    /// The canonical length unit, m.
+    pub length_unit_m: f64,
+    /// The canonical time unit, s.
+    pub time_unit_s: f64,
+    /// The family's fingerprint (`shared::mission::MissionFamily::fingerprint`; 0: any family
+    /// of the thesis's units and cycle, as format 3 blobs are read).
+    pub family: u32,
+}
+
+impl BlobMission {
+    /// The thesis's: 14-day cycles, AU and the Sun's time unit, any family (a format-3 blob's).
+    pub const THESIS: Self = Self {
+        cycle: crate::units::STEP,
+        length_unit_m: crate::units::AU_M,
+        time_unit_s: crate::units::TIME_UNIT_S,
+        family: 0,
+    };
+
+    /// The cycle is finite and >= 0, the units finite and > 0.
+    pub fn is_valid(&self) -> bool {
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        self.cycle.is_finite() && self.cycle >= 0.0 && positive(self.length_unit_m) && positive(self.time_unit_s)
+    }
+}
+
+impl Default for BlobMission {
+    fn default() -> Self {
+        Self::THESIS
+    }
+}
+
 /// The payload: a self-describing actor mean network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NetworkBlob<'a> {
@@ -169,6 +213,34 @@ pub struct NetworkBlob<'a> {
     /// The dense layers, input to output (1..=[`MAX_LAYERS`]).
     #[serde(borrow)]
     pub layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
+    /// The mission the network flies (last in the payload, so the weights' offsets are those of
+    /// format 3).
+    pub mission: BlobMission,
+}
+
+/// A format-3 payload: [`NetworkBlob`] without its mission.
+#[derive(Deserialize)]
+struct NetworkBlobFormat3<'a> {
+    kind: ProblemKind,
+    features: FeatureLayout,
+    quantization: Quantization,
+    #[serde(borrow)]
+    provenance: &'a str,
+    #[serde(borrow)]
+    layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
+}
+
+impl<'a> From<NetworkBlobFormat3<'a>> for NetworkBlob<'a> {
+    fn from(old: NetworkBlobFormat3<'a>) -> Self {
+        Self {
+            kind: old.kind,
+            features: old.features,
+            quantization: old.quantization,
+            provenance: old.provenance,
+            layers: old.layers,
+            mission: BlobMission::THESIS,
+        }
+    }
 }
 
 /// The CRC-32 of the trailer: the common zlib/PNG polynomial, so any tool can check a blob.
@@ -278,7 +350,7 @@ pub enum BlobError {
         /// The first four bytes.
         found: [u8; 4],
     },
-    /// The header's format version is not [`FORMAT_VERSION`].
+    /// The header's format version is neither [`FORMAT_VERSION`] nor [`FORMAT_3`].
     UnsupportedVersion {
         /// The version in the header.
         found: u16,
@@ -401,6 +473,8 @@ pub enum BlobError {
         /// Payload bytes.
         len: usize,
     },
+    /// The mission's cycle is negative or not finite, or a unit is not finite and positive.
+    BadMission,
 }
 
 impl core::fmt::Display for BlobError {
@@ -417,7 +491,7 @@ impl core::fmt::Display for BlobError {
             Self::BadMagic { found } => write!(f, "bad magic {found:02x?}, expected \"LTGB\""),
             Self::UnsupportedVersion { found, supported } => write!(
                 f,
-                "unsupported blob format version {found} (this build reads version {supported})"
+                "unsupported blob format version {found} (this build reads versions 3 and {supported})"
             ),
             Self::CrcMismatch { stored, computed } => write!(
                 f,
@@ -431,6 +505,9 @@ impl core::fmt::Display for BlobError {
                 write!(f, "problem kind {kind:?} does not match feature layout {features:?}")
             }
             Self::NoLayers => f.write_str("network has no layers"),
+            Self::BadMission => {
+                f.write_str("the mission's cycle must be finite and >= 0 t*, its length and time units finite and > 0")
+            }
             Self::TooManyLayers { found, max } => {
                 write!(f, "network has {found} layers, at most {max} supported")
             }
@@ -596,6 +673,9 @@ impl NetworkBlob<'_> {
     /// Every semantic check, so a blob that passes can be run by the inference kernels without
     /// further bounds or shape checks (except the action size, which the onboard loader owns).
     pub fn validate(&self) -> Result<(), BlobError> {
+        if !self.mission.is_valid() {
+            return Err(BlobError::BadMission);
+        }
         if self.features.problem() != self.kind {
             return Err(BlobError::KindMismatch {
                 kind: self.kind,
@@ -748,7 +828,7 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
         return Err(BlobError::BadMagic { found: magic });
     }
     let version = u16::from_le_bytes([bytes[4], bytes[5]]);
-    if version != FORMAT_VERSION {
+    if version != FORMAT_VERSION && version != FORMAT_3 {
         return Err(BlobError::UnsupportedVersion {
             found: version,
             supported: FORMAT_VERSION,
@@ -779,7 +859,12 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
     if stored != computed {
         return Err(BlobError::CrcMismatch { stored, computed });
     }
-    let (blob, rest) = match postcard::take_from_bytes::<NetworkBlob<'_>>(payload) {
+    let taken = if version == FORMAT_3 {
+        postcard::take_from_bytes::<NetworkBlobFormat3<'_>>(payload).map(|(blob, rest)| (blob.into(), rest))
+    } else {
+        postcard::take_from_bytes::<NetworkBlob<'_>>(payload)
+    };
+    let (blob, rest): (NetworkBlob<'_>, _) = match taken {
         Ok(v) => v,
         Err(e) => {
             return Err(match declared_layer_count(payload) {
@@ -835,9 +920,9 @@ impl<'a> NetworkBlob<'a> {
     pub fn aligned(&self) -> Result<NetworkBlob<'a>, BlobError> {
         let mut out = self.clone();
         out.layers.clear();
-        // The payload before the layers; the layer count's varint is one byte for any count up
-        // to MAX_LAYERS, so the empty list stands for the whole one.
-        let mut at = HEADER_LEN + serialized_len(&out)?;
+        // The payload before the layers (the mission comes after them); the layer count's varint
+        // is one byte for any count up to MAX_LAYERS, so the empty list stands for the whole one.
+        let mut at = HEADER_LEN + serialized_len(&out)? - serialized_len(&out.mission)?;
         for layer in &self.layers {
             let mut layer = *layer;
             let head = LayerHead {

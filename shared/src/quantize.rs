@@ -19,8 +19,8 @@ use std::vec::Vec;
 use nalgebra::{DMatrix, DVector};
 
 use crate::blob::{
-    encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob,
-    ProblemKind, Quantization, ACTIVATION_LEVELS,
+    encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, BlobMission, FeatureLayout, LayerBlob,
+    NetworkBlob, ProblemKind, Quantization, ACTIVATION_LEVELS,
 };
 
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
@@ -274,6 +274,7 @@ impl MlpWeights {
         quantization: Quantization,
         layers: &[OwnedArrays],
         provenance: &str,
+        mission: BlobMission,
     ) -> Result<Vec<u8>, QuantizeError> {
         let mut views = heapless::Vec::new();
         for (l, a) in self.layers.iter().zip(layers) {
@@ -300,15 +301,22 @@ impl MlpWeights {
             quantization,
             provenance,
             layers: views,
+            mission,
         };
         encode_to_vec(&net).map_err(QuantizeError::Blob)
     }
 
-    /// The f32 blob: weights transposed to the input-major layout the f32 kernel streams.
+    /// The f32 blob of a network of the thesis's mission ([`BlobMission::THESIS`]).
     pub fn f32_blob(&self, provenance: &str) -> Result<Vec<u8>, QuantizeError> {
+        self.f32_blob_for(provenance, BlobMission::THESIS)
+    }
+
+    /// The f32 blob: weights transposed to the input-major layout the f32 kernel streams,
+    /// flying `mission`.
+    pub fn f32_blob_for(&self, provenance: &str, mission: BlobMission) -> Result<Vec<u8>, QuantizeError> {
         self.validate()?;
         let arrays: Vec<OwnedArrays> = self.layers.iter().map(f32_arrays).collect();
-        self.encode(Quantization::F32, &arrays, provenance)
+        self.encode(Quantization::F32, &arrays, provenance, mission)
     }
 
     /// The int8 quantization of the layers an `Int8` blob stores in int8 (the hidden layers
@@ -439,6 +447,16 @@ impl MlpWeights {
         calibration: &[Vec<f32>],
         provenance: &str,
     ) -> Result<(Vec<u8>, Vec<Int8Layer>), QuantizeError> {
+        self.int8_blob_for(calibration, provenance, BlobMission::THESIS)
+    }
+
+    /// [`Self::int8_blob`] of a network flying `mission`.
+    pub fn int8_blob_for(
+        &self,
+        calibration: &[Vec<f32>],
+        provenance: &str,
+        mission: BlobMission,
+    ) -> Result<(Vec<u8>, Vec<Int8Layer>), QuantizeError> {
         let quant = self.quantize_int8(calibration)?;
         let mut int8 = quant.iter();
         let count = self.layers.len();
@@ -459,7 +477,7 @@ impl MlpWeights {
                 }
             })
             .collect();
-        let blob = self.encode(Quantization::Int8, &arrays, provenance)?;
+        let blob = self.encode(Quantization::Int8, &arrays, provenance, mission)?;
         Ok((blob, quant))
     }
 }

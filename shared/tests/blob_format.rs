@@ -6,8 +6,8 @@ use proptest::prelude::*;
 use serde::Serialize;
 use shared::blob::{
     decode, encode, encode_unchecked, encoded_len, f32_at, f32s, i32_at, Activation, AlignedBlob, ArrayKind, BlobError,
-    FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_VERSION, HEADER_LEN, MAGIC,
-    MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
+    BlobMission, FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_3,
+    FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
 };
 
 // ---------------------------------------------------------------- owned test networks
@@ -84,6 +84,7 @@ impl Owned {
             quantization: self.quantization,
             provenance: &self.provenance,
             layers,
+            mission: BlobMission::THESIS,
         }
         .aligned()
         .expect("a padded copy of a view that fits MAX_LAYERS")
@@ -353,6 +354,75 @@ fn every_single_bit_flip_is_refused_with_the_error_of_its_region() {
     }
 }
 
+/// Format 4 ends the payload with the mission: a mission written is read back; the same
+/// network written as format 3 (the payload without it) is read as the thesis's mission with the
+/// same weights in place; a mission that cannot be flown is refused.
+#[test]
+fn the_mission_is_carried_and_format_3_is_read_as_the_thesis() {
+    let owned = small(Quantization::Int8);
+    let weekly = BlobMission {
+        cycle: 0.12,
+        length_unit_m: 1.0e11,
+        time_unit_s: 4.0e6,
+        family: 0xdead_beef,
+    };
+    let view = NetworkBlob {
+        mission: weekly,
+        ..owned.view()
+    };
+    let bytes = to_bytes(&view);
+    let decoded = decode(&bytes).unwrap();
+    assert_eq!(decoded.mission, weekly);
+    assert_eq!(decoded, view);
+    // Format 3: the payload less the mission's bytes, version 3, framed anew.
+    let mission_len = postcard::to_allocvec(&weekly).unwrap().len();
+    let payload = &bytes[HEADER_LEN..bytes.len() - TRAILER_LEN];
+    let old_payload = &payload[..payload.len() - mission_len];
+    let mut old = frame(old_payload);
+    old[4..6].copy_from_slice(&FORMAT_3.to_le_bytes());
+    let read = decode(&old).unwrap();
+    assert_eq!(read.mission, BlobMission::THESIS);
+    assert_eq!(
+        read,
+        NetworkBlob {
+            mission: BlobMission::THESIS,
+            ..view.clone()
+        }
+    );
+    // The weights sit at the same offsets in both formats: still aligned.
+    for (a, b) in read.layers.iter().zip(&decoded.layers) {
+        let offset = |w: &[u8], base: &[u8]| w.as_ptr() as usize - base.as_ptr() as usize;
+        assert_eq!(offset(a.weights, &old), offset(b.weights, &bytes));
+    }
+    // A format-3 payload framed as format 4 lacks its mission.
+    assert!(matches!(decode(&frame(old_payload)), Err(BlobError::Payload(_))));
+    for bad in [
+        BlobMission {
+            cycle: f64::NAN,
+            ..weekly
+        },
+        BlobMission { cycle: -1.0, ..weekly },
+        BlobMission {
+            length_unit_m: 0.0,
+            ..weekly
+        },
+        BlobMission {
+            time_unit_s: f64::INFINITY,
+            ..weekly
+        },
+    ] {
+        let view = NetworkBlob {
+            mission: bad,
+            ..owned.view()
+        };
+        assert_eq!(
+            decode(&to_bytes_unchecked(&view.aligned().unwrap())),
+            Err(BlobError::BadMission)
+        );
+        assert!(matches!(shared::blob::encode_to_vec(&view), Err(BlobError::BadMission)));
+    }
+}
+
 #[test]
 fn wrong_magic_and_next_version_are_refused() {
     let bytes = to_bytes(&small(Quantization::F32).view());
@@ -420,6 +490,7 @@ fn no_layers_and_too_many_layers_are_refused() {
         quantization: Quantization,
         provenance: &'a str,
         layers: &'a [LayerBlob<'a>],
+        mission: BlobMission,
     }
     let o = network(
         FeatureLayout::TransferPolar10,
@@ -434,6 +505,7 @@ fn no_layers_and_too_many_layers_are_refused() {
         quantization: o.quantization,
         provenance: &o.provenance,
         layers: &layers,
+        mission: BlobMission::THESIS,
     };
     let mut buf = vec![0u8; 1 << 16];
     let payload = postcard::to_slice(&wide, &mut buf).unwrap();

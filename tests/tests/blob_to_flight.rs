@@ -157,6 +157,7 @@ fn blob_bytes(
         quantization,
         provenance: "integration test",
         layers: views,
+        mission: shared::blob::BlobMission::THESIS,
     };
     encode_to_vec(&blob).unwrap()
 }

@@ -234,11 +234,20 @@ pub fn verify_model_files(
     };
     let (f32_blob, int8_blob) = (read(&f32_name)?, read(&int8_name)?);
     let f32_path = dir.join(&f32_name);
-    let provenance = shared::blob::decode(&f32_blob)
-        .map(|b| b.provenance.to_string())
-        .map_err(|_| ModelFilesError::BlobDisagrees { path: f32_path.clone() })?;
-    let rebuilt = read_actor(&dir.join(ACTOR_FILE), kind)?.f32_blob(&provenance).ok();
-    if rebuilt.as_deref() != Some(f32_blob.as_slice()) {
+    let same = {
+        let shipped =
+            shared::blob::decode(&f32_blob).map_err(|_| ModelFilesError::BlobDisagrees { path: f32_path.clone() })?;
+        // Encoded again from the actor with the blob's own provenance and mission, it must be
+        // the same network (compared decoded: a format-3 blob is written again as format 4).
+        let rebuilt = read_actor(&dir.join(ACTOR_FILE), kind)?
+            .f32_blob_for(shipped.provenance, shipped.mission)
+            .ok();
+        rebuilt
+            .as_deref()
+            .and_then(|bytes| shared::blob::decode(bytes).ok())
+            .is_some_and(|network| network == shipped)
+    };
+    if !same {
         return Err(ModelFilesError::BlobDisagrees { path: f32_path });
     }
     Ok(ModelFiles { f32_blob, int8_blob })

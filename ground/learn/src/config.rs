@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+use shared::blob::BlobMission;
 use shared::mission::{CentralBody, MissionFamily};
 use shared::spacecraft::SpacecraftError;
 
@@ -498,6 +499,49 @@ impl ExperimentConfig {
         })
     }
 
+    /// The mission a blob of this config carries (blob format 4): the aids' cycle (0 for a
+    /// count of cycles), the family's units and fingerprint.
+    pub fn blob_mission(&self) -> BlobMission {
+        let units = self.family.body.units();
+        BlobMission {
+            cycle: self.aid_cycle().unwrap_or(0.0),
+            length_unit_m: units.length_m,
+            time_unit_s: units.time_s,
+            family: self.family.fingerprint(),
+        }
+    }
+
+    /// Why a blob carrying `mission` cannot fly this config's family (None: it can). A blob of
+    /// format 3 (fingerprint 0) flies any family of the thesis's units and 14-day cycles.
+    pub fn mission_refusal(&self, mission: &BlobMission) -> Option<String> {
+        let ours = self.blob_mission();
+        if mission.family == 0 {
+            let thesis = BlobMission {
+                family: ours.family,
+                ..BlobMission::THESIS
+            };
+            return (thesis != ours).then(|| {
+                format!(
+                    "the blob flies the thesis's 14-day heliocentric cycles (blob format 3), and family {} has another cycle or body",
+                    self.family.label()
+                )
+            });
+        }
+        (mission.family != ours.family).then(|| {
+            let theirs = shared::scenario::ScenarioKind::ALL
+                .into_iter()
+                .find(|kind| kind.family().fingerprint() == mission.family)
+                .map_or_else(
+                    || format!("custom-{:08x}", mission.family),
+                    |kind| kind.name().to_string(),
+                );
+            format!(
+                "the blob was trained for family {theirs}, not {}: fly it with its own config",
+                self.family.label()
+            )
+        })
+    }
+
     /// The cycle (t*) the onboard aids count: the family's, when it has one length for every
     /// flight (a cycle in days; the same bits as its scenarios').
     fn aid_cycle(&self) -> Option<f64> {
@@ -974,6 +1018,34 @@ mod tests {
         assert!(dispersed.contains("sil.dispersions are heliocentric"), "{dispersed}");
         let bad = ExperimentConfig::from_toml("scenario = { problem = \"transfer\", body = \"sun\" }").unwrap_err();
         assert!(bad.to_string().contains("config does not parse"), "{bad}");
+    }
+
+    /// A blob flies its own family: the config's mission is accepted, a format-3 blob (the
+    /// thesis's) only by families of the thesis's units and cycle, another family's refused with
+    /// both named.
+    #[test]
+    fn a_blob_of_another_family_is_refused_with_both_named() {
+        let preset = ExperimentConfig::from_toml("scenario = \"transfer-circular\"").unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let weekly = ExperimentConfig::load(&root.join("configs/venus-inward.toml")).unwrap();
+        assert_eq!(preset.mission_refusal(&preset.blob_mission()), None);
+        assert_eq!(weekly.mission_refusal(&weekly.blob_mission()), None);
+        assert_eq!(preset.mission_refusal(&BlobMission::THESIS), None);
+        let old = weekly.mission_refusal(&BlobMission::THESIS).unwrap();
+        assert!(
+            old.contains("blob format 3") && old.contains(weekly.family.label().as_str()),
+            "{old}"
+        );
+        let other = preset.mission_refusal(&weekly.blob_mission()).unwrap();
+        assert!(
+            other.contains(weekly.family.label().as_str()) && other.contains("transfer-circular"),
+            "{other}"
+        );
+        let hard = ExperimentConfig::from_toml("scenario = \"transfer-hard\"").unwrap();
+        let named = hard.mission_refusal(&preset.blob_mission()).unwrap();
+        assert!(named.contains("family transfer-circular, not transfer-hard"), "{named}");
+        // The mission's cycle is the aids' and the scenarios' own.
+        assert_eq!(weekly.blob_mission().cycle, weekly.family.draw(1, 2).cycle);
     }
 
     /// `[sil] terminal` reads its two settings by name and takes the environment's integrator

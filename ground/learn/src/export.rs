@@ -212,10 +212,10 @@ where
         agent.updates
     );
     let f32_bytes = network
-        .f32_blob(&provenance)
+        .f32_blob_for(&provenance, config.blob_mission())
         .map_err(|e| ExperimentError::Mismatch(format!("f32 export: {e}")))?;
     let (int8_bytes, _) = network
-        .int8_blob(&calibration, &provenance)
+        .int8_blob_for(&calibration, &provenance, config.blob_mission())
         .map_err(|e| ExperimentError::Mismatch(format!("int8 export: {e}")))?;
 
     // The trained actor's deterministic actions on the held-out states (one batch).

@@ -196,6 +196,10 @@ pub struct ModelCard {
     /// format change): (command, commit, UTC date). The actor and its Monte Carlo are unchanged.
     #[serde(default)]
     pub reexported: Option<(String, String, String)>,
+    /// The blob format of that export (absent: format 3, the format of every export before
+    /// the field was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reexported_format: Option<u16>,
     /// Where the controller came from beyond the config (`ground model ship --note`).
     #[serde(default)]
     pub notes: Vec<String>,
@@ -440,6 +444,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         sil: sil_figures(sources.sil),
         files,
         reexported: None,
+        reexported_format: None,
         notes: sources.notes.to_vec(),
         where_solved: mc.where_solved,
         by_eccentricity: mc.accuracy_by_eccentricity.clone(),
@@ -535,6 +540,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
     card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
     card.reexported = Some((portable_command(), current_commit(), utc_date()));
+    card.reexported_format = Some(shared::blob::FORMAT_VERSION);
     write_cards(dir, &mut card)?;
     Ok(Reexport { card, export, sil })
 }
@@ -828,7 +834,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
         let _ = writeln!(
             s,
             "Blobs exported again from the same actor on {date} by `{command}` at commit `{commit}` (blob format {}); the SIL figures are theirs.\n",
-            shared::blob::FORMAT_VERSION
+            card.reexported_format.unwrap_or(3)
         );
     }
     for note in &card.notes {

@@ -240,6 +240,16 @@ pub fn fly_blob(
     scenarios: &[Scenario],
     flights: &SilFlights,
 ) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
+    // A blob of another family of the same problem (its cycle, units or orbits) is the
+    // ground's error, not the flight software's, which cannot know the family; a blob of the
+    // other problem the flight software refuses itself (safe mode).
+    if let Ok(decoded) = shared::blob::decode(blob) {
+        if decoded.kind == config.family.problem {
+            if let Some(why) = config.mission_refusal(&decoded.mission) {
+                return Err(ExperimentError::Mismatch(why));
+            }
+        }
+    }
     with_flight_problem!(config.family.problem, N, P => {
         fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
     })

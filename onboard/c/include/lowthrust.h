@@ -99,6 +99,9 @@ enum lt_status
   LT_ERR_INT8_BAD_SCALE = -36,
   // An int8 layer has more inputs than its i32 accumulator sums exactly.
   LT_ERR_INT8_TOO_WIDE = -37,
+  // The blob's mission is unusable: its cycle negative or not finite, or a unit not finite
+  // and positive.
+  LT_ERR_BLOB_BAD_MISSION = -38,
   // Guidance input refused: a navigation state component is NaN or infinite.
   LT_ERR_INPUT_NON_FINITE_STATE = -40,
   // Guidance input refused: the spacecraft is at r = 0.

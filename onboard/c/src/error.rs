@@ -90,6 +90,9 @@ pub enum lt_status {
     LT_ERR_INT8_BAD_SCALE = -36,
     /// An int8 layer has more inputs than its i32 accumulator sums exactly.
     LT_ERR_INT8_TOO_WIDE = -37,
+    /// The blob's mission is unusable: its cycle negative or not finite, or a unit not finite
+    /// and positive.
+    LT_ERR_BLOB_BAD_MISSION = -38,
     /// Guidance input refused: a navigation state component is NaN or infinite.
     LT_ERR_INPUT_NON_FINITE_STATE = -40,
     /// Guidance input refused: the spacecraft is at r = 0.
@@ -115,7 +118,7 @@ pub enum lt_status {
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 42] = [
+const ERROR_NAMES: [(lt_status, &CStr); 43] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -150,6 +153,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 42] = [
     (LT_ERR_WRONG_ACTIVATION, c"wrong_activation"),
     (LT_ERR_INT8_BAD_SCALE, c"int8_bad_scale"),
     (LT_ERR_INT8_TOO_WIDE, c"int8_too_wide"),
+    (LT_ERR_BLOB_BAD_MISSION, c"blob_bad_mission"),
     (LT_ERR_INPUT_NON_FINITE_STATE, c"input_non_finite_state"),
     (LT_ERR_INPUT_ZERO_RADIUS, c"input_zero_radius"),
     (LT_ERR_INPUT_NON_POSITIVE_MASS, c"input_non_positive_mass"),
@@ -199,6 +203,7 @@ pub fn blob_error_code(error: &BlobError) -> lt_status {
         BlobError::BufferTooSmall { .. } => LT_ERR_BLOB_BUFFER_TOO_SMALL,
         BlobError::PayloadTooLarge { .. } => LT_ERR_BLOB_PAYLOAD_TOO_LARGE,
         BlobError::BadPadding { .. } => LT_ERR_BLOB_BAD_PADDING,
+        BlobError::BadMission => LT_ERR_BLOB_BAD_MISSION,
     }
 }
 

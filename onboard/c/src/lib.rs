@@ -1108,6 +1108,7 @@ mod tests {
                 len: 2,
                 weights_offset: 97,
             },
+            BlobError::BadMission,
         ]
     }
 

@@ -171,6 +171,7 @@ impl OwnedNet {
             quantization: self.quantization,
             provenance: "policy tests",
             layers,
+            mission: blob::BlobMission::THESIS,
         }
     }
 

@@ -153,7 +153,7 @@ pub(crate) fn solve_relabels<P: Problem>(
     let flown = if dagger.dispersed {
         // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:
         // the trajectory holds the true states, which the relabels start from.
-        let blob = flown_blob(agent, P::KIND)?;
+        let blob = flown_blob(agent, config)?;
         let seed = (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first);
         // The learner's own flights: the network alone, every trajectory kept.
         let flights = SilFlights {

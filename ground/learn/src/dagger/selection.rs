@@ -1,7 +1,7 @@
 //! Which flights a round relabels (the largest misses, or the probes that re-solve), and the
 //! score that picks the best round.
 
-use shared::scenario::{ProblemKind, Scenario};
+use shared::scenario::Scenario;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
@@ -78,10 +78,10 @@ pub(crate) fn walk_probes<T, E>(
     Ok((kept, probed))
 }
 
-/// The learner's flown actor as an f32 blob.
-pub(crate) fn flown_blob(agent: &Sac, kind: ProblemKind) -> Result<Vec<u8>, ExperimentError> {
-    actor_network(agent, kind)?
-        .f32_blob("relabelling round")
+/// The learner's flown actor as an f32 blob of the config's mission.
+pub(crate) fn flown_blob(agent: &Sac, config: &ExperimentConfig) -> Result<Vec<u8>, ExperimentError> {
+    actor_network(agent, config.family.problem)?
+        .f32_blob_for("relabelling round", config.blob_mission())
         .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))
 }
 
@@ -109,7 +109,7 @@ pub(crate) fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Resul
         let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
             .map(|i| config.family.draw(config.seeds.evaluation, i))
             .collect();
-        let blob = flown_blob(agent, P::KIND)?;
+        let blob = flown_blob(agent, config)?;
         let dispersions = &config.sil.dispersions;
         let flights = SilFlights::network_alone(dispersions, config.seeds.evaluation);
         let (flown, _, _) = fly_blob(config, &blob, &scenarios, &flights)?;
