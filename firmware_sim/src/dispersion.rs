@@ -9,18 +9,24 @@ use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
-use shared::units::{AU_M, TIME_UNIT_S, VELOCITY_UNIT_M_S, YEAR};
+use shared::mission::Units;
+use shared::units::{AU_M, VELOCITY_UNIT_M_S};
 
-/// One day in canonical time units.
-const DAY: f64 = 86_400.0 / TIME_UNIT_S;
+/// One day, s.
+const DAY_S: f64 = 86_400.0;
+/// One Julian year, days.
+const YEAR_DAYS: f64 = 365.25;
 
-/// 1-sigma sizes of the dispersions (canonical units unless said otherwise).
+/// 1-sigma sizes of the dispersions, in the family's canonical units (its length and velocity
+/// units: AU and v* around the Sun) unless said otherwise; the missed-thrust events in days and
+/// per year, whatever the units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Dispersions {
-    /// Navigation position error per axis (AU), drawn afresh each guidance cycle.
+    /// Navigation position error per axis (length units), drawn afresh each guidance cycle.
     pub navigation_position: f64,
-    /// Navigation velocity error per axis (v*, about 29.8 km/s), each cycle.
+    /// Navigation velocity error per axis (velocity units; around the Sun v*, about 29.8 km/s),
+    /// each cycle.
     pub navigation_velocity: f64,
     /// Navigation mass error (fraction of the initial mass), each cycle.
     pub navigation_mass: f64,
@@ -48,8 +54,9 @@ impl Dispersions {
         missed_thrust_days: 0.0,
     };
 
-    /// A moderate deep-space case: 1,000 km and 0.1 m/s navigation, 2 % thrust, 1 deg
-    /// pointing, two 7-day missed-thrust events per year.
+    /// A moderate deep-space case around the Sun: 1,000 km and 0.1 m/s navigation, 2 % thrust,
+    /// 1 deg pointing, two 7-day missed-thrust events per year ([`Self::typical_in`] the
+    /// heliocentric units, bit for bit).
     pub const TYPICAL: Self = Self {
         navigation_position: 1.0e6 / AU_M,
         navigation_velocity: 0.1 / VELOCITY_UNIT_M_S,
@@ -59,6 +66,15 @@ impl Dispersions {
         missed_thrust_per_year: 2.0,
         missed_thrust_days: 7.0,
     };
+
+    /// The same physical sizes as [`Self::TYPICAL`] in another family's canonical units.
+    pub fn typical_in(units: &Units) -> Self {
+        Self {
+            navigation_position: 1.0e6 / units.length_m,
+            navigation_velocity: 0.1 / units.velocity_m_s(),
+            ..Self::TYPICAL
+        }
+    }
 
     /// Why these dispersions cannot be flown, if they cannot.
     pub fn validate(&self) -> Result<(), DispersionError> {
@@ -138,14 +154,18 @@ pub struct DispersedPlant {
     missed: Normal,
     /// Actual thrust over nominal, fixed for the flight.
     thrust_factor: f64,
+    /// One day and one year in the family's canonical time units.
+    day: f64,
+    year: f64,
     /// Next missed-thrust event: start and end (canonical time since departure).
     window: (f64, f64),
 }
 
 impl DispersedPlant {
-    /// The plant of one flight: its thrust factor and first missed-thrust event drawn from
-    /// `seed` (the same seed draws the same flight on any machine, the Cortex-M4F included).
-    pub fn new(dispersions: &Dispersions, seed: u64) -> Self {
+    /// The plant of one flight in canonical units whose time unit is `time_unit_s` seconds: its
+    /// thrust factor and first missed-thrust event drawn from `seed` (the same seed draws the
+    /// same flight on any machine, the Cortex-M4F included).
+    pub fn new(dispersions: &Dispersions, time_unit_s: f64, seed: u64) -> Self {
         let mut thrust = Normal::new(seed, 1);
         let thrust_factor = if dispersions.thrust_magnitude > 0.0 {
             (1.0 + dispersions.thrust_magnitude * thrust.sample()).max(0.0)
@@ -158,6 +178,8 @@ impl DispersedPlant {
             pointing: Normal::new(seed, 3),
             missed: Normal::new(seed, 4),
             thrust_factor,
+            day: DAY_S / time_unit_s,
+            year: YEAR_DAYS * DAY_S / time_unit_s,
             window: (f64::INFINITY, f64::INFINITY),
         };
         plant.window = plant.next_window(0.0);
@@ -172,8 +194,8 @@ impl DispersedPlant {
     fn next_window(&mut self, after: f64) -> (f64, f64) {
         let d = &self.dispersions;
         if d.missed_thrust_per_year > 0.0 && d.missed_thrust_days > 0.0 {
-            let start = after + self.missed.exponential(YEAR / d.missed_thrust_per_year);
-            (start, start + d.missed_thrust_days * DAY)
+            let start = after + self.missed.exponential(self.year / d.missed_thrust_per_year);
+            (start, start + d.missed_thrust_days * self.day)
         } else {
             (f64::INFINITY, f64::INFINITY)
         }
@@ -225,5 +247,57 @@ impl DispersedPlant {
         } else {
             (start.min(length), true)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared::mission::CentralBody;
+    use shared::units::TIME_UNIT_S;
+
+    /// The missed-thrust events are drawn in days and years: a family whose time unit is ten
+    /// times shorter sees the same events at ten times the canonical times, each lasting the
+    /// given days in its own units.
+    #[test]
+    fn missed_thrust_events_are_timed_in_days_whatever_the_time_unit() {
+        let d = Dispersions {
+            missed_thrust_per_year: 3.0,
+            missed_thrust_days: 5.0,
+            ..Dispersions::NONE
+        };
+        let mut sun = DispersedPlant::new(&d, TIME_UNIT_S, 21);
+        let mut fast = DispersedPlant::new(&d, TIME_UNIT_S / 10.0, 21);
+        let mut after = (0.0, 0.0);
+        for _ in 0..5 {
+            // Thrust is on until the next event starts, then off until it ends.
+            let (start_sun, on) = sun.segment(0.0, after.0, f64::INFINITY);
+            let (start_fast, _) = fast.segment(0.0, after.1, f64::INFINITY);
+            assert!(on);
+            assert!(
+                (start_fast / start_sun - 10.0).abs() < 1e-12,
+                "{start_sun} {start_fast}"
+            );
+            let (end_sun, on) = sun.segment(0.0, start_sun, f64::INFINITY);
+            let (end_fast, _) = fast.segment(0.0, start_fast, f64::INFINITY);
+            assert!(!on);
+            let days = |t: f64, unit: f64| t * unit / 86_400.0;
+            assert!((days(end_sun - start_sun, TIME_UNIT_S) - 5.0).abs() < 1e-9);
+            assert!((days(end_fast - start_fast, TIME_UNIT_S / 10.0) - 5.0).abs() < 1e-9);
+            after = (end_sun, end_fast);
+        }
+    }
+
+    /// The typical sizes in the Sun's units are the heliocentric constants bit for bit, and in
+    /// the Earth's the same 1,000 km and 0.1 m/s.
+    #[test]
+    fn typical_dispersions_are_the_same_physical_sizes_in_any_units() {
+        assert_eq!(Dispersions::typical_in(&CentralBody::SUN.units()), Dispersions::TYPICAL);
+        let earth = CentralBody::EARTH.units();
+        let typical = Dispersions::typical_in(&earth);
+        assert!((typical.navigation_position * earth.length_m - 1.0e6).abs() < 1e-6);
+        assert!((typical.navigation_velocity * earth.velocity_m_s() - 0.1).abs() < 1e-12);
+        assert_eq!(typical.pointing, Dispersions::TYPICAL.pointing);
+        assert_eq!(typical.missed_thrust_days, 7.0);
     }
 }

@@ -262,6 +262,8 @@ pub enum SilError {
     Scenario(ScenarioError),
     /// The dispersions are not finite or out of range.
     Dispersion(DispersionError),
+    /// The setup's time unit (s) is not finite and positive.
+    TimeUnit(f64),
     /// The scenario poses another problem than the loop flies.
     WrongProblem {
         /// The problem of the loop.
@@ -297,6 +299,7 @@ impl core::fmt::Display for SilError {
         match self {
             Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
             Self::Dispersion(e) => write!(f, "invalid dispersions: {e}"),
+            Self::TimeUnit(s) => write!(f, "the time unit must be finite and > 0 s, got {s}"),
             Self::WrongProblem { expected, found } => {
                 write!(f, "a {found:?} scenario given to the {expected:?} loop")
             }
@@ -324,6 +327,9 @@ pub struct FlightSetup {
     pub weights: RewardWeights,
     /// The dispersions of the truth plant ([`Dispersions::NONE`]: the nominal plant).
     pub dispersions: Dispersions,
+    /// The family's time unit, s (the Sun's by default): the missed-thrust events, given in
+    /// days, are timed in it.
+    pub time_unit_s: f64,
 }
 
 impl FlightSetup {
@@ -334,12 +340,21 @@ impl FlightSetup {
             tolerances: Tolerances::default(),
             weights: RewardWeights::default(),
             dispersions: Dispersions::NONE,
+            time_unit_s: shared::units::TIME_UNIT_S,
         }
     }
 
     /// The same setup with other dispersions.
     pub fn dispersed(self, dispersions: Dispersions) -> Self {
         Self { dispersions, ..self }
+    }
+
+    /// The same setup in a family's canonical units (the spacecraft must already be in them).
+    pub fn in_units(self, units: &shared::mission::Units) -> Self {
+        Self {
+            time_unit_s: units.time_s,
+            ..self
+        }
     }
 }
 
@@ -360,16 +375,20 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         tolerances,
         weights,
         dispersions,
+        time_unit_s,
     } = setup;
     scenario.validate().map_err(SilError::Scenario)?;
     dispersions.validate().map_err(SilError::Dispersion)?;
+    if !(time_unit_s.is_finite() && *time_unit_s > 0.0) {
+        return Err(SilError::TimeUnit(*time_unit_s));
+    }
     if scenario.problem != P::KIND {
         return Err(SilError::WrongProblem {
             expected: P::KIND,
             found: scenario.problem,
         });
     }
-    let mut plant = DispersedPlant::new(dispersions, seed);
+    let mut plant = DispersedPlant::new(dispersions, *time_unit_s, seed);
     let actual = CanonicalSpacecraft {
         thrust: spacecraft.thrust * plant.thrust_factor(),
         ..*spacecraft
@@ -797,7 +816,7 @@ mod tests {
             ..Dispersions::NONE
         };
         let flight = fly(&law, &s, &d, 11);
-        let factor = DispersedPlant::new(&d, 11).thrust_factor();
+        let factor = DispersedPlant::new(&d, shared::units::TIME_UNIT_S, 11).thrust_factor();
         assert!(factor != 1.0 && (factor - 1.0).abs() < 0.25, "{factor}");
         let throttle_time: f64 = flight.steps.iter().map(|k| k.command.throttle * STEP).sum();
         let expected = 1.0 - sc.thrust * factor * throttle_time / sc.exhaust_speed;

@@ -217,11 +217,6 @@ fn fly_sil<'py>(
         Some(text) => toml::from_str(text).map_err(|e| refused(format!("env config: {e}")))?,
     };
     let env = EnvConfig { body: kind.body, ..env };
-    if dispersed && kind.body != shared::mission::CentralBody::SUN {
-        return Err(refused(
-            "the SIL's typical dispersions are heliocentric (AU, v*, days): fly a family around another body with dispersed=False",
-        ));
-    }
     let cycle = kind.fixed_cycle();
     let terminal = match terminal_cycles {
         None => None,
@@ -256,10 +251,11 @@ fn fly_sil<'py>(
         tolerances: env.integrator.tolerances(),
         weights: env.reward.weights(),
         dispersions: if dispersed {
-            Dispersions::TYPICAL
+            Dispersions::typical_in(&kind.body.units())
         } else {
             Dispersions::NONE
         },
+        time_unit_s: kind.body.units().time_s,
     };
     let blob = policy.blob.bytes();
     let flights: Vec<Result<FlightEnd, String>> = with_flight_problem!(kind.problem, N, P => {

@@ -198,6 +198,7 @@ where
         tolerances: config.integrator.tolerances(),
         weights: config.reward.weights(),
         dispersions: Dispersions::NONE,
+        time_unit_s: shared::units::TIME_UNIT_S,
     };
     let summary = fly_observed(problem, actor, scenario, &setup, 0, |k| steps.push(*k)).unwrap();
     assert_eq!(summary.steps, scenario.steps);

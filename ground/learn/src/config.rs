@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use shared::blob::BlobMission;
-use shared::mission::{CentralBody, MissionFamily};
+use shared::mission::MissionFamily;
 use shared::spacecraft::SpacecraftError;
 
 use crate::cloning::CloningTarget;
@@ -343,8 +343,9 @@ impl Default for DaggerConfig {
 pub struct SilConfig {
     /// Dispersed flights per blob (on the first scenarios of the Monte Carlo stream).
     pub episodes: u64,
-    /// 1-sigma dispersions of the truth plant (default: `Dispersions::TYPICAL`, see
-    /// `firmware_sim::dispersion`).
+    /// 1-sigma dispersions of the truth plant, in the family's canonical units (default: the
+    /// typical sizes, `Dispersions::typical_in` the family's units; `Dispersions::TYPICAL`
+    /// around the Sun; see `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
     /// Fly the blob with rollout lookahead (`onboard::lookahead::LookaheadSettings`, its
     /// fields by name, each defaulted; the rollouts propagate with `[env.integrator]`) instead of
@@ -444,9 +445,18 @@ impl ExperimentConfig {
     /// Parses a TOML config and [`validates`](ExperimentConfig::validate) it; absent sections and
     /// keys take their defaults.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let mut config: Self = toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string()))?;
-        // The spacecraft flies in the family's canonical units.
+        let table: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string()))?;
+        let mut config: Self = table
+            .clone()
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Parse(e.to_string()))?;
+        // The spacecraft flies in the family's canonical units, and so do the default dispersions:
+        // the typical physical sizes in the family's length and velocity units.
         config.env.body = config.family.body;
+        let dispersions_given = table.get("sil").and_then(|sil| sil.get("dispersions")).is_some();
+        if !dispersions_given {
+            config.sil.dispersions = firmware_sim::Dispersions::typical_in(&config.family.body.units());
+        }
         config.validate()?;
         Ok(config)
     }
@@ -573,18 +583,10 @@ impl ExperimentConfig {
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }
-        let heliocentric = self.family.body == CentralBody::SUN;
         if self.aid_cycle().is_none() && (self.sil.lookahead.is_some() || self.sil.terminal.is_some()) {
             return Err(ConfigError::Invalid(format!(
                 "sil.lookahead / sil.terminal: the onboard aids count cycles of one length, and family {} \
                  cuts each flight into a count of cycles: give its cycle in days, or fly its network alone",
-                self.family.label()
-            )));
-        }
-        if !heliocentric && self.sil.dispersions != firmware_sim::Dispersions::NONE {
-            return Err(ConfigError::Invalid(format!(
-                "sil.dispersions are heliocentric (AU, v*, days of the Sun's time unit), and family {} goes \
-                 around another body: set every dispersion to 0",
                 self.family.label()
             )));
         }
@@ -976,16 +978,34 @@ mod tests {
             .replace("{ lo_days = 250.0, hi_days = 320.0 }", "{ days = 30.0 }")
             .replace("days = 7.0", "days = 0.5");
         let mut toml: toml::Table = toml::from_str(&table).unwrap();
-        let earth: toml::Table = toml::from_str("[sil.dispersions]\nnavigation_position = 0.0\nnavigation_velocity = 0.0\nnavigation_mass = 0.0\nthrust_magnitude = 0.0\npointing = 0.0\nmissed_thrust_per_year = 0.0\nmissed_thrust_days = 0.0").unwrap();
         let mut config = toml::Table::new();
         config.insert("scenario".into(), toml::Value::Table(std::mem::take(&mut toml)));
-        config.extend(earth);
         let around_earth = ExperimentConfig::from_toml(&toml::to_string(&config).unwrap()).unwrap();
         let thrust = around_earth.env.canonical_spacecraft().unwrap().thrust;
         let units = shared::mission::CentralBody::EARTH.units();
         let expected = 1.33 / 3366.0 / units.acceleration_m_s2();
         assert!((thrust - expected).abs() <= 1e-15 * expected, "{thrust} {expected}");
-        // The onboard aids count the family's cycles, of one length; dispersions are heliocentric.
+        // The default dispersions are the typical physical sizes in the family's units: 1,000 km
+        // and 0.1 m/s around the Earth, the thesis's constants around the Sun.
+        let earth = around_earth.sil.dispersions;
+        assert!(
+            (earth.navigation_position * units.length_m - 1.0e6).abs() < 1e-6,
+            "{earth:?}"
+        );
+        assert!(
+            (earth.navigation_velocity * units.velocity_m_s() - 0.1).abs() < 1e-12,
+            "{earth:?}"
+        );
+        assert_eq!(earth.missed_thrust_days, 7.0);
+        assert_eq!(by_file.sil.dispersions.missed_thrust_per_year, 0.0);
+        let sun = ExperimentConfig::from_toml(&format!("scenario = {:?}", file.display())).unwrap();
+        assert_eq!(sun.sil.dispersions, firmware_sim::Dispersions::TYPICAL);
+        // Written out and read back, they stay (the table is given then).
+        assert_eq!(
+            ExperimentConfig::from_toml(&around_earth.to_toml()).unwrap(),
+            around_earth
+        );
+        // The onboard aids count the family's cycles, of one length.
         let aid = ExperimentConfig::from_toml(&format!(
             "scenario = {:?}\n[sil]\nterminal = {{ cycles = 2 }}",
             file.display()
@@ -1007,15 +1027,7 @@ mod tests {
             counted.contains("sil.lookahead / sil.terminal") && counted.contains("custom-"),
             "{counted}"
         );
-        assert!(
-            counted.contains("sil.lookahead / sil.terminal") && counted.contains("custom-"),
-            "{counted}"
-        );
-        config.remove("sil");
-        let dispersed = ExperimentConfig::from_toml(&toml::to_string(&config).unwrap())
-            .unwrap_err()
-            .to_string();
-        assert!(dispersed.contains("sil.dispersions are heliocentric"), "{dispersed}");
+
         let bad = ExperimentConfig::from_toml("scenario = { problem = \"transfer\", body = \"sun\" }").unwrap_err();
         assert!(bad.to_string().contains("config does not parse"), "{bad}");
     }

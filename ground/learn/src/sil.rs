@@ -164,7 +164,7 @@ fn outcome<const N: usize>(
             SilError::Scenario(e) => EnvError::Scenario(e),
             SilError::Target { index, error } => EnvError::Body { step: index, error },
             SilError::WrongProblem { expected, found } => EnvError::WrongProblem { expected, found },
-            SilError::Dispersion(_) => EnvError::Config("not flyable in SIL"),
+            SilError::Dispersion(_) | SilError::TimeUnit(_) => EnvError::Config("not flyable in SIL"),
         }),
         non_finite_actions: steps
             .iter()
@@ -266,6 +266,7 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
         tolerances: config.env.integrator.tolerances(),
         weights: config.env.reward.weights(),
         dispersions: *dispersions,
+        time_unit_s: config.family.body.units().time_s,
     })
 }
 
