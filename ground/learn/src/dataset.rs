@@ -18,10 +18,10 @@ pub fn demonstrations(
     config: &ExperimentConfig,
     dataset_dir: &Path,
 ) -> Result<(Summary, Option<CrossCheckSummary>), ExperimentError> {
+    // In the family's units: the demonstrations are solved for the spacecraft the MDP flies.
     let spacecraft = config
         .env
-        .spacecraft
-        .canonical()
+        .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let manifest = Manifest {
         family: config.family,
@@ -53,4 +53,46 @@ pub fn demonstrations(
     // The figure is a convenience: a dataset that cannot be plotted is still a dataset.
     let _ = plot_dataset_sample(dataset_dir, Shard::WHOLE);
     Ok((dataset, crosscheck))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ground_core::solver::solve_scenario;
+
+    /// The demonstrations of a family around another body are solved for the spacecraft in that
+    /// body's units: the records equal the indirect method's solves of the same draws with it.
+    #[test]
+    fn demonstrations_fly_the_spacecraft_in_the_familys_units() {
+        let config = ExperimentConfig::from_toml(
+            "scenario = { problem = \"transfer\", body = { mu_m3_s2 = 1.32712440018e19, length_unit_m = 1.495978707e11 }, \
+             departure = { a = 1.0, e = 0.0 }, target = { a = 1.2, e = 0.0 }, time_of_flight = { days = 700.0 }, \
+             cycle = { days = 14.0 } }\n[generate]\ncount = 2\nseed = 3\ncrosscheck = false",
+        )
+        .unwrap();
+        let dir = std::env::temp_dir().join(format!("lowthrust-weak-sun-{}", std::process::id()));
+        let (summary, _) = demonstrations(&config, &dir).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        let spacecraft = config.env.canonical_spacecraft().unwrap();
+        let options = SolveOptions {
+            final_eps: config.generate.final_eps,
+            arrival_margin_steps: config.generate.arrival_margin,
+            ..SolveOptions::default()
+        };
+        let masses: Vec<f64> = (0..2)
+            .map(|index| {
+                let scenario = config.family.draw(3, index);
+                let record = solve_scenario(config.family, 3, index, &scenario, &spacecraft, &options);
+                assert!(record.converged);
+                record.final_mass
+            })
+            .collect();
+        assert_eq!(summary.converged, 2);
+        let mean = (masses[0] + masses[1]) / 2.0;
+        assert!(
+            (summary.final_mass_mean - mean).abs() < 1e-12,
+            "{} {mean}",
+            summary.final_mass_mean
+        );
+    }
 }
