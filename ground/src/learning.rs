@@ -29,6 +29,16 @@ pub enum LearnCommand {
         /// Run folder (an existing one is resumed).
         #[arg(long, default_value = "runs/quick")]
         out: PathBuf,
+        /// Run nothing: check the family on a sample of draws (as `ground data check-mission`),
+        /// time a solve, a SAC update and an episode here, and print each stage's projected time.
+        #[arg(long)]
+        plan: bool,
+        /// With --plan: draws solved for the check and the solve time.
+        #[arg(long, default_value_t = 20, requires = "plan")]
+        sample: u64,
+        /// With --plan: print one JSON object instead of the table.
+        #[arg(long, requires = "plan")]
+        json: bool,
     },
     /// Development checks: the learner on Pendulum-v1, and its update throughput.
     #[command(subcommand)]
@@ -234,7 +244,14 @@ pub enum DevCommand {
 pub fn run(command: LearnCommand) -> Result<(), Box<dyn std::error::Error>> {
     learn::sac::tune_allocator();
     match command {
-        LearnCommand::Run { config, out } => main_job(config.as_deref(), &out),
+        LearnCommand::Run {
+            config,
+            plan: true,
+            sample,
+            json,
+            ..
+        } => plan_command(config.as_deref(), sample, json),
+        LearnCommand::Run { config, out, .. } => main_job(config.as_deref(), &out),
         LearnCommand::Train(command) => run_train(command),
         LearnCommand::Model(command) => run_model(command),
         LearnCommand::Dev(command) => run_dev(command),
@@ -415,6 +432,30 @@ fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
         job.stage_seconds.iter().map(|(_, t)| t).sum::<f64>() / 60.0,
         job.report.display()
     );
+    Ok(())
+}
+
+fn plan_command(config: Option<&Path>, sample: u64, json: bool) -> CommandResult {
+    let config = match config {
+        Some(path) => ExperimentConfig::load(path)?,
+        None => ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?,
+    };
+    tch::set_num_threads(config.compute.threads);
+    let plan = learn::plan::plan_recipe(&config, sample)?;
+    if json {
+        println!("{}", serde_json::to_string(&plan)?);
+    } else {
+        println!("recipe {}", config.display_name());
+        for line in ground_core::mission::check_lines(&plan.check) {
+            println!("{line}");
+        }
+        for line in learn::plan::plan_lines(&plan) {
+            println!("{line}");
+        }
+    }
+    if plan.check.converged == 0 {
+        return Err(format!("no draw of the sample of {} was solved", plan.check.family).into());
+    }
     Ok(())
 }
 

@@ -158,42 +158,13 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
         value["threads"] = serde_json::json!(threads);
         println!("{value}");
     } else {
-        let c = &check;
-        println!(
-            "family {}: units {:.6e} m, {:.6e} s, {:.6e} m/s",
-            c.family, c.length_unit_m, c.time_unit_s, c.velocity_unit_m_s
-        );
-        println!(
-            "{} draws: time of flight {:.1} to {:.1} days, {} to {} cycles of {:.3} to {:.3} days",
-            c.sample,
-            c.time_of_flight_days[0],
-            c.time_of_flight_days[1],
-            c.cycles[0],
-            c.cycles[1],
-            c.cycle_days[0],
-            c.cycle_days[1]
-        );
-        println!(
-            "solved {} of {} ({:.0} %), mean final mass {:.4}; unsolved: {} infeasible, {} feasible, {} unclassified",
-            c.converged,
-            c.sample,
-            100.0 * c.converged as f64 / c.sample as f64,
-            c.final_mass_mean,
-            c.infeasible,
-            c.feasible_unsolved,
-            c.unknown
-        );
-        println!(
-            "solve time per draw: mean {:.2} s, longest {:.2} s; a dataset of {} draws: about {:.1} min on {} threads",
-            c.solve_seconds[0], c.solve_seconds[1], args.dataset_count, projected_min, threads
-        );
-        println!(
-            "full thrust over the longest flight burns {:.3} of the initial mass",
-            c.full_thrust_propellant
-        );
-        for warning in &c.warnings {
-            println!("warning: {warning}");
+        for line in ground_core::mission::check_lines(&check) {
+            println!("{line}");
         }
+        println!(
+            "a dataset of {} draws: about {projected_min:.1} min on {threads} threads",
+            args.dataset_count
+        );
     }
     if check.converged == 0 {
         return Err(format!("no draw of the sample of {} was solved", check.family).into());

@@ -140,3 +140,61 @@ fn generate_takes_a_mission_file_and_records_its_family() {
     assert!(summary["scenario"].as_str().unwrap().starts_with("custom-"));
     let _ = std::fs::remove_dir_all(&out_dir);
 }
+
+/// `ground run --plan` runs nothing: it projects each stage of a recipe from the unit costs it
+/// measured, and the dataset's projection is its count of solves at the measured solve time.
+#[cfg(feature = "learn")]
+#[test]
+fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/venus-inward.toml");
+    let out = temp("plan");
+    let run = ground(&[
+        "run",
+        "--config",
+        config.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--plan",
+        "--sample",
+        "2",
+        "--json",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(!out.exists(), "the plan wrote its run folder");
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let stages: Vec<&str> = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        stages,
+        [
+            "dataset",
+            "pretraining",
+            "RL",
+            "relabelling",
+            "Monte Carlo",
+            "export and SIL"
+        ]
+    );
+    let costs = &v["costs"];
+    let solve = costs["solve_s"].as_f64().unwrap();
+    let threads = costs["solver_threads"].as_f64().unwrap();
+    let dataset = v["stages"][0]["seconds"].as_f64().unwrap();
+    assert!((dataset - 1000.0 * solve / threads).abs() <= 1e-9 * dataset, "{v}");
+    assert!(costs["update_s"].as_f64().unwrap() > 0.0);
+    // Pretraining is its updates at the measured update time, plus its evaluations' episodes.
+    let update = costs["update_s"].as_f64().unwrap();
+    let pretraining = v["stages"][1]["seconds"].as_f64().unwrap();
+    assert!(pretraining >= 40_000.0 * update, "{v}");
+    let total: f64 = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["seconds"].as_f64().unwrap())
+        .sum();
+    assert!((v["total_seconds"].as_f64().unwrap() - total).abs() <= 1e-9 * total);
+    assert_eq!(v["rounds"], 40);
+}

@@ -374,6 +374,47 @@ pub struct FamilyCheck {
     pub warnings: Vec<String>,
 }
 
+/// The check as the lines the commands print (units, times, the solved share, solve times, the
+/// tank, the warnings).
+pub fn check_lines(c: &FamilyCheck) -> Vec<String> {
+    let mut lines = vec![
+        format!(
+            "family {}: units {:.6e} m, {:.6e} s, {:.6e} m/s",
+            c.family, c.length_unit_m, c.time_unit_s, c.velocity_unit_m_s
+        ),
+        format!(
+            "{} draws: time of flight {:.1} to {:.1} days, {} to {} cycles of {:.3} to {:.3} days",
+            c.sample,
+            c.time_of_flight_days[0],
+            c.time_of_flight_days[1],
+            c.cycles[0],
+            c.cycles[1],
+            c.cycle_days[0],
+            c.cycle_days[1]
+        ),
+        format!(
+            "solved {} of {} ({:.0} %), mean final mass {:.4}; unsolved: {} infeasible, {} feasible, {} unclassified",
+            c.converged,
+            c.sample,
+            100.0 * c.converged as f64 / c.sample as f64,
+            c.final_mass_mean,
+            c.infeasible,
+            c.feasible_unsolved,
+            c.unknown
+        ),
+        format!(
+            "solve time per draw: mean {:.2} s, longest {:.2} s",
+            c.solve_seconds[0], c.solve_seconds[1]
+        ),
+        format!(
+            "full thrust over the longest flight burns {:.3} of the initial mass",
+            c.full_thrust_propellant
+        ),
+    ];
+    lines.extend(c.warnings.iter().map(|w| format!("warning: {w}")));
+    lines
+}
+
 /// Draws `sample` scenarios of `family` (seed `seed`), solves each by the indirect method,
 /// classifies the unsolved ones by their minimum time of flight, and gathers the units, the
 /// times and the tank's reach ([`FamilyCheck`]). Parallel over the draws (rayon).

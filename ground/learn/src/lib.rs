@@ -62,6 +62,7 @@ pub mod export;
 pub mod model;
 pub mod phase;
 pub mod pipeline;
+pub mod plan;
 pub mod pretrain;
 pub mod report;
 pub mod rl;

@@ -59,6 +59,20 @@ pub const BLOCK: usize = 100;
 pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, updates: usize, device: Device) -> f64 {
     tch::manual_seed(0);
     let mut sac = Sac::new(config.clone(), obs_dim, act_dim, device);
+    seconds_per_update_of(&mut sac, obs_dim, act_dim, 0, updates)
+}
+
+/// [`seconds_per_update`] of a given learner of `obs_dim` and `act_dim` (its own settings and
+/// losses, its weights trained on), every `demonstration_every`-th transition of the buffer a
+/// demonstration (0: none), so that a behaviour-cloning term has rows to work on.
+pub fn seconds_per_update_of(
+    sac: &mut Sac,
+    obs_dim: usize,
+    act_dim: usize,
+    demonstration_every: usize,
+    updates: usize,
+) -> f64 {
+    let config = sac.config.clone();
     let mut buffer = ReplayBuffer::new(obs_dim, act_dim, 10_000);
     let mut draws = firmware_sim::dispersion::Normal::new(0, 0);
     for k in 0..10_000 {
@@ -71,7 +85,7 @@ pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, up
             reward: -draws.unit() as f32,
             next_obs: &next_obs,
             done: k % 50 == 0,
-            demonstration: false,
+            demonstration: demonstration_every > 0 && k % demonstration_every == 0,
         });
     }
     let mut rng = sampler(0);

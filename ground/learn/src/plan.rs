@@ -1,0 +1,270 @@
+//! A recipe's time on this machine, projected before it runs (`ground run --plan`): its family
+//! checked on a sample of draws (`ground_core::mission::check_family`), the unit costs measured
+//! here (a draw's solve, a SAC update, a flown episode, an RL step), and each stage's count of
+//! them from the config. Nothing is written.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::config::ExperimentConfig;
+use crate::error::ExperimentError;
+use crate::model::obs_dim;
+use crate::phase::{evaluate_agent, new_agent};
+use crate::sac::bench::seconds_per_update_of;
+use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::mission::{check_family, FamilyCheck};
+use ground_core::solver::SolveOptions;
+use ground_core::with_problem;
+
+/// Episodes flown to time one (lockstep, as the evaluations fly them).
+const TIMED_EPISODES: u64 = 32;
+/// Single-observation actor calls timed for an RL step's action.
+const TIMED_ACTIONS: usize = 200;
+/// SAC updates timed (after the bench's warm-up).
+const TIMED_UPDATES: usize = 50;
+/// What the RL loop spends per environment step beyond its action, propagation and update
+/// (replay pushes, statistics, progress, checkpoints), in updates: 0.57 and 0.51 on the recorded
+/// RL phases of the venus-inward and mars-fixed-time recipes (5.1 and 4.6 ms a step at 8.9 and
+/// 9.1 ms a pretraining update, 60,000 steps each, run side by side on a 2-vCPU Intel Xeon guest).
+const RL_STEP_OVERHEAD_UPDATES: f64 = 0.55;
+
+/// What one unit of each kind of work costs on this machine.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct UnitCosts {
+    /// A draw's indirect solve, mean over the sample, s (one thread).
+    pub solve_s: f64,
+    /// One SAC update at the config's sizes, s (the config's torch threads).
+    pub update_s: f64,
+    /// One deterministic episode, flown in lockstep with others as evaluations fly them, s.
+    pub episode_s: f64,
+    /// One RL environment step apart from its updates: the actor on one observation, one
+    /// cycle's propagation and the loop's own work, s.
+    pub env_step_s: f64,
+    /// Threads the solves run on.
+    pub solver_threads: usize,
+}
+
+/// One stage's projected time.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageTime {
+    /// The stage, as `ground run` names it.
+    pub stage: String,
+    /// Projected wall time, s.
+    pub seconds: f64,
+    /// What it counts.
+    pub counts: String,
+}
+
+/// A recipe's projection.
+#[derive(Debug, Clone, Serialize)]
+pub struct RecipePlan {
+    /// The family's check on the sample.
+    pub check: FamilyCheck,
+    /// The measured unit costs.
+    pub costs: UnitCosts,
+    /// Every stage, in order (the relabelling rounds at their whole budget).
+    pub stages: Vec<StageTime>,
+    /// One relabelling round, s (0 without rounds).
+    pub round_seconds: f64,
+    /// The rounds' budget (`[dagger] rounds`; `stop_at` may end them sooner).
+    pub rounds: u64,
+    /// The whole recipe with one round, s: the shortest it can be.
+    pub total_one_round_seconds: f64,
+    /// The whole recipe with every round of the budget, s.
+    pub total_seconds: f64,
+    /// `[[stage]]` sections, whose rounds are not projected.
+    pub unprojected_stages: usize,
+}
+
+/// Checks the config's family on `sample` draws, measures the unit costs here, and projects
+/// each stage of the recipe.
+pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan, ExperimentError> {
+    if sample == 0 {
+        return Err(ExperimentError::Mismatch(
+            "the plan needs a sample of at least 1 draw".into(),
+        ));
+    }
+    let spacecraft = config
+        .env
+        .canonical_spacecraft()
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+    let options = SolveOptions {
+        final_eps: config.generate.final_eps,
+        arrival_margin_steps: config.generate.arrival_margin,
+        ..SolveOptions::default()
+    };
+    let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
+    let costs = with_problem!(config.family.problem, P => measure::<P>(config, &check))?;
+    Ok(project(config, check, costs))
+}
+
+fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError>
+where
+    MdpEnv<P>: Environment<Obs = P::Obs>,
+{
+    let obs = obs_dim(P::KIND);
+    let device = config.device()?;
+    let agent = new_agent(config, false, obs, device);
+    let start = Instant::now();
+    evaluate_agent::<MdpEnv<P>>(
+        &agent,
+        &config.env,
+        config.family,
+        config.seeds.train,
+        TIMED_EPISODES,
+        false,
+    )
+    .map_err(|e| ExperimentError::Mismatch(format!("timing episodes: {e}")))?;
+    let episode_s = start.elapsed().as_secs_f64() / TIMED_EPISODES as f64;
+    let observation = vec![0.5_f32; obs];
+    let start = Instant::now();
+    for _ in 0..TIMED_ACTIONS {
+        std::hint::black_box(agent.act(&observation, 1));
+    }
+    let action_s = start.elapsed().as_secs_f64() / TIMED_ACTIONS as f64;
+    let cycles = f64::from(check.cycles[0].max(1) + check.cycles[1].max(1)) / 2.0;
+    // The learner the RL phase trains (its cloning term on, half its rows demonstrations when
+    // the phase keeps them); pretraining's differs only in its settings' weights.
+    let mut learner = new_agent(config, false, obs, device);
+    let demonstration_every = if config.train.keep_behaviour_cloning { 2 } else { 0 };
+    let update_s = seconds_per_update_of(&mut learner, obs, 3, demonstration_every, TIMED_UPDATES);
+    Ok(UnitCosts {
+        solve_s: check.solve_seconds[0],
+        update_s,
+        episode_s,
+        env_step_s: action_s + episode_s / cycles + RL_STEP_OVERHEAD_UPDATES * update_s,
+        solver_threads: rayon::current_num_threads(),
+    })
+}
+
+/// Each stage's count of unit costs.
+fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> RecipePlan {
+    let c = &costs;
+    let threads = c.solver_threads.max(1) as f64;
+    let solves = |n: f64| n * c.solve_s / threads;
+    let mut stages = Vec::new();
+    let mut stage = |name: &str, seconds: f64, counts: String| {
+        stages.push(StageTime {
+            stage: name.into(),
+            seconds,
+            counts,
+        })
+    };
+    let generate = &config.generate;
+    stage(
+        "dataset",
+        solves(generate.count as f64),
+        format!("{} solves on {} threads", generate.count, c.solver_threads),
+    );
+    let train = &config.train;
+    let evals = |steps: u64, every: u64| steps.checked_div(every).unwrap_or(0);
+    let pretrain = &config.pretrain;
+    let pretrain_evals = evals(pretrain.updates, pretrain.eval_every);
+    stage(
+        "pretraining",
+        pretrain.updates as f64 * c.update_s + (pretrain_evals * train.eval_episodes) as f64 * c.episode_s,
+        format!(
+            "{} updates, {pretrain_evals} evaluations of {} episodes",
+            pretrain.updates, train.eval_episodes
+        ),
+    );
+    let updating = train.env_steps.saturating_sub(config.sac.warmup_steps) * u64::from(config.sac.updates_per_step);
+    let train_evals = evals(train.env_steps, train.eval_every);
+    stage(
+        "RL",
+        train.env_steps as f64 * c.env_step_s
+            + updating as f64 * c.update_s
+            + (train_evals * train.eval_episodes) as f64 * c.episode_s,
+        format!(
+            "{} environment steps, {updating} updates, {train_evals} evaluations of {} episodes",
+            train.env_steps, train.eval_episodes
+        ),
+    );
+    let dagger = &config.dagger;
+    let round_seconds = if dagger.rounds == 0 {
+        0.0
+    } else {
+        let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
+        let relabels = dagger.episodes * dagger.fractions.len() as u64;
+        // A relabel solves from a flown state with the rest of the flight to go: counted as that
+        // share of a draw's solve (its warm start makes it cheaper still: an upper bound).
+        let left = if dagger.fractions.is_empty() {
+            0.0
+        } else {
+            1.0 - dagger.fractions.iter().sum::<f64>() / dagger.fractions.len() as f64
+        };
+        dagger.updates as f64 * c.update_s + flown as f64 * c.episode_s + solves(relabels as f64 * left)
+    };
+    stage(
+        "relabelling",
+        round_seconds * dagger.rounds as f64,
+        format!(
+            "{} rounds at most, each {} updates, {} relabels, {} episodes flown",
+            dagger.rounds,
+            dagger.updates,
+            dagger.episodes * dagger.fractions.len() as u64,
+            dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes
+        ),
+    );
+    let evaluate = &config.evaluate;
+    stage(
+        "Monte Carlo",
+        evaluate.episodes as f64 * c.episode_s + solves(evaluate.optimality_gap_cases as f64),
+        format!(
+            "{} episodes, {} solves for the optimality gap",
+            evaluate.episodes, evaluate.optimality_gap_cases
+        ),
+    );
+    stage(
+        "export and SIL",
+        (2 * config.sil.episodes) as f64 * c.episode_s,
+        format!("2 blobs x {} flights (onboard aids not counted)", config.sil.episodes),
+    );
+    let total_seconds: f64 = stages.iter().map(|s| s.seconds).sum();
+    let total_one_round_seconds = total_seconds - round_seconds * dagger.rounds.saturating_sub(1) as f64;
+    RecipePlan {
+        check,
+        costs,
+        stages,
+        round_seconds,
+        rounds: dagger.rounds,
+        total_one_round_seconds,
+        total_seconds,
+        unprojected_stages: config.stages.len(),
+    }
+}
+
+/// The plan as the lines `ground run --plan` prints.
+pub fn plan_lines(plan: &RecipePlan) -> Vec<String> {
+    let c = &plan.costs;
+    let mut lines = vec![format!(
+        "measured here: a solve {:.3} s (one thread, {} solver threads), a SAC update {:.2} ms, an episode {:.1} ms, an RL step {:.2} ms besides its updates",
+        c.solve_s,
+        c.solver_threads,
+        c.update_s * 1e3,
+        c.episode_s * 1e3,
+        c.env_step_s * 1e3
+    )];
+    for s in &plan.stages {
+        lines.push(format!("{:<16} {:>7.1} min  ({})", s.stage, s.seconds / 60.0, s.counts));
+    }
+    if plan.rounds > 0 {
+        lines.push(format!(
+            "one relabelling round {:.1} min; the recipe {:.0} min with one round, {:.0} min with all {}",
+            plan.round_seconds / 60.0,
+            plan.total_one_round_seconds / 60.0,
+            plan.total_seconds / 60.0,
+            plan.rounds
+        ));
+    } else {
+        lines.push(format!("the recipe {:.0} min", plan.total_seconds / 60.0));
+    }
+    if plan.unprojected_stages > 0 {
+        lines.push(format!(
+            "and {} [[stage]] section(s) of more rounds, not projected: each round about as above",
+            plan.unprojected_stages
+        ));
+    }
+    lines
+}
