@@ -348,14 +348,6 @@ impl FlightSetup {
     pub fn dispersed(self, dispersions: Dispersions) -> Self {
         Self { dispersions, ..self }
     }
-
-    /// The same setup in a family's canonical units (the spacecraft must already be in them).
-    pub fn in_units(self, units: &shared::mission::Units) -> Self {
-        Self {
-            time_unit_s: units.time_s,
-            ..self
-        }
-    }
 }
 
 /// Flies `scenario` closed loop as problem `P` and reports every cycle to `observer`: at each

@@ -184,11 +184,20 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     let threads = costs["solver_threads"].as_f64().unwrap();
     let dataset = v["stages"][0]["seconds"].as_f64().unwrap();
     assert!((dataset - 1000.0 * solve / threads).abs() <= 1e-9 * dataset, "{v}");
-    assert!(costs["update_s"].as_f64().unwrap() > 0.0);
-    // Pretraining is its updates at the measured update time, plus its evaluations' episodes.
-    let update = costs["update_s"].as_f64().unwrap();
+    // Pretraining is its updates at the measured update time, plus its 9 evaluations' episodes;
+    // RL its steps and its updates after the 1,000 warm-up steps.
+    let pretrain_update = costs["pretrain_update_s"].as_f64().unwrap();
+    let episode = costs["episode_s"].as_f64().unwrap();
     let pretraining = v["stages"][1]["seconds"].as_f64().unwrap();
-    assert!(pretraining >= 40_000.0 * update, "{v}");
+    let expected = 40_000.0 * pretrain_update + 900.0 * episode;
+    assert!((pretraining - expected).abs() <= 1e-9 * expected, "{v}");
+    let (update, step) = (
+        costs["update_s"].as_f64().unwrap(),
+        costs["env_step_s"].as_f64().unwrap(),
+    );
+    let rl = v["stages"][2]["seconds"].as_f64().unwrap();
+    let expected = 60_000.0 * step + 59_000.0 * update;
+    assert!(update > 0.0 && (rl - expected).abs() <= 1e-9 * expected, "{v}");
     let total: f64 = v["stages"]
         .as_array()
         .unwrap()

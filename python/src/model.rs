@@ -36,12 +36,14 @@ pub struct Policy {
     blob: AlignedBlob,
     kind: ProblemKind,
     quantization: Quantization,
+    /// The mission the blob flies (format 4; a format-3 blob's is the thesis's).
+    mission: shared::blob::BlobMission,
 }
 
 impl Policy {
     fn load(bytes: &[u8]) -> PyResult<Self> {
         let decoded = shared::blob::decode(bytes).map_err(|e| refused(format!("blob refused: {e:?}")))?;
-        let (kind, quantization) = (decoded.kind, decoded.quantization);
+        let (kind, quantization, mission) = (decoded.kind, decoded.quantization, decoded.mission);
         let blob = AlignedBlob::new(bytes);
         // The loader flight software runs: a blob it refuses is refused here too.
         with_flight_problem!(kind, N, P => {
@@ -53,6 +55,7 @@ impl Policy {
             blob,
             kind,
             quantization,
+            mission,
         })
     }
 }
@@ -242,6 +245,9 @@ fn fly_sil<'py>(
             policy.problem(),
             kind.label()
         )));
+    }
+    if let Some(why) = ground_core::mission::blob_refusal(&kind, &policy.mission) {
+        return Err(refused(why));
     }
     let spacecraft = env
         .canonical_spacecraft()

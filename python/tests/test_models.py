@@ -94,6 +94,16 @@ def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     assert flown["final_mass"].mean() == pytest.approx(figures["final_mass_mean"], rel=1e-12)
 
 
+def test_a_blob_of_another_family_is_refused_with_both_named():
+    """The blob carries its mission: venus-inward's flies its own family and is refused, with
+    both families named, for transfer-circular (same problem, other cycle)."""
+    model = lowthrust.open_model(MODELS / "venus-inward")
+    with pytest.raises(lowthrust.LowThrustError, match="custom-.*transfer-circular"):
+        lowthrust.fly_sil(model["f32"], "transfer-circular", 0, 1, dispersed=False)
+    flown = lowthrust.fly_sil(model["f32"], model["scenario"], 0, 2, dispersed=False, env_config=model["env_config"])
+    assert flown["completed"].all()
+
+
 def test_a_shipped_actor_flies_the_python_environment_at_its_cards_share():
     """The f32 blob (the actor to 1e-4 in its actions) flown through gym.make on the first 1,000
     Monte Carlo scenarios: the card's share of 10,000 within three standard errors."""

@@ -374,6 +374,50 @@ pub struct FamilyCheck {
     pub warnings: Vec<String>,
 }
 
+/// The mission a blob of `family` carries (blob format 4): the aids' cycle (0 for a count of
+/// cycles), the family's units and fingerprint.
+pub fn blob_mission(family: &MissionFamily) -> shared::blob::BlobMission {
+    let units = family.body.units();
+    shared::blob::BlobMission {
+        cycle: family.fixed_cycle().unwrap_or(0.0),
+        length_unit_m: units.length_m,
+        time_unit_s: units.time_s,
+        family: family.fingerprint(),
+    }
+}
+
+/// Why a blob carrying `mission` cannot fly `family` (None: it can), both named. A blob of
+/// format 3 (fingerprint 0) flies any family of the thesis's units and 14-day cycles.
+pub fn blob_refusal(family: &MissionFamily, mission: &shared::blob::BlobMission) -> Option<String> {
+    use shared::blob::BlobMission;
+    let ours = blob_mission(family);
+    if mission.family == 0 {
+        let thesis = BlobMission {
+            family: ours.family,
+            ..BlobMission::THESIS
+        };
+        return (thesis != ours).then(|| {
+            format!(
+                "the blob flies the thesis's 14-day heliocentric cycles (blob format 3), and family {} has another cycle or body",
+                family.label()
+            )
+        });
+    }
+    (mission.family != ours.family).then(|| {
+        let theirs = ScenarioKind::ALL
+            .into_iter()
+            .find(|kind| kind.family().fingerprint() == mission.family)
+            .map_or_else(
+                || format!("custom-{:08x}", mission.family),
+                |kind| kind.name().to_string(),
+            );
+        format!(
+            "the blob was trained for family {theirs}, not {}: fly it with its own config",
+            family.label()
+        )
+    })
+}
+
 /// The check as the lines the commands print (units, times, the solved share, solve times, the
 /// tank, the warnings).
 pub fn check_lines(c: &FamilyCheck) -> Vec<String> {

@@ -509,47 +509,16 @@ impl ExperimentConfig {
         })
     }
 
-    /// The mission a blob of this config carries (blob format 4): the aids' cycle (0 for a
-    /// count of cycles), the family's units and fingerprint.
+    /// The mission a blob of this config carries (blob format 4):
+    /// [`ground_core::mission::blob_mission`] of its family.
     pub fn blob_mission(&self) -> BlobMission {
-        let units = self.family.body.units();
-        BlobMission {
-            cycle: self.aid_cycle().unwrap_or(0.0),
-            length_unit_m: units.length_m,
-            time_unit_s: units.time_s,
-            family: self.family.fingerprint(),
-        }
+        ground_core::mission::blob_mission(&self.family)
     }
 
-    /// Why a blob carrying `mission` cannot fly this config's family (None: it can). A blob of
-    /// format 3 (fingerprint 0) flies any family of the thesis's units and 14-day cycles.
+    /// Why a blob carrying `mission` cannot fly this config's family (None: it can):
+    /// [`ground_core::mission::blob_refusal`].
     pub fn mission_refusal(&self, mission: &BlobMission) -> Option<String> {
-        let ours = self.blob_mission();
-        if mission.family == 0 {
-            let thesis = BlobMission {
-                family: ours.family,
-                ..BlobMission::THESIS
-            };
-            return (thesis != ours).then(|| {
-                format!(
-                    "the blob flies the thesis's 14-day heliocentric cycles (blob format 3), and family {} has another cycle or body",
-                    self.family.label()
-                )
-            });
-        }
-        (mission.family != ours.family).then(|| {
-            let theirs = shared::scenario::ScenarioKind::ALL
-                .into_iter()
-                .find(|kind| kind.family().fingerprint() == mission.family)
-                .map_or_else(
-                    || format!("custom-{:08x}", mission.family),
-                    |kind| kind.name().to_string(),
-                );
-            format!(
-                "the blob was trained for family {theirs}, not {}: fly it with its own config",
-                self.family.label()
-            )
-        })
+        ground_core::mission::blob_refusal(&self.family, mission)
     }
 
     /// The cycle (t*) the onboard aids count: the family's, when it has one length for every

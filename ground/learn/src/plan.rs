@@ -19,27 +19,28 @@ use ground_core::with_problem;
 
 /// Episodes flown to time one (lockstep, as the evaluations fly them).
 const TIMED_EPISODES: u64 = 32;
-/// Single-observation actor calls timed for an RL step's action.
-const TIMED_ACTIONS: usize = 200;
 /// SAC updates timed (after the bench's warm-up).
 const TIMED_UPDATES: usize = 50;
-/// What the RL loop spends per environment step beyond its action, propagation and update
-/// (replay pushes, statistics, progress, checkpoints), in updates: 0.57 and 0.51 on the recorded
-/// RL phases of the venus-inward and mars-fixed-time recipes (5.1 and 4.6 ms a step at 8.9 and
-/// 9.1 ms a pretraining update, 60,000 steps each, run side by side on a 2-vCPU Intel Xeon guest).
-const RL_STEP_OVERHEAD_UPDATES: f64 = 0.55;
+/// What the RL phase spends per environment step besides its updates (the action, the
+/// propagation, replay pushes, statistics, checkpoints and its evaluations), in updates: 0.57 and
+/// 0.51 on the recorded RL phases of the venus-inward and mars-fixed-time recipes (5.1 and 4.6 ms
+/// a step at 8.9 and 9.1 ms a pretraining update, 60,000 steps each, run side by side on a 2-vCPU
+/// Intel Xeon guest).
+const RL_STEP_UPDATES: f64 = 0.55;
 
 /// What one unit of each kind of work costs on this machine.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct UnitCosts {
     /// A draw's indirect solve, mean over the sample, s (one thread).
     pub solve_s: f64,
-    /// One SAC update at the config's sizes, s (the config's torch threads).
+    /// One pretraining update at the config's sizes, s (the config's torch threads).
+    pub pretrain_update_s: f64,
+    /// One RL (and relabelling round) update, s.
     pub update_s: f64,
     /// One deterministic episode, flown in lockstep with others as evaluations fly them, s.
     pub episode_s: f64,
-    /// One RL environment step apart from its updates: the actor on one observation, one
-    /// cycle's propagation and the loop's own work, s.
+    /// One RL environment step apart from its updates, its share of the phase's evaluations
+    /// included, s ([`RL_STEP_UPDATES`] updates).
     pub env_step_s: f64,
     /// Threads the solves run on.
     pub solver_threads: usize,
@@ -117,23 +118,19 @@ where
     )
     .map_err(|e| ExperimentError::Mismatch(format!("timing episodes: {e}")))?;
     let episode_s = start.elapsed().as_secs_f64() / TIMED_EPISODES as f64;
-    let observation = vec![0.5_f32; obs];
-    let start = Instant::now();
-    for _ in 0..TIMED_ACTIONS {
-        std::hint::black_box(agent.act(&observation, 1));
-    }
-    let action_s = start.elapsed().as_secs_f64() / TIMED_ACTIONS as f64;
-    let cycles = f64::from(check.cycles[0].max(1) + check.cycles[1].max(1)) / 2.0;
-    // The learner the RL phase trains (its cloning term on, half its rows demonstrations when
-    // the phase keeps them); pretraining's differs only in its settings' weights.
+    // Each phase's learner: pretraining's on demonstrations alone, RL's with half its rows
+    // demonstrations when it keeps its cloning term.
+    let mut pretraining = new_agent(config, true, obs, device);
+    let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, 3, 1, TIMED_UPDATES);
     let mut learner = new_agent(config, false, obs, device);
     let demonstration_every = if config.train.keep_behaviour_cloning { 2 } else { 0 };
     let update_s = seconds_per_update_of(&mut learner, obs, 3, demonstration_every, TIMED_UPDATES);
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
+        pretrain_update_s,
         update_s,
         episode_s,
-        env_step_s: action_s + episode_s / cycles + RL_STEP_OVERHEAD_UPDATES * update_s,
+        env_step_s: RL_STEP_UPDATES * update_s,
         solver_threads: rayon::current_num_threads(),
     })
 }
@@ -158,12 +155,13 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
         format!("{} solves on {} threads", generate.count, c.solver_threads),
     );
     let train = &config.train;
-    let evals = |steps: u64, every: u64| steps.checked_div(every).unwrap_or(0);
+    // One evaluation before the first update, then one every `every`.
+    let evals = |steps: u64, every: u64| 1 + steps.checked_div(every).unwrap_or(0);
     let pretrain = &config.pretrain;
     let pretrain_evals = evals(pretrain.updates, pretrain.eval_every);
     stage(
         "pretraining",
-        pretrain.updates as f64 * c.update_s + (pretrain_evals * train.eval_episodes) as f64 * c.episode_s,
+        pretrain.updates as f64 * c.pretrain_update_s + (pretrain_evals * train.eval_episodes) as f64 * c.episode_s,
         format!(
             "{} updates, {pretrain_evals} evaluations of {} episodes",
             pretrain.updates, train.eval_episodes
@@ -173,9 +171,7 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
     let train_evals = evals(train.env_steps, train.eval_every);
     stage(
         "RL",
-        train.env_steps as f64 * c.env_step_s
-            + updating as f64 * c.update_s
-            + (train_evals * train.eval_episodes) as f64 * c.episode_s,
+        train.env_steps as f64 * c.env_step_s + updating as f64 * c.update_s,
         format!(
             "{} environment steps, {updating} updates, {train_evals} evaluations of {} episodes",
             train.env_steps, train.eval_episodes
@@ -216,10 +212,14 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
             evaluate.episodes, evaluate.optimality_gap_cases
         ),
     );
+    // Each blob's closed-loop Monte Carlo at export, then its SIL flights.
     stage(
         "export and SIL",
-        (2 * config.sil.episodes) as f64 * c.episode_s,
-        format!("2 blobs x {} flights (onboard aids not counted)", config.sil.episodes),
+        (2 * (evaluate.episodes + config.sil.episodes)) as f64 * c.episode_s,
+        format!(
+            "2 blobs x ({} episodes + {} SIL flights; onboard aids not counted)",
+            evaluate.episodes, config.sil.episodes
+        ),
     );
     let total_seconds: f64 = stages.iter().map(|s| s.seconds).sum();
     let total_one_round_seconds = total_seconds - round_seconds * dagger.rounds.saturating_sub(1) as f64;
@@ -239,10 +239,11 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
 pub fn plan_lines(plan: &RecipePlan) -> Vec<String> {
     let c = &plan.costs;
     let mut lines = vec![format!(
-        "measured here: a solve {:.3} s (one thread, {} solver threads), a SAC update {:.2} ms, an episode {:.1} ms, an RL step {:.2} ms besides its updates",
+        "measured here: a solve {:.3} s (one thread, {} solver threads), an update {:.2} ms (pretraining {:.2} ms), an episode {:.1} ms, an RL step {:.2} ms besides its updates",
         c.solve_s,
         c.solver_threads,
         c.update_s * 1e3,
+        c.pretrain_update_s * 1e3,
         c.episode_s * 1e3,
         c.env_step_s * 1e3
     )];

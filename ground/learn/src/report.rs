@@ -178,7 +178,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    export_section(&mut s, &job.export, &job.sil);
+    export_section(&mut s, &job.export, &job.sil, &config.family.body.units());
     let _ = writeln!(
         s,
         "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32C. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"
@@ -219,7 +219,7 @@ fn rounds_section(s: &mut String, rounds: &DaggerSummary, folder: &str) {
     let _ = writeln!(s, "![relabelling rounds]({folder}/rounds.svg)\n");
 }
 
-fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
+fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2], units: &shared::mission::Units) {
     let _ = writeln!(s, "## Onboard blobs and software-in-the-loop flight\n");
     let _ = writeln!(
         s,
@@ -265,14 +265,17 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2]) {
     let _ = writeln!(
         s,
         "**SIL with dispersions** (the onboard guidance loop against the truth plant, 1 sigma): navigation {:.0} km / {:.2} m/s per axis, thrust magnitude {:.1} % (per flight), pointing {:.2} deg, {} missed-thrust events of {} days per year.\n",
-        d.navigation_position * shared::units::AU_M / 1e3,
-        d.navigation_velocity * shared::units::VELOCITY_UNIT_M_S,
+        d.navigation_position * units.length_m / 1e3,
+        d.navigation_velocity * units.velocity_m_s(),
         100.0 * d.thrust_magnitude,
         d.pointing.to_degrees(),
         d.missed_thrust_per_year,
         d.missed_thrust_days
     );
-    let _ = writeln!(s, "| blob | flights | reward | final mass | dr p50 (AU) | dr p95 (AU) | dv p50 | guidance faults | missed thrust |");
+    let _ = writeln!(
+        s,
+        "| blob | flights | reward | final mass | dr p50 | dr p95 | dv p50 | guidance faults | missed thrust |"
+    );
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for (r, folder) in sil.iter().zip(crate::sil::SIL_FOLDERS) {
         let p = &r.monte_carlo.policy;

@@ -368,7 +368,11 @@ pub fn sil_monte_carlo(
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
     let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, &flights)?;
     bar.finish_and_clear();
-    let flown_time: f64 = outcomes.iter().map(|o| f64::from(o.steps)).sum::<f64>() * shared::units::STEP;
+    // In the family's canonical time: each flight's cycles at its own length.
+    let flown_time: f64 = outcomes
+        .iter()
+        .map(|o| f64::from(o.steps) * scenarios[o.episode].cycle)
+        .sum();
     let failed = outcomes
         .iter()
         .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
