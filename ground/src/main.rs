@@ -47,7 +47,8 @@ enum DataCommand {
     /// Solve every scenario of a distribution into a dataset folder: parallel, resumable,
     /// shardable (see the README for a Slurm job array).
     Generate(GenerateArgs),
-    /// Export one trajectory of a dataset as a CCSDS OEM (KVN, EME2000, TDB) plus a thrust CSV.
+    /// Export one trajectory of a dataset as a CCSDS OEM (KVN, TDB; EME2000 about the Sun or the
+    /// Earth, MCI about Mars) plus a thrust CSV.
     Oem {
         /// Dataset file (dataset.ltds).
         #[arg(long)]

@@ -22,9 +22,18 @@
 //! ICRF because the obliquity 84381.448" is defined against the J2000 mean equator (ICRF
 //! differs by the ~20 mas frame bias). The metadata comments say this in the file itself.
 //!
+//! # Other centres
+//! A family around the Earth or Mars is solved in the planet's equatorial plane and written as
+//! solved, without rotation ([`OemCentre`]): `CENTER_NAME = EARTH` with `REF_FRAME = EME2000`
+//! (the J2000 mean equator and equinox), `CENTER_NAME = MARS` with `REF_FRAME = MCI` (Mars
+//! Centred Inertial: the Mars equator, x on its ascending node on the ICRF equator; ODM annex A
+//! and Orekit's `CelestialBodyFrame.MCI`). Lengths and times follow the family's units. A body
+//! given only by its mu and length unit has no OEM name and is refused.
+//!
 //! # Time
 //! `TIME_SYSTEM = TDB`: the canonical time of the dynamics is a dynamical time. The departure epoch
-//! is a TDB calendar epoch given by the caller; sample `k` is at departure + t_k * `TIME_UNIT_S`.
+//! is a TDB calendar epoch given by the caller; sample `k` is at departure + t_k times the
+//! family's time unit (`TIME_UNIT_S` around the Sun).
 //! TDB has no leap seconds, so the calendar arithmetic is plain 86,400-s days: hifitime's
 //! Gregorian calendar on TDB epochs, kept to the nanosecond ([`CalendarEpoch`], which parses and
 //! formats the CCSDS text and rounds to the microsecond itself). Epochs are written to the
@@ -52,6 +61,7 @@ use std::fmt::{self, Write as _};
 use std::io::Write;
 
 use hifitime::{Duration, Epoch, TimeScale, Unit};
+use shared::mission::CentralBody;
 use shared::spacecraft::{Spacecraft, SpacecraftError};
 use shared::units::{AU_M, TIME_UNIT_S, VELOCITY_UNIT_M_S};
 
@@ -84,15 +94,121 @@ pub const MAX_LINE_LENGTH: usize = 254;
 
 const KM_PER_AU: f64 = AU_M / 1000.0;
 const KM_S_PER_VELOCITY_UNIT: f64 = VELOCITY_UNIT_M_S / 1000.0;
+
+/// Where a family's trajectories are written: the OEM's centre and frame, the family's units in
+/// km, km/s and s, and how the plane of the dynamics sits in the frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OemCentre {
+    /// `CENTER_NAME`.
+    pub center_name: &'static str,
+    /// `REF_FRAME`.
+    pub ref_frame: &'static str,
+    /// km per canonical length unit.
+    pub km_per_length: f64,
+    /// km/s per canonical velocity unit.
+    pub km_s_per_velocity: f64,
+    /// s per canonical time unit.
+    pub time_unit_s: f64,
+    /// The plane of the dynamics is the J2000 ecliptic, rotated into EME2000 by the obliquity
+    /// (the Sun); otherwise it is the frame's own x-y plane (a planet's equator).
+    pub ecliptic: bool,
+    /// Metadata comments that say so in the file.
+    pub comments: [&'static str; 3],
+}
+
+impl OemCentre {
+    /// The Sun: the J2000 ecliptic rotated into EME2000 (the module documentation says why).
+    pub const SUN: Self = Self {
+        center_name: CENTER_NAME,
+        ref_frame: REF_FRAME,
+        km_per_length: KM_PER_AU,
+        km_s_per_velocity: KM_S_PER_VELOCITY_UNIT,
+        time_unit_s: TIME_UNIT_S,
+        ecliptic: true,
+        comments: [
+            "Sun point-mass dynamics solved in the J2000 ecliptic plane (x axis on the J2000 mean",
+            "equinox), rotated into EME2000 about +X by the J2000 obliquity 84381.448 arcsec",
+            "(as SPICE ECLIPJ2000 -> J2000). Rotate back to recover the planar solution (z = 0).",
+        ],
+    };
+
+    /// The centre of a family around `body`: the Sun, the Earth (its J2000 mean equator: EME2000
+    /// as solved) or Mars (its equator: MCI, Mars Centred Inertial, as solved); a body given by
+    /// its mu and length unit has no name to write.
+    pub fn of(body: &CentralBody, family: &str) -> Result<Self, OemError> {
+        let planet = |center_name, ref_frame, comments, body: &CentralBody| {
+            let units = body.units();
+            Self {
+                center_name,
+                ref_frame,
+                km_per_length: units.length_m / 1000.0,
+                km_s_per_velocity: units.velocity_m_s() / 1000.0,
+                time_unit_s: units.time_s,
+                ecliptic: false,
+                comments,
+            }
+        };
+        match *body {
+            b if b == CentralBody::SUN => Ok(Self::SUN),
+            b if b == CentralBody::EARTH => Ok(planet(
+                "EARTH",
+                "EME2000",
+                [
+                    "Earth point-mass dynamics solved in the plane of the J2000 mean equator (x axis",
+                    "on the J2000 mean equinox): written in EME2000 as solved, the planar solution",
+                    "is x, y (z = 0).",
+                ],
+                &b,
+            )),
+            b if b == CentralBody::MARS => Ok(planet(
+                "MARS",
+                "MCI",
+                [
+                    "Mars point-mass dynamics solved in the plane of the Mars equator (x axis on its",
+                    "ascending node on the ICRF equator): written in MCI (Mars Centred Inertial) as",
+                    "solved, the planar solution is x, y (z = 0).",
+                ],
+                &b,
+            )),
+            _ => Err(OemError::UnnamedCentre(family.to_string())),
+        }
+    }
+
+    /// The centre of a record's family.
+    pub fn of_record(record: &TrajectoryRecord) -> Result<Self, OemError> {
+        Self::of(&record.family.body, record.family.label().as_str())
+    }
+
+    /// A planar vector of the dynamics (z = 0) in the frame's axes.
+    pub fn to_frame(&self, v: [f64; 2]) -> [f64; 3] {
+        if self.ecliptic {
+            ecliptic_to_eme2000([v[0], v[1], 0.0])
+        } else {
+            [v[0], v[1], 0.0]
+        }
+    }
+
+    /// A vector in the frame's axes back in the axes of the dynamics.
+    pub fn from_frame(&self, v: [f64; 3]) -> [f64; 3] {
+        if self.ecliptic {
+            eme2000_to_ecliptic(v)
+        } else {
+            v
+        }
+    }
+}
 /// Longest value accepted for OBJECT_NAME, OBJECT_ID and ORIGINATOR.
 const MAX_NAME_LENGTH: usize = 80;
 
 /// Why a record could not be exported, or an OEM text could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum OemError {
-    /// The record's family is not heliocentric: the export writes Sun-centred states in AU.
-    #[error("the OEM export writes heliocentric trajectories; this record's family ({0}) goes around another body")]
-    NotHeliocentric(String),
+    /// The record's family goes around a body given by its mu and length unit: an OEM names
+    /// its centre, and only the Sun, the Earth and Mars have names here.
+    #[error(
+        "an OEM names its centre: family {0} goes around a body given by mu and a length unit; the export writes Sun-, Earth- and Mars-centred families"
+    )]
+    UnnamedCentre(String),
     /// The record's solve did not converge; its samples are not a trajectory.
     #[error(fmt = fmt_not_converged)]
     NotConverged {
@@ -481,8 +597,15 @@ pub struct OemState {
 impl OemState {
     /// The state back in canonical units and J2000 ecliptic axes: (r in AU, v in AU/t*).
     pub fn canonical_ecliptic(&self) -> ([f64; 3], [f64; 3]) {
-        let r = eme2000_to_ecliptic(self.position_km).map(|x| x / KM_PER_AU);
-        let v = eme2000_to_ecliptic(self.velocity_km_s).map(|x| x / KM_S_PER_VELOCITY_UNIT);
+        self.canonical_in(&OemCentre::SUN)
+    }
+
+    /// The state back in `centre`'s canonical units and the axes of its dynamics.
+    pub fn canonical_in(&self, centre: &OemCentre) -> ([f64; 3], [f64; 3]) {
+        let r = centre.from_frame(self.position_km).map(|x| x / centre.km_per_length);
+        let v = centre
+            .from_frame(self.velocity_km_s)
+            .map(|x| x / centre.km_s_per_velocity);
         (r, v)
     }
 }
@@ -574,9 +697,7 @@ impl OemEphemeris {
 /// Checks a record can be exported: converged, non-empty, finite, time strictly increasing,
 /// positive mass, throttle in [0, 1].
 pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
-    if record.family.body != shared::mission::CentralBody::SUN {
-        return Err(OemError::NotHeliocentric(record.family.label().to_string()));
-    }
+    OemCentre::of_record(record)?;
     if !record.converged {
         return Err(OemError::NotConverged {
             failure: record.failure.clone(),
@@ -618,11 +739,15 @@ pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
 
 /// Epochs of the record's ephemeris samples, checked strictly increasing as written (to the
 /// microsecond).
-fn sample_epochs(record: &TrajectoryRecord, departure: CalendarEpoch) -> Result<Vec<CalendarEpoch>, OemError> {
+fn sample_epochs(
+    record: &TrajectoryRecord,
+    departure: CalendarEpoch,
+    centre: &OemCentre,
+) -> Result<Vec<CalendarEpoch>, OemError> {
     let mut epochs = Vec::with_capacity(record.ephemeris.len());
     let mut previous: Option<String> = None;
     for (index, s) in record.ephemeris.iter().enumerate() {
-        let epoch = departure.plus_seconds(s.t * TIME_UNIT_S)?;
+        let epoch = departure.plus_seconds(s.t * centre.time_unit_s)?;
         let text = epoch.to_string();
         if previous.as_ref().is_some_and(|p| *p >= text) {
             return Err(OemError::TimeNotIncreasing { index });
@@ -637,7 +762,8 @@ fn sample_epochs(record: &TrajectoryRecord, departure: CalendarEpoch) -> Result<
 pub fn thrust_rows(record: &TrajectoryRecord, options: &OemOptions) -> Result<Vec<ThrustRow>, OemError> {
     validate_record(record)?;
     options.validate()?;
-    let epochs = sample_epochs(record, options.departure_epoch)?;
+    let centre = OemCentre::of_record(record)?;
+    let epochs = sample_epochs(record, options.departure_epoch, &centre)?;
     let sc = &options.spacecraft;
     Ok(record
         .ephemeris
@@ -645,11 +771,11 @@ pub fn thrust_rows(record: &TrajectoryRecord, options: &OemOptions) -> Result<Ve
         .zip(epochs)
         .map(|(s, epoch)| ThrustRow {
             epoch,
-            t_days: s.t * TIME_UNIT_S / 86_400.0,
+            t_days: s.t * centre.time_unit_s / 86_400.0,
             mass_kg: s.m * sc.initial_mass_kg,
             throttle: s.throttle,
             thrust_n: s.throttle * sc.max_thrust_n,
-            direction: ecliptic_to_eme2000([s.direction[0], s.direction[1], 0.0]),
+            direction: centre.to_frame(s.direction),
         })
         .collect())
 }
@@ -657,6 +783,7 @@ pub fn thrust_rows(record: &TrajectoryRecord, options: &OemOptions) -> Result<Ve
 /// Renders the OEM of a record as text (what [`write_oem`] writes).
 pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<String, OemError> {
     let rows = thrust_rows(record, options)?;
+    let centre = OemCentre::of_record(record)?;
     let sc = &options.spacecraft;
     let n = rows.len();
     let (first, last) = (rows[0].epoch, rows[n - 1].epoch);
@@ -668,7 +795,8 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
     };
     line(&format!("CCSDS_OEM_VERS = {OEM_VERSION}"));
     line(&format!(
-        "COMMENT Fuel-optimal low-thrust heliocentric trajectory (indirect method), lowthrust-ground {}",
+        "COMMENT Fuel-optimal low-thrust trajectory about the {} (indirect method), lowthrust-ground {}",
+        centre.center_name.to_lowercase(),
         env!("CARGO_PKG_VERSION")
     ));
     line(&format!(
@@ -691,15 +819,13 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
     line(&format!("ORIGINATOR = {}", options.originator));
     line("");
     line("META_START");
-    line("COMMENT Sun point-mass dynamics solved in the J2000 ecliptic plane (x axis on the J2000 mean");
-    line(&format!(
-        "COMMENT equinox), rotated into EME2000 about +X by the J2000 obliquity {OBLIQUITY_J2000_ARCSEC} arcsec"
-    ));
-    line("COMMENT (as SPICE ECLIPJ2000 -> J2000). Rotate back to recover the planar solution (z = 0).");
+    for comment in centre.comments {
+        line(&format!("COMMENT {comment}"));
+    }
     line(&format!("OBJECT_NAME = {}", options.object_name));
     line(&format!("OBJECT_ID = {}", options.object_id));
-    line(&format!("CENTER_NAME = {CENTER_NAME}"));
-    line(&format!("REF_FRAME = {REF_FRAME}"));
+    line(&format!("CENTER_NAME = {}", centre.center_name));
+    line(&format!("REF_FRAME = {}", centre.ref_frame));
     line(&format!("TIME_SYSTEM = {TIME_SYSTEM}"));
     line(&format!("START_TIME = {first}"));
     line(&format!("USEABLE_START_TIME = {first}"));
@@ -723,8 +849,8 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
         ));
     }
     for (s, row) in record.ephemeris.iter().zip(&rows) {
-        let r = ecliptic_to_eme2000([s.r[0], s.r[1], 0.0]).map(|x| x * KM_PER_AU);
-        let v = ecliptic_to_eme2000([s.v[0], s.v[1], 0.0]).map(|x| x * KM_S_PER_VELOCITY_UNIT);
+        let r = centre.to_frame(s.r).map(|x| x * centre.km_per_length);
+        let v = centre.to_frame(s.v).map(|x| x * centre.km_s_per_velocity);
         // Millimetre and nanometre-per-second resolution (position near the limit of f64).
         let (r, v) = (r.map(|x| fixed(x, 6)), v.map(|x| fixed(x, 12)));
         line(&format!(

@@ -535,3 +535,65 @@ fn calendar_epochs_follow_the_gregorian_calendar() {
     assert!((b.seconds_since(a) - (365.0 * 86_400.0 + 6.0 * 3600.0 + 9.0 * 60.0 + 9.761)).abs() < 1e-6);
     assert!(a.plus_seconds(f64::NAN).is_err());
 }
+
+/// A family around the Earth or Mars is written about that planet, in its own equatorial
+/// frame as solved (no rotation: z = 0), its lengths in the planet's radii and its epochs in
+/// the planet's time unit sqrt(L^3 / mu), both recomputed here from the constants; an
+/// independent parser accepts both; a body given only by mu and a length unit has no name and
+/// is refused with its family named.
+#[test]
+fn earth_and_mars_families_are_written_about_their_planet_in_its_units() {
+    use shared::mission::CentralBody;
+    // (body, CENTER_NAME, REF_FRAME, equatorial radius m, mu m^3/s^2)
+    let cases = [
+        (
+            CentralBody::EARTH,
+            "EARTH",
+            "EME2000",
+            6_378_137.0_f64,
+            3.986_004_418e14_f64,
+        ),
+        (CentralBody::MARS, "MARS", "MCI", 3_396_190.0, 4.282_837_362e13),
+    ];
+    for (body, centre, frame, radius_m, mu) in cases {
+        let mut record = circular_record();
+        record.family.body = body;
+        let text = oem_text(&record);
+        let time_unit_s = (radius_m * radius_m * radius_m / mu).sqrt();
+        let velocity_km_s = radius_m / time_unit_s / 1000.0;
+        let oem = read_oem(&text).unwrap();
+        assert_eq!(
+            (oem.metadata.center_name.as_str(), oem.metadata.ref_frame.as_str()),
+            (centre, frame)
+        );
+        for (state, s) in oem.states.iter().zip(&record.ephemeris) {
+            let dt = state.epoch.seconds_since(options().departure_epoch);
+            assert!((dt - s.t * time_unit_s).abs() < 1e-3, "{centre}: {dt}");
+            let (r, v) = (state.position_km, state.velocity_km_s);
+            assert!(
+                r[2] == 0.0 && v[2] == 0.0,
+                "{centre}: the planar solution is the frame's x-y plane"
+            );
+            for k in 0..2 {
+                assert!((r[k] - s.r[k] * radius_m / 1000.0).abs() < 1e-6, "{centre}: {r:?}");
+                assert!((v[k] - s.v[k] * velocity_km_s).abs() < 1e-9, "{centre}: {v:?}");
+            }
+        }
+        let theirs = Oem::from_kvn(&text).unwrap_or_else(|e| panic!("ccsds-ndm refused the {centre} OEM: {e}"));
+        theirs.validate().unwrap();
+        assert_eq!(theirs.body.segment[0].metadata.ref_frame, frame);
+        assert!(text.contains(&format!("about the {}", centre.to_lowercase())), "{text}");
+    }
+    let mut custom = circular_record();
+    custom.family.body = CentralBody {
+        mu_m3_s2: 1.0e19,
+        length_unit_m: AU_M,
+    };
+    let label = custom.family.label().to_string();
+    let mut out = Vec::new();
+    match write_oem(&custom, &options(), &mut out) {
+        Err(OemError::UnnamedCentre(family)) => assert_eq!(family, label),
+        other => panic!("{other:?}"),
+    }
+    assert!(out.is_empty(), "nothing is written for a refused record");
+}
