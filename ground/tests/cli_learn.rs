@@ -196,7 +196,7 @@ fn an_export_that_fails_its_accuracy_check_is_a_failed_command() {
         })
         .collect();
     let bad = dir.join("huge.safetensors");
-    write_checked_safetensors(&huge, &bad).unwrap();
+    write_checked_safetensors(&huge, &Default::default(), &bad).unwrap();
     for (checkpoint, ok) in [(&good, true), (&bad, false)] {
         let out = dir.join(if ok { "good" } else { "bad" });
         let result = ground(&[

@@ -527,6 +527,14 @@ impl ExperimentConfig {
         self.family.fixed_cycle()
     }
 
+    /// The labels the config's learners write into their checkpoints and check when they load
+    /// one (`Sac::labels`): the mission family, by label and fingerprint, so that a checkpoint
+    /// of another family is refused with both named.
+    pub fn learner_labels(&self) -> std::collections::BTreeMap<String, String> {
+        let family = format!("{} ({:08x})", self.family.label(), self.family.fingerprint());
+        std::collections::BTreeMap::from([("family".to_string(), family)])
+    }
+
     /// The controller's name: [`Self::name`], or the family's label.
     pub fn display_name(&self) -> String {
         self.name.clone().unwrap_or_else(|| self.family.label().to_string())

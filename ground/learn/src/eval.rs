@@ -281,6 +281,7 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
         sac.actor_averaging = 0.0;
     }
     let mut agent = Sac::new(sac, obs_dim, 3, config.device()?);
+    agent.labels = config.learner_labels();
     if actor_only {
         agent.load_actor(checkpoint)?;
     } else {

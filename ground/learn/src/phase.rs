@@ -192,6 +192,7 @@ pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: u
     tch::manual_seed(config.seeds.train as i64);
     let mut agent = Sac::with_cloning_loss(config.sac_for(pretraining), obs_dim, 3, device, config.cloning_loss());
     agent.noise_seed = config.seeds.train;
+    agent.labels = config.learner_labels();
     agent
 }
 

@@ -121,6 +121,22 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
         17
     );
 
+    // The checkpoint names its family: a config of another family of the same problem refuses
+    // it where it is used, both named.
+    let mut transfer_hard = config.clone();
+    transfer_hard.family = ScenarioKind::TransferHard.family();
+    match monte_carlo(&transfer_hard, &best, &dir.join("mc-other"), Some(2), Some(0)) {
+        Err(e) => {
+            let why = e.to_string();
+            assert!(
+                why.contains("transfer-circular") && why.contains("transfer-hard"),
+                "{why}"
+            );
+        }
+        Ok(_) => panic!("a checkpoint of another family was flown"),
+    }
+    assert!(!dir.join("mc-other").exists());
+
     // A config of another problem is refused on the same run folder.
     let other = ExperimentConfig::from_toml("scenario = \"rendezvous-circular\"").unwrap();
     assert!(matches!(
@@ -462,7 +478,7 @@ fn altered_checkpoints_are_refused() {
         })
         .collect();
     let nan = dir.join("nan.safetensors");
-    write_checked_safetensors(&poisoned, &nan).unwrap();
+    write_checked_safetensors(&poisoned, &Default::default(), &nan).unwrap();
     match fresh.load(&nan) {
         Err(CheckpointError::NonFinite(name)) => assert_eq!(name, "online.actor.l0.weight"),
         other => panic!("NaN weight not refused: {other:?}"),

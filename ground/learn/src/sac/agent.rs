@@ -1,6 +1,6 @@
 //! The SAC agent: actor, twin critics with Polyak-averaged targets, learned temperature.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use tch::nn::{self, VarStore};
@@ -59,6 +59,14 @@ use ground_core::actor_file::{tensors_checksum, verify_checksum, ActorFileError,
 /// Reads a file written by [`write_checked_safetensors`]: the tensors if the checksum matches
 /// and every float is finite.
 pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, CheckpointError> {
+    read_labelled_safetensors(path).map(|(tensors, _)| tensors)
+}
+
+/// Named tensors, as a checkpoint holds them.
+pub type NamedTensors = Vec<(String, Tensor)>;
+
+/// [`read_checked_safetensors`] with the file's labels (its metadata but the checksum).
+pub fn read_labelled_safetensors(path: &Path) -> Result<(NamedTensors, BTreeMap<String, String>), CheckpointError> {
     use safetensors::tensor::Dtype;
     let bytes = std::fs::read(path)
         .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))?;
@@ -66,6 +74,15 @@ pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, Ch
         ActorFileError::Corrupt(why) => CheckpointError::Corrupt(why),
         other => CheckpointError::Format(other.to_string()),
     })?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| CheckpointError::Format(format!("{}: {e:?}", path.display())))?;
+    let labels: BTreeMap<String, String> = header
+        .metadata()
+        .iter()
+        .flatten()
+        .filter(|(key, _)| key.as_str() != CHECKSUM_KEY)
+        .map(|(key, value)| (key.clone(), value.clone()))
+        .collect();
     let tensors = safetensors::SafeTensors::deserialize(&bytes)
         .map_err(|e| CheckpointError::Format(format!("{}: {e:?}", path.display())))?;
     let mut out = Vec::new();
@@ -86,12 +103,16 @@ pub fn read_checked_safetensors(path: &Path) -> Result<Vec<(String, Tensor)>, Ch
         let shape: Vec<i64> = view.shape().iter().map(|&d| d as i64).collect();
         out.push((name, Tensor::from_data_size(view.data(), &shape, kind)));
     }
-    Ok(out)
+    Ok((out, labels))
 }
 
-/// Writes CPU tensors as safetensors with their checksum in the metadata, atomically (PyTorch
-/// opens the file with `safetensors.torch.load_file` as any other).
-pub fn write_checked_safetensors(tensors: &[(String, Tensor)], path: &Path) -> Result<(), CheckpointError> {
+/// Writes CPU tensors as safetensors with their checksum and `labels` in the metadata,
+/// atomically (PyTorch opens the file with `safetensors.torch.load_file` as any other).
+pub fn write_checked_safetensors(
+    tensors: &[(String, Tensor)],
+    labels: &BTreeMap<String, String>,
+    path: &Path,
+) -> Result<(), CheckpointError> {
     use safetensors::tensor::{Dtype, TensorView};
     // The file is built in memory and written once, atomically: a failed write (a full disk)
     // is an I/O error naming the file, and leaves neither a part nor a temporary behind.
@@ -124,7 +145,8 @@ pub fn write_checked_safetensors(tensors: &[(String, Tensor)], path: &Path) -> R
     let plain = safetensors::serialize(views, &None).map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
     let parsed =
         safetensors::SafeTensors::deserialize(&plain).map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
-    let metadata = HashMap::from([(CHECKSUM_KEY.to_string(), format!("{:08x}", tensors_checksum(&parsed)))]);
+    let mut metadata: HashMap<String, String> = labels.clone().into_iter().collect();
+    metadata.insert(CHECKSUM_KEY.to_string(), format!("{:08x}", tensors_checksum(&parsed)));
     let checked = safetensors::serialize(parsed.tensors(), &Some(metadata))
         .map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
     ground_core::io::atomic_write(path, &checked)
@@ -185,6 +207,10 @@ pub struct Sac {
     /// checkpoint holds, so a resumed phase repeats an uninterrupted one exactly (a generator
     /// state carried across a restart would need saving, and libtorch's is not exposed by tch).
     pub noise_seed: u64,
+    /// What the learner was made for, by name (the experiment's mission family, say): written
+    /// into every checkpoint's metadata, and a checkpoint whose label under one of these names
+    /// differs is refused by [`Sac::load`] with both values. Unlabelled files load as before.
+    pub labels: BTreeMap<String, String>,
 }
 
 /// A Polyak-averaged copy of the actor: its own store (names `actor.*`, as the online one) and
@@ -398,6 +424,7 @@ impl Sac {
             average,
             updates: 0,
             noise_seed: 0,
+            labels: BTreeMap::new(),
         }
     }
 
@@ -662,13 +689,22 @@ impl Sac {
     /// `safetensors.torch.load_file`; the actor is under `online.actor.*`, and the averaged actor
     /// that is flown when `actor_averaging` is on under `average.actor.*`), atomically.
     pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
-        write_checked_safetensors(&self.named_state(), path)
+        write_checked_safetensors(&self.named_state(), &self.labels, path)
     }
 
     /// Restores a state written by [`Sac::save`]; the checksum must match, every value be
     /// finite and every tensor be present with its shape.
     pub fn load(&mut self, path: &Path) -> Result<(), CheckpointError> {
-        let tensors: HashMap<String, Tensor> = read_checked_safetensors(path)?.into_iter().collect();
+        let (tensors, labels) = read_labelled_safetensors(path)?;
+        for (name, theirs) in &labels {
+            if let Some(ours) = self.labels.get(name).filter(|ours| *ours != theirs) {
+                return Err(CheckpointError::Mismatch(format!(
+                    "{}: the checkpoint's {name} is {theirs}, this learner's {ours}",
+                    path.display()
+                )));
+            }
+        }
+        let tensors: HashMap<String, Tensor> = tensors.into_iter().collect();
         let get = |name: &str| tensors.get(name).map(|t| t.to_device(self.device));
         // Check everything before touching anything, so a mismatch leaves the agent intact.
         if self.average.is_none() && tensors.keys().any(|n| n.starts_with("average.")) {
@@ -790,7 +826,7 @@ impl Sac {
         let store = self.average.as_ref().map_or(&self.actor_store, |a| &a.store);
         let mut vars: Vec<(String, Tensor)> = store.variables().into_iter().collect();
         vars.sort_by(|a, b| a.0.cmp(&b.0));
-        write_checked_safetensors(&vars, path)
+        write_checked_safetensors(&vars, &BTreeMap::new(), path)
     }
 
     /// Loads an actor file of [`Sac::save_flown_actor`] into the flown actor (for evaluation:
@@ -1179,7 +1215,7 @@ mod tests {
             })
             .collect();
         let flattened_file = dir.join("flattened.safetensors");
-        write_checked_safetensors(&flattened, &flattened_file).unwrap();
+        write_checked_safetensors(&flattened, &BTreeMap::new(), &flattened_file).unwrap();
         assert!(wide.start_from_actor(&flattened_file).is_err(), "another rank");
         assert_eq!(wide.start_from_actor(&narrow_file).unwrap(), vec![8, 6]);
         std::fs::remove_dir_all(&dir).unwrap();
@@ -1437,6 +1473,27 @@ mod tests {
             Device::Cpu,
         );
         assert!(matches!(wider.load(&path), Err(CheckpointError::Mismatch(_))));
+        // Labels: a labelled checkpoint loads into a learner of the same label or none, and is
+        // refused, both values named, by a learner labelled otherwise; the tensors stay.
+        let labelled = dir.join("labelled.safetensors");
+        sac.labels = BTreeMap::from([("family".to_string(), "venus".to_string())]);
+        sac.save(&labelled).unwrap();
+        let (_, labels) = read_labelled_safetensors(&labelled).unwrap();
+        assert_eq!(labels, sac.labels);
+        other.labels = sac.labels.clone();
+        other.load(&labelled).unwrap();
+        other.labels = BTreeMap::from([("family".to_string(), "mars".to_string())]);
+        let before = other.act(&obs, 3);
+        match other.load(&labelled) {
+            Err(CheckpointError::Mismatch(why)) => {
+                assert!(why.contains("venus") && why.contains("mars"), "{why}")
+            }
+            result => panic!("{result:?}"),
+        }
+        assert_eq!(other.act(&obs, 3), before);
+        other.labels.clear();
+        other.load(&labelled).unwrap();
+        std::fs::remove_file(&labelled).unwrap();
         let mut bytes = std::fs::read(&path).unwrap();
         bytes.truncate(bytes.len() / 2);
         let broken = dir.join("broken.safetensors");
