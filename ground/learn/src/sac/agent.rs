@@ -149,8 +149,47 @@ pub fn write_checked_safetensors(
     metadata.insert(CHECKSUM_KEY.to_string(), format!("{:08x}", tensors_checksum(&parsed)));
     let checked = safetensors::serialize(parsed.tensors(), &Some(metadata))
         .map_err(|e| CheckpointError::Format(format!("{e:?}")))?;
+    // With labels the metadata has several keys, which safetensors writes in a hash map's
+    // random order: the header is written again with sorted keys, so the same state is the same
+    // bytes (a resumed run's files equal an uninterrupted one's). Without, the bytes are as ever.
+    let checked = if labels.is_empty() {
+        checked
+    } else {
+        sorted_header(&checked)?
+    };
     ground_core::io::atomic_write(path, &checked)
         .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))
+}
+
+/// A safetensors file with its JSON header's keys sorted (the metadata's too), padded to 8
+/// bytes with spaces as safetensors pads it; the data after it unchanged.
+fn sorted_header(bytes: &[u8]) -> Result<Vec<u8>, CheckpointError> {
+    let bad = |why: &str| CheckpointError::Format(format!("safetensors header: {why}"));
+    let len_bytes: [u8; 8] = bytes
+        .get(..8)
+        .and_then(|b| b.try_into().ok())
+        .ok_or_else(|| bad("too short"))?;
+    let len = usize::try_from(u64::from_le_bytes(len_bytes)).map_err(|_| bad("length"))?;
+    let header = bytes.get(8..8 + len).ok_or_else(|| bad("truncated"))?;
+    let entries: BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(header).map_err(|e| bad(&e.to_string()))?;
+    let mut sorted: BTreeMap<String, serde_json::Value> = BTreeMap::new();
+    for (key, value) in entries {
+        let value = if key == "__metadata__" {
+            let metadata: BTreeMap<String, String> = serde_json::from_value(value).map_err(|e| bad(&e.to_string()))?;
+            serde_json::to_value(metadata).map_err(|e| bad(&e.to_string()))?
+        } else {
+            value
+        };
+        sorted.insert(key, value);
+    }
+    let mut text = serde_json::to_vec(&sorted).map_err(|e| bad(&e.to_string()))?;
+    text.resize(text.len().div_ceil(8) * 8, b' ');
+    let mut out = Vec::with_capacity(8 + text.len() + bytes.len() - 8 - len);
+    out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&bytes[8 + len..]);
+    Ok(out)
 }
 
 /// Streams of the torch generator, one per use, so each draw is a function of the seed and a
@@ -1480,6 +1519,19 @@ mod tests {
         sac.save(&labelled).unwrap();
         let (_, labels) = read_labelled_safetensors(&labelled).unwrap();
         assert_eq!(labels, sac.labels);
+        // The same labelled state is the same bytes, however many labels (a hash map's order
+        // would differ from one write to the next).
+        let mut many = sac.labels.clone();
+        many.extend((0..6).map(|k| (format!("label{k}"), format!("value{k}"))));
+        let (first, second) = (dir.join("first.safetensors"), dir.join("second.safetensors"));
+        for path in [&first, &second] {
+            write_checked_safetensors(&sac.named_state(), &many, path).unwrap();
+        }
+        assert_eq!(std::fs::read(&first).unwrap(), std::fs::read(&second).unwrap());
+        assert_eq!(read_labelled_safetensors(&first).unwrap().1, many);
+        for path in [&first, &second] {
+            std::fs::remove_file(path).unwrap();
+        }
         other.labels = sac.labels.clone();
         other.load(&labelled).unwrap();
         other.labels = BTreeMap::from([("family".to_string(), "mars".to_string())]);
