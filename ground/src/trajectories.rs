@@ -162,7 +162,7 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
             println!("{line}");
         }
         println!(
-            "a dataset of {} draws: about {projected_min:.1} min on {threads} threads",
+            "a dataset of {} draws: about {projected_min:.1} min on {threads} threads (a whole recipe, stage by stage: ground run --config RECIPE --plan)",
             args.dataset_count
         );
     }
