@@ -415,6 +415,7 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
     let mut info = lt_policy_info {
         problem: 99,
         quantization: 99,
+        ..Default::default()
     };
     // SAFETY: both pointers are valid references.
     let code = unsafe { lt_policy_describe(policy, &mut info) };
@@ -753,6 +754,7 @@ fn check_blob(rng: &mut Rng, input: &Input, seeds: &[Seed], tally: &mut Tally) -
                 let mut info = lt_policy_info {
                     problem: 0,
                     quantization: 0,
+                    ..Default::default()
                 };
                 // SAFETY: both pointers are valid references.
                 let described = unsafe { lt_policy_describe(&policy, &mut info) };

@@ -266,12 +266,24 @@ typedef struct lt_terminal_report {
   double planned_miss;
 } lt_terminal_report;
 
-// What a loaded policy flies.
+// What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
+// blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
 typedef struct lt_policy_info {
   // `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS`.
   uint32_t problem;
   // `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
   uint32_t quantization;
+  // The guidance cycle the network was trained for (t*), for `lt_lookahead_settings.cycle` and
+  // `lt_terminal_settings.cycle`; 0 when its family cuts each flight into a count of cycles
+  // (the flight software knows the length).
+  double cycle;
+  // The canonical length unit of its features and states, m.
+  double length_unit_m;
+  // The canonical time unit, s.
+  double time_unit_s;
+  // The mission family's fingerprint (0: a format-3 blob, any family of the thesis's units and
+  // cycle).
+  uint32_t family;
 } lt_policy_info;
 
 #ifdef __cplusplus
@@ -425,7 +437,8 @@ lt_status lt_rendezvous_terminal_step(const struct lt_policy *policy,
                                       struct lt_thrust_command *command,
                                       struct lt_terminal_report *report);
 
-// Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
+// Writes what a loaded policy flies (problem, quantization) and the mission its blob carries
+// (guidance cycle, units, family) to `*info`: for telemetry, and for the aids' settings.
 // Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.
 //
 // # Safety

@@ -144,14 +144,26 @@ pub struct lt_version_info {
     pub blob_format_version: u16,
 }
 
-/// What a loaded policy flies.
+/// What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
+/// blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct lt_policy_info {
     /// `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS`.
     pub problem: u32,
     /// `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
     pub quantization: u32,
+    /// The guidance cycle the network was trained for (t*), for `lt_lookahead_settings.cycle` and
+    /// `lt_terminal_settings.cycle`; 0 when its family cuts each flight into a count of cycles
+    /// (the flight software knows the length).
+    pub cycle: f64,
+    /// The canonical length unit of its features and states, m.
+    pub length_unit_m: f64,
+    /// The canonical time unit, s.
+    pub time_unit_s: f64,
+    /// The mission family's fingerprint (0: a format-3 blob, any family of the thesis's units and
+    /// cycle).
+    pub family: u32,
 }
 
 /// The navigation state: position (AU), velocity (AU/t*), mass (m0 = 1), in the ecliptic plane.
@@ -976,7 +988,8 @@ pub unsafe extern "C" fn lt_rendezvous_terminal_step(
     }
 }
 
-/// Writes what a loaded policy flies (problem, quantization) to `*info`, for telemetry.
+/// Writes what a loaded policy flies (problem, quantization) and the mission its blob carries
+/// (guidance cycle, units, family) to `*info`: for telemetry, and for the aids' settings.
 /// Returns `LT_OK`, `LT_ERR_NOT_LOADED`, `LT_ERR_NULL_POINTER` or `LT_ERR_MISALIGNED_POLICY`.
 ///
 /// # Safety
@@ -995,15 +1008,17 @@ pub unsafe extern "C" fn lt_policy_describe(policy: *const lt_policy, info: *mut
         Quantization::F32 => LT_QUANTIZATION_F32,
         Quantization::Int8 => LT_QUANTIZATION_INT8,
     };
-    let described = match network {
-        Network::Transfer(p) => lt_policy_info {
-            problem: LT_PROBLEM_TRANSFER,
-            quantization: quantization(p.quantization()),
-        },
-        Network::Rendezvous(p) => lt_policy_info {
-            problem: LT_PROBLEM_RENDEZVOUS,
-            quantization: quantization(p.quantization()),
-        },
+    let (problem, q, mission) = match network {
+        Network::Transfer(p) => (LT_PROBLEM_TRANSFER, p.quantization(), p.mission()),
+        Network::Rendezvous(p) => (LT_PROBLEM_RENDEZVOUS, p.quantization(), p.mission()),
+    };
+    let described = lt_policy_info {
+        problem,
+        quantization: quantization(q),
+        cycle: mission.cycle,
+        length_unit_m: mission.length_unit_m,
+        time_unit_s: mission.time_unit_s,
+        family: mission.family,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
     unsafe { ptr::write_unaligned(info, described) };

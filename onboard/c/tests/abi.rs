@@ -265,13 +265,43 @@ fn describe_says_what_the_policy_flies() {
         let mut info = lt_policy_info {
             problem: 99,
             quantization: 99,
+            ..Default::default()
         };
         assert_eq!(unsafe { lt_policy_describe(&policy, &mut info) }, LT_OK);
-        assert_eq!(info, lt_policy_info { problem, quantization });
+        // Written for the thesis's mission: 14-day cycles, AU, the Sun's time unit.
+        let thesis = blob::BlobMission::THESIS;
+        let expected = lt_policy_info {
+            problem,
+            quantization,
+            cycle: thesis.cycle,
+            length_unit_m: thesis.length_unit_m,
+            time_unit_s: thesis.time_unit_s,
+            family: 0,
+        };
+        assert_eq!(info, expected);
     }
+    // Another mission's blob tells flight software its cycle, units and family.
+    let weekly = blob::BlobMission {
+        cycle: 7.0 * 86_400.0 / 806.811,
+        length_unit_m: 6_378_137.0,
+        time_unit_s: 806.811,
+        family: 0x85d4_97c4,
+    };
+    let bytes = network(ProblemKind::Transfer, &TRANSFER, 1)
+        .f32_blob_for("abi test mission", weekly)
+        .unwrap();
+    let (status, policy) = load_transfer(&bytes);
+    assert_eq!(status, LT_OK);
+    let mut info = lt_policy_info::default();
+    assert_eq!(unsafe { lt_policy_describe(&policy, &mut info) }, LT_OK);
+    assert_eq!(
+        (info.cycle, info.length_unit_m, info.time_unit_s, info.family),
+        (weekly.cycle, weekly.length_unit_m, weekly.time_unit_s, weekly.family)
+    );
     let mut info = lt_policy_info {
         problem: 99,
         quantization: 99,
+        ..Default::default()
     };
     assert_eq!(
         unsafe { lt_policy_describe(&lt_policy::default(), &mut info) },

@@ -54,7 +54,9 @@
 
 use core::fmt;
 
-use shared::blob::{self, Activation, BlobError, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization};
+use shared::blob::{
+    self, Activation, BlobError, BlobMission, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization,
+};
 
 mod f32;
 mod int8;
@@ -314,6 +316,7 @@ pub enum MlpLayers<'a, const IN: usize, const H1: usize, const H2: usize, const 
 pub struct Mlp<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> {
     kind: ProblemKind,
     features: FeatureLayout,
+    mission: BlobMission,
     layers: MlpLayers<'a, IN, H1, H2, OUT>,
 }
 
@@ -382,8 +385,14 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
         Ok(Self {
             kind: net.kind,
             features: net.features,
+            mission: net.mission,
             layers,
         })
+    }
+
+    /// The mission the blob carries: its guidance cycle, canonical units and family.
+    pub fn mission(&self) -> BlobMission {
+        self.mission
     }
 
     /// The problem this policy flies.
