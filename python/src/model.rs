@@ -131,6 +131,19 @@ impl Policy {
     fn blob<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
         PyBytes::new(py, self.blob.bytes())
     }
+
+    /// The mission the blob carries, as flight software reads it: `cycle` (t*; 0 for a count
+    /// of cycles), `length_unit_m`, `time_unit_s`, `family` (the fingerprint; 0 for a format-3
+    /// blob, read as the thesis's).
+    #[getter]
+    fn mission<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        d.set_item("cycle", self.mission.cycle)?;
+        d.set_item("length_unit_m", self.mission.length_unit_m)?;
+        d.set_item("time_unit_s", self.mission.time_unit_s)?;
+        d.set_item("family", self.mission.family)?;
+        Ok(d)
+    }
 }
 
 /// Opens the model folder `dir` (`models/NAME`): its card.json is read, every file it lists

@@ -95,10 +95,15 @@ def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
 
 
 def test_a_blob_of_another_family_is_refused_with_both_named():
-    """The blob carries its mission: venus-inward's flies its own family and is refused, with
-    both families named, for transfer-circular (same problem, other cycle)."""
+    """The blob carries its mission (7-day cycles, its family's fingerprint): venus-inward's flies
+    its own family and is refused, with both families named, for transfer-circular (same problem,
+    other cycle)."""
     model = lowthrust.open_model(MODELS / "venus-inward")
-    with pytest.raises(lowthrust.LowThrustError, match="custom-.*transfer-circular"):
+    # Its mission: 7-day cycles in the Sun's units, its family's fingerprint as in its label.
+    mission = model["f32"].mission
+    assert mission["cycle"] * mission["time_unit_s"] == pytest.approx(7 * 86400, rel=1e-12)
+    assert mission["length_unit_m"] == 149597870700.0
+    with pytest.raises(lowthrust.LowThrustError, match=f"custom-{mission['family']:08x}.*transfer-circular"):
         lowthrust.fly_sil(model["f32"], "transfer-circular", 0, 1, dispersed=False)
     flown = lowthrust.fly_sil(model["f32"], model["scenario"], 0, 2, dispersed=False, env_config=model["env_config"])
     assert flown["completed"].all()
