@@ -419,11 +419,16 @@ fn holds_only_the_lock(dir: &Path) -> bool {
     })
 }
 
-fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
-    let config = match config {
+/// `ground run`'s config: the file given, or the embedded main job.
+fn run_config(config: Option<&Path>) -> Result<ExperimentConfig, Box<dyn std::error::Error>> {
+    Ok(match config {
         Some(path) => ExperimentConfig::load(path)?,
         None => ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?,
-    };
+    })
+}
+
+fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
+    let config = run_config(config)?;
     tch::set_num_threads(config.compute.threads);
     let job = in_run_folder(out, || Ok(learn::pipeline::run_main_job(&config, out)?))?;
     print!("{}", learn::eval::describe(&job.monte_carlo));
@@ -436,10 +441,7 @@ fn main_job(config: Option<&Path>, out: &Path) -> CommandResult {
 }
 
 fn plan_command(config: Option<&Path>, sample: u64, json: bool) -> CommandResult {
-    let config = match config {
-        Some(path) => ExperimentConfig::load(path)?,
-        None => ExperimentConfig::from_toml(EMBEDDED_DEFAULT)?,
-    };
+    let config = run_config(config)?;
     tch::set_num_threads(config.compute.threads);
     let plan = learn::plan::plan_recipe(&config, sample)?;
     if json {

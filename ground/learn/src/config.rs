@@ -168,6 +168,18 @@ impl Default for GenerateConfig {
     }
 }
 
+impl GenerateConfig {
+    /// The indirect method's settings for this config's solves: the demonstrations, the
+    /// relabels and the plan's sample.
+    pub fn solve_options(&self) -> ground_core::solver::SolveOptions {
+        ground_core::solver::SolveOptions {
+            final_eps: self.final_eps,
+            arrival_margin_steps: self.arrival_margin,
+            ..ground_core::solver::SolveOptions::default()
+        }
+    }
+}
+
 /// How the actor learns from demonstrations during pretraining.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]

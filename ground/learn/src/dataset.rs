@@ -9,7 +9,6 @@ use crate::error::ExperimentError;
 use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
 use ground_core::plot::plot_dataset_sample;
-use ground_core::solver::SolveOptions;
 
 /// Solves the config's `[generate]` draws into `dataset_dir` (finished records are skipped),
 /// repairs worse local optima found by the direct transcription when `generate.crosscheck` is
@@ -28,11 +27,7 @@ pub fn demonstrations(
         seed: config.generate.seed,
         count: config.generate.count,
     };
-    let options = SolveOptions {
-        final_eps: config.generate.final_eps,
-        arrival_margin_steps: config.generate.arrival_margin,
-        ..SolveOptions::default()
-    };
+    let options = config.generate.solve_options();
     let mut dataset = generate(manifest, Shard::WHOLE, dataset_dir, &spacecraft, &options, true)
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
     // Worse local optima re-solved onto the better one the direct transcription finds, before
@@ -74,11 +69,7 @@ mod tests {
         let (summary, _) = demonstrations(&config, &dir).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         let spacecraft = config.env.canonical_spacecraft().unwrap();
-        let options = SolveOptions {
-            final_eps: config.generate.final_eps,
-            arrival_margin_steps: config.generate.arrival_margin,
-            ..SolveOptions::default()
-        };
+        let options = config.generate.solve_options();
         let masses: Vec<f64> = (0..2)
             .map(|index| {
                 let scenario = config.family.draw(3, index);

@@ -14,7 +14,6 @@ use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
 use ground_core::env::{Environment, MdpEnv, Problem};
 use ground_core::mission::{check_family, FamilyCheck};
-use ground_core::solver::SolveOptions;
 use ground_core::with_problem;
 
 /// Episodes flown to time one (lockstep, as the evaluations fly them).
@@ -90,11 +89,7 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
         .env
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
-    let options = SolveOptions {
-        final_eps: config.generate.final_eps,
-        arrival_margin_steps: config.generate.arrival_margin,
-        ..SolveOptions::default()
-    };
+    let options = config.generate.solve_options();
     let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
     let costs = with_problem!(config.family.problem, P => measure::<P>(config, &check))?;
     Ok(project(config, check, costs))
@@ -106,10 +101,12 @@ where
 {
     let obs = obs_dim(P::KIND);
     let device = config.device()?;
-    let agent = new_agent(config, false, obs, device);
+    // RL's learner flies the timed episodes (untrained: an episode costs what a trained one
+    // does), then is timed updating.
+    let mut learner = new_agent(config, false, obs, device);
     let start = Instant::now();
     evaluate_agent::<MdpEnv<P>>(
-        &agent,
+        &learner,
         &config.env,
         config.family,
         config.seeds.train,
@@ -122,7 +119,6 @@ where
     // demonstrations when it keeps its cloning term.
     let mut pretraining = new_agent(config, true, obs, device);
     let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, 3, 1, TIMED_UPDATES);
-    let mut learner = new_agent(config, false, obs, device);
     let demonstration_every = if config.train.keep_behaviour_cloning { 2 } else { 0 };
     let update_s = seconds_per_update_of(&mut learner, obs, 3, demonstration_every, TIMED_UPDATES);
     Ok(UnitCosts {
@@ -178,11 +174,11 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
         ),
     );
     let dagger = &config.dagger;
+    let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
+    let relabels = dagger.episodes * dagger.fractions.len() as u64;
     let round_seconds = if dagger.rounds == 0 {
         0.0
     } else {
-        let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
-        let relabels = dagger.episodes * dagger.fractions.len() as u64;
         // A relabel solves from a flown state with the rest of the flight to go: counted as that
         // share of a draw's solve (its warm start makes it cheaper still: an upper bound).
         let left = if dagger.fractions.is_empty() {
@@ -196,11 +192,8 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
         "relabelling",
         round_seconds * dagger.rounds as f64,
         format!(
-            "{} rounds at most, each {} updates, {} relabels, {} episodes flown",
-            dagger.rounds,
-            dagger.updates,
-            dagger.episodes * dagger.fractions.len() as u64,
-            dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes
+            "{} rounds at most, each {} updates, {relabels} relabels, {flown} episodes flown",
+            dagger.rounds, dagger.updates
         ),
     );
     let evaluate = &config.evaluate;

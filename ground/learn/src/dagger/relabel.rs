@@ -21,7 +21,6 @@ use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::evaluate_batched;
 use ground_core::env::{MdpEnv, Problem};
 use ground_core::io::{decode_container, encode_container};
-use ground_core::solver::SolveOptions;
 use onboard::dynamics::SpacecraftState;
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
@@ -72,11 +71,7 @@ pub(crate) fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: 
     let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
     // to 10.9 % within the goal (docs/results.md).
-    let options = SolveOptions {
-        final_eps: config.generate.final_eps,
-        arrival_margin_steps: config.generate.arrival_margin,
-        ..SolveOptions::default()
-    };
+    let options = config.generate.solve_options();
     let [x, y, vx, vy, m] = job.state;
     let state = SpacecraftState {
         r: [x, y],
