@@ -9,11 +9,9 @@ use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
-use shared::mission::Units;
+use shared::mission::{Units, DAY_S};
 use shared::units::{AU_M, VELOCITY_UNIT_M_S};
 
-/// One day, s.
-const DAY_S: f64 = 86_400.0;
 /// One Julian year, days.
 const YEAR_DAYS: f64 = 365.25;
 
