@@ -16,6 +16,7 @@ use clap::{Parser, Subcommand};
 
 #[cfg(feature = "learn")]
 mod learning;
+mod spatial;
 mod trajectories;
 
 use trajectories::{GenerateArgs, SolveArgs};
@@ -102,6 +103,16 @@ enum DataCommand {
     /// projected dataset time on this machine, and whether the tank lasts the flight. Exit
     /// status 1 when no draw was solved.
     CheckMission(trajectories::CheckMissionArgs),
+    /// Solve one mass-optimal rendezvous in three dimensions from a problem file (departure
+    /// and arrival states, time of flight, spacecraft): the indirect method of `solve` with
+    /// out-of-plane components; optionally writes optimum.json and trajectory.csv.
+    #[command(name = "solve-3d")]
+    Solve3d(spatial::Solve3dArgs),
+    /// Solve draws of a planar rendezvous family with the planar and the three-dimensional
+    /// solver and compare their optima (final mass within --tolerance, relative): exit status
+    /// 1 when they differ or the three-dimensional one misses a draw the planar one solves.
+    #[command(name = "check-3d")]
+    Check3d(spatial::Check3dArgs),
     /// Classify the unconverged records (transfer or rendezvous) of a finished dataset run by
     /// their minimum time of flight (infeasible, feasible, or unknown) and rewrite the records,
     /// the dataset and the summaries, which then count the infeasible draws apart (about 10 s to
@@ -130,6 +141,8 @@ fn run_data(command: DataCommand) -> Result<(), Box<dyn std::error::Error>> {
         DataCommand::Feasibility { out } => trajectories::feasibility_command(&out),
         DataCommand::Crosscheck(args) => trajectories::crosscheck_command(&args),
         DataCommand::CheckMission(args) => trajectories::check_mission_command(&args),
+        DataCommand::Solve3d(args) => spatial::solve_3d_command(&args),
+        DataCommand::Check3d(args) => spatial::check_3d_command(&args),
     }
 }
 

@@ -82,3 +82,4 @@ pub mod onnx;
 pub mod plot;
 pub mod progress;
 pub mod solver;
+pub mod spatial;

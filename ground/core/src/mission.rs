@@ -226,22 +226,29 @@ pub fn read_mission_file(path: &Path) -> Result<FamilyTable, MissionError> {
     toml::from_str(&text).map_err(|e| file_error(e.to_string()))
 }
 
-impl FamilyTable {
-    fn family(&self) -> Result<MissionFamily, MissionError> {
-        let body = match &self.body {
-            BodySpec::Preset(name) => CentralBody::PRESETS
+impl BodySpec {
+    /// The body: a preset by its name, or the figures as given.
+    pub fn body(&self) -> Result<CentralBody, MissionError> {
+        match self {
+            Self::Preset(name) => CentralBody::PRESETS
                 .iter()
                 .find(|(preset, _)| preset == name)
                 .map(|(_, body)| *body)
-                .ok_or_else(|| MissionError::UnknownBody(name.clone()))?,
-            BodySpec::Figures {
+                .ok_or_else(|| MissionError::UnknownBody(name.clone())),
+            Self::Figures {
                 mu_m3_s2,
                 length_unit_m,
-            } => CentralBody {
+            } => Ok(CentralBody {
                 mu_m3_s2: *mu_m3_s2,
                 length_unit_m: *length_unit_m,
-            },
-        };
+            }),
+        }
+    }
+}
+
+impl FamilyTable {
+    fn family(&self) -> Result<MissionFamily, MissionError> {
+        let body = self.body.body()?;
         let orbit = |spec: &OrbitSpec| OrbitRanges {
             a: spec.a.range(),
             e: spec.e.range(),

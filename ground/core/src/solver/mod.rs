@@ -11,6 +11,7 @@ pub mod multiple;
 pub mod pontryagin;
 pub mod record;
 pub mod shooting;
+pub mod spatial;
 
 use std::time::Instant;
 
@@ -584,6 +585,27 @@ fn solve_problem<P: ShootingProblem<K>, const K: usize>(
 where
     Const<K>: DimMin<Const<K>, Output = Const<K>>,
 {
+    let homotopy_work = match scenario.problem {
+        ProblemKind::Transfer => options.max_transfer_homotopy_work,
+        ProblemKind::Rendezvous => options.max_homotopy_work,
+    };
+    let mass = |z: &SVector<f64, K>, eps: f64| final_mass(scenario, spacecraft, z, eps, &options.tolerances);
+    solve_multistart(problem, guesses, options, homotopy_work, &mass)
+}
+
+/// The multi-start and homotopy of [`solve_problem`] for any shooting problem: `final_mass`
+/// gives the final mass of the trajectory of unknowns z at eps, and each start's homotopy may
+/// spend `homotopy_work` (see [`pontryagin::work_done`]).
+fn solve_multistart<P: ShootingProblem<K>, const K: usize>(
+    problem: &P,
+    guesses: Vec<SVector<f64, K>>,
+    options: &SolveOptions,
+    homotopy_work: u64,
+    final_mass: &dyn Fn(&SVector<f64, K>, f64) -> Option<f64>,
+) -> Result<Solved<K>, (String, u32)>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
     let search_tolerances = options.search_tolerances;
     let search_newton = NewtonSettings {
         tolerance: options.search_newton_tolerance,
@@ -618,7 +640,7 @@ where
         );
         if let Ok(polished) = polished {
             if polished.converged && !starts.iter().any(|(z, _)| (z - polished.z).amax() < SAME_START) {
-                if let Some(m) = energy_final_mass(scenario, spacecraft, &polished.z, &options.tolerances) {
+                if let Some(m) = final_mass(&polished.z, 1.0) {
                     starts.push((polished.z, m));
                 }
             }
@@ -665,10 +687,6 @@ where
     let mut best: Option<(Solved<K>, f64)> = None;
     let mut last_error = String::from("homotopy failed at its first level");
     for (z_energy, _) in &starts {
-        let homotopy_work = match scenario.problem {
-            ProblemKind::Transfer => options.max_transfer_homotopy_work,
-            ProblemKind::Rendezvous => options.max_homotopy_work,
-        };
         let homotopy_problem = Budgeted::new(problem, homotopy_work);
         let levels = match homotopy(
             &homotopy_problem,
@@ -688,8 +706,7 @@ where
             continue;
         };
         let reached_final = levels.last().is_some_and(|l| l.outcome.converged) && level.eps < options.final_eps;
-        let mass =
-            final_mass(scenario, spacecraft, &level.outcome.z, level.eps, &options.tolerances).unwrap_or(f64::NAN);
+        let mass = final_mass(&level.outcome.z, level.eps).unwrap_or(f64::NAN);
         let solved = Solved {
             level,
             distinct,
@@ -739,16 +756,6 @@ fn final_mass<const K: usize>(
     };
     let yf = pontryagin::propagate(&params, 0.0, &y0, scenario.time_of_flight(), tolerances).ok()?;
     Some(yf[pontryagin::idx::M])
-}
-
-/// Final mass of the energy-optimal (eps = 1) trajectory of a converged start.
-fn energy_final_mass<const K: usize>(
-    scenario: &Scenario,
-    spacecraft: &CanonicalSpacecraft,
-    z: &SVector<f64, K>,
-    tolerances: &Tolerances,
-) -> Option<f64> {
-    final_mass(scenario, spacecraft, z, 1.0, tolerances)
 }
 
 /// Whether every draw of `family` is a near-circular transfer ([`circular::applies`]): then a

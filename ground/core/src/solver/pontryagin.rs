@@ -226,13 +226,38 @@ pub fn switching_rate(y: &[f64; Y_LEN], exhaust_speed: f64) -> f64 {
 /// on a fall from full thrust), or a crossing right after the entry would go unseen. Leaving the
 /// ramp, the slot's sign may flip; the next step then reports a rate event at its start, which
 /// keeps the branch.
-fn modal_events(y: &[f64; Y_LEN], p: &OptimalControlParams, regime: Regime) -> [f64; SWITCH_EVENTS] {
+fn modal_events<L: SwitchingLayout>(ys: &[f64], p: &OptimalControlParams, regime: Regime) -> [f64; SWITCH_EVENTS] {
     let c = p.spacecraft.exhaust_speed;
-    let rho = switching_function(y, c);
+    let rho = L::rho(ys, c);
     match regime {
         Regime::Ramp => [rho - p.eps, rho + p.eps],
-        Regime::Coast => [-switching_rate(y, c), rho + p.eps],
-        Regime::Full => [rho - p.eps, -switching_rate(y, c)],
+        Regime::Coast => [-L::rate(ys, c), rho + p.eps],
+        Regime::Full => [rho - p.eps, -L::rate(ys, c)],
+    }
+}
+
+/// Where a state-costate vector (alone or at the front of one with variational columns) keeps
+/// what the throttle law reads: the modal propagation below serves the planar system of this
+/// module and the spatial one of [`super::spatial`] through it.
+pub(crate) trait SwitchingLayout {
+    /// The switching function rho of the state-costate at the front of `ys`.
+    fn rho(ys: &[f64], exhaust_speed: f64) -> f64;
+    /// Its time derivative d rho / dt.
+    fn rate(ys: &[f64], exhaust_speed: f64) -> f64;
+}
+
+/// The planar state-costate of this module.
+pub(crate) struct Planar;
+
+impl SwitchingLayout for Planar {
+    fn rho(ys: &[f64], exhaust_speed: f64) -> f64 {
+        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+        switching_function(&y, exhaust_speed)
+    }
+
+    fn rate(ys: &[f64], exhaust_speed: f64) -> f64 {
+        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
+        switching_rate(&y, exhaust_speed)
     }
 }
 
@@ -296,8 +321,11 @@ impl OdeSystem<YS_LEN, SWITCH_EVENTS> for StateCostateSensitivity {
 }
 
 /// A right-hand side on one throttle branch: the state-costate, with or without variational
-/// columns, of N components whose first 10 are y.
-trait BranchRhs<const N: usize> {
+/// columns, of N components whose front is laid out as `Layout` says.
+pub(crate) trait BranchRhs<const N: usize> {
+    /// Where the switching function's inputs sit.
+    type Layout: SwitchingLayout;
+    /// dy/dt on branch `regime`.
     fn rhs(&self, ys: &[f64; N], regime: Regime, dydt: &mut [f64; N]);
 }
 
@@ -305,6 +333,8 @@ trait BranchRhs<const N: usize> {
 struct PlainRhs(OptimalControlParams);
 
 impl BranchRhs<Y_LEN> for PlainRhs {
+    type Layout = Planar;
+
     fn rhs(&self, y: &[f64; Y_LEN], regime: Regime, dydt: &mut [f64; Y_LEN]) {
         *dydt = state_costate_rhs_in(y, &self.0, regime);
     }
@@ -314,6 +344,8 @@ impl BranchRhs<Y_LEN> for PlainRhs {
 struct SensitivityRhs(OptimalControlParams);
 
 impl BranchRhs<YS_LEN> for SensitivityRhs {
+    type Layout = Planar;
+
     fn rhs(&self, ys: &[f64; YS_LEN], regime: Regime, dydt: &mut [f64; YS_LEN]) {
         sensitivity_rhs(ys, &self.0, regime, dydt);
     }
@@ -323,6 +355,8 @@ impl BranchRhs<YS_LEN> for SensitivityRhs {
 struct StmRhs(OptimalControlParams);
 
 impl BranchRhs<STM_LEN> for StmRhs {
+    type Layout = Planar;
+
     fn rhs(&self, ys: &[f64; STM_LEN], regime: Regime, dydt: &mut [f64; STM_LEN]) {
         stm_rhs(ys, &self.0, regime, dydt);
     }
@@ -348,8 +382,7 @@ impl<const N: usize, R: BranchRhs<N>> OdeSystem<N, SWITCH_EVENTS> for ModalSyste
     }
 
     fn events(&self, _t: f64, ys: &[f64; N]) -> [f64; SWITCH_EVENTS] {
-        let y: [f64; Y_LEN] = core::array::from_fn(|i| ys[i]);
-        modal_events(&y, &self.params, self.regime.get())
+        modal_events::<R::Layout>(ys, &self.params, self.regime.get())
     }
 }
 
@@ -366,6 +399,8 @@ impl<const N: usize, R: BranchRhs<N>> OdeSystem<N, SWITCH_EVENTS> for ModalSyste
 /// the first of them on the branch beyond the switch (see [`run_modal`]).
 struct RegimeSwitch<'a> {
     regime: &'a Cell<Regime>,
+    /// The layout's switching function ([`SwitchingLayout::rho`]).
+    rho: fn(&[f64], f64) -> f64,
     eps: f64,
     exhaust_speed: f64,
     /// Set by [`Observer::on_step`] at the first step that ended off the held branch.
@@ -414,8 +449,7 @@ impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
         } else {
             Regime::after_event(index, rising, self.eps)
         };
-        let state: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
-        let rho = switching_function(&state, self.exhaust_speed);
+        let rho = (self.rho)(y, self.exhaust_speed);
         let tol = EVENT_SIDE_TOLERANCE;
         let consistent = match next {
             Regime::Coast => rho <= -self.eps + tol,
@@ -449,8 +483,7 @@ impl<const N: usize> Observer<N> for RegimeSwitch<'_> {
         if self.broken.get().is_some() {
             return;
         }
-        let state: [f64; Y_LEN] = core::array::from_fn(|i| y[i]);
-        let rho = switching_function(&state, self.exhaust_speed);
+        let rho = (self.rho)(y, self.exhaust_speed);
 
         let tol = EVENT_SIDE_TOLERANCE;
         let consistent = match self.regime.get() {
@@ -508,11 +541,11 @@ pub fn propagate(
 }
 
 /// Something that watches a modal propagation besides its [`RegimeSwitch`].
-trait ModalWatch {
+pub(crate) trait ModalWatch {
     fn on_event(&mut self, _t: f64, _regime_before: Regime) {}
 }
 
-struct NoClock;
+pub(crate) struct NoClock;
 
 impl ModalWatch for NoClock {}
 
@@ -541,7 +574,7 @@ const MAX_RESTARTS: u32 = 32;
 /// stuck point, on the branch beyond the switch that rho sits on (by the sign of d rho / dt).
 /// Work is charged at `weight` per step.
 #[allow(clippy::too_many_arguments)]
-fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
+pub(crate) fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
     rhs: R,
     params: &OptimalControlParams,
     t0: f64,
@@ -552,8 +585,7 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
     watch: &mut W,
 ) -> Result<[f64; N], IntegrationError> {
     let c = params.spacecraft.exhaust_speed;
-    let y_of = |ys: &[f64]| -> [f64; Y_LEN] { core::array::from_fn(|i| ys[i]) };
-    let regime = Cell::new(Regime::of(switching_function(&y_of(ys0), c), params.eps));
+    let regime = Cell::new(Regime::of(R::Layout::rho(ys0, c), params.eps));
     let abort = Cell::new(false);
     let system = ModalSystem {
         rhs,
@@ -568,6 +600,7 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
         let mut observer = Watched {
             switch: RegimeSwitch {
                 regime: &regime,
+                rho: R::Layout::rho,
                 eps: params.eps,
                 exhaust_speed: c,
                 broken: Cell::new(None),
@@ -606,8 +639,7 @@ fn run_modal<const N: usize, R: BranchRhs<N>, W: ModalWatch>(
                 abort.set(false);
                 ys = core::array::from_fn(|i| state[i]);
                 t = ts;
-                let y = y_of(&ys);
-                let (rho, rate) = (switching_function(&y, c), switching_rate(&y, c));
+                let (rho, rate) = (R::Layout::rho(&ys, c), R::Layout::rate(&ys, c));
                 let eps = params.eps;
                 let near = |v: f64| (rho - v).abs() < 1e-12;
                 // Beyond the switch rho sits on; elsewhere (a rate event) the branch stays.

@@ -1,0 +1,671 @@
+//! The indirect method in three dimensions (docs/spec.md section 3.6): the state-costate of
+//! section 3.1 with out-of-plane components, its exact sensitivities, and the rendezvous that
+//! meets a given arrival state at a fixed time, solved by the multi-start and energy-to-fuel
+//! homotopy of the planar solver.
+//!
+//! State + costate y = (r, v, m, lambda_r, lambda_v, lambda_m), 14 components, r and v in an
+//! inertial frame of the central body. The right-hand side is the planar one's written for
+//! three components, generic over a dual-number type, so the variational equations come out
+//! exact by forward-mode differentiation of the same code. A planar problem embedded with zero
+//! out-of-plane components stays in its plane (every out-of-plane derivative is a product with
+//! an out-of-plane component), which [`lift_planar`] and the planar-equivalence tests use.
+
+use nalgebra::{Const, SMatrix, SVector};
+use num_dual::{Derivative, DualNum, DualVec64};
+use onboard::integrator::{IntegrationError, Tolerances};
+use shared::scenario::Scenario;
+use shared::spacecraft::CanonicalSpacecraft;
+
+use super::pontryagin::{
+    run_modal, BranchRhs, NoClock, OptimalControlParams, Regime, SwitchingLayout, SENSITIVITY_STEP_WORK,
+};
+use super::shooting::{body_at, RendezvousVector, ShootingProblem};
+use super::{solve_multistart, SolveOptions};
+
+/// State + costate length in three dimensions.
+pub const Y3_LEN: usize = 14;
+/// Unknowns of the spatial rendezvous: the seven initial costates.
+pub const SPATIAL_UNKNOWNS: usize = 7;
+/// State + costate + the 14 x 7 sensitivity to the initial costates (column-major after the
+/// first 14).
+pub const YS3_LEN: usize = Y3_LEN + Y3_LEN * SPATIAL_UNKNOWNS;
+/// The spatial rendezvous's unknowns: lambda_r, lambda_v (three components each) and lambda_m
+/// at t = 0, canonical.
+pub type SpatialVector = SVector<f64, SPATIAL_UNKNOWNS>;
+
+/// Indices into the spatial y.
+pub mod idx3 {
+    /// Position (x, y, z): `y[0..3]`.
+    pub const R: usize = 0;
+    /// Velocity: `y[3..6]`.
+    pub const V: usize = 3;
+    /// Mass, fraction of m0: `y[6]`.
+    pub const M: usize = 6;
+    /// Position costate: `y[7..10]`.
+    pub const LR: usize = 7;
+    /// Velocity costate: `y[10..13]`.
+    pub const LV: usize = 10;
+    /// Mass costate: `y[13]`.
+    pub const LM: usize = 13;
+}
+
+/// A position and velocity in three dimensions, canonical units of the central body.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpatialState {
+    /// Position.
+    pub r: [f64; 3],
+    /// Velocity.
+    pub v: [f64; 3],
+}
+
+impl SpatialState {
+    /// Whether every component is finite and the position is off the centre.
+    pub fn is_valid(&self) -> bool {
+        self.r.iter().chain(&self.v).all(|x| x.is_finite()) && norm(&self.r) > 0.0
+    }
+
+    /// Specific orbital energy |v|^2 / 2 - 1 / |r| (mu = 1).
+    pub fn energy(&self) -> f64 {
+        0.5 * dot(&self.v, &self.v) - 1.0 / norm(&self.r)
+    }
+}
+
+fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn norm(a: &[f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Switching function rho = lambda_m + c |lambda_v| / m - 1.
+pub fn switching_function3<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y3_LEN], exhaust_speed: f64) -> D {
+    let lv = (y[idx3::LV] * y[idx3::LV] + y[idx3::LV + 1] * y[idx3::LV + 1] + y[idx3::LV + 2] * y[idx3::LV + 2]).sqrt();
+    y[idx3::LM] + lv * exhaust_speed / y[idx3::M] - 1.0
+}
+
+/// d rho / dt = -(c / m) lambda_v . lambda_r / |lambda_v| (independent of the throttle).
+pub fn switching_rate3(y: &[f64; Y3_LEN], exhaust_speed: f64) -> f64 {
+    let lv: [f64; 3] = core::array::from_fn(|k| y[idx3::LV + k]);
+    let lr: [f64; 3] = core::array::from_fn(|k| y[idx3::LR + k]);
+    -exhaust_speed * dot(&lv, &lr) / (y[idx3::M] * norm(&lv))
+}
+
+/// dy/dt of the spatial state-costate system on one branch of the throttle law (see
+/// [`super::pontryagin::state_costate_rhs_in`] for why the branch is held).
+pub fn state_costate_rhs3_in<D: DualNum<Primitive = f64> + Copy>(
+    y: &[D; Y3_LEN],
+    p: &OptimalControlParams,
+    regime: Regime,
+) -> [D; Y3_LEN] {
+    let (t_max, c) = (p.spacecraft.thrust, p.spacecraft.exhaust_speed);
+    let r: [D; 3] = core::array::from_fn(|k| y[idx3::R + k]);
+    let lv: [D; 3] = core::array::from_fn(|k| y[idx3::LV + k]);
+    let m = y[idx3::M];
+    let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    let rn = r2.sqrt();
+    let r3 = r2 * rn;
+    let r5 = r3 * r2;
+    let lvn = (lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2]).sqrt();
+    let u = regime.throttle(switching_function3(y, c), p.eps);
+    // Primer vector: thrust opposite lambda_v.
+    let acc = u * t_max / m;
+    let r_dot_lv = r[0] * lv[0] + r[1] * lv[1] + r[2] * lv[2];
+    let mut f = [D::from(0.0); Y3_LEN];
+    for k in 0..3 {
+        f[idx3::R + k] = y[idx3::V + k];
+        f[idx3::V + k] = -r[k] / r3 - acc * lv[k] / lvn;
+        f[idx3::LR + k] = lv[k] / r3 - r[k] * r_dot_lv * 3.0 / r5;
+        f[idx3::LV + k] = -y[idx3::LR + k];
+    }
+    f[idx3::M] = -u * t_max / c;
+    f[idx3::LM] = -u * t_max * lvn / (m * m);
+    f
+}
+
+/// [`state_costate_rhs3_in`] on the branch the switching function selects.
+pub fn state_costate_rhs3<D: DualNum<Primitive = f64> + Copy>(
+    y: &[D; Y3_LEN],
+    p: &OptimalControlParams,
+) -> [D; Y3_LEN] {
+    let regime = Regime::of(switching_function3(y, p.spacecraft.exhaust_speed).re(), p.eps);
+    state_costate_rhs3_in(y, p, regime)
+}
+
+/// The Hamiltonian for an arbitrary control (u, alpha): the tests check the costate equations
+/// and the optimal control against it, independently of the code above.
+pub fn hamiltonian3(y: &[f64; Y3_LEN], u: f64, alpha: [f64; 3], p: &OptimalControlParams) -> f64 {
+    let (t_max, c) = (p.spacecraft.thrust, p.spacecraft.exhaust_speed);
+    let r: [f64; 3] = core::array::from_fn(|k| y[idx3::R + k]);
+    let rn = norm(&r);
+    let m = y[idx3::M];
+    let mut h = t_max / c * (u - p.eps * u * (1.0 - u)) - y[idx3::LM] * t_max * u / c;
+    for k in 0..3 {
+        let g = -r[k] / rn.powi(3);
+        h += y[idx3::LR + k] * y[idx3::V + k] + y[idx3::LV + k] * (g + t_max * u * alpha[k] / m);
+    }
+    h
+}
+
+/// The spatial state-costate's layout for the modal propagation.
+struct Spatial;
+
+impl SwitchingLayout for Spatial {
+    fn rho(ys: &[f64], exhaust_speed: f64) -> f64 {
+        let y: [f64; Y3_LEN] = core::array::from_fn(|i| ys[i]);
+        switching_function3(&y, exhaust_speed)
+    }
+
+    fn rate(ys: &[f64], exhaust_speed: f64) -> f64 {
+        let y: [f64; Y3_LEN] = core::array::from_fn(|i| ys[i]);
+        switching_rate3(&y, exhaust_speed)
+    }
+}
+
+struct PlainRhs3(OptimalControlParams);
+
+impl BranchRhs<Y3_LEN> for PlainRhs3 {
+    type Layout = Spatial;
+
+    fn rhs(&self, y: &[f64; Y3_LEN], regime: Regime, dydt: &mut [f64; Y3_LEN]) {
+        *dydt = state_costate_rhs3_in(y, &self.0, regime);
+    }
+}
+
+type Dual7 = DualVec64<Const<SPATIAL_UNKNOWNS>>;
+
+struct SensitivityRhs3(OptimalControlParams);
+
+impl BranchRhs<YS3_LEN> for SensitivityRhs3 {
+    type Layout = Spatial;
+
+    fn rhs(&self, ys: &[f64; YS3_LEN], regime: Regime, dydt: &mut [f64; YS3_LEN]) {
+        // Each component seeded with its row of the sensitivity matrix: the dual parts of f are
+        // J(y) * Phi, the variational equations' right-hand side.
+        let y: [Dual7; Y3_LEN] = core::array::from_fn(|i| {
+            let row = SVector::<f64, SPATIAL_UNKNOWNS>::from_fn(|k, _| ys[Y3_LEN + k * Y3_LEN + i]);
+            Dual7::new(ys[i], Derivative::some(row))
+        });
+        let f = state_costate_rhs3_in(&y, &self.0, regime);
+        for (i, fi) in f.iter().enumerate() {
+            dydt[i] = fi.re;
+            let d = fi.eps.unwrap_generic(Const::<SPATIAL_UNKNOWNS>, Const::<1>);
+            for k in 0..SPATIAL_UNKNOWNS {
+                dydt[Y3_LEN + k * Y3_LEN + i] = d[k];
+            }
+        }
+    }
+}
+
+/// Propagates the spatial state-costate system from (t0, y0) to t1, stepping onto every switch
+/// and holding the throttle branch in between, as the planar [`super::pontryagin::propagate`].
+pub fn propagate3(
+    params: &OptimalControlParams,
+    t0: f64,
+    y0: &[f64; Y3_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<[f64; Y3_LEN], IntegrationError> {
+    run_modal(PlainRhs3(*params), params, t0, y0, t1, tolerances, 1, &mut NoClock)
+}
+
+/// [`propagate3`] from t = 0 with the sensitivity d y / d lambda_0 (14 x 7, column k after the
+/// first 14 components at `14 + 14 k`).
+pub fn propagate_sensitivity3(
+    params: &OptimalControlParams,
+    y0: &[f64; Y3_LEN],
+    t1: f64,
+    tolerances: &Tolerances,
+) -> Result<[f64; YS3_LEN], IntegrationError> {
+    let mut ys0 = [0.0; YS3_LEN];
+    ys0[..Y3_LEN].copy_from_slice(y0);
+    for k in 0..SPATIAL_UNKNOWNS {
+        ys0[Y3_LEN + k * Y3_LEN + idx3::LR + k] = 1.0;
+    }
+    run_modal(
+        SensitivityRhs3(*params),
+        params,
+        0.0,
+        &ys0,
+        t1,
+        tolerances,
+        SENSITIVITY_STEP_WORK,
+        &mut NoClock,
+    )
+}
+
+/// A rendezvous in three dimensions: from `departure` (mass 1) to `arrival` at exactly
+/// `time_of_flight`, mass-optimal. Terminal conditions (7): r(tf), v(tf) equal the arrival
+/// state, lambda_m(tf) = 0; unknowns: the seven initial costates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpatialRendezvous {
+    /// State at t = 0.
+    pub departure: SpatialState,
+    /// State to meet at t = `time_of_flight`.
+    pub arrival: SpatialState,
+    /// Time of flight (t*).
+    pub time_of_flight: f64,
+    /// Thrust and exhaust speed, canonical.
+    pub spacecraft: CanonicalSpacecraft,
+}
+
+impl SpatialRendezvous {
+    /// The planar rendezvous `scenario` embedded in three dimensions (z = 0): the arrival is the
+    /// body's state at the end of the flight.
+    pub fn from_planar(scenario: &Scenario, spacecraft: CanonicalSpacecraft) -> Result<Self, IntegrationError> {
+        let start = scenario.initial.cartesian();
+        let end = body_at(scenario, scenario.time_of_flight())?;
+        let embed = |r: [f64; 2], v: [f64; 2]| SpatialState {
+            r: [r[0], r[1], 0.0],
+            v: [v[0], v[1], 0.0],
+        };
+        Ok(Self {
+            departure: embed(start.r, start.v),
+            arrival: embed(end.r, end.v),
+            time_of_flight: scenario.time_of_flight(),
+            spacecraft,
+        })
+    }
+
+    /// The initial state-costate for initial costates `z`.
+    pub fn initial_state_costate(&self, z: &SpatialVector) -> [f64; Y3_LEN] {
+        let d = &self.departure;
+        [
+            d.r[0], d.r[1], d.r[2], d.v[0], d.v[1], d.v[2], 1.0, z[0], z[1], z[2], z[3], z[4], z[5], z[6],
+        ]
+    }
+
+    fn params(&self, eps: f64) -> OptimalControlParams {
+        OptimalControlParams {
+            spacecraft: self.spacecraft,
+            eps,
+        }
+    }
+
+    fn terminal(&self, y: &[f64]) -> SpatialVector {
+        let a = &self.arrival;
+        SpatialVector::from_column_slice(&[
+            y[idx3::R] - a.r[0],
+            y[idx3::R + 1] - a.r[1],
+            y[idx3::R + 2] - a.r[2],
+            y[idx3::V] - a.v[0],
+            y[idx3::V + 1] - a.v[1],
+            y[idx3::V + 2] - a.v[2],
+            y[idx3::LM],
+        ])
+    }
+
+    /// The final state-costate of the trajectory of costates `z` at homotopy parameter `eps`.
+    pub fn final_state_costate(
+        &self,
+        eps: f64,
+        z: &SpatialVector,
+        tolerances: &Tolerances,
+    ) -> Result<[f64; Y3_LEN], IntegrationError> {
+        propagate3(
+            &self.params(eps),
+            0.0,
+            &self.initial_state_costate(z),
+            self.time_of_flight,
+            tolerances,
+        )
+    }
+}
+
+impl ShootingProblem<SPATIAL_UNKNOWNS> for SpatialRendezvous {
+    fn residual_only(
+        &self,
+        eps: f64,
+        z: &SpatialVector,
+        tolerances: &Tolerances,
+    ) -> Result<SpatialVector, IntegrationError> {
+        Ok(self.terminal(&self.final_state_costate(eps, z, tolerances)?))
+    }
+
+    fn residual(
+        &self,
+        eps: f64,
+        z: &SpatialVector,
+        tolerances: &Tolerances,
+    ) -> Result<(SpatialVector, SMatrix<f64, SPATIAL_UNKNOWNS, SPATIAL_UNKNOWNS>), IntegrationError> {
+        let ys = propagate_sensitivity3(
+            &self.params(eps),
+            &self.initial_state_costate(z),
+            self.time_of_flight,
+            tolerances,
+        )?;
+        const ROWS: [usize; SPATIAL_UNKNOWNS] = [
+            idx3::R,
+            idx3::R + 1,
+            idx3::R + 2,
+            idx3::V,
+            idx3::V + 1,
+            idx3::V + 2,
+            idx3::LM,
+        ];
+        let jac = SMatrix::from_fn(|i, k| ys[Y3_LEN + k * Y3_LEN + ROWS[i]]);
+        Ok((self.terminal(&ys), jac))
+    }
+}
+
+/// Planar rendezvous unknowns (lambda_x, lambda_y, lambda_vx, lambda_vy, lambda_m) embedded in
+/// three dimensions with zero out-of-plane costates.
+pub fn lift_planar(z: &RendezvousVector) -> SpatialVector {
+    SpatialVector::from_column_slice(&[z[0], z[1], 0.0, z[2], z[3], 0.0, z[4]])
+}
+
+/// Physics-shaped energy-optimal guesses, the planar solver's rendezvous starts (docs/spec.md
+/// section 3.3) in the departure orbit's plane: lambda_r along -r_hat, lambda_v along -+theta_hat
+/// (the primer along the velocity for a raise, against it for a lowering, then the other sign),
+/// several magnitudes, out-of-plane costates zero.
+pub fn spatial_guesses(problem: &SpatialRendezvous) -> Vec<SpatialVector> {
+    let d = &problem.departure;
+    let rn = norm(&d.r);
+    let r_hat = d.r.map(|x| x / rn);
+    let h = cross(&d.r, &d.v);
+    let hn = norm(&h);
+    let h_hat = h.map(|x| x / hn);
+    let theta_hat = cross(&h_hat, &r_hat);
+    let semi_major = |s: &SpatialState| -0.5 / s.energy();
+    let raise = if semi_major(&problem.arrival) >= semi_major(d) {
+        1.0
+    } else {
+        -1.0
+    };
+    let mut guesses = Vec::new();
+    for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
+        for sign in [raise, -raise] {
+            guesses.push(SpatialVector::from_column_slice(&[
+                -k_r * r_hat[0],
+                -k_r * r_hat[1],
+                -k_r * r_hat[2],
+                -sign * k_v * theta_hat[0],
+                -sign * k_v * theta_hat[1],
+                -sign * k_v * theta_hat[2],
+                0.05,
+            ]));
+        }
+    }
+    guesses
+}
+
+/// A solved spatial rendezvous.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpatialSolution {
+    /// Initial costates (lambda_r, lambda_v, lambda_m).
+    pub costates: SpatialVector,
+    /// The homotopy level reached.
+    pub final_eps: f64,
+    /// Largest terminal residual of a fresh propagation at `final_eps` (canonical, max norm).
+    pub residual: f64,
+    /// Final mass, fraction of the initial mass.
+    pub final_mass: f64,
+    /// Distinct energy-optimal solutions found by the multi-start.
+    pub distinct_energy_optima: u32,
+}
+
+/// Why a spatial rendezvous was not solved.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SpatialSolveError {
+    /// A state is not finite or sits at the centre, or the time of flight is not positive.
+    #[error("invalid problem: {0}")]
+    Invalid(&'static str),
+    /// No start converged at eps = 1, or every homotopy failed.
+    #[error("{0}")]
+    NotSolved(String),
+    /// The homotopy stopped above the final level.
+    #[error("homotopy stalled below eps = {eps:.3e}{}", if *.budget_spent { " (work budget spent)" } else { "" })]
+    Stalled {
+        /// The last level reached.
+        eps: f64,
+        /// Whether the work budget ran out.
+        budget_spent: bool,
+    },
+}
+
+/// Solves a spatial rendezvous as the planar solver solves one (docs/spec.md sections 3.3, 3.6):
+/// the multi-start of `guesses` at eps = 1 ([`spatial_guesses`] when empty), every distinct
+/// energy optimum continued to the final level, the largest final mass kept; then a fresh
+/// propagation checks the terminal conditions.
+pub fn solve_spatial_rendezvous(
+    problem: &SpatialRendezvous,
+    guesses: Vec<SpatialVector>,
+    options: &SolveOptions,
+) -> Result<SpatialSolution, SpatialSolveError> {
+    if !(problem.departure.is_valid() && problem.arrival.is_valid()) {
+        return Err(SpatialSolveError::Invalid(
+            "a state is not finite or sits at the centre",
+        ));
+    }
+    if !(problem.time_of_flight.is_finite() && problem.time_of_flight > 0.0) {
+        return Err(SpatialSolveError::Invalid("the time of flight is not positive"));
+    }
+    let guesses = if guesses.is_empty() {
+        spatial_guesses(problem)
+    } else {
+        guesses
+    };
+    let mass = |z: &SpatialVector, eps: f64| {
+        problem
+            .final_state_costate(eps, z, &options.tolerances)
+            .ok()
+            .map(|y| y[idx3::M])
+    };
+    let mut solved = solve_multistart(problem, guesses, options, options.max_homotopy_work, &mass);
+    // No guess converged at eps = 1: the planar solver's own fallbacks on the problem flattened
+    // into the departure plane, then continuation of the arrival out of that plane.
+    if matches!(solved, Err((_, 0))) {
+        let flat = match start_from_flattened(problem, options) {
+            Ok(z) => match solve_multistart(problem, vec![z], options, options.max_homotopy_work, &mass) {
+                Err((from_flat, 0)) => Err(format!("; from the flattened problem's start: {from_flat}")),
+                other => Ok(other),
+            },
+            Err(flat_why) => Err(format!("; {flat_why}")),
+        };
+        match flat {
+            Ok(other) => solved = other,
+            Err(more) => {
+                if let Err((why, _)) = &mut solved {
+                    why.push_str(&more);
+                }
+            }
+        }
+    }
+    let solved = solved.map_err(|(why, _)| SpatialSolveError::NotSolved(why))?;
+    if !solved.reached_final {
+        return Err(SpatialSolveError::Stalled {
+            eps: solved.level.eps,
+            budget_spent: solved.budget_spent,
+        });
+    }
+    let z = solved.level.outcome.z;
+    let eps = solved.level.eps;
+    let yf = problem
+        .final_state_costate(eps, &z, &options.tolerances)
+        .map_err(|e| SpatialSolveError::NotSolved(format!("the solution's propagation failed: {e:?}")))?;
+    let residual = problem.terminal(&yf).amax();
+    if residual > options.newton.tolerance {
+        return Err(SpatialSolveError::NotSolved(format!(
+            "a fresh propagation misses the arrival by {residual:.3e}"
+        )));
+    }
+    Ok(SpatialSolution {
+        costates: z,
+        final_eps: eps,
+        residual,
+        final_mass: yf[idx3::M],
+        distinct_energy_optima: solved.distinct,
+    })
+}
+
+/// An orthonormal frame (rows e1, e2, e3) with e3 along the departure's angular momentum and e1
+/// along its position: the departure orbit's plane is the frame's xy-plane.
+fn departure_frame(departure: &SpatialState) -> Option<[[f64; 3]; 3]> {
+    let (rn, h) = (norm(&departure.r), cross(&departure.r, &departure.v));
+    let hn = norm(&h);
+    if !(rn > 0.0 && hn > 0.0 && hn.is_finite()) {
+        return None;
+    }
+    let e1 = departure.r.map(|x| x / rn);
+    let e3 = h.map(|x| x / hn);
+    let e2 = cross(&e3, &e1);
+    Some([e1, e2, e3])
+}
+
+fn to_frame(frame: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    core::array::from_fn(|i| dot(&frame[i], v))
+}
+
+fn from_frame(frame: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    core::array::from_fn(|k| frame[0][k] * v[0] + frame[1][k] * v[1] + frame[2][k] * v[2])
+}
+
+/// Guidance cycles the flattened problem is cut into: only the direct transcription's mesh
+/// ([`direct::indirect_start`](super::direct::indirect_start)) depends on them.
+const FLAT_CYCLES: u32 = 25;
+
+/// The problem flattened into the departure orbit's plane: the planar rendezvous whose arrival is
+/// the arrival state's in-plane part, as a scenario (elements, the body's anomaly at t = 0).
+fn flattened_scenario(problem: &SpatialRendezvous, frame: &[[f64; 3]; 3]) -> Option<Scenario> {
+    use shared::orbit::CartesianState;
+    use shared::scenario::ProblemKind;
+    let planar = |s: &SpatialState| {
+        let (r, v) = (to_frame(frame, &s.r), to_frame(frame, &s.v));
+        CartesianState {
+            r: [r[0], r[1]],
+            v: [v[0], v[1]],
+        }
+    };
+    let initial = planar(&problem.departure).elements()?;
+    let arrival = planar(&problem.arrival);
+    let target = arrival.elements()?.shape;
+    let at_departure = onboard::kepler::coast(&arrival, -problem.time_of_flight).ok()?;
+    let scenario = Scenario {
+        problem: ProblemKind::Rendezvous,
+        initial,
+        target,
+        target_nu0: at_departure.elements()?.nu,
+        steps: FLAT_CYCLES,
+        cycle: problem.time_of_flight / f64::from(FLAT_CYCLES),
+    };
+    scenario.validate().is_ok().then_some(scenario)
+}
+
+/// An energy-optimal (eps = 1) start from the planar solver's fallbacks (docs/spec.md section
+/// 3.3: continuation in the target from the departure orbit, then the direct transcription's
+/// multipliers) on the flattened problem, lifted into three dimensions, then carried to the real
+/// arrival by continuation in its out-of-plane components.
+fn start_from_flattened(problem: &SpatialRendezvous, options: &SolveOptions) -> Result<SpatialVector, String> {
+    let frame = departure_frame(&problem.departure).ok_or("the departure has no orbital plane")?;
+    let scenario = flattened_scenario(problem, &frame).ok_or("the flattened problem is not a bound rendezvous")?;
+    let planar = match super::continuation::rendezvous_start_either_way(&scenario, &problem.spacecraft, options) {
+        Ok(z) => z,
+        Err(_) => match super::direct::indirect_start(&scenario, &problem.spacecraft) {
+            Ok((l, _)) => RendezvousVector::from_column_slice(&l),
+            Err(e) => return Err(format!("the flattened problem has no start either: {e}")),
+        },
+    };
+    let lift = |v: [f64; 2]| from_frame(&frame, &[v[0], v[1], 0.0]);
+    let (lr, lv) = (lift([planar[0], planar[1]]), lift([planar[2], planar[3]]));
+    let z0 = SpatialVector::from_column_slice(&[lr[0], lr[1], lr[2], lv[0], lv[1], lv[2], planar[4]]);
+    let (r_in, v_in) = (
+        to_frame(&frame, &problem.arrival.r),
+        to_frame(&frame, &problem.arrival.v),
+    );
+    let at = |s: f64| SpatialRendezvous {
+        arrival: SpatialState {
+            r: from_frame(&frame, &[r_in[0], r_in[1], s * r_in[2]]),
+            v: from_frame(&frame, &[v_in[0], v_in[1], s * v_in[2]]),
+        },
+        ..*problem
+    };
+    let tolerances = options.start_tolerances();
+    let solve = |s: f64, guess: &SpatialVector| {
+        super::shooting::newton(&at(s), 1.0, guess, &tolerances, &options.start_newton)
+            .ok()
+            .filter(|o| o.converged)
+            .map(|o| o.z)
+    };
+    let mut z = solve(0.0, &z0).ok_or("the lifted planar start does not solve the flattened problem")?;
+    let (mut s, mut ds) = (0.0f64, 1.0f64);
+    while s < 1.0 {
+        let next = (s + ds).min(1.0);
+        match solve(next, &z) {
+            Some(found) => {
+                (s, z) = (next, found);
+                ds = (2.0 * ds).min(1.0);
+            }
+            None if ds > 1.0 / 256.0 => ds *= 0.5,
+            None => return Err(format!("continuation out of the departure plane stopped at s = {s:.3}")),
+        }
+    }
+    Ok(z)
+}
+
+/// The optimal control along a solution: throttle and unit thrust direction at state-costate y.
+pub fn optimal_control3(y: &[f64; Y3_LEN], params: &OptimalControlParams) -> (f64, [f64; 3]) {
+    let rho = switching_function3(y, params.spacecraft.exhaust_speed);
+    let u = Regime::of(rho, params.eps).throttle(rho, params.eps);
+    let lv: [f64; 3] = core::array::from_fn(|k| y[idx3::LV + k]);
+    let n = norm(&lv);
+    (u, lv.map(|x| -x / n))
+}
+
+/// One sample of a spatial solution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpatialSample {
+    /// Time since departure (t*).
+    pub t: f64,
+    /// State.
+    pub state: SpatialState,
+    /// Mass, fraction of m0.
+    pub m: f64,
+    /// Throttle in [0, 1].
+    pub throttle: f64,
+    /// Unit thrust direction (the primer vector).
+    pub direction: [f64; 3],
+}
+
+/// Samples the solution at `times`, each by a fresh propagation from t = 0 (no interpolation,
+/// as the planar records are sampled).
+pub fn sample_solution(
+    problem: &SpatialRendezvous,
+    solution: &SpatialSolution,
+    times: &[f64],
+    tolerances: &Tolerances,
+) -> Result<Vec<SpatialSample>, IntegrationError> {
+    let params = problem.params(solution.final_eps);
+    let y0 = problem.initial_state_costate(&solution.costates);
+    times
+        .iter()
+        .map(|&t| {
+            let y = if t > 0.0 {
+                propagate3(&params, 0.0, &y0, t, tolerances)?
+            } else {
+                y0
+            };
+            let (throttle, direction) = optimal_control3(&y, &params);
+            Ok(SpatialSample {
+                t,
+                state: SpatialState {
+                    r: core::array::from_fn(|k| y[idx3::R + k]),
+                    v: core::array::from_fn(|k| y[idx3::V + k]),
+                },
+                m: y[idx3::M],
+                throttle,
+                direction,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests;

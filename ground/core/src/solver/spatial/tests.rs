@@ -1,0 +1,266 @@
+use super::*;
+use crate::solver::pontryagin::{self, idx, Y_LEN};
+use crate::solver::shooting::{initial_state_costate, ShootingProblem};
+use crate::solver::{rendezvous_starts, solve_scenario, transfer_guesses};
+use shared::scenario::ScenarioKind;
+use shared::spacecraft::Spacecraft;
+
+fn params(eps: f64) -> OptimalControlParams {
+    OptimalControlParams {
+        spacecraft: Spacecraft::MSR_ERO.canonical().unwrap(),
+        eps,
+    }
+}
+
+/// A state away from the centre, out of every coordinate plane, with costates that put rho
+/// inside (-eps, eps) for eps = 0.5.
+fn sample_y() -> [f64; Y3_LEN] {
+    [
+        0.9, 0.5, 0.12, -0.4, 0.8, 0.07, 0.85, 0.3, -0.2, 0.05, -0.25, 0.4, 0.08, 0.1,
+    ]
+}
+
+fn tight() -> Tolerances {
+    Tolerances {
+        relative: 1e-12,
+        absolute: 1e-13,
+        ..Tolerances::default()
+    }
+}
+
+#[test]
+fn costate_equations_are_minus_the_gradient_of_the_hamiltonian() {
+    for eps in [0.5, 1.0, 0.0] {
+        let p = params(eps);
+        let y = sample_y();
+        let (u, alpha) = optimal_control3(&y, &p);
+        let f = state_costate_rhs3(&y, &p);
+        let h = 1e-6;
+        for i in 0..Y3_LEN {
+            let (mut yp, mut ym) = (y, y);
+            yp[i] += h;
+            ym[i] -= h;
+            // Control frozen at its optimum (envelope theorem).
+            let dh = (hamiltonian3(&yp, u, alpha, &p) - hamiltonian3(&ym, u, alpha, &p)) / (2.0 * h);
+            // dx/dt = dH/dlambda, dlambda/dt = -dH/dx; x has 7 components.
+            let (j, expect) = if i < 7 { (i + 7, -dh) } else { (i - 7, dh) };
+            assert!(
+                (f[j] - expect).abs() < 1e-8,
+                "eps {eps} component {j}: {} vs {expect}",
+                f[j]
+            );
+        }
+    }
+}
+
+#[test]
+fn the_optimal_control_minimises_the_hamiltonian() {
+    let p = params(0.5);
+    let y = sample_y();
+    let (u, alpha) = optimal_control3(&y, &p);
+    let best = hamiltonian3(&y, u, alpha, &p);
+    for k in 0..200 {
+        // Directions spread over the sphere, throttles over [0, 1].
+        let (a, b) = (k as f64 * 2.399963, (1.0 - 2.0 * (k as f64 + 0.5) / 200.0).acos());
+        let dir = [b.sin() * a.cos(), b.sin() * a.sin(), b.cos()];
+        let throttle = (k % 11) as f64 / 10.0;
+        assert!(
+            hamiltonian3(&y, throttle, dir, &p) >= best - 1e-15,
+            "control {throttle} {dir:?} beats the optimum"
+        );
+    }
+}
+
+#[test]
+fn sensitivities_match_central_differences() {
+    let p = params(0.5);
+    let y0 = sample_y();
+    let t1 = 0.7;
+    let ys = propagate_sensitivity3(&p, &y0, t1, &tight()).unwrap();
+    let h = 1e-6;
+    for k in 0..SPATIAL_UNKNOWNS {
+        let (mut yp, mut ym) = (y0, y0);
+        yp[idx3::LR + k] += h;
+        ym[idx3::LR + k] -= h;
+        let fp = propagate3(&p, 0.0, &yp, t1, &tight()).unwrap();
+        let fm = propagate3(&p, 0.0, &ym, t1, &tight()).unwrap();
+        for i in 0..Y3_LEN {
+            let fd = (fp[i] - fm[i]) / (2.0 * h);
+            let exact = ys[Y3_LEN + k * Y3_LEN + i];
+            assert!(
+                (fd - exact).abs() < 1e-6 * (1.0 + exact.abs()),
+                "d y{i} / d lambda{k}: {exact} vs {fd}"
+            );
+        }
+    }
+}
+
+/// The planar state-costate embedded with zero out-of-plane components stays in its plane and
+/// follows the planar propagation.
+#[test]
+fn a_planar_state_stays_planar_and_follows_the_planar_propagation() {
+    let p = params(0.25);
+    let planar = [0.9, 0.5, -0.4, 0.8, 0.85, 0.3, -0.2, -0.25, 0.4, 0.1];
+    let spatial = [
+        planar[0], planar[1], 0.0, planar[2], planar[3], 0.0, planar[4], planar[5], planar[6], 0.0, planar[7],
+        planar[8], 0.0, planar[9],
+    ];
+    let t1 = 2.0;
+    let a = pontryagin::propagate(&p, 0.0, &planar, t1, &tight()).unwrap();
+    let b = propagate3(&p, 0.0, &spatial, t1, &tight()).unwrap();
+    for k in [idx3::R + 2, idx3::V + 2, idx3::LR + 2, idx3::LV + 2] {
+        assert_eq!(b[k], 0.0, "out-of-plane component {k}");
+    }
+    let pairs = [
+        (idx::R, idx3::R),
+        (idx::R + 1, idx3::R + 1),
+        (idx::V, idx3::V),
+        (idx::V + 1, idx3::V + 1),
+        (idx::M, idx3::M),
+        (idx::LR, idx3::LR),
+        (idx::LR + 1, idx3::LR + 1),
+        (idx::LV, idx3::LV),
+        (idx::LV + 1, idx3::LV + 1),
+        (idx::LM, idx3::LM),
+    ];
+    for (i, j) in pairs {
+        assert!(
+            (a[i] - b[j]).abs() < 1e-10,
+            "component {i}: planar {} spatial {}",
+            a[i],
+            b[j]
+        );
+    }
+    assert_eq!(Y_LEN + 4, Y3_LEN);
+}
+
+/// A rotation of R^3 (unit quaternion (w, x, y, z)).
+fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
+    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let [w, x, y, z] = q.map(|c| c / n);
+    [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ]
+}
+
+fn rotate(m: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    core::array::from_fn(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
+}
+
+fn rotated(problem: &SpatialRendezvous, m: &[[f64; 3]; 3]) -> SpatialRendezvous {
+    let turn = |s: &SpatialState| SpatialState {
+        r: rotate(m, &s.r),
+        v: rotate(m, &s.v),
+    };
+    SpatialRendezvous {
+        departure: turn(&problem.departure),
+        arrival: turn(&problem.arrival),
+        ..*problem
+    }
+}
+
+fn short_options() -> SolveOptions {
+    SolveOptions {
+        final_eps: 0.01,
+        ..SolveOptions::default()
+    }
+}
+
+/// The dynamics have no preferred direction: a rendezvous turned by any rotation (here into a
+/// plane inclined by some 50 degrees) has the same optimum, and its costates are the turned
+/// costates. Independent of the planar solver: the inclined problem is solved from its own
+/// guesses.
+#[test]
+fn a_rotated_rendezvous_has_the_same_optimum_and_rotated_costates() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let scenario = ScenarioKind::RendezvousCircular.draw(7, 3);
+    let flat = SpatialRendezvous::from_planar(&scenario, sc).unwrap();
+    let options = short_options();
+    let a = solve_spatial_rendezvous(&flat, Vec::new(), &options).unwrap();
+    let m = rotation([0.8, 0.35, -0.3, 0.2]);
+    let tilted = rotated(&flat, &m);
+    let b = solve_spatial_rendezvous(&tilted, Vec::new(), &options).unwrap();
+    assert!(b.departure_inclination_check(&tilted) > 0.5);
+    assert!(
+        (a.final_mass - b.final_mass).abs() < 1e-9 * a.final_mass,
+        "{} vs {}",
+        a.final_mass,
+        b.final_mass
+    );
+    let lr = rotate(&m, &[a.costates[0], a.costates[1], a.costates[2]]);
+    let lv = rotate(&m, &[a.costates[3], a.costates[4], a.costates[5]]);
+    for k in 0..3 {
+        assert!(
+            (lr[k] - b.costates[k]).abs() < 1e-6,
+            "lambda_r {k}: {} vs {}",
+            lr[k],
+            b.costates[k]
+        );
+        assert!(
+            (lv[k] - b.costates[3 + k]).abs() < 1e-6,
+            "lambda_v {k}: {} vs {}",
+            lv[k],
+            b.costates[3 + k]
+        );
+    }
+    assert!(b.residual <= 1e-8);
+}
+
+impl SpatialSolution {
+    /// The inclination (rad) of the problem's departure orbit to the xy-plane: the test above
+    /// asserts its rotation left that plane.
+    fn departure_inclination_check(&self, problem: &SpatialRendezvous) -> f64 {
+        let h = cross(&problem.departure.r, &problem.departure.v);
+        (h[2] / norm(&h)).acos()
+    }
+}
+
+/// The planar-equivalence check of docs/spec.md section 3.6 on a few draws (the 100-draw run is
+/// `ground data spatial-check`): the spatial solver, from the planar solver's guesses embedded,
+/// ends at the planar optimum.
+#[test]
+fn planar_rendezvous_draws_have_the_planar_optima() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let options = short_options();
+    for index in [0, 1] {
+        let scenario = ScenarioKind::RendezvousCircular.draw(7, index);
+        let planar = solve_scenario(ScenarioKind::RendezvousCircular, 7, index, &scenario, &sc, &options);
+        assert!(planar.converged, "{:?}", planar.failure);
+        let problem = SpatialRendezvous::from_planar(&scenario, sc).unwrap();
+        let guesses = rendezvous_starts(transfer_guesses(&scenario))
+            .iter()
+            .map(lift_planar)
+            .collect();
+        let spatial = solve_spatial_rendezvous(&problem, guesses, &options).unwrap();
+        let relative = (spatial.final_mass - planar.final_mass).abs() / planar.final_mass;
+        assert!(
+            relative < 1e-8,
+            "#{index}: {} vs {} ({relative:e})",
+            spatial.final_mass,
+            planar.final_mass
+        );
+        // The planar costates, embedded, solve the spatial problem too.
+        let y0 = initial_state_costate(&scenario, &planar.costates);
+        let lifted = lift_planar(&RendezvousVector::from_column_slice(&[
+            y0[5], y0[6], y0[7], y0[8], y0[9],
+        ]));
+        let f = problem
+            .residual_only(planar.final_eps, &lifted, &options.tolerances)
+            .unwrap();
+        assert!(f.amax() < 1e-8, "#{index}: the planar solution misses by {}", f.amax());
+    }
+}

@@ -1,0 +1,454 @@
+//! One rendezvous in three dimensions posed as data (docs/missions.md, "One rendezvous in three
+//! dimensions"): the problem file, its conversion to canonical units, the solve's report and
+//! the sampled trajectory as CSV.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use shared::mission::{CentralBody, Units, DAY_S};
+use shared::spacecraft::{Spacecraft, SpacecraftError};
+
+use crate::mission::{BodySpec, MissionError};
+use crate::solver::spatial::{
+    sample_solution, solve_spatial_rendezvous, SpatialRendezvous, SpatialSample, SpatialSolution, SpatialSolveError,
+    SpatialState,
+};
+use crate::solver::SolveOptions;
+
+/// A position and velocity as a problem file writes them: each in the body's canonical units
+/// (`r`, `v`) or in km and km/s (`r_km`, `v_km_s`).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateSpec {
+    /// Position, canonical length units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r: Option<[f64; 3]>,
+    /// Position, km.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r_km: Option<[f64; 3]>,
+    /// Velocity, canonical (length unit per time unit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub v: Option<[f64; 3]>,
+    /// Velocity, km/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub v_km_s: Option<[f64; 3]>,
+}
+
+fn sun() -> BodySpec {
+    BodySpec::Preset("sun".into())
+}
+
+/// A rendezvous problem file: the body, the spacecraft, the time of flight, the departure state
+/// and the state to meet at arrival.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialRendezvousSpec {
+    /// The central body (as in mission files; default the Sun in AU).
+    #[serde(default = "sun")]
+    pub body: BodySpec,
+    /// Thrust, specific impulse and initial mass.
+    pub spacecraft: Spacecraft,
+    /// Time of flight, days.
+    pub time_of_flight_days: f64,
+    /// State at departure.
+    pub departure: StateSpec,
+    /// State to meet at arrival.
+    pub arrival: StateSpec,
+}
+
+/// Why a problem file cannot be posed.
+#[derive(Debug, thiserror::Error)]
+pub enum SpatialProblemError {
+    /// The file cannot be read or is not a problem file.
+    #[error("{path}: {why}")]
+    File {
+        /// The file.
+        path: String,
+        /// Why.
+        why: String,
+    },
+    /// The body cannot be posed.
+    #[error(transparent)]
+    Body(#[from] MissionError),
+    /// The spacecraft cannot be posed.
+    #[error("spacecraft: {0}")]
+    Spacecraft(#[from] SpacecraftError),
+    /// A state is given twice, not at all, or not finite.
+    #[error("{which}: {why}")]
+    State {
+        /// `departure` or `arrival`.
+        which: &'static str,
+        /// What is wrong.
+        why: String,
+    },
+    /// The time of flight is not a positive number of days.
+    #[error("time_of_flight_days must be a positive number of days, not {0}")]
+    TimeOfFlight(f64),
+}
+
+impl StateSpec {
+    fn state(&self, which: &'static str, units: &Units) -> Result<SpatialState, SpatialProblemError> {
+        let error = |why: &str| SpatialProblemError::State {
+            which,
+            why: why.to_string(),
+        };
+        let r = match (self.r, self.r_km) {
+            (Some(r), None) => r,
+            (None, Some(km)) => km.map(|x| x * 1e3 / units.length_m),
+            (Some(_), Some(_)) => return Err(error("give the position once: r (canonical) or r_km")),
+            (None, None) => return Err(error("the position is missing: give r (canonical) or r_km")),
+        };
+        let v = match (self.v, self.v_km_s) {
+            (Some(v), None) => v,
+            (None, Some(km_s)) => km_s.map(|x| x * 1e3 / units.velocity_m_s()),
+            (Some(_), Some(_)) => return Err(error("give the velocity once: v (canonical) or v_km_s")),
+            (None, None) => return Err(error("the velocity is missing: give v (canonical) or v_km_s")),
+        };
+        let state = SpatialState { r, v };
+        if !state.is_valid() {
+            return Err(error("every component must be finite and the position off the centre"));
+        }
+        Ok(state)
+    }
+}
+
+/// A problem file's rendezvous in canonical units, with what converts back.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosedRendezvous {
+    /// The problem, canonical.
+    pub problem: SpatialRendezvous,
+    /// The body.
+    pub body: CentralBody,
+    /// Its canonical units.
+    pub units: Units,
+    /// The spacecraft as given.
+    pub spacecraft: Spacecraft,
+}
+
+impl SpatialRendezvousSpec {
+    /// Reads a problem file (TOML).
+    pub fn from_file(path: &Path) -> Result<Self, SpatialProblemError> {
+        let file_error = |why: String| SpatialProblemError::File {
+            path: path.display().to_string(),
+            why,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| file_error(e.to_string()))?;
+        toml::from_str(&text).map_err(|e| file_error(e.to_string()))
+    }
+
+    /// The problem in the body's canonical units, checked.
+    pub fn pose(&self) -> Result<PosedRendezvous, SpatialProblemError> {
+        let body = self.body.body()?;
+        if !(body.mu_m3_s2.is_finite()
+            && body.mu_m3_s2 > 0.0
+            && body.length_unit_m.is_finite()
+            && body.length_unit_m > 0.0)
+        {
+            return Err(SpatialProblemError::Body(MissionError::UnknownBody(format!(
+                "mu {} m^3/s^2, length unit {} m (both must be positive)",
+                body.mu_m3_s2, body.length_unit_m
+            ))));
+        }
+        let units = body.units();
+        let days = self.time_of_flight_days;
+        if !(days.is_finite() && days > 0.0) {
+            return Err(SpatialProblemError::TimeOfFlight(days));
+        }
+        Ok(PosedRendezvous {
+            problem: SpatialRendezvous {
+                departure: self.departure.state("departure", &units)?,
+                arrival: self.arrival.state("arrival", &units)?,
+                time_of_flight: days * DAY_S / units.time_s,
+                spacecraft: self.spacecraft.canonical_in(&units)?,
+            },
+            body,
+            units,
+            spacecraft: self.spacecraft,
+        })
+    }
+}
+
+/// What a solve of a problem file found, in physical units.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SpatialReport {
+    /// Time of flight, days.
+    pub time_of_flight_days: f64,
+    /// Final mass, kg.
+    pub final_mass_kg: f64,
+    /// Propellant used, kg.
+    pub propellant_kg: f64,
+    /// The homotopy level of the solution (docs/spec.md section 3.3).
+    pub final_eps: f64,
+    /// Largest terminal residual of a fresh propagation, canonical (max norm).
+    pub residual: f64,
+    /// Arrival position miss, m, and velocity miss, m/s (from that propagation).
+    pub position_miss_m: f64,
+    /// See `position_miss_m`.
+    pub velocity_miss_m_s: f64,
+    /// Maximal intervals with throttle above 1/2 on the sampled grid.
+    pub thrust_arcs: u32,
+    /// Share of the flight with throttle above 1/2 on the sampled grid.
+    pub thrusting_share: f64,
+    /// Distinct energy-optimal solutions the multi-start found.
+    pub distinct_energy_optima: u32,
+    /// Initial costates (lambda_r, lambda_v, lambda_m), canonical.
+    pub costates: [f64; 7],
+    /// Wall time of the solve and the sampling, s.
+    pub seconds: f64,
+}
+
+/// Samples on the report's grid (evenly spread over the flight, both ends included).
+pub const REPORT_SAMPLES: usize = 401;
+
+/// Solves a posed rendezvous and samples it on [`REPORT_SAMPLES`] epochs.
+pub fn solve_posed(
+    posed: &PosedRendezvous,
+    options: &SolveOptions,
+) -> Result<(SpatialReport, SpatialSolution, Vec<SpatialSample>), SpatialSolveError> {
+    let clock = Instant::now();
+    let problem = &posed.problem;
+    let solution = solve_spatial_rendezvous(problem, Vec::new(), options)?;
+    let tof = problem.time_of_flight;
+    let times: Vec<f64> = (0..REPORT_SAMPLES)
+        .map(|k| tof * k as f64 / (REPORT_SAMPLES - 1) as f64)
+        .collect();
+    let samples = sample_solution(problem, &solution, &times, &options.tolerances)
+        .map_err(|e| SpatialSolveError::NotSolved(format!("sampling the solution failed: {e:?}")))?;
+    let last = samples
+        .last()
+        .copied()
+        .ok_or_else(|| SpatialSolveError::NotSolved("no samples".into()))?;
+    let miss = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+    let on: Vec<bool> = samples.iter().map(|s| s.throttle > 0.5).collect();
+    let thrust_arcs = on
+        .iter()
+        .enumerate()
+        .filter(|&(k, &x)| x && (k == 0 || !on[k - 1]))
+        .count() as u32;
+    let m0 = posed.spacecraft.initial_mass_kg;
+    let report = SpatialReport {
+        time_of_flight_days: tof * posed.units.time_s / DAY_S,
+        final_mass_kg: solution.final_mass * m0,
+        propellant_kg: (1.0 - solution.final_mass) * m0,
+        final_eps: solution.final_eps,
+        residual: solution.residual,
+        position_miss_m: miss(last.state.r, problem.arrival.r) * posed.units.length_m,
+        velocity_miss_m_s: miss(last.state.v, problem.arrival.v) * posed.units.velocity_m_s(),
+        thrust_arcs,
+        thrusting_share: on.iter().filter(|&&x| x).count() as f64 / on.len() as f64,
+        distinct_energy_optima: solution.distinct_energy_optima,
+        costates: core::array::from_fn(|k| solution.costates[k]),
+        seconds: clock.elapsed().as_secs_f64(),
+    };
+    Ok((report, solution, samples))
+}
+
+/// The samples as CSV: time (days), position (km), velocity (km/s), mass (kg), throttle and the
+/// unit thrust direction, one row per sample.
+pub fn trajectory_csv(posed: &PosedRendezvous, samples: &[SpatialSample]) -> String {
+    let (l_km, v_km_s) = (posed.units.length_m / 1e3, posed.units.velocity_m_s() / 1e3);
+    let mut csv = String::from("t_days,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s,mass_kg,throttle,ux,uy,uz\n");
+    for s in samples {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            s.t * posed.units.time_s / DAY_S,
+            s.state.r[0] * l_km,
+            s.state.r[1] * l_km,
+            s.state.r[2] * l_km,
+            s.state.v[0] * v_km_s,
+            s.state.v[1] * v_km_s,
+            s.state.v[2] * v_km_s,
+            s.m * posed.spacecraft.initial_mass_kg,
+            s.throttle,
+            s.direction[0],
+            s.direction[1],
+            s.direction[2],
+        );
+    }
+    csv
+}
+
+/// One draw of a planar rendezvous family solved by the planar solver and, embedded in three
+/// dimensions, by the spatial one from its own guesses ([`compare_with_planar`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlanarComparison {
+    /// Scenario index.
+    pub index: u64,
+    /// Final mass (fraction of m0) of the planar record, when it converged.
+    pub planar_mass: Option<f64>,
+    /// Final mass of the spatial solution, when one was found.
+    pub spatial_mass: Option<f64>,
+    /// Why the spatial solve failed.
+    pub spatial_failure: Option<String>,
+    /// Distinct energy-optimal starts each solver found (planar, spatial): different local
+    /// optima start there.
+    pub distinct_energy_optima: (u32, u32),
+}
+
+impl PlanarComparison {
+    /// |spatial - planar| / planar when both solved.
+    pub fn relative_difference(&self) -> Option<f64> {
+        Some((self.spatial_mass? - self.planar_mass?).abs() / self.planar_mass?)
+    }
+}
+
+/// Draws `indices` of the planar rendezvous family from stream `seed`, solves each with the
+/// planar solver and the spatial one (docs/spec.md section 3.6: the optima must agree), in
+/// parallel.
+pub fn compare_with_planar(
+    family: &shared::mission::MissionFamily,
+    seed: u64,
+    indices: std::ops::Range<u64>,
+    spacecraft: &shared::spacecraft::CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Vec<PlanarComparison> {
+    use rayon::prelude::*;
+    indices
+        .into_par_iter()
+        .map(|index| {
+            let scenario = family.draw(seed, index);
+            let planar = crate::solver::solve_scenario(*family, seed, index, &scenario, spacecraft, options);
+            let spatial = SpatialRendezvous::from_planar(&scenario, *spacecraft)
+                .map_err(|e| SpatialSolveError::NotSolved(format!("the body's arrival state: {e:?}")))
+                .and_then(|problem| solve_spatial_rendezvous(&problem, Vec::new(), options));
+            PlanarComparison {
+                index,
+                planar_mass: planar.converged.then_some(planar.final_mass),
+                spatial_mass: spatial.as_ref().ok().map(|s| s.final_mass),
+                distinct_energy_optima: (
+                    planar.distinct_energy_optima,
+                    spatial.as_ref().map_or(0, |s| s.distinct_energy_optima),
+                ),
+                spatial_failure: spatial.err().map(|e| e.to_string()),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(text: &str) -> SpatialRendezvousSpec {
+        toml::from_str(text).unwrap()
+    }
+
+    const BASE: &str = r#"
+        time_of_flight_days = 300.0
+        [spacecraft]
+        max_thrust_n = 0.5
+        isp_s = 2000.0
+        initial_mass_kg = 1000.0
+    "#;
+
+    #[test]
+    fn states_in_km_convert_to_the_bodys_units() {
+        let posed = spec(&format!(
+            "{BASE}\n[departure]\nr_km = [149597870.7, 0.0, 0.0]\nv_km_s = [0.0, 29.78469183, 0.0]\n\
+             [arrival]\nr = [0.0, 1.5, 0.01]\nv = [-0.8, 0.0, 0.0]\n"
+        ))
+        .pose()
+        .unwrap();
+        let d = posed.problem.departure;
+        assert!((d.r[0] - 1.0).abs() < 1e-15 && d.r[1] == 0.0);
+        // The Sun's velocity unit is 29,784.69 m/s (docs/spec.md section 1).
+        assert!((d.v[1] - 1.0).abs() < 1e-8, "{}", d.v[1]);
+        assert_eq!(posed.problem.arrival.r, [0.0, 1.5, 0.01]);
+        // 300 days in the Sun's time unit of 5,022,642.89 s.
+        assert!((posed.problem.time_of_flight - 300.0 * 86400.0 / 5_022_642.89).abs() < 1e-8);
+    }
+
+    #[test]
+    fn bad_problems_are_refused_with_the_field_named() {
+        let twice = spec(&format!(
+            "{BASE}\n[departure]\nr = [1.0, 0.0, 0.0]\nr_km = [1.0, 0.0, 0.0]\nv = [0.0, 1.0, 0.0]\n\
+             [arrival]\nr = [0.0, 1.5, 0.0]\nv = [-0.8, 0.0, 0.0]\n"
+        ));
+        let e = twice.pose().unwrap_err().to_string();
+        assert!(e.contains("departure") && e.contains("once"), "{e}");
+        let missing = spec(&format!(
+            "{BASE}\n[departure]\nr = [1.0, 0.0, 0.0]\nv = [0.0, 1.0, 0.0]\n[arrival]\nr = [0.0, 1.5, 0.0]\n"
+        ));
+        let e = missing.pose().unwrap_err().to_string();
+        assert!(e.contains("arrival") && e.contains("velocity"), "{e}");
+        let centre = spec(&format!(
+            "{BASE}\n[departure]\nr = [0.0, 0.0, 0.0]\nv = [0.0, 1.0, 0.0]\n[arrival]\nr = [0.0, 1.5, 0.0]\nv = [-0.8, 0.0, 0.0]\n"
+        ));
+        assert!(centre.pose().unwrap_err().to_string().contains("departure"));
+        let mut bad_time = centre.clone();
+        bad_time.departure.r = Some([1.0, 0.0, 0.0]);
+        bad_time.time_of_flight_days = -3.0;
+        assert!(matches!(bad_time.pose(), Err(SpatialProblemError::TimeOfFlight(_))));
+        let mut bad_craft = bad_time.clone();
+        bad_craft.time_of_flight_days = 300.0;
+        bad_craft.spacecraft.max_thrust_n = f64::NAN;
+        assert!(bad_craft.pose().unwrap_err().to_string().starts_with("spacecraft"));
+        assert!(toml::from_str::<SpatialRendezvousSpec>(&format!("{BASE}\nextra = 1\n")).is_err());
+    }
+
+    /// The shipped Earth-Mars problem file (Zavoli and Federici's rendezvous) solves to the
+    /// final level, and the solution passes checks independent of the shooting: the Hamiltonian
+    /// of this autonomous system is constant along it, the propellant is the thrust's flow
+    /// integrated over the sampled throttle, and the terminal conditions hold on a fresh
+    /// propagation.
+    #[test]
+    fn the_earth_mars_optimum_conserves_the_hamiltonian_and_its_propellant() {
+        use crate::solver::pontryagin::OptimalControlParams;
+        use crate::solver::spatial::{hamiltonian3, optimal_control3, propagate3};
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/earth-mars-optimum.toml");
+        let posed = SpatialRendezvousSpec::from_file(&path).unwrap().pose().unwrap();
+        let options = SolveOptions::default();
+        let (report, solution, samples) = solve_posed(&posed, &options).unwrap();
+        assert!(report.residual <= 1e-8 && report.final_eps < 1e-4, "{report:?}");
+        // Above the 600.23 kg of the published PPO policy, below the initial mass.
+        assert!(
+            report.final_mass_kg > 600.23 && report.final_mass_kg < 1000.0,
+            "{report:?}"
+        );
+        let problem = &posed.problem;
+        let params = OptimalControlParams {
+            spacecraft: problem.spacecraft,
+            eps: solution.final_eps,
+        };
+        let y0 = problem.initial_state_costate(&solution.costates);
+        let h = |y: &[f64; 14]| {
+            let (u, alpha) = optimal_control3(y, &params);
+            hamiltonian3(y, u, alpha, &params)
+        };
+        let h0 = h(&y0);
+        for t in [0.5, 1.7, 3.1, 4.4, problem.time_of_flight] {
+            let y = propagate3(&params, 0.0, &y0, t, &options.tolerances).unwrap();
+            assert!(
+                (h(&y) - h0).abs() < 1e-9 * (1.0 + h0.abs()),
+                "H({t}) = {} against {h0}",
+                h(&y)
+            );
+        }
+        // dm/dt = -T u / c: the trapezoid over 401 samples is exact on every interval where
+        // the throttle holds, and off by at most half an interval's flow on each interval
+        // that holds a switch.
+        let dt = problem.time_of_flight / (samples.len() - 1) as f64;
+        let flow = problem.spacecraft.thrust / problem.spacecraft.exhaust_speed;
+        let burnt: f64 = samples
+            .windows(2)
+            .map(|w| 0.5 * (w[0].throttle + w[1].throttle) * dt)
+            .sum();
+        let switches = samples
+            .windows(2)
+            .filter(|w| (w[0].throttle - w[1].throttle).abs() > 1e-6)
+            .count();
+        assert!(switches >= 2 * report.thrust_arcs as usize - 2, "{switches} switches");
+        let error = (flow * burnt - (1.0 - solution.final_mass)).abs();
+        assert!(
+            error <= 0.5 * flow * dt * switches as f64 + 1e-9,
+            "{error:e} over {switches} switches"
+        );
+        for s in &samples {
+            let n = s.direction.iter().map(|x| x * x).sum::<f64>().sqrt();
+            assert!((n - 1.0).abs() < 1e-12);
+        }
+    }
+}

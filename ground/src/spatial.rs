@@ -1,0 +1,180 @@
+//! The commands of the indirect method in three dimensions: one rendezvous from a problem file,
+//! and the check that planar draws keep their planar optima.
+
+use std::path::{Path, PathBuf};
+
+use ground_core::io::{atomic_write, require_parent_folder};
+use ground_core::solver::SolveOptions;
+use ground_core::spatial::{compare_with_planar, solve_posed, trajectory_csv, SpatialRendezvousSpec};
+use shared::mission::MissionFamily;
+use shared::scenario::ProblemKind;
+use shared::spacecraft::Spacecraft;
+
+use crate::trajectories::family_argument;
+
+/// `ground data solve-3d`.
+#[derive(clap::Args)]
+pub struct Solve3dArgs {
+    /// Problem file (docs/missions.md, "One rendezvous in three dimensions").
+    #[arg(long)]
+    problem: PathBuf,
+    /// Print one JSON object instead of a summary.
+    #[arg(long)]
+    json: bool,
+    /// Write optimum.json and trajectory.csv (401 epochs) into this folder (created if
+    /// missing; its parent folder must exist).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// `ground data check-3d`.
+#[derive(clap::Args)]
+pub struct Check3dArgs {
+    /// A planar rendezvous family: a preset's name or a mission file.
+    #[arg(long, value_parser = family_argument)]
+    scenario: MissionFamily,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Draws 0..COUNT of the seed's stream.
+    #[arg(long, default_value_t = 100)]
+    count: u64,
+    /// Largest relative difference of the final masses accepted.
+    #[arg(long, default_value_t = 1e-8)]
+    tolerance: f64,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Solves a problem file's rendezvous and reports it.
+pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let posed = SpatialRendezvousSpec::from_file(&args.problem)?.pose()?;
+    // An output folder that cannot be made is refused before the solve, not after it.
+    if let Some(out) = &args.out {
+        require_parent_folder(out)?;
+    }
+    let (report, _, samples) = solve_posed(&posed, &SolveOptions::default())?;
+    if let Some(out) = &args.out {
+        write_outputs(
+            out,
+            &serde_json::to_string_pretty(&report)?,
+            &trajectory_csv(&posed, &samples),
+        )?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "final mass: {:.4} kg (propellant {:.4} kg)\nthrust arcs: {} ({:.1} % of the flight)\n\
+             final eps: {:.3e}\nresidual: {:.2e} ({:.3} m, {:.3e} m/s at arrival)\n\
+             distinct energy optima: {}\nseconds: {:.2}",
+            report.final_mass_kg,
+            report.propellant_kg,
+            report.thrust_arcs,
+            100.0 * report.thrusting_share,
+            report.final_eps,
+            report.residual,
+            report.position_miss_m,
+            report.velocity_miss_m_s,
+            report.distinct_energy_optima,
+            report.seconds,
+        );
+        let profile: String = samples
+            .iter()
+            .step_by(4)
+            .map(|s| match s.throttle {
+                u if u > 0.99 => '#',
+                u if u > 0.01 => '+',
+                _ => '.',
+            })
+            .collect();
+        println!("throttle: {profile}");
+    }
+    Ok(())
+}
+
+fn write_outputs(out: &Path, json: &str, csv: &str) -> std::io::Result<()> {
+    std::fs::create_dir_all(out)?;
+    atomic_write(&out.join("optimum.json"), json.as_bytes())?;
+    atomic_write(&out.join("trajectory.csv"), csv.as_bytes())
+}
+
+/// Solves planar rendezvous draws with both solvers; a failed check exits non-zero.
+pub fn check_3d_command(args: &Check3dArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if args.scenario.problem != ProblemKind::Rendezvous {
+        return Err("check-3d compares rendezvous families: transfers are not solved in three dimensions yet".into());
+    }
+    if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
+        return Err(format!("--tolerance must be positive, not {}", args.tolerance).into());
+    }
+    let spacecraft = Spacecraft::MSR_ERO
+        .canonical_in(&args.scenario.body.units())
+        .map_err(|e| format!("spacecraft: {e}"))?;
+    let rows = compare_with_planar(
+        &args.scenario,
+        args.seed,
+        0..args.count,
+        &spacecraft,
+        &SolveOptions::default(),
+    );
+    let both: Vec<f64> = rows.iter().filter_map(|r| r.relative_difference()).collect();
+    let worst = both.iter().copied().fold(0.0, f64::max);
+    let planar_only = rows
+        .iter()
+        .filter(|r| r.planar_mass.is_some() && r.spatial_mass.is_none())
+        .count();
+    let spatial_only = rows
+        .iter()
+        .filter(|r| r.planar_mass.is_none() && r.spatial_mass.is_some())
+        .count();
+    let differing = both.iter().filter(|&&d| d > args.tolerance).count();
+    let passed = differing == 0 && planar_only == 0;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "draws": rows.len(),
+                "both_solved": both.len(),
+                "planar_only": planar_only,
+                "spatial_only": spatial_only,
+                "differing": differing,
+                "worst_relative_difference": worst,
+                "tolerance": args.tolerance,
+                "passed": passed,
+                "rows": rows,
+            })
+        );
+    } else {
+        for r in &rows {
+            let show = |m: Option<f64>| m.map_or_else(|| "-".to_string(), |m| format!("{m:.12}"));
+            let diff = r
+                .relative_difference()
+                .map_or_else(|| "-".into(), |d| format!("{d:.1e}"));
+            let why = r.spatial_failure.as_deref().unwrap_or("");
+            println!(
+                "#{:<4} planar {:>15}  3d {:>15}  rel. diff {diff:>8}  {why}",
+                r.index,
+                show(r.planar_mass),
+                show(r.spatial_mass)
+            );
+        }
+        println!(
+            "{} draws: {} solved by both, worst relative difference {worst:.1e} (tolerance {:.0e}), \
+             {differing} beyond it; planar only {planar_only}, 3d only {spatial_only}: {}",
+            rows.len(),
+            both.len(),
+            args.tolerance,
+            if passed { "passed" } else { "FAILED" }
+        );
+    }
+    if passed {
+        Ok(())
+    } else {
+        Err(format!(
+            "the three-dimensional solver differs from the planar one on {} of {} draws",
+            differing + planar_only,
+            rows.len()
+        )
+        .into())
+    }
+}

@@ -1,0 +1,105 @@
+//! The three-dimensional indirect method from the outside: `ground data solve-3d` solves a
+//! problem file and writes its optimum and trajectory, a bad problem file is refused with its
+//! field named and nothing written, and `ground data check-3d` compares planar draws.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ground(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_ground")).args(args).output().unwrap()
+}
+
+fn temp(name: &str) -> PathBuf {
+    let path = std::env::temp_dir().join(format!("lowthrust-cli-3d-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&path);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+fn earth_mars() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/earth-mars-optimum.toml")
+}
+
+#[test]
+fn solve_3d_writes_the_optimum_and_its_trajectory() {
+    let out_dir = temp("earth-mars");
+    let out = ground(&[
+        "data",
+        "solve-3d",
+        "--problem",
+        earth_mars().to_str().unwrap(),
+        "--json",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let printed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("optimum.json")).unwrap()).unwrap();
+    assert_eq!(printed["final_mass_kg"], written["final_mass_kg"]);
+    let mass = printed["final_mass_kg"].as_f64().unwrap();
+    let propellant = printed["propellant_kg"].as_f64().unwrap();
+    assert!((mass + propellant - 1000.0).abs() < 1e-9 && mass > 600.23, "{printed}");
+    assert!(printed["residual"].as_f64().unwrap() <= 1e-8);
+    // The trajectory starts at the departure and ends at the arrival state of the file (km).
+    let csv = std::fs::read_to_string(out_dir.join("trajectory.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 401);
+    let last = rows.last().unwrap();
+    assert!((last[0] - 348.79).abs() < 1e-9);
+    for (got, want) in last[1..4].iter().zip([-1.727e8, 1.770e8, 7.949e6]) {
+        assert!((got - want).abs() < 2.0, "arrival position {got} km against {want}");
+    }
+    assert!((last[7] - mass).abs() < 1e-9);
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
+
+#[test]
+fn a_bad_problem_file_is_refused_with_its_field_named_and_nothing_written() {
+    let file = temp("bad.toml");
+    let text = std::fs::read_to_string(earth_mars())
+        .unwrap()
+        .replace("v_km_s = [-16.427, -14.861, 0.092]", "");
+    std::fs::write(&file, text).unwrap();
+    let out_dir = temp("bad-out");
+    let out = ground(&[
+        "data",
+        "solve-3d",
+        "--problem",
+        file.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("arrival") && err.contains("velocity"), "{err}");
+    assert!(!out_dir.exists());
+    let _ = std::fs::remove_file(&file);
+}
+
+#[test]
+fn check_3d_compares_planar_rendezvous_draws_and_refuses_transfers() {
+    let out = ground(&[
+        "data",
+        "check-3d",
+        "--scenario",
+        "rendezvous-circular",
+        "--seed",
+        "7",
+        "--count",
+        "4",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["draws"], 4);
+    assert!(v["both_solved"].as_u64().unwrap() >= 3, "{v}");
+    assert!(v["worst_relative_difference"].as_f64().unwrap() < 1e-8);
+    let out = ground(&["data", "check-3d", "--scenario", "transfer-circular", "--count", "2"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("transfers"));
+}
