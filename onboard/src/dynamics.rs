@@ -64,6 +64,9 @@ pub enum PropagationError {
     Integration(IntegrationError),
     /// The Kepler coast failed.
     Kepler(KeplerError),
+    /// A thrusting step in three dimensions from a state whose velocity lies along its radius:
+    /// the RTN frame the command is held in is undefined ([`crate::spatial`]).
+    NoOrbitPlane,
 }
 
 impl core::fmt::Display for StateError {
@@ -90,6 +93,9 @@ impl core::fmt::Display for PropagationError {
             Self::MassDepleted => f.write_str("propellant runs out during the step"),
             Self::Integration(e) => write!(f, "integration failed: {e:?}"),
             Self::Kepler(e) => write!(f, "Kepler coast failed: {e:?}"),
+            Self::NoOrbitPlane => {
+                f.write_str("the velocity lies along the radius: no orbit plane to hold the command in")
+            }
         }
     }
 }

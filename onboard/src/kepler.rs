@@ -11,7 +11,7 @@
 //! bracket of the root that every evaluation narrows (bisection when a step leaves it). Elliptic
 //! coasts are first reduced modulo the period, so multi-revolution dt keep their accuracy.
 
-use shared::orbit::CartesianState;
+use shared::orbit::{dot3, norm3, CartesianState, SpatialState};
 
 /// Why a coast failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -73,6 +73,133 @@ pub fn stumpff(z: f64) -> (f64, f64) {
     }
 }
 
+/// The universal anomaly of a coast: `chi` after `dt` (reduced by whole periods on an ellipse)
+/// from a state at distance `r0` with r . v = `sigma0` and |v|^2 = `v2`; the Lagrange
+/// coefficients follow from it ([`Lagrange`]). Shared by the planar [`coast`] and the spatial
+/// [`coast3`]: the scalars do not depend on the dimension.
+struct UniversalAnomaly {
+    chi: f64,
+    /// chi^2, z = alpha chi^2 and the Stumpff functions at z.
+    chi2: f64,
+    z: f64,
+    c: f64,
+    s: f64,
+    /// The time coasted after whole periods are taken out.
+    dt: f64,
+}
+
+/// Lagrange coefficients: (f, g) of the position or (fdot, gdot) of the velocity.
+struct Lagrange {
+    f: f64,
+    g: f64,
+}
+
+impl UniversalAnomaly {
+    fn solve(r0: f64, sigma0: f64, v2: f64, dt: f64) -> Result<Self, KeplerError> {
+        let alpha = 2.0 / r0 - v2;
+        let beta = 1.0 - alpha * r0;
+
+        // Elliptic: whole periods change nothing; keep |dt| <= P/2.
+        let mut dt = dt;
+        if alpha > 0.0 {
+            let period = 2.0 * core::f64::consts::PI / (alpha * libm::sqrt(alpha));
+            if period.is_finite() && dt.abs() > 0.5 * period {
+                dt -= libm::round(dt / period) * period;
+            }
+        }
+
+        // Initial guess (Vallado, Algorithm 8).
+        let mut chi = if alpha * r0 > 1e-6 {
+            alpha * dt
+        } else if alpha * r0 < -1e-6 {
+            let a = 1.0 / alpha;
+            let s = if dt >= 0.0 { 1.0 } else { -1.0 };
+            let arg = -2.0 * alpha * dt / (sigma0 + s * libm::sqrt(-a) * beta);
+            let guess = s * libm::sqrt(-a) * libm::log(arg);
+            if guess.is_finite() && guess * dt > 0.0 {
+                guess
+            } else {
+                dt / r0
+            }
+        } else {
+            dt / r0
+        };
+
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        let mut converged = false;
+        for _ in 0..MAX_ITERATIONS {
+            let chi2 = chi * chi;
+            let z = alpha * chi2;
+            let (c, s) = stumpff(z);
+            let f = sigma0 * chi2 * c + beta * chi2 * chi * s + r0 * chi - dt;
+            let df = sigma0 * chi * (1.0 - z * s) + beta * chi2 * c + r0;
+            let ddf = sigma0 * (1.0 - z * c) + beta * chi * (1.0 - z * s);
+            if f == 0.0 {
+                converged = true;
+                break;
+            }
+            // F is increasing: the sign of F says on which side of the root chi lies. An
+            // overflowed F (huge |chi|) has the sign of chi.
+            let positive = if f.is_finite() { f > 0.0 } else { chi > 0.0 };
+            if positive {
+                hi = hi.min(chi);
+            } else {
+                lo = lo.max(chi);
+            }
+            let root = libm::sqrt(
+                ((LAGUERRE_N - 1.0) * (LAGUERRE_N - 1.0) * df * df - LAGUERRE_N * (LAGUERRE_N - 1.0) * f * ddf).abs(),
+            );
+            let den = if df >= 0.0 { df + root } else { df - root };
+            let mut next = chi - LAGUERRE_N * f / den;
+            // A Laguerre step below chi's resolution is converged: near the root F's rounding
+            // can make the present point a bracket end, and bisecting from there would walk away
+            // from the root. (An overflowed denominator gives a zero step that says nothing.)
+            if next == chi && den.is_finite() {
+                converged = true;
+                break;
+            }
+            if !(next.is_finite() && lo < next && next < hi) {
+                next = match (lo.is_finite(), hi.is_finite()) {
+                    (true, true) => lo + 0.5 * (hi - lo),
+                    // Only one side known: walk away from it, doubling.
+                    (true, false) => lo + 2.0 * lo.abs().max(1.0),
+                    (false, true) => hi - 2.0 * hi.abs().max(1.0),
+                    (false, false) => break,
+                };
+            }
+            let step = next - chi;
+            chi = next;
+            if step.abs() <= CHI_TOLERANCE * chi.abs() || next == lo || next == hi {
+                converged = true;
+                break;
+            }
+        }
+        if !converged || !chi.is_finite() {
+            return Err(KeplerError::NoConvergence);
+        }
+        let chi2 = chi * chi;
+        let z = alpha * chi2;
+        let (c, s) = stumpff(z);
+        Ok(Self { chi, chi2, z, c, s, dt })
+    }
+
+    /// f and g: the new position is f r0 + g v0.
+    fn position_coefficients(&self, r0: f64) -> Lagrange {
+        Lagrange {
+            f: 1.0 - self.chi2 * self.c / r0,
+            g: self.dt - self.chi2 * self.chi * self.s,
+        }
+    }
+
+    /// fdot and gdot at the new distance `r`: the new velocity is fdot r0 + gdot v0.
+    fn velocity_coefficients(&self, r0: f64, r: f64) -> Lagrange {
+        Lagrange {
+            f: self.chi * (self.z * self.s - 1.0) / (r * r0),
+            g: 1.0 - self.chi2 * self.c / r,
+        }
+    }
+}
+
 /// Coasts `state` (mu = 1) for `dt` (negative: backwards) on the exact two-body solution.
 pub fn coast(state: &CartesianState, dt: f64) -> Result<CartesianState, KeplerError> {
     let [x, y] = state.r;
@@ -89,101 +216,39 @@ pub fn coast(state: &CartesianState, dt: f64) -> Result<CartesianState, KeplerEr
     }
     let sigma0 = x * vx + y * vy;
     let v2 = vx * vx + vy * vy;
-    let alpha = 2.0 / r0 - v2;
-    let beta = 1.0 - alpha * r0;
-
-    // Elliptic: whole periods change nothing; keep |dt| <= P/2.
-    let mut dt = dt;
-    if alpha > 0.0 {
-        let period = 2.0 * core::f64::consts::PI / (alpha * libm::sqrt(alpha));
-        if period.is_finite() && dt.abs() > 0.5 * period {
-            dt -= libm::round(dt / period) * period;
-        }
-    }
-
-    // Initial guess (Vallado, Algorithm 8).
-    let mut chi = if alpha * r0 > 1e-6 {
-        alpha * dt
-    } else if alpha * r0 < -1e-6 {
-        let a = 1.0 / alpha;
-        let s = if dt >= 0.0 { 1.0 } else { -1.0 };
-        let arg = -2.0 * alpha * dt / (sigma0 + s * libm::sqrt(-a) * beta);
-        let guess = s * libm::sqrt(-a) * libm::log(arg);
-        if guess.is_finite() && guess * dt > 0.0 {
-            guess
-        } else {
-            dt / r0
-        }
-    } else {
-        dt / r0
-    };
-
-    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
-    let mut converged = false;
-    for _ in 0..MAX_ITERATIONS {
-        let chi2 = chi * chi;
-        let z = alpha * chi2;
-        let (c, s) = stumpff(z);
-        let f = sigma0 * chi2 * c + beta * chi2 * chi * s + r0 * chi - dt;
-        let df = sigma0 * chi * (1.0 - z * s) + beta * chi2 * c + r0;
-        let ddf = sigma0 * (1.0 - z * c) + beta * chi * (1.0 - z * s);
-        if f == 0.0 {
-            converged = true;
-            break;
-        }
-        // F is increasing: the sign of F says on which side of the root chi lies. An overflowed
-        // F (huge |chi|) has the sign of chi.
-        let positive = if f.is_finite() { f > 0.0 } else { chi > 0.0 };
-        if positive {
-            hi = hi.min(chi);
-        } else {
-            lo = lo.max(chi);
-        }
-        let root = libm::sqrt(
-            ((LAGUERRE_N - 1.0) * (LAGUERRE_N - 1.0) * df * df - LAGUERRE_N * (LAGUERRE_N - 1.0) * f * ddf).abs(),
-        );
-        let den = if df >= 0.0 { df + root } else { df - root };
-        let mut next = chi - LAGUERRE_N * f / den;
-        // A Laguerre step below chi's resolution is converged: near the root F's rounding can
-        // make the present point a bracket end, and bisecting from there would walk away from
-        // the root. (An overflowed denominator gives a zero step that says nothing.)
-        if next == chi && den.is_finite() {
-            converged = true;
-            break;
-        }
-        if !(next.is_finite() && lo < next && next < hi) {
-            next = match (lo.is_finite(), hi.is_finite()) {
-                (true, true) => lo + 0.5 * (hi - lo),
-                // Only one side known: walk away from it, doubling.
-                (true, false) => lo + 2.0 * lo.abs().max(1.0),
-                (false, true) => hi - 2.0 * hi.abs().max(1.0),
-                (false, false) => break,
-            };
-        }
-        let step = next - chi;
-        chi = next;
-        if step.abs() <= CHI_TOLERANCE * chi.abs() || next == lo || next == hi {
-            converged = true;
-            break;
-        }
-    }
-    if !converged || !chi.is_finite() {
-        return Err(KeplerError::NoConvergence);
-    }
-
-    // Lagrange coefficients.
-    let chi2 = chi * chi;
-    let z = alpha * chi2;
-    let (c, s) = stumpff(z);
-    let f = 1.0 - chi2 * c / r0;
-    let g = dt - chi2 * chi * s;
+    let anomaly = UniversalAnomaly::solve(r0, sigma0, v2, dt)?;
+    let Lagrange { f, g } = anomaly.position_coefficients(r0);
     let r_new = [f * x + g * vx, f * y + g * vy];
     let r = libm::hypot(r_new[0], r_new[1]);
-    let fdot = chi * (z * s - 1.0) / (r * r0);
-    let gdot = 1.0 - chi2 * c / r;
+    let Lagrange { f: fdot, g: gdot } = anomaly.velocity_coefficients(r0, r);
     let v_new = [fdot * x + gdot * vx, fdot * y + gdot * vy];
     if r.is_nan() || r <= 0.0 || ![r_new[0], r_new[1], v_new[0], v_new[1]].iter().all(|v| v.is_finite()) {
         return Err(KeplerError::NoConvergence);
     }
     Ok(CartesianState { r: r_new, v: v_new })
+}
+
+/// [`coast`] in three dimensions.
+pub fn coast3(state: &SpatialState, dt: f64) -> Result<SpatialState, KeplerError> {
+    if !(state.r.iter().chain(&state.v).all(|c| c.is_finite()) && dt.is_finite()) {
+        return Err(KeplerError::NonFinite);
+    }
+    let r0 = norm3(&state.r);
+    if r0 <= 0.0 {
+        return Err(KeplerError::ZeroRadius);
+    }
+    if dt == 0.0 {
+        return Ok(*state);
+    }
+    let anomaly = UniversalAnomaly::solve(r0, dot3(&state.r, &state.v), dot3(&state.v, &state.v), dt)?;
+    let Lagrange { f, g } = anomaly.position_coefficients(r0);
+    let ([x, y, z], [vx, vy, vz]) = (state.r, state.v);
+    let r_new = [f * x + g * vx, f * y + g * vy, f * z + g * vz];
+    let r = norm3(&r_new);
+    let Lagrange { f: fdot, g: gdot } = anomaly.velocity_coefficients(r0, r);
+    let v_new = [fdot * x + gdot * vx, fdot * y + gdot * vy, fdot * z + gdot * vz];
+    if r.is_nan() || r <= 0.0 || !r_new.iter().chain(&v_new).all(|v| v.is_finite()) {
+        return Err(KeplerError::NoConvergence);
+    }
+    Ok(SpatialState { r: r_new, v: v_new })
 }

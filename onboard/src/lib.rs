@@ -4,7 +4,9 @@
 //!   and the 14-day zero-order-hold propagation the environment and the SIL plant use.
 //! - [`integrator`]: an adaptive embedded Runge-Kutta integrator, generic over the state size
 //!   so the ground solver reuses it for state + costate (+ sensitivity) propagation.
-//! - [`kepler`]: the universal-variable Kepler coast propagator.
+//! - [`kepler`]: the universal-variable Kepler coast propagator, planar and in three dimensions.
+//! - [`spatial`]: the two-body dynamics with thrust in three dimensions, the command held in the
+//!   local RTN frame (docs/spec.md section 3.6).
 //! - [`features`]: polar feature encoding (docs/spec.md sections 5, 6), reward terms, action
 //!   decoding.
 //! - [`policy`]: fixed-size MLP inference in f32 and int8 straight from a weight blob.
@@ -94,4 +96,5 @@ pub mod integrator;
 pub mod kepler;
 pub mod lookahead;
 pub mod policy;
+pub mod spatial;
 pub mod terminal;

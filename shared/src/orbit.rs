@@ -69,6 +69,65 @@ pub struct CartesianState {
     pub v: [f64; 2],
 }
 
+/// Position and velocity in three dimensions, in an inertial frame of the central body
+/// (canonical units; docs/spec.md section 3.6).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SpatialState {
+    /// Position.
+    pub r: [f64; 3],
+    /// Velocity.
+    pub v: [f64; 3],
+}
+
+/// a . b in three dimensions.
+pub fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// |a| in three dimensions.
+pub fn norm3(a: &[f64; 3]) -> f64 {
+    libm::sqrt(dot3(a, a))
+}
+
+/// a x b.
+pub fn cross3(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+impl SpatialState {
+    /// The planar state embedded in three dimensions (z = 0).
+    pub fn from_planar(c: &CartesianState) -> Self {
+        Self {
+            r: [c.r[0], c.r[1], 0.0],
+            v: [c.v[0], c.v[1], 0.0],
+        }
+    }
+
+    /// Whether every component is finite and the position is off the centre.
+    pub fn is_valid(&self) -> bool {
+        self.r.iter().chain(&self.v).all(|x| x.is_finite()) && norm3(&self.r) > 0.0
+    }
+
+    /// Distance from the centre.
+    pub fn radius(&self) -> f64 {
+        norm3(&self.r)
+    }
+
+    /// Specific orbital energy |v|^2 / 2 - 1 / |r| (mu = 1).
+    pub fn energy(&self) -> f64 {
+        0.5 * dot3(&self.v, &self.v) - 1.0 / norm3(&self.r)
+    }
+
+    /// Specific angular momentum r x v.
+    pub fn angular_momentum(&self) -> [f64; 3] {
+        cross3(&self.r, &self.v)
+    }
+}
+
 impl OrbitShape {
     /// Checks that the shape describes a closed orbit.
     pub fn validate(&self) -> Result<(), OrbitError> {

@@ -49,42 +49,8 @@ pub mod idx3 {
     pub const LM: usize = 13;
 }
 
-/// A position and velocity in three dimensions, canonical units of the central body.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SpatialState {
-    /// Position.
-    pub r: [f64; 3],
-    /// Velocity.
-    pub v: [f64; 3],
-}
-
-impl SpatialState {
-    /// Whether every component is finite and the position is off the centre.
-    pub fn is_valid(&self) -> bool {
-        self.r.iter().chain(&self.v).all(|x| x.is_finite()) && norm(&self.r) > 0.0
-    }
-
-    /// Specific orbital energy |v|^2 / 2 - 1 / |r| (mu = 1).
-    pub fn energy(&self) -> f64 {
-        0.5 * dot(&self.v, &self.v) - 1.0 / norm(&self.r)
-    }
-}
-
-fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn norm(a: &[f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-
-fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
+pub use shared::orbit::SpatialState;
+use shared::orbit::{cross3 as cross, dot3 as dot, norm3 as norm};
 
 /// Switching function rho = lambda_m + c |lambda_v| / m - 1.
 pub fn switching_function3<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y3_LEN], exhaust_speed: f64) -> D {
