@@ -4,8 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use ground_core::io::{atomic_write, require_parent_folder};
+use ground_core::plot::check_svg_path;
 use ground_core::solver::SolveOptions;
-use ground_core::spatial::{compare_with_planar, solve_posed, trajectory_csv, SpatialRendezvousSpec};
+use ground_core::spatial::{
+    compare_with_planar, missed_thrust_cases, missed_thrust_csv, plot_spatial_optimum, solve_posed, trajectory_csv,
+    MissedThrustCase, SpatialRendezvousSpec,
+};
 use shared::mission::MissionFamily;
 use shared::scenario::ProblemKind;
 use shared::spacecraft::Spacecraft;
@@ -22,9 +26,18 @@ pub struct Solve3dArgs {
     #[arg(long)]
     json: bool,
     /// Write optimum.json and trajectory.csv (401 epochs) into this folder (created if
-    /// missing; its parent folder must exist).
+    /// missing; its parent folder must exist), and missed-thrust.csv with --missed-thrust.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Also lose the thrust for each of this many equal guidance cycles in turn and re-plan
+    /// the rest of the flight to the same arrival: the propellant each loss costs, or why the
+    /// arrival is out of reach.
+    #[arg(long)]
+    missed_thrust: Option<u32>,
+    /// Also draw the optimum (the path on the xy-plane, z and the throttle against time, and
+    /// the missed-thrust costs with --missed-thrust) into this SVG file (its folder must exist).
+    #[arg(long)]
+    plot: Option<PathBuf>,
 }
 
 /// `ground data check-3d`.
@@ -53,16 +66,41 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
     if let Some(out) = &args.out {
         require_parent_folder(out)?;
     }
-    let (report, _, samples) = solve_posed(&posed, &SolveOptions::default())?;
+    if args.missed_thrust == Some(0) {
+        return Err("--missed-thrust must be a positive number of cycles".into());
+    }
+    if let Some(path) = &args.plot {
+        check_svg_path(path)?;
+        // The figure may go into the --out folder, made once the solve succeeds.
+        let into_out = args.out.as_deref().is_some_and(|out| path.parent() == Some(out));
+        if !into_out {
+            require_parent_folder(path)?;
+        }
+    }
+    let options = SolveOptions::default();
+    let (report, solution, samples) = solve_posed(&posed, &options)?;
+    let missed = args
+        .missed_thrust
+        .map(|cycles| missed_thrust_cases(&posed, &solution, cycles, &options));
     if let Some(out) = &args.out {
         write_outputs(
             out,
             &serde_json::to_string_pretty(&report)?,
             &trajectory_csv(&posed, &samples),
         )?;
+        if let Some(cases) = &missed {
+            atomic_write(&out.join("missed-thrust.csv"), missed_thrust_csv(cases).as_bytes())?;
+        }
+    }
+    if let Some(path) = &args.plot {
+        plot_spatial_optimum(&posed, &samples, missed.as_deref(), path)?;
     }
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        let mut value = serde_json::to_value(&report)?;
+        if let Some(cases) = &missed {
+            value["missed_thrust"] = serde_json::to_value(cases)?;
+        }
+        println!("{value}");
     } else {
         println!(
             "final mass: {:.4} kg (propellant {:.4} kg)\nthrust arcs: {} ({:.1} % of the flight)\n\
@@ -89,8 +127,36 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
             })
             .collect();
         println!("throttle: {profile}");
+        if let Some(cases) = &missed {
+            print_missed_thrust(cases);
+        }
     }
     Ok(())
+}
+
+fn print_missed_thrust(cases: &[MissedThrustCase]) {
+    println!("\nthrust lost for one cycle, the rest re-planned to the same arrival:");
+    println!("cycle  from day  optimum thrusting  final mass (kg)  extra propellant (kg)");
+    for c in cases {
+        let outcome = match (c.final_mass_kg, c.extra_propellant_kg) {
+            // A re-plan that finds the optimum again differs from it by round-off: no "-0.000".
+            (Some(m), Some(extra)) => format!("{m:>15.3}  {:>21.3}", if extra.abs() < 5e-4 { 0.0 } else { extra }),
+            _ => format!("  not reached: {}", c.failure.as_deref().unwrap_or("")),
+        };
+        println!(
+            "{:>5}  {:>8.1}  {:>16.0} %  {outcome}",
+            c.cycle,
+            c.start_days,
+            100.0 * c.optimum_thrusting_share
+        );
+    }
+    let reached: Vec<f64> = cases.iter().filter_map(|c| c.extra_propellant_kg).collect();
+    let worst = reached.iter().copied().fold(0.0, f64::max);
+    println!(
+        "{} of {} losses recovered; the worst recovered one costs {worst:.3} kg more propellant",
+        reached.len(),
+        cases.len()
+    );
 }
 
 fn write_outputs(out: &Path, json: &str, csv: &str) -> std::io::Result<()> {

@@ -31,9 +31,25 @@ fn solve_3d_writes_the_optimum_and_its_trajectory() {
         "--json",
         "--out",
         out_dir.to_str().unwrap(),
+        "--missed-thrust",
+        "8",
+        "--plot",
+        out_dir.join("optimum.svg").to_str().unwrap(),
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let printed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // Eight cycles of 43.6 days, each lost in turn: the last is the arrival burn's.
+    let cases = printed["missed_thrust"].as_array().unwrap();
+    assert_eq!(cases.len(), 8);
+    assert!(cases[7]["failure"].as_str().unwrap().contains("no time left"));
+    let missed_csv = std::fs::read_to_string(out_dir.join("missed-thrust.csv")).unwrap();
+    assert_eq!(missed_csv.lines().count(), 9);
+    let svg = std::fs::read_to_string(out_dir.join("optimum.svg")).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("extra propellant"),
+        "{}",
+        &svg[..80.min(svg.len())]
+    );
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("optimum.json")).unwrap()).unwrap();
     assert_eq!(printed["final_mass_kg"], written["final_mass_kg"]);
@@ -56,6 +72,16 @@ fn solve_3d_writes_the_optimum_and_its_trajectory() {
     }
     assert!((last[7] - mass).abs() < 1e-9);
     let _ = std::fs::remove_dir_all(&out_dir);
+    let out = ground(&[
+        "data",
+        "solve-3d",
+        "--problem",
+        earth_mars().to_str().unwrap(),
+        "--missed-thrust",
+        "0",
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--missed-thrust"));
 }
 
 #[test]

@@ -208,13 +208,16 @@ pub fn propagate_sensitivity3(
     )
 }
 
-/// A rendezvous in three dimensions: from `departure` (mass 1) to `arrival` at exactly
-/// `time_of_flight`, mass-optimal. Terminal conditions (7): r(tf), v(tf) equal the arrival
+/// A rendezvous in three dimensions: from `departure` (with `initial_mass`) to `arrival` at
+/// exactly `time_of_flight`, mass-optimal. Terminal conditions (7): r(tf), v(tf) equal the arrival
 /// state, lambda_m(tf) = 0; unknowns: the seven initial costates.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SpatialRendezvous {
     /// State at t = 0.
     pub departure: SpatialState,
+    /// Mass at t = 0, fraction of the mass the spacecraft's thrust is scaled by (1 at the
+    /// mission's departure; less for a re-plan from mid-flight).
+    pub initial_mass: f64,
     /// State to meet at t = `time_of_flight`.
     pub arrival: SpatialState,
     /// Time of flight (t*).
@@ -235,6 +238,7 @@ impl SpatialRendezvous {
         };
         Ok(Self {
             departure: embed(start.r, start.v),
+            initial_mass: 1.0,
             arrival: embed(end.r, end.v),
             time_of_flight: scenario.time_of_flight(),
             spacecraft,
@@ -245,7 +249,20 @@ impl SpatialRendezvous {
     pub fn initial_state_costate(&self, z: &SpatialVector) -> [f64; Y3_LEN] {
         let d = &self.departure;
         [
-            d.r[0], d.r[1], d.r[2], d.v[0], d.v[1], d.v[2], 1.0, z[0], z[1], z[2], z[3], z[4], z[5], z[6],
+            d.r[0],
+            d.r[1],
+            d.r[2],
+            d.v[0],
+            d.v[1],
+            d.v[2],
+            self.initial_mass,
+            z[0],
+            z[1],
+            z[2],
+            z[3],
+            z[4],
+            z[5],
+            z[6],
         ]
     }
 
@@ -413,6 +430,9 @@ pub fn solve_spatial_rendezvous(
     }
     if !(problem.time_of_flight.is_finite() && problem.time_of_flight > 0.0) {
         return Err(SpatialSolveError::Invalid("the time of flight is not positive"));
+    }
+    if !(problem.initial_mass.is_finite() && problem.initial_mass > 0.0) {
+        return Err(SpatialSolveError::Invalid("the initial mass is not positive"));
     }
     let guesses = if guesses.is_empty() {
         spatial_guesses(problem)
