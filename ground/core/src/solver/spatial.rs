@@ -10,7 +10,7 @@
 //! out-of-plane components stays in its plane (every out-of-plane derivative is a product with
 //! an out-of-plane component), which [`lift_planar`] and the planar-equivalence tests use.
 
-use nalgebra::{Const, SMatrix, SVector};
+use nalgebra::{Const, DimMin, SMatrix, SVector};
 use num_dual::{Derivative, DualNum, DualVec64};
 use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::Scenario;
@@ -414,43 +414,65 @@ pub enum SpatialSolveError {
     },
 }
 
-/// Solves a spatial rendezvous as the planar solver solves one (docs/spec.md sections 3.3, 3.6):
-/// the multi-start of `guesses` at eps = 1 ([`spatial_guesses`] when empty), every distinct
-/// energy optimum continued to the final level, the largest final mass kept; then a fresh
-/// propagation checks the terminal conditions.
-pub fn solve_spatial_rendezvous(
-    problem: &SpatialRendezvous,
-    guesses: Vec<SpatialVector>,
+/// What the spatial driver ([`solve_spatial`]) needs of a problem beyond its residual.
+pub(crate) trait SpatialShooting<const K: usize>: ShootingProblem<K> {
+    /// Why the problem cannot be posed, if it cannot.
+    fn invalid(&self) -> Option<&'static str>;
+    /// The multi-start's own guesses at eps = 1.
+    fn guesses(&self) -> Vec<SVector<f64, K>>;
+    /// The final state-costate of unknowns `z` at `eps`.
+    fn final_state_costate(
+        &self,
+        eps: f64,
+        z: &SVector<f64, K>,
+        tolerances: &Tolerances,
+    ) -> Result<[f64; Y3_LEN], IntegrationError>;
+    /// An energy-optimal start from the planar fallbacks on the problem flattened into the
+    /// departure plane, carried out of the plane by continuation.
+    fn start_from_flattened(&self, options: &SolveOptions) -> Result<SVector<f64, K>, String>;
+    /// Each start's homotopy budget.
+    fn homotopy_work(&self, options: &SolveOptions) -> u64;
+}
+
+/// The solution of [`solve_spatial`]: unknowns, level, fresh residual, final mass, distinct
+/// energy optima.
+pub(crate) struct SpatialSolved<const K: usize> {
+    pub(crate) z: SVector<f64, K>,
+    pub(crate) eps: f64,
+    pub(crate) residual: f64,
+    pub(crate) final_mass: f64,
+    pub(crate) distinct: u32,
+}
+
+/// Solves a spatial problem as the planar solver solves one (docs/spec.md sections 3.3, 3.6):
+/// the multi-start of `guesses` at eps = 1 (the problem's own when empty), every distinct energy
+/// optimum continued to the final level, the largest final mass kept, the flattened problem's
+/// start where no guess converges; then a fresh propagation checks the terminal conditions.
+pub(crate) fn solve_spatial<P: SpatialShooting<K>, const K: usize>(
+    problem: &P,
+    guesses: Vec<SVector<f64, K>>,
     options: &SolveOptions,
-) -> Result<SpatialSolution, SpatialSolveError> {
-    if !(problem.departure.is_valid() && problem.arrival.is_valid()) {
-        return Err(SpatialSolveError::Invalid(
-            "a state is not finite or sits at the centre",
-        ));
+) -> Result<SpatialSolved<K>, SpatialSolveError>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
+    if let Some(why) = problem.invalid() {
+        return Err(SpatialSolveError::Invalid(why));
     }
-    if !(problem.time_of_flight.is_finite() && problem.time_of_flight > 0.0) {
-        return Err(SpatialSolveError::Invalid("the time of flight is not positive"));
-    }
-    if !(problem.initial_mass.is_finite() && problem.initial_mass > 0.0) {
-        return Err(SpatialSolveError::Invalid("the initial mass is not positive"));
-    }
-    let guesses = if guesses.is_empty() {
-        spatial_guesses(problem)
-    } else {
-        guesses
-    };
-    let mass = |z: &SpatialVector, eps: f64| {
+    let guesses = if guesses.is_empty() { problem.guesses() } else { guesses };
+    let mass = |z: &SVector<f64, K>, eps: f64| {
         problem
             .final_state_costate(eps, z, &options.tolerances)
             .ok()
             .map(|y| y[idx3::M])
     };
-    let mut solved = solve_multistart(problem, guesses, options, options.max_homotopy_work, &mass);
+    let work = problem.homotopy_work(options);
+    let mut solved = solve_multistart(problem, guesses, options, work, &mass);
     // No guess converged at eps = 1: the planar solver's own fallbacks on the problem flattened
-    // into the departure plane, then continuation of the arrival out of that plane.
+    // into the departure plane, then continuation out of that plane.
     if matches!(solved, Err((_, 0))) {
-        let flat = match start_from_flattened(problem, options) {
-            Ok(z) => match solve_multistart(problem, vec![z], options, options.max_homotopy_work, &mass) {
+        let flat = match problem.start_from_flattened(options) {
+            Ok(z) => match solve_multistart(problem, vec![z], options, work, &mass) {
                 Err((from_flat, 0)) => Err(format!("; from the flattened problem's start: {from_flat}")),
                 other => Ok(other),
             },
@@ -474,20 +496,74 @@ pub fn solve_spatial_rendezvous(
     }
     let z = solved.level.outcome.z;
     let eps = solved.level.eps;
-    let yf = problem
-        .final_state_costate(eps, &z, &options.tolerances)
-        .map_err(|e| SpatialSolveError::NotSolved(format!("the solution's propagation failed: {e:?}")))?;
-    let residual = problem.terminal(&yf).amax();
+    let residual = problem
+        .residual_only(eps, &z, &options.tolerances)
+        .map_err(|e| SpatialSolveError::NotSolved(format!("the solution's propagation failed: {e:?}")))?
+        .amax();
     if residual > options.newton.tolerance {
         return Err(SpatialSolveError::NotSolved(format!(
-            "a fresh propagation misses the arrival by {residual:.3e}"
+            "a fresh propagation misses the target by {residual:.3e}"
         )));
     }
-    Ok(SpatialSolution {
-        costates: z,
-        final_eps: eps,
+    let final_mass =
+        mass(&z, eps).ok_or_else(|| SpatialSolveError::NotSolved("the solution's propagation failed".into()))?;
+    Ok(SpatialSolved {
+        z,
+        eps,
         residual,
-        final_mass: yf[idx3::M],
+        final_mass,
+        distinct: solved.distinct,
+    })
+}
+
+impl SpatialShooting<SPATIAL_UNKNOWNS> for SpatialRendezvous {
+    fn invalid(&self) -> Option<&'static str> {
+        if !(self.departure.is_valid() && self.arrival.is_valid()) {
+            return Some("a state is not finite or sits at the centre");
+        }
+        if !(self.time_of_flight.is_finite() && self.time_of_flight > 0.0) {
+            return Some("the time of flight is not positive");
+        }
+        if !(self.initial_mass.is_finite() && self.initial_mass > 0.0) {
+            return Some("the initial mass is not positive");
+        }
+        None
+    }
+
+    fn guesses(&self) -> Vec<SpatialVector> {
+        spatial_guesses(self)
+    }
+
+    fn final_state_costate(
+        &self,
+        eps: f64,
+        z: &SpatialVector,
+        tolerances: &Tolerances,
+    ) -> Result<[f64; Y3_LEN], IntegrationError> {
+        SpatialRendezvous::final_state_costate(self, eps, z, tolerances)
+    }
+
+    fn start_from_flattened(&self, options: &SolveOptions) -> Result<SpatialVector, String> {
+        start_from_flattened(self, options)
+    }
+
+    fn homotopy_work(&self, options: &SolveOptions) -> u64 {
+        options.max_homotopy_work
+    }
+}
+
+/// Solves a spatial rendezvous ([`solve_spatial`]; [`spatial_guesses`] when `guesses` is empty).
+pub fn solve_spatial_rendezvous(
+    problem: &SpatialRendezvous,
+    guesses: Vec<SpatialVector>,
+    options: &SolveOptions,
+) -> Result<SpatialSolution, SpatialSolveError> {
+    let solved = solve_spatial(problem, guesses, options)?;
+    Ok(SpatialSolution {
+        costates: solved.z,
+        final_eps: solved.eps,
+        residual: solved.residual,
+        final_mass: solved.final_mass,
         distinct_energy_optima: solved.distinct,
     })
 }
@@ -652,6 +728,12 @@ pub fn sample_solution(
         })
         .collect()
 }
+
+mod transfer;
+pub use transfer::{
+    lift_planar_transfer, solve_spatial_transfer, spatial_transfer_guesses, SpatialOrbitShape, SpatialTransfer,
+    SpatialTransferSolution, SpatialTransferVector, SPATIAL_TRANSFER_UNKNOWNS,
+};
 
 #[cfg(test)]
 mod tests;
