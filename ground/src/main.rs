@@ -103,12 +103,13 @@ enum DataCommand {
     /// projected dataset time on this machine, and whether the tank lasts the flight. Exit
     /// status 1 when no draw was solved.
     CheckMission(trajectories::CheckMissionArgs),
-    /// Solve one mass-optimal rendezvous in three dimensions from a problem file (departure
-    /// and arrival states, time of flight, spacecraft): the indirect method of `solve` with
-    /// out-of-plane components; optionally writes optimum.json and trajectory.csv.
+    /// Solve one mass-optimal rendezvous or transfer in three dimensions from a problem file
+    /// (departure state, arrival state or target orbit, time of flight, spacecraft): the
+    /// indirect method of `solve` with out-of-plane components; optionally the trajectory as
+    /// CSV, a figure, and the cost of each guidance cycle's thrust lost.
     #[command(name = "solve-3d")]
     Solve3d(spatial::Solve3dArgs),
-    /// Solve draws of a planar rendezvous family with the planar and the three-dimensional
+    /// Solve draws of a planar family with the planar and the three-dimensional
     /// solver and compare their optima (final mass within --tolerance, relative): exit status
     /// 1 when they differ or the three-dimensional one misses a draw the planar one solves.
     #[command(name = "check-3d")]

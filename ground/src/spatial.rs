@@ -8,10 +8,9 @@ use ground_core::plot::check_svg_path;
 use ground_core::solver::SolveOptions;
 use ground_core::spatial::{
     compare_with_planar, missed_thrust_cases, missed_thrust_csv, plot_spatial_optimum, solve_posed, trajectory_csv,
-    MissedThrustCase, SpatialRendezvousSpec,
+    MissedThrustCase, SpatialProblemSpec,
 };
 use shared::mission::MissionFamily;
-use shared::scenario::ProblemKind;
 use shared::spacecraft::Spacecraft;
 
 use crate::trajectories::family_argument;
@@ -19,7 +18,7 @@ use crate::trajectories::family_argument;
 /// `ground data solve-3d`.
 #[derive(clap::Args)]
 pub struct Solve3dArgs {
-    /// Problem file (docs/missions.md, "One rendezvous in three dimensions").
+    /// Problem file (docs/missions.md, "One rendezvous or transfer in three dimensions").
     #[arg(long)]
     problem: PathBuf,
     /// Print one JSON object instead of a summary.
@@ -43,7 +42,7 @@ pub struct Solve3dArgs {
 /// `ground data check-3d`.
 #[derive(clap::Args)]
 pub struct Check3dArgs {
-    /// A planar rendezvous family: a preset's name or a mission file.
+    /// A planar family: a preset's name or a mission file.
     #[arg(long, value_parser = family_argument)]
     scenario: MissionFamily,
     #[arg(long, default_value_t = 0)]
@@ -61,7 +60,7 @@ pub struct Check3dArgs {
 
 /// Solves a problem file's rendezvous and reports it.
 pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let posed = SpatialRendezvousSpec::from_file(&args.problem)?.pose()?;
+    let posed = SpatialProblemSpec::from_file(&args.problem)?.pose()?;
     // An output folder that cannot be made is refused before the solve, not after it.
     if let Some(out) = &args.out {
         require_parent_folder(out)?;
@@ -78,10 +77,10 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
         }
     }
     let options = SolveOptions::default();
-    let (report, solution, samples) = solve_posed(&posed, &options)?;
+    let (report, solved, samples) = solve_posed(&posed, &options)?;
     let missed = args
         .missed_thrust
-        .map(|cycles| missed_thrust_cases(&posed, &solution, cycles, &options));
+        .map(|cycles| missed_thrust_cases(&posed, &solved, cycles, &options));
     if let Some(out) = &args.out {
         write_outputs(
             out,
@@ -93,7 +92,7 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
         }
     }
     if let Some(path) = &args.plot {
-        plot_spatial_optimum(&posed, &samples, missed.as_deref(), path)?;
+        plot_spatial_optimum(&posed, &solved.flight, &samples, missed.as_deref(), path)?;
     }
     if args.json {
         let mut value = serde_json::to_value(&report)?;
@@ -167,9 +166,6 @@ fn write_outputs(out: &Path, json: &str, csv: &str) -> std::io::Result<()> {
 
 /// Solves planar rendezvous draws with both solvers; a failed check exits non-zero.
 pub fn check_3d_command(args: &Check3dArgs) -> Result<(), Box<dyn std::error::Error>> {
-    if args.scenario.problem != ProblemKind::Rendezvous {
-        return Err("check-3d compares rendezvous families: transfers are not solved in three dimensions yet".into());
-    }
     if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
         return Err(format!("--tolerance must be positive, not {}", args.tolerance).into());
     }

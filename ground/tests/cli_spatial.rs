@@ -108,7 +108,7 @@ fn a_bad_problem_file_is_refused_with_its_field_named_and_nothing_written() {
 }
 
 #[test]
-fn check_3d_compares_planar_rendezvous_draws_and_refuses_transfers() {
+fn check_3d_compares_planar_draws() {
     let out = ground(&[
         "data",
         "check-3d",
@@ -125,7 +125,44 @@ fn check_3d_compares_planar_rendezvous_draws_and_refuses_transfers() {
     assert_eq!(v["draws"], 4);
     assert!(v["both_solved"].as_u64().unwrap() >= 3, "{v}");
     assert!(v["worst_relative_difference"].as_f64().unwrap() < 1e-8);
-    let out = ground(&["data", "check-3d", "--scenario", "transfer-circular", "--count", "2"]);
+    let out = ground(&[
+        "data",
+        "check-3d",
+        "--scenario",
+        "transfer-hard",
+        "--seed",
+        "7",
+        "--count",
+        "2",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["both_solved"].as_u64().unwrap() >= 1, "{v}");
+}
+
+#[test]
+fn solve_3d_solves_an_inclined_transfer_to_a_target_orbit() {
+    let file = temp("inclined.toml");
+    std::fs::write(
+        &file,
+        "time_of_flight_days = 686.0\n[spacecraft]\nmax_thrust_n = 1.33\nisp_s = 3872.0\ninitial_mass_kg = 3366.0\n\
+         [departure]\nr = [1.0, 0.0, 0.0]\nv = [0.0, 1.0, 0.0]\n\
+         [target_orbit]\na = 1.3\ne = 0.0001\ninclination_deg = 5.0\n",
+    )
+    .unwrap();
+    let out = ground(&["data", "solve-3d", "--problem", file.to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        v["residual"].as_f64().unwrap() <= 1e-8 && v["final_anomaly_deg"].is_number(),
+        "{v}"
+    );
+    // Both goals at once are refused.
+    let both = std::fs::read_to_string(&file).unwrap() + "[arrival]\nr = [0.0, 1.3, 0.0]\nv = [-0.87, 0.0, 0.0]\n";
+    std::fs::write(&file, both).unwrap();
+    let out = ground(&["data", "solve-3d", "--problem", file.to_str().unwrap()]);
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("transfers"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("either [arrival]"));
+    let _ = std::fs::remove_file(&file);
 }

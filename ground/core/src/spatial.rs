@@ -1,6 +1,7 @@
-//! One rendezvous in three dimensions posed as data (docs/missions.md, "One rendezvous in three
-//! dimensions"): the problem file, its conversion to canonical units, the solve's report and
-//! the sampled trajectory as CSV.
+//! One rendezvous or transfer in three dimensions posed as data (docs/missions.md, "One
+//! rendezvous or transfer in three dimensions"): the problem file, its conversion to canonical
+//! units, the solve's report, the sampled trajectory as CSV and figure, the missed-thrust cases,
+//! and the comparison of the three-dimensional solver with the planar one on planar draws.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -12,8 +13,8 @@ use shared::spacecraft::{Spacecraft, SpacecraftError};
 
 use crate::mission::{BodySpec, MissionError};
 use crate::solver::spatial::{
-    sample_solution, solve_spatial_rendezvous, SpatialRendezvous, SpatialSample, SpatialSolution, SpatialSolveError,
-    SpatialState,
+    sample_solution, solve_spatial_rendezvous, solve_spatial_transfer, SpatialOrbitShape, SpatialRendezvous,
+    SpatialSample, SpatialSolution, SpatialSolveError, SpatialState, SpatialTransfer,
 };
 use crate::solver::SolveOptions;
 
@@ -40,11 +41,62 @@ fn sun() -> BodySpec {
     BodySpec::Preset("sun".into())
 }
 
-/// A rendezvous problem file: the body, the spacecraft, the time of flight, the departure state
-/// and the state to meet at arrival.
+/// A target orbit as a problem file writes it: the semi-major axis in canonical units (`a`) or
+/// in km (`a_km`), the eccentricity and the angles in degrees (each 0 by default).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct SpatialRendezvousSpec {
+pub struct TargetOrbitSpec {
+    /// Semi-major axis, canonical length units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub a: Option<f64>,
+    /// Semi-major axis, km.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub a_km: Option<f64>,
+    /// Eccentricity.
+    #[serde(default)]
+    pub e: f64,
+    /// Inclination to the xy-plane, degrees.
+    #[serde(default)]
+    pub inclination_deg: f64,
+    /// Right ascension of the ascending node, degrees.
+    #[serde(default)]
+    pub raan_deg: f64,
+    /// Argument of periapsis, degrees.
+    #[serde(default)]
+    pub argp_deg: f64,
+}
+
+impl TargetOrbitSpec {
+    fn orbit(&self, units: &Units) -> Result<SpatialOrbitShape, SpatialProblemError> {
+        let error = |why: &str| SpatialProblemError::State {
+            which: "target_orbit",
+            why: why.to_string(),
+        };
+        let a = match (self.a, self.a_km) {
+            (Some(a), None) => a,
+            (None, Some(km)) => km * 1e3 / units.length_m,
+            (Some(_), Some(_)) => return Err(error("give the semi-major axis once: a (canonical) or a_km")),
+            (None, None) => return Err(error("the semi-major axis is missing: give a (canonical) or a_km")),
+        };
+        let orbit = SpatialOrbitShape {
+            a,
+            e: self.e,
+            inclination: self.inclination_deg.to_radians(),
+            raan: self.raan_deg.to_radians(),
+            omega: self.argp_deg.to_radians(),
+        };
+        match orbit.invalid() {
+            Some(why) => Err(error(why)),
+            None => Ok(orbit),
+        }
+    }
+}
+
+/// A problem file: the body, the spacecraft, the time of flight, the departure state, and
+/// either the state to meet at arrival (a rendezvous) or the orbit to reach (a transfer).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpatialProblemSpec {
     /// The central body (as in mission files; default the Sun in AU).
     #[serde(default = "sun")]
     pub body: BodySpec,
@@ -54,8 +106,12 @@ pub struct SpatialRendezvousSpec {
     pub time_of_flight_days: f64,
     /// State at departure.
     pub departure: StateSpec,
-    /// State to meet at arrival.
-    pub arrival: StateSpec,
+    /// State to meet at arrival (a rendezvous).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arrival: Option<StateSpec>,
+    /// Orbit to reach anywhere on it (a transfer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_orbit: Option<TargetOrbitSpec>,
 }
 
 /// Why a problem file cannot be posed.
@@ -86,6 +142,9 @@ pub enum SpatialProblemError {
     /// The time of flight is not a positive number of days.
     #[error("time_of_flight_days must be a positive number of days, not {0}")]
     TimeOfFlight(f64),
+    /// Neither or both of `[arrival]` and `[target_orbit]`.
+    #[error("give either [arrival] (a rendezvous) or [target_orbit] (a transfer), one of them")]
+    Goal,
 }
 
 impl StateSpec {
@@ -114,11 +173,90 @@ impl StateSpec {
     }
 }
 
-/// A problem file's rendezvous in canonical units, with what converts back.
+/// What a problem file asks for: meet a state, or reach an orbit.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PosedRendezvous {
-    /// The problem, canonical.
-    pub problem: SpatialRendezvous,
+pub enum SpatialGoal {
+    /// Meet the arrival state at the time of flight.
+    Rendezvous(SpatialRendezvous),
+    /// Reach the target orbit at the time of flight.
+    Transfer(SpatialTransfer),
+}
+
+/// A solved goal: its flight as the rendezvous with the state it arrives at, and the solution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolvedGoal {
+    /// The departure, mass, time and spacecraft of the goal, the arrival where it arrived.
+    pub flight: SpatialRendezvous,
+    /// The solution's costates, level, residual and mass.
+    pub solution: SpatialSolution,
+    /// A transfer's arrival anomaly on the target orbit (rad).
+    pub final_anomaly: Option<f64>,
+}
+
+impl SpatialGoal {
+    /// The goal from another start: `departure` with `initial_mass`, `time_of_flight` left.
+    pub fn from(&self, departure: SpatialState, initial_mass: f64, time_of_flight: f64) -> Self {
+        match *self {
+            Self::Rendezvous(p) => Self::Rendezvous(SpatialRendezvous {
+                departure,
+                initial_mass,
+                time_of_flight,
+                ..p
+            }),
+            Self::Transfer(p) => Self::Transfer(SpatialTransfer {
+                departure,
+                initial_mass,
+                time_of_flight,
+                ..p
+            }),
+        }
+    }
+
+    /// The time of flight (t*).
+    pub fn time_of_flight(&self) -> f64 {
+        match self {
+            Self::Rendezvous(p) => p.time_of_flight,
+            Self::Transfer(p) => p.time_of_flight,
+        }
+    }
+
+    /// Solves the goal (docs/spec.md section 3.6) from the problem's own guesses.
+    pub fn solve(&self, options: &SolveOptions) -> Result<SolvedGoal, SpatialSolveError> {
+        match self {
+            Self::Rendezvous(p) => Ok(SolvedGoal {
+                flight: *p,
+                solution: solve_spatial_rendezvous(p, Vec::new(), options)?,
+                final_anomaly: None,
+            }),
+            Self::Transfer(p) => {
+                let s = solve_spatial_transfer(p, Vec::new(), options)?;
+                Ok(SolvedGoal {
+                    flight: SpatialRendezvous {
+                        departure: p.departure,
+                        initial_mass: p.initial_mass,
+                        arrival: p.target.cartesian_at(s.final_anomaly),
+                        time_of_flight: p.time_of_flight,
+                        spacecraft: p.spacecraft,
+                    },
+                    solution: SpatialSolution {
+                        costates: s.costates,
+                        final_eps: s.final_eps,
+                        residual: s.residual,
+                        final_mass: s.final_mass,
+                        distinct_energy_optima: s.distinct_energy_optima,
+                    },
+                    final_anomaly: Some(s.final_anomaly),
+                })
+            }
+        }
+    }
+}
+
+/// A problem file's goal in canonical units, with what converts back.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosedProblem {
+    /// The goal, canonical.
+    pub goal: SpatialGoal,
     /// The body.
     pub body: CentralBody,
     /// Its canonical units.
@@ -127,7 +265,7 @@ pub struct PosedRendezvous {
     pub spacecraft: Spacecraft,
 }
 
-impl SpatialRendezvousSpec {
+impl SpatialProblemSpec {
     /// Reads a problem file (TOML).
     pub fn from_file(path: &Path) -> Result<Self, SpatialProblemError> {
         let file_error = |why: String| SpatialProblemError::File {
@@ -139,7 +277,7 @@ impl SpatialRendezvousSpec {
     }
 
     /// The problem in the body's canonical units, checked.
-    pub fn pose(&self) -> Result<PosedRendezvous, SpatialProblemError> {
+    pub fn pose(&self) -> Result<PosedProblem, SpatialProblemError> {
         let body = self.body.body()?;
         if !(body.mu_m3_s2.is_finite()
             && body.mu_m3_s2 > 0.0
@@ -156,14 +294,28 @@ impl SpatialRendezvousSpec {
         if !(days.is_finite() && days > 0.0) {
             return Err(SpatialProblemError::TimeOfFlight(days));
         }
-        Ok(PosedRendezvous {
-            problem: SpatialRendezvous {
-                departure: self.departure.state("departure", &units)?,
+        let departure = self.departure.state("departure", &units)?;
+        let time_of_flight = days * DAY_S / units.time_s;
+        let spacecraft = self.spacecraft.canonical_in(&units)?;
+        let goal = match (&self.arrival, &self.target_orbit) {
+            (Some(arrival), None) => SpatialGoal::Rendezvous(SpatialRendezvous {
+                departure,
                 initial_mass: 1.0,
-                arrival: self.arrival.state("arrival", &units)?,
-                time_of_flight: days * DAY_S / units.time_s,
-                spacecraft: self.spacecraft.canonical_in(&units)?,
-            },
+                arrival: arrival.state("arrival", &units)?,
+                time_of_flight,
+                spacecraft,
+            }),
+            (None, Some(orbit)) => SpatialGoal::Transfer(SpatialTransfer {
+                departure,
+                initial_mass: 1.0,
+                target: orbit.orbit(&units)?,
+                time_of_flight,
+                spacecraft,
+            }),
+            _ => return Err(SpatialProblemError::Goal),
+        };
+        Ok(PosedProblem {
+            goal,
             body,
             units,
             spacecraft: self.spacecraft,
@@ -194,6 +346,9 @@ pub struct SpatialReport {
     pub thrusting_share: f64,
     /// Distinct energy-optimal solutions the multi-start found.
     pub distinct_energy_optima: u32,
+    /// A transfer's arrival true anomaly on the target orbit, degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub final_anomaly_deg: Option<f64>,
     /// Initial costates (lambda_r, lambda_v, lambda_m), canonical.
     pub costates: [f64; 7],
     /// Wall time of the solve and the sampling, s.
@@ -203,19 +358,19 @@ pub struct SpatialReport {
 /// Samples on the report's grid (evenly spread over the flight, both ends included).
 pub const REPORT_SAMPLES: usize = 401;
 
-/// Solves a posed rendezvous and samples it on [`REPORT_SAMPLES`] epochs.
+/// Solves a posed problem and samples it on [`REPORT_SAMPLES`] epochs.
 pub fn solve_posed(
-    posed: &PosedRendezvous,
+    posed: &PosedProblem,
     options: &SolveOptions,
-) -> Result<(SpatialReport, SpatialSolution, Vec<SpatialSample>), SpatialSolveError> {
+) -> Result<(SpatialReport, SolvedGoal, Vec<SpatialSample>), SpatialSolveError> {
     let clock = Instant::now();
-    let problem = &posed.problem;
-    let solution = solve_spatial_rendezvous(problem, Vec::new(), options)?;
+    let solved = posed.goal.solve(options)?;
+    let (problem, solution) = (&solved.flight, &solved.solution);
     let tof = problem.time_of_flight;
     let times: Vec<f64> = (0..REPORT_SAMPLES)
         .map(|k| tof * k as f64 / (REPORT_SAMPLES - 1) as f64)
         .collect();
-    let samples = sample_solution(problem, &solution, &times, &options.tolerances)
+    let samples = sample_solution(problem, solution, &times, &options.tolerances)
         .map_err(|e| SpatialSolveError::NotSolved(format!("sampling the solution failed: {e:?}")))?;
     let last = samples
         .last()
@@ -240,15 +395,16 @@ pub fn solve_posed(
         thrust_arcs,
         thrusting_share: on.iter().filter(|&&x| x).count() as f64 / on.len() as f64,
         distinct_energy_optima: solution.distinct_energy_optima,
+        final_anomaly_deg: solved.final_anomaly.map(f64::to_degrees),
         costates: core::array::from_fn(|k| solution.costates[k]),
         seconds: clock.elapsed().as_secs_f64(),
     };
-    Ok((report, solution, samples))
+    Ok((report, solved, samples))
 }
 
 /// The samples as CSV: time (days), position (km), velocity (km/s), mass (kg), throttle and the
 /// unit thrust direction, one row per sample.
-pub fn trajectory_csv(posed: &PosedRendezvous, samples: &[SpatialSample]) -> String {
+pub fn trajectory_csv(posed: &PosedProblem, samples: &[SpatialSample]) -> String {
     let (l_km, v_km_s) = (posed.units.length_m / 1e3, posed.units.velocity_m_s() / 1e3);
     let mut csv = String::from("t_days,x_km,y_km,z_km,vx_km_s,vy_km_s,vz_km_s,mass_kg,throttle,ux,uy,uz\n");
     for s in samples {
@@ -293,18 +449,19 @@ pub struct MissedThrustCase {
 /// Flies the optimum `solution` of `posed` with the thrust lost over each of `cycles` equal
 /// guidance cycles in turn (a Keplerian coast where the optimum would thrust), and re-plans the
 /// rest of the flight from the end of the lost cycle, with the mass it had there, to the same
-/// arrival state at the same time, by the indirect method (docs/spec.md section 3.6). A loss in
-/// the last cycle leaves no time to re-plan: it is a recovery only if the optimum coasts there.
+/// goal (arrival state, or target orbit) at the same time, by the indirect method (docs/spec.md
+/// section 3.6). A loss in the last cycle leaves no time to re-plan: it is a recovery only if
+/// the optimum coasts there.
 pub fn missed_thrust_cases(
-    posed: &PosedRendezvous,
-    solution: &SpatialSolution,
+    posed: &PosedProblem,
+    solved: &SolvedGoal,
     cycles: u32,
     options: &SolveOptions,
 ) -> Vec<MissedThrustCase> {
     use crate::solver::pontryagin::OptimalControlParams;
     use crate::solver::spatial::{idx3, optimal_control3, propagate3};
     use rayon::prelude::*;
-    let problem = &posed.problem;
+    let (problem, solution) = (&solved.flight, &solved.solution);
     let params = OptimalControlParams {
         spacecraft: problem.spacecraft,
         eps: solution.final_eps,
@@ -367,14 +524,9 @@ pub fn missed_thrust_cases(
                 }
                 return case;
             }
-            let replan = SpatialRendezvous {
-                departure: coasted,
-                initial_mass: mass,
-                time_of_flight: left,
-                ..*problem
-            };
-            match solve_spatial_rendezvous(&replan, Vec::new(), options) {
-                Ok(s) => {
+            match posed.goal.from(coasted, mass, left).solve(options) {
+                Ok(replanned) => {
+                    let s = replanned.solution;
                     case.final_mass_kg = Some(s.final_mass * m0);
                     case.extra_propellant_kg = Some((solution.final_mass - s.final_mass) * m0);
                 }
@@ -412,7 +564,8 @@ const ORBIT_SAMPLES: usize = 360;
 /// distance z and the throttle against time; and with `missed` the extra propellant each lost
 /// cycle costs, unreachable arrivals marked at the top.
 pub fn plot_spatial_optimum(
-    posed: &PosedRendezvous,
+    posed: &PosedProblem,
+    flight: &SpatialRendezvous,
     samples: &[SpatialSample],
     missed: Option<&[MissedThrustCase]>,
     path: &Path,
@@ -430,7 +583,7 @@ pub fn plot_spatial_optimum(
     {
         return Err(PlotError::NonFinite { record: 0 });
     }
-    let problem = &posed.problem;
+    let problem = flight;
     let orbit_of = |state: &SpatialState| -> Vec<(f64, f64)> {
         let period = 2.0 * std::f64::consts::PI * (-0.5 / state.energy()).powf(1.5);
         (0..=ORBIT_SAMPLES)
@@ -543,8 +696,8 @@ pub fn plot_spatial_optimum(
     crate::io::atomic_write(path, svg.as_bytes()).map_err(PlotError::Io)
 }
 
-/// One draw of a planar rendezvous family solved by the planar solver and, embedded in three
-/// dimensions, by the spatial one from its own guesses ([`compare_with_planar`]).
+/// One draw of a planar family solved by the planar solver and, embedded in three dimensions,
+/// by the spatial one from its own guesses ([`compare_with_planar`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PlanarComparison {
     /// Scenario index.
@@ -567,8 +720,8 @@ impl PlanarComparison {
     }
 }
 
-/// Draws `indices` of the planar rendezvous family from stream `seed`, solves each with the
-/// planar solver and the spatial one (docs/spec.md section 3.6: the optima must agree), in
+/// Draws `indices` of the planar family from stream `seed`, solves each with the planar solver
+/// and the spatial one (docs/spec.md section 3.6: the optima must agree), in
 /// parallel.
 pub fn compare_with_planar(
     family: &shared::mission::MissionFamily,
@@ -583,9 +736,16 @@ pub fn compare_with_planar(
         .map(|index| {
             let scenario = family.draw(seed, index);
             let planar = crate::solver::solve_scenario(*family, seed, index, &scenario, spacecraft, options);
-            let spatial = SpatialRendezvous::from_planar(&scenario, *spacecraft)
-                .map_err(|e| SpatialSolveError::NotSolved(format!("the body's arrival state: {e:?}")))
-                .and_then(|problem| solve_spatial_rendezvous(&problem, Vec::new(), options));
+            let goal = match scenario.problem {
+                shared::scenario::ProblemKind::Rendezvous => SpatialRendezvous::from_planar(&scenario, *spacecraft)
+                    .map(SpatialGoal::Rendezvous)
+                    .map_err(|e| SpatialSolveError::NotSolved(format!("the body's arrival state: {e:?}"))),
+                shared::scenario::ProblemKind::Transfer => Ok(SpatialGoal::Transfer(SpatialTransfer::from_planar(
+                    &scenario,
+                    *spacecraft,
+                ))),
+            };
+            let spatial = goal.and_then(|goal| goal.solve(options)).map(|solved| solved.solution);
             PlanarComparison {
                 index,
                 planar_mass: planar.converged.then_some(planar.final_mass),
@@ -604,7 +764,7 @@ pub fn compare_with_planar(
 mod tests {
     use super::*;
 
-    fn spec(text: &str) -> SpatialRendezvousSpec {
+    fn spec(text: &str) -> SpatialProblemSpec {
         toml::from_str(text).unwrap()
     }
 
@@ -624,13 +784,16 @@ mod tests {
         ))
         .pose()
         .unwrap();
-        let d = posed.problem.departure;
+        let SpatialGoal::Rendezvous(problem) = posed.goal else {
+            panic!("not a rendezvous: {:?}", posed.goal)
+        };
+        let d = problem.departure;
         assert!((d.r[0] - 1.0).abs() < 1e-15 && d.r[1] == 0.0);
         // The Sun's velocity unit is 29,784.69 m/s (docs/spec.md section 1).
         assert!((d.v[1] - 1.0).abs() < 1e-8, "{}", d.v[1]);
-        assert_eq!(posed.problem.arrival.r, [0.0, 1.5, 0.01]);
+        assert_eq!(problem.arrival.r, [0.0, 1.5, 0.01]);
         // 300 days in the Sun's time unit of 5,022,642.89 s.
-        assert!((posed.problem.time_of_flight - 300.0 * 86400.0 / 5_022_642.89).abs() < 1e-8);
+        assert!((problem.time_of_flight - 300.0 * 86400.0 / 5_022_642.89).abs() < 1e-8);
     }
 
     #[test]
@@ -658,7 +821,7 @@ mod tests {
         bad_craft.time_of_flight_days = 300.0;
         bad_craft.spacecraft.max_thrust_n = f64::NAN;
         assert!(bad_craft.pose().unwrap_err().to_string().starts_with("spacecraft"));
-        assert!(toml::from_str::<SpatialRendezvousSpec>(&format!("{BASE}\nextra = 1\n")).is_err());
+        assert!(toml::from_str::<SpatialProblemSpec>(&format!("{BASE}\nextra = 1\n")).is_err());
     }
 
     /// The shipped Earth-Mars problem file (Zavoli and Federici's rendezvous) solves to the
@@ -671,16 +834,17 @@ mod tests {
         use crate::solver::pontryagin::OptimalControlParams;
         use crate::solver::spatial::{hamiltonian3, optimal_control3, propagate3};
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/earth-mars-optimum.toml");
-        let posed = SpatialRendezvousSpec::from_file(&path).unwrap().pose().unwrap();
+        let posed = SpatialProblemSpec::from_file(&path).unwrap().pose().unwrap();
         let options = SolveOptions::default();
-        let (report, solution, samples) = solve_posed(&posed, &options).unwrap();
+        let (report, solved, samples) = solve_posed(&posed, &options).unwrap();
+        let solution = &solved.solution;
         assert!(report.residual <= 1e-8 && report.final_eps < 1e-4, "{report:?}");
         // Above the 600.23 kg of the published PPO policy, below the initial mass.
         assert!(
             report.final_mass_kg > 600.23 && report.final_mass_kg < 1000.0,
             "{report:?}"
         );
-        let problem = &posed.problem;
+        let problem = &solved.flight;
         let params = OptimalControlParams {
             spacecraft: problem.spacecraft,
             eps: solution.final_eps,
@@ -732,10 +896,10 @@ mod tests {
     #[test]
     fn a_missed_cycle_where_the_optimum_coasts_costs_nothing_and_one_that_thrusts_costs_propellant() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/earth-mars-optimum.toml");
-        let posed = SpatialRendezvousSpec::from_file(&path).unwrap().pose().unwrap();
+        let posed = SpatialProblemSpec::from_file(&path).unwrap().pose().unwrap();
         let options = SolveOptions::default();
-        let (report, solution, _) = solve_posed(&posed, &options).unwrap();
-        let cases = missed_thrust_cases(&posed, &solution, 40, &options);
+        let (report, solved, _) = solve_posed(&posed, &options).unwrap();
+        let cases = missed_thrust_cases(&posed, &solved, 40, &options);
         assert_eq!(cases.len(), 40);
         let coasting: Vec<_> = cases.iter().filter(|c| c.optimum_thrusting_share == 0.0).collect();
         assert!(coasting.len() >= 10, "{} coasting cycles", coasting.len());
