@@ -29,8 +29,8 @@ pub struct Solve3dArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Also lose the thrust for each of this many equal guidance cycles in turn and re-plan
-    /// the rest of the flight to the same arrival: the propellant each loss costs, or why the
-    /// arrival is out of reach.
+    /// the rest of the flight to the same goal (arrival state or target orbit): the propellant
+    /// each loss costs, or why the goal is out of reach.
     #[arg(long)]
     missed_thrust: Option<u32>,
     /// Also draw the optimum (the path on the xy-plane, z and the throttle against time, and
@@ -45,6 +45,7 @@ pub struct Check3dArgs {
     /// A planar family: a preset's name or a mission file.
     #[arg(long, value_parser = family_argument)]
     scenario: MissionFamily,
+    /// The stream the draws come from.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Draws 0..COUNT of the seed's stream.
@@ -58,7 +59,7 @@ pub struct Check3dArgs {
     json: bool,
 }
 
-/// Solves a problem file's rendezvous and reports it.
+/// Solves a problem file's rendezvous or transfer and reports it.
 pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Error>> {
     let posed = SpatialProblemSpec::from_file(&args.problem)?.pose()?;
     // An output folder that cannot be made is refused before the solve, not after it.
@@ -164,7 +165,7 @@ fn write_outputs(out: &Path, json: &str, csv: &str) -> std::io::Result<()> {
     atomic_write(&out.join("trajectory.csv"), csv.as_bytes())
 }
 
-/// Solves planar rendezvous draws with both solvers; a failed check exits non-zero.
+/// Solves planar draws with both solvers; a failed check exits non-zero.
 pub fn check_3d_command(args: &Check3dArgs) -> Result<(), Box<dyn std::error::Error>> {
     if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
         return Err(format!("--tolerance must be positive, not {}", args.tolerance).into());

@@ -8,7 +8,7 @@
 //! frame's (alpha_r, alpha_theta). Coasting arcs use the exact Kepler solution; thrusting arcs the
 //! adaptive integrator. Nothing here panics or allocates.
 
-use shared::orbit::{cross3, norm3, SpatialState};
+use shared::orbit::{norm3, SpatialState};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::dynamics::{PropagationError, StateError};
@@ -97,16 +97,7 @@ impl RtnCommand {
     /// The inertial unit direction at `orbit`, or `None` where the RTN frame is undefined (the
     /// velocity along the radius: no orbit plane).
     pub fn inertial_direction(&self, orbit: &SpatialState) -> Option<[f64; 3]> {
-        let rn = norm3(&orbit.r);
-        let h = cross3(&orbit.r, &orbit.v);
-        let hn = norm3(&h);
-        if !(rn > 0.0 && hn > 0.0 && hn.is_finite()) {
-            return None;
-        }
-        let r_hat = orbit.r.map(|x| x / rn);
-        let n_hat = h.map(|x| x / hn);
-        let t_hat = cross3(&n_hat, &r_hat);
-        let ([r0, r1, r2], [t0, t1, t2], [n0, n1, n2]) = (r_hat, t_hat, n_hat);
+        let [[r0, r1, r2], [t0, t1, t2], [n0, n1, n2]] = orbit.rtn_frame()?;
         let (a, b, c) = (self.radial, self.transverse, self.normal);
         Some([
             a * r0 + b * t0 + c * n0,

@@ -126,6 +126,21 @@ impl SpatialState {
     pub fn angular_momentum(&self) -> [f64; 3] {
         cross3(&self.r, &self.v)
     }
+
+    /// The local RTN frame as rows: radial r_hat, transverse t_hat = n_hat x r_hat, normal n_hat
+    /// along the angular momentum; `None` at the centre or with the velocity along the radius
+    /// (no orbit plane).
+    pub fn rtn_frame(&self) -> Option<[[f64; 3]; 3]> {
+        let rn = norm3(&self.r);
+        let h = cross3(&self.r, &self.v);
+        let hn = norm3(&h);
+        if !(rn > 0.0 && hn > 0.0 && hn.is_finite()) {
+            return None;
+        }
+        let r_hat = self.r.map(|x| x / rn);
+        let n_hat = h.map(|x| x / hn);
+        Some([r_hat, cross3(&n_hat, &r_hat), n_hat])
+    }
 }
 
 impl OrbitShape {

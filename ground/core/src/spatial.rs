@@ -128,13 +128,21 @@ pub enum SpatialProblemError {
     /// The body cannot be posed.
     #[error(transparent)]
     Body(#[from] MissionError),
+    /// A body given by figures that are not finite and positive.
+    #[error("body: mu ({mu_m3_s2} m^3/s^2) and the length unit ({length_unit_m} m) must be finite and positive")]
+    BodyFigures {
+        /// Gravitational parameter given.
+        mu_m3_s2: f64,
+        /// Length unit given.
+        length_unit_m: f64,
+    },
     /// The spacecraft cannot be posed.
     #[error("spacecraft: {0}")]
     Spacecraft(#[from] SpacecraftError),
     /// A state is given twice, not at all, or not finite.
     #[error("{which}: {why}")]
     State {
-        /// `departure` or `arrival`.
+        /// `departure`, `arrival` or `target_orbit`.
         which: &'static str,
         /// What is wrong.
         why: String,
@@ -284,10 +292,10 @@ impl SpatialProblemSpec {
             && body.length_unit_m.is_finite()
             && body.length_unit_m > 0.0)
         {
-            return Err(SpatialProblemError::Body(MissionError::UnknownBody(format!(
-                "mu {} m^3/s^2, length unit {} m (both must be positive)",
-                body.mu_m3_s2, body.length_unit_m
-            ))));
+            return Err(SpatialProblemError::BodyFigures {
+                mu_m3_s2: body.mu_m3_s2,
+                length_unit_m: body.length_unit_m,
+            });
         }
         let units = body.units();
         let days = self.time_of_flight_days;
@@ -516,11 +524,29 @@ pub fn missed_thrust_cases(
             };
             let left = problem.time_of_flight - f64::from(k + 1) * cycle;
             if k + 1 == cycles {
-                if case.optimum_thrusting_share == 0.0 {
+                // No time left: the loss is recovered only where the coast ends where the
+                // optimum does (it coasts through the whole cycle), to the acceptance accuracy.
+                let end = match at(problem.time_of_flight) {
+                    Ok(y) => y,
+                    Err(e) => {
+                        case.failure = Some(format!("the optimum's propagation failed: {e:?}"));
+                        return case;
+                    }
+                };
+                let gap = (0..3)
+                    .map(|i| {
+                        (coasted.r[i] - end[idx3::R + i])
+                            .abs()
+                            .max((coasted.v[i] - end[idx3::V + i]).abs())
+                    })
+                    .fold(0.0, f64::max);
+                if gap <= options.newton.tolerance {
                     case.final_mass_kg = Some(mass * m0);
-                    case.extra_propellant_kg = Some(0.0);
+                    case.extra_propellant_kg = Some((solution.final_mass - mass) * m0);
                 } else {
-                    case.failure = Some("no time left to re-plan".into());
+                    case.failure = Some(format!(
+                        "no time left to re-plan: the flight ends {gap:.1e} from the goal"
+                    ));
                 }
                 return case;
             }

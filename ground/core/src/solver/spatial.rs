@@ -50,7 +50,7 @@ pub mod idx3 {
 }
 
 pub use shared::orbit::SpatialState;
-use shared::orbit::{cross3 as cross, dot3 as dot, norm3 as norm};
+use shared::orbit::{dot3 as dot, norm3 as norm};
 
 /// Switching function rho = lambda_m + c |lambda_v| / m - 1.
 pub fn switching_function3<D: DualNum<Primitive = f64> + Copy>(y: &[D; Y3_LEN], exhaust_speed: f64) -> D {
@@ -232,14 +232,10 @@ impl SpatialRendezvous {
     pub fn from_planar(scenario: &Scenario, spacecraft: CanonicalSpacecraft) -> Result<Self, IntegrationError> {
         let start = scenario.initial.cartesian();
         let end = body_at(scenario, scenario.time_of_flight())?;
-        let embed = |r: [f64; 2], v: [f64; 2]| SpatialState {
-            r: [r[0], r[1], 0.0],
-            v: [v[0], v[1], 0.0],
-        };
         Ok(Self {
-            departure: embed(start.r, start.v),
+            departure: SpatialState::from_planar(&start),
             initial_mass: 1.0,
-            arrival: embed(end.r, end.v),
+            arrival: SpatialState::from_planar(&end),
             time_of_flight: scenario.time_of_flight(),
             spacecraft,
         })
@@ -247,23 +243,7 @@ impl SpatialRendezvous {
 
     /// The initial state-costate for initial costates `z`.
     pub fn initial_state_costate(&self, z: &SpatialVector) -> [f64; Y3_LEN] {
-        let d = &self.departure;
-        [
-            d.r[0],
-            d.r[1],
-            d.r[2],
-            d.v[0],
-            d.v[1],
-            d.v[2],
-            self.initial_mass,
-            z[0],
-            z[1],
-            z[2],
-            z[3],
-            z[4],
-            z[5],
-            z[6],
-        ]
+        initial_state_costate3(&self.departure, self.initial_mass, z)
     }
 
     fn params(&self, eps: f64) -> OptimalControlParams {
@@ -339,6 +319,14 @@ impl ShootingProblem<SPATIAL_UNKNOWNS> for SpatialRendezvous {
     }
 }
 
+/// The state-costate at departure: the state, `mass`, and the initial costates `z`.
+pub fn initial_state_costate3(departure: &SpatialState, mass: f64, z: &SpatialVector) -> [f64; Y3_LEN] {
+    let (r, v) = (departure.r, departure.v);
+    [
+        r[0], r[1], r[2], v[0], v[1], v[2], mass, z[0], z[1], z[2], z[3], z[4], z[5], z[6],
+    ]
+}
+
 /// Planar rendezvous unknowns (lambda_x, lambda_y, lambda_vx, lambda_vy, lambda_m) embedded in
 /// three dimensions with zero out-of-plane costates.
 pub fn lift_planar(z: &RendezvousVector) -> SpatialVector {
@@ -350,19 +338,21 @@ pub fn lift_planar(z: &RendezvousVector) -> SpatialVector {
 /// (the primer along the velocity for a raise, against it for a lowering, then the other sign),
 /// several magnitudes, out-of-plane costates zero.
 pub fn spatial_guesses(problem: &SpatialRendezvous) -> Vec<SpatialVector> {
-    let d = &problem.departure;
-    let rn = norm(&d.r);
-    let r_hat = d.r.map(|x| x / rn);
-    let h = cross(&d.r, &d.v);
-    let hn = norm(&h);
-    let h_hat = h.map(|x| x / hn);
-    let theta_hat = cross(&h_hat, &r_hat);
     let semi_major = |s: &SpatialState| -0.5 / s.energy();
-    let raise = if semi_major(&problem.arrival) >= semi_major(d) {
-        1.0
-    } else {
-        -1.0
+    costate_guesses(
+        &problem.departure,
+        semi_major(&problem.arrival) >= semi_major(&problem.departure),
+    )
+}
+
+/// The costate shapes of [`spatial_guesses`] from `departure`, the primer first along the
+/// velocity when `raise`, against it otherwise.
+pub(crate) fn costate_guesses(departure: &SpatialState, raise: bool) -> Vec<SpatialVector> {
+    // A departure without an orbit plane has no guesses: the fallbacks then say why.
+    let Some([r_hat, theta_hat, _]) = departure.rtn_frame() else {
+        return Vec::new();
     };
+    let raise = if raise { 1.0 } else { -1.0 };
     let mut guesses = Vec::new();
     for (k_r, k_v) in [(0.3, 0.3), (0.1, 0.1), (1.0, 1.0), (0.3, 0.1)] {
         for sign in [raise, -raise] {
@@ -389,7 +379,7 @@ pub struct SpatialSolution {
     pub final_eps: f64,
     /// Largest terminal residual of a fresh propagation at `final_eps` (canonical, max norm).
     pub residual: f64,
-    /// Final mass, fraction of the initial mass.
+    /// Final mass, fraction of m0 (the mass the thrust is scaled by).
     pub final_mass: f64,
     /// Distinct energy-optimal solutions found by the multi-start.
     pub distinct_energy_optima: u32,
@@ -552,7 +542,8 @@ impl SpatialShooting<SPATIAL_UNKNOWNS> for SpatialRendezvous {
     }
 }
 
-/// Solves a spatial rendezvous ([`solve_spatial`]; [`spatial_guesses`] when `guesses` is empty).
+/// Solves a spatial rendezvous as the planar solver solves one (docs/spec.md sections 3.3, 3.6),
+/// from `guesses` ([`spatial_guesses`] when empty).
 pub fn solve_spatial_rendezvous(
     problem: &SpatialRendezvous,
     guesses: Vec<SpatialVector>,
@@ -569,17 +560,9 @@ pub fn solve_spatial_rendezvous(
 }
 
 /// An orthonormal frame (rows e1, e2, e3) with e3 along the departure's angular momentum and e1
-/// along its position: the departure orbit's plane is the frame's xy-plane.
+/// along its position (its RTN frame): the departure orbit's plane is the frame's xy-plane.
 fn departure_frame(departure: &SpatialState) -> Option<[[f64; 3]; 3]> {
-    let (rn, h) = (norm(&departure.r), cross(&departure.r, &departure.v));
-    let hn = norm(&h);
-    if !(rn > 0.0 && hn > 0.0 && hn.is_finite()) {
-        return None;
-    }
-    let e1 = departure.r.map(|x| x / rn);
-    let e3 = h.map(|x| x / hn);
-    let e2 = cross(&e3, &e1);
-    Some([e1, e2, e3])
+    departure.rtn_frame()
 }
 
 fn to_frame(frame: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
@@ -649,14 +632,29 @@ fn start_from_flattened(problem: &SpatialRendezvous, options: &SolveOptions) -> 
         },
         ..*problem
     };
+    continue_at_energy_optimum(at, &z0, options, "the arrival's out-of-plane components")
+}
+
+/// Carries the energy-optimal (eps = 1) solution `z0` of `at(0)` to one of `at(1)` by Newton
+/// continuation in s (the step doubled after a success, halved after a failure, down to 1/256);
+/// `what` names the parameter in the error.
+pub(crate) fn continue_at_energy_optimum<P: ShootingProblem<K>, const K: usize>(
+    at: impl Fn(f64) -> P,
+    z0: &SVector<f64, K>,
+    options: &SolveOptions,
+    what: &str,
+) -> Result<SVector<f64, K>, String>
+where
+    Const<K>: DimMin<Const<K>, Output = Const<K>>,
+{
     let tolerances = options.start_tolerances();
-    let solve = |s: f64, guess: &SpatialVector| {
+    let solve = |s: f64, guess: &SVector<f64, K>| {
         super::shooting::newton(&at(s), 1.0, guess, &tolerances, &options.start_newton)
             .ok()
             .filter(|o| o.converged)
             .map(|o| o.z)
     };
-    let mut z = solve(0.0, &z0).ok_or("the lifted planar start does not solve the flattened problem")?;
+    let mut z = solve(0.0, z0).ok_or("the lifted planar start does not solve the flattened problem")?;
     let (mut s, mut ds) = (0.0f64, 1.0f64);
     while s < 1.0 {
         let next = (s + ds).min(1.0);
@@ -666,7 +664,7 @@ fn start_from_flattened(problem: &SpatialRendezvous, options: &SolveOptions) -> 
                 ds = (2.0 * ds).min(1.0);
             }
             None if ds > 1.0 / 256.0 => ds *= 0.5,
-            None => return Err(format!("continuation out of the departure plane stopped at s = {s:.3}")),
+            None => return Err(format!("continuation in {what} stopped at s = {s:.3}")),
         }
     }
     Ok(z)

@@ -2,6 +2,7 @@ use super::*;
 use crate::solver::pontryagin::{self, idx, Y_LEN};
 use crate::solver::shooting::{initial_state_costate, ShootingProblem};
 use crate::solver::{rendezvous_starts, solve_scenario, transfer_guesses};
+use shared::orbit::cross3 as cross;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
@@ -194,7 +195,7 @@ fn a_rotated_rendezvous_has_the_same_optimum_and_rotated_costates() {
     let m = rotation([0.8, 0.35, -0.3, 0.2]);
     let tilted = rotated(&flat, &m);
     let b = solve_spatial_rendezvous(&tilted, Vec::new(), &options).unwrap();
-    assert!(b.departure_inclination_check(&tilted) > 0.5);
+    assert!(inclination_of_departure(&tilted) > 0.5);
     assert!(
         (a.final_mass - b.final_mass).abs() < 1e-9 * a.final_mass,
         "{} vs {}",
@@ -220,17 +221,15 @@ fn a_rotated_rendezvous_has_the_same_optimum_and_rotated_costates() {
     assert!(b.residual <= 1e-8);
 }
 
-impl SpatialSolution {
-    /// The inclination (rad) of the problem's departure orbit to the xy-plane: the test above
-    /// asserts its rotation left that plane.
-    fn departure_inclination_check(&self, problem: &SpatialRendezvous) -> f64 {
-        let h = cross(&problem.departure.r, &problem.departure.v);
-        (h[2] / norm(&h)).acos()
-    }
+/// The inclination (rad) of the problem's departure orbit to the xy-plane: the test above
+/// asserts its rotation left that plane.
+fn inclination_of_departure(problem: &SpatialRendezvous) -> f64 {
+    let h = cross(&problem.departure.r, &problem.departure.v);
+    (h[2] / norm(&h)).acos()
 }
 
 /// The planar-equivalence check of docs/spec.md section 3.6 on a few draws (the 100-draw run is
-/// `ground data spatial-check`): the spatial solver, from the planar solver's guesses embedded,
+/// `ground data check-3d`): the spatial solver, from the planar solver's guesses embedded,
 /// ends at the planar optimum.
 #[test]
 fn planar_rendezvous_draws_have_the_planar_optima() {
@@ -298,6 +297,26 @@ fn a_planar_orbit_in_three_dimensions_is_the_planar_orbit_and_its_elements_round
         (back.omega, inclined.omega),
     ] {
         assert!((x - y).abs() < 1e-14, "{back:?}");
+    }
+    // In the plane, prograde and retrograde: the inverse puts the node on the x-axis and
+    // gives back the same orbit (its states agree).
+    for inclination in [0.0, std::f64::consts::PI] {
+        let flat = SpatialOrbitShape {
+            inclination,
+            raan: 0.0,
+            ..inclined
+        };
+        let (p, q) = flat.perifocal();
+        let back = SpatialOrbitShape::from_perifocal(1.1, 0.2, &p, &q);
+        for nu in [0.0, 1.0, 4.0] {
+            let (x, y) = (flat.cartesian_at(nu), back.cartesian_at(nu));
+            for k in 0..3 {
+                assert!(
+                    (x.r[k] - y.r[k]).abs() < 1e-14 && (x.v[k] - y.v[k]).abs() < 1e-14,
+                    "i = {inclination}: {back:?}"
+                );
+            }
+        }
     }
     // Energy and angular momentum of the orbit's states: a and p.
     for nu in [0.3, 2.0] {

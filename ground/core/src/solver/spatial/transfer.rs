@@ -11,8 +11,8 @@ use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use super::{
-    departure_frame, from_frame, idx3, propagate3, propagate_sensitivity3, spatial_guesses, to_frame,
-    SpatialRendezvous, SpatialShooting, SpatialSolveError, SpatialVector, FLAT_CYCLES, Y3_LEN,
+    costate_guesses, departure_frame, from_frame, idx3, initial_state_costate3, propagate3, propagate_sensitivity3,
+    to_frame, SpatialShooting, SpatialSolveError, SpatialVector, FLAT_CYCLES, Y3_LEN,
 };
 use crate::solver::shooting::{ShootingProblem, TransferVector};
 use crate::solver::SolveOptions;
@@ -82,7 +82,9 @@ impl SpatialOrbitShape {
         let w = cross3(p, q);
         let inclination = w[2].clamp(-1.0, 1.0).acos();
         let (raan, omega) = if inclination.sin() < 1e-12 {
-            (0.0, p[1].atan2(p[0]))
+            // In the plane, prograde (w_z = 1) or retrograde (w_z = -1): the node on the x-axis,
+            // and P = (cos omega, w_z sin omega, 0).
+            (0.0, (p[1] * w[2].signum()).atan2(p[0]))
         } else {
             let raan = w[0].atan2(-w[1]);
             let (sn, cn) = raan.sin_cos();
@@ -154,16 +156,6 @@ impl SpatialTransfer {
         }
     }
 
-    fn as_rendezvous_of_costates(&self) -> SpatialRendezvous {
-        SpatialRendezvous {
-            departure: self.departure,
-            initial_mass: self.initial_mass,
-            arrival: self.departure,
-            time_of_flight: self.time_of_flight,
-            spacecraft: self.spacecraft,
-        }
-    }
-
     fn costates(z: &SpatialTransferVector) -> SpatialVector {
         SpatialVector::from_column_slice(&z.as_slice()[..7])
     }
@@ -175,9 +167,7 @@ impl SpatialTransfer {
         z: &SpatialTransferVector,
         tolerances: &Tolerances,
     ) -> Result<[f64; Y3_LEN], IntegrationError> {
-        let y0 = self
-            .as_rendezvous_of_costates()
-            .initial_state_costate(&Self::costates(z));
+        let y0 = initial_state_costate3(&self.departure, self.initial_mass, &Self::costates(z));
         propagate3(&self.params(eps), 0.0, &y0, self.time_of_flight, tolerances)
     }
 
@@ -225,9 +215,7 @@ impl ShootingProblem<SPATIAL_TRANSFER_UNKNOWNS> for SpatialTransfer {
         ),
         IntegrationError,
     > {
-        let y0 = self
-            .as_rendezvous_of_costates()
-            .initial_state_costate(&Self::costates(z));
+        let y0 = initial_state_costate3(&self.departure, self.initial_mass, &Self::costates(z));
         let ys = propagate_sensitivity3(&self.params(eps), &y0, self.time_of_flight, tolerances)?;
         let (f, orbit) = self.terminal(&ys, z[7]);
         let sens = |row: usize, k: usize| ys[Y3_LEN + k * Y3_LEN + row];
@@ -254,10 +242,13 @@ fn anomaly_in_target_plane(departure: &SpatialState, target: &SpatialOrbitShape)
 }
 
 /// The planar solver's transfer guesses (docs/spec.md section 3.3) in three dimensions: the
-/// rendezvous costate shapes of [`spatial_guesses`], each with the final anomalies reached by
+/// rendezvous costate shapes of [`super::spatial_guesses`], each with the final anomalies reached by
 /// sweeping at the mean, initial and final mean motions.
 pub fn spatial_transfer_guesses(problem: &SpatialTransfer) -> Vec<SpatialTransferVector> {
-    let shapes = spatial_guesses(&problem.as_rendezvous_of_costates().with_arrival_orbit(&problem.target));
+    let shapes = costate_guesses(
+        &problem.departure,
+        problem.target.a >= -0.5 / problem.departure.energy(),
+    );
     let n0 = (-2.0 * problem.departure.energy()).powf(1.5);
     let nf = problem.target.a.powf(-1.5);
     let start = anomaly_in_target_plane(&problem.departure, &problem.target);
@@ -272,17 +263,6 @@ pub fn spatial_transfer_guesses(problem: &SpatialTransfer) -> Vec<SpatialTransfe
         }
     }
     guesses
-}
-
-impl SpatialRendezvous {
-    /// This problem with an arrival on `orbit` (its periapsis state): only the guesses read it,
-    /// for the direction of the transfer (raise or lower).
-    fn with_arrival_orbit(&self, orbit: &SpatialOrbitShape) -> Self {
-        Self {
-            arrival: orbit.cartesian_at(0.0),
-            ..*self
-        }
-    }
 }
 
 impl SpatialShooting<SPATIAL_TRANSFER_UNKNOWNS> for SpatialTransfer {
@@ -388,27 +368,7 @@ fn start_from_flattened_transfer(
             ..*problem
         }
     };
-    let tolerances = options.start_tolerances();
-    let solve = |s: f64, guess: &SpatialTransferVector| {
-        crate::solver::shooting::newton(&at(s), 1.0, guess, &tolerances, &options.start_newton)
-            .ok()
-            .filter(|o| o.converged)
-            .map(|o| o.z)
-    };
-    let mut z = solve(0.0, &z0).ok_or("the lifted planar start does not solve the flattened transfer")?;
-    let (mut s, mut ds) = (0.0f64, 1.0f64);
-    while s < 1.0 {
-        let next = (s + ds).min(1.0);
-        match solve(next, &z) {
-            Some(found) => {
-                (s, z) = (next, found);
-                ds = (2.0 * ds).min(1.0);
-            }
-            None if ds > 1.0 / 256.0 => ds *= 0.5,
-            None => return Err(format!("continuation in the inclination stopped at s = {s:.3}")),
-        }
-    }
-    Ok(z)
+    super::continue_at_energy_optimum(at, &z0, options, "the inclination to the departure plane")
 }
 
 /// A solved spatial transfer.
@@ -422,14 +382,14 @@ pub struct SpatialTransferSolution {
     pub final_eps: f64,
     /// Largest terminal residual of a fresh propagation at `final_eps`.
     pub residual: f64,
-    /// Final mass, fraction of the initial mass.
+    /// Final mass, fraction of m0 (the mass the thrust is scaled by).
     pub final_mass: f64,
     /// Distinct energy-optimal solutions found by the multi-start.
     pub distinct_energy_optima: u32,
 }
 
-/// Solves a spatial transfer ([`super::solve_spatial`]; [`spatial_transfer_guesses`] when
-/// `guesses` is empty).
+/// Solves a spatial transfer as the planar solver solves one (docs/spec.md sections 3.3, 3.6),
+/// from `guesses` ([`spatial_transfer_guesses`] when empty).
 pub fn solve_spatial_transfer(
     problem: &SpatialTransfer,
     guesses: Vec<SpatialTransferVector>,
