@@ -340,10 +340,16 @@ pub(crate) fn orbit_points(shape: &OrbitShape) -> Vec<(f64, f64)> {
 /// Splits the sampled path into maximal runs of segments that thrust (mean throttle of the two
 /// ends above [`THRUST_THRESHOLD`]) or coast; consecutive runs share their joining sample.
 fn thrust_runs(samples: &[TrajectorySample]) -> Vec<(bool, Vec<(f64, f64)>)> {
+    let points: Vec<(f64, (f64, f64))> = samples.iter().map(|s| (s.throttle, (s.r[0], s.r[1]))).collect();
+    thrust_runs_of(&points)
+}
+
+/// [`thrust_runs`] of (throttle, (x, y)) points: planar samples or spatial ones projected.
+pub(crate) fn thrust_runs_of(points: &[(f64, (f64, f64))]) -> Vec<(bool, Vec<(f64, f64)>)> {
     let mut runs: Vec<(bool, Vec<(f64, f64)>)> = Vec::new();
-    for w in samples.windows(2) {
-        let thrusting = 0.5 * (w[0].throttle + w[1].throttle) > THRUST_THRESHOLD;
-        let (a, b) = ((w[0].r[0], w[0].r[1]), (w[1].r[0], w[1].r[1]));
+    for w in points.windows(2) {
+        let thrusting = 0.5 * (w[0].0 + w[1].0) > THRUST_THRESHOLD;
+        let (a, b) = (w[0].1, w[1].1);
         match runs.last_mut() {
             Some((t, points)) if *t == thrusting => points.push(b),
             _ => runs.push((thrusting, vec![a, b])),

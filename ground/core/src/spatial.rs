@@ -385,12 +385,8 @@ pub fn solve_posed(
         .copied()
         .ok_or_else(|| SpatialSolveError::NotSolved("no samples".into()))?;
     let miss = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
-    let on: Vec<bool> = samples.iter().map(|s| s.throttle > 0.5).collect();
-    let thrust_arcs = on
-        .iter()
-        .enumerate()
-        .filter(|&(k, &x)| x && (k == 0 || !on[k - 1]))
-        .count() as u32;
+    let thrust_arcs = crate::solver::record::count_arcs(samples.iter().map(|s| s.throttle));
+    let thrusting = samples.iter().filter(|s| s.throttle > 0.5).count();
     let m0 = posed.spacecraft.initial_mass_kg;
     let report = SpatialReport {
         time_of_flight_days: tof * posed.units.time_s / DAY_S,
@@ -401,7 +397,7 @@ pub fn solve_posed(
         position_miss_m: miss(last.state.r, problem.arrival.r) * posed.units.length_m,
         velocity_miss_m_s: miss(last.state.v, problem.arrival.v) * posed.units.velocity_m_s(),
         thrust_arcs,
-        thrusting_share: on.iter().filter(|&&x| x).count() as f64 / on.len() as f64,
+        thrusting_share: thrusting as f64 / samples.len() as f64,
         distinct_energy_optima: solution.distinct_energy_optima,
         final_anomaly_deg: solved.final_anomaly.map(f64::to_degrees),
         costates: core::array::from_fn(|k| solution.costates[k]),
@@ -617,18 +613,11 @@ pub fn plot_spatial_optimum(
             .map(|s| (s.r[0], s.r[1]))
             .collect()
     };
-    let mut runs: Vec<(bool, Vec<(f64, f64)>)> = Vec::new();
-    for pair in samples.windows(2) {
-        let thrusting = 0.5 * (pair[0].throttle + pair[1].throttle) > 0.5;
-        let (a, b) = (
-            (pair[0].state.r[0], pair[0].state.r[1]),
-            (pair[1].state.r[0], pair[1].state.r[1]),
-        );
-        match runs.last_mut() {
-            Some((t, points)) if *t == thrusting => points.push(b),
-            _ => runs.push((thrusting, vec![a, b])),
-        }
-    }
+    let points: Vec<(f64, (f64, f64))> = samples
+        .iter()
+        .map(|s| (s.throttle, (s.state.r[0], s.state.r[1])))
+        .collect();
+    let runs = crate::plot::thrust_runs_of(&points);
     let days = |t: f64| t * posed.units.time_s / DAY_S;
     let first = samples[0].state.r;
     let last = samples[samples.len() - 1].state.r;

@@ -215,10 +215,15 @@ pub fn sample_grids(scenario: &Scenario) -> (Vec<f64>, Vec<f64>) {
 
 /// Maximal runs of samples with u > 1/2.
 pub fn count_thrust_arcs(samples: &[TrajectorySample]) -> u32 {
+    count_arcs(samples.iter().map(|s| s.throttle))
+}
+
+/// Maximal runs of u > 1/2 in a sequence of sampled throttles (planar or spatial samples).
+pub fn count_arcs(throttles: impl IntoIterator<Item = f64>) -> u32 {
     let mut arcs = 0;
     let mut on = false;
-    for s in samples {
-        let now = s.throttle > 0.5;
+    for u in throttles {
+        let now = u > 0.5;
         if now && !on {
             arcs += 1;
         }
