@@ -224,6 +224,32 @@ impl OdeSystem<STATE_LEN> for PolarHoldDynamics {
     }
 }
 
+/// The checks of a zero-order-hold step's spacecraft and duration (planar and [`crate::spatial`]).
+pub(crate) fn check_step(spacecraft: &CanonicalSpacecraft, duration: f64) -> Result<(), PropagationError> {
+    if !spacecraft.is_valid() {
+        return Err(PropagationError::Spacecraft);
+    }
+    if !duration.is_finite() {
+        return Err(PropagationError::Duration);
+    }
+    Ok(())
+}
+
+/// Refuses a step at `throttle` from mass `m` that would empty the tank: the mass is linear in
+/// time for a constant throttle.
+pub(crate) fn check_tank(
+    m: f64,
+    throttle: f64,
+    spacecraft: &CanonicalSpacecraft,
+    duration: f64,
+) -> Result<(), PropagationError> {
+    let final_mass = m - spacecraft.thrust * throttle * duration / spacecraft.exhaust_speed;
+    if final_mass.is_nan() || final_mass <= 0.0 {
+        return Err(PropagationError::MassDepleted);
+    }
+    Ok(())
+}
+
 /// Propagates `state` for `duration` (t*) under `command` held in the polar frame.
 ///
 /// Zero throttle coasts on the exact Kepler solution; otherwise the adaptive integrator runs
@@ -237,21 +263,12 @@ pub fn propagate(
 ) -> Result<SpacecraftState, PropagationError> {
     state.validate().map_err(PropagationError::State)?;
     command.validate()?;
-    if !spacecraft.is_valid() {
-        return Err(PropagationError::Spacecraft);
-    }
-    if !duration.is_finite() {
-        return Err(PropagationError::Duration);
-    }
+    check_step(spacecraft, duration)?;
     if command.throttle == 0.0 {
         let end = coast(&state.cartesian(), duration).map_err(PropagationError::Kepler)?;
         return Ok(SpacecraftState::from_cartesian(&end, state.m));
     }
-    // Mass is linear in time for a constant throttle: refuse a step that would empty the tank.
-    let final_mass = state.m - spacecraft.thrust * command.throttle * duration / spacecraft.exhaust_speed;
-    if final_mass.is_nan() || final_mass <= 0.0 {
-        return Err(PropagationError::MassDepleted);
-    }
+    check_tank(state.m, command.throttle, spacecraft, duration)?;
     let system = PolarHoldDynamics {
         spacecraft: *spacecraft,
         command: *command,

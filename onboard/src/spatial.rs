@@ -11,7 +11,7 @@
 use shared::orbit::{norm3, SpatialState};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use crate::dynamics::{PropagationError, StateError};
+use crate::dynamics::{check_step, check_tank, PropagationError, StateError};
 use crate::integrator::{integrate, OdeSystem, Tolerances};
 use crate::kepler::coast3;
 
@@ -153,12 +153,7 @@ pub fn propagate_rtn(
 ) -> Result<SpatialCraftState, PropagationError> {
     state.validate().map_err(PropagationError::State)?;
     command.validate()?;
-    if !spacecraft.is_valid() {
-        return Err(PropagationError::Spacecraft);
-    }
-    if !duration.is_finite() {
-        return Err(PropagationError::Duration);
-    }
+    check_step(spacecraft, duration)?;
     if command.throttle == 0.0 {
         let end = coast3(&state.orbit, duration).map_err(PropagationError::Kepler)?;
         return Ok(SpatialCraftState { orbit: end, m: state.m });
@@ -166,11 +161,7 @@ pub fn propagate_rtn(
     if command.inertial_direction(&state.orbit).is_none() {
         return Err(PropagationError::NoOrbitPlane);
     }
-    // Mass is linear in time for a constant throttle: refuse a step that would empty the tank.
-    let final_mass = state.m - spacecraft.thrust * command.throttle * duration / spacecraft.exhaust_speed;
-    if final_mass.is_nan() || final_mass <= 0.0 {
-        return Err(PropagationError::MassDepleted);
-    }
+    check_tank(state.m, command.throttle, spacecraft, duration)?;
     let system = RtnHoldDynamics {
         spacecraft: *spacecraft,
         command: *command,
