@@ -274,18 +274,29 @@ type Dual5 = DualVec64<Const<SENS_COLS>>;
 
 /// The state-costate derivatives and the variational equations on one throttle branch.
 fn sensitivity_rhs(ys: &[f64; YS_LEN], params: &OptimalControlParams, regime: Regime, dydt: &mut [f64; YS_LEN]) {
-    // Seed each component with its row of the sensitivity matrix: the dual parts of f then
-    // are J(y) * Phi, the right-hand side of the variational equations.
-    let y: [Dual5; Y_LEN] = core::array::from_fn(|i| {
-        let row = SVector::<f64, SENS_COLS>::from_fn(|k, _| ys[Y_LEN + k * Y_LEN + i]);
-        Dual5::new(ys[i], Derivative::some(row))
+    variational_rhs::<Y_LEN, SENS_COLS>(ys, |y: &[Dual5; Y_LEN]| state_costate_rhs_in(y, params, regime), dydt);
+}
+
+/// A right-hand side with its variational equations by forward-mode duals: `ys` holds y (`Y`
+/// components) and then `K` columns of a sensitivity matrix Phi (column k from `Y + k Y`).
+/// Each component is seeded with its row of Phi, so the dual parts of `rhs` are J(y) Phi, the
+/// columns' derivatives. Serves the planar sensitivity and transition matrix and the spatial
+/// sensitivity.
+pub(crate) fn variational_rhs<const Y: usize, const K: usize>(
+    ys: &[f64],
+    rhs: impl Fn(&[DualVec64<Const<K>>; Y]) -> [DualVec64<Const<K>>; Y],
+    dydt: &mut [f64],
+) {
+    let y: [DualVec64<Const<K>>; Y] = core::array::from_fn(|i| {
+        let row = SVector::<f64, K>::from_fn(|k, _| ys[Y + k * Y + i]);
+        DualVec64::new(ys[i], Derivative::some(row))
     });
-    let f = state_costate_rhs_in(&y, params, regime);
+    let f = rhs(&y);
     for (i, fi) in f.iter().enumerate() {
         dydt[i] = fi.re;
-        let d = fi.eps.unwrap_generic(Const::<SENS_COLS>, Const::<1>);
-        for k in 0..SENS_COLS {
-            dydt[Y_LEN + k * Y_LEN + i] = d[k];
+        let d = fi.eps.unwrap_generic(Const::<K>, Const::<1>);
+        for k in 0..K {
+            dydt[Y + k * Y + i] = d[k];
         }
     }
 }
@@ -738,18 +749,7 @@ type Dual10 = DualVec64<Const<Y_LEN>>;
 /// The state-costate derivatives and the variational equations of the full transition matrix on
 /// one throttle branch.
 pub(crate) fn stm_rhs(ys: &[f64; STM_LEN], params: &OptimalControlParams, regime: Regime, dydt: &mut [f64; STM_LEN]) {
-    let y: [Dual10; Y_LEN] = core::array::from_fn(|i| {
-        let row = SVector::<f64, Y_LEN>::from_fn(|k, _| ys[Y_LEN + k * Y_LEN + i]);
-        Dual10::new(ys[i], Derivative::some(row))
-    });
-    let f = state_costate_rhs_in(&y, params, regime);
-    for (i, fi) in f.iter().enumerate() {
-        dydt[i] = fi.re;
-        let d = fi.eps.unwrap_generic(Const::<Y_LEN>, Const::<1>);
-        for k in 0..Y_LEN {
-            dydt[Y_LEN + k * Y_LEN + i] = d[k];
-        }
-    }
+    variational_rhs::<Y_LEN, Y_LEN>(ys, |y: &[Dual10; Y_LEN]| state_costate_rhs_in(y, params, regime), dydt);
 }
 
 /// [`propagate`] from (t0, y0) to t1 with the transition matrix d y(t1) / d y(t0): returns y(t1)

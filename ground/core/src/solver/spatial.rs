@@ -11,13 +11,14 @@
 //! an out-of-plane component), which [`lift_planar`] and the planar-equivalence tests use.
 
 use nalgebra::{Const, DimMin, SMatrix, SVector};
-use num_dual::{Derivative, DualNum, DualVec64};
+use num_dual::{DualNum, DualVec64};
 use onboard::integrator::{IntegrationError, Tolerances};
 use shared::scenario::Scenario;
 use shared::spacecraft::CanonicalSpacecraft;
 
 use super::pontryagin::{
-    run_modal, BranchRhs, NoClock, OptimalControlParams, Regime, SwitchingLayout, SENSITIVITY_STEP_WORK,
+    run_modal, variational_rhs, BranchRhs, NoClock, OptimalControlParams, Regime, SwitchingLayout,
+    SENSITIVITY_STEP_WORK,
 };
 use super::shooting::{body_at, RendezvousVector, ShootingProblem};
 use super::{solve_multistart, SolveOptions};
@@ -154,20 +155,11 @@ impl BranchRhs<YS3_LEN> for SensitivityRhs3 {
     type Layout = Spatial;
 
     fn rhs(&self, ys: &[f64; YS3_LEN], regime: Regime, dydt: &mut [f64; YS3_LEN]) {
-        // Each component seeded with its row of the sensitivity matrix: the dual parts of f are
-        // J(y) * Phi, the variational equations' right-hand side.
-        let y: [Dual7; Y3_LEN] = core::array::from_fn(|i| {
-            let row = SVector::<f64, SPATIAL_UNKNOWNS>::from_fn(|k, _| ys[Y3_LEN + k * Y3_LEN + i]);
-            Dual7::new(ys[i], Derivative::some(row))
-        });
-        let f = state_costate_rhs3_in(&y, &self.0, regime);
-        for (i, fi) in f.iter().enumerate() {
-            dydt[i] = fi.re;
-            let d = fi.eps.unwrap_generic(Const::<SPATIAL_UNKNOWNS>, Const::<1>);
-            for k in 0..SPATIAL_UNKNOWNS {
-                dydt[Y3_LEN + k * Y3_LEN + i] = d[k];
-            }
-        }
+        variational_rhs::<Y3_LEN, SPATIAL_UNKNOWNS>(
+            ys,
+            |y: &[Dual7; Y3_LEN]| state_costate_rhs3_in(y, &self.0, regime),
+            dydt,
+        );
     }
 }
 
