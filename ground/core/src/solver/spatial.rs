@@ -409,6 +409,9 @@ pub(crate) trait SpatialShooting<const K: usize>: ShootingProblem<K> {
         z: &SVector<f64, K>,
         tolerances: &Tolerances,
     ) -> Result<[f64; Y3_LEN], IntegrationError>;
+    /// The terminal conditions at the final state-costate `y` of unknowns `z`: what
+    /// [`ShootingProblem::residual_only`] returns after propagating.
+    fn terminal_of(&self, y: &[f64; Y3_LEN], z: &SVector<f64, K>) -> SVector<f64, K>;
     /// An energy-optimal start from the planar fallbacks on the problem flattened into the
     /// departure plane, carried out of the plane by continuation.
     fn start_from_flattened(&self, options: &SolveOptions) -> Result<SVector<f64, K>, String>;
@@ -478,22 +481,21 @@ where
     }
     let z = solved.level.outcome.z;
     let eps = solved.level.eps;
-    let residual = problem
-        .residual_only(eps, &z, &options.tolerances)
-        .map_err(|e| SpatialSolveError::NotSolved(format!("the solution's propagation failed: {e:?}")))?
-        .amax();
+    // One fresh propagation gives both the acceptance residual and the final mass.
+    let end = problem
+        .final_state_costate(eps, &z, &options.tolerances)
+        .map_err(|e| SpatialSolveError::NotSolved(format!("the solution's propagation failed: {e:?}")))?;
+    let residual = problem.terminal_of(&end, &z).amax();
     if residual > options.newton.tolerance {
         return Err(SpatialSolveError::NotSolved(format!(
             "a fresh propagation misses the target by {residual:.3e}"
         )));
     }
-    let final_mass =
-        mass(&z, eps).ok_or_else(|| SpatialSolveError::NotSolved("the solution's propagation failed".into()))?;
     Ok(SpatialSolved {
         z,
         eps,
         residual,
-        final_mass,
+        final_mass: end[idx3::M],
         distinct: solved.distinct,
     })
 }
@@ -523,6 +525,10 @@ impl SpatialShooting<SPATIAL_UNKNOWNS> for SpatialRendezvous {
         tolerances: &Tolerances,
     ) -> Result<[f64; Y3_LEN], IntegrationError> {
         SpatialRendezvous::final_state_costate(self, eps, z, tolerances)
+    }
+
+    fn terminal_of(&self, y: &[f64; Y3_LEN], _z: &SpatialVector) -> SpatialVector {
+        self.terminal(y)
     }
 
     fn start_from_flattened(&self, options: &SolveOptions) -> Result<SpatialVector, String> {

@@ -292,6 +292,10 @@ impl SpatialShooting<SPATIAL_TRANSFER_UNKNOWNS> for SpatialTransfer {
         SpatialTransfer::final_state_costate(self, eps, z, tolerances)
     }
 
+    fn terminal_of(&self, y: &[f64; Y3_LEN], z: &SpatialTransferVector) -> SpatialTransferVector {
+        self.terminal(y, z[7]).0
+    }
+
     fn start_from_flattened(&self, options: &SolveOptions) -> Result<SpatialTransferVector, String> {
         start_from_flattened_transfer(self, options)
     }
