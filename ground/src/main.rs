@@ -100,8 +100,8 @@ enum DataCommand {
     /// Check a scenario family before spending hours on it: its units, times of flight and
     /// cycles, the share of a sample of draws the indirect method solves, the unsolved ones
     /// classified by their minimum time of flight (infeasible or not), the solve time and the
-    /// projected dataset time on this machine, and whether the tank lasts the flight. Exit
-    /// status 1 when no draw was solved.
+    /// projected dataset time on this machine, and whether the tank lasts the flight. An
+    /// inclined family is solved in three dimensions. Exit status 1 when no draw was solved.
     CheckMission(trajectories::CheckMissionArgs),
     /// Solve one mass-optimal rendezvous or transfer in three dimensions from a problem file
     /// (departure state, arrival state or target orbit, time of flight, spacecraft): the

@@ -13,7 +13,7 @@ use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
-use shared::mission::MissionFamily;
+use shared::mission::{MissionFamily, SpatialFamily};
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -72,6 +72,13 @@ pub fn family_argument(text: &str) -> Result<MissionFamily, String> {
         .map_err(|e| e.to_string())
 }
 
+/// `--scenario` of the commands that take inclined families too, checked.
+pub fn spatial_family_argument(text: &str) -> Result<SpatialFamily, String> {
+    FamilySpec::from_argument(text)
+        .and_then(|spec| spec.spatial_family())
+        .map_err(|e| e.to_string())
+}
+
 #[derive(clap::Args)]
 pub struct GenerateArgs {
     /// The scenario family: a preset's name (transfer-circular, transfer-hard,
@@ -103,9 +110,10 @@ pub struct GenerateArgs {
 /// `ground data check-mission`: a family checked on a sample of its draws.
 #[derive(clap::Args)]
 pub struct CheckMissionArgs {
-    /// The scenario family: a preset's name or a mission file (docs/missions.md).
-    #[arg(long, value_parser = family_argument)]
-    scenario: MissionFamily,
+    /// The scenario family: a preset's name or a mission file (docs/missions.md), planar or
+    /// inclined.
+    #[arg(long, value_parser = spatial_family_argument)]
+    scenario: SpatialFamily,
     /// Draws to solve and classify.
     #[arg(long, default_value_t = 20)]
     sample: u64,
@@ -140,7 +148,7 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
         initial_mass_kg: args.mass_kg,
     };
     let sc = craft
-        .canonical_in(&args.scenario.body.units())
+        .canonical_in(&args.scenario.family.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
     if args.sample == 0 {
         return Err("--sample must be at least 1".into());

@@ -207,3 +207,41 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     assert!((v["total_seconds"].as_f64().unwrap() - total).abs() <= 1e-9 * total);
     assert_eq!(v["rounds"], 40);
 }
+
+/// An inclined mission file: `check-mission` solves its draws in three dimensions, and the
+/// planar commands refuse it by name before creating anything.
+#[test]
+fn an_inclined_family_is_checked_in_three_dimensions_and_refused_by_planar_commands() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/transfer-circular-inclined.toml");
+    let out = ground(&[
+        "data",
+        "check-mission",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--sample",
+        "2",
+        "--seed",
+        "3",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["inclined"], true);
+    assert_eq!(v["sample"], 2);
+    assert_eq!(v["converged"], 2, "{v}");
+    let dir = temp("inclined-generate");
+    let out = ground(&[
+        "data",
+        "generate",
+        "--scenario",
+        file.to_str().unwrap(),
+        "--count",
+        "2",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("inclined orbits"), "{err}");
+    assert!(!dir.exists());
+}

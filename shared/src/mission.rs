@@ -8,8 +8,8 @@ use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
-use crate::orbit::{OrbitElements, OrbitShape};
-use crate::scenario::{ProblemKind, Range, Scenario};
+use crate::orbit::{OrbitElements, OrbitPlane, OrbitShape};
+use crate::scenario::{ProblemKind, Range, Scenario, SpatialScenario};
 use crate::units::{AU_M, MU_SUN_M3_S2, TIME_UNIT_S};
 
 /// Seconds in a day: times of flight and cycles are given in days.
@@ -391,6 +391,124 @@ impl MissionFamily {
     }
 }
 
+/// The ranges one orbit's plane is drawn from: inclination and node (rad).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PlaneRanges {
+    /// Inclination to the reference plane (rad), within [0, pi].
+    pub inclination: Range,
+    /// Right ascension of the ascending node (rad).
+    pub raan: Range,
+}
+
+impl PlaneRanges {
+    /// Always the reference plane: a planar family's.
+    pub const REFERENCE: Self = Self {
+        inclination: Range { lo: 0.0, hi: 0.0 },
+        raan: Range { lo: 0.0, hi: 0.0 },
+    };
+}
+
+/// A family in three dimensions (docs/spec.md section 4.2): a [`MissionFamily`] whose orbits
+/// each lie in a plane drawn from its own ranges. Every planar figure (the shapes, the
+/// anomalies, the time of flight, the cycle) is the planar family's, measured in each orbit's
+/// plane; with both planes fixed at the reference plane it is the planar family itself.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SpatialFamily {
+    /// Everything in each orbit's own plane.
+    pub family: MissionFamily,
+    /// The departure orbit's plane.
+    pub departure_plane: PlaneRanges,
+    /// The target orbit's plane.
+    pub target_plane: PlaneRanges,
+}
+
+/// Where the plane draws start in an index's stream, in 32-bit words: after the planar
+/// family's nine draws, so that a scenario's planar figures are the planar family's.
+const PLANE_WORDS: u128 = 18;
+
+impl SpatialFamily {
+    /// The planar family, in the reference plane.
+    pub const fn planar(family: MissionFamily) -> Self {
+        Self {
+            family,
+            departure_plane: PlaneRanges::REFERENCE,
+            target_plane: PlaneRanges::REFERENCE,
+        }
+    }
+
+    /// The planar family when both planes are fixed at the reference plane.
+    pub fn as_planar(&self) -> Option<MissionFamily> {
+        (self.departure_plane == PlaneRanges::REFERENCE && self.target_plane == PlaneRanges::REFERENCE)
+            .then_some(self.family)
+    }
+
+    /// Checks the planar family and both planes' ranges: the first offending field.
+    pub fn validate(&self) -> Result<(), FamilyError> {
+        self.family.validate()?;
+        let planes = [
+            (&self.departure_plane, DEPARTURE_PLANE_FIELDS),
+            (&self.target_plane, TARGET_PLANE_FIELDS),
+        ];
+        for (plane, [inclination, raan]) in planes {
+            for (range, field) in [(plane.inclination, inclination), (plane.raan, raan)] {
+                if !(range.lo.is_finite() && range.hi.is_finite()) {
+                    return refuse(field, "bounds must be finite");
+                }
+                if range.lo > range.hi {
+                    return refuse(field, "lo > hi");
+                }
+            }
+            if plane.inclination.lo < 0.0 || plane.inclination.hi > core::f64::consts::PI {
+                return refuse(inclination, "inclinations must lie in [0, pi]");
+            }
+        }
+        Ok(())
+    }
+
+    /// Draws scenario number `index` of the stream `seed`: the planar family's draw, each orbit
+    /// put in a plane drawn after it from the same stream.
+    pub fn draw(&self, seed: u64, index: u64) -> SpatialScenario {
+        let scenario = self.family.draw(seed, index);
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_stream(index);
+        rng.set_word_pos(PLANE_WORDS);
+        let mut uniform = |range: Range| {
+            let unit = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+            range.lo + (range.hi - range.lo) * unit
+        };
+        let mut plane = |ranges: &PlaneRanges| OrbitPlane {
+            inclination: uniform(ranges.inclination),
+            raan: uniform(ranges.raan),
+        };
+        SpatialScenario {
+            initial_plane: plane(&self.departure_plane),
+            target_plane: plane(&self.target_plane),
+            scenario,
+        }
+    }
+
+    /// The planar family's fingerprint when it is planar; else the CRC-32C of the whole
+    /// family's postcard encoding.
+    pub fn fingerprint(&self) -> u32 {
+        if let Some(planar) = self.as_planar() {
+            return planar.fingerprint();
+        }
+        let mut buffer = [0u8; 320];
+        let encoded = postcard::to_slice(self, &mut buffer).map(|b| &*b).unwrap_or(&[]);
+        crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(encoded)
+    }
+
+    /// A name for messages: the planar family's, or `custom-XXXXXXXX` with the fingerprint.
+    pub fn label(&self) -> FamilyLabel {
+        if let Some(planar) = self.as_planar() {
+            return planar.label();
+        }
+        let mut text = heapless::String::new();
+        let _ = write!(text, "custom-{:08x}", self.fingerprint());
+        FamilyLabel(text)
+    }
+}
+
 /// [`MissionFamily::label`]: a short name that displays.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FamilyLabel(heapless::String<24>);
@@ -410,6 +528,8 @@ impl fmt::Display for FamilyLabel {
 
 const DEPARTURE_FIELDS: [&str; 4] = ["departure.a", "departure.e", "departure.omega", "departure.nu"];
 const TARGET_FIELDS: [&str; 4] = ["target.a", "target.e", "target.omega", "target.nu"];
+const DEPARTURE_PLANE_FIELDS: [&str; 2] = ["departure.inclination", "departure.raan"];
+const TARGET_PLANE_FIELDS: [&str; 2] = ["target.inclination", "target.raan"];
 
 #[cfg(test)]
 mod tests {
@@ -503,6 +623,76 @@ mod tests {
             "same drawn time"
         );
         assert_eq!(a.initial, b.initial);
+    }
+
+    fn inclined() -> SpatialFamily {
+        SpatialFamily {
+            family: ScenarioKind::TransferCircular.family(),
+            departure_plane: PlaneRanges::REFERENCE,
+            target_plane: PlaneRanges {
+                inclination: Range {
+                    lo: 0.0,
+                    hi: 5f64.to_radians(),
+                },
+                raan: Range {
+                    lo: 0.0,
+                    hi: core::f64::consts::TAU,
+                },
+            },
+        }
+    }
+
+    #[test]
+    fn a_spatial_family_keeps_the_planar_draws_and_draws_its_planes_within_their_ranges() {
+        let planar = SpatialFamily::planar(inward());
+        assert_eq!(planar.as_planar(), Some(inward()));
+        assert_eq!(planar.fingerprint(), inward().fingerprint());
+        assert_eq!(planar.label(), inward().label());
+        assert!(planar.draw(3, 5).is_planar());
+        let family = inclined();
+        assert_eq!(family.validate(), Ok(()));
+        assert_eq!(family.as_planar(), None);
+        assert_ne!(family.fingerprint(), family.family.fingerprint());
+        assert!(family.label().as_str().starts_with("custom-"));
+        let n = 2000;
+        let mut sum = 0.0;
+        for index in 0..n {
+            let s = family.draw(11, index);
+            assert_eq!(s, family.draw(11, index));
+            assert_ne!(s.target_plane, family.draw(11, index + 1).target_plane);
+            // The planes come after the planar figures, which stay the planar family's.
+            assert_eq!(s.scenario, family.family.draw(11, index));
+            assert_eq!(s.initial_plane, OrbitPlane::REFERENCE);
+            let i = s.target_plane.inclination;
+            assert!(
+                (0.0..=5f64.to_radians()).contains(&i) && (0.0..=core::f64::consts::TAU).contains(&s.target_plane.raan)
+            );
+            assert!(s.validate().is_ok());
+            sum += i;
+        }
+        // Uniform on [0, 5 deg]: the mean within 5 standard errors of 2.5 deg.
+        let mean = sum / n as f64;
+        let sd = 5f64.to_radians() / libm::sqrt(12.0 * n as f64);
+        assert!((mean - 2.5f64.to_radians()).abs() < 5.0 * sd, "{mean}");
+        let field = |edit: &dyn Fn(&mut SpatialFamily)| {
+            let mut family = inclined();
+            edit(&mut family);
+            family.validate().map_err(|e| e.field)
+        };
+        assert_eq!(
+            field(&|f| f.target_plane.inclination.hi = 3.2),
+            Err("target.inclination")
+        );
+        assert_eq!(
+            field(&|f| f.departure_plane.inclination.lo = -0.1),
+            Err("departure.inclination")
+        );
+        assert_eq!(field(&|f| f.departure_plane.raan.hi = f64::NAN), Err("departure.raan"));
+        assert_eq!(
+            field(&|f| f.target_plane.raan = Range { lo: 1.0, hi: 0.5 }),
+            Err("target.raan")
+        );
+        assert_eq!(field(&|f| f.family.cycle = Cycle::Count(0)), Err("cycle.count"));
     }
 
     #[test]

@@ -1,5 +1,6 @@
-//! Planar Keplerian orbits in canonical units (docs/spec.md section 2): elements, polar and
-//! Cartesian states. Angles are radians here; the CLI takes degrees at the edge.
+//! Keplerian orbits in canonical units (docs/spec.md section 2): planar elements, polar and
+//! Cartesian states, and the plane that puts a planar orbit into three dimensions. Angles are
+//! radians here; the CLI takes degrees at the edge.
 
 use serde::{Deserialize, Serialize};
 
@@ -140,6 +141,57 @@ impl SpatialState {
         let r_hat = self.r.map(|x| x / rn);
         let n_hat = h.map(|x| x / hn);
         Some([r_hat, cross3(&n_hat, &r_hat), n_hat])
+    }
+}
+
+/// The plane of an orbit in three dimensions: its inclination to the reference (xy) plane and
+/// the right ascension of its ascending node (rad). A planar orbit's angles are measured in its
+/// own plane from the node line; the plane turns them into the inertial frame by R3(-raan)
+/// R1(-inclination), the classical elements' rotation (docs/spec.md section 3.6).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OrbitPlane {
+    /// Inclination to the xy-plane (rad), in [0, pi].
+    pub inclination: f64,
+    /// Right ascension of the ascending node (rad).
+    pub raan: f64,
+}
+
+impl OrbitPlane {
+    /// The xy-plane itself: planar orbits.
+    pub const REFERENCE: Self = Self {
+        inclination: 0.0,
+        raan: 0.0,
+    };
+
+    /// Whether this is exactly the reference plane (both angles zero).
+    pub fn is_reference(&self) -> bool {
+        self.inclination == 0.0 && self.raan == 0.0
+    }
+
+    /// Checks that both angles are finite and the inclination in [0, pi].
+    pub fn validate(&self) -> Result<(), OrbitError> {
+        let inclined = self.inclination.is_finite() && (0.0..=core::f64::consts::PI).contains(&self.inclination);
+        if !(inclined && self.raan.is_finite()) {
+            return Err(OrbitError::Angle);
+        }
+        Ok(())
+    }
+
+    /// A vector of the orbit plane (x along the node line) in the inertial frame. The
+    /// reference plane gives (x, y, 0) to the bit.
+    pub fn to_inertial(&self, p: [f64; 2]) -> [f64; 3] {
+        let (si, ci) = (libm::sin(self.inclination), libm::cos(self.inclination));
+        let (sn, cn) = (libm::sin(self.raan), libm::cos(self.raan));
+        let (x, y, z) = (p[0], p[1] * ci, p[1] * si);
+        [x * cn - y * sn, x * sn + y * cn, z]
+    }
+
+    /// A state of the orbit plane in the inertial frame.
+    pub fn embed(&self, c: &CartesianState) -> SpatialState {
+        SpatialState {
+            r: self.to_inertial(c.r),
+            v: self.to_inertial(c.v),
+        }
     }
 }
 
@@ -329,6 +381,67 @@ mod tests {
             assert!((d.v_r - (p.v_r - m.v_r) / (2.0 * h)).abs() < 1e-8);
             assert!((d.v_theta - (p.v_theta - m.v_theta) / (2.0 * h)).abs() < 1e-8);
         }
+    }
+
+    #[test]
+    fn a_plane_turns_the_orbit_to_its_classical_normal_and_node() {
+        let shape = OrbitShape {
+            a: 1.2,
+            e: 0.3,
+            omega: 0.9,
+        };
+        let plane = OrbitPlane {
+            inclination: 0.4,
+            raan: 2.1,
+        };
+        // The normal of an orbit of inclination i and node raan: (sin i sin raan, -sin i cos raan, cos i).
+        let (si, ci) = (libm::sin(0.4), libm::cos(0.4));
+        let normal = [si * libm::sin(2.1), -si * libm::cos(2.1), ci];
+        for k in 0..16 {
+            let nu = 0.4 * k as f64;
+            let flat = shape.cartesian_at(nu);
+            let state = plane.embed(&flat);
+            let h = state.angular_momentum();
+            let hn = norm3(&h);
+            assert!((hn - (flat.r[0] * flat.v[1] - flat.r[1] * flat.v[0])).abs() < 1e-14);
+            assert!(h.iter().zip(&normal).all(|(a, b)| (a / hn - b).abs() < 1e-14));
+            assert!((state.energy() - flat.energy()).abs() < 1e-14);
+            // The argument of latitude omega + nu is the angle from the ascending node.
+            let u = shape.omega + nu;
+            assert!((state.r[2] - norm3(&state.r) * si * libm::sin(u)).abs() < 1e-14);
+        }
+        // The ascending node: where the orbit crosses z = 0 upward, at (cos raan, sin raan, 0).
+        let node = plane.to_inertial([1.0, 0.0]);
+        assert!((node[0] - libm::cos(2.1)).abs() < 1e-15 && (node[1] - libm::sin(2.1)).abs() < 1e-15);
+        assert_eq!(node[2], 0.0);
+        // The reference plane keeps the planar state to the bit.
+        let flat = shape.cartesian_at(1.7);
+        assert_eq!(OrbitPlane::REFERENCE.embed(&flat), SpatialState::from_planar(&flat));
+        assert_eq!(plane.validate(), Ok(()));
+        assert_eq!(
+            OrbitPlane {
+                inclination: -0.1,
+                ..plane
+            }
+            .validate(),
+            Err(OrbitError::Angle)
+        );
+        assert_eq!(
+            OrbitPlane {
+                inclination: 3.2,
+                ..plane
+            }
+            .validate(),
+            Err(OrbitError::Angle)
+        );
+        assert_eq!(
+            OrbitPlane {
+                raan: f64::NAN,
+                ..plane
+            }
+            .validate(),
+            Err(OrbitError::Angle)
+        );
     }
 
     #[test]

@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::mission::{CentralBody, Cycle, MissionFamily, OrbitRanges, TimeOfFlight};
-use crate::orbit::{OrbitElements, OrbitError, OrbitShape};
+use crate::orbit::{OrbitElements, OrbitError, OrbitPlane, OrbitShape, SpatialState};
 use crate::units::STEP;
 
 /// Which optimal-control / MDP problem: free-anomaly transfer (TBT) or rendezvous (TBR).
@@ -187,6 +187,46 @@ impl Scenario {
             return Err(ScenarioError::Cycle);
         }
         Ok(())
+    }
+}
+
+/// A scenario in three dimensions (docs/spec.md section 4.2): a planar [`Scenario`] whose two
+/// orbits lie in their own planes. Every figure of `scenario` is measured in its orbit's plane.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SpatialScenario {
+    /// The scenario in each orbit's own plane.
+    pub scenario: Scenario,
+    /// The departure orbit's plane.
+    pub initial_plane: OrbitPlane,
+    /// The target orbit's plane.
+    pub target_plane: OrbitPlane,
+}
+
+impl SpatialScenario {
+    /// The planar scenario in the reference plane.
+    pub const fn planar(scenario: Scenario) -> Self {
+        Self {
+            scenario,
+            initial_plane: OrbitPlane::REFERENCE,
+            target_plane: OrbitPlane::REFERENCE,
+        }
+    }
+
+    /// Whether both orbits lie in the reference plane.
+    pub fn is_planar(&self) -> bool {
+        self.initial_plane.is_reference() && self.target_plane.is_reference()
+    }
+
+    /// The spacecraft's state at departure, inertial.
+    pub fn departure(&self) -> SpatialState {
+        self.initial_plane.embed(&self.scenario.initial.cartesian())
+    }
+
+    /// Checks the planar scenario and both planes.
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        self.scenario.validate()?;
+        self.initial_plane.validate().map_err(ScenarioError::Initial)?;
+        self.target_plane.validate().map_err(ScenarioError::Target)
     }
 }
 

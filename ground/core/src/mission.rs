@@ -6,7 +6,9 @@ use std::f64::consts::TAU;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
-use shared::mission::{CentralBody, Cycle, FamilyError, MissionFamily, OrbitRanges, TimeOfFlight};
+use shared::mission::{
+    CentralBody, Cycle, FamilyError, MissionFamily, OrbitRanges, PlaneRanges, SpatialFamily, TimeOfFlight,
+};
 use shared::scenario::{ProblemKind, Range, ScenarioKind};
 
 /// A family as written: a preset's name (`"transfer-circular"`), a mission file's path, or the
@@ -80,6 +82,12 @@ pub struct OrbitSpec {
     /// True anomaly at departure, rad (default: any, [0, 2 pi]).
     #[serde(default = "RangeSpec::full_turn")]
     pub nu: RangeSpec,
+    /// Inclination of the orbit's plane, rad (default: 0, the reference plane).
+    #[serde(default = "RangeSpec::zero", skip_serializing_if = "RangeSpec::is_zero")]
+    pub inclination: RangeSpec,
+    /// Right ascension of the plane's ascending node, rad (default: 0).
+    #[serde(default = "RangeSpec::zero", skip_serializing_if = "RangeSpec::is_zero")]
+    pub raan: RangeSpec,
 }
 
 /// A fixed value or a `[lo, hi]` range.
@@ -95,6 +103,14 @@ pub enum RangeSpec {
 impl RangeSpec {
     fn full_turn() -> Self {
         Self::Between([0.0, TAU])
+    }
+
+    fn zero() -> Self {
+        Self::Fixed(0.0)
+    }
+
+    fn is_zero(&self) -> bool {
+        self.range() == Range { lo: 0.0, hi: 0.0 }
     }
 
     fn range(self) -> Range {
@@ -169,6 +185,9 @@ pub enum MissionError {
     /// A field that cannot be posed.
     #[error("{0}")]
     Field(#[from] FamilyError),
+    /// An inclined family given to a command that flies planar families only.
+    #[error("family {0} has inclined orbits (inclination or node ranges other than 0): this command takes planar families; `ground data check-mission` solves it in three dimensions")]
+    Inclined(String),
     /// A mission file that cannot be read.
     #[error("{path}: {why}")]
     File {
@@ -180,17 +199,25 @@ pub enum MissionError {
 }
 
 impl FamilySpec {
-    /// The family, checked.
+    /// The family, checked; an inclined family is refused ([`MissionError::Inclined`]).
     pub fn family(&self) -> Result<MissionFamily, MissionError> {
+        let spatial = self.spatial_family()?;
+        spatial
+            .as_planar()
+            .ok_or_else(|| MissionError::Inclined(spatial.label().to_string()))
+    }
+
+    /// The family in three dimensions, checked: a planar one lies in the reference plane.
+    pub fn spatial_family(&self) -> Result<SpatialFamily, MissionError> {
         let family = match self {
             Self::Preset(name) => match name.parse::<ScenarioKind>() {
-                Ok(kind) => kind.family(),
+                Ok(kind) => SpatialFamily::planar(kind.family()),
                 Err(_) => match Self::from_argument(name)? {
-                    Self::Table(table) => table.family()?,
+                    Self::Table(table) => table.spatial_family()?,
                     Self::Preset(_) => return Err(MissionError::UnknownPreset(name.clone())),
                 },
             },
-            Self::Table(table) => table.family()?,
+            Self::Table(table) => table.spatial_family()?,
         };
         family.validate()?;
         Ok(family)
@@ -247,7 +274,19 @@ impl BodySpec {
 }
 
 impl FamilyTable {
-    fn family(&self) -> Result<MissionFamily, MissionError> {
+    fn spatial_family(&self) -> Result<SpatialFamily, MissionError> {
+        let plane = |spec: &OrbitSpec| PlaneRanges {
+            inclination: spec.inclination.range(),
+            raan: spec.raan.range(),
+        };
+        Ok(SpatialFamily {
+            family: self.planar_family()?,
+            departure_plane: plane(&self.departure),
+            target_plane: plane(&self.target),
+        })
+    }
+
+    fn planar_family(&self) -> Result<MissionFamily, MissionError> {
         let body = self.body.body()?;
         let orbit = |spec: &OrbitSpec| OrbitRanges {
             a: spec.a.range(),
@@ -282,6 +321,8 @@ impl FamilyTable {
             e: RangeSpec::of(ranges.e),
             omega: RangeSpec::of(ranges.omega),
             nu: RangeSpec::of(ranges.nu),
+            inclination: RangeSpec::zero(),
+            raan: RangeSpec::zero(),
         };
         Self {
             problem: match family.problem {
@@ -347,6 +388,8 @@ pub mod by_spec {
 pub struct FamilyCheck {
     /// The family's label.
     pub family: String,
+    /// Whether its orbits are inclined (solved in three dimensions; unsolved draws unclassified).
+    pub inclined: bool,
     /// Canonical units: length (m), time (s), velocity (m/s).
     pub length_unit_m: f64,
     /// Time unit, s.
@@ -466,11 +509,12 @@ pub fn check_lines(c: &FamilyCheck) -> Vec<String> {
     lines
 }
 
-/// Draws `sample` scenarios of `family` (seed `seed`), solves each by the indirect method,
-/// classifies the unsolved ones by their minimum time of flight, and gathers the units, the
-/// times and the tank's reach ([`FamilyCheck`]). Parallel over the draws (rayon).
+/// Draws `sample` scenarios of `family` (seed `seed`), solves each by the indirect method (the
+/// planar one for draws in the reference plane, the three-dimensional one otherwise),
+/// classifies the unsolved planar draws by their minimum time of flight, and gathers the units,
+/// the times and the tank's reach ([`FamilyCheck`]). Parallel over the draws (rayon).
 pub fn check_family(
-    family: &MissionFamily,
+    family: &SpatialFamily,
     spacecraft: &shared::spacecraft::CanonicalSpacecraft,
     sample: u64,
     seed: u64,
@@ -481,12 +525,26 @@ pub fn check_family(
     use crate::solver::min_time::{classify_draw, Feasibility};
     use crate::solver::solve_scenario;
 
-    let units = family.body.units();
+    let units = family.family.body.units();
     let solved: Vec<_> = (0..sample)
         .into_par_iter()
         .map(|index| {
-            let scenario = family.draw(seed, index);
-            let record = solve_scenario(*family, seed, index, &scenario, spacecraft, options);
+            let drawn = family.draw(seed, index);
+            let scenario = drawn.scenario;
+            if !drawn.is_planar() {
+                let started = std::time::Instant::now();
+                let solution = crate::spatial::SpatialGoal::of_scenario(&drawn, *spacecraft)
+                    .and_then(|goal| goal.solve(options))
+                    .ok();
+                let outcome = Outcome {
+                    final_mass: solution.map(|s| s.solution.final_mass),
+                    seconds: started.elapsed().as_secs_f64(),
+                };
+                // No minimum-time method in three dimensions yet: an unsolved draw is unclassified.
+                let verdict = outcome.final_mass.is_none().then_some(Verdict::Unknown);
+                return (scenario, outcome, verdict);
+            }
+            let record = solve_scenario(family.family, seed, index, &scenario, spacecraft, options);
             let verdict = (!record.converged).then(|| {
                 let tof = scenario.time_of_flight();
                 match classify_draw(&scenario, spacecraft, options) {
@@ -495,18 +553,18 @@ pub fn check_family(
                     _ => Verdict::Feasible,
                 }
             });
-            (scenario, record, verdict)
+            let outcome = Outcome {
+                final_mass: record.converged.then_some(record.final_mass),
+                seconds: record.seconds,
+            };
+            (scenario, outcome, verdict)
         })
         .collect();
     let count = |v: Verdict| solved.iter().filter(|(_, _, found)| *found == Some(v)).count();
     let tofs: Vec<f64> = solved.iter().map(|(s, ..)| units.to_days(s.time_of_flight())).collect();
     let cycles: Vec<u32> = solved.iter().map(|(s, ..)| s.steps).collect();
     let cycle_days: Vec<f64> = solved.iter().map(|(s, ..)| units.to_days(s.cycle)).collect();
-    let masses: Vec<f64> = solved
-        .iter()
-        .filter(|(_, r, _)| r.converged)
-        .map(|(_, r, _)| r.final_mass)
-        .collect();
+    let masses: Vec<f64> = solved.iter().filter_map(|(_, r, _)| r.final_mass).collect();
     let seconds: Vec<f64> = solved.iter().map(|(_, r, _)| r.seconds).collect();
     let extent = |v: &[f64]| {
         [
@@ -525,6 +583,7 @@ pub fn check_family(
     let full_thrust_propellant = spacecraft.thrust * longest / spacecraft.exhaust_speed;
     let mut check = FamilyCheck {
         family: family.label().to_string(),
+        inclined: family.as_planar().is_none(),
         length_unit_m: units.length_m,
         time_unit_s: units.time_s,
         velocity_unit_m_s: units.velocity_m_s(),
@@ -564,6 +623,12 @@ pub fn check_family(
         ));
     }
     check
+}
+
+/// What one draw's solve gave: its final mass when solved, and its time.
+struct Outcome {
+    final_mass: Option<f64>,
+    seconds: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -621,6 +686,33 @@ cycle = { days = 7.0 }
         assert_eq!(preset, r#"{"family":"transfer-hard"}"#);
         let binary = postcard::to_stdvec(&Holder { family }).unwrap();
         assert_eq!(postcard::from_bytes::<Holder>(&binary).unwrap().family, family);
+    }
+
+    #[test]
+    fn an_inclined_table_is_a_spatial_family_and_planar_commands_refuse_it() {
+        let text = INWARD.replace(
+            "target = { a = [0.70, 0.74], e = [0.0, 0.01] }",
+            "target = { a = [0.70, 0.74], e = [0.0, 0.01], inclination = [0.0, 0.06], raan = [0.0, 6.283185307179586] }",
+        );
+        let table: FamilyTable = toml::from_str(&text).unwrap();
+        let spatial = FamilySpec::Table(table.clone()).spatial_family().unwrap();
+        assert_eq!(spatial.target_plane.inclination, Range { lo: 0.0, hi: 0.06 });
+        assert_eq!(spatial.target_plane.raan, Range { lo: 0.0, hi: TAU });
+        assert_eq!(spatial.departure_plane, PlaneRanges::REFERENCE);
+        let planar: FamilyTable = toml::from_str(INWARD).unwrap();
+        assert_eq!(spatial.family, FamilySpec::Table(planar.clone()).family().unwrap());
+        let refusal = FamilySpec::Table(table).family().unwrap_err();
+        assert!(matches!(refusal, MissionError::Inclined(ref label) if label.starts_with("custom-")));
+        // A planar table is its own spatial family, and its written form has no plane fields.
+        let flat = FamilySpec::Table(planar).spatial_family().unwrap();
+        assert_eq!(flat.as_planar(), Some(flat.family));
+        assert!(!toml::to_string(&FamilyTable::of(&flat.family))
+            .unwrap()
+            .contains("inclination"));
+        let bad = text.replace("inclination = [0.0, 0.06]", "inclination = [0.0, 4.0]");
+        let table: FamilyTable = toml::from_str(&bad).unwrap();
+        let refusal = FamilySpec::Table(table).spatial_family().unwrap_err().to_string();
+        assert!(refusal.starts_with("target.inclination:"), "{refusal}");
     }
 
     #[test]

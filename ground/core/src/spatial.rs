@@ -9,7 +9,8 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use shared::mission::{CentralBody, Units, DAY_S};
-use shared::spacecraft::{Spacecraft, SpacecraftError};
+use shared::scenario::{ProblemKind, SpatialScenario};
+use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
 
 use crate::mission::{BodySpec, MissionError};
 use crate::solver::spatial::{
@@ -202,6 +203,16 @@ pub struct SolvedGoal {
 }
 
 impl SpatialGoal {
+    /// The goal a scenario of a family poses, each orbit in its plane.
+    pub fn of_scenario(scenario: &SpatialScenario, spacecraft: CanonicalSpacecraft) -> Result<Self, SpatialSolveError> {
+        match scenario.scenario.problem {
+            ProblemKind::Rendezvous => SpatialRendezvous::from_scenario(scenario, spacecraft)
+                .map(Self::Rendezvous)
+                .map_err(|e| SpatialSolveError::NotSolved(format!("the body's arrival state: {e:?}"))),
+            ProblemKind::Transfer => Ok(Self::Transfer(SpatialTransfer::from_scenario(scenario, spacecraft))),
+        }
+    }
+
     /// The goal from another start: `departure` with `initial_mass`, `time_of_flight` left.
     pub fn from(&self, departure: SpatialState, initial_mass: f64, time_of_flight: f64) -> Self {
         match *self {
@@ -751,16 +762,9 @@ pub fn compare_with_planar(
         .map(|index| {
             let scenario = family.draw(seed, index);
             let planar = crate::solver::solve_scenario(*family, seed, index, &scenario, spacecraft, options);
-            let goal = match scenario.problem {
-                shared::scenario::ProblemKind::Rendezvous => SpatialRendezvous::from_planar(&scenario, *spacecraft)
-                    .map(SpatialGoal::Rendezvous)
-                    .map_err(|e| SpatialSolveError::NotSolved(format!("the body's arrival state: {e:?}"))),
-                shared::scenario::ProblemKind::Transfer => Ok(SpatialGoal::Transfer(SpatialTransfer::from_planar(
-                    &scenario,
-                    *spacecraft,
-                ))),
-            };
-            let spatial = goal.and_then(|goal| goal.solve(options)).map(|solved| solved.solution);
+            let spatial = SpatialGoal::of_scenario(&SpatialScenario::planar(scenario), *spacecraft)
+                .and_then(|goal| goal.solve(options))
+                .map(|solved| solved.solution);
             PlanarComparison {
                 index,
                 planar_mass: planar.converged.then_some(planar.final_mass),

@@ -90,7 +90,13 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let options = config.generate.solve_options();
-    let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
+    let check = check_family(
+        &shared::mission::SpatialFamily::planar(config.family),
+        &spacecraft,
+        sample,
+        config.generate.seed,
+        &options,
+    );
     let costs = with_problem!(config.family.problem, P => measure::<P>(config, &check))?;
     Ok(project(config, check, costs))
 }

@@ -13,7 +13,7 @@
 use nalgebra::{Const, DimMin, SMatrix, SVector};
 use num_dual::{DualNum, DualVec64};
 use onboard::integrator::{IntegrationError, Tolerances};
-use shared::scenario::Scenario;
+use shared::scenario::{Scenario, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use super::pontryagin::{
@@ -219,16 +219,19 @@ pub struct SpatialRendezvous {
 }
 
 impl SpatialRendezvous {
-    /// The planar rendezvous `scenario` embedded in three dimensions (z = 0): the arrival is the
-    /// body's state at the end of the flight.
-    pub fn from_planar(scenario: &Scenario, spacecraft: CanonicalSpacecraft) -> Result<Self, IntegrationError> {
-        let start = scenario.initial.cartesian();
-        let end = body_at(scenario, scenario.time_of_flight())?;
+    /// The rendezvous `scenario` poses: the arrival is the body's state at the end of the
+    /// flight, on the target orbit in its plane.
+    pub fn from_scenario(
+        scenario: &SpatialScenario,
+        spacecraft: CanonicalSpacecraft,
+    ) -> Result<Self, IntegrationError> {
+        let flat = &scenario.scenario;
+        let end = body_at(flat, flat.time_of_flight())?;
         Ok(Self {
-            departure: SpatialState::from_planar(&start),
+            departure: scenario.departure(),
             initial_mass: 1.0,
-            arrival: SpatialState::from_planar(&end),
-            time_of_flight: scenario.time_of_flight(),
+            arrival: scenario.target_plane.embed(&end),
+            time_of_flight: flat.time_of_flight(),
             spacecraft,
         })
     }

@@ -189,7 +189,7 @@ fn short_options() -> SolveOptions {
 fn a_rotated_rendezvous_has_the_same_optimum_and_rotated_costates() {
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
     let scenario = ScenarioKind::RendezvousCircular.draw(7, 3);
-    let flat = SpatialRendezvous::from_planar(&scenario, sc).unwrap();
+    let flat = SpatialRendezvous::from_scenario(&SpatialScenario::planar(scenario), sc).unwrap();
     let options = short_options();
     let a = solve_spatial_rendezvous(&flat, Vec::new(), &options).unwrap();
     let m = rotation([0.8, 0.35, -0.3, 0.2]);
@@ -239,7 +239,7 @@ fn planar_rendezvous_draws_have_the_planar_optima() {
         let scenario = ScenarioKind::RendezvousCircular.draw(7, index);
         let planar = solve_scenario(ScenarioKind::RendezvousCircular, 7, index, &scenario, &sc, &options);
         assert!(planar.converged, "{:?}", planar.failure);
-        let problem = SpatialRendezvous::from_planar(&scenario, sc).unwrap();
+        let problem = SpatialRendezvous::from_scenario(&SpatialScenario::planar(scenario), sc).unwrap();
         let guesses = rendezvous_starts(transfer_guesses(&scenario))
             .iter()
             .map(lift_planar)
@@ -415,7 +415,7 @@ fn planar_hard_transfer_draws_have_the_planar_optima() {
         let scenario = ScenarioKind::TransferHard.draw(7, index);
         let planar = solve_scenario(ScenarioKind::TransferHard, 7, index, &scenario, &sc, &options);
         assert!(planar.converged, "#{index}: {:?}", planar.failure);
-        let problem = SpatialTransfer::from_planar(&scenario, sc);
+        let problem = SpatialTransfer::from_scenario(&SpatialScenario::planar(scenario), sc);
         let spatial = solve_spatial_transfer(&problem, Vec::new(), &options).unwrap();
         let relative = (spatial.final_mass - planar.final_mass).abs() / planar.final_mass;
         assert!(
@@ -423,6 +423,52 @@ fn planar_hard_transfer_draws_have_the_planar_optima() {
             "#{index}: {} vs {} ({relative:e})",
             spatial.final_mass,
             planar.final_mass
+        );
+    }
+}
+
+/// A scenario of a family in three dimensions poses its goal with each orbit in its plane: both
+/// orbits in one inclined plane is the planar scenario turned, so the optimum is the planar one
+/// (the rotation that invariance rests on is the plane's, written apart from the solver's frames).
+#[test]
+fn a_scenario_whose_orbits_share_an_inclined_plane_has_the_planar_optimum() {
+    use crate::spatial::SpatialGoal;
+    use shared::orbit::OrbitPlane;
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let options = short_options();
+    let plane = OrbitPlane {
+        inclination: 0.5,
+        raan: 2.0,
+    };
+    for kind in [ScenarioKind::RendezvousCircular, ScenarioKind::TransferHard] {
+        let scenario = kind.draw(7, 0);
+        let flat = SpatialGoal::of_scenario(&SpatialScenario::planar(scenario), sc).unwrap();
+        let turned = SpatialScenario {
+            scenario,
+            initial_plane: plane,
+            target_plane: plane,
+        };
+        let goal = SpatialGoal::of_scenario(&turned, sc).unwrap();
+        if let SpatialGoal::Transfer(t) = goal {
+            // The target orbit's elements put its points where the plane puts the planar ones.
+            for nu in [0.0, 1.0, 2.5, 4.0] {
+                let a = t.target.cartesian_at(nu);
+                let b = plane.embed(&scenario.target.cartesian_at(nu));
+                assert!(a
+                    .r
+                    .iter()
+                    .chain(&a.v)
+                    .zip(b.r.iter().chain(&b.v))
+                    .all(|(x, y)| (x - y).abs() < 1e-14));
+            }
+        }
+        let (m_flat, m_turned) = (
+            flat.solve(&options).unwrap().solution.final_mass,
+            goal.solve(&options).unwrap().solution.final_mass,
+        );
+        assert!(
+            (m_flat - m_turned).abs() < 1e-9 * m_flat,
+            "{kind:?}: {m_flat} vs {m_turned}"
         );
     }
 }

@@ -7,7 +7,7 @@ use nalgebra::{SMatrix, SVector};
 use num_dual::{Dual2_64, DualNum};
 use onboard::integrator::{IntegrationError, Tolerances};
 use shared::orbit::{cross3, dot3, OrbitShape, SpatialState};
-use shared::scenario::{ProblemKind, Scenario};
+use shared::scenario::{ProblemKind, Scenario, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use super::{
@@ -145,13 +145,18 @@ pub struct SpatialTransfer {
 }
 
 impl SpatialTransfer {
-    /// The planar transfer `scenario` embedded in three dimensions (z = 0).
-    pub fn from_planar(scenario: &Scenario, spacecraft: CanonicalSpacecraft) -> Self {
+    /// The transfer `scenario` poses, each orbit in its plane.
+    pub fn from_scenario(scenario: &SpatialScenario, spacecraft: CanonicalSpacecraft) -> Self {
+        let (target, plane) = (&scenario.scenario.target, &scenario.target_plane);
         Self {
-            departure: SpatialState::from_planar(&scenario.initial.cartesian()),
+            departure: scenario.departure(),
             initial_mass: 1.0,
-            target: SpatialOrbitShape::from_planar(&scenario.target),
-            time_of_flight: scenario.time_of_flight(),
+            target: SpatialOrbitShape {
+                inclination: plane.inclination,
+                raan: plane.raan,
+                ..SpatialOrbitShape::from_planar(target)
+            },
+            time_of_flight: scenario.scenario.time_of_flight(),
             spacecraft,
         }
     }
