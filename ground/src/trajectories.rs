@@ -5,7 +5,8 @@ use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
 use ground_core::generate::{
-    generate_in, hold_run, merge, read_dataset, trajectory_difference, Manifest, Shard, Summary,
+    generate_in, hold_run, holds_spatial_records, merge, read_dataset, read_dataset_of, trajectory_difference,
+    DatasetFamily, GenerateError, Manifest, Shard, Summary,
 };
 use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::mission::FamilySpec;
@@ -16,7 +17,7 @@ use ground_core::solver::{solve_scenario, SolveOptions};
 use shared::mission::{MissionFamily, SpatialFamily};
 use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario, ScenarioKind};
-use shared::spacecraft::Spacecraft;
+use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 use shared::units::canonical_to_days;
 
 /// `ground data solve`: one fuel-optimal case from explicit orbits or from a scenario draw.
@@ -83,8 +84,8 @@ pub fn spatial_family_argument(text: &str) -> Result<SpatialFamily, String> {
 pub struct GenerateArgs {
     /// The scenario family: a preset's name (transfer-circular, transfer-hard,
     /// rendezvous-circular, rendezvous-hard) or a mission file (docs/missions.md).
-    #[arg(long, value_parser = family_argument)]
-    scenario: MissionFamily,
+    #[arg(long, value_parser = spatial_family_argument)]
+    scenario: SpatialFamily,
     #[arg(long)]
     count: u64,
     #[arg(long, default_value_t = 0)]
@@ -190,13 +191,8 @@ fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
 
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
     let sc = Spacecraft::MSR_ERO
-        .canonical_in(&args.scenario.body.units())
+        .canonical_in(&args.scenario.family.body.units())
         .map_err(|e| format!("spacecraft: {e}"))?;
-    let manifest = Manifest {
-        family: args.scenario,
-        seed: args.seed,
-        count: args.count,
-    };
     let options = SolveOptions {
         final_eps: args.final_eps,
         arrival_margin_steps: args.arrival_margin,
@@ -205,9 +201,13 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
     if let Some(n) = args.threads {
         rayon::ThreadPoolBuilder::new().num_threads(n.get()).build_global()?;
     }
-    // Checks the request and the folder, then holds it until the figure below is written too.
-    let run = hold_run(manifest, args.shard, &args.out, &options)?;
-    let summary = generate_in(&run, manifest, args.shard, &sc, &options, true)?;
+    let Some(planar) = args.scenario.as_planar() else {
+        // An inclined family: records of the three-dimensional solver (no figure yet).
+        let summary = generate_family(args.scenario, args, &sc, &options)?;
+        print_summary(&summary);
+        return Ok(());
+    };
+    let summary = generate_family(planar, args, &sc, &options)?;
     print_summary(&summary);
     // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
     let shown = plot_dataset_sample(&args.out, args.shard)?;
@@ -218,6 +218,22 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
         );
     }
     Ok(())
+}
+
+/// Checks the request and the folder, holds it, and generates the family's records into it.
+fn generate_family<F: DatasetFamily>(
+    family: F,
+    args: &GenerateArgs,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<Summary, GenerateError> {
+    let manifest = Manifest {
+        family,
+        seed: args.seed,
+        count: args.count,
+    };
+    let run = hold_run(manifest, args.shard, &args.out, options)?;
+    generate_in(&run, manifest, args.shard, spacecraft, options, true)
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
@@ -378,7 +394,16 @@ pub fn merge_command(inputs: &[PathBuf], out: &Path) -> Result<(), Box<dyn std::
 }
 
 pub fn compare_command(first: &Path, second: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let (a, b) = (read_dataset(first)?, read_dataset(second)?);
+    if holds_spatial_records(first)? {
+        compare_of::<SpatialFamily>(first, second)
+    } else {
+        compare_of::<MissionFamily>(first, second)
+    }
+}
+
+/// [`compare_command`] of two datasets of family kind `F` (a file of the other kind is refused).
+fn compare_of<F: DatasetFamily>(first: &Path, second: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let (a, b) = (read_dataset_of::<F>(first)?, read_dataset_of::<F>(second)?);
     match trajectory_difference(&a, &b) {
         None => {
             println!(

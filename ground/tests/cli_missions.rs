@@ -208,8 +208,8 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     assert_eq!(v["rounds"], 40);
 }
 
-/// An inclined mission file: `check-mission` solves its draws in three dimensions, and the
-/// planar commands refuse it by name before creating anything.
+/// An inclined mission file: `check-mission` and `generate` solve its draws in three dimensions,
+/// and a planar command refuses it by name.
 #[test]
 fn an_inclined_family_is_checked_in_three_dimensions_and_refused_by_planar_commands() {
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/transfer-circular-inclined.toml");
@@ -229,6 +229,7 @@ fn an_inclined_family_is_checked_in_three_dimensions_and_refused_by_planar_comma
     assert_eq!(v["inclined"], true);
     assert_eq!(v["sample"], 2);
     assert_eq!(v["converged"], 2, "{v}");
+    // Generation takes it: records of the three-dimensional solver.
     let dir = temp("inclined-generate");
     let out = ground(&[
         "data",
@@ -237,11 +238,18 @@ fn an_inclined_family_is_checked_in_three_dimensions_and_refused_by_planar_comma
         file.to_str().unwrap(),
         "--count",
         "2",
+        "--seed",
+        "3",
         "--out",
         dir.to_str().unwrap(),
     ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let dataset = dir.join("dataset.ltds");
+    assert!(ground_core::generate::holds_spatial_records(&dataset).unwrap());
+    // The planar solver refuses it by name, before any work.
+    let out = ground(&["data", "solve", "--scenario", file.to_str().unwrap(), "--index", "0"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("inclined orbits"), "{err}");
-    assert!(!dir.exists());
+    let _ = std::fs::remove_dir_all(&dir);
 }

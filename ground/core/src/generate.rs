@@ -1,5 +1,6 @@
 //! Dataset generation at scale: every scenario of a distribution solved by the
-//! indirect method, in parallel, resumable, in disjoint reproducible shards.
+//! indirect method, in parallel, resumable, in disjoint reproducible shards. A planar family's
+//! draws become planar records, an inclined family's three-dimensional ones ([`DatasetFamily`]).
 //!
 //! A run folder is held by one process at a time ([`RunLock`]) while it is written.
 //!
@@ -21,20 +22,26 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::mission::MissionFamily;
+use shared::mission::{MissionFamily, SpatialFamily};
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::crosscheck::{crosscheck_records, cut_record, repair_record, CrossCheck, CrossCheckSettings};
 use crate::io::{atomic_write, decode_container, encode_container, ContainerError, LockError, RunLock};
+use crate::mission::WrittenFamily;
 use crate::progress;
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_draw, Feasibility};
 use crate::solver::record::{RecordFormat1, TrajectoryRecord};
+use crate::solver::spatial::record::{solve_spatial_draw, SpatialRecord};
 use crate::solver::{solve_arriving_early, solve_from_energy_start, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
 const DATASET_MAGIC: [u8; 4] = *b"LTDS";
+/// Records and datasets of inclined families: their own magic, so that a planar reader refuses
+/// them as another kind of file.
+const SPATIAL_RECORD_MAGIC: [u8; 4] = *b"LTR3";
+const SPATIAL_DATASET_MAGIC: [u8; 4] = *b"LTD3";
 /// Format 2: records carry their family and their scenario its cycle. Format 1 (the thesis's
 /// families, 14-day cycles) is still read.
 const FORMAT_VERSION: u16 = 2;
@@ -50,6 +57,174 @@ fn decode_any_format<T: serde::de::DeserializeOwned, Old: serde::de::Deserialize
             decode_container::<Old>(magic, FORMAT_1, bytes).map(Into::into)
         }
         decoded => decoded,
+    }
+}
+
+/// What a dataset is drawn from: a family whose draws are solved into records of one kind,
+/// planar ([`MissionFamily`], [`TrajectoryRecord`]) or inclined ([`SpatialFamily`],
+/// [`SpatialRecord`]). Generation, resumption, sharding, merging and the summaries are the same
+/// for both.
+pub trait DatasetFamily: WrittenFamily + Copy + PartialEq + std::fmt::Debug + Send + Sync + 'static {
+    /// The record one draw is solved into.
+    type Record: DatasetRecord;
+    /// Magic of a record file.
+    const RECORD_MAGIC: [u8; 4];
+    /// Magic of a dataset file.
+    const DATASET_MAGIC: [u8; 4];
+    /// The family's name for messages.
+    fn name(&self) -> String;
+    /// Solves draw `index` of stream `seed` (never fails: a failed solve is a record too).
+    fn solve(&self, seed: u64, index: u64, spacecraft: &CanonicalSpacecraft, options: &SolveOptions) -> Self::Record;
+    /// Whether `record` is draw `index` of stream `seed` of this family.
+    fn drew(&self, record: &Self::Record, seed: u64, index: u64) -> bool;
+    /// Decodes a record file (older formats included).
+    fn decode_record(bytes: &[u8]) -> Result<Self::Record, ContainerError>;
+    /// Decodes a dataset file (older formats included).
+    fn decode_dataset(bytes: &[u8]) -> Result<DatasetFile<Self>, ContainerError>;
+    /// Why these solve options cannot make the family's records, if they cannot.
+    fn unsupported(_options: &SolveOptions) -> Option<&'static str> {
+        None
+    }
+}
+
+/// The figures the summaries read from a record.
+pub trait DatasetRecord: Clone + Serialize + serde::de::DeserializeOwned + Send + Sync {
+    /// The record's figures.
+    fn figures(&self) -> RecordFigures<'_>;
+    /// The record with its solve time zeroed: what two runs of one draw share, bit for bit.
+    fn untimed(&self) -> Self;
+}
+
+/// One record's figures, whatever its kind.
+#[derive(Debug, Clone, Copy)]
+pub struct RecordFigures<'a> {
+    /// Index of the draw.
+    pub index: u64,
+    /// Whether it converged.
+    pub converged: bool,
+    /// Final mass, fraction of m0 (NaN when not converged).
+    pub final_mass: f64,
+    /// Homotopy level reached.
+    pub final_eps: f64,
+    /// Largest terminal residual.
+    pub residual: f64,
+    /// Thrust arcs on the ephemeris grid.
+    pub thrust_arcs: u32,
+    /// Solve time, s.
+    pub seconds: f64,
+    /// Guidance cycles of the flight.
+    pub steps: u32,
+    /// Why it failed.
+    pub failure: Option<&'a str>,
+}
+
+impl DatasetRecord for TrajectoryRecord {
+    fn figures(&self) -> RecordFigures<'_> {
+        RecordFigures {
+            index: self.index,
+            converged: self.converged,
+            final_mass: self.final_mass,
+            final_eps: self.final_eps,
+            residual: self.residual,
+            thrust_arcs: self.thrust_arcs,
+            seconds: self.seconds,
+            steps: self.scenario.steps,
+            failure: self.failure.as_deref(),
+        }
+    }
+
+    fn untimed(&self) -> Self {
+        Self {
+            seconds: 0.0,
+            ..self.clone()
+        }
+    }
+}
+
+impl DatasetRecord for SpatialRecord {
+    fn figures(&self) -> RecordFigures<'_> {
+        RecordFigures {
+            index: self.index,
+            converged: self.converged,
+            final_mass: self.final_mass,
+            final_eps: self.final_eps,
+            residual: self.residual,
+            thrust_arcs: self.thrust_arcs,
+            seconds: self.seconds,
+            steps: self.scenario.scenario.steps,
+            failure: self.failure.as_deref(),
+        }
+    }
+
+    fn untimed(&self) -> Self {
+        Self {
+            seconds: 0.0,
+            ..self.clone()
+        }
+    }
+}
+
+impl DatasetFamily for MissionFamily {
+    type Record = TrajectoryRecord;
+    const RECORD_MAGIC: [u8; 4] = RECORD_MAGIC;
+    const DATASET_MAGIC: [u8; 4] = DATASET_MAGIC;
+
+    fn name(&self) -> String {
+        self.label().to_string()
+    }
+
+    fn solve(
+        &self,
+        seed: u64,
+        index: u64,
+        spacecraft: &CanonicalSpacecraft,
+        options: &SolveOptions,
+    ) -> TrajectoryRecord {
+        let scenario = self.draw(seed, index);
+        solve_arriving_early(*self, seed, index, &scenario, spacecraft, options)
+    }
+
+    fn drew(&self, record: &TrajectoryRecord, seed: u64, index: u64) -> bool {
+        record.family == *self && record.seed == seed && record.index == index
+    }
+
+    fn decode_record(bytes: &[u8]) -> Result<TrajectoryRecord, ContainerError> {
+        decode_any_format::<_, RecordFormat1>(RECORD_MAGIC, bytes)
+    }
+
+    fn decode_dataset(bytes: &[u8]) -> Result<DatasetFile, ContainerError> {
+        decode_any_format::<_, DatasetFormat1>(DATASET_MAGIC, bytes)
+    }
+}
+
+impl DatasetFamily for SpatialFamily {
+    type Record = SpatialRecord;
+    const RECORD_MAGIC: [u8; 4] = SPATIAL_RECORD_MAGIC;
+    const DATASET_MAGIC: [u8; 4] = SPATIAL_DATASET_MAGIC;
+
+    fn name(&self) -> String {
+        self.label().to_string()
+    }
+
+    fn solve(&self, seed: u64, index: u64, spacecraft: &CanonicalSpacecraft, options: &SolveOptions) -> SpatialRecord {
+        solve_spatial_draw(self, seed, index, spacecraft, options)
+    }
+
+    fn drew(&self, record: &SpatialRecord, seed: u64, index: u64) -> bool {
+        record.family == *self && record.seed == seed && record.index == index
+    }
+
+    fn decode_record(bytes: &[u8]) -> Result<SpatialRecord, ContainerError> {
+        decode_container(SPATIAL_RECORD_MAGIC, FORMAT_VERSION, bytes)
+    }
+
+    fn decode_dataset(bytes: &[u8]) -> Result<DatasetFile<Self>, ContainerError> {
+        decode_container(SPATIAL_DATASET_MAGIC, FORMAT_VERSION, bytes)
+    }
+
+    fn unsupported(options: &SolveOptions) -> Option<&'static str> {
+        (options.arrival_margin_steps != 0)
+            .then_some("an arrival margin is not supported in three dimensions yet: leave --arrival-margin at 0")
     }
 }
 
@@ -109,11 +284,12 @@ impl FromStr for Shard {
 
 /// What a run generates; stored as `manifest.json` and checked on resume and merge.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Manifest {
+#[serde(bound(serialize = "F: DatasetFamily", deserialize = "F: DatasetFamily"))]
+pub struct Manifest<F = MissionFamily> {
     /// Family the scenarios are drawn from (`scenario` in manifest.json: a preset's name or the
     /// family's table).
     #[serde(rename = "scenario", with = "crate::mission::by_spec")]
-    pub family: MissionFamily,
+    pub family: F,
     /// Seed of the draws: index i is `family.draw(seed, i)`.
     pub seed: u64,
     /// Number of scenarios: indices 0..count.
@@ -155,14 +331,24 @@ impl SolveRequest {
 }
 
 /// A dataset file: the records of a run (a shard or a whole set).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DatasetFile {
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(bound(serialize = "F: DatasetFamily", deserialize = "F: DatasetFamily"))]
+pub struct DatasetFile<F: DatasetFamily = MissionFamily> {
     /// What the run generates.
-    pub manifest: Manifest,
+    pub manifest: Manifest<F>,
     /// Which shard of it these records are.
     pub shard: Shard,
     /// The records, sorted by index.
-    pub records: Vec<TrajectoryRecord>,
+    pub records: Vec<F::Record>,
+}
+
+impl<F: DatasetFamily> PartialEq for DatasetFile<F>
+where
+    F::Record: PartialEq,
+{
+    fn eq(&self, other: &Self) -> bool {
+        self.manifest == other.manifest && self.shard == other.shard && self.records == other.records
+    }
 }
 
 /// A dataset file of format 1.
@@ -196,20 +382,17 @@ pub enum GenerateError {
     Io(PathBuf, std::io::Error),
     /// The folder holds a run of another scenario, seed or count.
     #[error(
-        "output folder holds {} seed {} count {}, not {} seed {} count {}: use another --out (a larger count of the same scenario and seed extends a run)",
-        .found.family.label(),
-        .found.seed,
-        .found.count,
-        .wanted.family.label(),
-        .wanted.seed,
-        .wanted.count
+        "output folder holds {found}, not {wanted}: use another --out (a larger count of the same scenario and seed extends a run)"
     )]
     ManifestMismatch {
-        /// The folder's manifest.
-        found: Box<Manifest>,
+        /// The folder's manifest: family, seed and count.
+        found: String,
         /// The run's.
-        wanted: Box<Manifest>,
+        wanted: String,
     },
+    /// The solve options cannot make this family's records.
+    #[error("{0}")]
+    Unsupported(&'static str),
     /// The folder holds records solved to another final eps.
     #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
     FinalEpsMismatch {
@@ -338,7 +521,8 @@ pub struct Summary {
 }
 
 /// Aggregate figures of `records`, a run's (or a shard's) records; NaN where no record counts.
-pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]) -> Summary {
+pub fn summarize<F: DatasetFamily>(manifest: &Manifest<F>, shard: Shard, records: &[F::Record]) -> Summary {
+    let records: Vec<RecordFigures> = records.iter().map(DatasetRecord::figures).collect();
     let mut seconds: Vec<f64> = records.iter().map(|r| r.seconds).collect();
     seconds.sort_by(f64::total_cmp);
     let masses: Vec<f64> = records.iter().filter(|r| r.converged).map(|r| r.final_mass).collect();
@@ -354,10 +538,10 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
     let m_var = mean(&masses.iter().map(|m| (m - m_mean).powi(2)).collect::<Vec<_>>());
     let infeasible = records
         .iter()
-        .filter(|r| !r.converged && r.failure.as_deref().is_some_and(|f| f.starts_with(INFEASIBLE)))
+        .filter(|r| !r.converged && r.failure.is_some_and(|f| f.starts_with(INFEASIBLE)))
         .count();
     Summary {
-        scenario: manifest.family.label().to_string(),
+        scenario: manifest.family.name(),
         seed: manifest.seed,
         shard,
         records: records.len(),
@@ -376,7 +560,7 @@ pub fn summarize(manifest: &Manifest, shard: Shard, records: &[TrajectoryRecord]
         failures: records
             .iter()
             .filter(|r| !r.converged)
-            .map(|r| (r.index, r.failure.clone().unwrap_or_else(|| "unknown".into())))
+            .map(|r| (r.index, r.failure.unwrap_or("unknown").to_string()))
             .collect(),
     }
 }
@@ -779,23 +963,31 @@ fn record_path(out: &Path, index: u64) -> PathBuf {
     out.join("records").join(format!("{index:08}.rec"))
 }
 
-/// Writes one record, checksummed, atomically.
+/// Writes one planar record, checksummed, atomically.
 fn write_record(path: &Path, record: &TrajectoryRecord) -> Result<(), GenerateError> {
-    let bytes = encode_container(RECORD_MAGIC, FORMAT_VERSION, record)
+    write_record_of::<MissionFamily>(path, record)
+}
+
+/// Writes one record of family kind `F`, checksummed, atomically.
+fn write_record_of<F: DatasetFamily>(path: &Path, record: &F::Record) -> Result<(), GenerateError> {
+    let bytes = encode_container(F::RECORD_MAGIC, FORMAT_VERSION, record)
         .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))?;
     atomic_write(path, &bytes).map_err(io_err(path))
 }
 
 fn read_record(path: &Path) -> Result<TrajectoryRecord, GenerateError> {
+    read_record_of::<MissionFamily>(path)
+}
+
+fn read_record_of<F: DatasetFamily>(path: &Path) -> Result<F::Record, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
-    decode_any_format::<_, RecordFormat1>(RECORD_MAGIC, &bytes)
-        .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+    F::decode_record(&bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
 }
 
 /// Reads a dataset file, refusing anything corrupt or of another format.
 /// Where two datasets differ in what was solved (the solve times aside, which no two runs
 /// share): `None` when they hold the same manifest, shard and records, bit for bit.
-pub fn trajectory_difference(a: &DatasetFile, b: &DatasetFile) -> Option<String> {
+pub fn trajectory_difference<F: DatasetFamily>(a: &DatasetFile<F>, b: &DatasetFile<F>) -> Option<String> {
     if a.manifest != b.manifest {
         return Some(format!("manifests differ: {:?} and {:?}", a.manifest, b.manifest));
     }
@@ -807,24 +999,41 @@ pub fn trajectory_difference(a: &DatasetFile, b: &DatasetFile) -> Option<String>
     }
     // Compared as their encodings: a failed record's NaN final mass is equal to itself bit for
     // bit, never by `==`.
-    let untimed = |r: &TrajectoryRecord| {
-        postcard::to_allocvec(&TrajectoryRecord {
-            seconds: 0.0,
-            ..r.clone()
-        })
-        .ok()
-    };
+    let untimed = |r: &F::Record| postcard::to_allocvec(&r.untimed()).ok();
     a.records.iter().zip(&b.records).find_map(|(ra, rb)| {
         let (ea, eb) = (untimed(ra), untimed(rb));
-        (ea.is_none() || ea != eb).then(|| format!("records of index {} and {} differ", ra.index, rb.index))
+        (ea.is_none() || ea != eb).then(|| {
+            format!(
+                "records of index {} and {} differ",
+                ra.figures().index,
+                rb.figures().index
+            )
+        })
     })
 }
 
-/// Reads and checks a dataset file (`dataset.ltds` or a shard's).
+/// Reads and checks a planar dataset file (`dataset.ltds` or a shard's).
 pub fn read_dataset(path: &Path) -> Result<DatasetFile, GenerateError> {
+    read_dataset_of::<MissionFamily>(path)
+}
+
+/// Reads and checks a dataset file of family kind `F`.
+pub fn read_dataset_of<F: DatasetFamily>(path: &Path) -> Result<DatasetFile<F>, GenerateError> {
     let bytes = fs::read(path).map_err(io_err(path))?;
-    decode_any_format::<_, DatasetFormat1>(DATASET_MAGIC, &bytes)
-        .map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+    F::decode_dataset(&bytes).map_err(|e| GenerateError::Corrupt(path.to_path_buf(), e))
+}
+
+/// Whether a dataset or record file holds an inclined family's records (by its magic); a file
+/// of neither kind reads as planar, and the planar reader refuses it.
+pub fn holds_spatial_records(path: &Path) -> Result<bool, GenerateError> {
+    use std::io::Read;
+    let mut magic = [0u8; 4];
+    let read = fs::File::open(path).and_then(|mut f| f.read_exact(&mut magic));
+    match read {
+        Ok(()) => Ok(magic == SPATIAL_DATASET_MAGIC || magic == SPATIAL_RECORD_MAGIC),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(GenerateError::Io(path.to_path_buf(), e)),
+    }
 }
 
 /// Where the dataset file of a run (whole or shard) lives in its output folder.
@@ -837,15 +1046,15 @@ pub fn dataset_path(out: &Path, shard: Shard) -> PathBuf {
 }
 
 /// Writes the dataset file and the summaries of a record set into `out`.
-pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, GenerateError> {
+pub fn write_outputs<F: DatasetFamily>(out: &Path, file: &DatasetFile<F>) -> Result<Summary, GenerateError> {
     let path = dataset_path(out, file.shard);
-    let bytes =
-        encode_container(DATASET_MAGIC, FORMAT_VERSION, file).map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
+    let bytes = encode_container(F::DATASET_MAGIC, FORMAT_VERSION, file)
+        .map_err(|e| GenerateError::Corrupt(path.clone(), e))?;
     atomic_write(&path, &bytes).map_err(io_err(&path))?;
     let summary = summarize(&file.manifest, file.shard, &file.records);
     write_json(&out.join("summary.json"), &summary)?;
     let mut csv = String::from("index,converged,final_mass,final_eps,residual,thrust_arcs,seconds,steps,failure\n");
-    for r in &file.records {
+    for r in file.records.iter().map(DatasetRecord::figures) {
         csv.push_str(&format!(
             "{},{},{},{},{},{},{},{},\"{}\"\n",
             r.index,
@@ -855,8 +1064,8 @@ pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, Generate
             r.residual,
             r.thrust_arcs,
             r.seconds,
-            r.scenario.steps,
-            r.failure.as_deref().unwrap_or("").replace('"', "'")
+            r.steps,
+            r.failure.unwrap_or("").replace('"', "'")
         ));
     }
     let path = out.join("summary.csv");
@@ -866,7 +1075,11 @@ pub fn write_outputs(out: &Path, file: &DatasetFile) -> Result<Summary, Generate
 
 /// Refuses a request that cannot make a dataset: no scenario, an invalid or empty shard, or a
 /// final eps outside (0, 1]. Cheap and read-only, so callers check before creating anything.
-pub fn check_request(manifest: &Manifest, shard: Shard, options: &SolveOptions) -> Result<(), GenerateError> {
+pub fn check_request<F: DatasetFamily>(
+    manifest: &Manifest<F>,
+    shard: Shard,
+    options: &SolveOptions,
+) -> Result<(), GenerateError> {
     if shard.count == 0 || shard.index >= shard.count {
         return Err(ShardError::OutOfRange {
             index: shard.index,
@@ -887,20 +1100,29 @@ pub fn check_request(manifest: &Manifest, shard: Shard, options: &SolveOptions) 
     if !(eps.is_finite() && eps > 0.0 && eps <= 1.0) {
         return Err(GenerateError::InvalidFinalEps(eps));
     }
+    if let Some(why) = F::unsupported(options) {
+        return Err(GenerateError::Unsupported(why));
+    }
     Ok(())
 }
 
 /// The manifest of the run in `out`, if the folder holds one.
-fn read_manifest(out: &Path) -> Result<Option<Manifest>, GenerateError> {
+fn read_manifest<F: DatasetFamily>(out: &Path) -> Result<Option<Manifest<F>>, GenerateError> {
     read_json(&out.join("manifest.json"))
 }
 
+impl<F: DatasetFamily> Manifest<F> {
+    fn describe(&self) -> String {
+        format!("{} seed {} count {}", self.family.name(), self.seed, self.count)
+    }
+}
+
 /// Refuses a folder that holds a run of another manifest; says whether it holds one of `wanted`.
-fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
-    match read_manifest(out)? {
+fn check_manifest<F: DatasetFamily>(out: &Path, wanted: &Manifest<F>) -> Result<bool, GenerateError> {
+    match read_manifest::<F>(out)? {
         Some(found) if found != *wanted => Err(GenerateError::ManifestMismatch {
-            found: Box::new(found),
-            wanted: Box::new(*wanted),
+            found: found.describe(),
+            wanted: wanted.describe(),
         }),
         Some(_) => Ok(true),
         None => Ok(false),
@@ -910,14 +1132,12 @@ fn check_manifest(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> 
 /// As [`check_manifest`], but a run of the same scenario and seed with fewer scenarios is taken
 /// too: draws are per index, so its records are the first ones of the larger run, which extends
 /// it. Says whether the folder holds a manifest equal to `wanted` (if not, it is written).
-fn check_manifest_or_fewer(out: &Path, wanted: &Manifest) -> Result<bool, GenerateError> {
-    match check_manifest(out, wanted) {
-        Err(GenerateError::ManifestMismatch { found, .. })
-            if found.family == wanted.family && found.seed == wanted.seed && found.count < wanted.count =>
-        {
+fn check_manifest_or_fewer<F: DatasetFamily>(out: &Path, wanted: &Manifest<F>) -> Result<bool, GenerateError> {
+    match read_manifest::<F>(out)? {
+        Some(found) if found.family == wanted.family && found.seed == wanted.seed && found.count < wanted.count => {
             Ok(false)
         }
-        checked => checked,
+        _ => check_manifest(out, wanted),
     }
 }
 
@@ -959,8 +1179,8 @@ fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, Gener
 
 /// Generates (or resumes) the records of `shard` of the dataset `manifest` into `out`, held
 /// for the whole run: [`hold_run`], then [`generate_in`].
-pub fn generate(
-    manifest: Manifest,
+pub fn generate<F: DatasetFamily>(
+    manifest: Manifest<F>,
     shard: Shard,
     out: &Path,
     spacecraft: &CanonicalSpacecraft,
@@ -974,8 +1194,8 @@ pub fn generate(
 /// Holds `out` (created if missing) for a run of `manifest`, or refuses. The request and a
 /// manifest already in `out` are checked first, so a refused run creates no folder and leaves
 /// an existing one as it was; a folder held by another run is refused ([`LockError::Held`]).
-pub fn hold_run(
-    manifest: Manifest,
+pub fn hold_run<F: DatasetFamily>(
+    manifest: Manifest<F>,
     shard: Shard,
     out: &Path,
     options: &SolveOptions,
@@ -988,9 +1208,9 @@ pub fn hold_run(
 
 /// Generates (or resumes) the records of `shard` of the dataset `manifest` into the folder
 /// `run` holds (see [`hold_run`]); the caller may write more into it before letting it go.
-pub fn generate_in(
+pub fn generate_in<F: DatasetFamily>(
     run: &RunLock,
-    manifest: Manifest,
+    manifest: Manifest<F>,
     shard: Shard,
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
@@ -1015,25 +1235,24 @@ pub fn generate_in(
     let (written, unwritten) = (AtomicUsize::new(0), AtomicUsize::new(0));
     // Collected into a Result, the parallel loop takes no new index after the first error: a
     // failed write (a full disk) stops the run instead of solving records it cannot keep.
-    let results: Result<Vec<TrajectoryRecord>, GenerateError> = indices
+    let results: Result<Vec<F::Record>, GenerateError> = indices
         .par_iter()
         .map(|&index| {
             let path = record_path(out, index);
             // Resume: a readable record of this run is kept; a corrupt one is solved again.
-            if let Ok(r) = read_record(&path) {
-                if r.family == manifest.family && r.seed == manifest.seed && r.index == index {
+            if let Ok(r) = read_record_of::<F>(&path) {
+                if manifest.family.drew(&r, manifest.seed, index) {
                     resumed.fetch_add(1, Ordering::Relaxed);
                     bar.inc(1);
                     return Ok(r);
                 }
             }
-            let scenario = manifest.family.draw(manifest.seed, index);
-            let record = solve_arriving_early(manifest.family, manifest.seed, index, &scenario, spacecraft, options);
-            write_record(&path, &record).inspect_err(|_| {
+            let record = manifest.family.solve(manifest.seed, index, spacecraft, options);
+            write_record_of::<F>(&path, &record).inspect_err(|_| {
                 unwritten.fetch_add(1, Ordering::Relaxed);
             })?;
             written.fetch_add(1, Ordering::Relaxed);
-            if record.converged {
+            if record.figures().converged {
                 converged.fetch_add(1, Ordering::Relaxed);
             }
             bar.set_message(format!("{} converged", converged.load(Ordering::Relaxed)));
@@ -1051,7 +1270,7 @@ pub fn generate_in(
         },
         other => other,
     })?;
-    records.sort_by_key(|r| r.index);
+    records.sort_by_key(|r| r.figures().index);
     if show_progress {
         eprintln!(
             "{} records resumed from an earlier run",
@@ -1072,9 +1291,17 @@ pub fn generate_in(
 /// be disjoint, and together cover every index. `out` is held while it is written, and refused
 /// if it holds a run of another manifest.
 pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
+    match inputs.first().map(|p| holds_spatial_records(p)).transpose()? {
+        Some(true) => merge_of::<SpatialFamily>(inputs, out),
+        _ => merge_of::<MissionFamily>(inputs, out),
+    }
+}
+
+/// [`merge`] of datasets of family kind `F`.
+fn merge_of<F: DatasetFamily>(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
     let mut files = Vec::new();
     for p in inputs {
-        files.push(read_dataset(p)?);
+        files.push(read_dataset_of::<F>(p)?);
     }
     let Some(first) = files.first() else {
         return Err(GenerateError::Merge("no input files".into()));
@@ -1100,9 +1327,9 @@ pub fn merge(inputs: &[PathBuf], out: &Path) -> Result<Summary, GenerateError> {
         }
         records.extend(f.records);
     }
-    records.sort_by_key(|r| r.index);
+    records.sort_by_key(|r| r.figures().index);
     for (expected, r) in (0..manifest.count).zip(&records) {
-        if r.index != expected {
+        if r.figures().index != expected {
             return Err(GenerateError::Merge(format!(
                 "index {expected} is missing or duplicated"
             )));

@@ -314,6 +314,19 @@ impl FamilyTable {
         })
     }
 
+    /// The table of a family in three dimensions: the planar table with each orbit's plane.
+    pub fn of_spatial(family: &SpatialFamily) -> Self {
+        let mut table = Self::of(&family.family);
+        for (spec, plane) in [
+            (&mut table.departure, &family.departure_plane),
+            (&mut table.target, &family.target_plane),
+        ] {
+            spec.inclination = RangeSpec::of(plane.inclination);
+            spec.raan = RangeSpec::of(plane.raan);
+        }
+        table
+    }
+
     /// The table of a family, field by field (bodies that are presets by name).
     pub fn of(family: &MissionFamily) -> Self {
         let orbit = |ranges: &OrbitRanges| OrbitSpec {
@@ -351,33 +364,73 @@ impl FamilyTable {
     }
 }
 
-/// `#[serde(with = "...")]` for a [`MissionFamily`] field: written as a [`FamilySpec`] in
-/// human-readable formats (JSON, TOML: a preset by name), as the plain structure in binary ones.
+/// A family as files hold it: written as a [`FamilySpec`] in human-readable formats, as the plain
+/// structure in binary ones, and checked when read.
+pub trait WrittenFamily: Sized + Serialize + serde::de::DeserializeOwned {
+    /// How the family is written.
+    fn written(&self) -> FamilySpec;
+    /// The family a written one gives, checked.
+    fn read(spec: &FamilySpec) -> Result<Self, MissionError>;
+    /// Checks the family (a binary file's, which carries no spec).
+    fn check(&self) -> Result<(), FamilyError>;
+}
+
+impl WrittenFamily for MissionFamily {
+    fn written(&self) -> FamilySpec {
+        FamilySpec::of(self)
+    }
+
+    fn read(spec: &FamilySpec) -> Result<Self, MissionError> {
+        spec.family()
+    }
+
+    fn check(&self) -> Result<(), FamilyError> {
+        self.validate()
+    }
+}
+
+impl WrittenFamily for SpatialFamily {
+    fn written(&self) -> FamilySpec {
+        match self.as_planar() {
+            Some(planar) => FamilySpec::of(&planar),
+            None => FamilySpec::Table(FamilyTable::of_spatial(self)),
+        }
+    }
+
+    fn read(spec: &FamilySpec) -> Result<Self, MissionError> {
+        spec.spatial_family()
+    }
+
+    fn check(&self) -> Result<(), FamilyError> {
+        self.validate()
+    }
+}
+
+/// `#[serde(with = "...")]` for a family field ([`WrittenFamily`]): written as a [`FamilySpec`]
+/// in human-readable formats (JSON, TOML: a preset by name), as the plain structure in binary
+/// ones.
 pub mod by_spec {
     use serde::{Deserialize, Deserializer, Serialize, Serializer};
-    use shared::mission::MissionFamily;
 
-    use super::FamilySpec;
+    use super::{FamilySpec, WrittenFamily};
 
     /// Serializes `family`.
-    pub fn serialize<S: Serializer>(family: &MissionFamily, serializer: S) -> Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer, F: WrittenFamily>(family: &F, serializer: S) -> Result<S::Ok, S::Error> {
         if serializer.is_human_readable() {
-            FamilySpec::of(family).serialize(serializer)
+            family.written().serialize(serializer)
         } else {
             family.serialize(serializer)
         }
     }
 
     /// Deserializes a family, checked.
-    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<MissionFamily, D::Error> {
+    pub fn deserialize<'de, D: Deserializer<'de>, F: WrittenFamily>(deserializer: D) -> Result<F, D::Error> {
         let family = if deserializer.is_human_readable() {
-            FamilySpec::deserialize(deserializer)?
-                .family()
-                .map_err(serde::de::Error::custom)?
+            F::read(&FamilySpec::deserialize(deserializer)?).map_err(serde::de::Error::custom)?
         } else {
-            MissionFamily::deserialize(deserializer)?
+            F::deserialize(deserializer)?
         };
-        family.validate().map_err(serde::de::Error::custom)?;
+        family.check().map_err(serde::de::Error::custom)?;
         Ok(family)
     }
 }

@@ -681,7 +681,7 @@ pub fn optimal_control3(y: &[f64; Y3_LEN], params: &OptimalControlParams) -> (f6
 }
 
 /// One sample of a spatial solution.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SpatialSample {
     /// Time since departure (t*).
     pub t: f64,
@@ -695,8 +695,9 @@ pub struct SpatialSample {
     pub direction: [f64; 3],
 }
 
-/// Samples the solution at `times`, each by a fresh propagation from t = 0 (no interpolation,
-/// as the planar records are sampled).
+/// Samples the solution at `times` (sorted, from 0), propagating from one sample to the next:
+/// the integration restarts at every sample, so no interpolation error enters (as the planar
+/// records are sampled).
 pub fn sample_solution(
     problem: &SpatialRendezvous,
     solution: &SpatialSolution,
@@ -704,30 +705,29 @@ pub fn sample_solution(
     tolerances: &Tolerances,
 ) -> Result<Vec<SpatialSample>, IntegrationError> {
     let params = problem.params(solution.final_eps);
-    let y0 = problem.initial_state_costate(&solution.costates);
-    times
-        .iter()
-        .map(|&t| {
-            let y = if t > 0.0 {
-                propagate3(&params, 0.0, &y0, t, tolerances)?
-            } else {
-                y0
-            };
-            let (throttle, direction) = optimal_control3(&y, &params);
-            Ok(SpatialSample {
-                t,
-                state: SpatialState {
-                    r: core::array::from_fn(|k| y[idx3::R + k]),
-                    v: core::array::from_fn(|k| y[idx3::V + k]),
-                },
-                m: y[idx3::M],
-                throttle,
-                direction,
-            })
-        })
-        .collect()
+    let (mut t, mut y) = (0.0, problem.initial_state_costate(&solution.costates));
+    let mut samples = Vec::with_capacity(times.len());
+    for &ti in times {
+        if ti > t {
+            y = propagate3(&params, t, &y, ti, tolerances)?;
+            t = ti;
+        }
+        let (throttle, direction) = optimal_control3(&y, &params);
+        samples.push(SpatialSample {
+            t,
+            state: SpatialState {
+                r: core::array::from_fn(|k| y[idx3::R + k]),
+                v: core::array::from_fn(|k| y[idx3::V + k]),
+            },
+            m: y[idx3::M],
+            throttle,
+            direction,
+        });
+    }
+    Ok(samples)
 }
 
+pub mod record;
 mod transfer;
 pub use transfer::{
     lift_planar_transfer, solve_spatial_transfer, spatial_transfer_guesses, SpatialOrbitShape, SpatialTransfer,

@@ -1,0 +1,138 @@
+//! Datasets of an inclined family: the same generation as a planar family's (records written as
+//! solved, resumed, sharded and merged to the same bytes), with records of the
+//! three-dimensional solver whose samples are checked against the orbits they must join, and
+//! folders and files of one kind refused by the other.
+
+use std::path::PathBuf;
+
+use ground_core::generate::{
+    dataset_path, generate, holds_spatial_records, merge, read_dataset, read_dataset_of, trajectory_difference,
+    GenerateError, Manifest, Shard,
+};
+use ground_core::solver::SolveOptions;
+use shared::mission::{PlaneRanges, SpatialFamily};
+use shared::orbit::{cross3, dot3, norm3, OrbitPlane};
+use shared::scenario::{Range, ScenarioKind};
+use shared::spacecraft::Spacecraft;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lowthrust-spatial-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// Transfer-circular's orbits, the target inclined by 2 to 5 degrees with any node.
+fn inclined() -> SpatialFamily {
+    SpatialFamily {
+        family: ScenarioKind::TransferCircular.family(),
+        departure_plane: PlaneRanges::REFERENCE,
+        target_plane: PlaneRanges {
+            inclination: Range {
+                lo: 2f64.to_radians(),
+                hi: 5f64.to_radians(),
+            },
+            raan: Range {
+                lo: 0.0,
+                hi: std::f64::consts::TAU,
+            },
+        },
+    }
+}
+
+/// The unit normal of an orbit plane: (sin i sin raan, -sin i cos raan, cos i).
+fn normal(plane: &OrbitPlane) -> [f64; 3] {
+    let (si, ci) = plane.inclination.sin_cos();
+    [si * plane.raan.sin(), -si * plane.raan.cos(), ci]
+}
+
+#[test]
+fn an_inclined_family_generates_records_that_join_the_target_orbit_and_resume_and_merge_to_the_same_bytes() {
+    let family = inclined();
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let options = SolveOptions::default();
+    let manifest = Manifest {
+        family,
+        seed: 5,
+        count: 4,
+    };
+    let whole = temp_dir("whole");
+    let summary = generate(manifest, Shard::WHOLE, &whole, &sc, &options, false).unwrap();
+    assert!(summary.converged >= 3, "{summary:?}");
+    assert!(summary.scenario.starts_with("custom-"));
+    let path = dataset_path(&whole, Shard::WHOLE);
+    assert!(holds_spatial_records(&path).unwrap());
+    // A planar reader refuses the file by its magic.
+    assert!(matches!(read_dataset(&path), Err(GenerateError::Corrupt(..))));
+    let first = read_dataset_of::<SpatialFamily>(&path).unwrap();
+    for r in first.records.iter().filter(|r| r.converged) {
+        assert_eq!(r.scenario, family.draw(5, r.index));
+        assert_eq!(r.steps.len(), r.scenario.scenario.steps as usize + 1);
+        let start = &r.steps[0];
+        assert_eq!(start.state, r.scenario.departure());
+        assert_eq!(start.m, 1.0);
+        // Propellant only flows out, the throttle is a throttle, the direction a unit vector.
+        for pair in r.ephemeris.windows(2) {
+            assert!(pair[1].m <= pair[0].m + 1e-15);
+        }
+        for s in r.ephemeris.iter().chain(&r.steps) {
+            assert!((0.0..=1.0).contains(&s.throttle));
+            assert!((norm3(&s.direction) - 1.0).abs() < 1e-12);
+        }
+        // The arrival lies on the target orbit: its plane (the angular momentum along the
+        // plane's normal), its energy -1 / (2 a) and its eccentricity, from the sampled state.
+        let end = r.steps.last().unwrap().state;
+        let h = cross3(&end.r, &end.v);
+        let n = normal(&r.scenario.target_plane);
+        let off_plane = norm3(&cross3(&h, &n)) / norm3(&h);
+        assert!(off_plane < 1e-7 && dot3(&h, &n) > 0.0, "#{}: {off_plane:e}", r.index);
+        let target = r.scenario.scenario.target;
+        assert!((end.energy() + 0.5 / target.a).abs() < 1e-7, "#{}", r.index);
+        // The solver's final mass, and the samples' propagated from sample to sample: the
+        // same flight integrated on two grids (tolerances 1e-12).
+        let dm = (r.final_mass - r.steps.last().unwrap().m).abs();
+        assert!(dm < 1e-10, "#{}: {dm:e}", r.index);
+        assert!(r.final_mass < 1.0 && r.final_mass > 0.5);
+    }
+    // Resumed: nothing solved again (the solve times too are the records'), the same bytes.
+    let bytes = std::fs::read(&path).unwrap();
+    generate(manifest, Shard::WHOLE, &whole, &sc, &options, false).unwrap();
+    assert_eq!(std::fs::read(&path).unwrap(), bytes);
+    let again = read_dataset_of::<SpatialFamily>(&path).unwrap();
+    assert_eq!(again, first);
+    // Two shards, merged: the whole run's trajectories.
+    let shards: Vec<PathBuf> = (0..2)
+        .map(|i| {
+            let out = temp_dir(&format!("shard{i}"));
+            let shard = Shard { index: i, count: 2 };
+            generate(manifest, shard, &out, &sc, &options, false).unwrap();
+            dataset_path(&out, shard)
+        })
+        .collect();
+    let merged = temp_dir("merged");
+    merge(&shards, &merged).unwrap();
+    let merged_file = read_dataset_of::<SpatialFamily>(&dataset_path(&merged, Shard::WHOLE)).unwrap();
+    assert_eq!(trajectory_difference(&merged_file, &first), None);
+    // A planar family's run refuses the inclined folder, with the reason.
+    let planar = Manifest {
+        family: ScenarioKind::TransferCircular.family(),
+        seed: 5,
+        count: 4,
+    };
+    let refused = generate(planar, Shard::WHOLE, &whole, &sc, &options, false).unwrap_err();
+    assert!(refused.to_string().contains("inclined orbits"), "{refused}");
+    // An arrival margin is not posed in three dimensions: refused before any folder exists.
+    let margin = SolveOptions {
+        arrival_margin_steps: 2,
+        ..options
+    };
+    let fresh = temp_dir("margin");
+    let refused = generate(manifest, Shard::WHOLE, &fresh, &sc, &margin, false).unwrap_err();
+    assert!(matches!(refused, GenerateError::Unsupported(_)), "{refused}");
+    assert!(!fresh.exists());
+    for dir in [whole, merged]
+        .into_iter()
+        .chain(shards.iter().map(|p| p.parent().unwrap().to_path_buf()))
+    {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
