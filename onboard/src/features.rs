@@ -1,11 +1,13 @@
-//! Polar feature encoding, reward terms and action decoding (docs/spec.md sections 5 and 6).
+//! Feature encoding, reward terms and action decoding (docs/spec.md sections 5 and 6): polar for
+//! planar flights, relative to the local RTN frame and the target's plane in three dimensions.
 //!
 //! One implementation serves the ground environment and the flight code, so what the network
 //! saw in training is exactly what it sees in flight.
 
-use shared::orbit::{CartesianState, OrbitShape};
+use shared::orbit::{cross3, dot3, norm3, CartesianState, OrbitPlane, OrbitShape, PolarState, SpatialState};
 
 use crate::dynamics::{SpacecraftState, StateError, ThrustCommand};
+use crate::spatial::{RtnCommand, SpatialCraftState};
 
 /// Network inputs of the transfer policy.
 pub const TRANSFER_FEATURES: usize = 10;
@@ -56,6 +58,8 @@ pub enum FeatureError {
     Target,
     /// Time to go is negative or not finite.
     TimeToGo,
+    /// The spacecraft's velocity lies along its radius: no orbit plane, no RTN frame.
+    NoOrbitPlane,
 }
 
 impl core::fmt::Display for FeatureError {
@@ -66,6 +70,7 @@ impl core::fmt::Display for FeatureError {
                 f.write_str("invalid target: orbit must be closed and finite, body state finite with r > 0")
             }
             Self::TimeToGo => f.write_str("time to go must be finite and >= 0"),
+            Self::NoOrbitPlane => f.write_str("the velocity lies along the radius: no orbit plane"),
         }
     }
 }
@@ -194,6 +199,185 @@ pub fn decode_action(action: &[f32; ACTION_LEN]) -> ThrustCommand {
 /// The action that encodes a command: the inverse of [`decode_action`] on unit directions.
 pub fn encode_action(command: &ThrustCommand) -> [f64; ACTION_LEN] {
     [2.0 * command.throttle - 1.0, command.alpha_r, command.alpha_theta]
+}
+
+/// Network inputs of the transfer policy in three dimensions.
+pub const TRANSFER3_FEATURES: usize = 15;
+/// Network inputs of the rendezvous policy in three dimensions.
+pub const RENDEZVOUS3_FEATURES: usize = 30;
+/// Network outputs in three dimensions: throttle and the three RTN direction components.
+pub const ACTION3_LEN: usize = 4;
+
+fn check_spatial(state: &SpatialCraftState, time_to_go: f64) -> Result<[[f64; 3]; 3], FeatureError> {
+    state.validate().map_err(FeatureError::State)?;
+    if !(time_to_go.is_finite() && time_to_go >= 0.0) {
+        return Err(FeatureError::TimeToGo);
+    }
+    state.orbit.rtn_frame().ok_or(FeatureError::NoOrbitPlane)
+}
+
+/// The point of a target orbit (`shape` in `plane`) a spacecraft at `r` is measured against in
+/// three dimensions: the orbit's point at the angle of r's projection on the orbit plane, and
+/// the orbit's perifocal basis (P, Q, W).
+fn target_proxy(shape: &OrbitShape, plane: &OrbitPlane, r: &[f64; 3]) -> (PolarState, SpatialState, [[f64; 3]; 3]) {
+    let (so, co) = (libm::sin(shape.omega), libm::cos(shape.omega));
+    let p_hat = plane.to_inertial([co, so]);
+    let q_hat = plane.to_inertial([-so, co]);
+    let w_hat = cross3(&p_hat, &q_hat);
+    // The true anomaly of the projection: its angle from periapsis in the target plane.
+    let nu = libm::atan2(dot3(r, &q_hat), dot3(r, &p_hat));
+    let proxy = shape.polar_at(nu);
+    let (sn, cn) = (libm::sin(nu), libm::cos(nu));
+    let radial = combine(cn, &p_hat, sn, &q_hat);
+    let transverse = combine(-sn, &p_hat, cn, &q_hat);
+    let point = SpatialState {
+        r: radial.map(|x| proxy.r * x),
+        v: combine(proxy.v_r, &radial, proxy.v_theta, &transverse),
+    };
+    (proxy, point, [p_hat, q_hat, w_hat])
+}
+
+/// a x + b y.
+fn combine(a: f64, x: &[f64; 3], b: f64, y: &[f64; 3]) -> [f64; 3] {
+    [a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2]]
+}
+
+fn difference(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// The 15 transfer features in three dimensions (docs/spec.md section 5.1):
+/// `[r, v_r, v_t, m, r_hat.P, r_hat.Q, r_p, v_r_p, v_t_p, W.r_hat, W.t_hat, W.n_hat, |dr|, |dv|,
+/// t_tg]`: the spacecraft's radius, radial and transverse speed (its own RTN frame) and mass;
+/// its direction in the target's perifocal frame (P to periapsis, Q ahead, W the target plane's
+/// normal); the target orbit's point at the angle of the spacecraft's projection on the target
+/// plane (radius, radial and transverse speed); the target plane's normal in the spacecraft's
+/// RTN frame; the distance and speed difference to that point; the time to go. In one plane
+/// they are the planar features' quantities and residuals.
+pub fn transfer3_features(
+    state: &SpatialCraftState,
+    target: &OrbitShape,
+    plane: &OrbitPlane,
+    time_to_go: f64,
+) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
+    let [r_hat, t_hat, n_hat] = check_spatial(state, time_to_go)?;
+    target.validate().map_err(|_| FeatureError::Target)?;
+    plane.validate().map_err(|_| FeatureError::Target)?;
+    let o = &state.orbit;
+    let (proxy, point, [p_hat, q_hat, w_hat]) = target_proxy(target, plane, &o.r);
+    Ok([
+        o.radius(),
+        dot3(&o.v, &r_hat),
+        dot3(&o.v, &t_hat),
+        state.m,
+        dot3(&r_hat, &p_hat),
+        dot3(&r_hat, &q_hat),
+        proxy.r,
+        proxy.v_r,
+        proxy.v_theta,
+        dot3(&w_hat, &r_hat),
+        dot3(&w_hat, &t_hat),
+        dot3(&w_hat, &n_hat),
+        norm3(&difference(&point.r, &o.r)),
+        norm3(&difference(&point.v, &o.v)),
+        time_to_go,
+    ])
+}
+
+/// Residuals of a transfer state in three dimensions, read off its features.
+pub fn transfer3_residuals(f: &[f64; TRANSFER3_FEATURES]) -> Residuals {
+    Residuals {
+        position: f[12],
+        velocity: f[13],
+    }
+}
+
+/// The 30 rendezvous features in three dimensions (docs/spec.md section 6.1): the planar
+/// layout with three components, `[r_i, r_hat_i (3), r_t, r_hat_t (3), r_i (3), v_i (3), r_t (3),
+/// v_t (3), dr (3), dv (3), |dr|, |dv|, t_tg, m]` with dr = r_t - r_i, dv = v_t - v_i.
+pub fn rendezvous3_features(
+    state: &SpatialCraftState,
+    target_body: &SpatialState,
+    time_to_go: f64,
+) -> Result<[f64; RENDEZVOUS3_FEATURES], FeatureError> {
+    check_spatial(state, time_to_go)?;
+    if !target_body.is_valid() {
+        return Err(FeatureError::Target);
+    }
+    let (o, b) = (&state.orbit, target_body);
+    let (ri, rt) = (o.radius(), b.radius());
+    let (dr, dv) = (difference(&b.r, &o.r), difference(&b.v, &o.v));
+    let (ui, ut) = (o.r.map(|x| x / ri), b.r.map(|x| x / rt));
+    Ok([
+        ri,
+        ui[0],
+        ui[1],
+        ui[2],
+        rt,
+        ut[0],
+        ut[1],
+        ut[2],
+        o.r[0],
+        o.r[1],
+        o.r[2],
+        o.v[0],
+        o.v[1],
+        o.v[2],
+        b.r[0],
+        b.r[1],
+        b.r[2],
+        b.v[0],
+        b.v[1],
+        b.v[2],
+        dr[0],
+        dr[1],
+        dr[2],
+        dv[0],
+        dv[1],
+        dv[2],
+        norm3(&dr),
+        norm3(&dv),
+        time_to_go,
+        state.m,
+    ])
+}
+
+/// Residuals of a rendezvous state in three dimensions, read off its features.
+pub fn rendezvous3_residuals(f: &[f64; RENDEZVOUS3_FEATURES]) -> Residuals {
+    Residuals {
+        position: f[26],
+        velocity: f[27],
+    }
+}
+
+/// Action -> RTN command in three dimensions: u = (a0 + 1) / 2, direction (a1, a2, a3) in the
+/// RTN frame normalised, thrust off below [`MIN_DIRECTION_NORM`]; components clamped to
+/// [-1, 1], a non-finite action decodes to thrust off.
+pub fn decode_action3(action: &[f32; ACTION3_LEN]) -> RtnCommand {
+    if !action.iter().all(|a| a.is_finite()) {
+        return RtnCommand::OFF;
+    }
+    let [a0, a1, a2, a3] = action.map(|a| f64::from(a.clamp(-1.0, 1.0)));
+    let norm = norm3(&[a1, a2, a3]);
+    if norm < MIN_DIRECTION_NORM {
+        return RtnCommand::OFF;
+    }
+    RtnCommand {
+        throttle: (a0 + 1.0) * 0.5,
+        radial: a1 / norm,
+        transverse: a2 / norm,
+        normal: a3 / norm,
+    }
+}
+
+/// The action that encodes an RTN command: the inverse of [`decode_action3`] on unit directions.
+pub fn encode_action3(command: &RtnCommand) -> [f64; ACTION3_LEN] {
+    [
+        2.0 * command.throttle - 1.0,
+        command.radial,
+        command.transverse,
+        command.normal,
+    ]
 }
 
 /// Narrows features to the network's precision.
@@ -371,5 +555,204 @@ mod tests {
             v: [0.0, 1.0],
         };
         assert_eq!(rendezvous_features(&ok, &body, 1.0), Err(FeatureError::Target));
+    }
+}
+
+#[cfg(test)]
+mod spatial_tests {
+    use super::*;
+
+    fn spatial(planar: &SpacecraftState) -> SpatialCraftState {
+        SpatialCraftState {
+            orbit: SpatialState::from_planar(&planar.cartesian()),
+            m: planar.m,
+        }
+    }
+
+    fn turned(state: &SpatialCraftState, phi: f64) -> SpatialCraftState {
+        let (s, c) = (libm::sin(phi), libm::cos(phi));
+        let z = |p: [f64; 3]| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
+        SpatialCraftState {
+            orbit: SpatialState {
+                r: z(state.orbit.r),
+                v: z(state.orbit.v),
+            },
+            m: state.m,
+        }
+    }
+
+    const TARGET: OrbitShape = OrbitShape {
+        a: 1.4,
+        e: 0.3,
+        omega: 0.8,
+    };
+
+    #[test]
+    fn in_one_plane_the_transfer_features_are_the_planar_ones() {
+        let own = OrbitShape {
+            a: 1.1,
+            e: 0.2,
+            omega: -0.4,
+        };
+        for k in 0..12 {
+            let planar = SpacecraftState::from_cartesian(&own.cartesian_at(0.5 * f64::from(k)), 0.9);
+            let f = transfer_features(&planar, &TARGET, 2.5).unwrap();
+            let g = transfer3_features(&spatial(&planar), &TARGET, &OrbitPlane::REFERENCE, 2.5).unwrap();
+            let theta = libm::atan2(f[2], f[1]);
+            let res = transfer_residuals(&f);
+            let expect = [
+                f[0],
+                f[3],
+                f[4],
+                f[5],
+                libm::cos(theta - TARGET.omega),
+                libm::sin(theta - TARGET.omega),
+                f[6],
+                f[7],
+                f[8],
+                0.0,
+                0.0,
+                1.0,
+                res.position,
+                res.velocity,
+                f[9],
+            ];
+            for (i, (a, b)) in g.iter().zip(expect).enumerate() {
+                assert!((a - b).abs() < 1e-13, "#{k} feature {i}: {a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn on_an_inclined_target_orbit_the_residuals_vanish_and_turning_about_z_changes_nothing() {
+        let plane = OrbitPlane {
+            inclination: 0.3,
+            raan: 1.1,
+        };
+        for k in 0..12 {
+            let nu = 0.5 * f64::from(k) - 3.0;
+            let on = SpatialCraftState {
+                orbit: plane.embed(&TARGET.cartesian_at(nu)),
+                m: 0.7,
+            };
+            let f = transfer3_features(&on, &TARGET, &plane, 1.0).unwrap();
+            let res = transfer3_residuals(&f);
+            assert!(res.position < 1e-14 && res.velocity < 1e-14, "{res:?}");
+            // The target plane is the spacecraft's: its normal is n_hat.
+            assert!((f[11] - 1.0).abs() < 1e-14 && f[9].abs() < 1e-14 && f[10].abs() < 1e-14);
+            assert!((f[4] - libm::cos(nu)).abs() < 1e-13 && (f[5] - libm::sin(nu)).abs() < 1e-13);
+            // Off the orbit, turned about z with the target's node: the same features.
+            let off = SpatialCraftState {
+                orbit: OrbitPlane::REFERENCE.embed(
+                    &OrbitShape {
+                        a: 1.0,
+                        e: 0.1,
+                        omega: 0.2,
+                    }
+                    .cartesian_at(nu),
+                ),
+                m: 0.7,
+            };
+            let a = transfer3_features(&off, &TARGET, &plane, 1.0).unwrap();
+            let phi = 0.9;
+            let moved = OrbitPlane {
+                raan: plane.raan + phi,
+                ..plane
+            };
+            let b = transfer3_features(&turned(&off, phi), &TARGET, &moved, 1.0).unwrap();
+            assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-13), "{a:?}\n{b:?}");
+            // Out of the target plane by its inclination: the normal seen tilted by 0.3 rad.
+            assert!((a[11] - libm::cos(0.3)).abs() < 1e-13, "{}", a[11]);
+            assert!(a[12] > 0.0 && a[13] > 0.0);
+        }
+    }
+
+    #[test]
+    fn in_one_plane_the_rendezvous_features_are_the_planar_ones_with_zero_z() {
+        let own = OrbitShape {
+            a: 1.0,
+            e: 0.05,
+            omega: 0.3,
+        };
+        let planar = SpacecraftState::from_cartesian(&own.cartesian_at(1.3), 0.85);
+        let body = TARGET.cartesian_at(2.2);
+        let f = rendezvous_features(&planar, &body, 4.0).unwrap();
+        let g = rendezvous3_features(&spatial(&planar), &SpatialState::from_planar(&body), 4.0).unwrap();
+        // Where each planar feature sits among the spatial ones (z components and the like 0).
+        let at = [
+            0, 1, 2, 4, 5, 6, 8, 9, 11, 12, 14, 15, 17, 18, 20, 21, 23, 24, 26, 27, 28, 29,
+        ];
+        for (i, &j) in at.iter().enumerate() {
+            assert!((f[i] - g[j]).abs() < 1e-15, "feature {i} -> {j}: {} vs {}", f[i], g[j]);
+        }
+        for j in [3, 7, 10, 13, 16, 19, 22, 25] {
+            assert_eq!(g[j], 0.0, "{j}");
+        }
+        let (a, b) = (rendezvous_residuals(&f), rendezvous3_residuals(&g));
+        assert!((a.position - b.position).abs() < 1e-15 && (a.velocity - b.velocity).abs() < 1e-15);
+    }
+
+    #[test]
+    fn three_dimensional_actions_decode_to_unit_rtn_directions_and_bad_inputs_are_refused() {
+        let command = decode_action3(&[0.2, 0.3, -0.4, 0.5]);
+        let n = libm::sqrt(0.09 + 0.16 + 0.25);
+        assert!((command.throttle - 0.6).abs() < 1e-7);
+        assert!((command.radial - 0.3 / n).abs() < 1e-7 && (command.normal - 0.5 / n).abs() < 1e-7);
+        assert!(command.validate().is_ok());
+        // Encoded and narrowed to f32 again: the same command to f32's precision.
+        let again = decode_action3(&encode_action3(&command).map(|x| x as f32));
+        let parts = |c: &RtnCommand| [c.throttle, c.radial, c.transverse, c.normal];
+        assert!(parts(&again)
+            .iter()
+            .zip(parts(&command))
+            .all(|(a, b)| (a - b).abs() < 1e-7));
+        assert_eq!(decode_action3(&[1.0, f32::NAN, 0.0, 0.0]), RtnCommand::OFF);
+        assert_eq!(decode_action3(&[1.0, 0.0, 1e-9, 0.0]), RtnCommand::OFF);
+        // Out of range: clamped, still a unit direction.
+        let clamped = decode_action3(&[3.0, 0.0, 0.0, -7.0]);
+        assert_eq!((clamped.throttle, clamped.normal), (1.0, -1.0));
+        let flat = SpacecraftState::from_cartesian(&TARGET.cartesian_at(0.0), 1.0);
+        let good = spatial(&flat);
+        let radial = SpatialCraftState {
+            orbit: SpatialState {
+                r: [1.0, 0.0, 0.0],
+                v: [0.5, 0.0, 0.0],
+            },
+            m: 1.0,
+        };
+        let plane = OrbitPlane::REFERENCE;
+        assert_eq!(
+            transfer3_features(&radial, &TARGET, &plane, 1.0),
+            Err(FeatureError::NoOrbitPlane)
+        );
+        assert_eq!(
+            transfer3_features(&good, &TARGET, &plane, -1.0),
+            Err(FeatureError::TimeToGo)
+        );
+        let tilted = OrbitPlane {
+            inclination: 4.0,
+            raan: 0.0,
+        };
+        assert_eq!(
+            transfer3_features(&good, &TARGET, &tilted, 1.0),
+            Err(FeatureError::Target)
+        );
+        let mut nan = good;
+        nan.orbit.v[2] = f64::NAN;
+        assert!(matches!(
+            rendezvous3_features(&nan, &good.orbit, 1.0),
+            Err(FeatureError::State(_))
+        ));
+        assert_eq!(
+            rendezvous3_features(
+                &good,
+                &SpatialState {
+                    r: [0.0; 3],
+                    v: [0.0; 3]
+                },
+                1.0
+            ),
+            Err(FeatureError::Target)
+        );
     }
 }

@@ -124,6 +124,9 @@ enum lt_status
   // positive, or the settings are unusable (cycles 1 to 4, iterations 1 to 64, goals finite
   // and > 0).
   LT_ERR_INPUT_TERMINAL = -47,
+  // Guidance input refused: the velocity lies along the radius, so the spacecraft has no orbit
+  // plane (three-dimensional features are relative to it).
+  LT_ERR_INPUT_NO_ORBIT_PLANE = -48,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

@@ -115,10 +115,13 @@ pub enum lt_status {
     /// positive, or the settings are unusable (cycles 1 to 4, iterations 1 to 64, goals finite
     /// and > 0).
     LT_ERR_INPUT_TERMINAL = -47,
+    /// Guidance input refused: the velocity lies along the radius, so the spacecraft has no orbit
+    /// plane (three-dimensional features are relative to it).
+    LT_ERR_INPUT_NO_ORBIT_PLANE = -48,
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 43] = [
+const ERROR_NAMES: [(lt_status, &CStr); 44] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -162,6 +165,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 43] = [
     (LT_ERR_NON_FINITE_ACTION, c"non_finite_action"),
     (LT_ERR_INPUT_LOOKAHEAD, c"input_lookahead"),
     (LT_ERR_INPUT_TERMINAL, c"input_terminal"),
+    (LT_ERR_INPUT_NO_ORBIT_PLANE, c"input_no_orbit_plane"),
 ];
 
 /// What `error_name` says for a value that is not a code.
@@ -230,6 +234,7 @@ pub fn guidance_error_code(error: &GuidanceError) -> lt_status {
         GuidanceError::Input(FeatureError::State(StateError::NonPositiveMass)) => LT_ERR_INPUT_NON_POSITIVE_MASS,
         GuidanceError::Input(FeatureError::Target) => LT_ERR_INPUT_TARGET,
         GuidanceError::Input(FeatureError::TimeToGo) => LT_ERR_INPUT_TIME_TO_GO,
+        GuidanceError::Input(FeatureError::NoOrbitPlane) => LT_ERR_INPUT_NO_ORBIT_PLANE,
         GuidanceError::NonFiniteAction => LT_ERR_NON_FINITE_ACTION,
     }
 }

@@ -1171,6 +1171,7 @@ mod tests {
             input(FeatureError::State(StateError::NonPositiveMass)),
             input(FeatureError::Target),
             input(FeatureError::TimeToGo),
+            input(FeatureError::NoOrbitPlane),
             GuidanceError::NonFiniteAction,
         ]
     }
