@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 
 use ground_core::generate::{
     generate_in, hold_run, holds_spatial_records, merge, read_dataset, read_dataset_of, trajectory_difference,
-    DatasetFamily, GenerateError, Manifest, Shard, Summary,
+    DatasetFamily, DatasetRecord, GenerateError, Manifest, Shard, Summary,
 };
 use ground_core::io::{atomic_write, require_parent_folder};
 use ground_core::mission::FamilySpec;
-use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions};
+use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions, OemSource};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
@@ -237,11 +237,28 @@ fn generate_family<F: DatasetFamily>(
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {
-    let file = read_dataset(dataset)?;
+    if holds_spatial_records(dataset)? {
+        oem_of::<SpatialFamily>(dataset, index, out, departure)
+    } else {
+        oem_of::<MissionFamily>(dataset, index, out, departure)
+    }
+}
+
+/// [`oem_command`] on a dataset of family kind `F`.
+fn oem_of<F: DatasetFamily>(
+    dataset: &Path,
+    index: u64,
+    out: &Path,
+    departure: &str,
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    F::Record: OemSource,
+{
+    let file = read_dataset_of::<F>(dataset)?;
     let record = file
         .records
         .iter()
-        .find(|r| r.index == index)
+        .find(|r| r.figures().index == index)
         .ok_or_else(|| format!("{} has no record with index {index}", dataset.display()))?;
     let options = OemOptions::new(departure.parse::<CalendarEpoch>()?);
     let oem = oem_string(record, &options)?;

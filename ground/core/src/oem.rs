@@ -66,6 +66,122 @@ use shared::spacecraft::{Spacecraft, SpacecraftError};
 use shared::units::{AU_M, TIME_UNIT_S, VELOCITY_UNIT_M_S};
 
 use crate::solver::record::TrajectoryRecord;
+use crate::solver::spatial::record::SpatialRecord;
+
+/// One sample as the OEM writes it: inertial state and control in the dynamics' axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OemSample {
+    /// Time since departure, t*.
+    pub t: f64,
+    /// Position, length units.
+    pub r: [f64; 3],
+    /// Velocity, velocity units.
+    pub v: [f64; 3],
+    /// Mass, fraction of m0.
+    pub m: f64,
+    /// Throttle in [0, 1].
+    pub throttle: f64,
+    /// Unit thrust direction.
+    pub direction: [f64; 3],
+}
+
+/// What the OEM writer reads of a record, planar ([`TrajectoryRecord`], z = 0) or
+/// three-dimensional ([`SpatialRecord`]).
+pub trait OemSource {
+    /// The family's central body.
+    fn body(&self) -> CentralBody;
+    /// The family's label.
+    fn family_label(&self) -> String;
+    /// Seed and index of the draw.
+    fn draw(&self) -> (u64, u64);
+    /// Why the record did not converge (`None` when it did).
+    fn failure(&self) -> Result<(), Option<String>>;
+    /// Final eps, terminal residual, thrust arcs, final mass.
+    fn outcome(&self) -> (f64, f64, u32, f64);
+    /// The ephemeris samples.
+    fn samples(&self) -> Vec<OemSample>;
+}
+
+impl OemSource for TrajectoryRecord {
+    fn body(&self) -> CentralBody {
+        self.family.body
+    }
+
+    fn family_label(&self) -> String {
+        self.family.label().to_string()
+    }
+
+    fn draw(&self) -> (u64, u64) {
+        (self.seed, self.index)
+    }
+
+    fn failure(&self) -> Result<(), Option<String>> {
+        if self.converged {
+            Ok(())
+        } else {
+            Err(self.failure.clone())
+        }
+    }
+
+    fn outcome(&self) -> (f64, f64, u32, f64) {
+        (self.final_eps, self.residual, self.thrust_arcs, self.final_mass)
+    }
+
+    fn samples(&self) -> Vec<OemSample> {
+        let z = |p: [f64; 2]| [p[0], p[1], 0.0];
+        self.ephemeris
+            .iter()
+            .map(|s| OemSample {
+                t: s.t,
+                r: z(s.r),
+                v: z(s.v),
+                m: s.m,
+                throttle: s.throttle,
+                direction: z(s.direction),
+            })
+            .collect()
+    }
+}
+
+impl OemSource for SpatialRecord {
+    fn body(&self) -> CentralBody {
+        self.family.family.body
+    }
+
+    fn family_label(&self) -> String {
+        self.family.label().to_string()
+    }
+
+    fn draw(&self) -> (u64, u64) {
+        (self.seed, self.index)
+    }
+
+    fn failure(&self) -> Result<(), Option<String>> {
+        if self.converged {
+            Ok(())
+        } else {
+            Err(self.failure.clone())
+        }
+    }
+
+    fn outcome(&self) -> (f64, f64, u32, f64) {
+        (self.final_eps, self.residual, self.thrust_arcs, self.final_mass)
+    }
+
+    fn samples(&self) -> Vec<OemSample> {
+        self.ephemeris
+            .iter()
+            .map(|s| OemSample {
+                t: s.t,
+                r: s.state.r,
+                v: s.state.v,
+                m: s.m,
+                throttle: s.throttle,
+                direction: s.direction,
+            })
+            .collect()
+    }
+}
 
 /// `CCSDS_OEM_VERS` written.
 pub const OEM_VERSION: &str = "2.0";
@@ -175,16 +291,16 @@ impl OemCentre {
     }
 
     /// The centre of a record's family.
-    pub fn of_record(record: &TrajectoryRecord) -> Result<Self, OemError> {
-        Self::of(&record.family.body, record.family.label().as_str())
+    pub fn of_record(record: &impl OemSource) -> Result<Self, OemError> {
+        Self::of(&record.body(), &record.family_label())
     }
 
-    /// A planar vector of the dynamics (z = 0) in the frame's axes.
-    pub fn to_frame(&self, v: [f64; 2]) -> [f64; 3] {
+    /// A vector of the dynamics in the frame's axes.
+    pub fn to_frame(&self, v: [f64; 3]) -> [f64; 3] {
         if self.ecliptic {
-            ecliptic_to_eme2000([v[0], v[1], 0.0])
+            ecliptic_to_eme2000(v)
         } else {
-            [v[0], v[1], 0.0]
+            v
         }
     }
 
@@ -696,17 +812,14 @@ impl OemEphemeris {
 
 /// Checks a record can be exported: converged, non-empty, finite, time strictly increasing,
 /// positive mass, throttle in [0, 1].
-pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
+pub fn validate_record(record: &impl OemSource) -> Result<(), OemError> {
     OemCentre::of_record(record)?;
-    if !record.converged {
-        return Err(OemError::NotConverged {
-            failure: record.failure.clone(),
-        });
-    }
-    if record.ephemeris.is_empty() {
+    record.failure().map_err(|failure| OemError::NotConverged { failure })?;
+    let samples = record.samples();
+    if samples.is_empty() {
         return Err(OemError::NoSamples);
     }
-    for (index, s) in record.ephemeris.iter().enumerate() {
+    for (index, s) in samples.iter().enumerate() {
         let fields: [(&'static str, &[f64]); 6] = [
             ("time", &[s.t]),
             ("position", &s.r),
@@ -730,7 +843,7 @@ pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
                 reason: "throttle is outside [0, 1]",
             });
         }
-        if index > 0 && s.t <= record.ephemeris[index - 1].t {
+        if index > 0 && s.t <= samples[index - 1].t {
             return Err(OemError::TimeNotIncreasing { index });
         }
     }
@@ -740,13 +853,13 @@ pub fn validate_record(record: &TrajectoryRecord) -> Result<(), OemError> {
 /// Epochs of the record's ephemeris samples, checked strictly increasing as written (to the
 /// microsecond).
 fn sample_epochs(
-    record: &TrajectoryRecord,
+    samples: &[OemSample],
     departure: CalendarEpoch,
     centre: &OemCentre,
 ) -> Result<Vec<CalendarEpoch>, OemError> {
-    let mut epochs = Vec::with_capacity(record.ephemeris.len());
+    let mut epochs = Vec::with_capacity(samples.len());
     let mut previous: Option<String> = None;
-    for (index, s) in record.ephemeris.iter().enumerate() {
+    for (index, s) in samples.iter().enumerate() {
         let epoch = departure.plus_seconds(s.t * centre.time_unit_s)?;
         let text = epoch.to_string();
         if previous.as_ref().is_some_and(|p| *p >= text) {
@@ -759,14 +872,14 @@ fn sample_epochs(
 }
 
 /// The thrust profile of a record: one row per ephemeris sample.
-pub fn thrust_rows(record: &TrajectoryRecord, options: &OemOptions) -> Result<Vec<ThrustRow>, OemError> {
+pub fn thrust_rows(record: &impl OemSource, options: &OemOptions) -> Result<Vec<ThrustRow>, OemError> {
     validate_record(record)?;
     options.validate()?;
     let centre = OemCentre::of_record(record)?;
-    let epochs = sample_epochs(record, options.departure_epoch, &centre)?;
+    let samples = record.samples();
+    let epochs = sample_epochs(&samples, options.departure_epoch, &centre)?;
     let sc = &options.spacecraft;
-    Ok(record
-        .ephemeris
+    Ok(samples
         .iter()
         .zip(epochs)
         .map(|(s, epoch)| ThrustRow {
@@ -781,9 +894,11 @@ pub fn thrust_rows(record: &TrajectoryRecord, options: &OemOptions) -> Result<Ve
 }
 
 /// Renders the OEM of a record as text (what [`write_oem`] writes).
-pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<String, OemError> {
+pub fn oem_string(record: &impl OemSource, options: &OemOptions) -> Result<String, OemError> {
     let rows = thrust_rows(record, options)?;
     let centre = OemCentre::of_record(record)?;
+    let (final_eps, residual, thrust_arcs, final_mass) = record.outcome();
+    let (seed, index) = record.draw();
     let sc = &options.spacecraft;
     let n = rows.len();
     let (first, last) = (rows[0].epoch, rows[n - 1].epoch);
@@ -800,20 +915,15 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
         env!("CARGO_PKG_VERSION")
     ));
     line(&format!(
-        "COMMENT Scenario {} seed {} index {}; final eps {:e}; terminal residual {:e}; thrust arcs {}",
-        record.family.label(),
-        record.seed,
-        record.index,
-        record.final_eps,
-        record.residual,
-        record.thrust_arcs
+        "COMMENT Scenario {} seed {seed} index {index}; final eps {final_eps:e}; terminal residual {residual:e}; thrust arcs {thrust_arcs}",
+        record.family_label(),
     ));
     line(&format!(
         "COMMENT Spacecraft Tmax {} N, Isp {} s, initial mass {} kg; final mass {:.6} kg",
         sc.max_thrust_n,
         sc.isp_s,
         sc.initial_mass_kg,
-        record.final_mass * sc.initial_mass_kg
+        final_mass * sc.initial_mass_kg
     ));
     line(&format!("CREATION_DATE = {}", options.creation_date));
     line(&format!("ORIGINATOR = {}", options.originator));
@@ -848,7 +958,7 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
             row.fields().join(" ")
         ));
     }
-    for (s, row) in record.ephemeris.iter().zip(&rows) {
+    for (s, row) in record.samples().iter().zip(&rows) {
         let r = centre.to_frame(s.r).map(|x| x * centre.km_per_length);
         let v = centre.to_frame(s.v).map(|x| x * centre.km_s_per_velocity);
         // Millimetre and nanometre-per-second resolution (position near the limit of f64).
@@ -869,7 +979,7 @@ pub fn oem_string(record: &TrajectoryRecord, options: &OemOptions) -> Result<Str
 
 /// Writes the OEM of a converged record. Nothing is written when the record or the options are
 /// refused.
-pub fn write_oem<W: Write>(record: &TrajectoryRecord, options: &OemOptions, out: &mut W) -> Result<(), OemError> {
+pub fn write_oem<W: Write>(record: &impl OemSource, options: &OemOptions, out: &mut W) -> Result<(), OemError> {
     let text = oem_string(record, options)?;
     out.write_all(text.as_bytes())?;
     Ok(())
@@ -877,11 +987,7 @@ pub fn write_oem<W: Write>(record: &TrajectoryRecord, options: &OemOptions, out:
 
 /// Writes the companion thrust CSV: header [`THRUST_CSV_HEADER`], one row per ephemeris sample
 /// (same epochs as the OEM). Nothing is written when the record or the options are refused.
-pub fn write_thrust_csv<W: Write>(
-    record: &TrajectoryRecord,
-    options: &OemOptions,
-    out: &mut W,
-) -> Result<(), OemError> {
+pub fn write_thrust_csv<W: Write>(record: &impl OemSource, options: &OemOptions, out: &mut W) -> Result<(), OemError> {
     let rows = thrust_rows(record, options)?;
     let mut text = String::with_capacity(160 * (rows.len() + 1));
     text.push_str(THRUST_CSV_HEADER);

@@ -597,3 +597,95 @@ fn earth_and_mars_families_are_written_about_their_planet_in_its_units() {
     }
     assert!(out.is_empty(), "nothing is written for a refused record");
 }
+
+/// A three-dimensional record (an inclined family's) is written with its out-of-plane
+/// components: the states read back and turned to the ecliptic lie on the inclined circle, the
+/// orbit normal of each state is the plane's, and the independent parser takes the message.
+#[test]
+fn an_inclined_record_is_written_with_its_out_of_plane_components() {
+    use ground_core::solver::spatial::record::SpatialRecord;
+    use ground_core::solver::spatial::SpatialSample;
+    use shared::mission::{PlaneRanges, SpatialFamily};
+    use shared::orbit::{CartesianState, OrbitPlane};
+    use shared::scenario::{Range, SpatialScenario};
+    let plane = OrbitPlane {
+        inclination: 30f64.to_radians(),
+        raan: 50f64.to_radians(),
+    };
+    let fixed = |x: f64| Range { lo: x, hi: x };
+    let family = SpatialFamily {
+        family: ScenarioKind::TransferCircular.family(),
+        departure_plane: PlaneRanges {
+            inclination: fixed(plane.inclination),
+            raan: fixed(plane.raan),
+        },
+        target_plane: PlaneRanges::REFERENCE,
+    };
+    let tof = 2.0 * PI;
+    let ephemeris: Vec<SpatialSample> = (0..N)
+        .map(|k| {
+            let t = tof * k as f64 / (N - 1) as f64;
+            let state = plane.embed(&CartesianState {
+                r: [t.cos(), t.sin()],
+                v: [-t.sin(), t.cos()],
+            });
+            let along = state.v;
+            SpatialSample {
+                t,
+                state,
+                m: 1.0 - 0.3 * t / tof,
+                throttle: 0.5,
+                direction: along,
+            }
+        })
+        .collect();
+    let record = SpatialRecord {
+        family,
+        seed: 7,
+        index: 3,
+        scenario: SpatialScenario::planar(ScenarioKind::TransferCircular.draw(7, 3)),
+        converged: true,
+        failure: None,
+        costates: [0.0; 7],
+        final_anomaly: Some(1.0),
+        final_eps: 6.1e-5,
+        final_mass: 0.7,
+        thrust_arcs: 1,
+        residual: 3e-10,
+        seconds: 1.5,
+        ephemeris,
+        steps: Vec::new(),
+        distinct_energy_optima: 1,
+    };
+    let mut out = Vec::new();
+    write_oem(&record, &options(), &mut out).unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let km_per_au = AU_M / 1000.0;
+    let km_s = VELOCITY_UNIT_M_S / 1000.0;
+    let (si, ci) = plane.inclination.sin_cos();
+    let normal = [si * plane.raan.sin(), -si * plane.raan.cos(), ci];
+    let lines = data_lines(&text);
+    assert_eq!(lines.len(), N);
+    for ((_, x), s) in lines.iter().zip(&record.ephemeris) {
+        let r = to_ecliptic([x[0], x[1], x[2]]).map(|c| c / km_per_au);
+        let v = to_ecliptic([x[3], x[4], x[5]]).map(|c| c / km_s);
+        for k in 0..3 {
+            assert!(
+                (r[k] - s.state.r[k]).abs() * km_per_au < 2e-6,
+                "{r:?} vs {:?}",
+                s.state.r
+            );
+            assert!((v[k] - s.state.v[k]).abs() * km_s < 2e-12);
+        }
+        let h = cross(r, v);
+        let n = norm(h);
+        assert!(h.iter().zip(normal).all(|(a, b)| (a / n - b).abs() < 1e-9), "{h:?}");
+    }
+    let theirs = Oem::from_kvn(&text).unwrap_or_else(|e| panic!("ccsds-ndm refused the OEM: {e}"));
+    theirs.validate().unwrap();
+    assert_eq!(theirs.body.segment[0].data.state_vector.len(), N);
+    // The thrust profile carries the inclined direction, a unit vector in EME2000.
+    let ours = read_oem(&text).unwrap();
+    let profile = ours.thrust_profile().unwrap();
+    assert!(profile.iter().all(|row| (norm(row.direction) - 1.0).abs() < 1e-9));
+}
