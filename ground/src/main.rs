@@ -82,7 +82,8 @@ enum DataCommand {
         second: PathBuf,
     },
     /// One-step mismatch between the environment and the optimal trajectories of a dataset
-    /// (docs/spec.md section 7).
+    /// (docs/spec.md section 7; a three-dimensional dataset's cycles flown by the onboard RTN
+    /// propagation, section 7.1).
     Demos {
         /// Dataset file or folder.
         #[arg(long)]

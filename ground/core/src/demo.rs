@@ -24,6 +24,8 @@
 //! [5e-4, 0.9995]); a step whose ZOH throttle is below 2.5e-4 (half the floor) is encoded as
 //! thrust off instead, with a zero direction (a1 = a2 = 0), which the decoder turns into u = 0.
 
+pub mod spatial;
+
 use std::path::Path;
 
 use onboard::dynamics::{propagate, SpacecraftState, ThrustCommand};
@@ -615,16 +617,32 @@ pub struct MismatchReport {
 impl MismatchReport {
     /// The report of `demos`' one-step mismatches.
     pub fn from_mismatch<O>(problem: ProblemKind, demos: &Demonstrations<O>) -> Self {
-        let m = &demos.mismatch;
+        Self::of_steps(
+            problem,
+            &demos.mismatch,
+            demos.transitions.len(),
+            (demos.used, &demos.failed, demos.filtered_out),
+        )
+    }
+
+    /// The report of one-step mismatches `m` of `tuples` tuples, from records used, failed and
+    /// filtered out as `records` says.
+    pub fn of_steps(
+        problem: ProblemKind,
+        m: &[StepMismatch],
+        tuples: usize,
+        records: (usize, &[(u64, DemoError)], usize),
+    ) -> Self {
+        let (used, failed, filtered_out) = records;
         let coast = |s: &&StepMismatch| s.mean_throttle == 0.0;
         let full = |s: &&StepMismatch| s.mean_throttle >= 1.0 - 1e-12;
         let switching = |s: &&StepMismatch| !coast(s) && !full(s);
         Self {
             problem,
-            records_used: demos.used,
-            records_failed: demos.failed.iter().map(|(i, e)| (*i, e.to_string())).collect(),
-            records_filtered_out: demos.filtered_out,
-            tuples: demos.transitions.len(),
+            records_used: used,
+            records_failed: failed.iter().map(|(i, e)| (*i, e.to_string())).collect(),
+            records_filtered_out: filtered_out,
+            tuples,
             position: Stats::of(m.iter().map(|s| s.position)),
             velocity: Stats::of(m.iter().map(|s| s.velocity)),
             mass: Stats::of(m.iter().map(|s| s.mass)),
@@ -709,6 +727,9 @@ impl core::fmt::Display for MismatchReport {
 /// problem with `config` (its spacecraft must be the one the dataset was solved with) and
 /// returns the statistics.
 pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter) -> Result<MismatchReport, DemoError> {
+    if crate::generate::holds_spatial_records(dataset)? {
+        return spatial_mismatch_report(dataset, config);
+    }
     let file = read_dataset(dataset)?;
     let problem = file.manifest.family.problem;
     // The spacecraft flies in the units of the dataset's central body.
@@ -721,6 +742,28 @@ pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter)
         problem,
         &demonstrations::<P>(&file.records, config, filter, &tol),
     )))
+}
+
+/// [`mismatch_report`] of a three-dimensional dataset: its converged records' cycles flown by the
+/// onboard RTN propagation ([`spatial::spatial_demonstrations`]).
+fn spatial_mismatch_report(dataset: &Path, config: &EnvConfig) -> Result<MismatchReport, DemoError> {
+    let file = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(dataset)?;
+    let family = &file.manifest.family.family;
+    let spacecraft = config
+        .spacecraft
+        .canonical_in(&family.body.units())
+        .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
+    let tol = default_tolerances();
+    let (demos, failed) =
+        spatial::spatial_demonstrations(&file.records, &spacecraft, &tol, &config.integrator.tolerances());
+    let mismatch: Vec<StepMismatch> = demos.iter().flat_map(|d| d.mismatch.iter().copied()).collect();
+    let filtered_out = file.records.iter().filter(|r| !r.converged).count();
+    Ok(MismatchReport::of_steps(
+        family.problem,
+        &mismatch,
+        mismatch.len(),
+        (demos.len() + failed.len(), &failed, filtered_out),
+    ))
 }
 
 /// CLI entry: prints the mismatch report of a dataset for `spacecraft` and the default reward.

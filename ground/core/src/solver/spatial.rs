@@ -123,7 +123,7 @@ pub fn hamiltonian3(y: &[f64; Y3_LEN], u: f64, alpha: [f64; 3], p: &OptimalContr
 }
 
 /// The spatial state-costate's layout for the modal propagation.
-struct Spatial;
+pub(crate) struct Spatial;
 
 impl SwitchingLayout for Spatial {
     fn rho(ys: &[f64], exhaust_speed: f64) -> f64 {

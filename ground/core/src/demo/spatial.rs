@@ -1,0 +1,364 @@
+//! Demonstrations in three dimensions (docs/spec.md section 7.1): for every guidance cycle of a
+//! three-dimensional record, the zero-order-hold equivalent of its optimal control in the RTN
+//! frame the onboard propagation holds a command in, the action that encodes it, the features
+//! of the record's state, and the one-step mismatch of the onboard RTN propagation of (s_k, a_k)
+//! against the record's s_k+1.
+//!
+//! As in the plane, the integral w = (1/cycle) ∫ u (alpha . r_hat, alpha . t_hat, alpha . n_hat) dt
+//! is taken by re-integrating the solver's state-costate system (its modal propagation, switches
+//! located) from the record's costates, each cycle from its boundary, and the re-integrated
+//! states are checked against the record's samples.
+
+use onboard::features::{
+    decode_action3, encode_action3, rendezvous3_features, transfer3_features, ACTION3_LEN, RENDEZVOUS3_FEATURES,
+    TRANSFER3_FEATURES,
+};
+use onboard::integrator::Tolerances;
+use onboard::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
+use rayon::prelude::*;
+use shared::orbit::{dot3, norm3, SpatialState};
+use shared::scenario::{ProblemKind, SpatialScenario};
+use shared::spacecraft::CanonicalSpacecraft;
+
+use super::{DemoError, StepMismatch, ACTION_BOUND, COAST_THROTTLE, CONSISTENCY_TOLERANCE};
+use crate::solver::pontryagin::{run_modal, BranchRhs, NoClock, OptimalControlParams, Regime};
+use crate::solver::spatial::record::SpatialRecord;
+use crate::solver::spatial::{
+    idx3, initial_state_costate3, state_costate_rhs3_in, switching_function3, Spatial, SpatialSample, Y3_LEN,
+};
+
+const AUG3_LEN: usize = Y3_LEN + 4;
+
+/// The spatial state-costate system augmented with w' = u (alpha in RTN) and the mean throttle,
+/// on the held throttle branch of the modal propagation.
+struct RtnControlIntegral(OptimalControlParams);
+
+impl BranchRhs<AUG3_LEN> for RtnControlIntegral {
+    type Layout = Spatial;
+
+    fn rhs(&self, y: &[f64; AUG3_LEN], regime: Regime, dydt: &mut [f64; AUG3_LEN]) {
+        let core: [f64; Y3_LEN] = core::array::from_fn(|i| y[i]);
+        let f = state_costate_rhs3_in(&core, &self.0, regime);
+        dydt[..Y3_LEN].copy_from_slice(&f);
+        let rho = switching_function3(&core, self.0.spacecraft.exhaust_speed);
+        let u = regime.throttle(rho, self.0.eps);
+        let alpha = primer(&core);
+        let [r, t, n] = rtn_of(&core).map_or([f64::NAN; 3], |frame| frame.map(|e| dot3(&alpha, &e)));
+        dydt[Y3_LEN..].copy_from_slice(&[u * r, u * t, u * n, u]);
+    }
+}
+
+fn primer(y: &[f64; Y3_LEN]) -> [f64; 3] {
+    let lv: [f64; 3] = core::array::from_fn(|k| y[idx3::LV + k]);
+    let n = norm3(&lv);
+    lv.map(|x| -x / n)
+}
+
+fn orbit_of(y: &[f64]) -> SpatialState {
+    SpatialState {
+        r: core::array::from_fn(|k| y[idx3::R + k]),
+        v: core::array::from_fn(|k| y[idx3::V + k]),
+    }
+}
+
+fn rtn_of(y: &[f64; Y3_LEN]) -> Option<[[f64; 3]; 3]> {
+    orbit_of(y).rtn_frame()
+}
+
+/// The zero-order-hold equivalent of the optimal control over one cycle, in the RTN frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RtnZoh {
+    /// w = (1/cycle) ∫ u (alpha_r, alpha_t, alpha_n) dt.
+    pub w: [f64; 3],
+    /// Mean throttle (1/cycle) ∫ u dt.
+    pub mean_throttle: f64,
+}
+
+impl RtnZoh {
+    /// The exact (unclipped, f64) command of w: throttle |w| capped at 1, direction w/|w|;
+    /// thrust off below [`COAST_THROTTLE`].
+    pub fn command(&self) -> RtnCommand {
+        let u = norm3(&self.w);
+        if u < COAST_THROTTLE {
+            return RtnCommand::OFF;
+        }
+        RtnCommand {
+            throttle: u.min(1.0),
+            radial: self.w[0] / u,
+            transverse: self.w[1] / u,
+            normal: self.w[2] / u,
+        }
+    }
+
+    /// The action encoding w, clipped to the action bound; thrust off below [`COAST_THROTTLE`]
+    /// (a zero direction, which decodes to thrust off).
+    pub fn action(&self) -> [f32; ACTION3_LEN] {
+        let u = norm3(&self.w);
+        let a = if u < COAST_THROTTLE {
+            [-1.0, 0.0, 0.0, 0.0]
+        } else {
+            encode_action3(&self.command())
+        };
+        a.map(|x| x.clamp(-ACTION_BOUND, ACTION_BOUND) as f32)
+    }
+}
+
+/// The ZOH controls of every cycle of a three-dimensional record, the re-integrated states
+/// checked against its step samples.
+pub fn rtn_zoh_controls(
+    record: &SpatialRecord,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+) -> Result<Vec<RtnZoh>, DemoError> {
+    let scenario = &record.scenario.scenario;
+    let n = scenario.steps;
+    if record.steps.len() != n as usize + 1 {
+        return Err(DemoError::NoSolution);
+    }
+    let params = OptimalControlParams {
+        spacecraft: *spacecraft,
+        eps: record.final_eps,
+    };
+    let costates = nalgebra::SVector::<f64, 7>::from_column_slice(&record.costates);
+    let y0 = initial_state_costate3(&record.scenario.departure(), 1.0, &costates);
+    let mut y: [f64; AUG3_LEN] = core::array::from_fn(|i| if i < Y3_LEN { y0[i] } else { 0.0 });
+    let mut controls = Vec::with_capacity(n as usize);
+    for k in 0..n {
+        let (t0, t1) = (scenario.cycle_start(k), scenario.cycle_start(k + 1));
+        y[Y3_LEN..].fill(0.0);
+        y = run_modal(
+            RtnControlIntegral(params),
+            &params,
+            t0,
+            &y,
+            t1,
+            tolerances,
+            1,
+            &mut NoClock,
+        )
+        .map_err(|error| DemoError::Integration { step: k, error })?;
+        let cycle = scenario.cycle;
+        controls.push(RtnZoh {
+            w: [y[Y3_LEN] / cycle, y[Y3_LEN + 1] / cycle, y[Y3_LEN + 2] / cycle],
+            mean_throttle: y[Y3_LEN + 3] / cycle,
+        });
+        let deviation = record
+            .steps
+            .get(k as usize + 1)
+            .map_or(f64::INFINITY, |s| deviation(s, &y));
+        if deviation.is_nan() || deviation > CONSISTENCY_TOLERANCE {
+            return Err(DemoError::Inconsistent { step: k + 1, deviation });
+        }
+    }
+    Ok(controls)
+}
+
+fn deviation(s: &SpatialSample, y: &[f64; AUG3_LEN]) -> f64 {
+    let o = orbit_of(y);
+    let mine = o.r.iter().chain(&o.v).chain([&y[idx3::M]]);
+    let theirs = s.state.r.iter().chain(&s.state.v).chain([&s.m]);
+    mine.zip(theirs).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)
+}
+
+fn craft(s: &SpatialSample) -> SpatialCraftState {
+    SpatialCraftState { orbit: s.state, m: s.m }
+}
+
+/// The network's input of a three-dimensional state: the transfer's 15 features or the
+/// rendezvous's 30 ([`onboard::features`]), at cycle `k` of `scenario`.
+pub fn spatial_features(scenario: &SpatialScenario, state: &SpatialCraftState, k: u32) -> Result<Vec<f64>, DemoError> {
+    let flat = &scenario.scenario;
+    let time_to_go = flat.time_to_go(k);
+    let refused = |error| DemoError::Env(crate::env::EnvError::Features { step: k, error });
+    match flat.problem {
+        ProblemKind::Transfer => transfer3_features(state, &flat.target, &scenario.target_plane, time_to_go)
+            .map(|f: [f64; TRANSFER3_FEATURES]| f.to_vec())
+            .map_err(refused),
+        ProblemKind::Rendezvous => {
+            let body = crate::env::body_at(flat, k).map_err(DemoError::Env)?;
+            rendezvous3_features(state, &scenario.target_plane.embed(&body), time_to_go)
+                .map(|f: [f64; RENDEZVOUS3_FEATURES]| f.to_vec())
+                .map_err(refused)
+        }
+    }
+}
+
+/// The (state features, action) pairs of one three-dimensional record, with the one-step
+/// mismatch of every cycle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialDemonstration {
+    /// Features of s_k (f64), k = 0..N-1.
+    pub features: Vec<Vec<f64>>,
+    /// a_k.
+    pub actions: Vec<[f32; ACTION3_LEN]>,
+    /// How far the onboard propagation of (s_k, a_k) lands from s_k+1.
+    pub mismatch: Vec<StepMismatch>,
+}
+
+/// The demonstration of a converged three-dimensional record: at every cycle the features of
+/// its state, the action of its ZOH control, and the mismatch of the onboard RTN propagation
+/// of that action over the cycle (`env_tolerances`: the environment's) against its next sample.
+pub fn spatial_demonstration(
+    record: &SpatialRecord,
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    env_tolerances: &Tolerances,
+) -> Result<SpatialDemonstration, DemoError> {
+    let controls = rtn_zoh_controls(record, spacecraft, tolerances)?;
+    let scenario = &record.scenario;
+    let cycle = scenario.scenario.cycle;
+    let mut demo = SpatialDemonstration {
+        features: Vec::with_capacity(controls.len()),
+        actions: Vec::with_capacity(controls.len()),
+        mismatch: Vec::with_capacity(controls.len()),
+    };
+    for ((k, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
+        let [now, next] = pair else {
+            return Err(DemoError::NoSolution);
+        };
+        let (s_k, s_next) = (craft(now), craft(next));
+        let action = control.action();
+        let fly = |command: &RtnCommand| {
+            propagate_rtn(&s_k, command, spacecraft, cycle, env_tolerances)
+                .map_err(|error| DemoError::Env(crate::env::EnvError::Propagation { step: k, error }))
+        };
+        let flown = fly(&decode_action3(&action))?;
+        let unclipped = fly(&control.command())?;
+        let gap = |a: &[f64; 3], b: &[f64; 3]| norm3(&[a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
+        // The endpoint rule on the record's two samples, in each sample's own RTN frame.
+        let endpoint = |s: &SpatialSample| {
+            let frame = s.state.rtn_frame().unwrap_or([[f64::NAN; 3]; 3]);
+            let (u, alpha) = (s.throttle, s.direction);
+            frame.map(|e| u * dot3(&alpha, &e))
+        };
+        let (wa, wb) = (endpoint(now), endpoint(next));
+        let trapezoid: [f64; 3] = core::array::from_fn(|i| 0.5 * (wa[i] + wb[i]));
+        demo.features.push(spatial_features(scenario, &s_k, k)?);
+        demo.actions.push(action);
+        demo.mismatch.push(StepMismatch {
+            record: record.index,
+            step: k,
+            position: gap(&flown.orbit.r, &s_next.orbit.r),
+            velocity: gap(&flown.orbit.v, &s_next.orbit.v),
+            mass: (flown.m - s_next.m).abs(),
+            zoh_throttle: norm3(&control.w),
+            mean_throttle: control.mean_throttle,
+            trapezoid_error: gap(&trapezoid, &control.w),
+            unclipped_position: gap(&unclipped.orbit.r, &s_next.orbit.r),
+        });
+    }
+    Ok(demo)
+}
+
+/// The demonstrations of every converged record (in parallel, in record order): the one-step
+/// mismatch over a dataset, and the records that gave none with the reason.
+pub fn spatial_demonstrations(
+    records: &[SpatialRecord],
+    spacecraft: &CanonicalSpacecraft,
+    tolerances: &Tolerances,
+    env_tolerances: &Tolerances,
+) -> (Vec<SpatialDemonstration>, Vec<(u64, DemoError)>) {
+    let results: Vec<_> = records
+        .par_iter()
+        .filter(|r| r.converged)
+        .map(|r| {
+            (
+                r.index,
+                spatial_demonstration(r, spacecraft, tolerances, env_tolerances),
+            )
+        })
+        .collect();
+    let mut demos = Vec::new();
+    let mut failed = Vec::new();
+    for (index, result) in results {
+        match result {
+            Ok(d) => demos.push(d),
+            Err(e) => failed.push((index, e)),
+        }
+    }
+    (demos, failed)
+}
+
+#[cfg(test)]
+mod tests {
+    use shared::mission::{PlaneRanges, SpatialFamily};
+    use shared::scenario::{Range, ScenarioKind};
+    use shared::spacecraft::Spacecraft;
+
+    use super::*;
+    use crate::demo::{default_tolerances, zoh_controls};
+    use crate::env::EnvConfig;
+    use crate::solver::spatial::record::solve_spatial_draw;
+    use crate::solver::{solve_scenario, SolveOptions};
+
+    fn quick() -> SolveOptions {
+        SolveOptions {
+            final_eps: 0.3,
+            ..SolveOptions::default()
+        }
+    }
+
+    /// A planar draw in three dimensions: its RTN controls are the planar method's polar ones,
+    /// integrated by the planar demonstrations' own state-costate system, with no normal part.
+    #[test]
+    fn in_the_plane_the_rtn_controls_are_the_polar_ones() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let family = SpatialFamily::planar(kind.family());
+        let spatial = solve_spatial_draw(&family, 3, 0, &sc, &quick());
+        assert!(spatial.converged, "{:?}", spatial.failure);
+        let planar = solve_scenario(kind, 3, 0, &spatial.scenario.scenario, &sc, &quick());
+        assert!(planar.converged);
+        let tol = default_tolerances();
+        let rtn = rtn_zoh_controls(&spatial, &sc, &tol).unwrap();
+        let polar = zoh_controls(&planar, &EnvConfig::default(), &tol).unwrap();
+        assert_eq!(rtn.len(), polar.len());
+        for (k, (a, b)) in rtn.iter().zip(&polar).enumerate() {
+            let d = (a.w[0] - b.w[0]).abs().max((a.w[1] - b.w[1]).abs());
+            assert!(d < 1e-6 && a.w[2].abs() < 1e-12, "cycle {k}: {a:?} vs {b:?}");
+            assert!((a.mean_throttle - b.mean_throttle).abs() < 1e-6);
+        }
+    }
+
+    /// An inclined transfer: coast cycles flown by the onboard RTN propagation land on the
+    /// record's next state exactly, thrust cycles near it; the plane change shows as normal
+    /// thrust; the features have the transfer's layout; corrupt costates are refused.
+    #[test]
+    fn an_inclined_record_gives_actions_that_fly_its_cycles_and_corrupt_costates_are_refused() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let family = SpatialFamily {
+            family: ScenarioKind::TransferCircular.family(),
+            departure_plane: PlaneRanges::REFERENCE,
+            target_plane: PlaneRanges {
+                inclination: Range { lo: 0.07, hi: 0.07 },
+                raan: Range { lo: 1.0, hi: 1.0 },
+            },
+        };
+        let record = solve_spatial_draw(&family, 2, 0, &sc, &quick());
+        assert!(record.converged, "{:?}", record.failure);
+        let tol = default_tolerances();
+        let env_tol = EnvConfig::default().integrator.tolerances();
+        let demo = spatial_demonstration(&record, &sc, &tol, &env_tol).unwrap();
+        let n = record.scenario.scenario.steps as usize;
+        assert_eq!(
+            (demo.actions.len(), demo.features.len(), demo.mismatch.len()),
+            (n, n, n)
+        );
+        assert!(demo.features.iter().all(|f| f.len() == TRANSFER3_FEATURES));
+        for m in &demo.mismatch {
+            if m.mean_throttle == 0.0 {
+                assert!(m.position < 1e-10 && m.velocity < 1e-10, "{m:?}");
+            } else {
+                assert!(m.position < 2e-3 && m.velocity < 2e-3, "{m:?}");
+            }
+        }
+        let normal = demo.actions.iter().map(|a| f64::from(a[3].abs())).fold(0.0, f64::max);
+        assert!(normal > 0.05, "no out-of-plane thrust: {normal}");
+        let mut corrupt = record.clone();
+        corrupt.costates[3] *= 1.01;
+        assert!(matches!(
+            rtn_zoh_controls(&corrupt, &sc, &tol),
+            Err(DemoError::Inconsistent { .. })
+        ));
+    }
+}
