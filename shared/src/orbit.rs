@@ -193,6 +193,45 @@ impl OrbitPlane {
             v: self.to_inertial(c.v),
         }
     }
+
+    /// An inertial vector in the plane's coordinates (x along the node line), its component
+    /// along the plane's normal dropped: the inverse of [`Self::to_inertial`] on the plane.
+    pub fn to_plane(&self, p: [f64; 3]) -> [f64; 2] {
+        let (si, ci) = (libm::sin(self.inclination), libm::cos(self.inclination));
+        let (sn, cn) = (libm::sin(self.raan), libm::cos(self.raan));
+        let (x, y) = (p[0] * cn + p[1] * sn, -p[0] * sn + p[1] * cn);
+        [x, y * ci + p[2] * si]
+    }
+
+    /// The plane of the orbit through `state` (its angular momentum's direction); the node on
+    /// the x-axis when the orbit lies in the reference plane. `None` without an orbit plane.
+    pub fn of_state(state: &SpatialState) -> Option<Self> {
+        let h = state.angular_momentum();
+        let (across, hn) = (libm::hypot(h[0], h[1]), norm3(&h));
+        if !(hn > 0.0 && hn.is_finite()) {
+            return None;
+        }
+        let inclination = libm::atan2(across, h[2]);
+        let raan = if across > 1e-15 * hn {
+            libm::atan2(h[0], -h[1])
+        } else {
+            0.0
+        };
+        Some(Self { inclination, raan })
+    }
+}
+
+impl SpatialState {
+    /// The orbit through the state: its plane, and its elements measured in that plane from the
+    /// node line. `None` without an orbit plane or on an unbound orbit.
+    pub fn elements(&self) -> Option<(OrbitElements, OrbitPlane)> {
+        let plane = OrbitPlane::of_state(self)?;
+        let flat = CartesianState {
+            r: plane.to_plane(self.r),
+            v: plane.to_plane(self.v),
+        };
+        Some((flat.elements()?, plane))
+    }
 }
 
 impl OrbitShape {
@@ -442,6 +481,32 @@ mod tests {
             .validate(),
             Err(OrbitError::Angle)
         );
+    }
+
+    #[test]
+    fn the_elements_of_a_state_put_it_back_where_it_was() {
+        let shapes = [(1.3, 0.2, 0.7), (0.8, 0.6, -2.0), (1.0, 1e-4, 0.0)];
+        let planes = [(0.4, 2.1), (0.0, 0.0), (1.4, -1.0), (3.0, 0.5), (1e-9, 0.3)];
+        for (a, e, omega) in shapes {
+            for (inclination, raan) in planes {
+                let shape = OrbitShape { a, e, omega };
+                let plane = OrbitPlane { inclination, raan };
+                for nu in [0.3, 2.0, -2.5] {
+                    let state = plane.embed(&shape.cartesian_at(nu));
+                    let (el, found) = state.elements().unwrap();
+                    let back = found.embed(&el.cartesian());
+                    let gap = back.r.iter().chain(&back.v).zip(state.r.iter().chain(&state.v));
+                    assert!(gap.map(|(x, y)| (x - y).abs()).fold(0.0, f64::max) < 1e-13);
+                    assert!((el.shape.a - a).abs() < 1e-12 && (el.shape.e - e).abs() < 1e-12);
+                    assert!((found.inclination - inclination).abs() < 1e-12);
+                }
+            }
+        }
+        let radial = SpatialState {
+            r: [1.0, 0.0, 0.0],
+            v: [0.3, 0.0, 0.0],
+        };
+        assert_eq!(radial.elements(), None);
     }
 
     #[test]

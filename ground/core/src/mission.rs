@@ -67,27 +67,38 @@ pub enum BodySpec {
     },
 }
 
-/// One orbit's ranges: semi-major axis in length units, angles in radians; each a number
-/// (fixed) or `[lo, hi]`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// One orbit: its ranges (semi-major axis in length units, angles in radians; each a number,
+/// fixed, or `[lo, hi]`), or one state on it (`state`; for a rendezvous's target `arrival`, the
+/// body's state at the end of a fixed time of flight), which fixes every element.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OrbitSpec {
     /// Semi-major axis, length units.
-    pub a: RangeSpec,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub a: Option<RangeSpec>,
     /// Eccentricity.
-    pub e: RangeSpec,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e: Option<RangeSpec>,
     /// Argument of periapsis, rad (default: any, [0, 2 pi]).
-    #[serde(default = "RangeSpec::full_turn")]
-    pub omega: RangeSpec,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub omega: Option<RangeSpec>,
     /// True anomaly at departure, rad (default: any, [0, 2 pi]).
-    #[serde(default = "RangeSpec::full_turn")]
-    pub nu: RangeSpec,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nu: Option<RangeSpec>,
     /// Inclination of the orbit's plane, rad (default: 0, the reference plane).
-    #[serde(default = "RangeSpec::zero", skip_serializing_if = "RangeSpec::is_zero")]
-    pub inclination: RangeSpec,
+    #[serde(default, skip_serializing_if = "RangeSpec::is_none_or_zero")]
+    pub inclination: Option<RangeSpec>,
     /// Right ascension of the plane's ascending node, rad (default: 0).
-    #[serde(default = "RangeSpec::zero", skip_serializing_if = "RangeSpec::is_zero")]
-    pub raan: RangeSpec,
+    #[serde(default, skip_serializing_if = "RangeSpec::is_none_or_zero")]
+    pub raan: Option<RangeSpec>,
+    /// A state on the orbit (the departure's at t = 0; for a transfer's target, any), in the
+    /// body's units or km and km/s: every element fixed by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub state: Option<crate::spatial::StateSpec>,
+    /// A rendezvous's target: the body's state at the arrival (a fixed time of flight), in the
+    /// body's units or km and km/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arrival: Option<crate::spatial::StateSpec>,
 }
 
 /// A fixed value or a `[lo, hi]` range.
@@ -109,8 +120,8 @@ impl RangeSpec {
         Self::Fixed(0.0)
     }
 
-    fn is_zero(&self) -> bool {
-        self.range() == Range { lo: 0.0, hi: 0.0 }
+    fn is_none_or_zero(spec: &Option<Self>) -> bool {
+        spec.is_none_or(|s| s.range() == Range { lo: 0.0, hi: 0.0 })
     }
 
     fn range(self) -> Range {
@@ -126,6 +137,105 @@ impl RangeSpec {
         } else {
             Self::Between([range.lo, range.hi])
         }
+    }
+}
+
+impl OrbitSpec {
+    /// The orbit's ranges and its plane's, from its elements or from the state given; `field`
+    /// names it in refusals (`departure` or `target`). A rendezvous target's `arrival` needs
+    /// `time_of_flight` (fixed, canonical): the body is coasted back from it to departure.
+    fn ranges(
+        &self,
+        field: &'static str,
+        body: &CentralBody,
+        time_of_flight: Option<f64>,
+        rendezvous_target: bool,
+    ) -> Result<(OrbitRanges, PlaneRanges), MissionError> {
+        let (state_field, arrival_field) = match field {
+            "departure" => ("departure.state", "departure.arrival"),
+            _ => ("target.state", "target.arrival"),
+        };
+        let refuse = |field: &'static str, why: &str| MissionError::Orbit {
+            field,
+            why: why.to_string(),
+        };
+        let elements_given = [self.a, self.e, self.omega, self.nu, self.inclination, self.raan]
+            .iter()
+            .any(Option::is_some);
+        let units = body.units();
+        let (state, at_arrival, which) = match (&self.state, &self.arrival) {
+            (None, None) => {
+                let (Some(a), Some(e)) = (self.a, self.e) else {
+                    return Err(refuse(
+                        field,
+                        "give the orbit's elements (a and e at least) or a state on it (state)",
+                    ));
+                };
+                let range = |spec: Option<RangeSpec>, default: fn() -> RangeSpec| spec.unwrap_or_else(default).range();
+                return Ok((
+                    OrbitRanges {
+                        a: a.range(),
+                        e: e.range(),
+                        omega: range(self.omega, RangeSpec::full_turn),
+                        nu: range(self.nu, RangeSpec::full_turn),
+                    },
+                    PlaneRanges {
+                        inclination: range(self.inclination, RangeSpec::zero),
+                        raan: range(self.raan, RangeSpec::zero),
+                    },
+                ));
+            }
+            (Some(_), Some(_)) => return Err(refuse(state_field, "give a state or an arrival, not both")),
+            (Some(state), None) => (state, false, state_field),
+            (None, Some(arrival)) => (arrival, true, arrival_field),
+        };
+        if elements_given {
+            return Err(refuse(
+                which,
+                "a state fixes every element: give the state or the elements, not both",
+            ));
+        }
+        if at_arrival && !rendezvous_target {
+            return Err(refuse(
+                which,
+                "only a rendezvous's target has an arrival state (a transfer's target takes a state on its orbit)",
+            ));
+        }
+        let state = state.state(which, &units).map_err(|e| refuse(which, &e.to_string()))?;
+        let (mut elements, plane) = state.elements().ok_or_else(|| {
+            refuse(
+                which,
+                "the state is on no closed orbit (unbound, or its velocity along its radius)",
+            )
+        })?;
+        if at_arrival {
+            let Some(tof) = time_of_flight else {
+                return Err(refuse(
+                    which,
+                    "an arrival state needs a fixed time of flight ({ days = D })",
+                ));
+            };
+            // The body's anomaly at departure: its in-plane state coasted back over the flight.
+            let start = onboard::kepler::coast(&elements.cartesian(), -tof)
+                .map_err(|e| refuse(which, &format!("the body cannot be coasted back to departure: {e:?}")))?;
+            elements.nu = start
+                .elements()
+                .ok_or_else(|| refuse(which, "the body's orbit at departure is not closed"))?
+                .nu;
+        }
+        let fixed = |x: f64| Range { lo: x, hi: x };
+        Ok((
+            OrbitRanges {
+                a: fixed(elements.shape.a),
+                e: fixed(elements.shape.e),
+                omega: fixed(elements.shape.omega),
+                nu: fixed(elements.nu),
+            },
+            PlaneRanges {
+                inclination: fixed(plane.inclination),
+                raan: fixed(plane.raan),
+            },
+        ))
     }
 }
 
@@ -185,6 +295,14 @@ pub enum MissionError {
     /// A field that cannot be posed.
     #[error("{0}")]
     Field(#[from] FamilyError),
+    /// An orbit given by a state that cannot be posed.
+    #[error("{field}: {why}")]
+    Orbit {
+        /// The orbit's field, e.g. `target.arrival`.
+        field: &'static str,
+        /// Why.
+        why: String,
+    },
     /// An inclined family given to a command that flies planar families only.
     #[error("family {0} has inclined orbits (inclination or node ranges other than 0): this command takes planar families; `ground data check-mission` solves it in three dimensions")]
     Inclined(String),
@@ -275,43 +393,40 @@ impl BodySpec {
 
 impl FamilyTable {
     fn spatial_family(&self) -> Result<SpatialFamily, MissionError> {
-        let plane = |spec: &OrbitSpec| PlaneRanges {
-            inclination: spec.inclination.range(),
-            raan: spec.raan.range(),
+        let body = self.body.body()?;
+        let time_of_flight = match self.time_of_flight {
+            TimeOfFlightSpec::Fixed { days } => Some(body.units().days(days)),
+            _ => None,
         };
+        let rendezvous = self.problem == ProblemName::Rendezvous;
+        let (departure, departure_plane) = self.departure.ranges("departure", &body, None, false)?;
+        let (target, target_plane) = self.target.ranges("target", &body, time_of_flight, rendezvous)?;
         Ok(SpatialFamily {
-            family: self.planar_family()?,
-            departure_plane: plane(&self.departure),
-            target_plane: plane(&self.target),
+            family: MissionFamily {
+                problem: match self.problem {
+                    ProblemName::Transfer => ProblemKind::Transfer,
+                    ProblemName::Rendezvous => ProblemKind::Rendezvous,
+                },
+                body,
+                departure,
+                target,
+                time_of_flight: self.time_of_flight(),
+                cycle: match self.cycle {
+                    CycleSpec::Days { days } => Cycle::Days(days),
+                    CycleSpec::Count { count } => Cycle::Count(count),
+                },
+            },
+            departure_plane,
+            target_plane,
         })
     }
 
-    fn planar_family(&self) -> Result<MissionFamily, MissionError> {
-        let body = self.body.body()?;
-        let orbit = |spec: &OrbitSpec| OrbitRanges {
-            a: spec.a.range(),
-            e: spec.e.range(),
-            omega: spec.omega.range(),
-            nu: spec.nu.range(),
-        };
-        Ok(MissionFamily {
-            problem: match self.problem {
-                ProblemName::Transfer => ProblemKind::Transfer,
-                ProblemName::Rendezvous => ProblemKind::Rendezvous,
-            },
-            body,
-            departure: orbit(&self.departure),
-            target: orbit(&self.target),
-            time_of_flight: match self.time_of_flight {
-                TimeOfFlightSpec::Rule(TimeOfFlightRule::LongerPeriod) => TimeOfFlight::LongerPeriod,
-                TimeOfFlightSpec::Fixed { days } => TimeOfFlight::Fixed { days },
-                TimeOfFlightSpec::Drawn { lo_days, hi_days } => TimeOfFlight::Drawn { lo_days, hi_days },
-            },
-            cycle: match self.cycle {
-                CycleSpec::Days { days } => Cycle::Days(days),
-                CycleSpec::Count { count } => Cycle::Count(count),
-            },
-        })
+    fn time_of_flight(&self) -> TimeOfFlight {
+        match self.time_of_flight {
+            TimeOfFlightSpec::Rule(TimeOfFlightRule::LongerPeriod) => TimeOfFlight::LongerPeriod,
+            TimeOfFlightSpec::Fixed { days } => TimeOfFlight::Fixed { days },
+            TimeOfFlightSpec::Drawn { lo_days, hi_days } => TimeOfFlight::Drawn { lo_days, hi_days },
+        }
     }
 
     /// The table of a family in three dimensions: the planar table with each orbit's plane.
@@ -321,8 +436,8 @@ impl FamilyTable {
             (&mut table.departure, &family.departure_plane),
             (&mut table.target, &family.target_plane),
         ] {
-            spec.inclination = RangeSpec::of(plane.inclination);
-            spec.raan = RangeSpec::of(plane.raan);
+            spec.inclination = Some(RangeSpec::of(plane.inclination));
+            spec.raan = Some(RangeSpec::of(plane.raan));
         }
         table
     }
@@ -330,12 +445,11 @@ impl FamilyTable {
     /// The table of a family, field by field (bodies that are presets by name).
     pub fn of(family: &MissionFamily) -> Self {
         let orbit = |ranges: &OrbitRanges| OrbitSpec {
-            a: RangeSpec::of(ranges.a),
-            e: RangeSpec::of(ranges.e),
-            omega: RangeSpec::of(ranges.omega),
-            nu: RangeSpec::of(ranges.nu),
-            inclination: RangeSpec::zero(),
-            raan: RangeSpec::zero(),
+            a: Some(RangeSpec::of(ranges.a)),
+            e: Some(RangeSpec::of(ranges.e)),
+            omega: Some(RangeSpec::of(ranges.omega)),
+            nu: Some(RangeSpec::of(ranges.nu)),
+            ..OrbitSpec::default()
         };
         Self {
             problem: match family.problem {

@@ -157,7 +157,7 @@ pub enum SpatialProblemError {
 }
 
 impl StateSpec {
-    fn state(&self, which: &'static str, units: &Units) -> Result<SpatialState, SpatialProblemError> {
+    pub(crate) fn state(&self, which: &'static str, units: &Units) -> Result<SpatialState, SpatialProblemError> {
         let error = |why: &str| SpatialProblemError::State {
             which,
             why: why.to_string(),

@@ -136,3 +136,79 @@ fn an_inclined_family_generates_records_that_join_the_target_orbit_and_resume_an
         let _ = std::fs::remove_dir_all(dir);
     }
 }
+
+/// The Earth–Mars family (its orbits given by the study's states) poses the very rendezvous of
+/// the problem file given by the same states: the same departure, the body coasted back from
+/// the arrival state and forward again to it, the same time of flight in 40 cycles, and the
+/// same optimum. A state given beside elements, or an arrival for a transfer, is refused.
+#[test]
+fn the_earth_mars_family_poses_the_problem_files_rendezvous() {
+    use ground_core::mission::FamilySpec;
+    use ground_core::spatial::{SpatialGoal, SpatialProblemSpec};
+    let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions");
+    let family = FamilySpec::from_argument(configs.join("earth-mars.toml").to_str().unwrap())
+        .unwrap()
+        .spatial_family()
+        .unwrap();
+    let posed = SpatialProblemSpec::from_file(&configs.join("earth-mars-optimum.toml"))
+        .unwrap()
+        .pose()
+        .unwrap();
+    let sc = posed.spacecraft.canonical_in(&posed.units).unwrap();
+    let draw = family.draw(0, 0);
+    assert_eq!(draw.scenario.steps, 40);
+    let (SpatialGoal::Rendezvous(ours), SpatialGoal::Rendezvous(theirs)) =
+        (SpatialGoal::of_scenario(&draw, sc).unwrap(), posed.goal)
+    else {
+        panic!("both are rendezvous");
+    };
+    let gap = |a: &shared::orbit::SpatialState, b: &shared::orbit::SpatialState| {
+        a.r.iter()
+            .chain(&a.v)
+            .zip(b.r.iter().chain(&b.v))
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max)
+    };
+    assert!(gap(&ours.departure, &theirs.departure) < 1e-14);
+    assert!(
+        gap(&ours.arrival, &theirs.arrival) < 1e-12,
+        "{:e}",
+        gap(&ours.arrival, &theirs.arrival)
+    );
+    assert!((ours.time_of_flight - theirs.time_of_flight).abs() < 1e-14);
+    let options = SolveOptions::default();
+    let (a, b) = (
+        SpatialGoal::Rendezvous(ours)
+            .solve(&options)
+            .unwrap()
+            .solution
+            .final_mass,
+        SpatialGoal::Rendezvous(theirs)
+            .solve(&options)
+            .unwrap()
+            .solution
+            .final_mass,
+    );
+    assert!((a - b).abs() < 1e-9 * b, "{a} vs {b}");
+    assert!((a * 1000.0 - 603.556).abs() < 5e-4, "{a}");
+    // Refusals, each naming its field.
+    let text = std::fs::read_to_string(configs.join("earth-mars.toml")).unwrap();
+    let refusal = |edit: &dyn Fn(&str) -> String| {
+        let table: ground_core::mission::FamilyTable = toml::from_str(&edit(&text)).unwrap();
+        FamilySpec::Table(table).spatial_family().unwrap_err().to_string()
+    };
+    let both = refusal(&|t| t.replace("departure = { state = {", "departure = { a = 1.0, state = {"));
+    assert!(both.starts_with("departure.state:"), "{both}");
+    let transfer = refusal(&|t| t.replace("problem = \"rendezvous\"", "problem = \"transfer\""));
+    assert!(transfer.starts_with("target.arrival:"), "{transfer}");
+    let drawn = refusal(&|t| t.replace("{ days = 348.79 }", "{ lo_days = 300.0, hi_days = 400.0 }"));
+    assert!(drawn.contains("fixed time of flight"), "{drawn}");
+    // A velocity along the radius: no orbit plane.
+    let radial = refusal(&|t| {
+        t.replace(
+            "v = [0.32817739, -0.94271519, 0.00001456]",
+            "v = [-0.94050597, -0.34501610, 0.00000655]",
+        )
+    });
+    assert!(radial.starts_with("departure.state:"), "{radial}");
+}
