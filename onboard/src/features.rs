@@ -265,7 +265,7 @@ pub fn transfer3_features(
     plane.validate().map_err(|_| FeatureError::Target)?;
     let o = &state.orbit;
     let (proxy, point, [p_hat, q_hat, w_hat]) = target_proxy(target, plane, &o.r);
-    Ok([
+    finite([
         o.radius(),
         dot3(&o.v, &r_hat),
         dot3(&o.v, &t_hat),
@@ -282,6 +282,16 @@ pub fn transfer3_features(
         norm3(&difference(&point.v, &o.v)),
         time_to_go,
     ])
+}
+
+/// Features whose every component is finite: a finite state so large that a norm overflows
+/// is refused rather than flown on infinities.
+fn finite<const N: usize>(features: [f64; N]) -> Result<[f64; N], FeatureError> {
+    if features.iter().all(|x| x.is_finite()) {
+        Ok(features)
+    } else {
+        Err(FeatureError::State(StateError::NonFinite))
+    }
 }
 
 /// Residuals of a transfer state in three dimensions, read off its features.
@@ -308,7 +318,7 @@ pub fn rendezvous3_features(
     let (ri, rt) = (o.radius(), b.radius());
     let (dr, dv) = (difference(&b.r, &o.r), difference(&b.v, &o.v));
     let (ui, ut) = (o.r.map(|x| x / ri), b.r.map(|x| x / rt));
-    Ok([
+    finite([
         ri,
         ui[0],
         ui[1],
@@ -736,6 +746,22 @@ mod spatial_tests {
         assert_eq!(
             transfer3_features(&good, &TARGET, &tilted, 1.0),
             Err(FeatureError::Target)
+        );
+        // Finite but so far out that the norms overflow: refused, not flown on infinities.
+        let far = SpatialCraftState {
+            orbit: SpatialState {
+                r: [1e160, 0.0, 0.0],
+                v: [0.0, 1e-150, 0.0],
+            },
+            m: 1.0,
+        };
+        assert_eq!(
+            transfer3_features(&far, &TARGET, &plane, 1.0),
+            Err(FeatureError::State(StateError::NonFinite))
+        );
+        assert_eq!(
+            rendezvous3_features(&far, &good.orbit, 1.0),
+            Err(FeatureError::State(StateError::NonFinite))
         );
         let mut nan = good;
         nan.orbit.v[2] = f64::NAN;

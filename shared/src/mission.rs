@@ -113,6 +113,12 @@ impl Units {
     }
 }
 
+/// One uniform draw from `range`: 53 random bits of the next 64-bit word.
+fn uniform(rng: &mut ChaCha8Rng, range: Range) -> f64 {
+    let unit = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
+    range.lo + (range.hi - range.lo) * unit
+}
+
 /// The parameter ranges of one orbit of a family: the departure orbit, or the target. Angles in
 /// radians, semi-major axes in the body's length unit.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -301,10 +307,7 @@ impl MissionFamily {
         rng.set_stream(index);
         // Always nine draws in this order, whatever is fixed, so the layout never shifts; the
         // time of flight came last, after the thesis's eight.
-        let mut uniform = |range: Range| {
-            let unit = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-            range.lo + (range.hi - range.lo) * unit
-        };
+        let mut uniform = |range: Range| uniform(&mut rng, range);
         let (d, t) = (&self.departure, &self.target);
         let initial = OrbitElements {
             shape: OrbitShape {
@@ -408,7 +411,7 @@ impl PlaneRanges {
     };
 }
 
-/// A family in three dimensions (docs/spec.md section 4.2): a [`MissionFamily`] whose orbits
+/// A family in three dimensions (docs/spec.md section 4, inclined families): a [`MissionFamily`] whose orbits
 /// each lie in a plane drawn from its own ranges. Every planar figure (the shapes, the
 /// anomalies, the time of flight, the cycle) is the planar family's, measured in each orbit's
 /// plane; with both planes fixed at the reference plane it is the planar family itself.
@@ -472,13 +475,9 @@ impl SpatialFamily {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_stream(index);
         rng.set_word_pos(PLANE_WORDS);
-        let mut uniform = |range: Range| {
-            let unit = (rng.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-            range.lo + (range.hi - range.lo) * unit
-        };
         let mut plane = |ranges: &PlaneRanges| OrbitPlane {
-            inclination: uniform(ranges.inclination),
-            raan: uniform(ranges.raan),
+            inclination: uniform(&mut rng, ranges.inclination),
+            raan: uniform(&mut rng, ranges.raan),
         };
         SpatialScenario {
             initial_plane: plane(&self.departure_plane),

@@ -147,7 +147,7 @@ impl SpatialState {
 /// The plane of an orbit in three dimensions: its inclination to the reference (xy) plane and
 /// the right ascension of its ascending node (rad). A planar orbit's angles are measured in its
 /// own plane from the node line; the plane turns them into the inertial frame by R3(-raan)
-/// R1(-inclination), the classical elements' rotation (docs/spec.md section 3.6).
+/// R1(-inclination), the classical elements' rotation (docs/spec.md section 4, inclined families).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OrbitPlane {
     /// Inclination to the xy-plane (rad), in [0, pi].

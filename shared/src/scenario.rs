@@ -190,7 +190,7 @@ impl Scenario {
     }
 }
 
-/// A scenario in three dimensions (docs/spec.md section 4.2): a planar [`Scenario`] whose two
+/// A scenario in three dimensions (docs/spec.md section 4, inclined families): a planar [`Scenario`] whose two
 /// orbits lie in their own planes. Every figure of `scenario` is measured in its orbit's plane.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SpatialScenario {

@@ -1,9 +1,10 @@
 //! What a plane change costs: draws of an inclined family (by default the shipped
 //! `configs/missions/transfer-circular-inclined.toml`: the transfer-circular radii, the target
 //! inclined by up to 5 degrees with any node), each solved in three dimensions, beside the same
-//! draw with its target in the departure plane solved by the planar method. Rows: the draw's
-//! inclination and node, both final masses and the propellant the plane change adds, or why a
-//! draw was not solved.
+//! draw's planar figures solved by the planar method (its target in the departure plane; as omega
+//! and nu are measured from each orbit's node, that twin's target periapsis is also turned by the
+//! node, which near-circular orbits do not feel). Rows: the draw's inclination and node, both
+//! final masses and the propellant the plane change adds, or why a draw was not solved.
 //!
 //! Run (the default: 20 draws in about 15 s):
 //!

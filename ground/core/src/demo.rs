@@ -745,7 +745,8 @@ pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter)
 }
 
 /// [`mismatch_report`] of a three-dimensional dataset: its converged records' cycles flown by the
-/// onboard RTN propagation ([`spatial::spatial_demonstrations`]).
+/// onboard RTN propagation ([`spatial::spatial_demonstrations`]). A 3D record keeps samples only
+/// when converged, so the record filter changes nothing here.
 fn spatial_mismatch_report(dataset: &Path, config: &EnvConfig) -> Result<MismatchReport, DemoError> {
     let file = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(dataset)?;
     let family = &file.manifest.family.family;

@@ -95,8 +95,8 @@ pub struct OrbitSpec {
     /// body's units or km and km/s: every element fixed by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub state: Option<crate::spatial::StateSpec>,
-    /// A rendezvous's target: the body's state at the arrival (a fixed time of flight), in the
-    /// body's units or km and km/s.
+    /// A rendezvous's target: the body's state at the arrival (the end of a fixed time of
+    /// flight, rounded up to whole cycles of a cycle in days), in the body's units or km and km/s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arrival: Option<crate::spatial::StateSpec>,
 }
@@ -143,7 +143,8 @@ impl RangeSpec {
 impl OrbitSpec {
     /// The orbit's ranges and its plane's, from its elements or from the state given; `field`
     /// names it in refusals (`departure` or `target`). A rendezvous target's `arrival` needs
-    /// `time_of_flight` (fixed, canonical): the body is coasted back from it to departure.
+    /// `time_of_flight` (the fixed flight as flown, canonical): the body is coasted back from it
+    /// to departure.
     fn ranges(
         &self,
         field: &'static str,
@@ -304,7 +305,7 @@ pub enum MissionError {
         why: String,
     },
     /// An inclined family given to a command that flies planar families only.
-    #[error("family {0} has inclined orbits (inclination or node ranges other than 0): this command takes planar families; `ground data check-mission` solves it in three dimensions")]
+    #[error("family {0} has inclined orbits (inclination or node ranges other than 0): this command takes planar families; `ground data check-mission` and `generate` solve it in three dimensions (and `merge`, `compare`, `demos`, `oem` read its datasets)")]
     Inclined(String),
     /// A mission file that cannot be read.
     #[error("{path}: {why}")]
@@ -394,8 +395,17 @@ impl BodySpec {
 impl FamilyTable {
     fn spatial_family(&self) -> Result<SpatialFamily, MissionError> {
         let body = self.body.body()?;
-        let time_of_flight = match self.time_of_flight {
-            TimeOfFlightSpec::Fixed { days } => Some(body.units().days(days)),
+        let cycle = match self.cycle {
+            CycleSpec::Days { days } => Cycle::Days(days),
+            CycleSpec::Count { count } => Cycle::Count(count),
+        };
+        // A fixed flight as flown: rounded up to whole cycles of a cycle in days.
+        let time_of_flight = match (self.time_of_flight, cycle) {
+            (TimeOfFlightSpec::Fixed { days }, Cycle::Days(cycle_days)) => {
+                let (tof, cycle) = (body.units().days(days), body.units().days(cycle_days));
+                Some(f64::from(shared::scenario::Scenario::cycles_covering(tof, cycle)) * cycle)
+            }
+            (TimeOfFlightSpec::Fixed { days }, Cycle::Count(_)) => Some(body.units().days(days)),
             _ => None,
         };
         let rendezvous = self.problem == ProblemName::Rendezvous;
@@ -411,10 +421,7 @@ impl FamilyTable {
                 departure,
                 target,
                 time_of_flight: self.time_of_flight(),
-                cycle: match self.cycle {
-                    CycleSpec::Days { days } => Cycle::Days(days),
-                    CycleSpec::Count { count } => Cycle::Count(count),
-                },
+                cycle,
             },
             departure_plane,
             target_plane,
@@ -699,13 +706,11 @@ pub fn check_family(
             let drawn = family.draw(seed, index);
             let scenario = drawn.scenario;
             if !drawn.is_planar() {
-                let started = std::time::Instant::now();
-                let solution = crate::spatial::SpatialGoal::of_scenario(&drawn, *spacecraft)
-                    .and_then(|goal| goal.solve(options))
-                    .ok();
+                let record =
+                    crate::solver::spatial::record::solve_spatial_draw(family, seed, index, spacecraft, options);
                 let outcome = Outcome {
-                    final_mass: solution.map(|s| s.solution.final_mass),
-                    seconds: started.elapsed().as_secs_f64(),
+                    final_mass: record.converged.then_some(record.final_mass),
+                    seconds: record.seconds,
                 };
                 // No minimum-time method in three dimensions yet: an unsolved draw is unclassified.
                 let verdict = outcome.final_mass.is_none().then_some(Verdict::Unknown);

@@ -242,9 +242,9 @@ impl OemCentre {
         time_unit_s: TIME_UNIT_S,
         ecliptic: true,
         comments: [
-            "Sun point-mass dynamics solved in the J2000 ecliptic plane (x axis on the J2000 mean",
-            "equinox), rotated into EME2000 about +X by the J2000 obliquity 84381.448 arcsec",
-            "(as SPICE ECLIPJ2000 -> J2000). Rotate back to recover the planar solution (z = 0).",
+            "Sun point-mass dynamics solved in J2000 ecliptic axes (x axis on the J2000 mean",
+            "equinox), rotated into EME2000 about +X by the J2000 obliquity 84381.448 arcsec (as SPICE",
+            "ECLIPJ2000 -> J2000); rotated back, a planar solution lies in the ecliptic (z = 0).",
         ],
     };
 
@@ -270,9 +270,9 @@ impl OemCentre {
                 "EARTH",
                 "EME2000",
                 [
-                    "Earth point-mass dynamics solved in the plane of the J2000 mean equator (x axis",
-                    "on the J2000 mean equinox): written in EME2000 as solved, the planar solution",
-                    "is x, y (z = 0).",
+                    "Earth point-mass dynamics solved about the J2000 mean equator (x axis on the J2000",
+                    "mean equinox), written in EME2000 as solved: a planar solution lies in the equator",
+                    "(z = 0), a three-dimensional one leaves it.",
                 ],
                 &b,
             )),
@@ -280,9 +280,9 @@ impl OemCentre {
                 "MARS",
                 "MCI",
                 [
-                    "Mars point-mass dynamics solved in the plane of the Mars equator (x axis on its",
-                    "ascending node on the ICRF equator): written in MCI (Mars Centred Inertial) as",
-                    "solved, the planar solution is x, y (z = 0).",
+                    "Mars point-mass dynamics solved about the Mars equator (x axis on its ascending",
+                    "node on the ICRF equator), written in MCI (Mars Centred Inertial) as solved: a",
+                    "planar solution lies in the equator (z = 0), a three-dimensional one leaves it.",
                 ],
                 &b,
             )),

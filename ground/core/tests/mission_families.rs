@@ -215,7 +215,7 @@ fn an_inclined_family_is_checked_in_three_dimensions_and_costs_more_than_the_cop
             ..shipped
         };
         let draw = |family: &SpatialFamily| {
-            // One draw at a time: the index-th draw is the first of its own seed.
+            // One draw at a time: draw 0 of seed 100 + index.
             check_family(family, &sc, 1, 100 + index, &options)
         };
         let (tilted, flat) = (draw(&inclined), draw(&SpatialFamily::planar(shipped.family)));

@@ -212,3 +212,33 @@ fn the_earth_mars_family_poses_the_problem_files_rendezvous() {
     });
     assert!(radial.starts_with("departure.state:"), "{radial}");
 }
+
+/// An arrival state with a cycle in days that does not divide the time of flight: the flight is
+/// rounded up to whole cycles, and the body is where the arrival state puts it at the end of
+/// the flight as flown.
+#[test]
+fn an_arrival_state_is_met_at_the_end_of_the_flight_as_flown() {
+    use ground_core::mission::{FamilySpec, FamilyTable};
+    use ground_core::spatial::SpatialGoal;
+    let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions");
+    let text = std::fs::read_to_string(configs.join("earth-mars.toml"))
+        .unwrap()
+        .replace("cycle = { count = 40 }", "cycle = { days = 7.0 }");
+    let table: FamilyTable = toml::from_str(&text).unwrap();
+    let family = FamilySpec::Table(table).spatial_family().unwrap();
+    let draw = family.draw(0, 0);
+    // 348.79 days in 7-day cycles: 50 cycles, 350 days.
+    assert_eq!(draw.scenario.steps, 50);
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let SpatialGoal::Rendezvous(goal) = SpatialGoal::of_scenario(&draw, sc).unwrap() else {
+        panic!("a rendezvous");
+    };
+    let units = family.family.body.units();
+    let km = |x: f64| x * units.length_m / 1e3;
+    let km_s = |x: f64| x * units.velocity_m_s() / 1e3;
+    let given = ([-1.727e8, 1.770e8, 7.949e6], [-16.427, -14.861, 0.092]);
+    for k in 0..3 {
+        assert!((km(goal.arrival.r[k]) - given.0[k]).abs() < 1e-3, "{:?}", goal.arrival);
+        assert!((km_s(goal.arrival.v[k]) - given.1[k]).abs() < 1e-10);
+    }
+}

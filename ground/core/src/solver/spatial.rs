@@ -708,6 +708,7 @@ pub fn sample_solution(
     let (mut t, mut y) = (0.0, problem.initial_state_costate(&solution.costates));
     let mut samples = Vec::with_capacity(times.len());
     for &ti in times {
+        debug_assert!(ti >= t, "sample times must be sorted");
         if ti > t {
             y = propagate3(&params, t, &y, ti, tolerances)?;
             t = ti;
