@@ -8,7 +8,7 @@ use ground_core::generate::{
     generate_in, hold_run, holds_spatial_records, merge, read_dataset, read_dataset_of, trajectory_difference,
     DatasetFamily, DatasetRecord, GenerateError, Manifest, Shard, Summary,
 };
-use ground_core::io::{atomic_write, require_parent_folder};
+use ground_core::io::{atomic_write, require_parent_folder, RunLock};
 use ground_core::mission::FamilySpec;
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions, OemSource};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
@@ -202,12 +202,18 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
         rayon::ThreadPoolBuilder::new().num_threads(n.get()).build_global()?;
     }
     let Some(planar) = args.scenario.as_planar() else {
-        // An inclined family: records of the three-dimensional solver (no figure yet).
-        let summary = generate_family(args.scenario, args, &sc, &options)?;
+        // An inclined family: records of the three-dimensional solver, one drawn.
+        let (_held, summary) = generate_family(args.scenario, args, &sc, &options)?;
         print_summary(&summary);
+        if ground_core::spatial::plot_spatial_dataset_sample(&args.out, args.shard, &Spacecraft::MSR_ERO)? > 0 {
+            println!(
+                "plotted the first solved trajectory in {}",
+                args.out.join("trajectories.svg").display()
+            );
+        }
         return Ok(());
     };
-    let summary = generate_family(planar, args, &sc, &options)?;
+    let (_held, summary) = generate_family(planar, args, &sc, &options)?;
     print_summary(&summary);
     // A few solved trajectories on one figure (thesis Fig. 4.4/4.5).
     let shown = plot_dataset_sample(&args.out, args.shard)?;
@@ -220,20 +226,22 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
     Ok(())
 }
 
-/// Checks the request and the folder, holds it, and generates the family's records into it.
+/// Checks the request and the folder, holds it, and generates the family's records into it;
+/// the folder stays held while the caller keeps the hold (its figure is written under it).
 fn generate_family<F: DatasetFamily>(
     family: F,
     args: &GenerateArgs,
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
-) -> Result<Summary, GenerateError> {
+) -> Result<(RunLock, Summary), GenerateError> {
     let manifest = Manifest {
         family,
         seed: args.seed,
         count: args.count,
     };
     let run = hold_run(manifest, args.shard, &args.out, options)?;
-    generate_in(&run, manifest, args.shard, spacecraft, options, true)
+    let summary = generate_in(&run, manifest, args.shard, spacecraft, options, true)?;
+    Ok((run, summary))
 }
 
 pub fn oem_command(dataset: &Path, index: u64, out: &Path, departure: &str) -> Result<(), Box<dyn std::error::Error>> {

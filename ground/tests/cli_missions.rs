@@ -246,6 +246,9 @@ fn an_inclined_family_is_checked_in_three_dimensions_and_refused_by_planar_comma
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let dataset = dir.join("dataset.ltds");
     assert!(ground_core::generate::holds_spatial_records(&dataset).unwrap());
+    // The first solved trajectory is drawn, projected on the xy-plane, with z against time.
+    let svg = std::fs::read_to_string(dir.join("trajectories.svg")).unwrap();
+    assert!(svg.contains("Fuel-optimal transfer") && svg.contains("z [million km]"));
     // The planar solver refuses it by name, before any work.
     let out = ground(&["data", "solve", "--scenario", file.to_str().unwrap(), "--index", "0"]);
     assert!(!out.status.success());

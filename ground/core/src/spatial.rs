@@ -650,12 +650,11 @@ pub fn plot_spatial_optimum(
     let tof_days = days(problem.time_of_flight);
     let svg = render_svg((1900, 960), |root| {
         let (left, right) = root.split_horizontally(1100);
-        draw_orbit_plane(
-            &left,
-            "Fuel-optimal rendezvous, projected on the xy-plane",
-            300,
-            &[layer],
-        )?;
+        let title = match posed.goal {
+            SpatialGoal::Rendezvous(_) => "Fuel-optimal rendezvous, projected on the xy-plane",
+            SpatialGoal::Transfer(_) => "Fuel-optimal transfer, projected on the xy-plane",
+        };
+        draw_orbit_plane(&left, title, 300, &[layer])?;
         let panels = right.split_evenly((if missed.is_some() { 3 } else { 2 }, 1));
         let line_chart = |area: &crate::plot::Area<'_>,
                           points: &[(f64, f64)],
@@ -720,6 +719,41 @@ pub fn plot_spatial_optimum(
         Ok(())
     })?;
     crate::io::atomic_write(path, svg.as_bytes()).map_err(PlotError::Io)
+}
+
+/// The figure of [`plot_spatial_optimum`] for the first converged record of the inclined
+/// family's dataset in `out` (shard `shard`), flown by `spacecraft` (the one it was solved
+/// for), written to `out/trajectories.svg`. Returns how many trajectories it shows (0 or 1).
+pub fn plot_spatial_dataset_sample(
+    out: &Path,
+    shard: crate::generate::Shard,
+    spacecraft: &Spacecraft,
+) -> Result<usize, Box<dyn std::error::Error>> {
+    let file =
+        crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(&crate::generate::dataset_path(out, shard))?;
+    let Some(record) = file.records.iter().find(|r| r.converged && r.ephemeris.len() > 1) else {
+        return Ok(0);
+    };
+    let body = file.manifest.family.family.body;
+    let units = body.units();
+    let canonical = spacecraft.canonical_in(&units)?;
+    let goal = SpatialGoal::of_scenario(&record.scenario, canonical)?;
+    let end = record.ephemeris[record.ephemeris.len() - 1].state;
+    let flight = SpatialRendezvous {
+        departure: record.scenario.departure(),
+        initial_mass: 1.0,
+        arrival: end,
+        time_of_flight: goal.time_of_flight(),
+        spacecraft: canonical,
+    };
+    let posed = PosedProblem {
+        goal,
+        body,
+        units,
+        spacecraft: *spacecraft,
+    };
+    plot_spatial_optimum(&posed, &flight, &record.ephemeris, None, &out.join("trajectories.svg"))?;
+    Ok(1)
 }
 
 /// One draw of a planar family solved by the planar solver and, embedded in three dimensions,
