@@ -65,6 +65,7 @@ use shared::mission::CentralBody;
 use shared::spacecraft::{Spacecraft, SpacecraftError};
 use shared::units::{AU_M, TIME_UNIT_S, VELOCITY_UNIT_M_S};
 
+use crate::generate::DatasetRecord;
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::spatial::record::SpatialRecord;
 
@@ -85,19 +86,15 @@ pub struct OemSample {
     pub direction: [f64; 3],
 }
 
-/// What the OEM writer reads of a record, planar ([`TrajectoryRecord`], z = 0) or
-/// three-dimensional ([`SpatialRecord`]).
-pub trait OemSource {
+/// What the OEM writer reads of a record beyond its figures ([`DatasetRecord::figures`]):
+/// planar ([`TrajectoryRecord`], z = 0) or three-dimensional ([`SpatialRecord`]).
+pub trait OemSource: DatasetRecord {
     /// The family's central body.
     fn body(&self) -> CentralBody;
     /// The family's label.
     fn family_label(&self) -> String;
-    /// Seed and index of the draw.
-    fn draw(&self) -> (u64, u64);
-    /// Why the record did not converge (`None` when it did).
-    fn failure(&self) -> Result<(), Option<String>>;
-    /// Final eps, terminal residual, thrust arcs, final mass.
-    fn outcome(&self) -> (f64, f64, u32, f64);
+    /// Seed of the draw.
+    fn seed(&self) -> u64;
     /// The ephemeris samples.
     fn samples(&self) -> Vec<OemSample>;
 }
@@ -111,20 +108,8 @@ impl OemSource for TrajectoryRecord {
         self.family.label().to_string()
     }
 
-    fn draw(&self) -> (u64, u64) {
-        (self.seed, self.index)
-    }
-
-    fn failure(&self) -> Result<(), Option<String>> {
-        if self.converged {
-            Ok(())
-        } else {
-            Err(self.failure.clone())
-        }
-    }
-
-    fn outcome(&self) -> (f64, f64, u32, f64) {
-        (self.final_eps, self.residual, self.thrust_arcs, self.final_mass)
+    fn seed(&self) -> u64 {
+        self.seed
     }
 
     fn samples(&self) -> Vec<OemSample> {
@@ -152,20 +137,8 @@ impl OemSource for SpatialRecord {
         self.family.label().to_string()
     }
 
-    fn draw(&self) -> (u64, u64) {
-        (self.seed, self.index)
-    }
-
-    fn failure(&self) -> Result<(), Option<String>> {
-        if self.converged {
-            Ok(())
-        } else {
-            Err(self.failure.clone())
-        }
-    }
-
-    fn outcome(&self) -> (f64, f64, u32, f64) {
-        (self.final_eps, self.residual, self.thrust_arcs, self.final_mass)
+    fn seed(&self) -> u64 {
+        self.seed
     }
 
     fn samples(&self) -> Vec<OemSample> {
@@ -814,7 +787,12 @@ impl OemEphemeris {
 /// positive mass, throttle in [0, 1].
 pub fn validate_record(record: &impl OemSource) -> Result<(), OemError> {
     OemCentre::of_record(record)?;
-    record.failure().map_err(|failure| OemError::NotConverged { failure })?;
+    let figures = record.figures();
+    if !figures.converged {
+        return Err(OemError::NotConverged {
+            failure: figures.failure.map(str::to_string),
+        });
+    }
     let samples = record.samples();
     if samples.is_empty() {
         return Err(OemError::NoSamples);
@@ -897,8 +875,14 @@ pub fn thrust_rows(record: &impl OemSource, options: &OemOptions) -> Result<Vec<
 pub fn oem_string(record: &impl OemSource, options: &OemOptions) -> Result<String, OemError> {
     let rows = thrust_rows(record, options)?;
     let centre = OemCentre::of_record(record)?;
-    let (final_eps, residual, thrust_arcs, final_mass) = record.outcome();
-    let (seed, index) = record.draw();
+    let figures = record.figures();
+    let (final_eps, residual, thrust_arcs, final_mass) = (
+        figures.final_eps,
+        figures.residual,
+        figures.thrust_arcs,
+        figures.final_mass,
+    );
+    let (seed, index) = (record.seed(), figures.index);
     let sc = &options.spacecraft;
     let n = rows.len();
     let (first, last) = (rows[0].epoch, rows[n - 1].epoch);
