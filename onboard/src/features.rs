@@ -220,9 +220,7 @@ fn check_spatial(state: &SpatialCraftState, time_to_go: f64) -> Result<[[f64; 3]
 /// three dimensions: the orbit's point at the angle of r's projection on the orbit plane, and
 /// the orbit's perifocal basis (P, Q, W).
 fn target_proxy(shape: &OrbitShape, plane: &OrbitPlane, r: &[f64; 3]) -> (PolarState, SpatialState, [[f64; 3]; 3]) {
-    let (so, co) = (libm::sin(shape.omega), libm::cos(shape.omega));
-    let p_hat = plane.to_inertial([co, so]);
-    let q_hat = plane.to_inertial([-so, co]);
+    let (p_hat, q_hat) = plane.perifocal(shape.omega);
     let w_hat = cross3(&p_hat, &q_hat);
     // The true anomaly of the projection: its angle from periapsis in the target plane.
     let nu = libm::atan2(dot3(r, &q_hat), dot3(r, &p_hat));

@@ -186,6 +186,13 @@ impl OrbitPlane {
         [x * cn - y * sn, x * sn + y * cn, z]
     }
 
+    /// The perifocal unit vectors of an orbit of this plane whose argument of periapsis is
+    /// `omega`: P towards periapsis, Q 90 degrees ahead.
+    pub fn perifocal(&self, omega: f64) -> ([f64; 3], [f64; 3]) {
+        let (so, co) = (libm::sin(omega), libm::cos(omega));
+        (self.to_inertial([co, so]), self.to_inertial([-so, co]))
+    }
+
     /// A state of the orbit plane in the inertial frame.
     pub fn embed(&self, c: &CartesianState) -> SpatialState {
         SpatialState {
@@ -206,14 +213,20 @@ impl OrbitPlane {
     /// The plane of the orbit through `state` (its angular momentum's direction); the node on
     /// the x-axis when the orbit lies in the reference plane. `None` without an orbit plane.
     pub fn of_state(state: &SpatialState) -> Option<Self> {
-        let h = state.angular_momentum();
-        let (across, hn) = (libm::hypot(h[0], h[1]), norm3(&h));
-        if !(hn > 0.0 && hn.is_finite()) {
+        Self::of_normal(&state.angular_momentum())
+    }
+
+    /// The plane whose normal (of any length) is `n`: the inclination by atan2, exact near the
+    /// reference plane where acos of the normal's z loses half the digits; the node on the
+    /// x-axis when the plane is the reference plane. `None` for a zero or non-finite normal.
+    pub fn of_normal(n: &[f64; 3]) -> Option<Self> {
+        let (across, length) = (libm::hypot(n[0], n[1]), norm3(n));
+        if !(length > 0.0 && length.is_finite()) {
             return None;
         }
-        let inclination = libm::atan2(across, h[2]);
-        let raan = if across > 1e-15 * hn {
-            libm::atan2(h[0], -h[1])
+        let inclination = libm::atan2(across, n[2]);
+        let raan = if across > 1e-15 * length {
+            libm::atan2(n[0], -n[1])
         } else {
             0.0
         };

@@ -6,7 +6,7 @@
 use nalgebra::{SMatrix, SVector};
 use num_dual::{Dual2_64, DualNum};
 use onboard::integrator::{IntegrationError, Tolerances};
-use shared::orbit::{cross3, dot3, OrbitShape, SpatialState};
+use shared::orbit::{cross3, dot3, OrbitPlane, OrbitShape, SpatialState};
 use shared::scenario::{ProblemKind, Scenario, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -67,28 +67,26 @@ impl SpatialOrbitShape {
 
     /// The perifocal unit vectors: P towards periapsis, Q 90 degrees ahead in the orbit plane.
     pub fn perifocal(&self) -> ([f64; 3], [f64; 3]) {
-        let (so, co) = self.omega.sin_cos();
-        let (sn, cn) = self.raan.sin_cos();
-        let (si, ci) = self.inclination.sin_cos();
-        (
-            [cn * co - sn * so * ci, sn * co + cn * so * ci, so * si],
-            [-cn * so - sn * co * ci, -sn * so + cn * co * ci, co * si],
-        )
+        let plane = OrbitPlane {
+            inclination: self.inclination,
+            raan: self.raan,
+        };
+        plane.perifocal(self.omega)
     }
 
     /// The orbit from its shape and its perifocal vectors (the inverse of [`Self::perifocal`]);
     /// in the plane (inclination below 1e-12) the node is put on the x-axis.
     pub fn from_perifocal(a: f64, e: f64, p: &[f64; 3], q: &[f64; 3]) -> Self {
         let w = cross3(p, q);
-        let inclination = w[2].clamp(-1.0, 1.0).acos();
+        let plane = OrbitPlane::of_normal(&w).unwrap_or(OrbitPlane::REFERENCE);
+        let inclination = plane.inclination;
         let (raan, omega) = if inclination.sin() < 1e-12 {
             // In the plane, prograde (w_z = 1) or retrograde (w_z = -1): the node on the x-axis,
             // and P = (cos omega, w_z sin omega, 0).
             (0.0, (p[1] * w[2].signum()).atan2(p[0]))
         } else {
-            let raan = w[0].atan2(-w[1]);
-            let (sn, cn) = raan.sin_cos();
-            (raan, (p[2] / inclination.sin()).atan2(p[0] * cn + p[1] * sn))
+            let (sn, cn) = plane.raan.sin_cos();
+            (plane.raan, (p[2] / inclination.sin()).atan2(p[0] * cn + p[1] * sn))
         };
         Self {
             a,
