@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
 
-use ground_core::env::{EnvConfig, Environment, MdpEnv, Problem, Step};
+use ground_core::env::{EnvConfig, Environment, MdpEnv, Planar, Problem, Step};
 use ground_core::with_problem;
 use onboard::dynamics::SpacecraftState;
 use onboard::features::ACTION_LEN;
@@ -54,7 +54,7 @@ trait AnyEnv: Send + Sync {
     fn is_done(&self) -> bool;
 }
 
-impl<P: Problem> AnyEnv for MdpEnv<P> {
+impl<P: Problem<Geometry = Planar>> AnyEnv for MdpEnv<P> {
     fn reset(&mut self, scenario: &Scenario) -> Result<Vec<f32>, String> {
         Environment::reset(self, scenario)
             .map(|o| o.as_ref().to_vec())

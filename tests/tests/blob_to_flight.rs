@@ -4,7 +4,7 @@
 use firmware_sim::{
     fly, fly_observed, Controller, Dispersions, FlightSetup, FlightStep, Problem, Rendezvous, Transfer,
 };
-use ground_core::env::{EnvConfig, Environment, MdpEnv};
+use ground_core::env::{EnvConfig, Environment, MdpEnv, Planar};
 use onboard::features::{decode_action, to_network_input, RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
 use onboard::guidance::Actor;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
@@ -188,7 +188,7 @@ fn rendezvous_blob(quantization: Quantization) -> Vec<u8> {
 fn sil_is_the_environment<const N: usize, P, E>(problem: P, actor: &impl Actor<N>, scenario: &Scenario)
 where
     P: Problem<N>,
-    E: Environment<Obs = [f32; N]>,
+    E: Environment<Obs = [f32; N], Geometry = Planar>,
 {
     let config = EnvConfig::default();
     let spacecraft = config.spacecraft.canonical().unwrap();

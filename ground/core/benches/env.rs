@@ -9,14 +9,14 @@ use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use ground_core::env::batch::{draw_scenarios, evaluate};
-use ground_core::env::{EnvConfig, Environment, RendezvousEnv, TransferEnv};
+use ground_core::env::{EnvConfig, Environment, Planar, RendezvousEnv, TransferEnv};
 use shared::scenario::ScenarioKind;
 
 /// A fixed, thrusting action with a turning direction.
 const THRUST: [f32; 3] = [0.4, 0.3, 0.9];
 const COAST: [f32; 3] = [-1.0, 0.0, 1.0];
 
-fn steps<E: Environment>(c: &mut Criterion, name: &str, kind: ScenarioKind) {
+fn steps<E: Environment<Geometry = Planar>>(c: &mut Criterion, name: &str, kind: ScenarioKind) {
     let config = EnvConfig::default();
     let mut env = E::new(&config).expect("valid config");
     for (label, action) in [("thrusting", THRUST), ("coasting", COAST)] {
@@ -32,7 +32,7 @@ fn steps<E: Environment>(c: &mut Criterion, name: &str, kind: ScenarioKind) {
     }
 }
 
-fn throughput<E: Environment>(name: &str, kind: ScenarioKind, episodes: u64) {
+fn throughput<E: Environment<Geometry = Planar>>(name: &str, kind: ScenarioKind, episodes: u64) {
     let scenarios = draw_scenarios(kind, 2, episodes);
     let config = EnvConfig::default();
     let start = Instant::now();

@@ -16,7 +16,7 @@
 
 use clap::Parser;
 use ground_core::demo::{default_tolerances, record_demonstration};
-use ground_core::env::{EnvConfig, Environment, MdpEnv, Problem, Rendezvous, Transfer};
+use ground_core::env::{EnvConfig, Environment, MdpEnv, Planar, Problem, Rendezvous, Transfer};
 use ground_core::solver::record::TrajectoryRecord;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use onboard::dynamics::SpacecraftState;
@@ -78,7 +78,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 }
 
-fn demonstrate<P: Problem>(record: &TrajectoryRecord, config: &EnvConfig) -> Result<(), Box<dyn std::error::Error>> {
+fn demonstrate<P: Problem<Geometry = Planar>>(
+    record: &TrajectoryRecord,
+    config: &EnvConfig,
+) -> Result<(), Box<dyn std::error::Error>> {
     let demo = record_demonstration::<P>(record, config, &default_tolerances())?;
 
     // One row per step; consecutive coast steps (thrust off, no mismatch) share a row.

@@ -40,7 +40,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
 
 use crate::env::batch::Stats;
-use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Problem};
+use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Planar, Problem};
 use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
@@ -418,7 +418,7 @@ pub fn relabel(
 }
 
 /// The tuples of one record for problem `P` (transfer or rendezvous).
-pub fn record_demonstration<P: Problem>(
+pub fn record_demonstration<P: Problem<Geometry = Planar>>(
     record: &TrajectoryRecord,
     config: &EnvConfig,
     tolerances: &Tolerances,
@@ -430,7 +430,7 @@ pub fn record_demonstration<P: Problem>(
 /// done flags are the episode's at steps start_step.., the actions the record's ZOH controls;
 /// after a record that ends before its episode, coast steps from its final state to the
 /// episode's end (thrust off, flown by the environment).
-pub fn placed_demonstration<P: Problem>(
+pub fn placed_demonstration<P: Problem<Geometry = Planar>>(
     record: &TrajectoryRecord,
     placement: &Placement,
     config: &EnvConfig,
@@ -549,7 +549,7 @@ pub struct Demonstrations<O> {
 }
 
 /// The tuples of every record `filter` accepts (in parallel, output in record order).
-pub fn demonstrations<P: Problem>(
+pub fn demonstrations<P: Problem<Geometry = Planar>>(
     records: &[TrajectoryRecord],
     config: &EnvConfig,
     filter: RecordFilter,
@@ -815,7 +815,7 @@ mod tests {
         R.get_or_init(|| solved(ScenarioKind::RendezvousCircular, 9))
     }
 
-    fn check_tuples<P: Problem>(record: &TrajectoryRecord) -> RecordDemonstration<P::Obs> {
+    fn check_tuples<P: Problem<Geometry = Planar>>(record: &TrajectoryRecord) -> RecordDemonstration<P::Obs> {
         let config = EnvConfig::default();
         let demo = record_demonstration::<P>(record, &config, &default_tolerances()).unwrap();
         let n = record.scenario.steps;
@@ -868,7 +868,7 @@ mod tests {
     /// steps left, for a rendezvous the body where it is then), the optimal tail is the tail of
     /// the whole optimal flight, so the relabelled record placed at that step gives the whole
     /// record's tuples from there on.
-    fn resolved_from_mid_flight_gives_the_tail<P: Problem>(whole_record: &TrajectoryRecord) {
+    fn resolved_from_mid_flight_gives_the_tail<P: Problem<Geometry = Planar>>(whole_record: &TrajectoryRecord) {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let n = whole_record.scenario.steps;
         let k = n / 2;

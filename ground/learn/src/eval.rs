@@ -19,7 +19,7 @@ use crate::sac::agent::{read_checked_safetensors, Sac};
 use crate::sac::trainer::uniform_action;
 use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
 use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
-use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 use ground_core::io::atomic_write;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use ground_core::with_problem;
@@ -290,15 +290,12 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
     Ok(agent)
 }
 
-fn fly<P: Problem>(
+fn fly<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     scenarios: &[Scenario],
     policy: impl FnMut(&[P::Obs]) -> Vec<[f32; 3]>,
     record: bool,
-) -> Result<Vec<EpisodeOutcome>, ExperimentError>
-where
-    MdpEnv<P>: Environment<Obs = P::Obs>,
-{
+) -> Result<Vec<EpisodeOutcome>, ExperimentError> {
     Ok(evaluate_batched::<MdpEnv<P>, _>(
         &config.env,
         scenarios,
@@ -307,16 +304,13 @@ where
     )?)
 }
 
-fn monte_carlo_for<P: Problem>(
+fn monte_carlo_for<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     checkpoint: &Path,
     out: &Path,
     episodes: Option<u64>,
     gap_cases: Option<u64>,
-) -> Result<MonteCarloReport, ExperimentError>
-where
-    MdpEnv<P>: Environment<Obs = P::Obs>,
-{
+) -> Result<MonteCarloReport, ExperimentError> {
     let start = Instant::now();
     let n = episodes.unwrap_or(config.evaluate.episodes);
     if n == 0 {
@@ -357,17 +351,14 @@ pub struct Flown<'a> {
 /// The Monte Carlo report of a policy's `outcomes` on `scenarios` (flown by whatever flew it:
 /// the tch actor here, the SIL loop in [`crate::sil`]): the zero-thrust and random baselines on
 /// the same scenarios, the optimality gap on the first ones, the files in `out`.
-pub fn report_and_write<P: Problem>(
+pub fn report_and_write<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     source: &Path,
     flown: &Flown,
     out: &Path,
     gap_cases: Option<u64>,
     start: Instant,
-) -> Result<MonteCarloReport, ExperimentError>
-where
-    MdpEnv<P>: Environment<Obs = P::Obs>,
-{
+) -> Result<MonteCarloReport, ExperimentError> {
     let Flown {
         scenarios,
         policy,

@@ -26,7 +26,7 @@ use crate::sac::agent::Sac;
 use ground_core::env::batch::{
     draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats,
 };
-use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 use ground_core::io::atomic_write;
 use ground_core::with_problem;
 
@@ -165,7 +165,7 @@ pub fn export(
 }
 
 /// Network inputs at every state of `episodes` (recorded trajectories).
-fn visited_inputs<P: Problem>(scenarios: &[Scenario], episodes: &[EpisodeOutcome]) -> Vec<Vec<f32>> {
+fn visited_inputs<P: Problem<Geometry = Planar>>(scenarios: &[Scenario], episodes: &[EpisodeOutcome]) -> Vec<Vec<f32>> {
     let mut inputs = Vec::new();
     for o in episodes {
         let (Some(trajectory), Some(scenario)) = (&o.trajectory, scenarios.get(o.episode)) else {
@@ -182,15 +182,12 @@ fn visited_inputs<P: Problem>(scenarios: &[Scenario], episodes: &[EpisodeOutcome
     inputs
 }
 
-fn export_for<P: Problem>(
+fn export_for<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
     checkpoint: &Path,
     out: &Path,
-) -> Result<ExportReport, ExperimentError>
-where
-    MdpEnv<P>: Environment<Obs = P::Obs>,
-{
+) -> Result<ExportReport, ExperimentError> {
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let network = actor_network(&agent, P::KIND)?;
@@ -219,7 +216,7 @@ where
         .map_err(|e| ExperimentError::Mismatch(format!("int8 export: {e}")))?;
 
     // The trained actor's deterministic actions on the held-out states (one batch).
-    let reference = policy_batch(&agent, &held_out);
+    let reference: Vec<[f32; 3]> = policy_batch(&agent, &held_out);
     let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, config.evaluate.episodes);
     let mut reports = Vec::new();
     for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
@@ -278,7 +275,7 @@ where
 }
 
 /// Observations of the config's demonstration tuples (none when the config names no dataset).
-fn demonstration_inputs<P: Problem>(
+fn demonstration_inputs<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
 ) -> Result<Vec<Vec<f32>>, ExperimentError> {

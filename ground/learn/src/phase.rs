@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use shared::mission::MissionFamily;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
@@ -16,8 +15,8 @@ use crate::sac::agent::{Sac, UpdateStats};
 use crate::sac::replay::ReplayBuffer;
 use crate::sac::trainer::LoopState;
 use ground_core::charts::{line_chart, Series};
-use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
-use ground_core::env::{EnvConfig, Environment};
+use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
+use ground_core::env::{EnvConfig, Environment, FamilyOf, Geometry, Planar};
 
 /// Loss statistics are averaged over at most this many updates per CSV row (fewer for short
 /// phases, so every phase logs about 100 rows).
@@ -166,22 +165,24 @@ pub struct PhaseSummary {
 pub fn evaluate_agent<E: Environment>(
     agent: &Sac,
     env: &EnvConfig,
-    family: impl Into<MissionFamily>,
+    family: impl Into<FamilyOf<E::Geometry>>,
     seed: u64,
     count: u64,
     record: bool,
-) -> Result<Vec<EpisodeOutcome>, EvalError> {
-    let scenarios = draw_scenarios(family, seed, count);
+) -> Result<Vec<EpisodeOutcome<E::Geometry>>, EvalError> {
+    let family = family.into();
+    let scenarios: Vec<_> = (0..count).map(|i| E::Geometry::draw(&family, seed, i)).collect();
     evaluate_batched::<E, _>(env, &scenarios, |obs: &[E::Obs]| policy_batch(agent, obs), record)
 }
 
-/// The agent's deterministic actions for a batch of observations.
-pub fn policy_batch<O: AsRef<[f32]>>(agent: &Sac, obs: &[O]) -> Vec<[f32; 3]> {
+/// The agent's deterministic actions for a batch of observations. An agent whose action size
+/// is not `A`'s returns no actions (the drivers refuse the batch with its sizes).
+pub fn policy_batch<O: AsRef<[f32]>, A: for<'a> TryFrom<&'a [f32]>>(agent: &Sac, obs: &[O]) -> Vec<A> {
     let flat: Vec<f32> = obs.iter().flat_map(|o| o.as_ref().iter().copied()).collect();
     agent
         .act(&flat, obs.len())
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
+        .chunks_exact(agent.act_dim().max(1))
+        .map_while(|c| A::try_from(c).ok())
         .collect()
 }
 
@@ -253,7 +254,11 @@ impl<'a> Phase<'a> {
         }
     }
 
-    pub(crate) fn evaluate<E: Environment>(&mut self, agent: &Sac, env_steps: u64) -> Result<EvalRow, ExperimentError> {
+    pub(crate) fn evaluate<E: Environment<Geometry = Planar>>(
+        &mut self,
+        agent: &Sac,
+        env_steps: u64,
+    ) -> Result<EvalRow, ExperimentError> {
         let outcomes = evaluate_agent::<E>(
             agent,
             &self.config.env,

@@ -12,7 +12,7 @@ use crate::error::ExperimentError;
 use crate::model::obs_dim;
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
-use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 use ground_core::mission::{check_family, FamilyCheck};
 use ground_core::with_problem;
 
@@ -101,10 +101,10 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
     Ok(project(config, check, costs))
 }
 
-fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError>
-where
-    MdpEnv<P>: Environment<Obs = P::Obs>,
-{
+fn measure<P: Problem<Geometry = Planar>>(
+    config: &ExperimentConfig,
+    check: &FamilyCheck,
+) -> Result<UnitCosts, ExperimentError> {
     let obs = obs_dim(P::KIND);
     let device = config.device()?;
     // RL's learner flies the timed episodes (untrained: an episode costs what a trained one

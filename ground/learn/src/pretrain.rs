@@ -15,7 +15,7 @@ use crate::phase::{load_state, new_agent, Phase, PhaseSummary};
 use crate::run_folder::{prepare_run, save_replay};
 use crate::sac::replay::{sampler, ReplayBuffer, Transition};
 use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
-use ground_core::env::{Environment, MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 use ground_core::generate::{dataset_solve_request, read_dataset};
 use ground_core::with_problem;
 
@@ -28,7 +28,7 @@ pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Res
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
 /// problem, central body, guidance cycle or arrival margin), with the dataset file and its
 /// record count.
-pub fn load_demonstrations<P: Problem>(
+pub fn load_demonstrations<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
 ) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
@@ -70,7 +70,7 @@ pub fn load_demonstrations<P: Problem>(
 }
 
 /// The demonstration tuples of the config's dataset as replay transitions.
-pub fn demonstration_buffer<P: Problem>(
+pub fn demonstration_buffer<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
 ) -> Result<(ReplayBuffer, usize), ExperimentError> {
@@ -106,14 +106,11 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
     }
 }
 
-fn pretrain_for<P: Problem>(
+fn pretrain_for<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
     run: &Path,
-) -> Result<PhaseSummary, ExperimentError>
-where
-    MdpEnv<P>: Environment,
-{
+) -> Result<PhaseSummary, ExperimentError> {
     let device = config.device()?;
     let (buffer, used) = demonstration_buffer::<P>(config, config_dir)?;
     prepare_run(config, run)?;

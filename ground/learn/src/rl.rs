@@ -9,7 +9,6 @@ use std::path::Path;
 
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use shared::mission::MissionFamily;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
@@ -18,7 +17,7 @@ use crate::run_folder::{check_run, load_replay, prepare_run};
 use crate::sac::agent::{Sac, UpdateStats};
 use crate::sac::replay::{sampler, ReplayBuffer};
 use crate::sac::trainer::{self, Episodic, LoopOptions, LoopState, StepOutcome, TrainObserver, WarmupPolicy};
-use ground_core::env::{EnvConfig, EnvError, Environment, MdpEnv, Problem};
+use ground_core::env::{EnvConfig, EnvError, Environment, FamilyOf, Geometry, MdpEnv, Planar, Problem};
 use ground_core::with_problem;
 
 /// How RL starts.
@@ -46,10 +45,11 @@ pub fn train(config: &ExperimentConfig, run: &Path, start: Start) -> Result<Phas
     with_problem!(config.family.problem, P => train_for::<P>(config, run, start))
 }
 
-fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError>
-where
-    MdpEnv<P>: Environment,
-{
+fn train_for<P: Problem<Geometry = Planar>>(
+    config: &ExperimentConfig,
+    run: &Path,
+    start: Start,
+) -> Result<PhaseSummary, ExperimentError> {
     let device = config.device()?;
     check_run(config, run)?;
     let dir = run.join(start.folder());
@@ -143,16 +143,13 @@ where
     })
 }
 
-struct RlObserver<'p, 'c, P: Problem> {
+struct RlObserver<'p, 'c, P: Problem<Geometry = Planar>> {
     phase: &'p mut Phase<'c>,
     error: Option<ExperimentError>,
     marker: std::marker::PhantomData<P>,
 }
 
-impl<P: Problem> TrainObserver for RlObserver<'_, '_, P>
-where
-    MdpEnv<P>: Environment,
-{
+impl<P: Problem<Geometry = Planar>> TrainObserver for RlObserver<'_, '_, P> {
     fn on_update(&mut self, env_steps: u64, stats: &UpdateStats) {
         self.phase.record_update(env_steps, stats);
     }
@@ -194,7 +191,7 @@ where
 /// feature domain) ends the episode as terminal with the printed reward's worst value.
 pub struct ScenarioTask<E: Environment> {
     env: E,
-    family: MissionFamily,
+    family: FamilyOf<E::Geometry>,
     seed: u64,
     /// Steps the environment refused, each of which ended its episode.
     pub failed_steps: u64,
@@ -203,7 +200,11 @@ pub struct ScenarioTask<E: Environment> {
 impl<E: Environment> ScenarioTask<E> {
     /// The task on a fresh environment of `config`; episode `e` flies scenario `e` of `family`
     /// drawn with `seed`.
-    pub fn new(config: &EnvConfig, family: impl Into<MissionFamily>, seed: u64) -> Result<Self, ExperimentError> {
+    pub fn new(
+        config: &EnvConfig,
+        family: impl Into<FamilyOf<E::Geometry>>,
+        seed: u64,
+    ) -> Result<Self, ExperimentError> {
         let env = E::new(config).map_err(|e| ExperimentError::Mismatch(format!("environment: {e}")))?;
         Ok(Self {
             env,
@@ -220,20 +221,19 @@ impl<E: Environment> Episodic for ScenarioTask<E> {
     }
 
     fn act_dim(&self) -> usize {
-        3
+        E::Geometry::ACT
     }
 
     type Error = EnvError;
 
     fn reset(&mut self, episode: u64) -> Result<Vec<f32>, EnvError> {
         self.env
-            .reset_drawn(self.family, self.seed, episode)
+            .reset_drawn(self.family.clone(), self.seed, episode)
             .map(|o| o.as_ref().to_vec())
     }
 
     fn step(&mut self, action: &[f32]) -> StepOutcome {
-        let a = [0, 1, 2].map(|i| action.get(i).copied().unwrap_or(0.0));
-        match self.env.step(&a) {
+        match self.env.step_slice(action) {
             Ok(step) => StepOutcome {
                 obs: step.observation.as_ref().to_vec(),
                 reward: step.reward,

@@ -11,31 +11,30 @@
 //! An episode that fails (propagation error, state leaving the feature domain) stops there and
 //! reports its error and its figures so far; the others go on.
 
-use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::features::{Residuals, ACTION_LEN};
+use onboard::features::Residuals;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::mission::MissionFamily;
 use shared::scenario::Scenario;
 
-use super::{EnvConfig, EnvError, Environment};
+use super::{ActionOf, CommandOf, EnvConfig, EnvError, Environment, Geometry, Planar, ScenarioOf, StateOf};
 
 /// One point of a flown trajectory.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TrajectoryPoint {
+pub struct TrajectoryPoint<G: Geometry = Planar> {
     /// Step index (0 = departure).
     pub step: u32,
     /// Spacecraft state at that step (canonical).
-    pub state: SpacecraftState,
+    pub state: StateOf<G>,
     /// The command flown over the step that ended here (`None` at departure).
-    pub command: Option<ThrustCommand>,
+    pub command: Option<CommandOf<G>>,
     /// Reward of the step that ended here (0 at departure).
     pub reward: f64,
 }
 
 /// What one episode gave.
 #[derive(Debug, Clone, PartialEq)]
-pub struct EpisodeOutcome {
+pub struct EpisodeOutcome<G: Geometry = Planar> {
     /// Position of the scenario in the list given.
     pub episode: usize,
     /// Sum of the step rewards.
@@ -53,7 +52,7 @@ pub struct EpisodeOutcome {
     /// Steps whose action was non-finite (flown as thrust off).
     pub non_finite_actions: u32,
     /// Departure plus one point per step, when asked for.
-    pub trajectory: Option<Vec<TrajectoryPoint>>,
+    pub trajectory: Option<Vec<TrajectoryPoint<G>>>,
 }
 
 /// Why a batch evaluation could not run at all.
@@ -79,12 +78,17 @@ pub fn draw_scenarios(family: impl Into<MissionFamily>, seed: u64, count: u64) -
 }
 
 /// The running figures of one episode.
-struct Tally {
-    outcome: EpisodeOutcome,
+struct Tally<G: Geometry> {
+    outcome: EpisodeOutcome<G>,
 }
 
-impl Tally {
-    fn start<E: Environment>(env: &mut E, episode: usize, scenario: &Scenario, record: bool) -> (Self, Option<E::Obs>) {
+impl<G: Geometry> Tally<G> {
+    fn start<E: Environment<Geometry = G>>(
+        env: &mut E,
+        episode: usize,
+        scenario: &ScenarioOf<G>,
+        record: bool,
+    ) -> (Self, Option<E::Obs>) {
         let mut outcome = EpisodeOutcome {
             episode,
             total_reward: 0.0,
@@ -107,9 +111,9 @@ impl Tally {
             }
         };
         if let Some(state) = env.state() {
-            outcome.final_mass = state.m;
+            outcome.final_mass = G::mass(&state);
             if record {
-                let mut points = Vec::with_capacity(scenario.steps as usize + 1);
+                let mut points = Vec::with_capacity(G::plan(scenario).steps as usize + 1);
                 points.push(TrajectoryPoint {
                     step: 0,
                     state,
@@ -123,7 +127,7 @@ impl Tally {
     }
 
     /// Steps `env` under `action`; returns the next observation while the episode runs.
-    fn advance<E: Environment>(&mut self, env: &mut E, action: &[f32; ACTION_LEN]) -> Option<E::Obs> {
+    fn advance<E: Environment<Geometry = G>>(&mut self, env: &mut E, action: &ActionOf<G>) -> Option<E::Obs> {
         match env.step(action) {
             Ok(step) => {
                 let o = &mut self.outcome;
@@ -159,10 +163,10 @@ impl Tally {
 pub fn run_episode<E: Environment>(
     env: &mut E,
     episode: usize,
-    scenario: &Scenario,
-    mut policy: impl FnMut(&E::Obs) -> [f32; ACTION_LEN],
+    scenario: &ScenarioOf<E::Geometry>,
+    mut policy: impl FnMut(&E::Obs) -> ActionOf<E::Geometry>,
     record: bool,
-) -> EpisodeOutcome {
+) -> EpisodeOutcome<E::Geometry> {
     let (mut tally, mut obs) = Tally::start(env, episode, scenario, record);
     while let Some(o) = obs {
         obs = tally.advance(env, &policy(&o));
@@ -173,13 +177,13 @@ pub fn run_episode<E: Environment>(
 /// Flies every scenario with `policy`, one rayon task per episode; outcomes in scenario order.
 pub fn evaluate<E, F>(
     config: &EnvConfig,
-    scenarios: &[Scenario],
+    scenarios: &[ScenarioOf<E::Geometry>],
     policy: F,
     record: bool,
-) -> Result<Vec<EpisodeOutcome>, EvalError>
+) -> Result<Vec<EpisodeOutcome<E::Geometry>>, EvalError>
 where
     E: Environment,
-    F: Fn(&E::Obs) -> [f32; ACTION_LEN] + Sync,
+    F: Fn(&E::Obs) -> ActionOf<E::Geometry> + Sync,
 {
     let template = E::new(config).map_err(EvalError::Env)?;
     drop(template);
@@ -197,7 +201,7 @@ where
         .collect())
 }
 
-fn failed(episode: usize, error: EnvError) -> EpisodeOutcome {
+fn failed<G: Geometry>(episode: usize, error: EnvError) -> EpisodeOutcome<G> {
     EpisodeOutcome {
         episode,
         total_reward: 0.0,
@@ -219,17 +223,17 @@ fn failed(episode: usize, error: EnvError) -> EpisodeOutcome {
 /// parallel. Episodes of different lengths drop out as they finish.
 pub fn evaluate_batched<E, F>(
     config: &EnvConfig,
-    scenarios: &[Scenario],
+    scenarios: &[ScenarioOf<E::Geometry>],
     mut policy: F,
     record: bool,
-) -> Result<Vec<EpisodeOutcome>, EvalError>
+) -> Result<Vec<EpisodeOutcome<E::Geometry>>, EvalError>
 where
     E: Environment,
-    F: FnMut(&[E::Obs]) -> Vec<[f32; ACTION_LEN]>,
+    F: FnMut(&[E::Obs]) -> Vec<ActionOf<E::Geometry>>,
 {
     struct Slot<E: Environment> {
         env: E,
-        tally: Tally,
+        tally: Tally<E::Geometry>,
         obs: Option<E::Obs>,
     }
     let mut slots: Vec<Slot<E>> = scenarios
@@ -339,7 +343,7 @@ pub struct OutcomeSummary {
 }
 
 /// Figures of `outcomes`, the statistics over the completed episodes only.
-pub fn summarize(outcomes: &[EpisodeOutcome]) -> OutcomeSummary {
+pub fn summarize<G: Geometry>(outcomes: &[EpisodeOutcome<G>]) -> OutcomeSummary {
     let done = || outcomes.iter().filter(|o| o.completed);
     OutcomeSummary {
         episodes: outcomes.len(),

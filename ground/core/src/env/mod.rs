@@ -3,15 +3,20 @@
 //! training and flight share one implementation.
 //!
 //! - Physics: [`onboard::dynamics::propagate`] (zero-order hold in the local polar frame, exact
-//!   Kepler on coast steps); the rendezvous body moves by [`onboard::kepler::coast`] from its
-//!   anomaly at t = 0 (the solver's convention).
+//!   Kepler on coast steps) or in three dimensions [`onboard::spatial::propagate_rtn`]; the
+//!   rendezvous body moves by Kepler from its anomaly at t = 0 (the solver's convention).
 //! - Features, residuals, reward, action decoding: [`onboard::features`]; the observation is
 //!   the f32 narrowing the onboard network sees ([`onboard::features::to_network_input`]).
 //! - Time: step k (0..=N) is at t = k STEP with time to go (N - k) STEP; the episode is done
 //!   after step N ([`Scenario::steps`], the docs/spec.md section 4 rule).
 //!
-//! Actions: `[a0, a1, a2]`, decoded by [`onboard::features::decode_action`]: components clamped to
-//! [-1, 1], u = (a0 + 1) / 2, direction (a1, a2) normalised, thrust off when |(a1, a2)| < 1e-6.
+//! Geometry ([`geometry`]): the planar problems ([`Transfer`], [`Rendezvous`]) fly the polar
+//! hold with actions `[a0, a1, a2]` ([`onboard::features::decode_action`]: components clamped to
+//! [-1, 1], u = (a0 + 1) / 2, direction (a1, a2) normalised, thrust off when |(a1, a2)| < 1e-6);
+//! the three-dimensional ones ([`Transfer3`], [`Rendezvous3`], docs/spec.md sections 3.6, 5.1,
+//! 6.1) fly the RTN hold with `[a0, a1, a2, a3]`, the direction (radial, transverse, normal)
+//! ([`onboard::features::decode_action3`]). An action of the other size is refused
+//! ([`EnvError::ActionLength`]).
 //! A **non-finite action** is handled as [`EnvConfig::non_finite_action`] says: by default it is
 //! flown as thrust off, exactly what the flight software does when its guidance step refuses a
 //! NaN, and flagged in [`StepInfo::non_finite_action`]; [`NonFiniteAction::Refuse`] makes it a
@@ -22,21 +27,27 @@
 //! that weighs the residuals more as time runs out. It is reported apart in [`StepInfo`].
 
 pub mod batch;
+pub mod geometry;
+#[cfg(test)]
+mod spatial_tests;
 #[cfg(test)]
 mod tests;
 
-use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
+pub use geometry::{ActionOf, CommandOf, FamilyOf, Geometry, Planar, ScenarioOf, Spatial, StateOf};
+use onboard::dynamics::{PropagationError, SpacecraftState};
 use onboard::features::{
-    decode_action, rendezvous_features, rendezvous_residuals, reward, to_network_input, transfer_features,
-    transfer_residuals, FeatureError, Residuals, RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+    rendezvous3_features, rendezvous3_residuals, rendezvous_features, rendezvous_residuals, reward, to_network_input,
+    transfer3_features, transfer3_residuals, transfer_features, transfer_residuals, FeatureError, Residuals,
+    RewardWeights, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES, TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
 use onboard::integrator::Tolerances;
-use onboard::kepler::{coast, KeplerError};
+use onboard::kepler::{coast, coast3, KeplerError};
+use onboard::spatial::SpatialCraftState;
 use serde::{Deserialize, Serialize};
-use shared::mission::{CentralBody, MissionFamily};
-use shared::orbit::CartesianState;
+use shared::mission::CentralBody;
+use shared::orbit::{CartesianState, SpatialState};
 pub use shared::scenario::ProblemKind;
-use shared::scenario::{Scenario, ScenarioError};
+use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft, SpacecraftError};
 
 /// Reward weights of thesis Eq. 4.7-4.8 (docs/spec.md section 5), serialisable.
@@ -267,6 +278,14 @@ pub enum EnvError {
         /// N.
         steps: u32,
     },
+    /// An action with another number of components than the geometry's.
+    #[error("an action of {found} components given to an environment of {expected}")]
+    ActionLength {
+        /// The geometry's action components (3 planar, 4 in three dimensions).
+        expected: usize,
+        /// The components given.
+        found: usize,
+    },
     /// The action had a NaN or infinite component and the config refuses such actions.
     #[error("the action has a NaN or infinite component")]
     NonFiniteAction,
@@ -297,29 +316,38 @@ pub enum EnvError {
     },
 }
 
-/// The two problems: how their features and residuals are computed. Implemented by
-/// [`Transfer`] and [`Rendezvous`]; [`MdpEnv`] is generic over it.
+/// A problem in its geometry: how its features and residuals are computed. Implemented by
+/// [`Transfer`] and [`Rendezvous`] (planar) and [`Transfer3`] and [`Rendezvous3`]
+/// (three-dimensional); [`MdpEnv`] is generic over it.
 pub trait Problem: Send + Sync + 'static {
     /// Which problem the scenarios must be.
     const KIND: ProblemKind;
-    /// Number of features (10 or 22).
+    /// Number of features (10 or 22 planar, 15 or 30 in three dimensions).
     const OBS: usize;
+    /// The dimension the problem is flown in.
+    type Geometry: Geometry;
     /// `[f64; OBS]`.
     type Features: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f64]>;
     /// `[f32; OBS]`: what the network sees.
     type Obs: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + 'static;
 
     /// Features of `state` at step `step` (time t = step STEP, time to go (N - step) STEP).
-    fn features(scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Features, EnvError>;
+    fn features(
+        scenario: &ScenarioOf<Self::Geometry>,
+        state: &StateOf<Self::Geometry>,
+        step: u32,
+    ) -> Result<Self::Features, EnvError>;
     /// Position and velocity residuals in the features (AU, AU/t*).
     fn residuals(features: &Self::Features) -> Residuals;
     /// The features narrowed to f32 for the network.
     fn observation(features: &Self::Features) -> Self::Obs;
 }
 
-/// Evaluates `$body` with the type `$P` naming the [`Problem`] of `$kind` (a
-/// [`ProblemKind`]): the one place the ground side lists its problems, so that code generic
-/// over [`Problem`] is called for a run's problem without a match arm per problem at each call.
+/// Evaluates `$body` with the type `$P` naming the planar [`Problem`] of `$kind` (a
+/// [`ProblemKind`]): the one place the ground side lists its planar problems, so that code
+/// generic over [`Problem`] is called for a run's problem without a match arm per problem at
+/// each call. [`with_spatial_problem!`](crate::with_spatial_problem) names the
+/// three-dimensional ones.
 ///
 /// ```
 /// use ground_core::env::Problem;
@@ -346,6 +374,33 @@ macro_rules! with_problem {
     };
 }
 
+/// [`with_problem!`](crate::with_problem) for the three-dimensional problems.
+///
+/// ```
+/// use ground_core::env::Problem;
+/// use ground_core::with_spatial_problem;
+/// use shared::scenario::ProblemKind;
+///
+/// let features = |kind| with_spatial_problem!(kind, P => P::OBS);
+/// assert_eq!(features(ProblemKind::Transfer), 15);
+/// assert_eq!(features(ProblemKind::Rendezvous), 30);
+/// ```
+#[macro_export]
+macro_rules! with_spatial_problem {
+    ($kind:expr, $P:ident => $body:expr) => {
+        match $kind {
+            $crate::env::ProblemKind::Transfer => {
+                type $P = $crate::env::Transfer3;
+                $body
+            }
+            $crate::env::ProblemKind::Rendezvous => {
+                type $P = $crate::env::Rendezvous3;
+                $body
+            }
+        }
+    };
+}
+
 /// The transfer problem (docs/spec.md section 5).
 #[derive(Debug, Clone, Copy)]
 pub struct Transfer;
@@ -353,6 +408,14 @@ pub struct Transfer;
 /// The rendezvous problem (docs/spec.md section 6).
 #[derive(Debug, Clone, Copy)]
 pub struct Rendezvous;
+
+/// The transfer problem in three dimensions (docs/spec.md section 5.1).
+#[derive(Debug, Clone, Copy)]
+pub struct Transfer3;
+
+/// The rendezvous problem in three dimensions (docs/spec.md section 6.1).
+#[derive(Debug, Clone, Copy)]
+pub struct Rendezvous3;
 
 /// Time to go at step `step` of `scenario`: (N - step) cycles, clamped at 0.
 pub fn time_to_go(scenario: &Scenario, step: u32) -> f64 {
@@ -366,9 +429,17 @@ pub fn body_at(scenario: &Scenario, step: u32) -> Result<CartesianState, EnvErro
     coast(&start, scenario.cycle_start(step)).map_err(|error| EnvError::Body { step, error })
 }
 
+/// [`body_at`] in three dimensions: the body's orbit in the target plane.
+pub fn body_at3(scenario: &SpatialScenario, step: u32) -> Result<SpatialState, EnvError> {
+    let plan = &scenario.scenario;
+    let start = scenario.target_plane.embed(&plan.target.cartesian_at(plan.target_nu0));
+    coast3(&start, plan.cycle_start(step)).map_err(|error| EnvError::Body { step, error })
+}
+
 impl Problem for Transfer {
     const KIND: ProblemKind = ProblemKind::Transfer;
     const OBS: usize = TRANSFER_FEATURES;
+    type Geometry = Planar;
     type Features = [f64; TRANSFER_FEATURES];
     type Obs = [f32; TRANSFER_FEATURES];
 
@@ -389,6 +460,7 @@ impl Problem for Transfer {
 impl Problem for Rendezvous {
     const KIND: ProblemKind = ProblemKind::Rendezvous;
     const OBS: usize = RENDEZVOUS_FEATURES;
+    type Geometry = Planar;
     type Features = [f64; RENDEZVOUS_FEATURES];
     type Obs = [f32; RENDEZVOUS_FEATURES];
 
@@ -400,6 +472,50 @@ impl Problem for Rendezvous {
 
     fn residuals(features: &Self::Features) -> Residuals {
         rendezvous_residuals(features)
+    }
+
+    fn observation(features: &Self::Features) -> Self::Obs {
+        to_network_input(features)
+    }
+}
+
+impl Problem for Transfer3 {
+    const KIND: ProblemKind = ProblemKind::Transfer;
+    const OBS: usize = TRANSFER3_FEATURES;
+    type Geometry = Spatial;
+    type Features = [f64; TRANSFER3_FEATURES];
+    type Obs = [f32; TRANSFER3_FEATURES];
+
+    fn features(scenario: &SpatialScenario, state: &SpatialCraftState, step: u32) -> Result<Self::Features, EnvError> {
+        let plan = &scenario.scenario;
+        transfer3_features(state, &plan.target, &scenario.target_plane, time_to_go(plan, step))
+            .map_err(|error| EnvError::Features { step, error })
+    }
+
+    fn residuals(features: &Self::Features) -> Residuals {
+        transfer3_residuals(features)
+    }
+
+    fn observation(features: &Self::Features) -> Self::Obs {
+        to_network_input(features)
+    }
+}
+
+impl Problem for Rendezvous3 {
+    const KIND: ProblemKind = ProblemKind::Rendezvous;
+    const OBS: usize = RENDEZVOUS3_FEATURES;
+    type Geometry = Spatial;
+    type Features = [f64; RENDEZVOUS3_FEATURES];
+    type Obs = [f32; RENDEZVOUS3_FEATURES];
+
+    fn features(scenario: &SpatialScenario, state: &SpatialCraftState, step: u32) -> Result<Self::Features, EnvError> {
+        let body = body_at3(scenario, step)?;
+        rendezvous3_features(state, &body, time_to_go(&scenario.scenario, step))
+            .map_err(|error| EnvError::Features { step, error })
+    }
+
+    fn residuals(features: &Self::Features) -> Residuals {
+        rendezvous3_residuals(features)
     }
 
     fn observation(features: &Self::Features) -> Self::Obs {
@@ -425,19 +541,19 @@ pub fn step_reward(
 
 /// What a step did besides its reward.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepInfo {
+pub struct StepInfo<G: Geometry = Planar> {
     /// Step index after this step (1..=N).
     pub step: u32,
     /// Residuals after the step (docs/spec.md section 5/6 definitions).
     pub residuals: Residuals,
     /// The command flown (thrust off: throttle 0).
-    pub command: ThrustCommand,
+    pub command: CommandOf<G>,
     /// Throttle flown, 0..=1 (0 when the direction was undefined or the action not finite).
     pub throttle: f64,
     /// Mass after the step (m0 units).
     pub mass: f64,
     /// Spacecraft state after the step.
-    pub state: SpacecraftState,
+    pub state: StateOf<G>,
     /// The printed reward (docs/spec.md section 5), before the terminal-accuracy term.
     pub base_reward: f64,
     /// The terminal-accuracy term (0 by default).
@@ -448,7 +564,7 @@ pub struct StepInfo {
 
 /// One transition as the learner sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Step<O> {
+pub struct Step<O, G: Geometry = Planar> {
     /// Observation after the step.
     pub observation: O,
     /// Total reward of the step: printed reward plus terminal-accuracy term.
@@ -456,7 +572,7 @@ pub struct Step<O> {
     /// True after step N (terminal; no bootstrapping past it).
     pub done: bool,
     /// Details of the step.
-    pub info: StepInfo,
+    pub info: StepInfo<G>,
 }
 
 /// An MDP the SAC code can be generic over.
@@ -465,6 +581,8 @@ pub trait Environment: Send {
     const OBS: usize;
     /// Transfer or rendezvous.
     const PROBLEM: ProblemKind;
+    /// Planar or three-dimensional: the scenario, state, command and action types.
+    type Geometry: Geometry;
     /// `[f32; OBS]`.
     type Obs: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + 'static;
 
@@ -475,46 +593,79 @@ pub trait Environment: Send {
     /// The configuration the environment was built with.
     fn config(&self) -> &EnvConfig;
     /// Starts an episode of `scenario` at its initial state (m = 1, step 0).
-    fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError>;
+    fn reset(&mut self, scenario: &ScenarioOf<Self::Geometry>) -> Result<Self::Obs, EnvError>;
     /// Starts an episode of scenario `index` of the stream `seed` of `family` (docs/spec.md
     /// section 4).
-    fn reset_drawn(&mut self, family: impl Into<MissionFamily>, seed: u64, index: u64) -> Result<Self::Obs, EnvError>
+    fn reset_drawn(
+        &mut self,
+        family: impl Into<FamilyOf<Self::Geometry>>,
+        seed: u64,
+        index: u64,
+    ) -> Result<Self::Obs, EnvError>
     where
         Self: Sized,
     {
-        self.reset(&family.into().draw(seed, index))
+        self.reset(&Self::Geometry::draw(&family.into(), seed, index))
     }
     /// Starts an episode of `scenario` in `state` at step `step` (0..=N; N gives a finished
     /// episode). For demonstrations and tests.
-    fn reset_at(&mut self, scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Obs, EnvError>;
-    /// One 14-day step under `action`.
-    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError>;
-    /// [`Environment::step`] with an f64 action, narrowed to f32 first: the action is decoded by
-    /// the onboard code in the network's precision.
-    fn step_f64(&mut self, action: &[f64; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError> {
-        self.step(&action.map(|a| a as f32))
+    fn reset_at(
+        &mut self,
+        scenario: &ScenarioOf<Self::Geometry>,
+        state: &StateOf<Self::Geometry>,
+        step: u32,
+    ) -> Result<Self::Obs, EnvError>;
+    /// One guidance cycle under `action`.
+    fn step(&mut self, action: &ActionOf<Self::Geometry>) -> Result<Step<Self::Obs, Self::Geometry>, EnvError>;
+    /// [`Environment::step`] with the action as a slice of the learner's: refused with
+    /// [`EnvError::ActionLength`] unless it has the geometry's number of components.
+    fn step_slice(&mut self, action: &[f32]) -> Result<Step<Self::Obs, Self::Geometry>, EnvError> {
+        let action = ActionOf::<Self::Geometry>::try_from(action).map_err(|_| EnvError::ActionLength {
+            expected: Self::Geometry::ACT,
+            found: action.len(),
+        })?;
+        self.step(&action)
     }
     /// The current observation (`None` before the first reset).
     fn observation(&self) -> Option<Self::Obs>;
     /// The current spacecraft state.
-    fn state(&self) -> Option<SpacecraftState>;
+    fn state(&self) -> Option<StateOf<Self::Geometry>>;
     /// The scenario of the current episode (`None` before the first reset).
-    fn scenario(&self) -> Option<&Scenario>;
+    fn scenario(&self) -> Option<&ScenarioOf<Self::Geometry>>;
     /// Steps taken so far in the episode (k).
     fn steps_taken(&self) -> u32;
     /// Whether the episode has taken its N steps (false before the first reset).
     fn is_done(&self) -> bool;
 }
 
-#[derive(Debug, Clone, Copy)]
 struct Episode<P: Problem> {
-    scenario: Scenario,
-    state: SpacecraftState,
+    scenario: ScenarioOf<P::Geometry>,
+    state: StateOf<P::Geometry>,
     step: u32,
     features: P::Features,
 }
 
-/// The environment of problem `P`: [`TransferEnv`] or [`RendezvousEnv`].
+impl<P: Problem> Clone for Episode<P> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<P: Problem> Copy for Episode<P> {}
+
+impl<P: Problem> core::fmt::Debug for Episode<P> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Episode")
+            .field("scenario", &self.scenario)
+            .field("state", &self.state)
+            .field("step", &self.step)
+            .field("features", &self.features)
+            .finish()
+    }
+}
+
+/// The environment of problem `P`: [`TransferEnv`], [`RendezvousEnv`] or their
+/// three-dimensional [`Transfer3Env`], [`Rendezvous3Env`].
 #[derive(Debug, Clone)]
 pub struct MdpEnv<P: Problem> {
     config: EnvConfig,
@@ -527,6 +678,10 @@ pub struct MdpEnv<P: Problem> {
 pub type TransferEnv = MdpEnv<Transfer>;
 /// The rendezvous MDP (docs/spec.md section 6): 22 features.
 pub type RendezvousEnv = MdpEnv<Rendezvous>;
+/// The transfer MDP in three dimensions (docs/spec.md section 5.1): 15 features, 4 actions.
+pub type Transfer3Env = MdpEnv<Transfer3>;
+/// The rendezvous MDP in three dimensions (docs/spec.md section 6.1): 30 features, 4 actions.
+pub type Rendezvous3Env = MdpEnv<Rendezvous3>;
 
 impl<P: Problem> MdpEnv<P> {
     /// The configured spacecraft in canonical units.
@@ -544,31 +699,34 @@ impl<P: Problem> MdpEnv<P> {
     /// [`Environment::step`] computes its reward with exactly this function.
     pub fn reward_at(
         config: &EnvConfig,
-        scenario: &Scenario,
-        state_after: &SpacecraftState,
+        scenario: &ScenarioOf<P::Geometry>,
+        state_after: &StateOf<P::Geometry>,
         step_after: u32,
         throttle: f64,
     ) -> Result<(f64, Residuals, f64, f64), EnvError> {
         let features = P::features(scenario, state_after, step_after)?;
         let res = P::residuals(&features);
-        let (total, base, extra) = step_reward(config, scenario, &res, throttle, step_after);
+        let plan = P::Geometry::plan(scenario);
+        let (total, base, extra) = step_reward(config, plan, &res, throttle, step_after);
         Ok((total, res, base, extra))
     }
 
-    fn check_scenario(scenario: &Scenario) -> Result<(), EnvError> {
-        if scenario.problem != P::KIND {
+    fn check_scenario(scenario: &ScenarioOf<P::Geometry>) -> Result<(), EnvError> {
+        let found = P::Geometry::plan(scenario).problem;
+        if found != P::KIND {
             return Err(EnvError::WrongProblem {
                 expected: P::KIND,
-                found: scenario.problem,
+                found,
             });
         }
-        scenario.validate().map_err(EnvError::Scenario)
+        P::Geometry::validate(scenario).map_err(EnvError::Scenario)
     }
 }
 
 impl<P: Problem> Environment for MdpEnv<P> {
     const OBS: usize = P::OBS;
     const PROBLEM: ProblemKind = P::KIND;
+    type Geometry = P::Geometry;
     type Obs = P::Obs;
 
     fn new(config: &EnvConfig) -> Result<Self, EnvError> {
@@ -601,18 +759,20 @@ impl<P: Problem> Environment for MdpEnv<P> {
         &self.config
     }
 
-    fn reset(&mut self, scenario: &Scenario) -> Result<Self::Obs, EnvError> {
-        let state = SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
-        self.reset_at(scenario, &state, 0)
+    fn reset(&mut self, scenario: &ScenarioOf<P::Geometry>) -> Result<Self::Obs, EnvError> {
+        self.reset_at(scenario, &P::Geometry::departure(scenario), 0)
     }
 
-    fn reset_at(&mut self, scenario: &Scenario, state: &SpacecraftState, step: u32) -> Result<Self::Obs, EnvError> {
+    fn reset_at(
+        &mut self,
+        scenario: &ScenarioOf<P::Geometry>,
+        state: &StateOf<P::Geometry>,
+        step: u32,
+    ) -> Result<Self::Obs, EnvError> {
         Self::check_scenario(scenario)?;
-        if step > scenario.steps {
-            return Err(EnvError::StepOutOfRange {
-                step,
-                steps: scenario.steps,
-            });
+        let steps = P::Geometry::plan(scenario).steps;
+        if step > steps {
+            return Err(EnvError::StepOutOfRange { step, steps });
         }
         let features = P::features(scenario, state, step)?;
         self.episode = Some(Episode {
@@ -624,37 +784,27 @@ impl<P: Problem> Environment for MdpEnv<P> {
         Ok(P::observation(&features))
     }
 
-    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Step<Self::Obs>, EnvError> {
+    fn step(&mut self, action: &ActionOf<P::Geometry>) -> Result<Step<Self::Obs, P::Geometry>, EnvError> {
         let episode = self.episode.as_ref().ok_or(EnvError::NotReset)?;
-        if episode.step >= episode.scenario.steps {
+        let plan = *P::Geometry::plan(&episode.scenario);
+        if episode.step >= plan.steps {
             return Err(EnvError::EpisodeOver);
         }
-        let non_finite = !action.iter().all(|a| a.is_finite());
+        let non_finite = !action.as_ref().iter().all(|a| a.is_finite());
         if non_finite && self.config.non_finite_action == NonFiniteAction::Refuse {
             return Err(EnvError::NonFiniteAction);
         }
-        // decode_action maps a non-finite action to thrust off itself.
-        let command = decode_action(action);
+        // The decoding maps a non-finite action to thrust off itself.
+        let command = P::Geometry::decode(action);
+        let throttle = P::Geometry::throttle(&command);
         let k = episode.step;
-        let state = propagate(
-            &episode.state,
-            &command,
-            &self.spacecraft,
-            episode.scenario.cycle,
-            &self.tolerances,
-        )
-        .map_err(|error| EnvError::Propagation { step: k, error })?;
+        let state = P::Geometry::propagate(&episode.state, &command, &self.spacecraft, plan.cycle, &self.tolerances)
+            .map_err(|error| EnvError::Propagation { step: k, error })?;
         let step_after = k + 1;
         let features = P::features(&episode.scenario, &state, step_after)?;
         let residuals = P::residuals(&features);
-        let (total, base, extra) = step_reward(
-            &self.config,
-            &episode.scenario,
-            &residuals,
-            command.throttle,
-            step_after,
-        );
-        let done = step_after == episode.scenario.steps;
+        let (total, base, extra) = step_reward(&self.config, &plan, &residuals, throttle, step_after);
+        let done = step_after == plan.steps;
         self.episode = Some(Episode {
             scenario: episode.scenario,
             state,
@@ -669,8 +819,8 @@ impl<P: Problem> Environment for MdpEnv<P> {
                 step: step_after,
                 residuals,
                 command,
-                throttle: command.throttle,
-                mass: state.m,
+                throttle,
+                mass: P::Geometry::mass(&state),
                 state,
                 base_reward: base,
                 terminal_term: extra,
@@ -683,11 +833,11 @@ impl<P: Problem> Environment for MdpEnv<P> {
         self.episode.as_ref().map(|e| P::observation(&e.features))
     }
 
-    fn state(&self) -> Option<SpacecraftState> {
+    fn state(&self) -> Option<StateOf<P::Geometry>> {
         self.episode.as_ref().map(|e| e.state)
     }
 
-    fn scenario(&self) -> Option<&Scenario> {
+    fn scenario(&self) -> Option<&ScenarioOf<P::Geometry>> {
         self.episode.as_ref().map(|e| &e.scenario)
     }
 
@@ -696,6 +846,8 @@ impl<P: Problem> Environment for MdpEnv<P> {
     }
 
     fn is_done(&self) -> bool {
-        self.episode.as_ref().is_some_and(|e| e.step >= e.scenario.steps)
+        self.episode
+            .as_ref()
+            .is_some_and(|e| e.step >= P::Geometry::plan(&e.scenario).steps)
     }
 }

@@ -45,7 +45,7 @@ use crate::sac::agent::Sac;
 use crate::sac::replay::sampler;
 use ground_core::charts::{line_chart, Series};
 use ground_core::env::batch::OutcomeSummary;
-use ground_core::env::Problem;
+use ground_core::env::{Planar, Problem};
 use ground_core::with_problem;
 
 pub mod relabel;
@@ -226,7 +226,7 @@ fn completed_relabels(
     Ok(rounds)
 }
 
-fn dagger_for<P: Problem>(
+fn dagger_for<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     config_dir: &Path,
     run: &Path,
@@ -480,7 +480,7 @@ mod tests {
 
     /// Rounds 0.. scoring `scores`.
     fn rounds(scores: &[f64]) -> Vec<RoundRow> {
-        let summary = ground_core::env::batch::summarize(&[]);
+        let summary = ground_core::env::batch::summarize::<ground_core::env::Planar>(&[]);
         scores
             .iter()
             .enumerate()

@@ -19,7 +19,7 @@ use crate::sac::replay::{ReplayBuffer, Transition};
 use crate::sil::{fly_blob, SilFlights};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::evaluate_batched;
-use ground_core::env::{MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 use ground_core::io::{decode_container, encode_container};
 use onboard::dynamics::SpacecraftState;
 
@@ -65,7 +65,11 @@ pub struct RelabelJob {
 }
 
 /// Solves one relabel, as [`relabel`] and [`placed_demonstration`] make it.
-pub(crate) fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob) -> Solved {
+pub(crate) fn solve_job<P: Problem<Geometry = Planar>>(
+    config: &ExperimentConfig,
+    first: u64,
+    job: &RelabelJob,
+) -> Solved {
     let index = first + job.episode;
     let scenario = config.family.draw(config.seeds.train, index);
     let sc = config.env.canonical_spacecraft().ok()?;
@@ -133,7 +137,7 @@ pub(crate) fn save_relabels(path: &Path, relabels: &Relabels) -> Result<(), Expe
 
 /// Flies the policy on round `round`'s training scenarios and relabels the visited states at
 /// the config's fractions of each flight, solved to the demonstrations' eps.
-pub(crate) fn solve_relabels<P: Problem>(
+pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     agent: &Sac,
     round: u64,

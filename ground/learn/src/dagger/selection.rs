@@ -11,7 +11,7 @@ use crate::phase::evaluate_agent;
 use crate::sac::agent::Sac;
 use crate::sil::{fly_blob, SilFlights};
 use ground_core::env::batch::{summarize, EpisodeOutcome, OutcomeSummary};
-use ground_core::env::{MdpEnv, Problem};
+use ground_core::env::{MdpEnv, Planar, Problem};
 
 /// The `count` outcomes that miss the accuracy goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
 /// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
@@ -96,7 +96,10 @@ pub(crate) struct Score {
 
 /// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios, and
 /// under the SIL's dispersions when the rounds relabel dispersed flights.
-pub(crate) fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentError> {
+pub(crate) fn score<P: Problem<Geometry = Planar>>(
+    config: &ExperimentConfig,
+    agent: &Sac,
+) -> Result<Score, ExperimentError> {
     let outcomes = evaluate_agent::<MdpEnv<P>>(
         agent,
         &config.env,
