@@ -80,11 +80,11 @@ impl RecordFilter {
 
 /// One experience tuple (s_k, a_k, r_k, s_k+1, done_k).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Transition<O> {
+pub struct Transition<O, A = [f32; ACTION_LEN]> {
     /// s_k: the observation at step k.
     pub observation: O,
     /// a_k: the clipped action encoding the step's ZOH control.
-    pub action: [f32; ACTION_LEN],
+    pub action: A,
     /// r_k: the environment's reward for the step (printed reward plus terminal-accuracy term).
     pub reward: f64,
     /// s_k+1: the observation at step k + 1.
@@ -316,9 +316,9 @@ pub struct StepMismatch {
 
 /// The tuples of one record, with the one-step mismatch of every step.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RecordDemonstration<O> {
+pub struct RecordDemonstration<O, A = [f32; ACTION_LEN]> {
     /// The record's tuples, in step order.
-    pub transitions: Vec<Transition<O>>,
+    pub transitions: Vec<Transition<O, A>>,
     /// One-step mismatch of each step the record flies (none for the coast after an early arrival).
     pub mismatch: Vec<StepMismatch>,
 }
@@ -535,9 +535,9 @@ pub fn placed_demonstration<P: Problem<Geometry = Planar>>(
 
 /// Tuples of a record set, in record order, with the records that gave none.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Demonstrations<O> {
+pub struct Demonstrations<O, A = [f32; ACTION_LEN]> {
     /// Tuples of every record used, in record order.
-    pub transitions: Vec<Transition<O>>,
+    pub transitions: Vec<Transition<O, A>>,
     /// One-step mismatches of those records, in record order.
     pub mismatch: Vec<StepMismatch>,
     /// Records the filter let through: used, and failed with their reasons (scenario index).
@@ -560,24 +560,35 @@ pub fn demonstrations<P: Problem<Geometry = Planar>>(
         .par_iter()
         .map(|r| (r.index, record_demonstration::<P>(r, config, tolerances)))
         .collect();
-    let mut out = Demonstrations {
-        transitions: Vec::new(),
-        mismatch: Vec::new(),
-        used: 0,
-        failed: Vec::new(),
-        filtered_out: records.len() - chosen.len(),
-    };
-    for (index, result) in results {
-        match result {
-            Ok(d) => {
-                out.used += 1;
-                out.transitions.extend(d.transitions);
-                out.mismatch.extend(d.mismatch);
+    Demonstrations::gather(results, records.len() - chosen.len())
+}
+
+/// One record's tuples or why it gave none, with its scenario index.
+pub type RecordResult<O, A> = (u64, Result<RecordDemonstration<O, A>, DemoError>);
+
+impl<O, A> Demonstrations<O, A> {
+    /// The tuples of each record's result (scenario index, tuples or why none), in the order
+    /// given, with `filtered_out` records left out before.
+    pub fn gather(results: Vec<RecordResult<O, A>>, filtered_out: usize) -> Self {
+        let mut out = Self {
+            transitions: Vec::new(),
+            mismatch: Vec::new(),
+            used: 0,
+            failed: Vec::new(),
+            filtered_out,
+        };
+        for (index, result) in results {
+            match result {
+                Ok(d) => {
+                    out.used += 1;
+                    out.transitions.extend(d.transitions);
+                    out.mismatch.extend(d.mismatch);
+                }
+                Err(e) => out.failed.push((index, e)),
             }
-            Err(e) => out.failed.push((index, e)),
         }
+        out
     }
-    out
 }
 
 /// Statistics of the one-step mismatch over a dataset, split into coast steps (ZOH throttle 0),
@@ -616,7 +627,7 @@ pub struct MismatchReport {
 
 impl MismatchReport {
     /// The report of `demos`' one-step mismatches.
-    pub fn from_mismatch<O>(problem: ProblemKind, demos: &Demonstrations<O>) -> Self {
+    pub fn from_mismatch<O, A>(problem: ProblemKind, demos: &Demonstrations<O, A>) -> Self {
         Self::of_steps(
             problem,
             &demos.mismatch,
@@ -750,21 +761,17 @@ pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter)
 fn spatial_mismatch_report(dataset: &Path, config: &EnvConfig) -> Result<MismatchReport, DemoError> {
     let file = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(dataset)?;
     let family = &file.manifest.family.family;
-    let spacecraft = config
-        .spacecraft
-        .canonical_in(&family.body.units())
-        .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
+    let config = &EnvConfig {
+        body: family.body,
+        ..*config
+    };
     let tol = default_tolerances();
-    let (demos, failed) =
-        spatial::spatial_demonstrations(&file.records, &spacecraft, &tol, &config.integrator.tolerances());
-    let mismatch: Vec<StepMismatch> = demos.iter().flat_map(|d| d.mismatch.iter().copied()).collect();
-    let filtered_out = file.records.iter().filter(|r| !r.converged).count();
-    Ok(MismatchReport::of_steps(
-        family.problem,
-        &mismatch,
-        mismatch.len(),
-        (demos.len() + failed.len(), &failed, filtered_out),
-    ))
+    Ok(
+        crate::with_spatial_problem!(family.problem, P => MismatchReport::from_mismatch(
+            family.problem,
+            &spatial::spatial_demonstrations::<P>(&file.records, config, &tol),
+        )),
+    )
 }
 
 /// CLI entry: prints the mismatch report of a dataset for `spacecraft` and the default reward.

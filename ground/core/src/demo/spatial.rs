@@ -9,18 +9,18 @@
 //! located) from the record's costates, each cycle from its boundary, and the re-integrated
 //! states are checked against the record's samples.
 
-use onboard::features::{
-    decode_action3, encode_action3, rendezvous3_features, transfer3_features, ACTION3_LEN, RENDEZVOUS3_FEATURES,
-    TRANSFER3_FEATURES,
-};
+use onboard::features::{encode_action3, ACTION3_LEN};
 use onboard::integrator::Tolerances;
 use onboard::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
 use rayon::prelude::*;
 use shared::orbit::{dot3, norm3, SpatialState};
-use shared::scenario::{ProblemKind, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
-use super::{DemoError, StepMismatch, ACTION_BOUND, COAST_THROTTLE, CONSISTENCY_TOLERANCE};
+use super::{
+    DemoError, Demonstrations, RecordDemonstration, StepMismatch, Transition, ACTION_BOUND, COAST_THROTTLE,
+    CONSISTENCY_TOLERANCE,
+};
+use crate::env::{self, EnvConfig, EnvError, Environment, MdpEnv, Problem};
 use crate::solver::pontryagin::{run_modal, BranchRhs, NoClock, OptimalControlParams, Regime};
 use crate::solver::spatial::record::SpatialRecord;
 use crate::solver::spatial::{
@@ -164,52 +164,30 @@ fn craft(s: &SpatialSample) -> SpatialCraftState {
     SpatialCraftState { orbit: s.state, m: s.m }
 }
 
-/// The network's input of a three-dimensional state: the transfer's 15 features or the
-/// rendezvous's 30 ([`onboard::features`]), at cycle `k` of `scenario`.
-pub fn spatial_features(scenario: &SpatialScenario, state: &SpatialCraftState, k: u32) -> Result<Vec<f64>, DemoError> {
-    let flat = &scenario.scenario;
-    let time_to_go = flat.time_to_go(k);
-    let refused = |error| DemoError::Env(crate::env::EnvError::Features { step: k, error });
-    match flat.problem {
-        ProblemKind::Transfer => transfer3_features(state, &flat.target, &scenario.target_plane, time_to_go)
-            .map(|f: [f64; TRANSFER3_FEATURES]| f.to_vec())
-            .map_err(refused),
-        ProblemKind::Rendezvous => {
-            let body = crate::env::body_at(flat, k).map_err(DemoError::Env)?;
-            rendezvous3_features(state, &scenario.target_plane.embed(&body), time_to_go)
-                .map(|f: [f64; RENDEZVOUS3_FEATURES]| f.to_vec())
-                .map_err(refused)
-        }
-    }
-}
-
-/// The (state features, action) pairs of one three-dimensional record, with the one-step
-/// mismatch of every cycle.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SpatialDemonstration {
-    /// Features of s_k (f64), k = 0..N-1.
-    pub features: Vec<Vec<f64>>,
-    /// a_k.
-    pub actions: Vec<[f32; ACTION3_LEN]>,
-    /// How far the onboard propagation of (s_k, a_k) lands from s_k+1.
-    pub mismatch: Vec<StepMismatch>,
-}
-
-/// The demonstration of a converged three-dimensional record: at every cycle the features of
-/// its state, the action of its ZOH control, and the mismatch of the onboard RTN propagation
-/// of that action over the cycle (`env_tolerances`: the environment's) against its next sample.
-pub fn spatial_demonstration(
+/// The tuples of a converged three-dimensional record for problem `P` ([`Transfer3`] or
+/// [`Rendezvous3`]), from departure in the episode of its scenario, with the one-step mismatch
+/// of every cycle: observations, rewards and done flags are the environment's at the record's
+/// states, the actions encode the record's RTN ZOH controls (docs/spec.md section 7.1).
+/// `tolerances` re-integrate the state-costate system; the environment flies with `config`'s.
+pub fn spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
     record: &SpatialRecord,
-    spacecraft: &CanonicalSpacecraft,
+    config: &EnvConfig,
     tolerances: &Tolerances,
-    env_tolerances: &Tolerances,
-) -> Result<SpatialDemonstration, DemoError> {
-    let controls = rtn_zoh_controls(record, spacecraft, tolerances)?;
+) -> Result<RecordDemonstration<P::Obs, [f32; ACTION3_LEN]>, DemoError> {
     let scenario = &record.scenario;
+    if scenario.scenario.problem != P::KIND {
+        return Err(DemoError::WrongProblem {
+            expected: P::KIND,
+            found: scenario.scenario.problem,
+        });
+    }
+    let mut env = MdpEnv::<P>::new(config).map_err(DemoError::Env)?;
+    let spacecraft = *env.spacecraft();
+    let controls = rtn_zoh_controls(record, &spacecraft, tolerances)?;
     let cycle = scenario.scenario.cycle;
-    let mut demo = SpatialDemonstration {
-        features: Vec::with_capacity(controls.len()),
-        actions: Vec::with_capacity(controls.len()),
+    let env_tolerances = config.integrator.tolerances();
+    let mut demo = RecordDemonstration {
+        transitions: Vec::with_capacity(controls.len()),
         mismatch: Vec::with_capacity(controls.len()),
     };
     for ((k, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
@@ -218,12 +196,24 @@ pub fn spatial_demonstration(
         };
         let (s_k, s_next) = (craft(now), craft(next));
         let action = control.action();
-        let fly = |command: &RtnCommand| {
-            propagate_rtn(&s_k, command, spacecraft, cycle, env_tolerances)
-                .map_err(|error| DemoError::Env(crate::env::EnvError::Propagation { step: k, error }))
-        };
-        let flown = fly(&decode_action3(&action))?;
-        let unclipped = fly(&control.command())?;
+        // s_k and the environment's own cycle from it.
+        let observation = env.reset_at(scenario, &s_k, k).map_err(DemoError::Env)?;
+        let flown = env.step(&action).map_err(DemoError::Env)?;
+        // r_k, s_k+1 from the optimal next state, with the environment's reward function.
+        let (reward, ..) =
+            MdpEnv::<P>::reward_at(config, scenario, &s_next, k + 1, flown.info.throttle).map_err(DemoError::Env)?;
+        let next_observation = env.reset_at(scenario, &s_next, k + 1).map_err(DemoError::Env)?;
+        demo.transitions.push(Transition {
+            observation,
+            action,
+            reward,
+            next_observation,
+            done: flown.done,
+            record: record.index,
+            step: k,
+        });
+        let unclipped = propagate_rtn(&s_k, &control.command(), &spacecraft, cycle, &env_tolerances)
+            .map_err(|error| DemoError::Env(EnvError::Propagation { step: k, error }))?;
         let gap = |a: &[f64; 3], b: &[f64; 3]| norm3(&[a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
         // The endpoint rule on the record's two samples, in each sample's own RTN frame.
         let endpoint = |s: &SpatialSample| {
@@ -233,14 +223,13 @@ pub fn spatial_demonstration(
         };
         let (wa, wb) = (endpoint(now), endpoint(next));
         let trapezoid: [f64; 3] = core::array::from_fn(|i| 0.5 * (wa[i] + wb[i]));
-        demo.features.push(spatial_features(scenario, &s_k, k)?);
-        demo.actions.push(action);
+        let e = flown.info.state;
         demo.mismatch.push(StepMismatch {
             record: record.index,
             step: k,
-            position: gap(&flown.orbit.r, &s_next.orbit.r),
-            velocity: gap(&flown.orbit.v, &s_next.orbit.v),
-            mass: (flown.m - s_next.m).abs(),
+            position: gap(&e.orbit.r, &s_next.orbit.r),
+            velocity: gap(&e.orbit.v, &s_next.orbit.v),
+            mass: (e.m - s_next.m).abs(),
             zoh_throttle: norm3(&control.w),
             mean_throttle: control.mean_throttle,
             trapezoid_error: gap(&trapezoid, &control.w),
@@ -250,33 +239,20 @@ pub fn spatial_demonstration(
     Ok(demo)
 }
 
-/// The demonstrations of every converged record (in parallel, in record order): the one-step
-/// mismatch over a dataset, and the records that gave none with the reason.
-pub fn spatial_demonstrations(
+/// The tuples of every converged record (in parallel, in record order), with the records that
+/// gave none and why; unconverged records (which keep no samples) are counted as filtered out.
+pub fn spatial_demonstrations<P: Problem<Geometry = env::Spatial>>(
     records: &[SpatialRecord],
-    spacecraft: &CanonicalSpacecraft,
+    config: &EnvConfig,
     tolerances: &Tolerances,
-    env_tolerances: &Tolerances,
-) -> (Vec<SpatialDemonstration>, Vec<(u64, DemoError)>) {
+) -> Demonstrations<P::Obs, [f32; ACTION3_LEN]> {
     let results: Vec<_> = records
         .par_iter()
         .filter(|r| r.converged)
-        .map(|r| {
-            (
-                r.index,
-                spatial_demonstration(r, spacecraft, tolerances, env_tolerances),
-            )
-        })
+        .map(|r| (r.index, spatial_demonstration::<P>(r, config, tolerances)))
         .collect();
-    let mut demos = Vec::new();
-    let mut failed = Vec::new();
-    for (index, result) in results {
-        match result {
-            Ok(d) => demos.push(d),
-            Err(e) => failed.push((index, e)),
-        }
-    }
-    (demos, failed)
+    let converged = results.len();
+    Demonstrations::gather(results, records.len() - converged)
 }
 
 #[cfg(test)]
@@ -286,8 +262,8 @@ mod tests {
     use shared::spacecraft::Spacecraft;
 
     use super::*;
-    use crate::demo::{default_tolerances, zoh_controls};
-    use crate::env::EnvConfig;
+    use crate::demo::{default_tolerances, record_demonstration, zoh_controls};
+    use crate::env::{EnvConfig, Rendezvous, Rendezvous3, Transfer3};
     use crate::solver::spatial::record::solve_spatial_draw;
     use crate::solver::{solve_scenario, SolveOptions};
 
@@ -318,6 +294,26 @@ mod tests {
             assert!(d < 1e-6 && a.w[2].abs() < 1e-12, "cycle {k}: {a:?} vs {b:?}");
             assert!((a.mean_throttle - b.mean_throttle).abs() < 1e-6);
         }
+        // And its tuples are the planar tuples: actions with no normal part, the same rewards
+        // and done flags.
+        let config = EnvConfig::default();
+        let flat = record_demonstration::<Rendezvous>(&planar, &config, &tol).unwrap();
+        let space = spatial_demonstration::<Rendezvous3>(&spatial, &config, &tol).unwrap();
+        assert_eq!(flat.transitions.len(), space.transitions.len());
+        for (a, b) in flat.transitions.iter().zip(&space.transitions) {
+            assert!(
+                (a.reward - b.reward).abs() < 1e-6,
+                "cycle {}: {} vs {}",
+                a.step,
+                a.reward,
+                b.reward
+            );
+            assert_eq!(a.done, b.done);
+            for i in 0..3 {
+                assert!((a.action[i] - b.action[i]).abs() < 1e-5, "cycle {}", a.step);
+            }
+            assert!(b.action[3].abs() < 1e-12);
+        }
     }
 
     /// An inclined transfer: coast cycles flown by the onboard RTN propagation land on the
@@ -337,14 +333,10 @@ mod tests {
         let record = solve_spatial_draw(&family, 2, 0, &sc, &quick());
         assert!(record.converged, "{:?}", record.failure);
         let tol = default_tolerances();
-        let env_tol = EnvConfig::default().integrator.tolerances();
-        let demo = spatial_demonstration(&record, &sc, &tol, &env_tol).unwrap();
+        let config = EnvConfig::default();
+        let demo = spatial_demonstration::<Transfer3>(&record, &config, &tol).unwrap();
         let n = record.scenario.scenario.steps as usize;
-        assert_eq!(
-            (demo.actions.len(), demo.features.len(), demo.mismatch.len()),
-            (n, n, n)
-        );
-        assert!(demo.features.iter().all(|f| f.len() == TRANSFER3_FEATURES));
+        assert_eq!((demo.transitions.len(), demo.mismatch.len()), (n, n));
         for m in &demo.mismatch {
             if m.mean_throttle == 0.0 {
                 assert!(m.position < 1e-10 && m.velocity < 1e-10, "{m:?}");
@@ -352,8 +344,26 @@ mod tests {
                 assert!(m.position < 2e-3 && m.velocity < 2e-3, "{m:?}");
             }
         }
-        let normal = demo.actions.iter().map(|a| f64::from(a[3].abs())).fold(0.0, f64::max);
+        // Consecutive tuples chain (s_k+1 of one is s_k of the next), only the last is done.
+        for (k, pair) in demo.transitions.windows(2).enumerate() {
+            assert_eq!(pair[0].next_observation, pair[1].observation, "cycle {k}");
+            assert!(!pair[0].done);
+        }
+        assert!(demo.transitions.last().is_some_and(|t| t.done));
+        let normal = demo
+            .transitions
+            .iter()
+            .map(|t| f64::from(t.action[3].abs()))
+            .fold(0.0, f64::max);
         assert!(normal > 0.05, "no out-of-plane thrust: {normal}");
+        // At the record's arrival the residuals are the solver's terminal error: none.
+        let last = demo.transitions.last().unwrap();
+        let residuals = (last.next_observation[12], last.next_observation[13]);
+        assert!(residuals.0 < 1e-6 && residuals.1 < 1e-6, "{residuals:?}");
+        assert!(matches!(
+            spatial_demonstration::<Rendezvous3>(&record, &config, &tol),
+            Err(DemoError::WrongProblem { .. })
+        ));
         let mut corrupt = record.clone();
         corrupt.costates[3] *= 1.01;
         assert!(matches!(
