@@ -259,7 +259,9 @@ fn fly_sil<'py>(
             kind.label()
         )));
     }
-    if let Some(why) = ground_core::mission::blob_refusal(&kind, &policy.mission) {
+    if let Some(why) =
+        ground_core::mission::blob_refusal(&shared::mission::SpatialFamily::planar(kind), &policy.mission)
+    {
         return Err(refused(why));
     }
     let spacecraft = env

@@ -600,10 +600,10 @@ pub struct FamilyCheck {
 
 /// The mission a blob of `family` carries (blob format 4): the aids' cycle (0 for a count of
 /// cycles), the family's units and fingerprint.
-pub fn blob_mission(family: &MissionFamily) -> shared::blob::BlobMission {
-    let units = family.body.units();
+pub fn blob_mission(family: &SpatialFamily) -> shared::blob::BlobMission {
+    let units = family.family.body.units();
     shared::blob::BlobMission {
-        cycle: family.fixed_cycle().unwrap_or(0.0),
+        cycle: family.family.fixed_cycle().unwrap_or(0.0),
         length_unit_m: units.length_m,
         time_unit_s: units.time_s,
         family: family.fingerprint(),
@@ -612,7 +612,7 @@ pub fn blob_mission(family: &MissionFamily) -> shared::blob::BlobMission {
 
 /// Why a blob carrying `mission` cannot fly `family` (None: it can), both named. A blob of
 /// format 3 (fingerprint 0) flies any family of the thesis's units and 14-day cycles.
-pub fn blob_refusal(family: &MissionFamily, mission: &shared::blob::BlobMission) -> Option<String> {
+pub fn blob_refusal(family: &SpatialFamily, mission: &shared::blob::BlobMission) -> Option<String> {
     use shared::blob::BlobMission;
     let ours = blob_mission(family);
     if mission.family == 0 {

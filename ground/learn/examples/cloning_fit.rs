@@ -33,7 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let usage = "usage: cloning_fit CONFIG (ACTOR | --train HIDDEN UPDATES OUT_ACTOR) DATASET...";
     let (config_path, rest) = args[1..].split_first().ok_or(usage)?;
     let mut config = ExperimentConfig::load(Path::new(config_path))?;
-    if config.family.problem != ProblemKind::Transfer {
+    if config.problem() != ProblemKind::Transfer {
         return Err("a transfer config is needed (the diagnostic flies the 10-feature transfer MDP)".into());
     }
     let demos = |config: &mut ExperimentConfig, dataset: &str| {

@@ -31,9 +31,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: reach_along_flight CONFIG ACTOR REACH_CSV COUNT OUT_CSV".into());
     };
     let config = ExperimentConfig::load(Path::new(config))?;
-    if config.family.problem != ProblemKind::Transfer {
+    if config.problem() != ProblemKind::Transfer {
         return Err("a transfer config is needed (the diagnostic flies the 10-feature transfer MDP)".into());
     }
+    let family = config.planar_family("the reach diagnostic")?;
     let count: usize = count.parse()?;
     let solved: Vec<usize> = std::fs::read_to_string(reach)?
         .lines()
@@ -47,7 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let agent = load_agent(&config, 10, Path::new(actor))?;
     let scenarios: Vec<_> = solved
         .iter()
-        .map(|&i| config.family.draw(config.seeds.monte_carlo, i as u64))
+        .map(|&i| family.draw(config.seeds.monte_carlo, i as u64))
         .collect();
     let flown = evaluate_batched::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
     let spacecraft = config.env.canonical_spacecraft()?;
@@ -72,8 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             if n.is_multiple_of(100) {
                 eprintln!("{n}/{}", jobs.len());
             }
-            relabel(&config.family, (0, 0), scenario, &state, step, &spacecraft, &options)
-                .map(|(record, _)| record.converged)
+            relabel(&family, (0, 0), scenario, &state, step, &spacecraft, &options).map(|(record, _)| record.converged)
         })
         .collect();
     let mut csv = String::from("index,dr,dv,within_goal");

@@ -1,7 +1,7 @@
 //! The spacecraft's behaviour-cloning errors (`pretrain.cloning_target`): the generic learner
 //! ([`crate::sac::agent::Sac`]) compares raw actions; these compare what the guidance action
-//! flies, the thrust vector decoded from its three components (`onboard::features::decode_action`),
-//! optionally with a relative throttle error.
+//! flies, the thrust vector decoded from its components (`onboard::features::decode_action`,
+//! `decode_action3` in three dimensions), optionally with a relative throttle error.
 
 use serde::{Deserialize, Serialize};
 use tch::{Kind, Tensor};
@@ -32,12 +32,19 @@ pub enum CloningTarget {
 }
 
 impl CloningTarget {
-    /// The cloning error an agent trained with this target uses.
-    pub fn loss(self) -> Box<dyn CloningLoss> {
+    /// The cloning error an agent of `components`-component actions (3 planar, 4 in three
+    /// dimensions) trained with this target uses.
+    pub fn loss(self, components: usize) -> Box<dyn CloningLoss> {
         match self {
             Self::Action => Box::new(ActionError),
-            Self::Thrust => Box::new(ThrustError { log_throttle: false }),
-            Self::ThrustLogThrottle => Box::new(ThrustError { log_throttle: true }),
+            Self::Thrust => Box::new(ThrustError {
+                log_throttle: false,
+                components,
+            }),
+            Self::ThrustLogThrottle => Box::new(ThrustError {
+                log_throttle: true,
+                components,
+            }),
         }
     }
 }
@@ -61,7 +68,7 @@ pub const LOG_THROTTLE_FLOOR: f64 = 5e-3;
 /// 1 (floor 1e-3) fell to 39.6 % within the goal.
 pub const LOG_THROTTLE_WEIGHT: f64 = 0.03;
 
-/// ln(u + [`LOG_THROTTLE_FLOOR`]) of actions [batch, 3], u = (a0 + 1)/2.
+/// ln(u + [`LOG_THROTTLE_FLOOR`]) of actions [batch, components], u = (a0 + 1)/2.
 pub fn log_throttle(actions: &Tensor) -> Tensor {
     ((actions.narrow(-1, 0, 1) + 1.0) * 0.5 + LOG_THROTTLE_FLOOR).log()
 }
@@ -72,24 +79,28 @@ pub fn log_throttle(actions: &Tensor) -> Tensor {
 /// ~1, where the softening changes the thrust by 5e-5 relative.
 pub const THRUST_NORM_SOFTENING: f64 = 1e-2;
 
-/// The thrust vector u (alpha_r, alpha_theta) the environment decodes from actions [batch, 3]
-/// (`onboard::features::decode_action`): u = (a0 + 1)/2, direction (a1, a2) normalised. The norm
+/// The thrust vector u alpha the environment decodes from actions [batch, components]
+/// (`onboard::features::decode_action`, `decode_action3`): u = (a0 + 1)/2, the direction (the
+/// other components: (a1, a2) in the plane, (a1, a2, a3) in three dimensions) normalised. The norm
 /// is softened by [`THRUST_NORM_SOFTENING`] in quadrature, so a demonstration that coasts with a
 /// zero direction has a zero thrust vector and the gradient stays bounded near it.
 pub fn thrust_vector(actions: &Tensor) -> Tensor {
     let throttle = (actions.narrow(-1, 0, 1) + 1.0) * 0.5;
-    let direction = actions.narrow(-1, 1, 2);
+    let components = actions.size().last().copied().unwrap_or(1);
+    let direction = actions.narrow(-1, 1, components - 1);
     let softening = THRUST_NORM_SOFTENING * THRUST_NORM_SOFTENING;
     let norm = (direction.square().sum_dim_intlist(-1, true, Kind::Float) + softening).sqrt();
     throttle * direction / norm
 }
 
 /// The error of [`CloningTarget::Thrust`] (and, with `log_throttle`, of
-/// [`CloningTarget::ThrustLogThrottle`]) on 3-component guidance actions.
+/// [`CloningTarget::ThrustLogThrottle`]) on guidance actions of `components` components.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ThrustError {
     /// Add the log-throttle error ([`log_throttle`], weight [`LOG_THROTTLE_WEIGHT`]).
     pub log_throttle: bool,
+    /// Throttle and direction components of the actions (3 planar, 4 in three dimensions).
+    pub components: usize,
 }
 
 impl CloningLoss for ThrustError {
@@ -107,7 +118,7 @@ impl CloningLoss for ThrustError {
     }
 
     fn action_dim(&self) -> Option<usize> {
-        Some(3)
+        Some(self.components)
     }
 }
 
@@ -131,7 +142,7 @@ mod tests {
             2,
             1,
             Device::Cpu,
-            CloningTarget::Thrust.loss(),
+            CloningTarget::Thrust.loss(3),
         );
     }
 
@@ -204,7 +215,7 @@ mod tests {
             2,
             3,
             Device::Cpu,
-            target.loss(),
+            target.loss(3),
         );
         // Demonstrations that thrust, coast (zero direction) and one agent transition.
         let mut buf = ReplayBuffer::new(2, 3, 64);

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use shared::blob::BlobMission;
-use shared::mission::MissionFamily;
+use shared::mission::{MissionFamily, SpatialFamily};
 use shared::spacecraft::SpacecraftError;
 
 use crate::cloning::CloningTarget;
@@ -17,6 +17,20 @@ use ground_core::env::EnvConfig;
 use onboard::lookahead::LookaheadSettings;
 pub use onboard::terminal::TerminalSettings;
 
+/// Evaluates `$body` with `$P` naming the [`ground_core::env::Problem`] the config's family is
+/// flown by: the planar transfer or rendezvous, or for an inclined family their
+/// three-dimensional twins.
+#[macro_export]
+macro_rules! with_flown_problem {
+    ($config:expr, $P:ident => $body:expr) => {
+        if $config.is_inclined() {
+            ground_core::with_spatial_problem!($config.problem(), $P => $body)
+        } else {
+            ground_core::with_problem!($config.problem(), $P => $body)
+        }
+    };
+}
+
 /// A whole experiment as one TOML file: the scenario distribution, seeds, environment, learner,
 /// the settings of every phase and the compute. Missing sections take their defaults (the
 /// thesis's); unknown keys are refused.
@@ -26,8 +40,10 @@ pub struct ExperimentConfig {
     /// Scenario family (training, evaluation and Monte Carlo): a preset's name (docs/spec.md
     /// section 4), a mission file's path, or the table (docs/missions.md). Written back as the
     /// preset's name or the whole table, never as the path, so a run keeps its family.
+    /// Inclined families (docs/spec.md section 4) are flown by the three-dimensional problems;
+    /// a family in the reference plane is the planar family, written and fingerprinted as one.
     #[serde(rename = "scenario", with = "ground_core::mission::by_spec")]
-    pub family: MissionFamily,
+    pub family: SpatialFamily,
     /// The name of the experiment's controller in its report and model card (letters, digits,
     /// `.`, `_`, `-`; default: the family's, a preset's name or `custom-` and its fingerprint).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -464,10 +480,10 @@ impl ExperimentConfig {
             .map_err(|e: toml::de::Error| ConfigError::Parse(e.to_string()))?;
         // The spacecraft flies in the family's canonical units, and so do the default dispersions:
         // the typical physical sizes in the family's length and velocity units.
-        config.env.body = config.family.body;
+        config.env.body = config.family.family.body;
         let dispersions_given = table.get("sil").and_then(|sil| sil.get("dispersions")).is_some();
         if !dispersions_given {
-            config.sil.dispersions = firmware_sim::Dispersions::typical_in(&config.family.body.units());
+            config.sil.dispersions = firmware_sim::Dispersions::typical_in(&config.family.family.body.units());
         }
         config.validate()?;
         Ok(config)
@@ -521,6 +537,37 @@ impl ExperimentConfig {
         })
     }
 
+    /// Transfer or rendezvous.
+    pub fn problem(&self) -> shared::scenario::ProblemKind {
+        self.family.family.problem
+    }
+
+    /// Components of the guidance action: throttle and the thrust direction, in the plane or
+    /// in three dimensions.
+    pub fn action_dim(&self) -> usize {
+        if self.is_inclined() {
+            onboard::features::ACTION3_LEN
+        } else {
+            onboard::features::ACTION_LEN
+        }
+    }
+
+    /// Whether the family's orbits are inclined (flown in three dimensions).
+    pub fn is_inclined(&self) -> bool {
+        self.family.as_planar().is_none()
+    }
+
+    /// The family for a stage that flies planar families only; an inclined one refused with the
+    /// stage named.
+    pub fn planar_family(&self, stage: &'static str) -> Result<MissionFamily, crate::error::ExperimentError> {
+        self.family
+            .as_planar()
+            .ok_or_else(|| crate::error::ExperimentError::Inclined {
+                stage,
+                family: self.family.label().to_string(),
+            })
+    }
+
     /// The mission a blob of this config carries (blob format 4):
     /// [`ground_core::mission::blob_mission`] of its family.
     pub fn blob_mission(&self) -> BlobMission {
@@ -536,7 +583,7 @@ impl ExperimentConfig {
     /// The cycle (t*) the onboard aids count: the family's, when it has one length for every
     /// flight (a cycle in days; the same bits as its scenarios').
     fn aid_cycle(&self) -> Option<f64> {
-        self.family.fixed_cycle()
+        self.family.family.fixed_cycle()
     }
 
     /// The labels the config's learners write into their checkpoints and check when they load
@@ -789,7 +836,7 @@ impl ExperimentConfig {
 
     /// What a run's saved relabels depend on: the scenarios a round flies (scenario and seeds)
     /// and what they are solved to (final eps, arrival margin).
-    pub fn relabel_problem(&self) -> (MissionFamily, Seeds, f64, u32) {
+    pub fn relabel_problem(&self) -> (SpatialFamily, Seeds, f64, u32) {
         (
             self.family,
             self.seeds,
@@ -816,7 +863,7 @@ impl ExperimentConfig {
     /// The behaviour-cloning error of the agents this experiment trains (`pretrain.cloning_target`,
     /// in pretraining and, when kept, in RL).
     pub fn cloning_loss(&self) -> Box<dyn CloningLoss> {
-        self.pretrain.cloning_target.loss()
+        self.pretrain.cloning_target.loss(self.action_dim())
     }
 
     /// The device the learner runs on. CUDA where there is none is refused, not replaced by the
@@ -855,7 +902,10 @@ mod tests {
     #[test]
     fn defaults_equal_the_thesis() {
         let c = ExperimentConfig::from_toml("scenario = \"transfer-circular\"").unwrap();
-        assert_eq!(c.family, shared::scenario::ScenarioKind::TransferCircular.family());
+        assert_eq!(
+            c.family.family,
+            shared::scenario::ScenarioKind::TransferCircular.family()
+        );
         assert_eq!(c.sac.learning_rate, 3e-4);
         assert_eq!(c.sac.discount, 0.99);
         assert_eq!(c.sac.replay_capacity, 1_000_000);
@@ -950,7 +1000,7 @@ mod tests {
             file.display()
         ))
         .unwrap();
-        assert_eq!(by_file.family.cycle, shared::mission::Cycle::Days(7.0));
+        assert_eq!(by_file.family.family.cycle, shared::mission::Cycle::Days(7.0));
         let written = by_file.to_toml();
         assert!(
             written.contains("[scenario]") && written.contains("lo_days = 250.0"),
@@ -1001,7 +1051,7 @@ mod tests {
         ))
         .unwrap();
         let weekly = aid.terminal_settings().unwrap().cycle;
-        assert_eq!(weekly, aid.family.draw(1, 0).cycle);
+        assert_eq!(weekly, aid.family.family.draw(1, 0).cycle);
         assert_eq!(weekly, 7.0 * 86_400.0 / shared::units::TIME_UNIT_S);
         let mut counted: toml::Table = toml::from_str(&written).unwrap();
         counted["scenario"]["cycle"] = toml::Value::Table(toml::from_str("count = 40").unwrap());
@@ -1046,7 +1096,7 @@ mod tests {
         let named = hard.mission_refusal(&preset.blob_mission()).unwrap();
         assert!(named.contains("family transfer-circular, not transfer-hard"), "{named}");
         // The mission's cycle is the aids' and the scenarios' own.
-        assert_eq!(weekly.blob_mission().cycle, weekly.family.draw(1, 2).cycle);
+        assert_eq!(weekly.blob_mission().cycle, weekly.family.family.draw(1, 2).cycle);
     }
 
     /// `[sil] terminal` reads its two settings by name and takes the environment's integrator

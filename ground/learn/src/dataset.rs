@@ -72,8 +72,8 @@ mod tests {
         let options = config.generate.solve_options();
         let masses: Vec<f64> = (0..2)
             .map(|index| {
-                let scenario = config.family.draw(3, index);
-                let record = solve_scenario(config.family, 3, index, &scenario, &spacecraft, &options);
+                let scenario = config.family.family.draw(3, index);
+                let record = solve_scenario(config.family.family, 3, index, &scenario, &spacecraft, &options);
                 assert!(record.converged);
                 record.final_mass
             })

@@ -31,6 +31,14 @@ pub enum ExperimentError {
     /// The environment refused to start an episode.
     #[error("environment: {0}")]
     Environment(EnvError),
+    /// The stage flies planar families only and the config's family is inclined.
+    #[error("{stage} flies planar families only; family {family} has inclined orbits")]
+    Inclined {
+        /// The stage refused.
+        stage: &'static str,
+        /// The family's label.
+        family: String,
+    },
 }
 
 // Not `#[from]`: the message already carries the evaluation error, so it is no separate source.

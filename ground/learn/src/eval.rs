@@ -265,7 +265,8 @@ pub fn monte_carlo(
     episodes: Option<u64>,
     gap_cases: Option<u64>,
 ) -> Result<MonteCarloReport, ExperimentError> {
-    with_problem!(config.family.problem, P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
+    config.planar_family("the Monte Carlo evaluation")?;
+    with_problem!(config.problem(), P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
 }
 
 /// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a
@@ -280,7 +281,7 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
         // The file holds the actor that flies; no average to keep.
         sac.actor_averaging = 0.0;
     }
-    let mut agent = Sac::new(sac, obs_dim, 3, config.device()?);
+    let mut agent = Sac::new(sac, obs_dim, config.action_dim(), config.device()?);
     agent.labels = config.learner_labels();
     if actor_only {
         agent.load_actor(checkpoint)?;
@@ -318,7 +319,7 @@ fn monte_carlo_for<P: Problem<Geometry = Planar>>(
     }
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let seed = config.seeds.monte_carlo;
-    let scenarios = draw_scenarios(config.family, seed, n);
+    let scenarios = draw_scenarios(config.family.family, seed, n);
     let bar = ground_core::progress::spinner(format!("Monte Carlo: {n} episodes"));
     // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
     let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
@@ -430,7 +431,7 @@ fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[E
         .enumerate()
         .map(|(i, (scenario, flown))| {
             let record = solve_scenario(
-                config.family,
+                config.family.family,
                 config.seeds.monte_carlo,
                 i as u64,
                 scenario,

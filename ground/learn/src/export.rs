@@ -161,7 +161,8 @@ pub fn export(
     checkpoint: &Path,
     out: &Path,
 ) -> Result<ExportReport, ExperimentError> {
-    with_problem!(config.family.problem, P => export_for::<P>(config, config_dir, checkpoint, out))
+    config.planar_family("the blob export")?;
+    with_problem!(config.problem(), P => export_for::<P>(config, config_dir, checkpoint, out))
 }
 
 /// Network inputs at every state of `episodes` (recorded trajectories).
@@ -192,7 +193,7 @@ fn export_for<P: Problem<Geometry = Planar>>(
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let network = actor_network(&agent, P::KIND)?;
     let fly_recorded = |seed: u64| -> Result<Vec<Vec<f32>>, ExperimentError> {
-        let scenarios = draw_scenarios(config.family, seed, STATE_EPISODES);
+        let scenarios = draw_scenarios(config.family.family, seed, STATE_EPISODES);
         let flown = evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
         Ok(visited_inputs::<P>(&scenarios, &flown))
     };
@@ -217,7 +218,7 @@ fn export_for<P: Problem<Geometry = Planar>>(
 
     // The trained actor's deterministic actions on the held-out states (one batch).
     let reference: Vec<[f32; 3]> = policy_batch(&agent, &held_out);
-    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, config.evaluate.episodes);
+    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, config.evaluate.episodes);
     let mut reports = Vec::new();
     for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
         let aligned = AlignedBlob::new(bytes);

@@ -294,7 +294,7 @@ fn write_onnx(dir: &Path, kind: ProblemKind) -> Result<String, ModelError> {
 /// folder's files must match its card first.
 pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
     let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
-    let kind = config.family.problem;
+    let kind = config.problem();
     verify_model_files(dir, kind, &card.files)?;
     let crc = write_onnx(dir, kind)?;
     card.files.insert(ONNX_FILE.to_string(), crc);
@@ -313,7 +313,7 @@ const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 /// files must match its card first.
 pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
     let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
-    let kind = config.family.problem;
+    let kind = config.problem();
     verify_model_files(dir, kind, &card.files)?;
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     config.sil.terminal = (cycles > 0).then(|| TerminalSettings {
@@ -400,7 +400,7 @@ pub struct ModelSources<'a> {
 /// export's blobs, and the cards.
 pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, ModelError> {
     let config = sources.config;
-    let kind = config.family.problem;
+    let kind = config.problem();
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let agent = crate::eval::load_agent(config, obs_dim(kind), sources.checkpoint)
         .map_err(|e| ModelError::Experiment(Box::new(e)))?;
@@ -518,7 +518,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     // The card's paths are relative to the folder the producing command ran in: the repository.
     let export = crate::export::export(&config, Path::new("."), &actor, &run.join("export")).map_err(experiment)?;
-    let sil = if config.family.problem == ProblemKind::Transfer {
+    let sil = if config.problem() == ProblemKind::Transfer {
         crate::sil::sil_of_blobs(&config, &export.f32.file, &export.int8.file, run)
             .map_err(experiment)?
             .to_vec()
@@ -617,7 +617,7 @@ impl ShippedModel {
 
     /// The blob of `quantization`.
     pub fn blob(&self, quantization: Quantization) -> PathBuf {
-        self.dir.join(blob_file(self.config.family.problem, quantization))
+        self.dir.join(blob_file(self.config.problem(), quantization))
     }
 }
 
@@ -626,7 +626,7 @@ impl ShippedModel {
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     let (card, config) = read_card(dir, Unsealed::Refused)?;
-    verify_model_files(dir, config.family.problem, &card.files)?;
+    verify_model_files(dir, config.problem(), &card.files)?;
     // card.md is what people read: it must say what card.json, the bound record, says.
     let md = dir.join(CARD_MD);
     let written = std::fs::read_to_string(&md).map_err(io(&md))?;
@@ -679,8 +679,7 @@ fn read_card(dir: &Path, unsealed: Unsealed) -> Result<(ModelCard, ExperimentCon
 
 /// An agent flying the actor of an actor file.
 pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelError> {
-    crate::eval::load_agent(config, obs_dim(config.family.problem), path)
-        .map_err(|e| ModelError::Experiment(Box::new(e)))
+    crate::eval::load_agent(config, obs_dim(config.problem()), path).map_err(|e| ModelError::Experiment(Box::new(e)))
 }
 
 pub(crate) fn obs_dim(kind: ProblemKind) -> usize {

@@ -16,7 +16,7 @@ use crate::sac::replay::ReplayBuffer;
 use crate::sac::trainer::LoopState;
 use ground_core::charts::{line_chart, Series};
 use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, EvalError, OutcomeSummary};
-use ground_core::env::{EnvConfig, Environment, FamilyOf, Geometry, Planar};
+use ground_core::env::{EnvConfig, Environment, FamilyOf, Geometry};
 
 /// Loss statistics are averaged over at most this many updates per CSV row (fewer for short
 /// phases, so every phase logs about 100 rows).
@@ -175,6 +175,14 @@ pub fn evaluate_agent<E: Environment>(
     evaluate_batched::<E, _>(env, &scenarios, |obs: &[E::Obs]| policy_batch(agent, obs), record)
 }
 
+/// The config's family in geometry `G`: refused when it is inclined and `G` planar.
+pub(crate) fn family_of<G: Geometry>(config: &ExperimentConfig) -> Result<FamilyOf<G>, ExperimentError> {
+    G::family_of(&config.family).ok_or_else(|| ExperimentError::Inclined {
+        stage: "a planar environment",
+        family: config.family.label().to_string(),
+    })
+}
+
 /// The agent's deterministic actions for a batch of observations. An agent whose action size
 /// is not `A`'s returns no actions (the drivers refuse the batch with its sizes).
 pub fn policy_batch<O: AsRef<[f32]>, A: for<'a> TryFrom<&'a [f32]>>(agent: &Sac, obs: &[O]) -> Vec<A> {
@@ -191,7 +199,13 @@ pub(crate) fn new_agent(config: &ExperimentConfig, pretraining: bool, obs_dim: u
     tch::set_num_threads(config.compute.threads);
     // The initial weights; every later draw is seeded by the agent itself (`Sac::noise_seed`).
     tch::manual_seed(config.seeds.train as i64);
-    let mut agent = Sac::with_cloning_loss(config.sac_for(pretraining), obs_dim, 3, device, config.cloning_loss());
+    let mut agent = Sac::with_cloning_loss(
+        config.sac_for(pretraining),
+        obs_dim,
+        config.action_dim(),
+        device,
+        config.cloning_loss(),
+    );
     agent.noise_seed = config.seeds.train;
     agent.labels = config.learner_labels();
     agent
@@ -254,15 +268,11 @@ impl<'a> Phase<'a> {
         }
     }
 
-    pub(crate) fn evaluate<E: Environment<Geometry = Planar>>(
-        &mut self,
-        agent: &Sac,
-        env_steps: u64,
-    ) -> Result<EvalRow, ExperimentError> {
+    pub(crate) fn evaluate<E: Environment>(&mut self, agent: &Sac, env_steps: u64) -> Result<EvalRow, ExperimentError> {
         let outcomes = evaluate_agent::<E>(
             agent,
             &self.config.env,
-            self.config.family,
+            family_of::<E::Geometry>(self.config)?,
             self.config.seeds.evaluation,
             self.config.train.eval_episodes,
             false,

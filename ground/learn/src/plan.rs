@@ -90,14 +90,9 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let options = config.generate.solve_options();
-    let check = check_family(
-        &shared::mission::SpatialFamily::planar(config.family),
-        &spacecraft,
-        sample,
-        config.generate.seed,
-        &options,
-    );
-    let costs = with_problem!(config.family.problem, P => measure::<P>(config, &check))?;
+    let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
+    config.planar_family("the run plan")?;
+    let costs = with_problem!(config.problem(), P => measure::<P>(config, &check))?;
     Ok(project(config, check, costs))
 }
 
@@ -114,7 +109,7 @@ fn measure<P: Problem<Geometry = Planar>>(
     evaluate_agent::<MdpEnv<P>>(
         &learner,
         &config.env,
-        config.family,
+        config.family.family,
         config.seeds.train,
         TIMED_EPISODES,
         false,

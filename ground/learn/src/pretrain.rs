@@ -15,14 +15,15 @@ use crate::phase::{load_state, new_agent, Phase, PhaseSummary};
 use crate::run_folder::{prepare_run, save_replay};
 use crate::sac::replay::{sampler, ReplayBuffer, Transition};
 use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::env::{Geometry, MdpEnv, Planar, Problem};
 use ground_core::generate::{dataset_solve_request, read_dataset};
 use ground_core::with_problem;
 
 /// `ground train pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
 /// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
 pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
-    with_problem!(config.family.problem, P => pretrain_for::<P>(config, config_dir, run))
+    config.planar_family("pretraining")?;
+    with_problem!(config.problem(), P => pretrain_for::<P>(config, config_dir, run))
 }
 
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
@@ -34,7 +35,7 @@ pub fn load_demonstrations<P: Problem<Geometry = Planar>>(
 ) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
     let file = config.dataset_file(config_dir)?;
     let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
-    let (theirs, ours) = (&dataset.manifest.family, &config.family);
+    let (theirs, ours) = (&dataset.manifest.family, &config.family.family);
     // Another range of orbits is still the same physics; another body or cycle is not.
     if theirs.problem != P::KIND || theirs.body != ours.body || theirs.cycle != ours.cycle {
         return Err(ExperimentError::Mismatch(format!(
@@ -84,7 +85,11 @@ pub fn demonstration_buffer<P: Problem<Geometry = Planar>>(
             demos.filtered_out
         )));
     }
-    let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity.max(demos.transitions.len()));
+    let mut buffer = ReplayBuffer::new(
+        P::OBS,
+        P::Geometry::ACT,
+        config.sac.replay_capacity.max(demos.transitions.len()),
+    );
     push_demonstrations(&mut buffer, &demos.transitions);
     Ok((buffer, demos.used))
 }

@@ -178,7 +178,7 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    export_section(&mut s, &job.export, &job.sil, &config.family.body.units());
+    export_section(&mut s, &job.export, &job.sil, &config.family.family.body.units());
     let _ = writeln!(
         s,
         "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32C. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"

@@ -12,13 +12,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
+use crate::phase::family_of;
 use crate::phase::{load_state, new_agent, Phase, PhaseState, PhaseSummary};
 use crate::run_folder::{check_run, load_replay, prepare_run};
 use crate::sac::agent::{Sac, UpdateStats};
 use crate::sac::replay::{sampler, ReplayBuffer};
 use crate::sac::trainer::{self, Episodic, LoopOptions, LoopState, StepOutcome, TrainObserver, WarmupPolicy};
-use ground_core::env::{EnvConfig, EnvError, Environment, FamilyOf, Geometry, MdpEnv, Planar, Problem};
-use ground_core::with_problem;
+use crate::with_flown_problem;
+use ground_core::env::{EnvConfig, EnvError, Environment, FamilyOf, Geometry, MdpEnv, Problem};
 
 /// How RL starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -42,14 +43,10 @@ impl Start {
 /// `ground train rl`: RL from scratch or from the pretrained model and its buffer, evaluations
 /// every `train.eval_every` environment steps, best model kept, resumable.
 pub fn train(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError> {
-    with_problem!(config.family.problem, P => train_for::<P>(config, run, start))
+    with_flown_problem!(config, P => train_for::<P>(config, run, start))
 }
 
-fn train_for<P: Problem<Geometry = Planar>>(
-    config: &ExperimentConfig,
-    run: &Path,
-    start: Start,
-) -> Result<PhaseSummary, ExperimentError> {
+fn train_for<P: Problem>(config: &ExperimentConfig, run: &Path, start: Start) -> Result<PhaseSummary, ExperimentError> {
     let device = config.device()?;
     check_run(config, run)?;
     let dir = run.join(start.folder());
@@ -65,22 +62,22 @@ fn train_for<P: Problem<Geometry = Planar>>(
         (Some(state), _) => {
             agent.load(&dir.join("last.safetensors"))?;
             rng.set_word_pos(state.sampler_word_pos);
-            let buffer = load_replay(&dir.join("replay.ltrb"), P::OBS)?;
+            let buffer = load_replay(&dir.join("replay.ltrb"), P::OBS, P::Geometry::ACT)?;
             let demos = buffer.demonstration_count();
             (buffer, state, demos)
         }
         (None, Start::Scratch) => (
-            ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity),
+            ReplayBuffer::new(P::OBS, P::Geometry::ACT, config.sac.replay_capacity),
             PhaseState::default(),
             0,
         ),
         (None, Start::Pretrained) => {
             let pre = run.join("pretrain");
             agent.load(&pre.join("best.safetensors"))?;
-            let demo_buffer = load_replay(&pre.join("replay.ltrb"), P::OBS)?;
+            let demo_buffer = load_replay(&pre.join("replay.ltrb"), P::OBS, P::Geometry::ACT)?;
             // Demonstrations stay in the buffer (docs/spec.md section 8), followed by the agent's own
             // experience in FIFO order.
-            let mut buffer = ReplayBuffer::new(P::OBS, 3, config.sac.replay_capacity);
+            let mut buffer = ReplayBuffer::new(P::OBS, P::Geometry::ACT, config.sac.replay_capacity);
             buffer.extend_from(&demo_buffer);
             let demos = buffer.demonstration_count();
             (buffer, PhaseState::default(), demos)
@@ -102,7 +99,8 @@ fn train_for<P: Problem<Geometry = Planar>>(
             phase.state.best = Some(row);
             agent.save(&dir.join("best.safetensors"))?;
         }
-        let mut task = ScenarioTask::<MdpEnv<P>>::new(&config.env, config.family, config.seeds.train)?;
+        let mut task =
+            ScenarioTask::<MdpEnv<P>>::new(&config.env, family_of::<P::Geometry>(config)?, config.seeds.train)?;
         let options = LoopOptions {
             total_steps: total,
             eval_every: config.train.eval_every,
@@ -143,13 +141,13 @@ fn train_for<P: Problem<Geometry = Planar>>(
     })
 }
 
-struct RlObserver<'p, 'c, P: Problem<Geometry = Planar>> {
+struct RlObserver<'p, 'c, P: Problem> {
     phase: &'p mut Phase<'c>,
     error: Option<ExperimentError>,
     marker: std::marker::PhantomData<P>,
 }
 
-impl<P: Problem<Geometry = Planar>> TrainObserver for RlObserver<'_, '_, P> {
+impl<P: Problem> TrainObserver for RlObserver<'_, '_, P> {
     fn on_update(&mut self, env_steps: u64, stats: &UpdateStats) {
         self.phase.record_update(env_steps, stats);
     }

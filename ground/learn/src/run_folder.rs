@@ -35,15 +35,16 @@ pub(crate) fn save_replay(path: &Path, buffer: &ReplayBuffer) -> Result<(), Expe
     write_file(path, &bytes)
 }
 
-pub(crate) fn load_replay(path: &Path, obs_dim: usize) -> Result<ReplayBuffer, ExperimentError> {
+pub(crate) fn load_replay(path: &Path, obs_dim: usize, act_dim: usize) -> Result<ReplayBuffer, ExperimentError> {
     let bytes = std::fs::read(path).map_err(|e| ExperimentError::Io(path.to_path_buf(), e))?;
     let buffer: ReplayBuffer = decode_container(REPLAY_MAGIC, REPLAY_VERSION, &bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("replay buffer {}: {e}", path.display())))?;
-    if buffer.obs_dim() != obs_dim || buffer.act_dim() != 3 {
+    if buffer.obs_dim() != obs_dim || buffer.act_dim() != act_dim {
         return Err(ExperimentError::Mismatch(format!(
-            "replay buffer {} holds {}-feature observations, this problem has {obs_dim}",
+            "replay buffer {} holds {}-feature observations and {}-component actions, this problem has {obs_dim} and {act_dim}",
             path.display(),
-            buffer.obs_dim()
+            buffer.obs_dim(),
+            buffer.act_dim()
         )));
     }
     Ok(buffer)

@@ -243,14 +243,15 @@ pub fn fly_blob(
     // A blob of another family of the same problem (its cycle, units or orbits) is the
     // ground's error, not the flight software's, which cannot know the family; a blob of the
     // other problem the flight software refuses itself (safe mode).
+    config.planar_family("the software-in-the-loop flight")?;
     if let Ok(decoded) = shared::blob::decode(blob) {
-        if decoded.kind == config.family.problem {
+        if decoded.kind == config.problem() {
             if let Some(why) = config.mission_refusal(&decoded.mission) {
                 return Err(ExperimentError::Mismatch(why));
             }
         }
     }
-    with_flight_problem!(config.family.problem, N, P => {
+    with_flight_problem!(config.problem(), N, P => {
         fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
     })
 }
@@ -266,7 +267,7 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
         tolerances: config.env.integrator.tolerances(),
         weights: config.env.reward.weights(),
         dispersions: *dispersions,
-        time_unit_s: config.family.body.units().time_s,
+        time_unit_s: config.family.family.body.units().time_s,
     })
 }
 
@@ -350,6 +351,7 @@ pub fn sil_monte_carlo(
     dispersions: &Dispersions,
     gap_cases: u64,
 ) -> Result<SilReport, ExperimentError> {
+    config.planar_family("the software-in-the-loop Monte Carlo")?;
     dispersions
         .validate()
         .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;
@@ -360,10 +362,10 @@ pub fn sil_monte_carlo(
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = with_flight_problem!(config.family.problem, N, P => {
+    let controller = with_flight_problem!(config.problem(), N, P => {
         describe_controller(&Controller::<N>::load::<P>(&blob))
     });
-    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, n);
+    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, n);
     let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
     let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, &flights)?;
@@ -383,7 +385,7 @@ pub fn sil_monte_carlo(
         policy: &outcomes,
         plotted: &plotted,
     };
-    let monte_carlo = with_problem!(config.family.problem, P => report_and_write::<P>(
+    let monte_carlo = with_problem!(config.problem(), P => report_and_write::<P>(
         config,
         blob_path,
         &flown,
@@ -452,8 +454,9 @@ pub fn lookahead_monte_carlo(
 /// Why the flight software would refuse the blob at `blob_path` for the config's problem
 /// (None: it loads and flies). A refused blob flies its flights in safe mode, thrust off.
 pub fn blob_refusal(config: &ExperimentConfig, blob_path: &Path) -> Result<Option<String>, ExperimentError> {
+    config.planar_family("the onboard controller")?;
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
-    Ok(with_flight_problem!(config.family.problem, N, P => {
+    Ok(with_flight_problem!(config.problem(), N, P => {
         match Controller::<N>::load::<P>(&blob) {
             Controller::Network(_) => None,
             Controller::SafeMode(e) => Some(e.to_string()),

@@ -160,7 +160,7 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
 
     // A config of another problem than the demonstrations: refused before any work.
     let mut other = config.clone();
-    other.family = ScenarioKind::RendezvousCircular.family();
+    other.family = shared::mission::SpatialFamily::planar(ScenarioKind::RendezvousCircular.family());
     let err = dagger(&other, &dir, &dir.join("rendezvous"), &start, None).unwrap_err();
     assert!(!dir.join("rendezvous").exists(), "{err}");
     // Relabels arriving early among demonstrations on time: refused before any work.

@@ -16,7 +16,7 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
     let dir = scratch_dir("dagger-rendezvous");
     let dataset = toy_dataset_of(&dir, ScenarioKind::RendezvousCircular);
     let mut config = toy_config(&dataset);
-    config.family = ScenarioKind::RendezvousCircular.family();
+    config.family = shared::mission::SpatialFamily::planar(ScenarioKind::RendezvousCircular.family());
     config.generate.final_eps = 0.3;
     config.dagger.episodes = 4;
     config.dagger.fractions = vec![0.5, 0.75];

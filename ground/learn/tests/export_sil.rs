@@ -102,7 +102,7 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
 
     // SIL without dispersions flies exactly the ground environment's episodes (same onboard
     // network through the environment's own step).
-    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, 12);
+    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, 12);
     for bytes in [&f32_bytes, &int8_bytes] {
         let policy = OnboardPolicy::load(bytes, ProblemKind::Transfer).unwrap();
         let ground =
@@ -240,7 +240,7 @@ threads = 1
     let checkpoint = dir.join("agent.safetensors");
     agent.save(&checkpoint).unwrap();
     let report = export(&config, &dir, &checkpoint, &dir.join("export")).unwrap();
-    let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, 8);
+    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, 8);
     for file in [&report.f32.file, &report.int8.file] {
         let bytes = std::fs::read(file).unwrap();
         // Without dispersions the SIL loop flies the environment's episodes bit for bit: the

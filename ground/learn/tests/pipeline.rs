@@ -124,7 +124,7 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
     // The checkpoint names its family: a config of another family of the same problem refuses
     // it where it is used, both named.
     let mut transfer_hard = config.clone();
-    transfer_hard.family = ScenarioKind::TransferHard.family();
+    transfer_hard.family = shared::mission::SpatialFamily::planar(ScenarioKind::TransferHard.family());
     match monte_carlo(&transfer_hard, &best, &dir.join("mc-other"), Some(2), Some(0)) {
         Err(e) => {
             let why = e.to_string();

@@ -47,7 +47,7 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
     for dir in dirs {
         let model = open_model(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
         let config = &model.config;
-        let problem = config.family.problem;
+        let problem = config.problem();
         let card_share = model
             .card
             .monte_carlo
@@ -56,7 +56,7 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
         assert_eq!(model.card.monte_carlo_seed, config.seeds.monte_carlo);
         let blob_path = dir.join(blob_file(problem, Quantization::F32));
         let blob = std::fs::read(&blob_path).unwrap();
-        let scenarios = draw_scenarios(config.family, config.seeds.monte_carlo, FLIGHTS);
+        let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, FLIGHTS);
         let alone = |blob: &[u8]| {
             let flights = SilFlights::network_alone(&Dispersions::NONE, config.seeds.monte_carlo);
             fly_blob(config, blob, &scenarios, &flights).unwrap()

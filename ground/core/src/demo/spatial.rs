@@ -164,8 +164,8 @@ fn craft(s: &SpatialSample) -> SpatialCraftState {
     SpatialCraftState { orbit: s.state, m: s.m }
 }
 
-/// The tuples of a converged three-dimensional record for problem `P` ([`Transfer3`] or
-/// [`Rendezvous3`]), from departure in the episode of its scenario, with the one-step mismatch
+/// The tuples of a converged three-dimensional record for problem `P` ([`env::Transfer3`] or
+/// [`env::Rendezvous3`]), from departure in the episode of its scenario, with the one-step mismatch
 /// of every cycle: observations, rewards and done flags are the environment's at the record's
 /// states, the actions encode the record's RTN ZOH controls (docs/spec.md section 7.1).
 /// `tolerances` re-integrate the state-costate system; the environment flies with `config`'s.

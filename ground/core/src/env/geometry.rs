@@ -28,6 +28,9 @@ pub trait Geometry: Send + Sync + Copy + core::fmt::Debug + PartialEq + 'static 
     /// `[f32; ACT]`: what the network outputs.
     type Action: Copy + core::fmt::Debug + PartialEq + Send + Sync + AsRef<[f32]> + for<'a> TryFrom<&'a [f32]> + 'static;
 
+    /// A family of this geometry's: a planar one only when both planes are the reference
+    /// plane; every family in three dimensions.
+    fn family_of(family: &SpatialFamily) -> Option<Self::Family>;
     /// Scenario `index` of the stream `seed` of `family`.
     fn draw(family: &Self::Family, seed: u64, index: u64) -> Self::Scenario;
     /// The scenario's planar part: problem, cycles, cycle length, target shape and anomaly
@@ -80,6 +83,10 @@ impl Geometry for Planar {
     type Command = ThrustCommand;
     type Action = [f32; ACTION_LEN];
 
+    fn family_of(family: &SpatialFamily) -> Option<MissionFamily> {
+        family.as_planar()
+    }
+
     fn draw(family: &MissionFamily, seed: u64, index: u64) -> Scenario {
         family.draw(seed, index)
     }
@@ -126,6 +133,10 @@ impl Geometry for Spatial {
     type State = SpatialCraftState;
     type Command = RtnCommand;
     type Action = [f32; ACTION3_LEN];
+
+    fn family_of(family: &SpatialFamily) -> Option<SpatialFamily> {
+        Some(*family)
+    }
 
     fn draw(family: &SpatialFamily, seed: u64, index: u64) -> SpatialScenario {
         family.draw(seed, index)

@@ -189,7 +189,8 @@ pub fn dagger(
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
-    with_problem!(config.family.problem, P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
+    config.planar_family("relabelling rounds")?;
+    with_problem!(config.problem(), P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
 }
 
 /// The relabels of another run's completed rounds (1, 2, ... while both a round's relabels and

@@ -19,7 +19,7 @@ use crate::sac::replay::{ReplayBuffer, Transition};
 use crate::sil::{fly_blob, SilFlights};
 use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
 use ground_core::env::batch::evaluate_batched;
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::env::{Geometry, MdpEnv, Planar, Problem};
 use ground_core::io::{decode_container, encode_container};
 use onboard::dynamics::SpacecraftState;
 
@@ -71,7 +71,7 @@ pub(crate) fn solve_job<P: Problem<Geometry = Planar>>(
     job: &RelabelJob,
 ) -> Solved {
     let index = first + job.episode;
-    let scenario = config.family.draw(config.seeds.train, index);
+    let scenario = config.family.family.draw(config.seeds.train, index);
     let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
     // to 10.9 % within the goal (docs/results.md).
@@ -83,7 +83,7 @@ pub(crate) fn solve_job<P: Problem<Geometry = Planar>>(
         m,
     };
     let (record, placement) = relabel(
-        &config.family,
+        &config.family.family,
         (config.seeds.train, index),
         &scenario,
         &state,
@@ -147,7 +147,7 @@ pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
     let first = ROUND_STRIDE * round;
     let candidates = dagger.candidates.unwrap_or(dagger.episodes);
     let scenarios: Vec<Scenario> = (first..first + candidates)
-        .map(|i| config.family.draw(config.seeds.train, i))
+        .map(|i| config.family.family.draw(config.seeds.train, i))
         .collect();
     let flown = if dagger.dispersed {
         // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:
@@ -243,7 +243,7 @@ pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
     };
     bar.finish_and_clear();
     let count: usize = solved.iter().map(Vec::len).sum();
-    let mut tuples = ReplayBuffer::new(P::OBS, 3, count.max(1));
+    let mut tuples = ReplayBuffer::new(P::OBS, P::Geometry::ACT, count.max(1));
     for t in solved.iter().flatten() {
         tuples.push(&Transition {
             obs: &t.obs,

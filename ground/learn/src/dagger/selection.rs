@@ -80,7 +80,7 @@ pub(crate) fn walk_probes<T, E>(
 
 /// The learner's flown actor as an f32 blob of the config's mission.
 pub(crate) fn flown_blob(agent: &Sac, config: &ExperimentConfig) -> Result<Vec<u8>, ExperimentError> {
-    actor_network(agent, config.family.problem)?
+    actor_network(agent, config.problem())?
         .f32_blob_for("relabelling round", config.blob_mission())
         .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))
 }
@@ -103,14 +103,14 @@ pub(crate) fn score<P: Problem<Geometry = Planar>>(
     let outcomes = evaluate_agent::<MdpEnv<P>>(
         agent,
         &config.env,
-        config.family,
+        config.family.family,
         config.seeds.evaluation,
         config.dagger.score_episodes,
         false,
     )?;
     let within_goal_dispersed = if config.dagger.dispersed {
         let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
-            .map(|i| config.family.draw(config.seeds.evaluation, i))
+            .map(|i| config.family.family.draw(config.seeds.evaluation, i))
             .collect();
         let blob = flown_blob(agent, config)?;
         let dispersions = &config.sil.dispersions;

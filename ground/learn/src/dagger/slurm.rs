@@ -58,12 +58,12 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
     let request: RelabelRequest = decode_container(REQUEST_MAGIC, REQUEST_VERSION, &bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("relabel request {}: {e}", request_path.display())))?;
     let config = ExperimentConfig::from_toml(&request.config)?;
+    config.planar_family("relabelling")?;
     let mine: Vec<(u64, &RelabelJob)> = (task..request.jobs.len() as u64)
         .step_by(tasks as usize)
         .map(|i| (i, &request.jobs[i as usize]))
         .collect();
-    let solve =
-        |job: &RelabelJob| with_problem!(config.family.problem, P => solve_job::<P>(&config, request.first, job));
+    let solve = |job: &RelabelJob| with_problem!(config.problem(), P => solve_job::<P>(&config, request.first, job));
     let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
     let out = shard_file(request_path, task, tasks);
     let shard = RelabelShard {

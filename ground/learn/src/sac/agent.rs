@@ -1041,7 +1041,10 @@ mod tests {
                 initial_log_temperature: -1.0,
                 ..SacConfig::default()
             };
-            let cloning = crate::cloning::ThrustError { log_throttle: true };
+            let cloning = crate::cloning::ThrustError {
+                log_throttle: true,
+                components: 3,
+            };
             let sac = Sac::with_cloning_loss(config, 5, 3, Device::Cpu, Box::new(cloning));
             tch::no_grad(|| {
                 let log_std_bias = &sac.actor_store.variables()["actor.log_std.bias"];
