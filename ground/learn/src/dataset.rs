@@ -23,7 +23,7 @@ pub fn demonstrations(
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let manifest = Manifest {
-        family: config.family,
+        family: config.planar_family("the demonstrations dataset")?,
         seed: config.generate.seed,
         count: config.generate.count,
     };
