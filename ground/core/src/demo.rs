@@ -591,6 +591,81 @@ impl<O, A> Demonstrations<O, A> {
     }
 }
 
+/// The tuples of a dataset file and what its records were solved for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetTuples<O, A> {
+    /// The tuples of its records.
+    pub demonstrations: Demonstrations<O, A>,
+    /// The family its records were drawn from (a planar one in the reference plane).
+    pub family: shared::mission::SpatialFamily,
+    /// Records in the file.
+    pub records: usize,
+    /// Cycles before the end of its episode a record was solved to arrive
+    /// ([`SolveOptions::arrival_margin_steps`]).
+    pub arrival_margin: u32,
+}
+
+/// How a geometry's datasets become tuples (docs/spec.md sections 7 and 7.1): the planar
+/// records' and the three-dimensional records'.
+pub trait DemoGeometry: crate::env::Geometry {
+    /// The tuples of the dataset file at `path` for problem `P` under `config`, `filter`
+    /// choosing the records (three-dimensional records keep samples only when converged: the
+    /// converged ones are used whatever the filter), `tolerances` re-integrating each record.
+    fn dataset_tuples<P: Problem<Geometry = Self>>(
+        path: &Path,
+        config: &EnvConfig,
+        filter: RecordFilter,
+        tolerances: &Tolerances,
+    ) -> Result<DatasetTuples<P::Obs, Self::Action>, DemoError>;
+}
+
+impl DemoGeometry for Planar {
+    fn dataset_tuples<P: Problem<Geometry = Self>>(
+        path: &Path,
+        config: &EnvConfig,
+        filter: RecordFilter,
+        tolerances: &Tolerances,
+    ) -> Result<DatasetTuples<P::Obs, [f32; ACTION_LEN]>, DemoError> {
+        let dataset = read_dataset(path)?;
+        // The run's request says its margin; a folder without one (written before it existed,
+        // or a file moved out of its folder) shows it by its records.
+        let arrival_margin = match crate::generate::dataset_solve_request(path)? {
+            Some(request) => request.arrival_margin_steps,
+            None => dataset
+                .records
+                .iter()
+                .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
+                .max()
+                .unwrap_or(0),
+        };
+        Ok(DatasetTuples {
+            demonstrations: demonstrations::<P>(&dataset.records, config, filter, tolerances),
+            family: shared::mission::SpatialFamily::planar(dataset.manifest.family),
+            records: dataset.records.len(),
+            arrival_margin,
+        })
+    }
+}
+
+impl DemoGeometry for crate::env::Spatial {
+    fn dataset_tuples<P: Problem<Geometry = Self>>(
+        path: &Path,
+        config: &EnvConfig,
+        _filter: RecordFilter,
+        tolerances: &Tolerances,
+    ) -> Result<DatasetTuples<P::Obs, [f32; onboard::features::ACTION3_LEN]>, DemoError> {
+        let dataset = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(path)?;
+        Ok(DatasetTuples {
+            demonstrations: spatial::spatial_demonstrations::<P>(&dataset.records, config, tolerances),
+            family: dataset.manifest.family,
+            records: dataset.records.len(),
+            // Three-dimensional records are solved to arrive on time (an arrival margin is
+            // refused for them).
+            arrival_margin: 0,
+        })
+    }
+}
+
 /// Statistics of the one-step mismatch over a dataset, split into coast steps (ZOH throttle 0),
 /// full-thrust steps (mean throttle 1) and the rest (switches or partial throttle inside).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -10,19 +10,19 @@ use rand_chacha::ChaCha8Rng;
 use rand_core::SeedableRng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::Scenario;
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
-use crate::phase::policy_batch;
+use crate::phase::{family_of, policy_batch};
 use crate::sac::agent::{read_checked_safetensors, Sac};
 use crate::sac::trainer::uniform_action;
+use crate::with_flown_problem;
 use ground_core::charts::{flown_trajectories, histogram_grid, FlownPath, Panel};
-use ground_core::env::batch::{draw_scenarios, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
+use ground_core::env::{ActionOf, Geometry, MdpEnv, Planar, Problem, ScenarioOf};
+use ground_core::generate::{DatasetFamily, DatasetRecord};
 use ground_core::io::atomic_write;
-use ground_core::solver::{solve_scenario, SolveOptions};
-use ground_core::with_problem;
+use ground_core::solver::SolveOptions;
 
 /// Episodes whose flown path is drawn.
 const PLOTTED_TRAJECTORIES: usize = 6;
@@ -136,11 +136,11 @@ pub const ECCENTRICITY_EDGES: [f64; 5] = [0.0, 0.2, 0.4, 0.6, 1.0];
 
 /// The goal's share on the gap's scenarios that the indirect method solved (`policy[i]` flew
 /// scenario i; each gap row names its episode). None without gap rows.
-pub fn share_where_solved(policy: &[EpisodeOutcome], gap: &[GapRow]) -> Option<SolvedShare> {
+pub fn share_where_solved<G: Geometry>(policy: &[EpisodeOutcome<G>], gap: &[GapRow]) -> Option<SolvedShare> {
     if gap.is_empty() {
         return None;
     }
-    let flown = |converged: bool| -> Vec<EpisodeOutcome> {
+    let flown = |converged: bool| -> Vec<EpisodeOutcome<G>> {
         gap.iter()
             .filter(|g| g.optimal_converged == converged)
             .filter_map(|g| policy.get(g.episode).cloned())
@@ -158,12 +158,15 @@ pub fn share_where_solved(policy: &[EpisodeOutcome], gap: &[GapRow]) -> Option<S
 /// The goal's share by the larger eccentricity of each scenario's two orbits, in the bands of
 /// [`ECCENTRICITY_EDGES`] that hold episodes; empty when every scenario is near-circular (below
 /// the first inner edge). `policy[i]` flew `scenarios[i]`.
-pub fn accuracy_by_eccentricity(
-    scenarios: &[Scenario],
-    policy: &[EpisodeOutcome],
+pub fn accuracy_by_eccentricity<G: Geometry>(
+    scenarios: &[ScenarioOf<G>],
+    policy: &[EpisodeOutcome<G>],
     gap: &[GapRow],
 ) -> Vec<EccentricityBand> {
-    let eccentricity = |s: &Scenario| s.initial.shape.e.max(s.target.e);
+    let eccentricity = |s: &ScenarioOf<G>| {
+        let plan = G::plan(s);
+        plan.initial.shape.e.max(plan.target.e)
+    };
     if scenarios.iter().all(|s| eccentricity(s) < ECCENTRICITY_EDGES[1]) {
         return Vec::new();
     }
@@ -175,7 +178,7 @@ pub fn accuracy_by_eccentricity(
                     .get(i)
                     .is_some_and(|s| (edge[0]..edge[1]).contains(&eccentricity(s)))
             };
-            let outcomes: Vec<EpisodeOutcome> = policy.iter().filter(|o| inside(o.episode)).cloned().collect();
+            let outcomes: Vec<EpisodeOutcome<G>> = policy.iter().filter(|o| inside(o.episode)).cloned().collect();
             if outcomes.is_empty() {
                 return None;
             }
@@ -212,8 +215,12 @@ pub struct AccuracyBand {
 
 /// The goal's share in `bands` equal groups of the policy's completed episodes, ordered by the
 /// zero-thrust miss of the same scenario (`zero[i]` flew `policy[i]`'s scenario).
-pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome], bands: usize) -> Vec<AccuracyBand> {
-    let mut paired: Vec<(f64, &EpisodeOutcome)> = policy
+pub fn accuracy_by_coast_miss<G: Geometry>(
+    policy: &[EpisodeOutcome<G>],
+    zero: &[EpisodeOutcome<G>],
+    bands: usize,
+) -> Vec<AccuracyBand> {
+    let mut paired: Vec<(f64, &EpisodeOutcome<G>)> = policy
         .iter()
         .zip(zero)
         .filter(|(p, z)| p.completed && z.completed)
@@ -226,7 +233,7 @@ pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome]
     (0..bands)
         .map(|b| {
             let band = &paired[b * n / bands..(b + 1) * n / bands];
-            let outcomes: Vec<EpisodeOutcome> = band.iter().map(|(_, p)| (*p).clone()).collect();
+            let outcomes: Vec<EpisodeOutcome<G>> = band.iter().map(|(_, p)| (*p).clone()).collect();
             AccuracyBand {
                 coast_miss_min: band[0].0,
                 coast_miss_max: band[band.len() - 1].0,
@@ -240,19 +247,19 @@ pub fn accuracy_by_coast_miss(policy: &[EpisodeOutcome], zero: &[EpisodeOutcome]
 
 /// Fraction of the completed episodes that end with |dr| <= 0.01 AU and |dv| <= 0.01
 /// ([`ACCURACY_GOAL`], the accuracy goal).
-pub fn within_accuracy_goal(outcomes: &[EpisodeOutcome]) -> f64 {
+pub fn within_accuracy_goal<G: Geometry>(outcomes: &[EpisodeOutcome<G>]) -> f64 {
     within_tolerance(outcomes, ACCURACY_GOAL)
 }
 
 /// Fraction of the completed episodes that end with |dr| <= `tolerance` AU and |dv| <=
 /// `tolerance`.
-pub fn within_tolerance(outcomes: &[EpisodeOutcome], tolerance: f64) -> f64 {
+pub fn within_tolerance<G: Geometry>(outcomes: &[EpisodeOutcome<G>], tolerance: f64) -> f64 {
     outcomes.iter().filter(|o| meets(o, tolerance)).count() as f64
         / outcomes.iter().filter(|o| o.completed).count().max(1) as f64
 }
 
 /// A completed episode that ends with |dr| <= `tolerance` AU and |dv| <= `tolerance`.
-fn meets(outcome: &EpisodeOutcome, tolerance: f64) -> bool {
+fn meets<G: Geometry>(outcome: &EpisodeOutcome<G>, tolerance: f64) -> bool {
     outcome.completed && outcome.terminal.position <= tolerance && outcome.terminal.velocity <= tolerance
 }
 
@@ -265,8 +272,7 @@ pub fn monte_carlo(
     episodes: Option<u64>,
     gap_cases: Option<u64>,
 ) -> Result<MonteCarloReport, ExperimentError> {
-    config.planar_family("the Monte Carlo evaluation")?;
-    with_problem!(config.problem(), P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
+    with_flown_problem!(config, P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
 }
 
 /// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a
@@ -291,12 +297,12 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
     Ok(agent)
 }
 
-fn fly<P: Problem<Geometry = Planar>>(
+fn fly<P: Problem>(
     config: &ExperimentConfig,
-    scenarios: &[Scenario],
-    policy: impl FnMut(&[P::Obs]) -> Vec<[f32; 3]>,
+    scenarios: &[ScenarioOf<P::Geometry>],
+    policy: impl FnMut(&[P::Obs]) -> Vec<ActionOf<P::Geometry>>,
     record: bool,
-) -> Result<Vec<EpisodeOutcome>, ExperimentError> {
+) -> Result<Vec<EpisodeOutcome<P::Geometry>>, ExperimentError> {
     Ok(evaluate_batched::<MdpEnv<P>, _>(
         &config.env,
         scenarios,
@@ -305,7 +311,7 @@ fn fly<P: Problem<Geometry = Planar>>(
     )?)
 }
 
-fn monte_carlo_for<P: Problem<Geometry = Planar>>(
+fn monte_carlo_for<P: Problem>(
     config: &ExperimentConfig,
     checkpoint: &Path,
     out: &Path,
@@ -319,7 +325,8 @@ fn monte_carlo_for<P: Problem<Geometry = Planar>>(
     }
     let agent = load_agent(config, P::OBS, checkpoint)?;
     let seed = config.seeds.monte_carlo;
-    let scenarios = draw_scenarios(config.family.family, seed, n);
+    let family = family_of::<P::Geometry>(config)?;
+    let scenarios: Vec<_> = (0..n).map(|i| P::Geometry::draw(&family, seed, i)).collect();
     let bar = ground_core::progress::spinner(format!("Monte Carlo: {n} episodes"));
     // Trajectories are kept only for the plotted few (memory stays flat for 10^4 episodes).
     let policy = fly::<P>(config, &scenarios, |obs| policy_batch(&agent, obs), false)?;
@@ -340,22 +347,22 @@ fn monte_carlo_for<P: Problem<Geometry = Planar>>(
 
 /// A policy's Monte Carlo flights, however flown: the scenarios, one outcome per scenario, and
 /// the outcomes whose trajectories are drawn.
-pub struct Flown<'a> {
+pub struct Flown<'a, G: Geometry = Planar> {
     /// The scenarios flown, in order.
-    pub scenarios: &'a [Scenario],
+    pub scenarios: &'a [ScenarioOf<G>],
     /// One outcome per scenario.
-    pub policy: &'a [EpisodeOutcome],
+    pub policy: &'a [EpisodeOutcome<G>],
     /// The outcomes whose paths are plotted (their trajectories recorded).
-    pub plotted: &'a [EpisodeOutcome],
+    pub plotted: &'a [EpisodeOutcome<G>],
 }
 
 /// The Monte Carlo report of a policy's `outcomes` on `scenarios` (flown by whatever flew it:
 /// the tch actor here, the SIL loop in [`crate::sil`]): the zero-thrust and random baselines on
 /// the same scenarios, the optimality gap on the first ones, the files in `out`.
-pub fn report_and_write<P: Problem<Geometry = Planar>>(
+pub fn report_and_write<P: Problem>(
     config: &ExperimentConfig,
     source: &Path,
-    flown: &Flown,
+    flown: &Flown<P::Geometry>,
     out: &Path,
     gap_cases: Option<u64>,
     start: Instant,
@@ -367,24 +374,26 @@ pub fn report_and_write<P: Problem<Geometry = Planar>>(
     } = *flown;
     let seed = config.seeds.monte_carlo;
     let n = scenarios.len() as u64;
-    let zero = fly::<P>(config, scenarios, |obs| vec![[-1.0, 0.0, 0.0]; obs.len()], false)?;
+    let zero = fly::<P>(
+        config,
+        scenarios,
+        |obs| vec![P::Geometry::zero_thrust_action(); obs.len()],
+        false,
+    )?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a6e_646f);
     let random = fly::<P>(
         config,
         scenarios,
         |obs| {
             obs.iter()
-                .map(|_| {
-                    let a = uniform_action(&mut rng, 3);
-                    [a[0], a[1], a[2]]
-                })
+                .filter_map(|_| ActionOf::<P::Geometry>::try_from(&uniform_action(&mut rng, P::Geometry::ACT)[..]).ok())
                 .collect()
         },
         false,
     )?;
 
     let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
-    let gap = optimality_gap(config, &scenarios[..k], &policy[..k.min(policy.len())]);
+    let gap = optimality_gap(config, k, policy)?;
     let within = within_accuracy_goal(policy);
     let usable: Vec<&GapRow> = gap
         .iter()
@@ -415,37 +424,38 @@ pub fn report_and_write<P: Problem<Geometry = Planar>>(
     Ok(report)
 }
 
-/// Indirect solutions of `scenarios` (in parallel) against the policy's final masses.
-fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[EpisodeOutcome]) -> Vec<GapRow> {
+/// Indirect solutions of the first `cases` Monte Carlo draws (in parallel; the draws the
+/// policy flew) against the policy's final masses: planar draws by the planar method, inclined
+/// ones by the three-dimensional one.
+fn optimality_gap<G: Geometry>(
+    config: &ExperimentConfig,
+    cases: usize,
+    policy: &[EpisodeOutcome<G>],
+) -> Result<Vec<GapRow>, ExperimentError> {
+    let family = family_of::<G>(config)?;
     let Ok(spacecraft) = config.env.canonical_spacecraft() else {
-        return Vec::new();
+        return Ok(Vec::new());
     };
     let options = SolveOptions::default();
+    let cases = cases.min(policy.len());
     let bar = ground_core::progress::bar(
-        scenarios.len() as u64,
+        cases as u64,
         "optimality gap {bar:30} {pos}/{len} indirect solves [{elapsed}<{eta}]",
     );
-    let rows = scenarios
+    let rows = policy[..cases]
         .par_iter()
-        .zip(policy.par_iter())
         .enumerate()
-        .map(|(i, (scenario, flown))| {
-            let record = solve_scenario(
-                config.family.family,
-                config.seeds.monte_carlo,
-                i as u64,
-                scenario,
-                &spacecraft,
-                &options,
-            );
+        .map(|(i, flown)| {
+            let record = family.solve(config.seeds.monte_carlo, i as u64, &spacecraft, &options);
+            let figures = record.figures();
             bar.inc(1);
-            let optimal = record.final_mass;
+            let optimal = figures.final_mass;
             GapRow {
                 episode: i,
                 policy_mass: flown.final_mass,
                 optimal_mass: optimal,
-                optimal_converged: record.converged,
-                optimal_eps: record.final_eps,
+                optimal_converged: figures.converged,
+                optimal_eps: figures.final_eps,
                 mass_ratio: flown.final_mass / optimal,
                 overspend: (1.0 - flown.final_mass) / (1.0 - optimal) - 1.0,
                 policy_dr: flown.terminal.position,
@@ -454,17 +464,17 @@ fn optimality_gap(config: &ExperimentConfig, scenarios: &[Scenario], policy: &[E
         })
         .collect();
     bar.finish_and_clear();
-    rows
+    Ok(rows)
 }
 
-fn write_outputs(
+fn write_outputs<G: Geometry>(
     out: &Path,
     report: &MonteCarloReport,
-    policy: &[EpisodeOutcome],
-    zero: &[EpisodeOutcome],
-    random: &[EpisodeOutcome],
-    scenarios: &[Scenario],
-    plotted: &[EpisodeOutcome],
+    policy: &[EpisodeOutcome<G>],
+    zero: &[EpisodeOutcome<G>],
+    random: &[EpisodeOutcome<G>],
+    scenarios: &[ScenarioOf<G>],
+    plotted: &[EpisodeOutcome<G>],
 ) -> Result<(), ExperimentError> {
     let write = |name: &str, bytes: &[u8]| {
         let path = out.join(name);
@@ -545,26 +555,32 @@ fn write_outputs(
         &panels,
         40,
     );
+    // Flights between orbits of the reference plane are drawn in it; inclined ones are not.
     let paths: Vec<FlownPath> = plotted
         .iter()
         .filter_map(|o| {
             let t = o.trajectory.as_ref()?;
-            let s = scenarios.get(o.episode)?;
+            let (initial, target) = G::reference_orbits(scenarios.get(o.episode)?)?;
             Some(FlownPath {
                 label: format!(
                     "#{}: m_f {:.4}, dr {:.4} AU",
                     o.episode, o.final_mass, o.terminal.position
                 ),
-                initial: s.initial.shape,
-                target: s.target,
+                initial,
+                target,
                 points: t
                     .iter()
-                    .map(|p| (p.state.r[0], p.state.r[1], p.command.map_or(0.0, |c| c.throttle)))
+                    .map(|p| {
+                        let [x, y, _] = G::position(&p.state);
+                        (x, y, p.command.map_or(0.0, |c| G::throttle(&c)))
+                    })
                     .collect(),
             })
         })
         .collect();
-    let _ = flown_trajectories(&out.join("trajectories.svg"), "Flown by the policy", &paths);
+    if !paths.is_empty() {
+        let _ = flown_trajectories(&out.join("trajectories.svg"), "Flown by the policy", &paths);
+    }
     Ok(())
 }
 
@@ -771,7 +787,7 @@ mod tests {
             (0.65, 0.62),
             (0.0, 0.19),
         ];
-        let scenarios: Vec<Scenario> = es
+        let scenarios: Vec<shared::scenario::Scenario> = es
             .iter()
             .enumerate()
             .map(|(i, &(e0, ef))| {
@@ -800,7 +816,7 @@ mod tests {
         assert_eq!(bands[1].where_solved, Some((2, 0.5)));
         assert_eq!(bands[2].where_solved, None);
         // Near-circular draws give no bands.
-        let circular: Vec<Scenario> = (0..6)
+        let circular: Vec<shared::scenario::Scenario> = (0..6)
             .map(|i| shared::scenario::ScenarioKind::TransferCircular.draw(1, i))
             .collect();
         assert!(accuracy_by_eccentricity(&circular, &policy, &gap).is_empty());

@@ -14,67 +14,65 @@ use crate::error::ExperimentError;
 use crate::phase::{load_state, new_agent, Phase, PhaseSummary};
 use crate::run_folder::{prepare_run, save_replay};
 use crate::sac::replay::{sampler, ReplayBuffer, Transition};
-use ground_core::demo::{default_tolerances, demonstrations, Demonstrations, Placement};
-use ground_core::env::{Geometry, MdpEnv, Planar, Problem};
-use ground_core::generate::{dataset_solve_request, read_dataset};
-use ground_core::with_problem;
+use crate::with_flown_problem;
+use ground_core::demo::{default_tolerances, DemoGeometry, Demonstrations};
+use ground_core::env::{ActionOf, Geometry, MdpEnv, Problem};
 
 /// `ground train pretrain`: demonstrations into the buffer, N_pt updates, evaluations every
-/// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8).
+/// `pretrain.eval_every` updates, the best model kept (docs/spec.md section 8). An inclined
+/// family learns from a three-dimensional dataset (docs/spec.md section 7.1).
 pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Result<PhaseSummary, ExperimentError> {
-    config.planar_family("pretraining")?;
-    with_problem!(config.problem(), P => pretrain_for::<P>(config, config_dir, run))
+    with_flown_problem!(config, P => pretrain_for::<P>(config, config_dir, run))
 }
 
+/// The demonstration tuples of problem `P`.
+pub type ProblemDemonstrations<P> = Demonstrations<<P as Problem>::Obs, ActionOf<<P as Problem>::Geometry>>;
+
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
-/// problem, central body, guidance cycle or arrival margin), with the dataset file and its
-/// record count.
-pub fn load_demonstrations<P: Problem<Geometry = Planar>>(
+/// problem, central body, guidance cycle, arrival margin or dimension), with the dataset file
+/// and its record count.
+pub fn load_demonstrations<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
-) -> Result<(Demonstrations<P::Obs>, PathBuf, usize), ExperimentError> {
+) -> Result<(ProblemDemonstrations<P>, PathBuf, usize), ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
     let file = config.dataset_file(config_dir)?;
-    let dataset = read_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
-    let (theirs, ours) = (&dataset.manifest.family, &config.family.family);
+    let filter = config.pretrain.records;
+    let tuples = P::Geometry::dataset_tuples::<P>(&file, &config.env, filter, &default_tolerances())
+        .map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
+    let (theirs, ours) = (&tuples.family.family, &config.family.family);
     // Another range of orbits is still the same physics; another body or cycle is not.
     if theirs.problem != P::KIND || theirs.body != ours.body || theirs.cycle != ours.cycle {
         return Err(ExperimentError::Mismatch(format!(
             "dataset {} holds {} trajectories, the config is for {}",
             file.display(),
-            dataset.manifest.family.label(),
+            tuples.family.label(),
             config.family.label()
         )));
     }
     // Relabels are solved with the config's margin: demonstrations of another would teach two
-    // arrival times. The run's request says it; a folder without one (written before it
-    // existed, or a file moved out of its folder) shows it by its records.
-    let request = dataset_solve_request(&file).map_err(|e| ExperimentError::Dataset(e.to_string()))?;
-    let margin = match request {
-        Some(request) => request.arrival_margin_steps,
-        None => dataset
-            .records
-            .iter()
-            .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
-            .max()
-            .unwrap_or(0),
-    };
-    if margin != config.generate.arrival_margin {
+    // arrival times.
+    if tuples.arrival_margin != config.generate.arrival_margin {
         return Err(ExperimentError::Mismatch(format!(
-            "dataset {} was solved to arrive {margin} steps early, the config asks for generate.arrival_margin = {}",
+            "dataset {} was solved to arrive {} steps early, the config asks for generate.arrival_margin = {}",
             file.display(),
+            tuples.arrival_margin,
             config.generate.arrival_margin
         )));
     }
-    let filter = config.pretrain.records;
-    let demos = demonstrations::<P>(&dataset.records, &config.env, filter, &default_tolerances());
-    Ok((demos, file, dataset.records.len()))
+    Ok((tuples.demonstrations, file, tuples.records))
 }
 
 /// The demonstration tuples of the config's dataset as replay transitions.
-pub fn demonstration_buffer<P: Problem<Geometry = Planar>>(
+pub fn demonstration_buffer<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
-) -> Result<(ReplayBuffer, usize), ExperimentError> {
+) -> Result<(ReplayBuffer, usize), ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
     let (demos, file, records) = load_demonstrations::<P>(config, config_dir)?;
     if demos.transitions.is_empty() {
         return Err(ExperimentError::Dataset(format!(
@@ -95,14 +93,14 @@ pub fn demonstration_buffer<P: Problem<Geometry = Planar>>(
 }
 
 /// Appends demonstration tuples to a replay buffer, flagged as demonstrations.
-pub fn push_demonstrations<O: AsRef<[f32]>>(
+pub fn push_demonstrations<O: AsRef<[f32]>, A: AsRef<[f32]>>(
     buffer: &mut ReplayBuffer,
-    transitions: &[ground_core::demo::Transition<O>],
+    transitions: &[ground_core::demo::Transition<O, A>],
 ) {
     for t in transitions {
         buffer.push(&Transition {
             obs: t.observation.as_ref(),
-            action: &t.action,
+            action: t.action.as_ref(),
             reward: t.reward as f32,
             next_obs: t.next_observation.as_ref(),
             done: t.done,
@@ -111,11 +109,14 @@ pub fn push_demonstrations<O: AsRef<[f32]>>(
     }
 }
 
-fn pretrain_for<P: Problem<Geometry = Planar>>(
+fn pretrain_for<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
     run: &Path,
-) -> Result<PhaseSummary, ExperimentError> {
+) -> Result<PhaseSummary, ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
     let device = config.device()?;
     let (buffer, used) = demonstration_buffer::<P>(config, config_dir)?;
     prepare_run(config, run)?;

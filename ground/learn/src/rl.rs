@@ -226,7 +226,7 @@ impl<E: Environment> Episodic for ScenarioTask<E> {
 
     fn reset(&mut self, episode: u64) -> Result<Vec<f32>, EnvError> {
         self.env
-            .reset_drawn(self.family.clone(), self.seed, episode)
+            .reset_drawn(self.family, self.seed, episode)
             .map(|o| o.as_ref().to_vec())
     }
 

@@ -1,23 +1,81 @@
-//! An inclined family is learned in three dimensions: RL from scratch flies the 3D transfer
-//! environment with 4-component actions, evaluates, checkpoints and resumes to the same
-//! learner; the stages that fly planar families only refuse it by name, before any work.
+//! An inclined family is learned in three dimensions: pretraining on a three-dimensional
+//! dataset, RL from the pretrained model in the 3D transfer environment with 4-component
+//! actions, and the Monte Carlo with its optimality gap solved in 3D; a planar dataset is refused
+//! for it, and the stages that fly planar families only refuse it by name, before any work.
+
+use std::path::{Path, PathBuf};
 
 use ground_core::env::{Environment, Transfer3Env};
+use ground_core::generate::{generate, Manifest, Shard};
+use ground_core::solver::SolveOptions;
 use learn::config::ExperimentConfig;
 use learn::error::ExperimentError;
 use learn::rl::{train, Start};
 use shared::mission::{PlaneRanges, SpatialFamily};
 use shared::scenario::{Range, ScenarioKind};
+use shared::spacecraft::Spacecraft;
 
-fn scratch_dir(name: &str) -> std::path::PathBuf {
+fn scratch_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
-fn inclined_config() -> ExperimentConfig {
-    let mut config = ExperimentConfig::from_toml(
+/// Transfer-circular's orbits, the target inclined by up to 5 degrees with any node.
+fn inclined() -> SpatialFamily {
+    SpatialFamily {
+        family: ScenarioKind::TransferCircular.family(),
+        departure_plane: PlaneRanges::REFERENCE,
+        target_plane: PlaneRanges {
+            inclination: Range {
+                lo: 1f64.to_radians(),
+                hi: 5f64.to_radians(),
+            },
+            raan: Range {
+                lo: 0.0,
+                hi: std::f64::consts::TAU,
+            },
+        },
+    }
+}
+
+/// Two draws of `family` solved quickly (eps 0.3) into `dir/NAME`.
+fn dataset(dir: &Path, name: &str, family: SpatialFamily) -> PathBuf {
+    let out = dir.join(name);
+    let options = SolveOptions {
+        final_eps: 0.3,
+        ..SolveOptions::default()
+    };
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let converged = match family.as_planar() {
+        Some(planar) => {
+            let manifest = Manifest {
+                family: planar,
+                seed: 9,
+                count: 2,
+            };
+            generate(manifest, Shard::WHOLE, &out, &sc, &options, false)
+                .unwrap()
+                .converged
+        }
+        None => {
+            let manifest = Manifest {
+                family,
+                seed: 9,
+                count: 2,
+            };
+            generate(manifest, Shard::WHOLE, &out, &sc, &options, false)
+                .unwrap()
+                .converged
+        }
+    };
+    assert_eq!(converged, 2, "toy dataset did not solve");
+    out
+}
+
+fn inclined_config(dataset: &Path) -> ExperimentConfig {
+    let mut config = ExperimentConfig::from_toml(&format!(
         r#"
 scenario = "transfer-circular"
 [sac]
@@ -25,82 +83,100 @@ hidden = [32, 32]
 batch_size = 32
 warmup_steps = 60
 replay_capacity = 5000
+[pretrain]
+dataset = "{}"
+updates = 80
+eval_every = 40
+mode = "behaviour-cloning"
+cloning_target = "thrust"
 [train]
 env_steps = 120
 eval_every = 60
 eval_episodes = 3
 checkpoint_every = 60
+[evaluate]
+episodes = 6
+optimality_gap_cases = 1
 "#,
-    )
+        dataset.display()
+    ))
     .unwrap();
-    config.family = SpatialFamily {
-        family: ScenarioKind::TransferCircular.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges {
-            inclination: Range { lo: 0.0, hi: 0.087 },
-            raan: Range {
-                lo: 0.0,
-                hi: 2.0 * core::f64::consts::PI,
-            },
-        },
-    };
+    config.family = inclined();
     config
 }
 
 #[test]
-fn an_inclined_family_trains_in_three_dimensions_and_planar_stages_refuse_it() {
+fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     let dir = scratch_dir("inclined");
-    let config = inclined_config();
+    let spatial = dataset(&dir, "dataset", inclined());
+    let config = inclined_config(&spatial);
     assert!(config.is_inclined());
     assert_eq!(config.action_dim(), 4);
     // The config writes and reads back as the inclined family.
     assert_eq!(ExperimentConfig::from_toml(&config.to_toml()).unwrap(), config);
 
+    // Pretraining on the 3D tuples: every cycle of both records in the buffer.
     let run = dir.join("run");
-    let summary = train(&config, &run, Start::Scratch).unwrap();
+    let pre = learn::pretrain::pretrain(&config, &dir, &run).unwrap();
+    assert_eq!((pre.updates, pre.demonstration_records), (80, 2));
+    let cycles: u32 = (0..2).map(|i| config.family.draw(9, i).scenario.steps).sum();
+    assert_eq!(pre.demonstration_tuples, cycles as usize);
+
+    // RL from the pretrained model and its buffer, in the 3D environment.
+    let summary = train(&config, &run, Start::Pretrained).unwrap();
     assert_eq!(summary.env_steps, 120);
-    // Evaluations at 0, 60 and 120 steps, each over 3 episodes of the 3D environment.
-    let log = std::fs::read_to_string(run.join("train-scratch").join("eval.csv")).unwrap();
+    let best = run.join("train-pretrained").join("best.safetensors");
+    let log = std::fs::read_to_string(run.join("train-pretrained").join("eval.csv")).unwrap();
     assert_eq!(log.lines().count(), 4, "{log}");
-    let agent = learn::eval::load_agent(
-        &config,
-        Transfer3Env::OBS,
-        &run.join("train-scratch").join("best.safetensors"),
-    )
-    .unwrap();
+    let agent = learn::eval::load_agent(&config, Transfer3Env::OBS, &best).unwrap();
     assert_eq!(agent.act_dim(), 4);
-    // Its deterministic actions fly the 3D environment.
     let mut env = Transfer3Env::new(&config.env).unwrap();
     let obs = env.reset(&config.family.draw(1, 0)).unwrap();
     let action: Vec<[f32; 4]> = learn::phase::policy_batch(&agent, &[obs]);
     assert_eq!(action.len(), 1);
     assert!(env.step(&action[0]).is_ok());
 
-    // A second call finds the run complete and gives the same summary.
-    let again = train(&config, &run, Start::Scratch).unwrap();
-    assert_eq!(again.env_steps, summary.env_steps);
+    // The Monte Carlo: every episode flown in 3D, the zero-thrust baseline keeps its mass and
+    // misses, the optimality gap's optimum solved in 3D.
+    let out = dir.join("mc");
+    let report = learn::eval::monte_carlo(&config, &best, &out, None, None).unwrap();
+    assert_eq!((report.episodes, report.policy.completed), (6, 6));
+    let zero = &report.zero_thrust;
+    assert!(zero.final_mass.min == 1.0 && zero.final_mass.max == 1.0, "{zero:?}");
+    assert!(zero.terminal_position.min > 1e-3, "{zero:?}");
+    assert_eq!(report.gap.len(), 1);
+    assert!(report.gap[0].optimal_converged, "{:?}", report.gap[0]);
+    assert!(report.gap[0].optimal_mass < 1.0 && report.gap[0].optimal_mass > 0.7);
+    let mc = std::fs::read_to_string(out.join("mc.csv")).unwrap();
+    assert_eq!(mc.lines().count(), 7);
+    assert!(
+        !out.join("trajectories.svg").exists(),
+        "inclined flights are not drawn in the plane"
+    );
+
+    // A planar dataset is not one of this family's: refused, no pretraining written.
+    let planar = dataset(
+        &dir,
+        "planar",
+        SpatialFamily::planar(ScenarioKind::TransferCircular.family()),
+    );
+    let mut other = config.clone();
+    other.pretrain.dataset = Some(planar);
+    let refused = learn::pretrain::pretrain(&other, &dir, &dir.join("other"));
+    assert!(matches!(refused, Err(ExperimentError::Dataset(_))), "{refused:?}");
+    assert!(!dir.join("other").exists());
 
     // Planar-only stages refuse by name, and write nothing.
-    let out = dir.join("mc");
-    let refused = learn::eval::monte_carlo(
-        &config,
-        &run.join("train-scratch").join("best.safetensors"),
-        &out,
-        Some(2),
-        Some(0),
-    );
+    let refused = learn::export::export(&config, &dir, &best, &dir.join("export"));
     match refused {
         Err(ExperimentError::Inclined { stage, family }) => {
             assert!(
-                stage.contains("Monte Carlo") && family.starts_with("custom-"),
+                stage.contains("export") && family.starts_with("custom-"),
                 "{stage} {family}"
             );
         }
         other => panic!("not refused: {other:?}"),
     }
-    assert!(!out.exists());
-    let refused = learn::pretrain::pretrain(&config, &dir, &dir.join("pre"));
-    assert!(matches!(refused, Err(ExperimentError::Inclined { .. })), "{refused:?}");
-    assert!(!dir.join("pre").exists());
+    assert!(!dir.join("export").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -9,7 +9,10 @@ use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustComm
 use onboard::features::{decode_action, decode_action3, ACTION3_LEN, ACTION_LEN};
 use onboard::integrator::Tolerances;
 use onboard::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
+
+use crate::generate::DatasetFamily;
 use shared::mission::{MissionFamily, SpatialFamily};
+use shared::orbit::OrbitShape;
 use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -19,8 +22,9 @@ pub trait Geometry: Send + Sync + Copy + core::fmt::Debug + PartialEq + 'static 
     const ACT: usize;
     /// What one episode flies.
     type Scenario: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static;
-    /// What scenarios are drawn from (docs/spec.md section 4).
-    type Family: Clone + core::fmt::Debug + PartialEq + Send + Sync + 'static;
+    /// What scenarios are drawn from (docs/spec.md section 4), and solved draw by draw into
+    /// datasets.
+    type Family: DatasetFamily;
     /// The spacecraft's state.
     type State: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static;
     /// A thrust command held over one guidance cycle.
@@ -42,6 +46,13 @@ pub trait Geometry: Send + Sync + Copy + core::fmt::Debug + PartialEq + 'static 
     fn departure(scenario: &Self::Scenario) -> Self::State;
     /// The state's mass (m0 units).
     fn mass(state: &Self::State) -> f64;
+    /// The state's inertial position (z = 0 in the plane).
+    fn position(state: &Self::State) -> [f64; 3];
+    /// The departure and target orbits when both lie in the reference plane (to draw them as
+    /// ellipses in it); `None` for inclined orbits.
+    fn reference_orbits(scenario: &Self::Scenario) -> Option<(OrbitShape, OrbitShape)>;
+    /// The action of the zero-thrust baseline: throttle -1, no direction.
+    fn zero_thrust_action() -> Self::Action;
     /// The command an action decodes to (onboard decoding; a non-finite action is thrust off).
     fn decode(action: &Self::Action) -> Self::Command;
     /// The command's throttle in [0, 1].
@@ -107,6 +118,18 @@ impl Geometry for Planar {
         state.m
     }
 
+    fn position(state: &SpacecraftState) -> [f64; 3] {
+        [state.r[0], state.r[1], 0.0]
+    }
+
+    fn reference_orbits(scenario: &Scenario) -> Option<(OrbitShape, OrbitShape)> {
+        Some((scenario.initial.shape, scenario.target))
+    }
+
+    fn zero_thrust_action() -> [f32; ACTION_LEN] {
+        [-1.0, 0.0, 0.0]
+    }
+
     fn decode(action: &[f32; ACTION_LEN]) -> ThrustCommand {
         decode_action(action)
     }
@@ -159,6 +182,19 @@ impl Geometry for Spatial {
 
     fn mass(state: &SpatialCraftState) -> f64 {
         state.m
+    }
+
+    fn position(state: &SpatialCraftState) -> [f64; 3] {
+        state.orbit.r
+    }
+
+    fn reference_orbits(scenario: &SpatialScenario) -> Option<(OrbitShape, OrbitShape)> {
+        let plan = &scenario.scenario;
+        scenario.is_planar().then_some((plan.initial.shape, plan.target))
+    }
+
+    fn zero_thrust_action() -> [f32; ACTION3_LEN] {
+        [-1.0, 0.0, 0.0, 0.0]
     }
 
     fn decode(action: &[f32; ACTION3_LEN]) -> RtnCommand {
