@@ -591,41 +591,41 @@ impl<O, A> Demonstrations<O, A> {
     }
 }
 
-/// The tuples of a dataset file and what its records were solved for.
+/// A dataset file's records and what they were solved for.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DatasetTuples<O, A> {
-    /// The tuples of its records.
-    pub demonstrations: Demonstrations<O, A>,
-    /// The family its records were drawn from (a planar one in the reference plane).
+pub struct LoadedDataset<R> {
+    /// Its records.
+    pub records: Vec<R>,
+    /// The family they were drawn from (a planar one in the reference plane).
     pub family: shared::mission::SpatialFamily,
-    /// Records in the file.
-    pub records: usize,
     /// Cycles before the end of its episode a record was solved to arrive
     /// ([`SolveOptions::arrival_margin_steps`]).
     pub arrival_margin: u32,
 }
 
 /// How a geometry's datasets become tuples (docs/spec.md sections 7 and 7.1): the planar
-/// records' and the three-dimensional records'.
+/// records' and the three-dimensional records'. Reading is apart from the tuples, so that a
+/// dataset of another family is refused before its records are re-integrated.
 pub trait DemoGeometry: crate::env::Geometry {
-    /// The tuples of the dataset file at `path` for problem `P` under `config`, `filter`
-    /// choosing the records (three-dimensional records keep samples only when converged: the
-    /// converged ones are used whatever the filter), `tolerances` re-integrating each record.
-    fn dataset_tuples<P: Problem<Geometry = Self>>(
-        path: &Path,
+    /// The records of this geometry's datasets.
+    type Record: Send + Sync;
+    /// Reads the dataset file at `path` (a file of the other geometry's records is refused).
+    fn load_dataset(path: &Path) -> Result<LoadedDataset<Self::Record>, DemoError>;
+    /// The tuples of `records` for problem `P` under `config`, `filter` choosing the records
+    /// (three-dimensional records keep samples only when converged: the converged ones are used
+    /// whatever the filter), `tolerances` re-integrating each record.
+    fn tuples<P: Problem<Geometry = Self>>(
+        records: &[Self::Record],
         config: &EnvConfig,
         filter: RecordFilter,
         tolerances: &Tolerances,
-    ) -> Result<DatasetTuples<P::Obs, Self::Action>, DemoError>;
+    ) -> Demonstrations<P::Obs, Self::Action>;
 }
 
 impl DemoGeometry for Planar {
-    fn dataset_tuples<P: Problem<Geometry = Self>>(
-        path: &Path,
-        config: &EnvConfig,
-        filter: RecordFilter,
-        tolerances: &Tolerances,
-    ) -> Result<DatasetTuples<P::Obs, [f32; ACTION_LEN]>, DemoError> {
+    type Record = TrajectoryRecord;
+
+    fn load_dataset(path: &Path) -> Result<LoadedDataset<TrajectoryRecord>, DemoError> {
         let dataset = read_dataset(path)?;
         // The run's request says its margin; a folder without one (written before it existed,
         // or a file moved out of its folder) shows it by its records.
@@ -638,31 +638,44 @@ impl DemoGeometry for Planar {
                 .max()
                 .unwrap_or(0),
         };
-        Ok(DatasetTuples {
-            demonstrations: demonstrations::<P>(&dataset.records, config, filter, tolerances),
+        Ok(LoadedDataset {
             family: shared::mission::SpatialFamily::planar(dataset.manifest.family),
-            records: dataset.records.len(),
+            records: dataset.records,
             arrival_margin,
         })
+    }
+
+    fn tuples<P: Problem<Geometry = Self>>(
+        records: &[TrajectoryRecord],
+        config: &EnvConfig,
+        filter: RecordFilter,
+        tolerances: &Tolerances,
+    ) -> Demonstrations<P::Obs, [f32; ACTION_LEN]> {
+        demonstrations::<P>(records, config, filter, tolerances)
     }
 }
 
 impl DemoGeometry for crate::env::Spatial {
-    fn dataset_tuples<P: Problem<Geometry = Self>>(
-        path: &Path,
-        config: &EnvConfig,
-        _filter: RecordFilter,
-        tolerances: &Tolerances,
-    ) -> Result<DatasetTuples<P::Obs, [f32; onboard::features::ACTION3_LEN]>, DemoError> {
+    type Record = crate::solver::spatial::record::SpatialRecord;
+
+    fn load_dataset(path: &Path) -> Result<LoadedDataset<Self::Record>, DemoError> {
         let dataset = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(path)?;
-        Ok(DatasetTuples {
-            demonstrations: spatial::spatial_demonstrations::<P>(&dataset.records, config, tolerances),
+        Ok(LoadedDataset {
             family: dataset.manifest.family,
-            records: dataset.records.len(),
+            records: dataset.records,
             // Three-dimensional records are solved to arrive on time (an arrival margin is
             // refused for them).
             arrival_margin: 0,
         })
+    }
+
+    fn tuples<P: Problem<Geometry = Self>>(
+        records: &[Self::Record],
+        config: &EnvConfig,
+        _filter: RecordFilter,
+        tolerances: &Tolerances,
+    ) -> Demonstrations<P::Obs, [f32; onboard::features::ACTION3_LEN]> {
+        spatial::spatial_demonstrations::<P>(records, config, tolerances)
     }
 }
 

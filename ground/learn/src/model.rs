@@ -34,7 +34,6 @@ use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::Summary;
 use ground_core::io::atomic_write;
 use ground_core::model_files::{verify_model_files, ModelFilesError};
-use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
 use onboard::terminal::TerminalSettings;
 
@@ -400,9 +399,8 @@ pub struct ModelSources<'a> {
 /// export's blobs, and the cards.
 pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, ModelError> {
     let config = sources.config;
-    let kind = config.problem();
     std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let agent = crate::eval::load_agent(config, obs_dim(kind), sources.checkpoint)
+    let agent = crate::eval::load_agent(config, obs_dim(config), sources.checkpoint)
         .map_err(|e| ModelError::Experiment(Box::new(e)))?;
     agent
         .save_flown_actor(&dir.join(ACTOR_FILE))
@@ -679,12 +677,13 @@ fn read_card(dir: &Path, unsealed: Unsealed) -> Result<(ModelCard, ExperimentCon
 
 /// An agent flying the actor of an actor file.
 pub fn load_actor(config: &ExperimentConfig, path: &Path) -> Result<Sac, ModelError> {
-    crate::eval::load_agent(config, obs_dim(config.problem()), path).map_err(|e| ModelError::Experiment(Box::new(e)))
+    crate::eval::load_agent(config, obs_dim(config), path).map_err(|e| ModelError::Experiment(Box::new(e)))
 }
 
-pub(crate) fn obs_dim(kind: ProblemKind) -> usize {
+/// The network inputs of the problem the config's family is flown by.
+pub(crate) fn obs_dim(config: &ExperimentConfig) -> usize {
     use ground_core::env::Problem;
-    with_problem!(kind, P => P::OBS)
+    crate::with_flown_problem!(config, P => P::OBS)
 }
 
 fn figures_row(name: &str, f: &FlightFigures) -> String {

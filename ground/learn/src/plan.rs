@@ -9,7 +9,6 @@ use serde::Serialize;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
-use crate::model::obs_dim;
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
 use ground_core::env::{MdpEnv, Planar, Problem};
@@ -90,8 +89,8 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let options = config.generate.solve_options();
-    let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
     config.planar_family("the run plan")?;
+    let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
     let costs = with_problem!(config.problem(), P => measure::<P>(config, &check))?;
     Ok(project(config, check, costs))
 }
@@ -100,7 +99,7 @@ fn measure<P: Problem<Geometry = Planar>>(
     config: &ExperimentConfig,
     check: &FamilyCheck,
 ) -> Result<UnitCosts, ExperimentError> {
-    let obs = obs_dim(P::KIND);
+    let obs = P::OBS;
     let device = config.device()?;
     // RL's learner flies the timed episodes (untrained: an episode costs what a trained one
     // does), then is timed updating.

@@ -39,30 +39,35 @@ where
     P::Geometry: DemoGeometry,
 {
     let file = config.dataset_file(config_dir)?;
-    let filter = config.pretrain.records;
-    let tuples = P::Geometry::dataset_tuples::<P>(&file, &config.env, filter, &default_tolerances())
-        .map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
-    let (theirs, ours) = (&tuples.family.family, &config.family.family);
+    let dataset =
+        P::Geometry::load_dataset(&file).map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
+    let (theirs, ours) = (&dataset.family.family, &config.family.family);
     // Another range of orbits is still the same physics; another body or cycle is not.
     if theirs.problem != P::KIND || theirs.body != ours.body || theirs.cycle != ours.cycle {
         return Err(ExperimentError::Mismatch(format!(
             "dataset {} holds {} trajectories, the config is for {}",
             file.display(),
-            tuples.family.label(),
+            dataset.family.label(),
             config.family.label()
         )));
     }
     // Relabels are solved with the config's margin: demonstrations of another would teach two
     // arrival times.
-    if tuples.arrival_margin != config.generate.arrival_margin {
+    if dataset.arrival_margin != config.generate.arrival_margin {
         return Err(ExperimentError::Mismatch(format!(
             "dataset {} was solved to arrive {} steps early, the config asks for generate.arrival_margin = {}",
             file.display(),
-            tuples.arrival_margin,
+            dataset.arrival_margin,
             config.generate.arrival_margin
         )));
     }
-    Ok((tuples.demonstrations, file, tuples.records))
+    let demos = P::Geometry::tuples::<P>(
+        &dataset.records,
+        &config.env,
+        config.pretrain.records,
+        &default_tolerances(),
+    );
+    Ok((demos, file, dataset.records.len()))
 }
 
 /// The demonstration tuples of the config's dataset as replay transitions.

@@ -107,7 +107,7 @@ pub fn run_stage(
         StageStart::BestActor => {
             let path = folder.join("start-actor.safetensors");
             if !path.exists() {
-                let agent = load_agent(&before.config, obs_dim(config.problem()), &before.best)?;
+                let agent = load_agent(&before.config, obs_dim(&before.config), &before.best)?;
                 agent.save_flown_actor(&path)?;
             }
             path

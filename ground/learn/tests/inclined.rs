@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use ground_core::env::{Environment, Transfer3Env};
 use ground_core::generate::{generate, Manifest, Shard};
+use ground_core::solver::spatial::record::solve_spatial_draw;
 use ground_core::solver::SolveOptions;
 use learn::config::ExperimentConfig;
 use learn::error::ExperimentError;
@@ -146,7 +147,16 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     assert!(zero.terminal_position.min > 1e-3, "{zero:?}");
     assert_eq!(report.gap.len(), 1);
     assert!(report.gap[0].optimal_converged, "{:?}", report.gap[0]);
-    assert!(report.gap[0].optimal_mass < 1.0 && report.gap[0].optimal_mass > 0.7);
+    // The optimum of the Monte Carlo's first draw, solved by the 3D method.
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let first = solve_spatial_draw(
+        &config.family,
+        config.seeds.monte_carlo,
+        0,
+        &sc,
+        &SolveOptions::default(),
+    );
+    assert_eq!(report.gap[0].optimal_mass, first.final_mass);
     let mc = std::fs::read_to_string(out.join("mc.csv")).unwrap();
     assert_eq!(mc.lines().count(), 7);
     assert!(
@@ -165,6 +175,8 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     let refused = learn::pretrain::pretrain(&other, &dir, &dir.join("other"));
     assert!(matches!(refused, Err(ExperimentError::Dataset(_))), "{refused:?}");
     assert!(!dir.join("other").exists());
+    // The file reads as a planar dataset: it is refused for its dimension.
+    assert!(ground_core::generate::read_dataset(&other.dataset_file(&dir).unwrap()).is_ok());
 
     // Planar-only stages refuse by name, and write nothing.
     let refused = learn::export::export(&config, &dir, &best, &dir.join("export"));
@@ -178,5 +190,17 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         other => panic!("not refused: {other:?}"),
     }
     assert!(!dir.join("export").exists());
+    let mut with_rounds = config.clone();
+    with_rounds.dagger.rounds = 1;
+    let refusals = [
+        learn::dagger::dagger(&with_rounds, &dir, &dir.join("dagger"), &best, None).map(|_| ()),
+        learn::ship::ship(&config, &dir, &best, &dir.join("ship"), None, &[]).map(|_| ()),
+        learn::plan::plan_recipe(&config, 4).map(|_| ()),
+        learn::sil::blob_refusal(&config, &best).map(|_| ()),
+    ];
+    for refused in refusals {
+        assert!(matches!(refused, Err(ExperimentError::Inclined { .. })), "{refused:?}");
+    }
+    assert!(!dir.join("dagger").exists() && !dir.join("ship").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
