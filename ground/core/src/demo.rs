@@ -330,11 +330,12 @@ pub struct RecordDemonstration<O, A = [f32; ACTION_LEN]> {
 /// of thrust T / start_mass (the same dynamics with the mass counted in units of start_mass), so
 /// its masses are multiplied by start_mass. A record solved to arrive early
 /// ([`crate::solver::solve_arriving_early`]) ends before its episode does: its flight then coasts
-/// to the episode's end, with its target.
+/// to the episode's end, with its target. `S`: the episode's scenario type, planar or
+/// [`shared::scenario::SpatialScenario`] ([`spatial::relabel_spatial`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Placement {
+pub struct Placement<S = Scenario> {
     /// The episode the tuples belong to (its steps and, for a rendezvous, its body).
-    pub episode: Scenario,
+    pub episode: S,
     /// Step of the episode at which the record's flight starts.
     pub start_step: u32,
     /// Mass at that step, fraction of the episode's m0.

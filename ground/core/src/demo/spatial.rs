@@ -16,16 +16,21 @@ use rayon::prelude::*;
 use shared::orbit::{dot3, norm3, SpatialState};
 use shared::spacecraft::CanonicalSpacecraft;
 
+use shared::mission::SpatialFamily;
+use shared::scenario::{ProblemKind, Scenario, SpatialScenario};
+
 use super::{
-    DemoError, Demonstrations, RecordDemonstration, StepMismatch, Transition, ACTION_BOUND, COAST_THROTTLE,
+    DemoError, Demonstrations, Placement, RecordDemonstration, StepMismatch, Transition, ACTION_BOUND, COAST_THROTTLE,
     CONSISTENCY_TOLERANCE,
 };
 use crate::env::{self, EnvConfig, EnvError, Environment, MdpEnv, Problem};
 use crate::solver::pontryagin::{run_modal, BranchRhs, NoClock, OptimalControlParams, Regime};
+use crate::solver::spatial::record::solve_spatial_scenario;
 use crate::solver::spatial::record::SpatialRecord;
 use crate::solver::spatial::{
     idx3, initial_state_costate3, state_costate_rhs3_in, switching_function3, Spatial, SpatialSample, Y3_LEN,
 };
+use crate::solver::SolveOptions;
 
 const AUG3_LEN: usize = Y3_LEN + 4;
 
@@ -174,27 +179,116 @@ pub fn spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
     config: &EnvConfig,
     tolerances: &Tolerances,
 ) -> Result<RecordDemonstration<P::Obs, [f32; ACTION3_LEN]>, DemoError> {
-    let scenario = &record.scenario;
-    if scenario.scenario.problem != P::KIND {
-        return Err(DemoError::WrongProblem {
-            expected: P::KIND,
-            found: scenario.scenario.problem,
-        });
+    let whole = Placement {
+        episode: record.scenario,
+        start_step: 0,
+        start_mass: 1.0,
+    };
+    placed_spatial_demonstration::<P>(record, &whole, config, tolerances)
+}
+
+/// Relabels a three-dimensional state a policy visited (DAgger-style, the 3D twin of
+/// [`super::relabel`]): the fuel-optimal rest of `episode` re-solved by the indirect method in
+/// three dimensions from `state` at cycle `step`, as a record and its [`Placement`]. The rest
+/// departs from the state's osculating orbit in its own plane; a rendezvous rest chases the same
+/// body from where it is at that cycle; the spacecraft's thrust is counted in units of the
+/// state's mass. `None` when the state has no orbit (not bound, or no plane), the step leaves no
+/// flight, or the body's state cannot be computed. Labelled with `family` and (`seed`, `index`).
+pub fn relabel_spatial(
+    family: &SpatialFamily,
+    (seed, index): (u64, u64),
+    episode: &SpatialScenario,
+    state: &SpatialCraftState,
+    step: u32,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Option<(SpatialRecord, Placement<SpatialScenario>)> {
+    let plan = &episode.scenario;
+    if step >= plan.steps || !(state.m > 0.0 && state.m <= 1.0) {
+        return None;
+    }
+    let (initial, initial_plane) = state.orbit.elements()?;
+    let target_nu0 = match plan.problem {
+        ProblemKind::Transfer => plan.target_nu0,
+        ProblemKind::Rendezvous => {
+            // The body's angle in its own plane from the node, less its periapsis argument: its
+            // true anomaly at the step.
+            let body = env::body_at3(episode, step).ok()?;
+            let [x, y] = episode.target_plane.to_plane(body.r);
+            (y.atan2(x) - plan.target.omega).rem_euclid(core::f64::consts::TAU)
+        }
+    };
+    let rest = SpatialScenario {
+        scenario: Scenario {
+            initial,
+            steps: plan.steps - step,
+            target_nu0,
+            ..*plan
+        },
+        initial_plane,
+        target_plane: episode.target_plane,
+    };
+    let scaled = CanonicalSpacecraft {
+        thrust: spacecraft.thrust / state.m,
+        ..*spacecraft
+    };
+    let record = solve_spatial_scenario(family, (seed, index), &rest, &scaled, options);
+    let placement = Placement {
+        episode: *episode,
+        start_step: step,
+        start_mass: state.m,
+    };
+    Some((record, placement))
+}
+
+/// The tuples of a converged three-dimensional record placed in an episode ([`Placement`]):
+/// observations, rewards and done flags are the episode's at cycles start_step.., masses scaled by
+/// the start mass, the actions the record's RTN ZOH controls (re-integrated with the thrust in
+/// units of the start mass, as the record was solved). The record must fill the rest of its
+/// episode.
+pub fn placed_spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
+    record: &SpatialRecord,
+    placement: &Placement<SpatialScenario>,
+    config: &EnvConfig,
+    tolerances: &Tolerances,
+) -> Result<RecordDemonstration<P::Obs, [f32; ACTION3_LEN]>, DemoError> {
+    let scenario = &placement.episode;
+    for found in [record.scenario.scenario.problem, scenario.scenario.problem] {
+        if found != P::KIND {
+            return Err(DemoError::WrongProblem {
+                expected: P::KIND,
+                found,
+            });
+        }
+    }
+    if placement.start_step + record.scenario.scenario.steps != scenario.scenario.steps
+        || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
+    {
+        return Err(DemoError::Placement);
     }
     let mut env = MdpEnv::<P>::new(config).map_err(DemoError::Env)?;
     let spacecraft = *env.spacecraft();
-    let controls = rtn_zoh_controls(record, &spacecraft, tolerances)?;
+    let solved_with = CanonicalSpacecraft {
+        thrust: spacecraft.thrust / placement.start_mass,
+        ..spacecraft
+    };
+    let controls = rtn_zoh_controls(record, &solved_with, tolerances)?;
     let cycle = scenario.scenario.cycle;
     let env_tolerances = config.integrator.tolerances();
+    let placed = |s: &SpatialSample| SpatialCraftState {
+        m: s.m * placement.start_mass,
+        ..craft(s)
+    };
     let mut demo = RecordDemonstration {
         transitions: Vec::with_capacity(controls.len()),
         mismatch: Vec::with_capacity(controls.len()),
     };
-    for ((k, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
+    for ((j, control), pair) in (0u32..).zip(&controls).zip(record.steps.windows(2)) {
         let [now, next] = pair else {
             return Err(DemoError::NoSolution);
         };
-        let (s_k, s_next) = (craft(now), craft(next));
+        let k = placement.start_step + j;
+        let (s_k, s_next) = (placed(now), placed(next));
         let action = control.action();
         // s_k and the environment's own cycle from it.
         let observation = env.reset_at(scenario, &s_k, k).map_err(DemoError::Env)?;
@@ -314,6 +408,80 @@ mod tests {
             }
             assert!(b.action[3].abs() < 1e-12);
         }
+    }
+
+    /// An inclined family's draw re-solved from its own state at mid-flight ([`relabel_spatial`])
+    /// is the tail of the whole optimum: the same final mass, and placed in the episode the same
+    /// tuples as the whole record's from that cycle on (the body chased from where it is, the
+    /// thrust in units of the state's mass); a placement that does not add up is refused.
+    fn resolved_from_mid_flight_gives_the_tail<P: Problem<Geometry = env::Spatial>>(family: &SpatialFamily) {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let whole = solve_spatial_draw(family, 2, 0, &sc, &quick());
+        assert!(whole.converged, "{:?}", whole.failure);
+        let n = whole.scenario.scenario.steps;
+        let k = n / 2;
+        let mid = craft(&whole.steps[k as usize]);
+        assert!(mid.m < 1.0);
+        let (tail, placement) = relabel_spatial(family, (7, 0), &whole.scenario, &mid, k, &sc, &quick()).unwrap();
+        assert!(tail.converged, "{:?}", tail.failure);
+        assert_eq!(tail.final_eps, whole.final_eps);
+        assert_eq!((placement.start_step, placement.start_mass), (k, mid.m));
+        let tail_final = placement.start_mass * tail.final_mass;
+        assert!(
+            (tail_final - whole.final_mass).abs() < 1e-6,
+            "{tail_final} vs {}",
+            whole.final_mass
+        );
+        let config = EnvConfig::default();
+        let tol = default_tolerances();
+        let a = spatial_demonstration::<P>(&whole, &config, &tol).unwrap();
+        let b = placed_spatial_demonstration::<P>(&tail, &placement, &config, &tol).unwrap();
+        assert_eq!(b.transitions.len(), (n - k) as usize);
+        let worst = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+        for (t, w) in b.transitions.iter().zip(&a.transitions[k as usize..]) {
+            assert_eq!((t.step, t.done), (w.step, w.done));
+            assert!(
+                worst(t.observation.as_ref(), w.observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(
+                worst(t.next_observation.as_ref(), w.next_observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(worst(&t.action, &w.action) < 1e-4, "{t:?}\n{w:?}");
+            assert!((t.reward - w.reward).abs() < 1e-6, "{t:?}\n{w:?}");
+        }
+        let wrong = Placement {
+            start_step: k + 1,
+            ..placement
+        };
+        assert_eq!(
+            placed_spatial_demonstration::<P>(&tail, &wrong, &config, &tol).err(),
+            Some(DemoError::Placement)
+        );
+        assert!(relabel_spatial(family, (7, 0), &whole.scenario, &mid, n, &sc, &quick()).is_none());
+    }
+
+    /// The target orbit inclined 4 degrees, its node at 1 rad.
+    fn inclined_target(kind: ScenarioKind) -> SpatialFamily {
+        SpatialFamily {
+            family: kind.family(),
+            departure_plane: PlaneRanges::REFERENCE,
+            target_plane: PlaneRanges {
+                inclination: Range { lo: 0.07, hi: 0.07 },
+                raan: Range { lo: 1.0, hi: 1.0 },
+            },
+        }
+    }
+
+    #[test]
+    fn an_inclined_transfer_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+        resolved_from_mid_flight_gives_the_tail::<Transfer3>(&inclined_target(ScenarioKind::TransferCircular));
+    }
+
+    #[test]
+    fn an_inclined_rendezvous_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
+        resolved_from_mid_flight_gives_the_tail::<Rendezvous3>(&inclined_target(ScenarioKind::RendezvousCircular));
     }
 
     /// An inclined transfer: coast cycles flown by the onboard RTN propagation land on the

@@ -62,8 +62,21 @@ pub fn solve_spatial_draw(
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> SpatialRecord {
+    solve_spatial_scenario(family, (seed, index), &family.draw(seed, index), spacecraft, options)
+}
+
+/// Solves `scenario` by the indirect method in three dimensions and samples the solution, as
+/// [`solve_spatial_draw`] does a draw: for a scenario posed otherwise (the rest of a flight from a
+/// state it visited), labelled with `family` and (`seed`, `index`) for tracing.
+pub fn solve_spatial_scenario(
+    family: &SpatialFamily,
+    (seed, index): (u64, u64),
+    scenario: &SpatialScenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> SpatialRecord {
     let start = Instant::now();
-    let scenario = family.draw(seed, index);
+    let scenario = *scenario;
     let mut record = SpatialRecord {
         family: *family,
         seed,
