@@ -29,7 +29,7 @@ pub mod spatial;
 use std::path::Path;
 
 use onboard::dynamics::{propagate, SpacecraftState, ThrustCommand};
-use onboard::features::{decode_action, ACTION_LEN};
+use onboard::features::ACTION_LEN;
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -40,7 +40,9 @@ use shared::spacecraft::CanonicalSpacecraft;
 use shared::spacecraft::Spacecraft;
 
 use crate::env::batch::Stats;
-use crate::env::{body_at, EnvConfig, EnvError, Environment, MdpEnv, Planar, Problem};
+use crate::env::{
+    body_at, ActionOf, EnvConfig, EnvError, Environment, MdpEnv, Planar, Problem, ScenarioOf, StateOf, Step,
+};
 use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
@@ -427,6 +429,42 @@ pub fn record_demonstration<P: Problem<Geometry = Planar>>(
     placed_demonstration::<P>(record, &Placement::whole(record), config, tolerances)
 }
 
+/// The tuple of cycle `k` of a record placed in `scenario` (docs/spec.md section 7), both
+/// geometries: s_k and s_k+1 the environment's observations of the record's states `s_k`,
+/// `s_next`, r_k its reward for a cycle ending in `s_next` under the throttle it decodes from
+/// `action`, done its flag; with the environment's own cycle from `s_k` under `action` (for the
+/// one-step mismatch). `record` traces the tuple.
+pub(crate) fn tuple_at<P: Problem>(
+    env: &mut MdpEnv<P>,
+    config: &EnvConfig,
+    scenario: &ScenarioOf<P::Geometry>,
+    (s_k, s_next): (&StateOf<P::Geometry>, &StateOf<P::Geometry>),
+    action: ActionOf<P::Geometry>,
+    (record, k): (u64, u32),
+) -> Result<PlacedTuple<P>, DemoError> {
+    let observation = env.reset_at(scenario, s_k, k).map_err(DemoError::Env)?;
+    let flown = env.step(&action).map_err(DemoError::Env)?;
+    let (reward, ..) =
+        MdpEnv::<P>::reward_at(config, scenario, s_next, k + 1, flown.info.throttle).map_err(DemoError::Env)?;
+    let next_observation = env.reset_at(scenario, s_next, k + 1).map_err(DemoError::Env)?;
+    let tuple = Transition {
+        observation,
+        action,
+        reward,
+        next_observation,
+        done: flown.done,
+        record,
+        step: k,
+    };
+    Ok((tuple, flown))
+}
+
+/// A tuple of problem `P` and the environment's own cycle it was taken beside.
+pub(crate) type PlacedTuple<P> = (
+    Transition<<P as Problem>::Obs, ActionOf<<P as Problem>::Geometry>>,
+    Step<<P as Problem>::Obs, <P as Problem>::Geometry>,
+);
+
 /// The tuples of a record placed in an episode (see [`Placement`]): observations, rewards and
 /// done flags are the episode's at steps start_step.., the actions the record's ZOH controls;
 /// after a record that ends before its episode, coast steps from its final state to the
@@ -468,23 +506,8 @@ pub fn placed_demonstration<P: Problem<Geometry = Planar>>(
         let k = placement.start_step + j;
         let (s_k, s_next) = (placed(now), placed(next));
         let action = control.action();
-        let command: ThrustCommand = decode_action(&action);
-        // s_k and the environment's own step from it.
-        let observation = env.reset_at(scenario, &s_k, k).map_err(DemoError::Env)?;
-        let flown = env.step(&action).map_err(DemoError::Env)?;
-        // r_k, s_k+1 from the optimal next state, with the environment's reward function.
-        let (reward, ..) =
-            MdpEnv::<P>::reward_at(config, scenario, &s_next, k + 1, command.throttle).map_err(DemoError::Env)?;
-        let next_observation = env.reset_at(scenario, &s_next, k + 1).map_err(DemoError::Env)?;
-        transitions.push(Transition {
-            observation,
-            action,
-            reward,
-            next_observation,
-            done: flown.done,
-            record: record.index,
-            step: k,
-        });
+        let (tuple, flown) = tuple_at(&mut env, config, scenario, (&s_k, &s_next), action, (record.index, k))?;
+        transitions.push(tuple);
         let e = flown.info.state;
         let exact = propagate(
             &s_k,
@@ -882,6 +905,7 @@ mod tests {
     use crate::env::{Rendezvous, Transfer};
     use crate::solver::record::sample_at;
     use crate::solver::{solve_scenario, SolveOptions};
+    use onboard::features::decode_action;
     use shared::scenario::{Scenario, ScenarioKind};
     use shared::units::STEP;
 
@@ -964,6 +988,30 @@ mod tests {
     /// steps left, for a rendezvous the body where it is then), the optimal tail is the tail of
     /// the whole optimal flight, so the relabelled record placed at that step gives the whole
     /// record's tuples from there on.
+    /// A re-solved tail's tuples are the whole record's from the same cycle on: cycles and done
+    /// flags equal, observations within 1e-5, actions 1e-4, rewards 1e-6.
+    pub(super) fn assert_same_tail<O, A>(tail: &[Transition<O, A>], whole: &[Transition<O, A>])
+    where
+        O: AsRef<[f32]> + core::fmt::Debug,
+        A: AsRef<[f32]> + core::fmt::Debug,
+    {
+        assert!(!tail.is_empty() && tail.len() == whole.len());
+        let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        for (t, w) in tail.iter().zip(whole) {
+            assert_eq!((t.step, t.done), (w.step, w.done));
+            assert!(
+                worst(t.observation.as_ref(), w.observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(
+                worst(t.next_observation.as_ref(), w.next_observation.as_ref()) < 1e-5,
+                "{t:?}\n{w:?}"
+            );
+            assert!(worst(t.action.as_ref(), w.action.as_ref()) < 1e-4, "{t:?}\n{w:?}");
+            assert!((t.reward - w.reward).abs() < 1e-6, "{t:?}\n{w:?}");
+        }
+    }
+
     fn resolved_from_mid_flight_gives_the_tail<P: Problem<Geometry = Planar>>(whole_record: &TrajectoryRecord) {
         let sc = Spacecraft::MSR_ERO.canonical().unwrap();
         let n = whole_record.scenario.steps;
@@ -994,20 +1042,7 @@ mod tests {
         let whole = record_demonstration::<P>(whole_record, &config, &tol).unwrap();
         let tail = placed_demonstration::<P>(&tail_record, &placement, &config, &tol).unwrap();
         assert_eq!(tail.transitions.len(), (n - k) as usize);
-        let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-        for (t, w) in tail.transitions.iter().zip(&whole.transitions[k as usize..]) {
-            assert_eq!((t.step, t.done), (w.step, w.done));
-            assert!(
-                worst(t.observation.as_ref(), w.observation.as_ref()) < 1e-5,
-                "{t:?}\n{w:?}"
-            );
-            assert!(
-                worst(t.next_observation.as_ref(), w.next_observation.as_ref()) < 1e-5,
-                "{t:?}\n{w:?}"
-            );
-            assert!(worst(&t.action, &w.action) < 1e-4, "{t:?}\n{w:?}");
-            assert!((t.reward - w.reward).abs() < 1e-6, "{t:?}\n{w:?}");
-        }
+        assert_same_tail(&tail.transitions, &whole.transitions[k as usize..]);
         // A placement whose steps do not add up is refused.
         let wrong = Placement {
             start_step: k + 1,

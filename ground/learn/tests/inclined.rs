@@ -5,23 +5,22 @@
 
 use std::path::{Path, PathBuf};
 
+#[allow(dead_code)]
+mod common;
+
+use common::{scratch_dir, toy_config, toy_dataset_of};
+
 use ground_core::env::{Environment, Transfer3Env};
 use ground_core::generate::{generate, Manifest, Shard};
 use ground_core::solver::spatial::record::solve_spatial_draw;
 use ground_core::solver::SolveOptions;
+use learn::cloning::CloningTarget;
 use learn::config::ExperimentConfig;
 use learn::error::ExperimentError;
 use learn::rl::{train, Start};
 use shared::mission::{PlaneRanges, SpatialFamily};
 use shared::scenario::{Range, ScenarioKind};
 use shared::spacecraft::Spacecraft;
-
-fn scratch_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
 
 /// Transfer-circular's orbits, the target inclined by up to 5 degrees with any node.
 fn inclined() -> SpatialFamily {
@@ -41,75 +40,40 @@ fn inclined() -> SpatialFamily {
     }
 }
 
-/// Two draws of `family` solved quickly (eps 0.3) into `dir/NAME`.
-fn dataset(dir: &Path, name: &str, family: SpatialFamily) -> PathBuf {
-    let out = dir.join(name);
+/// Two draws of the inclined family solved quickly (eps 0.3) into `dir/spatial`, as
+/// [`common::toy_dataset_of`] solves a planar family's.
+fn spatial_dataset(dir: &Path) -> PathBuf {
+    let out = dir.join("spatial");
     let options = SolveOptions {
         final_eps: 0.3,
         ..SolveOptions::default()
     };
     let sc = Spacecraft::MSR_ERO.canonical().unwrap();
-    let converged = match family.as_planar() {
-        Some(planar) => {
-            let manifest = Manifest {
-                family: planar,
-                seed: 9,
-                count: 2,
-            };
-            generate(manifest, Shard::WHOLE, &out, &sc, &options, false)
-                .unwrap()
-                .converged
-        }
-        None => {
-            let manifest = Manifest {
-                family,
-                seed: 9,
-                count: 2,
-            };
-            generate(manifest, Shard::WHOLE, &out, &sc, &options, false)
-                .unwrap()
-                .converged
-        }
+    let manifest = Manifest {
+        family: inclined(),
+        seed: 9,
+        count: 2,
     };
-    assert_eq!(converged, 2, "toy dataset did not solve");
+    let summary = generate(manifest, Shard::WHOLE, &out, &sc, &options, false).unwrap();
+    assert_eq!(summary.converged, 2, "toy dataset did not solve");
     out
 }
 
+/// The toy config on the inclined family, cloning the thrust vector (4 components), one
+/// optimality-gap case.
 fn inclined_config(dataset: &Path) -> ExperimentConfig {
-    let mut config = ExperimentConfig::from_toml(&format!(
-        r#"
-scenario = "transfer-circular"
-[sac]
-hidden = [32, 32]
-batch_size = 32
-warmup_steps = 60
-replay_capacity = 5000
-[pretrain]
-dataset = "{}"
-updates = 80
-eval_every = 40
-mode = "behaviour-cloning"
-cloning_target = "thrust"
-[train]
-env_steps = 120
-eval_every = 60
-eval_episodes = 3
-checkpoint_every = 60
-[evaluate]
-episodes = 6
-optimality_gap_cases = 1
-"#,
-        dataset.display()
-    ))
-    .unwrap();
+    let mut config = toy_config(dataset);
     config.family = inclined();
+    config.pretrain.cloning_target = CloningTarget::Thrust;
+    config.evaluate.episodes = 6;
+    config.evaluate.optimality_gap_cases = 1;
     config
 }
 
 #[test]
 fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     let dir = scratch_dir("inclined");
-    let spatial = dataset(&dir, "dataset", inclined());
+    let spatial = spatial_dataset(&dir);
     let config = inclined_config(&spatial);
     assert!(config.is_inclined());
     assert_eq!(config.action_dim(), 4);
@@ -119,16 +83,16 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     // Pretraining on the 3D tuples: every cycle of both records in the buffer.
     let run = dir.join("run");
     let pre = learn::pretrain::pretrain(&config, &dir, &run).unwrap();
-    assert_eq!((pre.updates, pre.demonstration_records), (80, 2));
+    assert_eq!((pre.updates, pre.demonstration_records), (120, 2));
     let cycles: u32 = (0..2).map(|i| config.family.draw(9, i).scenario.steps).sum();
     assert_eq!(pre.demonstration_tuples, cycles as usize);
 
     // RL from the pretrained model and its buffer, in the 3D environment.
     let summary = train(&config, &run, Start::Pretrained).unwrap();
-    assert_eq!(summary.env_steps, 120);
+    assert_eq!(summary.env_steps, 150);
     let best = run.join("train-pretrained").join("best.safetensors");
     let log = std::fs::read_to_string(run.join("train-pretrained").join("eval.csv")).unwrap();
-    assert_eq!(log.lines().count(), 4, "{log}");
+    assert_eq!(log.lines().count(), 5, "{log}");
     let agent = learn::eval::load_agent(&config, Transfer3Env::OBS, &best).unwrap();
     assert_eq!(agent.act_dim(), 4);
     let mut env = Transfer3Env::new(&config.env).unwrap();
@@ -165,11 +129,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     );
 
     // A planar dataset is not one of this family's: refused, no pretraining written.
-    let planar = dataset(
-        &dir,
-        "planar",
-        SpatialFamily::planar(ScenarioKind::TransferCircular.family()),
-    );
+    let planar = toy_dataset_of(&dir, ScenarioKind::TransferCircular);
     let mut other = config.clone();
     other.pretrain.dataset = Some(planar);
     let refused = learn::pretrain::pretrain(&other, &dir, &dir.join("other"));

@@ -20,7 +20,7 @@ use shared::mission::SpatialFamily;
 use shared::scenario::{ProblemKind, Scenario, SpatialScenario};
 
 use super::{
-    DemoError, Demonstrations, Placement, RecordDemonstration, StepMismatch, Transition, ACTION_BOUND, COAST_THROTTLE,
+    tuple_at, DemoError, Demonstrations, Placement, RecordDemonstration, StepMismatch, ACTION_BOUND, COAST_THROTTLE,
     CONSISTENCY_TOLERANCE,
 };
 use crate::env::{self, EnvConfig, EnvError, Environment, MdpEnv, Problem};
@@ -289,23 +289,15 @@ pub fn placed_spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
         };
         let k = placement.start_step + j;
         let (s_k, s_next) = (placed(now), placed(next));
-        let action = control.action();
-        // s_k and the environment's own cycle from it.
-        let observation = env.reset_at(scenario, &s_k, k).map_err(DemoError::Env)?;
-        let flown = env.step(&action).map_err(DemoError::Env)?;
-        // r_k, s_k+1 from the optimal next state, with the environment's reward function.
-        let (reward, ..) =
-            MdpEnv::<P>::reward_at(config, scenario, &s_next, k + 1, flown.info.throttle).map_err(DemoError::Env)?;
-        let next_observation = env.reset_at(scenario, &s_next, k + 1).map_err(DemoError::Env)?;
-        demo.transitions.push(Transition {
-            observation,
-            action,
-            reward,
-            next_observation,
-            done: flown.done,
-            record: record.index,
-            step: k,
-        });
+        let (tuple, flown) = tuple_at(
+            &mut env,
+            config,
+            scenario,
+            (&s_k, &s_next),
+            control.action(),
+            (record.index, k),
+        )?;
+        demo.transitions.push(tuple);
         let unclipped = propagate_rtn(&s_k, &control.command(), &spacecraft, cycle, &env_tolerances)
             .map_err(|error| DemoError::Env(EnvError::Propagation { step: k, error }))?;
         let gap = |a: &[f64; 3], b: &[f64; 3]| norm3(&[a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
@@ -437,20 +429,7 @@ mod tests {
         let a = spatial_demonstration::<P>(&whole, &config, &tol).unwrap();
         let b = placed_spatial_demonstration::<P>(&tail, &placement, &config, &tol).unwrap();
         assert_eq!(b.transitions.len(), (n - k) as usize);
-        let worst = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
-        for (t, w) in b.transitions.iter().zip(&a.transitions[k as usize..]) {
-            assert_eq!((t.step, t.done), (w.step, w.done));
-            assert!(
-                worst(t.observation.as_ref(), w.observation.as_ref()) < 1e-5,
-                "{t:?}\n{w:?}"
-            );
-            assert!(
-                worst(t.next_observation.as_ref(), w.next_observation.as_ref()) < 1e-5,
-                "{t:?}\n{w:?}"
-            );
-            assert!(worst(&t.action, &w.action) < 1e-4, "{t:?}\n{w:?}");
-            assert!((t.reward - w.reward).abs() < 1e-6, "{t:?}\n{w:?}");
-        }
+        crate::demo::tests::assert_same_tail(&b.transitions, &a.transitions[k as usize..]);
         let wrong = Placement {
             start_step: k + 1,
             ..placement

@@ -3,28 +3,15 @@
 //! and the refusals.
 
 use super::*;
-use shared::orbit::{cross3, norm3, OrbitElements, OrbitPlane, OrbitShape};
+use shared::orbit::{cross3, norm3, OrbitPlane};
 use shared::spacecraft::Spacecraft;
 use shared::units::{G0_M_S2, STEP_SECONDS};
 
+/// The planar environment tests' scenarios: an eccentric transfer, and the rendezvous with it.
 fn planar_scenario(problem: ProblemKind) -> Scenario {
-    let initial = OrbitElements {
-        shape: OrbitShape {
-            a: 1.05,
-            e: 0.1,
-            omega: 0.3,
-        },
-        nu: 0.5,
-    };
-    let target = OrbitShape {
-        a: 1.4,
-        e: 0.2,
-        omega: 1.0,
-    };
-    Scenario {
-        problem,
-        target_nu0: 2.2,
-        ..Scenario::transfer(initial, target)
+    match problem {
+        ProblemKind::Transfer => super::tests::transfer_scenario(),
+        ProblemKind::Rendezvous => super::tests::rendezvous_scenario(),
     }
 }
 

@@ -12,7 +12,7 @@ use shared::units::{G0_M_S2, STEP, STEP_SECONDS};
 const COAST: [f32; 3] = [-1.0, 0.0, 1.0];
 const FULL_ALONG_TRACK: [f32; 3] = [1.0, 0.0, 1.0];
 
-fn transfer_scenario() -> Scenario {
+pub(super) fn transfer_scenario() -> Scenario {
     let initial = OrbitElements {
         shape: OrbitShape {
             a: 1.05,
@@ -29,7 +29,7 @@ fn transfer_scenario() -> Scenario {
     Scenario::transfer(initial, target)
 }
 
-fn rendezvous_scenario() -> Scenario {
+pub(super) fn rendezvous_scenario() -> Scenario {
     Scenario {
         problem: ProblemKind::Rendezvous,
         target_nu0: 2.2,
