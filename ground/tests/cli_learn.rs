@@ -298,7 +298,7 @@ fn pretrain_and_round(config: &Path, run: &Path) -> Vec<u8> {
         );
     }
     let file = run.join("dagger/relabels-1.ltrl");
-    let solved = learn::dagger::load_relabels(&file, 1, 10).unwrap();
+    let solved = learn::dagger::load_relabels(&file, 1, 10, 3).unwrap();
     assert_eq!(solved.attempted, 6);
     assert!(solved.converged > 0 && !solved.tuples.is_empty(), "nothing to compare");
     let left: Vec<_> = std::fs::read_dir(run.join("dagger"))

@@ -31,6 +31,7 @@ use std::path::Path;
 use onboard::dynamics::{propagate, SpacecraftState, ThrustCommand};
 use onboard::features::ACTION_LEN;
 use onboard::integrator::{integrate, IntegrationError, OdeSystem, Tolerances};
+use onboard::spatial::SpatialCraftState;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::mission::{MissionFamily, OrbitRanges};
@@ -644,6 +645,25 @@ pub trait DemoGeometry: crate::env::Geometry {
         filter: RecordFilter,
         tolerances: &Tolerances,
     ) -> Demonstrations<P::Obs, Self::Action>;
+    /// `state` as the numbers a relabel saves: x, y, vx, vy, m in the plane; x, y, z, vx, vy,
+    /// vz, m in three dimensions (AU, AU/t*, m0 units).
+    fn state_numbers(state: &Self::State) -> Vec<f64>;
+    /// The state [`DemoGeometry::state_numbers`] saved; `None` for another count of numbers.
+    fn state_from_numbers(numbers: &[f64]) -> Option<Self::State>;
+    /// The rest of draw `(seed, index)` of `family` re-solved by the indirect method from
+    /// `state`, visited at `step` of the draw's episode, as the tuples it places in that episode
+    /// (docs/spec.md sections 7 and 7.1: [`relabel`] and [`placed_demonstration`], or
+    /// [`spatial::relabel_spatial`] and [`spatial::placed_spatial_demonstration`]); `None` when
+    /// the solve does not converge or its flight does not form tuples.
+    fn relabel_tuples<P: Problem<Geometry = Self>>(
+        family: &Self::Family,
+        draw: (u64, u64),
+        state: &Self::State,
+        step: u32,
+        spacecraft: &CanonicalSpacecraft,
+        options: &SolveOptions,
+        config: &EnvConfig,
+    ) -> Option<Vec<Transition<P::Obs, Self::Action>>>;
 }
 
 impl DemoGeometry for Planar {
@@ -677,6 +697,37 @@ impl DemoGeometry for Planar {
     ) -> Demonstrations<P::Obs, [f32; ACTION_LEN]> {
         demonstrations::<P>(records, config, filter, tolerances)
     }
+
+    fn state_numbers(state: &SpacecraftState) -> Vec<f64> {
+        vec![state.r[0], state.r[1], state.v[0], state.v[1], state.m]
+    }
+
+    fn state_from_numbers(numbers: &[f64]) -> Option<SpacecraftState> {
+        let &[x, y, vx, vy, m] = numbers else { return None };
+        Some(SpacecraftState {
+            r: [x, y],
+            v: [vx, vy],
+            m,
+        })
+    }
+
+    fn relabel_tuples<P: Problem<Geometry = Self>>(
+        family: &MissionFamily,
+        (seed, index): (u64, u64),
+        state: &SpacecraftState,
+        step: u32,
+        spacecraft: &CanonicalSpacecraft,
+        options: &SolveOptions,
+        config: &EnvConfig,
+    ) -> Option<Vec<Transition<P::Obs, [f32; ACTION_LEN]>>> {
+        let episode = family.draw(seed, index);
+        let (record, placement) = relabel(family, (seed, index), &episode, state, step, spacecraft, options)?;
+        if !record.converged {
+            return None;
+        }
+        let demo = placed_demonstration::<P>(&record, &placement, config, &default_tolerances()).ok()?;
+        Some(demo.transitions)
+    }
 }
 
 impl DemoGeometry for crate::env::Spatial {
@@ -700,6 +751,44 @@ impl DemoGeometry for crate::env::Spatial {
         tolerances: &Tolerances,
     ) -> Demonstrations<P::Obs, [f32; onboard::features::ACTION3_LEN]> {
         spatial::spatial_demonstrations::<P>(records, config, tolerances)
+    }
+
+    fn state_numbers(state: &SpatialCraftState) -> Vec<f64> {
+        let (r, v) = (state.orbit.r, state.orbit.v);
+        vec![r[0], r[1], r[2], v[0], v[1], v[2], state.m]
+    }
+
+    fn state_from_numbers(numbers: &[f64]) -> Option<SpatialCraftState> {
+        let &[x, y, z, vx, vy, vz, m] = numbers else {
+            return None;
+        };
+        Some(SpatialCraftState {
+            orbit: shared::orbit::SpatialState {
+                r: [x, y, z],
+                v: [vx, vy, vz],
+            },
+            m,
+        })
+    }
+
+    fn relabel_tuples<P: Problem<Geometry = Self>>(
+        family: &shared::mission::SpatialFamily,
+        (seed, index): (u64, u64),
+        state: &SpatialCraftState,
+        step: u32,
+        spacecraft: &CanonicalSpacecraft,
+        options: &SolveOptions,
+        config: &EnvConfig,
+    ) -> Option<Vec<Transition<P::Obs, [f32; onboard::features::ACTION3_LEN]>>> {
+        let episode = family.draw(seed, index);
+        let (record, placement) =
+            spatial::relabel_spatial(family, (seed, index), &episode, state, step, spacecraft, options)?;
+        if !record.converged {
+            return None;
+        }
+        let demo =
+            spatial::placed_spatial_demonstration::<P>(&record, &placement, config, &default_tolerances()).ok()?;
+        Some(demo.transitions)
     }
 }
 

@@ -16,13 +16,16 @@ use onboard::lookahead::Lookahead;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
-use shared::scenario::Scenario;
+use shared::scenario::{Scenario, SpatialScenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
 use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, Flown, MonteCarloReport};
+use crate::export::actor_network;
+use crate::sac::agent::Sac;
+use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
-use ground_core::env::{step_reward, EnvError};
+use ground_core::env::{step_reward, EnvError, Planar, Spatial};
 use ground_core::io::atomic_write;
 use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
@@ -254,6 +257,47 @@ pub fn fly_blob(
     with_flight_problem!(config.problem(), N, P => {
         fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
     })
+}
+
+/// How a geometry's learner flies as the onboard controller (its f32 blob) against the SIL's
+/// dispersed plant, for the relabelling rounds that relabel or score dispersed flights. The
+/// blob and the onboard guidance are planar: an inclined family is refused.
+pub trait SilGeometry: DemoGeometry {
+    /// The flights of `agent`'s f32 blob on `scenarios` as `flights` says.
+    fn fly_learner(
+        config: &ExperimentConfig,
+        agent: &Sac,
+        scenarios: &[Self::Scenario],
+        flights: &SilFlights,
+    ) -> Result<Vec<EpisodeOutcome<Self>>, ExperimentError>;
+}
+
+impl SilGeometry for Planar {
+    fn fly_learner(
+        config: &ExperimentConfig,
+        agent: &Sac,
+        scenarios: &[Scenario],
+        flights: &SilFlights,
+    ) -> Result<Vec<EpisodeOutcome>, ExperimentError> {
+        let blob = actor_network(agent, config.problem())?
+            .f32_blob_for("relabelling round", config.blob_mission())
+            .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))?;
+        Ok(fly_blob(config, &blob, scenarios, flights)?.0)
+    }
+}
+
+impl SilGeometry for Spatial {
+    fn fly_learner(
+        config: &ExperimentConfig,
+        _agent: &Sac,
+        _scenarios: &[SpatialScenario],
+        _flights: &SilFlights,
+    ) -> Result<Vec<EpisodeOutcome<Spatial>>, ExperimentError> {
+        Err(ExperimentError::Inclined {
+            stage: "the software-in-the-loop flight",
+            family: config.family.label().to_string(),
+        })
+    }
 }
 
 /// The config's spacecraft, plant tolerances and reward weights, flown with `dispersions`.

@@ -49,6 +49,7 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
             &straight.join(format!("dagger/relabels-{}.ltrl", row.round)),
             row.round,
             10,
+            3,
         )
         .unwrap();
         assert_eq!(relabels.tuples.len() as u64, row.tuples_added);

@@ -36,6 +36,7 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
             &straight.join(format!("dagger/relabels-{}.ltrl", row.round)),
             row.round,
             22,
+            3,
         )
         .unwrap();
         assert_eq!(relabels.tuples.len() as u64, row.tuples_added);
@@ -45,7 +46,7 @@ fn rendezvous_rounds_relabel_and_resume_to_the_same_learner() {
         "no rendezvous relabel converged: the test shows nothing"
     );
     // The relabels of a rendezvous run are not transfer tuples.
-    assert!(load_relabels(&straight.join("dagger/relabels-1.ltrl"), 1, 10).is_err());
+    assert!(load_relabels(&straight.join("dagger/relabels-1.ltrl"), 1, 10, 3).is_err());
 
     let resumed = dir.join("resumed");
     config.dagger.rounds = 1;

@@ -43,10 +43,10 @@ use crate::pretrain::demonstration_buffer;
 use crate::run_folder::{check_run, prepare_run, write_file};
 use crate::sac::agent::Sac;
 use crate::sac::replay::sampler;
+use crate::sil::SilGeometry;
 use ground_core::charts::{line_chart, Series};
 use ground_core::env::batch::OutcomeSummary;
-use ground_core::env::{Planar, Problem};
-use ground_core::with_problem;
+use ground_core::env::{Geometry, Problem};
 
 pub mod relabel;
 pub mod selection;
@@ -189,8 +189,11 @@ pub fn dagger(
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
-    config.planar_family("relabelling rounds")?;
-    with_problem!(config.problem(), P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
+    if config.dagger.dispersed {
+        // The dispersed flights are the onboard controller's, whose blob is planar.
+        config.planar_family("dispersed relabelling rounds")?;
+    }
+    crate::with_flown_problem!(config, P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
 }
 
 /// The relabels of another run's completed rounds (1, 2, ... while both a round's relabels and
@@ -198,7 +201,7 @@ pub fn dagger(
 fn completed_relabels(
     config: &ExperimentConfig,
     other: &Path,
-    obs_dim: usize,
+    (obs_dim, act_dim): (usize, usize),
 ) -> Result<Vec<Relabels>, ExperimentError> {
     let path = other.join("config.toml");
     let text = std::fs::read_to_string(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
@@ -216,7 +219,7 @@ fn completed_relabels(
         if !path.exists() || !round_file(&dir, round).exists() {
             break;
         }
-        rounds.push(load_relabels(&path, round, obs_dim)?);
+        rounds.push(load_relabels(&path, round, obs_dim, act_dim)?);
     }
     if rounds.is_empty() {
         return Err(ExperimentError::Mismatch(format!(
@@ -227,13 +230,17 @@ fn completed_relabels(
     Ok(rounds)
 }
 
-fn dagger_for<P: Problem<Geometry = Planar>>(
+fn dagger_for<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
     run: &Path,
     start: &Path,
     relabels_from: Option<&Path>,
-) -> Result<DaggerSummary, ExperimentError> {
+) -> Result<DaggerSummary, ExperimentError>
+where
+    P::Geometry: SilGeometry,
+{
+    let sizes = (P::OBS, P::Geometry::ACT);
     let device = config.device()?;
     let (mut buffer, _) = demonstration_buffer::<P>(config, config_dir)?;
     check_run(config, run)?;
@@ -255,7 +262,7 @@ fn dagger_for<P: Problem<Geometry = Planar>>(
             }
         }
         let inherited = match relabels_from {
-            Some(other) => completed_relabels(config, other, P::OBS)?,
+            Some(other) => completed_relabels(config, other, sizes)?,
             None => Vec::new(),
         };
         prepare_run(config, run)?;
@@ -293,7 +300,7 @@ fn dagger_for<P: Problem<Geometry = Planar>>(
     rows.retain(|r| r.round <= done);
     let mut last_relabels = (0, 0, 0);
     for round in 1..=done {
-        let relabels = load_relabels(&relabels_file(&dir, round), round, P::OBS)?;
+        let relabels = load_relabels(&relabels_file(&dir, round), round, sizes.0, sizes.1)?;
         buffer.extend_from(&relabels.tuples);
         last_relabels = (relabels.attempted, relabels.converged, relabels.tuples.len() as u64);
     }
@@ -324,7 +331,7 @@ fn dagger_for<P: Problem<Geometry = Planar>>(
         let clock = Instant::now();
         let path = relabels_file(&dir, round);
         let relabels = if path.exists() {
-            load_relabels(&path, round, P::OBS)?
+            load_relabels(&path, round, sizes.0, sizes.1)?
         } else {
             let relabels = solve_relabels::<P>(config, &agent, round, &dir)?;
             save_relabels(&path, &relabels)?;

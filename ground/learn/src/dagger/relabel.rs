@@ -5,26 +5,26 @@ use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use shared::scenario::Scenario;
 
-use super::selection::{flown_blob, largest_misses, ranked_by_miss, relabel_candidates, walk_probes};
+use super::selection::{largest_misses, ranked_by_miss, relabel_candidates, walk_probes};
 use super::slurm::solve_on_slurm;
 use super::{progress_bar, DISPERSION_STREAM, ROUND_STRIDE};
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
+use crate::phase::family_of;
 use crate::phase::policy_batch;
 use crate::run_folder::write_file;
 use crate::sac::agent::Sac;
 use crate::sac::replay::{ReplayBuffer, Transition};
-use crate::sil::{fly_blob, SilFlights};
-use ground_core::demo::{default_tolerances, placed_demonstration, relabel};
+use crate::sil::{SilFlights, SilGeometry};
+use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::evaluate_batched;
-use ground_core::env::{Geometry, MdpEnv, Planar, Problem};
+use ground_core::env::{Geometry, MdpEnv, Problem, ScenarioOf};
 use ground_core::io::{decode_container, encode_container};
-use onboard::dynamics::SpacecraftState;
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
-const RELABELS_VERSION: u16 = 1;
+// Version 2: tuples of three or four action components (the buffer says which).
+const RELABELS_VERSION: u16 = 2;
 
 /// One round's relabelled tuples, as saved in `relabels-R.ltrl`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,7 +43,7 @@ pub struct Relabels {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RelabelTuple {
     obs: Vec<f32>,
-    action: [f32; 3],
+    action: Vec<f32>,
     reward: f32,
     next_obs: Vec<f32>,
     done: bool,
@@ -52,55 +52,46 @@ pub struct RelabelTuple {
 /// The tuples of one relabel's re-solved flight, `None` where it did not converge.
 pub(crate) type Solved = Option<Vec<RelabelTuple>>;
 
-/// One relabel: the rest of training scenario `first + episode`'s flight from `state`
-/// (x, y, vx, vy, m) at step `step`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// One relabel: the rest of training scenario `first + episode`'s flight from `state` at step
+/// `step`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RelabelJob {
     /// The flight, counted from the round's first training scenario.
     pub episode: u64,
     /// The step of the flight whose state the rest is solved from.
     pub step: u32,
-    /// The true state there: x, y (AU), vx, vy (AU/t*), mass (fraction of m0).
-    pub state: [f64; 5],
+    /// The true state there ([`DemoGeometry::state_numbers`]): x, y, vx, vy, m in the plane;
+    /// x, y, z, vx, vy, vz, m in three dimensions (AU, AU/t*, fraction of m0).
+    pub state: Vec<f64>,
 }
 
-/// Solves one relabel, as [`relabel`] and [`placed_demonstration`] make it.
-pub(crate) fn solve_job<P: Problem<Geometry = Planar>>(
-    config: &ExperimentConfig,
-    first: u64,
-    job: &RelabelJob,
-) -> Solved {
-    let index = first + job.episode;
-    let scenario = config.family.family.draw(config.seeds.train, index);
+/// Solves one relabel, as [`DemoGeometry::relabel_tuples`] makes it (a state of another
+/// dimension: not solved).
+pub(crate) fn solve_job<P: Problem>(config: &ExperimentConfig, first: u64, job: &RelabelJob) -> Solved
+where
+    P::Geometry: DemoGeometry,
+{
+    let family = family_of::<P::Geometry>(config).ok()?;
+    let state = P::Geometry::state_from_numbers(&job.state)?;
     let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
     // to 10.9 % within the goal (docs/results.md).
     let options = config.generate.solve_options();
-    let [x, y, vx, vy, m] = job.state;
-    let state = SpacecraftState {
-        r: [x, y],
-        v: [vx, vy],
-        m,
-    };
-    let (record, placement) = relabel(
-        &config.family.family,
-        (config.seeds.train, index),
-        &scenario,
+    let transitions = P::Geometry::relabel_tuples::<P>(
+        &family,
+        (config.seeds.train, first + job.episode),
         &state,
         job.step,
         &sc,
         &options,
+        &config.env,
     )?;
-    if !record.converged {
-        return None;
-    }
-    let demo = placed_demonstration::<P>(&record, &placement, &config.env, &default_tolerances()).ok()?;
     Some(
-        demo.transitions
+        transitions
             .iter()
             .map(|t| RelabelTuple {
                 obs: t.observation.as_ref().to_vec(),
-                action: t.action,
+                action: t.action.as_ref().to_vec(),
                 reward: t.reward as f32,
                 next_obs: t.next_observation.as_ref().to_vec(),
                 done: t.done,
@@ -113,17 +104,20 @@ pub(crate) fn relabels_file(dir: &Path, round: u64) -> PathBuf {
     dir.join(format!("relabels-{round}.ltrl"))
 }
 
-/// Reads a round's relabels, refusing a corrupt file or one of another round or problem.
-pub fn load_relabels(path: &Path, round: u64, obs_dim: usize) -> Result<Relabels, ExperimentError> {
+/// Reads a round's relabels, refusing a corrupt file or one of another round or problem (its
+/// observation and action sizes).
+pub fn load_relabels(path: &Path, round: u64, obs_dim: usize, act_dim: usize) -> Result<Relabels, ExperimentError> {
     let bytes = std::fs::read(path).map_err(|e| ExperimentError::Io(path.to_path_buf(), e))?;
     let relabels: Relabels = decode_container(RELABELS_MAGIC, RELABELS_VERSION, &bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("relabels {}: {e}", path.display())))?;
-    if relabels.round != round || relabels.tuples.obs_dim() != obs_dim || relabels.tuples.act_dim() != 3 {
+    if relabels.round != round || relabels.tuples.obs_dim() != obs_dim || relabels.tuples.act_dim() != act_dim {
         return Err(ExperimentError::Mismatch(format!(
-            "relabels {} hold round {} with {}-feature observations, expected round {round} with {obs_dim}",
+            "relabels {} hold round {} with {}-feature observations and {}-component actions, expected round \
+             {round} with {obs_dim} and {act_dim}",
             path.display(),
             relabels.round,
-            relabels.tuples.obs_dim()
+            relabels.tuples.obs_dim(),
+            relabels.tuples.act_dim()
         )));
     }
     Ok(relabels)
@@ -137,35 +131,38 @@ pub(crate) fn save_relabels(path: &Path, relabels: &Relabels) -> Result<(), Expe
 
 /// Flies the policy on round `round`'s training scenarios and relabels the visited states at
 /// the config's fractions of each flight, solved to the demonstrations' eps.
-pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
+pub(crate) fn solve_relabels<P: Problem>(
     config: &ExperimentConfig,
     agent: &Sac,
     round: u64,
     dagger_dir: &Path,
-) -> Result<Relabels, ExperimentError> {
+) -> Result<Relabels, ExperimentError>
+where
+    P::Geometry: SilGeometry,
+{
     let dagger = &config.dagger;
     let first = ROUND_STRIDE * round;
     let candidates = dagger.candidates.unwrap_or(dagger.episodes);
-    let scenarios: Vec<Scenario> = (first..first + candidates)
-        .map(|i| config.family.family.draw(config.seeds.train, i))
+    let family = family_of::<P::Geometry>(config)?;
+    let scenarios: Vec<ScenarioOf<P::Geometry>> = (first..first + candidates)
+        .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
     let flown = if dagger.dispersed {
         // The onboard controller's flights (the f32 blob of this actor) in the dispersed plant:
         // the trajectory holds the true states, which the relabels start from.
-        let blob = flown_blob(agent, config)?;
         let seed = (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first);
         // The learner's own flights: the network alone, every trajectory kept.
         let flights = SilFlights {
             record: scenarios.len(),
             ..SilFlights::network_alone(&config.sil.dispersions, seed)
         };
-        fly_blob(config, &blob, &scenarios, &flights)?.0
+        P::Geometry::fly_learner(config, agent, &scenarios, &flights)?
     } else {
         evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(agent, o), true)?
     };
     let eligible = relabel_candidates(&flown, &scenarios, dagger.max_miss);
     let step_at = |episode: usize, fraction: f64| {
-        let steps = scenarios[episode].steps;
+        let steps = P::Geometry::plan(&scenarios[episode]).steps;
         ((fraction * f64::from(steps)).round() as u32).clamp(1, steps - 1)
     };
     let wanted = dagger.episodes as usize;
@@ -181,11 +178,10 @@ pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
             .iter()
             .map(|&(episode, step)| {
                 let point = flown[episode].trajectory.as_ref()?.get(step as usize)?;
-                let (r, v, m) = (point.state.r, point.state.v, point.state.m);
                 Some(RelabelJob {
                     episode: episode as u64,
                     step,
-                    state: [r[0], r[1], v[0], v[1], m],
+                    state: P::Geometry::state_numbers(&point.state),
                 })
             })
             .collect();
@@ -199,7 +195,7 @@ pub(crate) fn solve_relabels<P: Problem<Geometry = Planar>>(
                 .collect(),
             Some(slurm) => {
                 batches += 1;
-                let present: Vec<RelabelJob> = jobs.iter().flatten().copied().collect();
+                let present: Vec<RelabelJob> = jobs.iter().flatten().cloned().collect();
                 let tag = format!("{round}-{batches}");
                 let mut results = solve_on_slurm(config, slurm, dagger_dir, &tag, first, present)?.into_iter();
                 bar.inc(jobs.len() as u64);

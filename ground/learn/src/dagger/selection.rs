@@ -1,22 +1,19 @@
 //! Which flights a round relabels (the largest misses, or the probes that re-solve), and the
 //! score that picks the best round.
 
-use shared::scenario::Scenario;
-
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
 use crate::eval::{within_accuracy_goal, ACCURACY_GOAL};
-use crate::export::actor_network;
-use crate::phase::evaluate_agent;
+use crate::phase::{evaluate_agent, family_of};
 use crate::sac::agent::Sac;
-use crate::sil::{fly_blob, SilFlights};
+use crate::sil::{SilFlights, SilGeometry};
 use ground_core::env::batch::{summarize, EpisodeOutcome, OutcomeSummary};
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::env::{Geometry, MdpEnv, Problem};
 
 /// The `count` outcomes that miss the accuracy goal the most, max(dr, dv) / [`ACCURACY_GOAL`]
 /// (the earlier of equal misses first), returned in episode order. Fewer outcomes than `count`:
 /// all of them.
-pub(crate) fn largest_misses(outcomes: Vec<&EpisodeOutcome>, count: usize) -> Vec<&EpisodeOutcome> {
+pub(crate) fn largest_misses<G: Geometry>(outcomes: Vec<&EpisodeOutcome<G>>, count: usize) -> Vec<&EpisodeOutcome<G>> {
     if outcomes.len() <= count {
         return outcomes;
     }
@@ -28,26 +25,26 @@ pub(crate) fn largest_misses(outcomes: Vec<&EpisodeOutcome>, count: usize) -> Ve
 
 /// The outcomes from the largest miss of the accuracy goal to the smallest, max(dr, dv) /
 /// [`ACCURACY_GOAL`], the earlier of equal misses first.
-pub(crate) fn ranked_by_miss(mut outcomes: Vec<&EpisodeOutcome>) -> Vec<&EpisodeOutcome> {
+pub(crate) fn ranked_by_miss<G: Geometry>(mut outcomes: Vec<&EpisodeOutcome<G>>) -> Vec<&EpisodeOutcome<G>> {
     outcomes.sort_by(|a, b| miss(b).total_cmp(&miss(a)).then(a.episode.cmp(&b.episode)));
     outcomes
 }
 
 /// A flight's miss in units of the accuracy goal: max(dr, dv) / [`ACCURACY_GOAL`].
-fn miss(outcome: &EpisodeOutcome) -> f64 {
+fn miss<G: Geometry>(outcome: &EpisodeOutcome<G>) -> f64 {
     outcome.terminal.position.max(outcome.terminal.velocity) / ACCURACY_GOAL
 }
 
 /// The flights a round may relabel, in episode order: completed, with a step strictly inside
 /// the flight, and missing by at most `max_miss` times the goal when that is set.
-pub(crate) fn relabel_candidates<'a>(
-    flown: &'a [EpisodeOutcome],
-    scenarios: &[Scenario],
+pub(crate) fn relabel_candidates<'a, G: Geometry>(
+    flown: &'a [EpisodeOutcome<G>],
+    scenarios: &[G::Scenario],
     max_miss: Option<f64>,
-) -> Vec<&'a EpisodeOutcome> {
+) -> Vec<&'a EpisodeOutcome<G>> {
     flown
         .iter()
-        .filter(|o| o.completed && scenarios[o.episode].steps >= 2)
+        .filter(|o| o.completed && G::plan(&scenarios[o.episode]).steps >= 2)
         .filter(|o| max_miss.is_none_or(|cap| miss(o) <= cap))
         .collect()
 }
@@ -78,13 +75,6 @@ pub(crate) fn walk_probes<T, E>(
     Ok((kept, probed))
 }
 
-/// The learner's flown actor as an f32 blob of the config's mission.
-pub(crate) fn flown_blob(agent: &Sac, config: &ExperimentConfig) -> Result<Vec<u8>, ExperimentError> {
-    actor_network(agent, config.problem())?
-        .f32_blob_for("relabelling round", config.blob_mission())
-        .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))
-}
-
 /// A round's score on the evaluation seed's first `dagger.score_episodes` scenarios.
 pub(crate) struct Score {
     pub(crate) within_goal: f64,
@@ -96,26 +86,25 @@ pub(crate) struct Score {
 
 /// Scores the learner on the evaluation seed's first `dagger.score_episodes` scenarios, and
 /// under the SIL's dispersions when the rounds relabel dispersed flights.
-pub(crate) fn score<P: Problem<Geometry = Planar>>(
-    config: &ExperimentConfig,
-    agent: &Sac,
-) -> Result<Score, ExperimentError> {
+pub(crate) fn score<P: Problem>(config: &ExperimentConfig, agent: &Sac) -> Result<Score, ExperimentError>
+where
+    P::Geometry: SilGeometry,
+{
+    let family = family_of::<P::Geometry>(config)?;
     let outcomes = evaluate_agent::<MdpEnv<P>>(
         agent,
         &config.env,
-        config.family.family,
+        family,
         config.seeds.evaluation,
         config.dagger.score_episodes,
         false,
     )?;
     let within_goal_dispersed = if config.dagger.dispersed {
-        let scenarios: Vec<Scenario> = (0..config.dagger.score_episodes)
-            .map(|i| config.family.family.draw(config.seeds.evaluation, i))
+        let scenarios: Vec<_> = (0..config.dagger.score_episodes)
+            .map(|i| P::Geometry::draw(&family, config.seeds.evaluation, i))
             .collect();
-        let blob = flown_blob(agent, config)?;
-        let dispersions = &config.sil.dispersions;
-        let flights = SilFlights::network_alone(dispersions, config.seeds.evaluation);
-        let (flown, _, _) = fly_blob(config, &blob, &scenarios, &flights)?;
+        let flights = SilFlights::network_alone(&config.sil.dispersions, config.seeds.evaluation);
+        let flown = P::Geometry::fly_learner(config, agent, &scenarios, &flights)?;
         Some(within_accuracy_goal(&flown))
     } else {
         None
@@ -131,6 +120,7 @@ pub(crate) fn score<P: Problem<Geometry = Planar>>(
 mod tests {
     use super::*;
     use onboard::features::Residuals;
+    use shared::scenario::Scenario;
 
     fn outcome(episode: usize, dr: f64, dv: f64) -> EpisodeOutcome {
         EpisodeOutcome {

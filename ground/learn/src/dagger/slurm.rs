@@ -12,7 +12,6 @@ use crate::config::{ExperimentConfig, SlurmConfig};
 use crate::error::ExperimentError;
 use crate::run_folder::write_file;
 use ground_core::io::{checksum, decode_container, encode_container};
-use ground_core::with_problem;
 
 /// A batch of relabels for a Slurm array (`ground relabel-shard`): the run's config (its
 /// scenarios, spacecraft, environment, final eps and arrival margin), the round's first training
@@ -38,9 +37,10 @@ struct RelabelShard {
 }
 
 const REQUEST_MAGIC: [u8; 4] = *b"LTRQ";
-const REQUEST_VERSION: u16 = 1;
+// Version 2: a job's state of five or seven numbers; the answers' actions of three or four.
+const REQUEST_VERSION: u16 = 2;
 const SHARD_MAGIC: [u8; 4] = *b"LTRS";
-const SHARD_VERSION: u16 = 2;
+const SHARD_VERSION: u16 = 3;
 
 fn shard_file(request: &Path, task: u64, tasks: u64) -> PathBuf {
     request.with_extension(format!("{task}-of-{tasks}.ltrs"))
@@ -58,12 +58,11 @@ pub fn relabel_shard(request_path: &Path, task: u64, tasks: u64) -> Result<PathB
     let request: RelabelRequest = decode_container(REQUEST_MAGIC, REQUEST_VERSION, &bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("relabel request {}: {e}", request_path.display())))?;
     let config = ExperimentConfig::from_toml(&request.config)?;
-    config.planar_family("relabelling")?;
     let mine: Vec<(u64, &RelabelJob)> = (task..request.jobs.len() as u64)
         .step_by(tasks as usize)
         .map(|i| (i, &request.jobs[i as usize]))
         .collect();
-    let solve = |job: &RelabelJob| with_problem!(config.problem(), P => solve_job::<P>(&config, request.first, job));
+    let solve = |job: &RelabelJob| crate::with_flown_problem!(config, P => solve_job::<P>(&config, request.first, job));
     let answers = mine.par_iter().map(|&(i, job)| (i, solve(job))).collect();
     let out = shard_file(request_path, task, tasks);
     let shard = RelabelShard {
