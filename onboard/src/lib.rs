@@ -26,7 +26,7 @@
 //! use onboard::guidance::transfer_step;
 //! use onboard::integrator::Tolerances;
 //! use onboard::policy::TransferPolicy;
-//! use shared::blob::{Activation, ProblemKind};
+//! use shared::blob::{Activation, FeatureLayout, ProblemKind};
 //! use shared::orbit::OrbitShape;
 //! use shared::quantize::{DenseWeights, MlpWeights};
 //! use shared::spacecraft::Spacecraft;
@@ -41,7 +41,7 @@
 //!     activation,
 //! };
 //! let network = MlpWeights {
-//!     kind: ProblemKind::Transfer,
+//!     features: FeatureLayout::TransferPolar10,
 //!     layers: vec![
 //!         dense(10, 256, Activation::Relu),
 //!         dense(256, 256, Activation::Relu),

@@ -2,13 +2,13 @@
 
 mod policy_support;
 
-use onboard::policy::{DenseF32, RendezvousPolicy, TransferPolicy};
+use onboard::policy::{DenseF32, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use policy_support::{f32_layer, f32_net, random_input, RefNet, Rng};
 use shared::blob::{Activation, ProblemKind, Quantization};
 
 /// Max |policy - reference| over `n` random inputs.
-fn max_err_f32<const IN: usize>(
-    forward: impl Fn(&[f32; IN]) -> [f32; 3],
+fn max_err_f32<const IN: usize, const OUT: usize>(
+    forward: impl Fn(&[f32; IN]) -> [f32; OUT],
     net: &RefNet,
     n: usize,
     rng: &mut Rng,
@@ -48,6 +48,22 @@ fn rendezvous_f32_matches_f64_reference() {
     let err = max_err_f32(|x| policy.forward(x), &net, 300, &mut rng);
     println!("rendezvous f32: max |f32 - f64 reference| = {err:e}");
     assert!(err < 1e-5, "error {err}");
+}
+
+#[test]
+fn three_dimensional_f32_policies_match_f64_reference() {
+    // 15-256-256-4 and 30-256-256-4: throttle and an RTN direction.
+    let mut rng = Rng::new(3);
+    let net = RefNet::random(&[15, 256, 256, 4], 3.0, &mut rng);
+    let bytes = f32_net(&net, ProblemKind::Transfer).encode();
+    let policy = Transfer3Policy::from_bytes(&bytes, ProblemKind::Transfer).unwrap();
+    let err = max_err_f32(|x| policy.forward(x), &net, 300, &mut rng);
+    assert!(err < 1e-5, "transfer error {err}");
+    let net = RefNet::random(&[30, 256, 256, 4], 3.0, &mut rng);
+    let bytes = f32_net(&net, ProblemKind::Rendezvous).encode();
+    let policy = Rendezvous3Policy::from_bytes(&bytes, ProblemKind::Rendezvous).unwrap();
+    let err = max_err_f32(|x| policy.forward(x), &net, 300, &mut rng);
+    assert!(err < 1e-5, "rendezvous error {err}");
 }
 
 #[test]

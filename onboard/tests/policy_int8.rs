@@ -3,7 +3,7 @@
 
 mod policy_support;
 
-use onboard::policy::{DenseInt8, RendezvousPolicy, TransferPolicy};
+use onboard::policy::{DenseInt8, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use policy_support::{
     calibrate, int8_bound, int8_emulate, int8_layer, int8_net, quantize_layer, quantize_net, random_input, RefNet, Rng,
 };
@@ -23,15 +23,15 @@ struct Stats {
 
 /// Builds an int8 policy from a random f32 network (PyTorch init times `gain`), calibrates the
 /// activation scales on 200 random inputs, and checks `n` fresh inputs against the derived bound.
-fn run_int8<const IN: usize>(
+fn run_int8<const IN: usize, const OUT: usize>(
     kind: ProblemKind,
     seed: u64,
     gain: f64,
     n: usize,
-    forward: impl Fn(&[u8], &[f32; IN]) -> [f32; 3],
+    forward: impl Fn(&[u8], &[f32; IN]) -> [f32; OUT],
 ) -> Stats {
     let mut rng = Rng::new(seed);
-    let net = RefNet::random(&[IN, 256, 256, 3], gain, &mut rng);
+    let net = RefNet::random(&[IN, 256, 256, OUT], gain, &mut rng);
     let calib: Vec<Vec<f32>> = (0..200).map(|_| random_input(IN, &mut rng)).collect();
     let scales = calibrate(&net, &calib);
     let quant = quantize_net(&net, &scales);
@@ -93,7 +93,7 @@ fn report(name: &str, s: &Stats) {
 
 #[test]
 fn transfer_int8_within_derived_bound() {
-    let s = run_int8::<10>(ProblemKind::Transfer, 11, 1.0, 300, |bytes, x| {
+    let s = run_int8::<10, 3>(ProblemKind::Transfer, 11, 1.0, 300, |bytes, x| {
         let p = TransferPolicy::from_bytes(bytes, ProblemKind::Transfer).unwrap();
         assert_eq!(p.quantization(), Quantization::Int8);
         p.forward(x)
@@ -105,12 +105,28 @@ fn transfer_int8_within_derived_bound() {
 
 #[test]
 fn rendezvous_int8_within_derived_bound() {
-    let s = run_int8::<22>(ProblemKind::Rendezvous, 12, 1.0, 300, |bytes, x| {
+    let s = run_int8::<22, 3>(ProblemKind::Rendezvous, 12, 1.0, 300, |bytes, x| {
         RendezvousPolicy::from_bytes(bytes, ProblemKind::Rendezvous)
             .unwrap()
             .forward(x)
     });
     report("rendezvous (gain 1)", &s);
+}
+
+#[test]
+fn three_dimensional_int8_policies_within_derived_bound() {
+    let s = run_int8::<15, 4>(ProblemKind::Transfer, 13, 1.0, 300, |bytes, x| {
+        Transfer3Policy::from_bytes(bytes, ProblemKind::Transfer)
+            .unwrap()
+            .forward(x)
+    });
+    report("transfer 3D (gain 1)", &s);
+    let s = run_int8::<30, 4>(ProblemKind::Rendezvous, 14, 1.0, 300, |bytes, x| {
+        Rendezvous3Policy::from_bytes(bytes, ProblemKind::Rendezvous)
+            .unwrap()
+            .forward(x)
+    });
+    report("rendezvous 3D (gain 1)", &s);
 }
 
 /// The integer accumulators equal the exact i64 dot product plus bias, for widths that

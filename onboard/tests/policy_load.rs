@@ -4,10 +4,11 @@
 mod policy_support;
 
 use onboard::policy::{
-    DenseF32, DenseInt8, LayerArray, LayerShape, MlpLayers, PolicyError, RendezvousPolicy, TransferPolicy, MLP_LAYERS,
+    DenseF32, DenseInt8, LayerArray, LayerShape, MlpLayers, PolicyError, Rendezvous3Policy, RendezvousPolicy,
+    TransferPolicy, MLP_LAYERS,
 };
 use policy_support::{calibrate, f32_net, int8_net, quantize_net, random_input, OwnedNet, RefNet, Rng};
-use shared::blob::{Activation, BlobError, FeatureLayout, ProblemKind};
+use shared::blob::{self, Activation, BlobError, FeatureLayout, ProblemKind};
 
 fn f32_owned(sizes: &[usize], kind: ProblemKind, seed: u64) -> OwnedNet {
     let mut rng = Rng::new(seed);
@@ -116,20 +117,37 @@ fn wrong_hidden_size_is_refused() {
 
 #[test]
 fn wrong_output_count_is_refused() {
+    // The blob itself refuses a last layer that is not its layout's action count.
     for owned in [
         f32_owned(&[22, 256, 256, 2], ProblemKind::Rendezvous, 8),
         int8_owned(&[22, 256, 256, 4], ProblemKind::Rendezvous, 9),
     ] {
-        let found = owned.layers[2].outputs as usize;
+        let found = owned.layers[2].outputs;
         assert_eq!(
-            RendezvousPolicy::from_bytes(&owned.encode(), ProblemKind::Rendezvous),
-            Err(PolicyError::WrongShape {
-                layer: 2,
-                expected: shape(256, 3),
-                found: shape(256, found)
-            })
+            blob::encode_to_vec(&owned.view()),
+            Err(BlobError::OutputMismatch { expected: 3, found })
         );
     }
+    // A three-dimensional network (30 inputs, 4 outputs) is not a planar policy, nor the reverse.
+    let spatial = int8_owned(&[30, 256, 256, 4], ProblemKind::Rendezvous, 9);
+    assert_eq!(spatial.features, FeatureLayout::RendezvousSpatial30);
+    let bytes = spatial.encode();
+    assert!(Rendezvous3Policy::from_bytes(&bytes, ProblemKind::Rendezvous).is_ok());
+    assert_eq!(
+        RendezvousPolicy::from_bytes(&bytes, ProblemKind::Rendezvous),
+        Err(PolicyError::WrongFeatures {
+            expected_inputs: 22,
+            found: FeatureLayout::RendezvousSpatial30
+        })
+    );
+    let planar = f32_owned(&[22, 256, 256, 3], ProblemKind::Rendezvous, 8).encode();
+    assert_eq!(
+        Rendezvous3Policy::from_bytes(&planar, ProblemKind::Rendezvous),
+        Err(PolicyError::WrongFeatures {
+            expected_inputs: 30,
+            found: FeatureLayout::RendezvousPolar22
+        })
+    );
 }
 
 #[test]

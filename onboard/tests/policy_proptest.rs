@@ -100,7 +100,8 @@ proptest! {
 
     #[test]
     fn small_mlps_match_reference(seed in any::<u64>(), gain in 0.5f64..3.0) {
-        check_mlp::<10, 5, 4, 2>(ProblemKind::Transfer, seed, gain)?;
+        check_mlp::<15, 5, 4, 4>(ProblemKind::Transfer, seed, gain)?;
+        check_mlp::<30, 9, 6, 4>(ProblemKind::Rendezvous, seed, gain)?;
         check_mlp::<22, 16, 8, 3>(ProblemKind::Rendezvous, seed, gain)?;
         check_mlp::<10, 70, 130, 3>(ProblemKind::Transfer, seed, gain)?;
     }

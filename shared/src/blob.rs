@@ -71,10 +71,15 @@ pub const MAX_INT8_INPUTS: usize = 512;
 /// The network's input encoding (docs/spec.md sections 5 and 6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum FeatureLayout {
-    /// The 10 transfer features with the target-orbit proxy.
+    /// The 10 transfer features with the target-orbit proxy; 3 action outputs.
     TransferPolar10,
-    /// The 22 rendezvous features.
+    /// The 22 rendezvous features; 3 action outputs.
     RendezvousPolar22,
+    /// The 15 three-dimensional transfer features (docs/spec.md section 6.1); 4 action outputs
+    /// (throttle and an RTN direction).
+    TransferSpatial15,
+    /// The 30 three-dimensional rendezvous features (docs/spec.md section 6.1); 4 action outputs.
+    RendezvousSpatial30,
 }
 
 impl FeatureLayout {
@@ -85,14 +90,40 @@ impl FeatureLayout {
         match self {
             Self::TransferPolar10 => 10,
             Self::RendezvousPolar22 => 22,
+            Self::TransferSpatial15 => 15,
+            Self::RendezvousSpatial30 => 30,
         }
     }
 
     /// The problem this layout encodes.
     pub fn problem(self) -> ProblemKind {
         match self {
-            Self::TransferPolar10 => ProblemKind::Transfer,
-            Self::RendezvousPolar22 => ProblemKind::Rendezvous,
+            Self::TransferPolar10 | Self::TransferSpatial15 => ProblemKind::Transfer,
+            Self::RendezvousPolar22 | Self::RendezvousSpatial30 => ProblemKind::Rendezvous,
+        }
+    }
+
+    /// Whether the layout is three-dimensional.
+    pub fn is_spatial(self) -> bool {
+        matches!(self, Self::TransferSpatial15 | Self::RendezvousSpatial30)
+    }
+
+    /// Number of network outputs (action components): 3 in the plane, 4 in three dimensions.
+    pub fn actions(self) -> usize {
+        if self.is_spatial() {
+            4
+        } else {
+            3
+        }
+    }
+
+    /// The layout of `problem`'s features, planar or three-dimensional.
+    pub fn of(problem: ProblemKind, spatial: bool) -> Self {
+        match (problem, spatial) {
+            (ProblemKind::Transfer, false) => Self::TransferPolar10,
+            (ProblemKind::Rendezvous, false) => Self::RendezvousPolar22,
+            (ProblemKind::Transfer, true) => Self::TransferSpatial15,
+            (ProblemKind::Rendezvous, true) => Self::RendezvousSpatial30,
         }
     }
 }
@@ -394,6 +425,14 @@ pub enum BlobError {
         /// Inputs of the first layer.
         found: u16,
     },
+    /// The last layer's output width is not the feature layout's action count
+    /// ([`FeatureLayout::actions`]).
+    OutputMismatch {
+        /// Outputs the layout flies.
+        expected: usize,
+        /// Outputs of the last layer.
+        found: u16,
+    },
     /// Layer `layer`'s inputs differ from the previous layer's outputs.
     ChainBreak {
         /// Index of the layer (from 0).
@@ -513,6 +552,12 @@ impl core::fmt::Display for BlobError {
             }
             Self::InputMismatch { expected, found } => {
                 write!(f, "first layer takes {found} inputs, the feature layout has {expected}")
+            }
+            Self::OutputMismatch { expected, found } => {
+                write!(
+                    f,
+                    "last layer gives {found} outputs, the feature layout flies {expected} action components"
+                )
             }
             Self::ChainBreak { layer, expected, found } => {
                 write!(f, "layer {layer} takes {found} inputs, previous layer gives {expected}")
@@ -724,6 +769,12 @@ impl NetworkBlob<'_> {
                 }
             }
             previous_outputs = Some(layer.outputs);
+            if l + 1 == n && usize::from(layer.outputs) != self.features.actions() {
+                return Err(BlobError::OutputMismatch {
+                    expected: self.features.actions(),
+                    found: layer.outputs,
+                });
+            }
             let want = if l + 1 == n { Activation::Tanh } else { Activation::Relu };
             if layer.activation != want {
                 return Err(BlobError::BadActivation {

@@ -20,7 +20,7 @@
 //! copying or allocating. A tiny 10-4-4-3 transfer network:
 //!
 //! ```
-//! use shared::blob::{self, Activation, BlobError, Quantization};
+//! use shared::blob::{self, Activation, BlobError, FeatureLayout, Quantization};
 //! use shared::quantize::{DenseWeights, MlpWeights};
 //! use shared::scenario::ProblemKind;
 //!
@@ -33,7 +33,7 @@
 //!     activation,
 //! };
 //! let network = MlpWeights {
-//!     kind: ProblemKind::Transfer,
+//!     features: FeatureLayout::TransferPolar10,
 //!     layers: vec![
 //!         dense(10, 4, Activation::Relu),
 //!         dense(4, 4, Activation::Relu),

@@ -20,7 +20,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::blob::{
     encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, BlobMission, FeatureLayout, LayerBlob,
-    NetworkBlob, ProblemKind, Quantization, ACTIVATION_LEVELS,
+    NetworkBlob, Quantization, ACTIVATION_LEVELS,
 };
 
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
@@ -41,8 +41,8 @@ pub struct DenseWeights {
 /// A trained actor mean network.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MlpWeights {
-    /// The problem the network flies (fixes the feature layout).
-    pub kind: ProblemKind,
+    /// The network's input encoding (fixes its problem, inputs and action outputs).
+    pub features: FeatureLayout,
     /// The dense layers, input to output.
     pub layers: Vec<DenseWeights>,
 }
@@ -92,13 +92,6 @@ pub struct Int8Layer {
     pub weights: Vec<i8>,
     /// Bias in accumulator units.
     pub bias: Vec<i32>,
-}
-
-fn features_of(kind: ProblemKind) -> FeatureLayout {
-    match kind {
-        ProblemKind::Transfer => FeatureLayout::TransferPolar10,
-        ProblemKind::Rendezvous => FeatureLayout::RendezvousPolar22,
-    }
 }
 
 /// `round(x / s)` half away from zero, clamped to `[-127, 127]` (the onboard rounding).
@@ -296,8 +289,8 @@ impl MlpWeights {
             })?;
         }
         let net = NetworkBlob {
-            kind: self.kind,
-            features: features_of(self.kind),
+            kind: self.features.problem(),
+            features: self.features,
             quantization,
             provenance,
             layers: views,
@@ -526,7 +519,7 @@ mod tests {
             activation,
         };
         MlpWeights {
-            kind: ProblemKind::Transfer,
+            features: FeatureLayout::TransferPolar10,
             layers: vec![
                 layer(10, 6, Activation::Relu, 1.0),
                 layer(6, 5, Activation::Relu, 2.0),
@@ -638,7 +631,7 @@ mod tests {
         // An f32 identity first layer (the inputs are positive, so its ReLU keeps them), the
         // row under test as the int8 hidden layer, and an f32 output layer.
         let net = MlpWeights {
-            kind: ProblemKind::Transfer,
+            features: FeatureLayout::TransferPolar10,
             layers: vec![
                 DenseWeights {
                     inputs: 3,

@@ -495,7 +495,7 @@ fn no_layers_and_too_many_layers_are_refused() {
     let o = network(
         FeatureLayout::TransferPolar10,
         Quantization::F32,
-        &[10, 4, 4, 4, 4, 3],
+        &[10, 4, 4, 4, 3, 3],
         4,
     );
     let layers: Vec<LayerBlob<'_>> = o.layers.iter().map(|l| l.view()).collect();
@@ -541,6 +541,37 @@ fn first_layer_must_take_the_feature_count() {
             found: 11,
         },
     );
+}
+
+#[test]
+fn three_dimensional_layouts_round_trip_with_four_action_outputs() {
+    for (features, inputs, q) in [
+        (FeatureLayout::TransferSpatial15, 15, Quantization::F32),
+        (FeatureLayout::RendezvousSpatial30, 30, Quantization::Int8),
+    ] {
+        assert!(features.is_spatial() && features.actions() == 4 && features.len() == inputs);
+        assert_eq!(FeatureLayout::of(features.problem(), true), features);
+        let owned = network(features, q, &[inputs as u16, 256, 256, 4], 11);
+        check_round_trip(&owned);
+    }
+    for features in [FeatureLayout::TransferPolar10, FeatureLayout::RendezvousPolar22] {
+        assert!(!features.is_spatial() && features.actions() == 3);
+        assert_eq!(FeatureLayout::of(features.problem(), false), features);
+    }
+}
+
+#[test]
+fn the_last_layer_must_give_the_layouts_action_count() {
+    // A planar network with a fourth output, and a three-dimensional one with three.
+    let o = network(FeatureLayout::TransferPolar10, Quantization::F32, &[10, 8, 4], 12);
+    assert_refused(&o, BlobError::OutputMismatch { expected: 3, found: 4 });
+    let o = network(
+        FeatureLayout::RendezvousSpatial30,
+        Quantization::Int8,
+        &[30, 8, 8, 3],
+        13,
+    );
+    assert_refused(&o, BlobError::OutputMismatch { expected: 4, found: 3 });
 }
 
 #[test]
@@ -859,7 +890,7 @@ fn check_decode_is_total(bytes: &[u8]) {
 }
 
 fn valid_payload(q: Quantization) -> Vec<u8> {
-    let bytes = to_bytes(&network(FeatureLayout::TransferPolar10, q, &[10, 3, 2], 12).view());
+    let bytes = to_bytes(&network(FeatureLayout::TransferPolar10, q, &[10, 2, 3], 12).view());
     bytes[HEADER_LEN..bytes.len() - TRAILER_LEN].to_vec()
 }
 
@@ -867,14 +898,18 @@ fn shape() -> impl Strategy<Value = (FeatureLayout, Quantization, Vec<u16>, u64)
     (
         prop_oneof![
             Just(FeatureLayout::TransferPolar10),
-            Just(FeatureLayout::RendezvousPolar22)
+            Just(FeatureLayout::RendezvousPolar22),
+            Just(FeatureLayout::TransferSpatial15),
+            Just(FeatureLayout::RendezvousSpatial30)
         ],
         prop_oneof![Just(Quantization::F32), Just(Quantization::Int8)],
-        prop::collection::vec(1u16..=64, 1..=4),
+        prop::collection::vec(1u16..=64, 0..=3),
         any::<u64>(),
     )
         .prop_map(|(f, q, mut outs, seed)| {
+            // Hidden widths of any size, the last layer the layout's action count.
             outs.insert(0, f.len() as u16);
+            outs.push(f.actions() as u16);
             (f, q, outs, seed)
         })
 }
@@ -1023,7 +1058,7 @@ fn an_overlong_padding_length_is_refused() {
     // length written in two bytes, with one padding byte fewer, leaves the weights aligned where
     // they were: a blob the encoder never writes, which decoded to another network value than
     // its own re-encoding (found by the mutation property below).
-    let bytes = to_bytes(&network(FeatureLayout::TransferPolar10, Quantization::F32, &[10, 3, 2], 12).view());
+    let bytes = to_bytes(&network(FeatureLayout::TransferPolar10, Quantization::F32, &[10, 2, 3], 12).view());
     let blob = decode(&bytes).unwrap();
     let pad = blob.layers[0].padding.len();
     assert!(pad > 1);

@@ -160,7 +160,10 @@ fn run() -> Result<(), String> {
             he_layer(s[0], s[1], activation, &mut rng)
         })
         .collect();
-    let net = MlpWeights { kind, layers };
+    let net = MlpWeights {
+        features: shared::blob::FeatureLayout::of(kind, false),
+        layers,
+    };
     let calibration: Vec<Vec<f32>> = (0..CALIBRATION_SAMPLES)
         .map(|_| feature_sample(&mut rng, sizes[0]))
         .collect();

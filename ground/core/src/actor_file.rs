@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use shared::blob::Activation;
-use shared::blob::ProblemKind;
+use shared::blob::FeatureLayout;
 use shared::quantize::{DenseWeights, MlpWeights};
 
 /// The metadata key of a checked file's checksum.
@@ -69,8 +69,8 @@ pub fn verify_checksum(bytes: &[u8], path: &Path) -> Result<(), ActorFileError> 
 
 /// The flown actor of an actor file (`actor.l0.*`, `actor.l1.*`, ..., `actor.mean.*`; a
 /// checkpoint's `average.actor.*` when it has an averaged actor, else `online.actor.*`) as the
-/// layers of a `kind` network: ReLU hidden layers, tanh on the mean (the deterministic action).
-pub fn read_actor(path: &Path, kind: ProblemKind) -> Result<MlpWeights, ActorFileError> {
+/// layers of a network of input encoding `features`: ReLU hidden layers, tanh on the mean (the deterministic action).
+pub fn read_actor(path: &Path, features: FeatureLayout) -> Result<MlpWeights, ActorFileError> {
     let bytes = std::fs::read(path)
         .map_err(|e| ActorFileError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))?;
     verify_checksum(&bytes, path)?;
@@ -102,7 +102,7 @@ pub fn read_actor(path: &Path, kind: ProblemKind) -> Result<MlpWeights, ActorFil
         }
         layers.insert(name.to_string(), (view.shape().to_vec(), values));
     }
-    actor_layers(kind, &layers).map_err(ActorFileError::Layout)
+    actor_layers(features, &layers).map_err(ActorFileError::Layout)
 }
 
 /// The actor's layers from its tensors by name without the `actor.` prefix (`l0.weight`,
@@ -110,7 +110,7 @@ pub fn read_actor(path: &Path, kind: ProblemKind) -> Result<MlpWeights, ActorFil
 /// layers, tanh on the mean (the deterministic action). The one reading of an actor's layout,
 /// for its file here and for a live learner's weights in the learning stack.
 pub fn actor_layers(
-    kind: ProblemKind,
+    features: FeatureLayout,
     tensors: &HashMap<String, (Vec<usize>, Vec<f32>)>,
 ) -> Result<MlpWeights, String> {
     let mut names: Vec<String> = (0..)
@@ -142,5 +142,5 @@ pub fn actor_layers(
             })
         })
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(MlpWeights { kind, layers })
+    Ok(MlpWeights { features, layers })
 }

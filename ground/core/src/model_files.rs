@@ -239,7 +239,7 @@ pub fn verify_model_files(
             shared::blob::decode(&f32_blob).map_err(|_| ModelFilesError::BlobDisagrees { path: f32_path.clone() })?;
         // Encoded again from the actor with the blob's own provenance and mission, it must be
         // the same network (compared decoded: a format-3 blob is written again as format 4).
-        let rebuilt = read_actor(&dir.join(ACTOR_FILE), kind)?
+        let rebuilt = read_actor(&dir.join(ACTOR_FILE), shipped.features)?
             .f32_blob_for(shipped.provenance, shipped.mission)
             .ok();
         rebuilt

@@ -259,7 +259,7 @@ pub fn actor_onnx(network: &MlpWeights, metadata: &[(&str, &str)]) -> Result<Vec
         current = out;
         width = layer.outputs;
     }
-    let problem = match network.kind {
+    let problem = match network.features.problem() {
         ProblemKind::Transfer => "transfer",
         ProblemKind::Rendezvous => "rendezvous",
     };
@@ -312,7 +312,7 @@ mod tests {
     #[test]
     fn the_model_decodes_to_the_networks_layers() {
         let network = MlpWeights {
-            kind: ProblemKind::Transfer,
+            features: shared::blob::FeatureLayout::TransferPolar10,
             layers: vec![
                 layer(10, 4, Activation::Relu),
                 layer(4, 4, Activation::Relu),
@@ -347,12 +347,12 @@ mod tests {
     #[test]
     fn layers_that_do_not_chain_are_refused() {
         let broken = MlpWeights {
-            kind: ProblemKind::Transfer,
+            features: shared::blob::FeatureLayout::TransferPolar10,
             layers: vec![layer(10, 4, Activation::Relu), layer(5, 3, Activation::Tanh)],
         };
         assert!(matches!(actor_onnx(&broken, &[]), Err(OnnxError::Shape(_))));
         let empty = MlpWeights {
-            kind: ProblemKind::Transfer,
+            features: shared::blob::FeatureLayout::TransferPolar10,
             layers: vec![],
         };
         assert!(actor_onnx(&empty, &[]).is_err());

@@ -568,6 +568,12 @@ impl ExperimentConfig {
             })
     }
 
+    /// The feature layout of this config's networks: its problem's, planar or (an inclined
+    /// family) three-dimensional.
+    pub fn feature_layout(&self) -> shared::blob::FeatureLayout {
+        shared::blob::FeatureLayout::of(self.problem(), self.is_inclined())
+    }
+
     /// The mission a blob of this config carries (blob format 4):
     /// [`ground_core::mission::blob_mission`] of its family.
     pub fn blob_mission(&self) -> BlobMission {

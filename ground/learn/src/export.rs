@@ -11,24 +11,21 @@
 
 use std::path::{Path, PathBuf};
 
-use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
+use onboard::policy::{PolicyError, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use serde::{Deserialize, Serialize};
-use shared::blob::{AlignedBlob, ProblemKind, Quantization};
+use shared::blob::{AlignedBlob, FeatureLayout, Quantization};
 use shared::quantize::MlpWeights;
-use shared::scenario::Scenario;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
 use crate::eval::load_agent;
-use crate::phase::policy_batch;
+use crate::phase::{family_of, policy_batch};
 use crate::pretrain::load_demonstrations;
 use crate::sac::agent::Sac;
-use ground_core::env::batch::{
-    draw_scenarios, evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats,
-};
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::demo::DemoGeometry;
+use ground_core::env::batch::{evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
+use ground_core::env::{ActionOf, Geometry, MdpEnv, Problem, ScenarioOf};
 use ground_core::io::atomic_write;
-use ground_core::with_problem;
 
 /// Stream offsets that keep the export's scenarios apart from training and evaluation.
 const CALIBRATION_STREAM: u64 = 0x6361_6c69;
@@ -38,31 +35,48 @@ const STATE_EPISODES: u64 = 100;
 /// Most demonstration states used for calibration.
 const MAX_DEMONSTRATION_STATES: usize = 20_000;
 
-/// The onboard policy of either problem, so one code path measures both.
+/// The onboard policy of any feature layout, so one code path measures them all.
 #[derive(Debug, Clone, Copy)]
 pub enum OnboardPolicy<'a> {
-    /// A transfer blob.
+    /// A planar transfer blob.
     Transfer(TransferPolicy<'a>),
-    /// A rendezvous blob.
+    /// A planar rendezvous blob.
     Rendezvous(RendezvousPolicy<'a>),
+    /// A three-dimensional transfer blob.
+    Transfer3(Transfer3Policy<'a>),
+    /// A three-dimensional rendezvous blob.
+    Rendezvous3(Rendezvous3Policy<'a>),
 }
 
 impl<'a> OnboardPolicy<'a> {
-    /// Loads a blob for `kind` (refused exactly as the flight computer refuses it).
-    pub fn load(bytes: &'a [u8], kind: ProblemKind) -> Result<Self, PolicyError> {
-        Ok(match kind {
-            ProblemKind::Transfer => Self::Transfer(TransferPolicy::from_bytes(bytes, kind)?),
-            ProblemKind::Rendezvous => Self::Rendezvous(RendezvousPolicy::from_bytes(bytes, kind)?),
+    /// Loads a blob of `features` (refused exactly as the flight computer refuses it).
+    pub fn load(bytes: &'a [u8], features: FeatureLayout) -> Result<Self, PolicyError> {
+        let kind = features.problem();
+        Ok(match features {
+            FeatureLayout::TransferPolar10 => Self::Transfer(TransferPolicy::from_bytes(bytes, kind)?),
+            FeatureLayout::RendezvousPolar22 => Self::Rendezvous(RendezvousPolicy::from_bytes(bytes, kind)?),
+            FeatureLayout::TransferSpatial15 => Self::Transfer3(Transfer3Policy::from_bytes(bytes, kind)?),
+            FeatureLayout::RendezvousSpatial30 => Self::Rendezvous3(Rendezvous3Policy::from_bytes(bytes, kind)?),
         })
     }
 
-    /// The onboard action; NaN for an input of the wrong length (never flown: the
-    /// environment flies a non-finite action as thrust off).
-    pub fn act(&self, x: &[f32]) -> [f32; 3] {
-        match self {
-            Self::Transfer(p) => x.try_into().map_or([f32::NAN; 3], |a| p.forward(a)),
-            Self::Rendezvous(p) => x.try_into().map_or([f32::NAN; 3], |a| p.forward(a)),
+    /// The onboard action (3 or 4 components); NaN for an input of the wrong length (never
+    /// flown: the environment flies a non-finite action as thrust off).
+    pub fn act(&self, x: &[f32]) -> Vec<f32> {
+        fn forward<const IN: usize, const OUT: usize>(x: &[f32], f: impl Fn(&[f32; IN]) -> [f32; OUT]) -> Vec<f32> {
+            x.try_into().map_or([f32::NAN; OUT], f).to_vec()
         }
+        match self {
+            Self::Transfer(p) => forward(x, |a| p.forward(a)),
+            Self::Rendezvous(p) => forward(x, |a| p.forward(a)),
+            Self::Transfer3(p) => forward(x, |a| p.forward(a)),
+            Self::Rendezvous3(p) => forward(x, |a| p.forward(a)),
+        }
+    }
+
+    /// The onboard action as geometry `G`'s action (thrust off for an input of the wrong length).
+    pub fn action<G: Geometry>(&self, x: &[f32]) -> ActionOf<G> {
+        ActionOf::<G>::try_from(&self.act(x)).unwrap_or_else(|_| G::zero_thrust_action())
     }
 }
 
@@ -140,14 +154,15 @@ impl ExportReport {
     }
 }
 
-/// The actor mean network of an agent (`l0`, `l1`, ..., `mean`; tanh on the output).
-pub fn actor_network(agent: &Sac, kind: ProblemKind) -> Result<MlpWeights, ExperimentError> {
+/// The actor mean network of an agent (`l0`, `l1`, ..., `mean`; tanh on the output) whose
+/// inputs are `features`.
+pub fn actor_network(agent: &Sac, features: FeatureLayout) -> Result<MlpWeights, ExperimentError> {
     let tensors = agent
         .actor_weights()
         .into_iter()
         .map(|(name, (shape, values))| (name, (shape.iter().map(|&d| d as usize).collect(), values)))
         .collect();
-    ground_core::actor_file::actor_layers(kind, &tensors).map_err(ExperimentError::Mismatch)
+    ground_core::actor_file::actor_layers(features, &tensors).map_err(ExperimentError::Mismatch)
 }
 
 pub use ground_core::model_files::blob_file;
@@ -161,19 +176,21 @@ pub fn export(
     checkpoint: &Path,
     out: &Path,
 ) -> Result<ExportReport, ExperimentError> {
-    config.planar_family("the blob export")?;
-    with_problem!(config.problem(), P => export_for::<P>(config, config_dir, checkpoint, out))
+    crate::with_flown_problem!(config, P => export_for::<P>(config, config_dir, checkpoint, out))
 }
 
 /// Network inputs at every state of `episodes` (recorded trajectories).
-fn visited_inputs<P: Problem<Geometry = Planar>>(scenarios: &[Scenario], episodes: &[EpisodeOutcome]) -> Vec<Vec<f32>> {
+fn visited_inputs<P: Problem>(
+    scenarios: &[ScenarioOf<P::Geometry>],
+    episodes: &[EpisodeOutcome<P::Geometry>],
+) -> Vec<Vec<f32>> {
     let mut inputs = Vec::new();
     for o in episodes {
         let (Some(trajectory), Some(scenario)) = (&o.trajectory, scenarios.get(o.episode)) else {
             continue;
         };
         for point in trajectory {
-            if point.step < scenario.steps {
+            if point.step < P::Geometry::plan(scenario).steps {
                 if let Ok(f) = P::features(scenario, &point.state, point.step) {
                     inputs.push(P::observation(&f).as_ref().to_vec());
                 }
@@ -183,17 +200,24 @@ fn visited_inputs<P: Problem<Geometry = Planar>>(scenarios: &[Scenario], episode
     inputs
 }
 
-fn export_for<P: Problem<Geometry = Planar>>(
+fn export_for<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
     checkpoint: &Path,
     out: &Path,
-) -> Result<ExportReport, ExperimentError> {
+) -> Result<ExportReport, ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
+    let family = family_of::<P::Geometry>(config)?;
+    let draw = |seed: u64, count: u64| -> Vec<ScenarioOf<P::Geometry>> {
+        (0..count).map(|i| P::Geometry::draw(&family, seed, i)).collect()
+    };
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
     let agent = load_agent(config, P::OBS, checkpoint)?;
-    let network = actor_network(&agent, P::KIND)?;
+    let network = actor_network(&agent, P::LAYOUT)?;
     let fly_recorded = |seed: u64| -> Result<Vec<Vec<f32>>, ExperimentError> {
-        let scenarios = draw_scenarios(config.family.family, seed, STATE_EPISODES);
+        let scenarios = draw(seed, STATE_EPISODES);
         let flown = evaluate_batched::<MdpEnv<P>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true)?;
         Ok(visited_inputs::<P>(&scenarios, &flown))
     };
@@ -217,21 +241,26 @@ fn export_for<P: Problem<Geometry = Planar>>(
         .map_err(|e| ExperimentError::Mismatch(format!("int8 export: {e}")))?;
 
     // The trained actor's deterministic actions on the held-out states (one batch).
-    let reference: Vec<[f32; 3]> = policy_batch(&agent, &held_out);
-    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, config.evaluate.episodes);
+    let reference: Vec<ActionOf<P::Geometry>> = policy_batch(&agent, &held_out);
+    let scenarios = draw(config.seeds.monte_carlo, config.evaluate.episodes);
     let mut reports = Vec::new();
     for (quantization, bytes) in [(Quantization::F32, &f32_bytes), (Quantization::Int8, &int8_bytes)] {
         let aligned = AlignedBlob::new(bytes);
-        let policy = OnboardPolicy::load(aligned.bytes(), P::KIND)
+        let policy = OnboardPolicy::load(aligned.bytes(), P::LAYOUT)
             .map_err(|e| ExperimentError::Mismatch(format!("the exported blob does not load onboard: {e}")))?;
         let errors = held_out.iter().zip(&reference).map(|(x, r)| {
             let a = policy.act(x);
             a.iter()
-                .zip(r)
+                .zip(r.as_ref())
                 .map(|(a, r)| f64::from((a - r).abs()))
                 .fold(0.0, f64::max)
         });
-        let flown = evaluate::<MdpEnv<P>, _>(&config.env, &scenarios, |o: &P::Obs| policy.act(o.as_ref()), false)?;
+        let flown = evaluate::<MdpEnv<P>, _>(
+            &config.env,
+            &scenarios,
+            |o: &P::Obs| policy.action::<P::Geometry>(o.as_ref()),
+            false,
+        )?;
         let file = out.join(blob_file(P::KIND, quantization));
         atomic_write(&file, bytes).map_err(|e| ExperimentError::Io(file.clone(), e))?;
         reports.push(BlobReport {
@@ -276,10 +305,13 @@ fn export_for<P: Problem<Geometry = Planar>>(
 }
 
 /// Observations of the config's demonstration tuples (none when the config names no dataset).
-fn demonstration_inputs<P: Problem<Geometry = Planar>>(
+fn demonstration_inputs<P: Problem>(
     config: &ExperimentConfig,
     config_dir: &Path,
-) -> Result<Vec<Vec<f32>>, ExperimentError> {
+) -> Result<Vec<Vec<f32>>, ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
     if config.pretrain.dataset.is_none() {
         return Ok(Vec::new());
     }

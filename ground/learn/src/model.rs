@@ -274,12 +274,13 @@ impl From<ModelFilesError> for ModelError {
 /// Writes the actor's ONNX model into the folder `dir` from its actor file (the provenance of
 /// its f32 blob in the model's metadata) and returns the file's CRC-32C.
 fn write_onnx(dir: &Path, kind: ProblemKind) -> Result<String, ModelError> {
-    let network = ground_core::actor_file::read_actor(&dir.join(ACTOR_FILE), kind).map_err(ModelFilesError::from)?;
     let f32_path = dir.join(blob_file(kind, Quantization::F32));
     let blob = std::fs::read(&f32_path).map_err(io(&f32_path))?;
-    let provenance = shared::blob::decode(&blob)
-        .map(|b| b.provenance.to_string())
+    let (provenance, features) = shared::blob::decode(&blob)
+        .map(|b| (b.provenance.to_string(), b.features))
         .map_err(|_| ModelError::BlobDisagrees { path: f32_path.clone() })?;
+    let network =
+        ground_core::actor_file::read_actor(&dir.join(ACTOR_FILE), features).map_err(ModelFilesError::from)?;
     let bytes = ground_core::onnx::actor_onnx(&network, &[("provenance", &provenance)])
         .map_err(|e| ModelError::Experiment(Box::new(ExperimentError::Mismatch(e.to_string()))))?;
     let path = dir.join(ONNX_FILE);

@@ -279,7 +279,7 @@ impl SilGeometry for Planar {
         scenarios: &[Scenario],
         flights: &SilFlights,
     ) -> Result<Vec<EpisodeOutcome>, ExperimentError> {
-        let blob = actor_network(agent, config.problem())?
+        let blob = actor_network(agent, config.feature_layout())?
             .f32_blob_for("relabelling round", config.blob_mission())
             .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))?;
         Ok(fly_blob(config, &blob, scenarios, flights)?.0)

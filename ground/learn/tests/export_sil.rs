@@ -5,13 +5,13 @@ use std::path::PathBuf;
 
 use firmware_sim::Dispersions;
 use ground_core::env::batch::{draw_scenarios, evaluate, EpisodeOutcome};
-use ground_core::env::{MdpEnv, Rendezvous, Transfer};
+use ground_core::env::{MdpEnv, Planar, Rendezvous, Transfer};
 use learn::config::ExperimentConfig;
 use learn::export::{export, OnboardPolicy};
 use learn::sac::agent::Sac;
 use learn::sil::{fly_blob, sil_monte_carlo, SilFlights};
 use onboard::policy::TransferPolicy;
-use shared::blob::{ProblemKind, Quantization};
+use shared::blob::{FeatureLayout, ProblemKind, Quantization};
 
 fn scratch_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("lowthrust-{name}-{}", std::process::id()));
@@ -104,9 +104,14 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     // network through the environment's own step).
     let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, 12);
     for bytes in [&f32_bytes, &int8_bytes] {
-        let policy = OnboardPolicy::load(bytes, ProblemKind::Transfer).unwrap();
-        let ground =
-            evaluate::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o: &[f32; 10]| policy.act(o), false).unwrap();
+        let policy = OnboardPolicy::load(bytes, FeatureLayout::TransferPolar10).unwrap();
+        let ground = evaluate::<MdpEnv<Transfer>, _>(
+            &config.env,
+            &scenarios,
+            |o: &[f32; 10]| policy.action::<Planar>(o),
+            false,
+        )
+        .unwrap();
         let (sil, faults, missed) = fly_blob(
             &config,
             bytes,
@@ -245,9 +250,14 @@ threads = 1
         let bytes = std::fs::read(file).unwrap();
         // Without dispersions the SIL loop flies the environment's episodes bit for bit: the
         // body propagated onboard by the Kepler coast is the environment's body.
-        let policy = OnboardPolicy::load(&bytes, ProblemKind::Rendezvous).unwrap();
-        let ground =
-            evaluate::<MdpEnv<Rendezvous>, _>(&config.env, &scenarios, |o: &[f32; 22]| policy.act(o), false).unwrap();
+        let policy = OnboardPolicy::load(&bytes, FeatureLayout::RendezvousPolar22).unwrap();
+        let ground = evaluate::<MdpEnv<Rendezvous>, _>(
+            &config.env,
+            &scenarios,
+            |o: &[f32; 22]| policy.action::<Planar>(o),
+            false,
+        )
+        .unwrap();
         let (sil, faults, missed) = fly_blob(
             &config,
             &bytes,

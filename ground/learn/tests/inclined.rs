@@ -1,7 +1,8 @@
 //! An inclined family is learned in three dimensions: pretraining on a three-dimensional
 //! dataset, RL from the pretrained model in the 3D transfer environment with 4-component
-//! actions, and the Monte Carlo with its optimality gap solved in 3D; a planar dataset is refused
-//! for it, and the stages that fly planar families only refuse it by name, before any work.
+//! actions, relabelling rounds in 3D, and the Monte Carlo with its optimality gap solved in 3D,
+//! the blobs with the three-dimensional layout; a planar dataset is refused for it, and the
+//! stages that fly planar families only refuse it by name, before any work.
 
 use std::path::{Path, PathBuf};
 
@@ -10,17 +11,21 @@ mod common;
 
 use common::{scratch_dir, toy_config, toy_dataset_of};
 
-use ground_core::env::{Environment, Transfer3Env};
+use ground_core::env::{Environment, Spatial, Transfer3Env};
 use ground_core::generate::{generate, Manifest, Shard};
 use ground_core::solver::spatial::record::solve_spatial_draw;
 use ground_core::solver::SolveOptions;
 use learn::cloning::CloningTarget;
 use learn::config::ExperimentConfig;
 use learn::error::ExperimentError;
+use learn::export::OnboardPolicy;
 use learn::rl::{train, Start};
+use learn::sac::agent::Sac;
+use shared::blob::FeatureLayout;
 use shared::mission::{PlaneRanges, SpatialFamily};
 use shared::scenario::{Range, ScenarioKind};
 use shared::spacecraft::Spacecraft;
+use tch::Device;
 
 /// Transfer-circular's orbits, the target inclined by up to 5 degrees with any node.
 fn inclined() -> SpatialFamily {
@@ -195,18 +200,37 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     // The file reads as a planar dataset: it is refused for its dimension.
     assert!(ground_core::generate::read_dataset(&other.dataset_file(&dir).unwrap()).is_ok());
 
-    // Planar-only stages refuse by name, and write nothing.
-    let refused = learn::export::export(&config, &dir, &best, &dir.join("export"));
-    match refused {
-        Err(ExperimentError::Inclined { stage, family }) => {
-            assert!(
-                stage.contains("export") && family.starts_with("custom-"),
-                "{stage} {family}"
-            );
+    // The blobs in three dimensions: 15 inputs, 4 action outputs, the family's mission; the f32
+    // blob flies the trained actor, and a planar policy refuses it.
+    // The flown network is 256 wide: the toy actor widened function-preservingly.
+    let mut wide = config.clone();
+    wide.sac.hidden = vec![256, 256];
+    let narrow_actor = dir.join("actor-32.safetensors");
+    agent.save_flown_actor(&narrow_actor).unwrap();
+    let mut widened = Sac::new(wide.sac_for(true), Transfer3Env::OBS, 4, Device::Cpu);
+    widened.start_from_actor(&narrow_actor).unwrap();
+    let wide_actor = dir.join("actor-256.safetensors");
+    widened.save_flown_actor(&wide_actor).unwrap();
+    let export = learn::export::export(&wide, &dir, &wide_actor, &dir.join("export")).unwrap();
+    assert!(export.f32.action_error.max <= 1e-4, "{:?}", export.f32.action_error);
+    assert!(export.int8.action_error.p50 <= 0.05, "{:?}", export.int8.action_error);
+    assert_eq!(export.closed_loop_episodes, 6);
+    for (file, tolerance) in [(&export.f32.file, 1e-4), (&export.int8.file, 0.05)] {
+        let bytes = shared::blob::AlignedBlob::new(&std::fs::read(file).unwrap());
+        let blob = shared::blob::decode(bytes.bytes()).unwrap();
+        assert_eq!(blob.features, FeatureLayout::TransferSpatial15);
+        assert_eq!(blob.layers.last().map(|l| l.outputs), Some(4));
+        assert_eq!(blob.mission, config.blob_mission());
+        let policy = OnboardPolicy::load(bytes.bytes(), FeatureLayout::TransferSpatial15).unwrap();
+        let reference: Vec<[f32; 4]> = learn::phase::policy_batch(&widened, &[obs]);
+        let onboard = policy.action::<Spatial>(&obs);
+        for (a, r) in onboard.iter().zip(&reference[0]) {
+            assert!((a - r).abs() <= tolerance, "{onboard:?} against {:?}", reference[0]);
         }
-        other => panic!("not refused: {other:?}"),
+        assert!(OnboardPolicy::load(bytes.bytes(), FeatureLayout::TransferPolar10).is_err());
     }
-    assert!(!dir.join("export").exists());
+
+    // Planar-only stages refuse by name, and write nothing.
     let refusals = [
         learn::ship::ship(&config, &dir, &best, &dir.join("ship"), None, &[]).map(|_| ()),
         learn::plan::plan_recipe(&config, 4).map(|_| ()),

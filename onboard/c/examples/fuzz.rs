@@ -126,7 +126,10 @@ fn corpus() -> Result<Vec<Seed>, String> {
                 }
             })
             .collect();
-        let net = MlpWeights { kind, layers };
+        let net = MlpWeights {
+            features: shared::blob::FeatureLayout::of(kind, false),
+            layers,
+        };
         let calibration: Vec<Vec<f32>> = (0..64)
             .map(|_| (0..sizes[0]).map(|_| rng.uniform(-2.0, 2.0) as f32).collect())
             .collect();

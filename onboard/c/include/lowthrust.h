@@ -102,6 +102,9 @@ enum lt_status
   // The blob's mission is unusable: its cycle negative or not finite, or a unit not finite
   // and positive.
   LT_ERR_BLOB_BAD_MISSION = -38,
+  // The network's last layer does not give the feature layout's action count (3 planar, 4
+  // three-dimensional).
+  LT_ERR_BLOB_OUTPUT_MISMATCH = -39,
   // Guidance input refused: a navigation state component is NaN or infinite.
   LT_ERR_INPUT_NON_FINITE_STATE = -40,
   // Guidance input refused: the spacecraft is at r = 0.

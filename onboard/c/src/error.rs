@@ -93,6 +93,9 @@ pub enum lt_status {
     /// The blob's mission is unusable: its cycle negative or not finite, or a unit not finite
     /// and positive.
     LT_ERR_BLOB_BAD_MISSION = -38,
+    /// The network's last layer does not give the feature layout's action count (3 planar, 4
+    /// three-dimensional).
+    LT_ERR_BLOB_OUTPUT_MISMATCH = -39,
     /// Guidance input refused: a navigation state component is NaN or infinite.
     LT_ERR_INPUT_NON_FINITE_STATE = -40,
     /// Guidance input refused: the spacecraft is at r = 0.
@@ -121,7 +124,7 @@ pub enum lt_status {
 }
 
 /// Every code with its name, as `lt_error_name` returns it.
-const ERROR_NAMES: [(lt_status, &CStr); 44] = [
+const ERROR_NAMES: [(lt_status, &CStr); 45] = [
     (LT_OK, c"ok"),
     (LT_ERR_NULL_POINTER, c"null_pointer"),
     (LT_ERR_MISALIGNED_POLICY, c"misaligned_policy"),
@@ -157,6 +160,7 @@ const ERROR_NAMES: [(lt_status, &CStr); 44] = [
     (LT_ERR_INT8_BAD_SCALE, c"int8_bad_scale"),
     (LT_ERR_INT8_TOO_WIDE, c"int8_too_wide"),
     (LT_ERR_BLOB_BAD_MISSION, c"blob_bad_mission"),
+    (LT_ERR_BLOB_OUTPUT_MISMATCH, c"blob_output_mismatch"),
     (LT_ERR_INPUT_NON_FINITE_STATE, c"input_non_finite_state"),
     (LT_ERR_INPUT_ZERO_RADIUS, c"input_zero_radius"),
     (LT_ERR_INPUT_NON_POSITIVE_MASS, c"input_non_positive_mass"),
@@ -198,6 +202,7 @@ pub fn blob_error_code(error: &BlobError) -> lt_status {
         BlobError::NoLayers => LT_ERR_BLOB_NO_LAYERS,
         BlobError::TooManyLayers { .. } => LT_ERR_BLOB_TOO_MANY_LAYERS,
         BlobError::InputMismatch { .. } => LT_ERR_BLOB_INPUT_MISMATCH,
+        BlobError::OutputMismatch { .. } => LT_ERR_BLOB_OUTPUT_MISMATCH,
         BlobError::ChainBreak { .. } => LT_ERR_BLOB_CHAIN_BREAK,
         BlobError::BadWidth { .. } => LT_ERR_BLOB_BAD_WIDTH,
         BlobError::ArrayLength { .. } => LT_ERR_BLOB_ARRAY_LENGTH,

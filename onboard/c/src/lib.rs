@@ -1082,6 +1082,7 @@ mod tests {
                 expected: 10,
                 found: 11
             },
+            BlobError::OutputMismatch { expected: 3, found: 4 },
             BlobError::ChainBreak {
                 layer: 1,
                 expected: 256,

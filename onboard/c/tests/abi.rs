@@ -40,7 +40,10 @@ fn network(kind: ProblemKind, sizes: &[usize], seed: u32) -> MlpWeights {
             }
         })
         .collect();
-    MlpWeights { kind, layers }
+    MlpWeights {
+        features: shared::blob::FeatureLayout::of(kind, false),
+        layers,
+    }
 }
 
 /// Feature-like calibration vectors (O(1) values, a time to go up to 12).

@@ -1,7 +1,7 @@
 //! Fixed-size MLP inference in f32 and int8, straight from a weight blob (docs/spec.md section 10).
 //!
-//! The deployed actor mean heads are 10-256-256-3 (transfer) and 22-256-256-3 (rendezvous):
-//! two ReLU hidden layers and a tanh output. Every size is a const generic, so activations live
+//! The deployed actor mean heads are 10-256-256-3 (transfer) and 22-256-256-3 (rendezvous), in
+//! three dimensions 15-256-256-4 and 30-256-256-4: two ReLU hidden layers and a tanh output. Every size is a const generic, so activations live
 //! on the stack as fixed arrays and nothing is allocated.
 //!
 //! **Zero copy.** A layer view ([`DenseF32`], [`DenseInt8`]) keeps the byte slices of its
@@ -324,6 +324,10 @@ pub struct Mlp<'a, const IN: usize, const H1: usize, const H2: usize, const OUT:
 pub type TransferPolicy<'a> = Mlp<'a, 10, 256, 256, 3>;
 /// The rendezvous actor, 22-256-256-3.
 pub type RendezvousPolicy<'a> = Mlp<'a, 22, 256, 256, 3>;
+/// The three-dimensional transfer actor, 15-256-256-4 (throttle and an RTN direction).
+pub type Transfer3Policy<'a> = Mlp<'a, 15, 256, 256, 4>;
+/// The three-dimensional rendezvous actor, 30-256-256-4.
+pub type Rendezvous3Policy<'a> = Mlp<'a, 30, 256, 256, 4>;
 
 fn check_activation(layer: &LayerBlob<'_>, index: usize, expected: Activation) -> Result<(), PolicyError> {
     if layer.activation == expected {

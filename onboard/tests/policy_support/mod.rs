@@ -180,10 +180,14 @@ impl OwnedNet {
     }
 }
 
-pub fn features_for(kind: ProblemKind) -> FeatureLayout {
-    match kind {
-        ProblemKind::Transfer => FeatureLayout::TransferPolar10,
-        ProblemKind::Rendezvous => FeatureLayout::RendezvousPolar22,
+/// The layout of `kind` whose network takes `inputs` (the three-dimensional one for 15 or 30
+/// inputs, else the planar one).
+pub fn features_for(kind: ProblemKind, inputs: usize) -> FeatureLayout {
+    let spatial = FeatureLayout::of(kind, true);
+    if inputs == spatial.len() {
+        spatial
+    } else {
+        FeatureLayout::of(kind, false)
     }
 }
 
@@ -219,7 +223,7 @@ pub fn f32_net(net: &RefNet, kind: ProblemKind) -> OwnedNet {
     let n = net.layers.len();
     OwnedNet {
         kind,
-        features: features_for(kind),
+        features: features_for(kind, net.layers.first().map_or(0, RefLayer::inputs)),
         quantization: Quantization::F32,
         layers: net
             .layers
@@ -331,7 +335,7 @@ pub fn int8_net(net: &RefNet, quant: &[QuantLayer], kind: ProblemKind) -> OwnedN
     let mut int8 = quant.iter();
     OwnedNet {
         kind,
-        features: features_for(kind),
+        features: features_for(kind, net.layers.first().map_or(0, RefLayer::inputs)),
         quantization: Quantization::Int8,
         layers: net
             .layers

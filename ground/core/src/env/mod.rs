@@ -44,6 +44,7 @@ use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, coast3, KeplerError};
 use onboard::spatial::SpatialCraftState;
 use serde::{Deserialize, Serialize};
+use shared::blob::FeatureLayout;
 use shared::mission::CentralBody;
 use shared::orbit::{CartesianState, SpatialState};
 pub use shared::scenario::ProblemKind;
@@ -324,6 +325,8 @@ pub trait Problem: Send + Sync + 'static {
     const KIND: ProblemKind;
     /// Number of features (10 or 22 planar, 15 or 30 in three dimensions).
     const OBS: usize;
+    /// The features as a weight blob names them (its network's inputs and action outputs).
+    const LAYOUT: FeatureLayout;
     /// The dimension the problem is flown in.
     type Geometry: Geometry;
     /// `[f64; OBS]`.
@@ -439,6 +442,7 @@ pub fn body_at3(scenario: &SpatialScenario, step: u32) -> Result<SpatialState, E
 impl Problem for Transfer {
     const KIND: ProblemKind = ProblemKind::Transfer;
     const OBS: usize = TRANSFER_FEATURES;
+    const LAYOUT: FeatureLayout = FeatureLayout::TransferPolar10;
     type Geometry = Planar;
     type Features = [f64; TRANSFER_FEATURES];
     type Obs = [f32; TRANSFER_FEATURES];
@@ -460,6 +464,7 @@ impl Problem for Transfer {
 impl Problem for Rendezvous {
     const KIND: ProblemKind = ProblemKind::Rendezvous;
     const OBS: usize = RENDEZVOUS_FEATURES;
+    const LAYOUT: FeatureLayout = FeatureLayout::RendezvousPolar22;
     type Geometry = Planar;
     type Features = [f64; RENDEZVOUS_FEATURES];
     type Obs = [f32; RENDEZVOUS_FEATURES];
@@ -482,6 +487,7 @@ impl Problem for Rendezvous {
 impl Problem for Transfer3 {
     const KIND: ProblemKind = ProblemKind::Transfer;
     const OBS: usize = TRANSFER3_FEATURES;
+    const LAYOUT: FeatureLayout = FeatureLayout::TransferSpatial15;
     type Geometry = Spatial;
     type Features = [f64; TRANSFER3_FEATURES];
     type Obs = [f32; TRANSFER3_FEATURES];
@@ -504,6 +510,7 @@ impl Problem for Transfer3 {
 impl Problem for Rendezvous3 {
     const KIND: ProblemKind = ProblemKind::Rendezvous;
     const OBS: usize = RENDEZVOUS3_FEATURES;
+    const LAYOUT: FeatureLayout = FeatureLayout::RendezvousSpatial30;
     type Geometry = Spatial;
     type Features = [f64; RENDEZVOUS3_FEATURES];
     type Obs = [f32; RENDEZVOUS3_FEATURES];

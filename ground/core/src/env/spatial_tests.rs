@@ -209,3 +209,19 @@ fn refusals_are_typed_and_change_nothing() {
     assert!(matches!(env.reset(&bad_plane).unwrap_err(), EnvError::Scenario(_)));
     assert_eq!(env.steps_taken(), 1, "a refused reset keeps the episode");
 }
+
+/// Each problem's blob layout has its feature count as inputs and its geometry's action size
+/// as outputs (the export's networks and the onboard policies are sized by them).
+#[test]
+fn each_problems_blob_layout_fits_its_features_and_actions() {
+    fn check<P: Problem>(spatial: bool) {
+        assert_eq!(P::LAYOUT.len(), P::OBS);
+        assert_eq!(P::LAYOUT.actions(), P::Geometry::ACT);
+        assert_eq!(P::LAYOUT.problem(), P::KIND);
+        assert_eq!(P::LAYOUT, shared::blob::FeatureLayout::of(P::KIND, spatial));
+    }
+    check::<Transfer>(false);
+    check::<Rendezvous>(false);
+    check::<Transfer3>(true);
+    check::<Rendezvous3>(true);
+}
