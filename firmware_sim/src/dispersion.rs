@@ -6,10 +6,12 @@
 //! undispersed MDP episode.
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::spatial::{RtnCommand, SpatialCraftState};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 use shared::mission::{Units, DAY_S};
+use shared::orbit::{cross3, norm3};
 use shared::units::{AU_M, VELOCITY_UNIT_M_S};
 
 /// One Julian year, days.
@@ -230,6 +232,73 @@ impl DispersedPlant {
         }
     }
 
+    /// What the navigation system reports for the true state in three dimensions: every axis
+    /// of position and velocity, and the mass, dispersed as [`Self::navigate`] does in the plane.
+    pub fn navigate3(&mut self, truth: &SpatialCraftState) -> SpatialCraftState {
+        let d = self.dispersions;
+        let mut nav = *truth;
+        if d.navigation_position > 0.0 {
+            nav.orbit.r = nav
+                .orbit
+                .r
+                .map(|x| x + d.navigation_position * self.navigation.sample());
+        }
+        if d.navigation_velocity > 0.0 {
+            nav.orbit.v = nav
+                .orbit
+                .v
+                .map(|x| x + d.navigation_velocity * self.navigation.sample());
+        }
+        if d.navigation_mass > 0.0 {
+            nav.m += d.navigation_mass * self.navigation.sample();
+        }
+        nav
+    }
+
+    /// The RTN command the thruster follows over a cycle: the direction turned by a pointing
+    /// error drawn in a cone about it (two perpendicular components, each with the pointing
+    /// sigma, so the off-axis angle is Rayleigh-distributed and its azimuth uniform), the unit
+    /// length kept.
+    pub fn point3(&mut self, command: &RtnCommand) -> RtnCommand {
+        if self.dispersions.pointing <= 0.0 {
+            return *command;
+        }
+        let (ex, ey) = (
+            self.dispersions.pointing * self.pointing.sample(),
+            self.dispersions.pointing * self.pointing.sample(),
+        );
+        let d = [command.radial, command.transverse, command.normal];
+        // Two unit vectors perpendicular to d: across the RTN axis d is least along, then d x u.
+        let axis = if libm::fabs(d[0]) <= libm::fabs(d[1]) && libm::fabs(d[0]) <= libm::fabs(d[2]) {
+            [1.0, 0.0, 0.0]
+        } else if libm::fabs(d[1]) <= libm::fabs(d[2]) {
+            [0.0, 1.0, 0.0]
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        let across = cross3(&d, &axis);
+        let length = norm3(&across);
+        if length.is_nan() || length <= 0.0 {
+            return *command;
+        }
+        let u = across.map(|x| x / length);
+        let w = cross3(&d, &u);
+        let angle = libm::hypot(ex, ey);
+        if angle.is_nan() || angle <= 0.0 {
+            return *command;
+        }
+        let (s, c) = (libm::sin(angle), libm::cos(angle));
+        let turned: [f64; 3] = core::array::from_fn(|i| c * d[i] + s * (ex * u[i] + ey * w[i]) / angle);
+        // Renormalized: the command's own unit length is only good to 1e-6.
+        let n = norm3(&turned);
+        RtnCommand {
+            radial: turned[0] / n,
+            transverse: turned[1] / n,
+            normal: turned[2] / n,
+            ..*command
+        }
+    }
+
     /// The next segment of the cycle that starts at `cycle_start` (canonical time since
     /// departure): from `tau` (time into the cycle) to the returned end (at most `length`),
     /// thrust is on throughout (`true`) or off throughout. The end is always after `tau`:
@@ -284,6 +353,108 @@ mod tests {
             assert!((days(end_fast - start_fast, TIME_UNIT_S / 10.0) - 5.0).abs() < 1e-9);
             after = (end_sun, end_fast);
         }
+    }
+
+    /// The pointing cone in three dimensions: the applied direction stays a unit vector, its
+    /// angle to the command has the Rayleigh law of two axes of sigma each (mean square 2 sigma^2,
+    /// mean sigma sqrt(pi / 2)), its azimuth about the command is uniform (no preferred side),
+    /// and the throttle is untouched; with no pointing error the command is returned as it is.
+    #[test]
+    fn the_three_dimensional_pointing_error_is_a_cone_about_the_command() {
+        let sigma = 0.02;
+        let d = Dispersions {
+            pointing: sigma,
+            ..Dispersions::NONE
+        };
+        let mut plant = DispersedPlant::new(&d, TIME_UNIT_S, 5);
+        let n = 20_000;
+        let (mut square, mut mean, mut sides) = (0.0, 0.0, [0usize; 4]);
+        for k in 0..n {
+            // Commands along every RTN axis and between them.
+            let raw = [(k % 3) as f64 - 1.0, 0.5 + (k % 5) as f64 * 0.1, (k % 7) as f64 - 3.0];
+            let norm = norm3(&raw);
+            let command = RtnCommand {
+                throttle: 0.7,
+                radial: raw[0] / norm,
+                transverse: raw[1] / norm,
+                normal: raw[2] / norm,
+            };
+            let applied = plant.point3(&command);
+            assert_eq!(applied.throttle, 0.7);
+            let (a, c) = (
+                [applied.radial, applied.transverse, applied.normal],
+                [command.radial, command.transverse, command.normal],
+            );
+            assert!((norm3(&a) - 1.0).abs() < 1e-12);
+            let angle = libm::atan2(
+                norm3(&cross3(&c, &a)),
+                a.iter().zip(&c).map(|(x, y)| x * y).sum::<f64>(),
+            );
+            square += angle * angle;
+            mean += angle;
+            // The side of the offset in a fixed frame about the command.
+            let offset: [f64; 3] = core::array::from_fn(|i| a[i] - c[i]);
+            let u = cross3(&c, &[0.3, -0.8, 0.52]);
+            let w = cross3(&c, &u);
+            let (x, y) = (
+                offset.iter().zip(&u).map(|(p, q)| p * q).sum::<f64>(),
+                offset.iter().zip(&w).map(|(p, q)| p * q).sum::<f64>(),
+            );
+            sides[usize::from(x > 0.0) + 2 * usize::from(y > 0.0)] += 1;
+        }
+        let (square, mean) = (square / n as f64, mean / n as f64);
+        // Sampling errors: about 1 % of the mean square, 0.5 % of the mean at 20,000 draws.
+        assert!((square / (2.0 * sigma * sigma) - 1.0).abs() < 0.04, "{square}");
+        assert!(
+            (mean / (sigma * (core::f64::consts::PI / 2.0).sqrt()) - 1.0).abs() < 0.02,
+            "{mean}"
+        );
+        for side in sides {
+            assert!((side as f64 / n as f64 - 0.25).abs() < 0.015, "{sides:?}");
+        }
+        let mut exact = DispersedPlant::new(&Dispersions::NONE, TIME_UNIT_S, 5);
+        let command = RtnCommand {
+            throttle: 1.0,
+            radial: 0.6,
+            transverse: 0.0,
+            normal: 0.8,
+        };
+        assert_eq!(exact.point3(&command), command);
+    }
+
+    /// Navigation in three dimensions disperses every axis with its sigma and leaves the truth
+    /// as it is without navigation error.
+    #[test]
+    fn three_dimensional_navigation_errors_every_axis() {
+        let d = Dispersions {
+            navigation_position: 1e-3,
+            navigation_velocity: 2e-4,
+            navigation_mass: 1e-3,
+            ..Dispersions::NONE
+        };
+        let truth = SpatialCraftState {
+            orbit: shared::orbit::SpatialState {
+                r: [1.0, 0.2, 0.05],
+                v: [-0.1, 0.95, 0.03],
+            },
+            m: 0.9,
+        };
+        let mut plant = DispersedPlant::new(&d, TIME_UNIT_S, 8);
+        let n = 5_000;
+        let mut squares = [0.0; 7];
+        for _ in 0..n {
+            let nav = plant.navigate3(&truth);
+            for ((square, a), b) in squares.iter_mut().zip(nav.to_array()).zip(truth.to_array()) {
+                *square += (a - b) * (a - b);
+            }
+        }
+        let sigmas = [1e-3, 1e-3, 1e-3, 2e-4, 2e-4, 2e-4, 1e-3];
+        for (axis, (square, sigma)) in squares.iter().zip(sigmas).enumerate() {
+            let rms = (square / n as f64).sqrt();
+            assert!((rms / sigma - 1.0).abs() < 0.05, "axis {axis}: {rms}");
+        }
+        let mut exact = DispersedPlant::new(&Dispersions::NONE, TIME_UNIT_S, 8);
+        assert_eq!(exact.navigate3(&truth), truth);
     }
 
     /// The typical sizes in the Sun's units are the heliocentric constants bit for bit, and in

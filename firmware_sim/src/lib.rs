@@ -64,21 +64,28 @@ pub mod trace;
 
 use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{
-    reward, FeatureError, Residuals, RewardWeights, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+    reward, FeatureError, Residuals, RewardWeights, ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES,
+    TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
-use onboard::guidance::{Actor, GuidanceError, Guide, TargetFeatures};
+use onboard::guidance::{
+    command3_at, Actor, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures, TargetOrbit3,
+};
 use onboard::integrator::Tolerances;
-use onboard::kepler::{coast, KeplerError};
-use onboard::policy::{Mlp, PolicyError, RendezvousPolicy, TransferPolicy};
+use onboard::kepler::{coast, coast3, KeplerError};
+use onboard::policy::{Mlp, PolicyError, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
+use onboard::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
 use shared::blob::ProblemKind;
-use shared::orbit::{CartesianState, OrbitShape};
-use shared::scenario::{Scenario, ScenarioError};
+use shared::orbit::{CartesianState, OrbitShape, SpatialState};
+use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
 
 pub use dispersion::{DispersedPlant, DispersionError, Dispersions};
 
 #[doc(hidden)]
-pub use onboard::features::{RENDEZVOUS_FEATURES as __RENDEZVOUS_FEATURES, TRANSFER_FEATURES as __TRANSFER_FEATURES};
+pub use onboard::features::{
+    RENDEZVOUS3_FEATURES as __RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES as __RENDEZVOUS_FEATURES,
+    TRANSFER3_FEATURES as __TRANSFER3_FEATURES, TRANSFER_FEATURES as __TRANSFER_FEATURES,
+};
 #[doc(hidden)]
 pub use shared::blob::ProblemKind as __ProblemKind;
 
@@ -113,29 +120,213 @@ macro_rules! with_flight_problem {
     };
 }
 
+/// Evaluates `$body` with the type `$P` naming the three-dimensional loop's [`Problem`] of
+/// `$kind` (a `ProblemKind`) and the constant `$N` its feature count (15 or 30), as
+/// [`with_flight_problem!`] does in the plane.
+#[macro_export]
+macro_rules! with_spatial_flight_problem {
+    ($kind:expr, $N:ident, $P:ident => $body:expr) => {
+        match $kind {
+            $crate::__ProblemKind::Transfer => {
+                const $N: usize = $crate::__TRANSFER3_FEATURES;
+                type $P = $crate::Transfer3;
+                $body
+            }
+            $crate::__ProblemKind::Rendezvous => {
+                const $N: usize = $crate::__RENDEZVOUS3_FEATURES;
+                type $P = $crate::Rendezvous3;
+                $body
+            }
+        }
+    };
+}
+
 /// Hidden width of the flown actors (onboard's `TransferPolicy` and `RendezvousPolicy`).
 const HIDDEN: usize = 256;
 
-/// The network flown on `N` features: the transfer (10) or rendezvous (22) actor.
-pub type Policy<'a, const N: usize> = Mlp<'a, N, HIDDEN, HIDDEN, ACTION_LEN>;
+/// The network flown on `N` features with `OUT` action outputs: the transfer (10) or rendezvous
+/// (22) actor with 3, in three dimensions (15 or 30 features) with 4.
+pub type Policy<'a, const N: usize, const OUT: usize = ACTION_LEN> = Mlp<'a, N, HIDDEN, HIDDEN, OUT>;
 
 // The flown policies are onboard's: a change of their shape there fails to compile here.
 const _: fn(TransferPolicy<'_>) -> Policy<'_, TRANSFER_FEATURES> = |p| p;
 const _: fn(RendezvousPolicy<'_>) -> Policy<'_, RENDEZVOUS_FEATURES> = |p| p;
+const _: fn(Transfer3Policy<'_>) -> Policy<'_, TRANSFER3_FEATURES, ACTION3_LEN> = |p| p;
+const _: fn(Rendezvous3Policy<'_>) -> Policy<'_, RENDEZVOUS3_FEATURES, ACTION3_LEN> = |p| p;
+
+/// A dimension of flight as the loop flies it: its scenario, state and command, and how the
+/// truth plant navigates, points and propagates them. Implemented by [`Planar`] (polar commands)
+/// and [`Spatial`] (RTN commands); the loop ([`fly_observed`], [`fly_spatial_observed`]) is one
+/// implementation for both.
+pub trait FlightGeometry: Copy + core::fmt::Debug + PartialEq {
+    /// What one flight flies.
+    type Scenario: Copy;
+    /// The spacecraft's state.
+    type State: Copy + core::fmt::Debug + PartialEq;
+    /// A thrust command held over a cycle.
+    type Command: Copy + core::fmt::Debug + PartialEq;
+    /// Thrust off.
+    const OFF: Self::Command;
+
+    /// The scenario's planar part: problem, cycles, cycle length, target shape and anomaly.
+    fn plan(scenario: &Self::Scenario) -> &Scenario;
+    /// Checks every figure of the scenario.
+    fn validate(scenario: &Self::Scenario) -> Result<(), ScenarioError>;
+    /// The spacecraft at departure (mass 1).
+    fn departure(scenario: &Self::Scenario) -> Self::State;
+    /// What the navigation system reports for the true state.
+    fn navigate(plant: &mut DispersedPlant, truth: &Self::State) -> Self::State;
+    /// The command the thruster follows (pointing error applied).
+    fn point(plant: &mut DispersedPlant, command: &Self::Command) -> Self::Command;
+    /// The command's throttle.
+    fn throttle(command: &Self::Command) -> f64;
+    /// The command with another throttle (what the thruster delivers, for the record).
+    fn with_throttle(command: &Self::Command, throttle: f64) -> Self::Command;
+    /// `state` propagated for `duration` under `command` (the onboard propagator).
+    fn propagate(
+        state: &Self::State,
+        command: &Self::Command,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<Self::State, PropagationError>;
+}
+
+/// Flight in the reference plane: polar commands ([`ThrustCommand`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Planar;
+
+/// Flight in three dimensions: RTN commands ([`RtnCommand`]); the pointing error is a cone
+/// about the commanded direction, the navigation error in every axis.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Spatial;
+
+impl FlightGeometry for Planar {
+    type Scenario = Scenario;
+    type State = SpacecraftState;
+    type Command = ThrustCommand;
+    const OFF: ThrustCommand = ThrustCommand::OFF;
+
+    fn plan(scenario: &Scenario) -> &Scenario {
+        scenario
+    }
+
+    fn validate(scenario: &Scenario) -> Result<(), ScenarioError> {
+        scenario.validate()
+    }
+
+    fn departure(scenario: &Scenario) -> SpacecraftState {
+        SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0)
+    }
+
+    fn navigate(plant: &mut DispersedPlant, truth: &SpacecraftState) -> SpacecraftState {
+        plant.navigate(truth)
+    }
+
+    fn point(plant: &mut DispersedPlant, command: &ThrustCommand) -> ThrustCommand {
+        plant.point(command)
+    }
+
+    fn throttle(command: &ThrustCommand) -> f64 {
+        command.throttle
+    }
+
+    fn with_throttle(command: &ThrustCommand, throttle: f64) -> ThrustCommand {
+        ThrustCommand { throttle, ..*command }
+    }
+
+    fn propagate(
+        state: &SpacecraftState,
+        command: &ThrustCommand,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<SpacecraftState, PropagationError> {
+        propagate(state, command, spacecraft, duration, tolerances)
+    }
+}
+
+impl FlightGeometry for Spatial {
+    type Scenario = SpatialScenario;
+    type State = SpatialCraftState;
+    type Command = RtnCommand;
+    const OFF: RtnCommand = RtnCommand::OFF;
+
+    fn plan(scenario: &SpatialScenario) -> &Scenario {
+        &scenario.scenario
+    }
+
+    fn validate(scenario: &SpatialScenario) -> Result<(), ScenarioError> {
+        scenario.validate()
+    }
+
+    fn departure(scenario: &SpatialScenario) -> SpatialCraftState {
+        SpatialCraftState {
+            orbit: scenario.departure(),
+            m: 1.0,
+        }
+    }
+
+    fn navigate(plant: &mut DispersedPlant, truth: &SpatialCraftState) -> SpatialCraftState {
+        plant.navigate3(truth)
+    }
+
+    fn point(plant: &mut DispersedPlant, command: &RtnCommand) -> RtnCommand {
+        plant.point3(command)
+    }
+
+    fn throttle(command: &RtnCommand) -> f64 {
+        command.throttle
+    }
+
+    fn with_throttle(command: &RtnCommand, throttle: f64) -> RtnCommand {
+        RtnCommand { throttle, ..*command }
+    }
+
+    fn propagate(
+        state: &SpatialCraftState,
+        command: &RtnCommand,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<SpatialCraftState, PropagationError> {
+        propagate_rtn(state, command, spacecraft, duration, tolerances)
+    }
+}
+
+/// The state type of a problem's geometry.
+pub type StateOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::State;
+/// The command type of a problem's geometry.
+pub type CommandOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::Command;
+/// The scenario type of a problem's geometry.
+pub type ScenarioOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::Scenario;
 
 /// What the guidance loop steers to, and how flight software knows it at each cycle. The loop
-/// is generic over it so that transfer and rendezvous fly one implementation. Implemented by
-/// the zero-sized markers [`Transfer`] and [`Rendezvous`], passed by value to pick the problem.
+/// is generic over it so that every problem flies one implementation. Implemented by the
+/// zero-sized markers [`Transfer`] and [`Rendezvous`] (in the plane) and [`Transfer3`] and
+/// [`Rendezvous3`] (in three dimensions), passed by value to pick the problem.
 pub trait Problem<const N: usize>: Copy {
     /// The problem of the scenarios and blobs this flies.
     const KIND: ProblemKind;
+    /// The dimension it is flown in.
+    type Geometry: FlightGeometry;
     /// The target as guidance is given it: an orbit, or a body's state. Its features and
-    /// residuals are onboard's ([`TargetFeatures`]), the guidance step's own.
-    type Target: Copy + TargetFeatures<N>;
+    /// residuals are onboard's, the guidance step's own.
+    type Target: Copy;
 
-    /// The target at t = `index` STEP, computed as flight software does.
-    fn target(scenario: &Scenario, index: u32) -> Result<Self::Target, SilError>;
+    /// The target at t = `index` cycles, computed as flight software does.
+    fn target(scenario: &ScenarioOf<Self, N>, index: u32) -> Result<Self::Target, SilError>;
+    /// The `N` features of `state` against `target`, `time_to_go` before the arrival.
+    fn features(target: &Self::Target, state: &StateOf<Self, N>, time_to_go: f64) -> Result<[f64; N], FeatureError>;
+    /// The residuals read off the features.
+    fn residuals(features: &[f64; N]) -> Residuals;
 }
+
+/// A problem flown in the plane, its target one the onboard aids (lookahead, terminal targeting)
+/// see through [`TargetFeatures`]: [`Transfer`] and [`Rendezvous`].
+pub trait PlanarProblem<const N: usize>: Problem<N, Geometry = Planar, Target: TargetFeatures<N>> {}
+
+impl<const N: usize, P: Problem<N, Geometry = Planar, Target: TargetFeatures<N>>> PlanarProblem<N> for P {}
 
 /// A free-anomaly transfer (docs/spec.md section 5): the target is the orbit itself.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -145,18 +336,53 @@ pub struct Transfer;
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Rendezvous;
 
+/// A free-anomaly transfer in three dimensions (docs/spec.md section 6.1): the target is the
+/// orbit in its plane.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Transfer3;
+
+/// A rendezvous in three dimensions: the target is a body on the inclined target orbit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Rendezvous3;
+
 impl Problem<TRANSFER_FEATURES> for Transfer {
     const KIND: ProblemKind = ProblemKind::Transfer;
+    type Geometry = Planar;
     type Target = OrbitShape;
 
     fn target(scenario: &Scenario, _index: u32) -> Result<OrbitShape, SilError> {
         Ok(scenario.target)
     }
+
+    fn features(
+        target: &OrbitShape,
+        state: &SpacecraftState,
+        time_to_go: f64,
+    ) -> Result<[f64; TRANSFER_FEATURES], FeatureError> {
+        target.features_after(state, 0.0, time_to_go)
+    }
+
+    fn residuals(features: &[f64; TRANSFER_FEATURES]) -> Residuals {
+        <OrbitShape as TargetFeatures<TRANSFER_FEATURES>>::residuals(features)
+    }
 }
 
 impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
     const KIND: ProblemKind = ProblemKind::Rendezvous;
+    type Geometry = Planar;
     type Target = CartesianState;
+
+    fn features(
+        target: &CartesianState,
+        state: &SpacecraftState,
+        time_to_go: f64,
+    ) -> Result<[f64; RENDEZVOUS_FEATURES], FeatureError> {
+        target.features_after(state, 0.0, time_to_go)
+    }
+
+    fn residuals(features: &[f64; RENDEZVOUS_FEATURES]) -> Residuals {
+        <CartesianState as TargetFeatures<RENDEZVOUS_FEATURES>>::residuals(features)
+    }
 
     /// The body coasted from its state at the epoch (t = 0, anomaly `target_nu0`) every time,
     /// not from the previous cycle's, so no error accumulates over the flight: the ephemeris
@@ -167,17 +393,68 @@ impl Problem<RENDEZVOUS_FEATURES> for Rendezvous {
     }
 }
 
-/// The flight computer's network on `N` features: the blob's policy, or safe mode when the
-/// blob was refused. `Controller<'a>` is the transfer controller.
+impl Problem<TRANSFER3_FEATURES> for Transfer3 {
+    const KIND: ProblemKind = ProblemKind::Transfer;
+    type Geometry = Spatial;
+    type Target = TargetOrbit3;
+
+    fn target(scenario: &SpatialScenario, _index: u32) -> Result<TargetOrbit3, SilError> {
+        Ok(TargetOrbit3 {
+            shape: scenario.scenario.target,
+            plane: scenario.target_plane,
+        })
+    }
+
+    fn features(
+        target: &TargetOrbit3,
+        state: &SpatialCraftState,
+        time_to_go: f64,
+    ) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
+        target.features(state, time_to_go)
+    }
+
+    fn residuals(features: &[f64; TRANSFER3_FEATURES]) -> Residuals {
+        TargetOrbit3::residuals(features)
+    }
+}
+
+impl Problem<RENDEZVOUS3_FEATURES> for Rendezvous3 {
+    const KIND: ProblemKind = ProblemKind::Rendezvous;
+    type Geometry = Spatial;
+    type Target = SpatialState;
+
+    /// The body coasted from its state at the epoch in its plane, every time (the ground
+    /// environment's ephemeris, `ground_core::env::body_at3`, bit for bit).
+    fn target(scenario: &SpatialScenario, index: u32) -> Result<SpatialState, SilError> {
+        let plan = &scenario.scenario;
+        let epoch = scenario.target_plane.embed(&plan.target.cartesian_at(plan.target_nu0));
+        coast3(&epoch, plan.cycle_start(index)).map_err(|error| SilError::Target { index, error })
+    }
+
+    fn features(
+        target: &SpatialState,
+        state: &SpatialCraftState,
+        time_to_go: f64,
+    ) -> Result<[f64; RENDEZVOUS3_FEATURES], FeatureError> {
+        target.features(state, time_to_go)
+    }
+
+    fn residuals(features: &[f64; RENDEZVOUS3_FEATURES]) -> Residuals {
+        SpatialState::residuals(features)
+    }
+}
+
+/// The flight computer's network on `N` features with `OUT` action outputs: the blob's policy,
+/// or safe mode when the blob was refused. `Controller<'a>` is the planar transfer controller.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Controller<'a, const N: usize = TRANSFER_FEATURES> {
+pub enum Controller<'a, const N: usize = TRANSFER_FEATURES, const OUT: usize = ACTION_LEN> {
     /// The blob loaded: the network flies.
-    Network(Policy<'a, N>),
+    Network(Policy<'a, N, OUT>),
     /// The blob was refused at load (why is kept): every command is thrust off.
     SafeMode(PolicyError),
 }
 
-impl<'a, const N: usize> Controller<'a, N> {
+impl<'a, const N: usize, const OUT: usize> Controller<'a, N, OUT> {
     /// Loads a blob for problem `P`; a blob of another version, problem or shape, truncated or
     /// altered, puts the controller in safe mode instead of flying garbage.
     pub fn load<P: Problem<N>>(blob: &'a [u8]) -> Self {
@@ -205,35 +482,45 @@ impl<'a> Controller<'a, RENDEZVOUS_FEATURES> {
 /// The action that decodes to thrust off (throttle (a0 + 1) / 2 = 0).
 pub const THRUST_OFF_ACTION: [f32; 3] = [-1.0, 0.0, 1.0];
 
-impl<const N: usize> Actor<N> for Controller<'_, N> {
-    fn act(&self, features: &[f32; N]) -> [f32; 3] {
+/// The action of `OUT` components that decodes to thrust off: throttle -1, the direction along
+/// the second (planar: transverse) component.
+fn thrust_off_action<const OUT: usize>() -> [f32; OUT] {
+    core::array::from_fn(|i| match i {
+        0 => -1.0,
+        2 => 1.0,
+        _ => 0.0,
+    })
+}
+
+impl<const N: usize, const OUT: usize> Actor<N, OUT> for Controller<'_, N, OUT> {
+    fn act(&self, features: &[f32; N]) -> [f32; OUT] {
         match self {
             Self::Network(policy) => policy.forward(features),
-            Self::SafeMode(_) => THRUST_OFF_ACTION,
+            Self::SafeMode(_) => thrust_off_action(),
         }
     }
 }
 
-/// One guidance cycle as flown, with the `N` features of its problem.
+/// One guidance cycle as flown, with the `N` features of its problem, in geometry `G`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FlightStep<const N: usize = TRANSFER_FEATURES> {
+pub struct FlightStep<const N: usize = TRANSFER_FEATURES, G: FlightGeometry = Planar> {
     /// Step index k (0-based): the command was computed at t = k * STEP.
     pub index: u32,
     /// What navigation reported at the start of the step (the truth plus navigation error).
-    pub navigation: SpacecraftState,
+    pub navigation: G::State,
     /// Features of the true state at the start of the step (the MDP's observation).
     pub features: [f64; N],
     /// Command of the guidance step (thrust off when guidance refused its input).
-    pub command: ThrustCommand,
+    pub command: G::Command,
     /// What the thruster did with it (pointing error, thrust magnitude factor applied to the
     /// throttle); missed-thrust time inside the step is not in here, see `missed_thrust`.
-    pub applied: ThrustCommand,
+    pub applied: G::Command,
     /// Canonical time of the step spent in missed-thrust events.
     pub missed_thrust: f64,
     /// Why guidance produced no command, if it did not.
     pub guidance_error: Option<GuidanceError>,
     /// True state at the end of the step.
-    pub state: SpacecraftState,
+    pub state: G::State,
     /// Reward at the end of the step (docs/spec.md section 5, printed reward).
     pub reward: f64,
     /// Residuals of the true state against the target at the end of the step.
@@ -242,13 +529,13 @@ pub struct FlightStep<const N: usize = TRANSFER_FEATURES> {
 
 /// What a flight ended with.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FlightSummary {
+pub struct FlightSummary<G: FlightGeometry = Planar> {
     /// Guidance cycles flown.
     pub steps: u32,
     /// Sum of the cycles' rewards (docs/spec.md section 5).
     pub total_reward: f64,
     /// True state after the last cycle.
-    pub final_state: SpacecraftState,
+    pub final_state: G::State,
     /// Residuals at the end (none for a flight of zero steps).
     pub final_residuals: Option<Residuals>,
     /// Cycles in which guidance refused its input and commanded thrust off.
@@ -350,18 +637,72 @@ impl FlightSetup {
     }
 }
 
-/// Flies `scenario` closed loop as problem `P` and reports every cycle to `observer`: at each
-/// 14-day cycle the guidance step computes a command from the navigation state and the target
-/// at that time, the truth plant of `setup` flies it (its dispersions drawn from `seed`) to the
+/// Flies `scenario` closed loop as planar problem `P` and reports every cycle to `observer`: at
+/// each cycle the guidance step computes a command from the navigation state and the target at
+/// that time, the truth plant of `setup` flies it (its dispersions drawn from `seed`) to the
 /// next cycle. No allocation.
-pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: FnMut(&FlightStep<N>)>(
+pub fn fly_observed<const N: usize, P, A, O>(
     _problem: P,
     actor: &A,
     scenario: &Scenario,
     setup: &FlightSetup,
     seed: u64,
+    observer: O,
+) -> Result<FlightSummary, SilError>
+where
+    P: PlanarProblem<N>,
+    A: Guide<N, P::Target>,
+    O: FnMut(&FlightStep<N>),
+{
+    fly_loop::<N, P, _, _>(
+        scenario,
+        setup,
+        seed,
+        |navigation, target, time_to_go| actor.command(navigation, target, time_to_go),
+        observer,
+    )
+}
+
+/// Flies `scenario` closed loop in three dimensions as problem `P` (docs/spec.md section 6.1),
+/// the network `actor` commanding throttle and an RTN direction each cycle, and reports every
+/// cycle to `observer`, as [`fly_observed`] does in the plane. No allocation.
+pub fn fly_spatial_observed<const N: usize, P, A, O>(
+    _problem: P,
+    actor: &A,
+    scenario: &SpatialScenario,
+    setup: &FlightSetup,
+    seed: u64,
+    observer: O,
+) -> Result<FlightSummary<Spatial>, SilError>
+where
+    P: Problem<N, Geometry = Spatial>,
+    P::Target: SpatialTargetFeatures<N>,
+    A: Actor<N, ACTION3_LEN>,
+    O: FnMut(&FlightStep<N, Spatial>),
+{
+    fly_loop::<N, P, _, _>(
+        scenario,
+        setup,
+        seed,
+        |navigation, target, time_to_go| command3_at(actor, target, navigation, time_to_go),
+        observer,
+    )
+}
+
+/// The guidance loop of every problem and geometry: `guidance` gives each cycle's command from
+/// the navigation state, the target and the time to go.
+fn fly_loop<const N: usize, P, G, O>(
+    scenario: &ScenarioOf<P, N>,
+    setup: &FlightSetup,
+    seed: u64,
+    guidance: G,
     mut observer: O,
-) -> Result<FlightSummary, SilError> {
+) -> Result<FlightSummary<P::Geometry>, SilError>
+where
+    P: Problem<N>,
+    G: Fn(&StateOf<P, N>, &P::Target, f64) -> Result<CommandOf<P, N>, GuidanceError>,
+    O: FnMut(&FlightStep<N, P::Geometry>),
+{
     let FlightSetup {
         spacecraft,
         tolerances,
@@ -369,15 +710,16 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         dispersions,
         time_unit_s,
     } = setup;
-    scenario.validate().map_err(SilError::Scenario)?;
+    P::Geometry::validate(scenario).map_err(SilError::Scenario)?;
+    let plan = P::Geometry::plan(scenario);
     dispersions.validate().map_err(SilError::Dispersion)?;
     if !(time_unit_s.is_finite() && *time_unit_s > 0.0) {
         return Err(SilError::TimeUnit(*time_unit_s));
     }
-    if scenario.problem != P::KIND {
+    if plan.problem != P::KIND {
         return Err(SilError::WrongProblem {
             expected: P::KIND,
-            found: scenario.problem,
+            found: plan.problem,
         });
     }
     let mut plant = DispersedPlant::new(dispersions, *time_unit_s, seed);
@@ -385,7 +727,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         thrust: spacecraft.thrust * plant.thrust_factor(),
         ..*spacecraft
     };
-    let mut state = SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
+    let mut state = P::Geometry::departure(scenario);
     let mut summary = FlightSummary {
         steps: 0,
         total_reward: 0.0,
@@ -395,28 +737,23 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
     };
     // The target at the start of the cycle; the end of one cycle is the start of the next.
     let mut target = P::target(scenario, 0)?;
-    for index in 0..scenario.steps {
-        let time_to_go = scenario.time_to_go(index);
-        let features = target
-            .features_after(&state, 0.0, time_to_go)
-            .map_err(|error| SilError::Features { index, error })?;
-        let navigation = plant.navigate(&state);
-        let (command, guidance_error) = match actor.command(&navigation, &target, time_to_go) {
+    for index in 0..plan.steps {
+        let time_to_go = plan.time_to_go(index);
+        let features = P::features(&target, &state, time_to_go).map_err(|error| SilError::Features { index, error })?;
+        let navigation = P::Geometry::navigate(&mut plant, &state);
+        let (command, guidance_error) = match guidance(&navigation, &target, time_to_go) {
             Ok(c) => (c, None),
-            Err(e) => (ThrustCommand::OFF, Some(e)),
+            Err(e) => (P::Geometry::OFF, Some(e)),
         };
-        let pointed = plant.point(&command);
-        let applied = ThrustCommand {
-            throttle: pointed.throttle * plant.thrust_factor(),
-            ..pointed
-        };
+        let pointed = P::Geometry::point(&mut plant, &command);
+        let applied = P::Geometry::with_throttle(&pointed, P::Geometry::throttle(&pointed) * plant.thrust_factor());
         // The plant, segment by segment: thrust on, or off inside a missed-thrust event.
-        let (cycle_start, cycle) = (scenario.cycle_start(index), scenario.cycle);
+        let (cycle_start, cycle) = (plan.cycle_start(index), plan.cycle);
         let (mut tau, mut missed_thrust) = (0.0, 0.0);
         while tau < cycle {
             let (end, thrust_on) = plant.segment(cycle_start, tau, cycle);
-            let flown = if thrust_on { pointed } else { ThrustCommand::OFF };
-            state = propagate(&state, &flown, &actual, end - tau, tolerances)
+            let flown = if thrust_on { pointed } else { P::Geometry::OFF };
+            state = P::Geometry::propagate(&state, &flown, &actual, end - tau, tolerances)
                 .map_err(|error| SilError::Plant { index, error })?;
             if !thrust_on {
                 missed_thrust += end - tau;
@@ -425,10 +762,9 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
         }
         // The end of the cycle as the MDP sees step index + 1 (its time to go, its target).
         target = P::target(scenario, index + 1)?;
-        let after = target
-            .features_after(&state, 0.0, scenario.time_to_go(index + 1))
+        let after = P::features(&target, &state, plan.time_to_go(index + 1))
             .map_err(|error| SilError::Features { index, error })?;
-        let residuals = P::Target::residuals(&after);
+        let residuals = P::residuals(&after);
         // The reward charges the commanded throttle, as the MDP does.
         let step = FlightStep {
             index,
@@ -439,7 +775,7 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
             missed_thrust,
             guidance_error,
             state,
-            reward: reward(&residuals, command.throttle, weights),
+            reward: reward(&residuals, P::Geometry::throttle(&command), weights),
             residuals,
         };
         summary.steps += 1;
@@ -455,24 +791,24 @@ pub fn fly_observed<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, O: Fn
 /// A recorded closed-loop flight.
 #[cfg(feature = "std")]
 #[derive(Debug, Clone, PartialEq)]
-pub struct Flight<const N: usize = TRANSFER_FEATURES> {
+pub struct Flight<const N: usize = TRANSFER_FEATURES, G: FlightGeometry = Planar> {
     /// The state at departure (m = 1).
-    pub initial: SpacecraftState,
+    pub initial: G::State,
     /// Every guidance cycle, in order.
-    pub steps: Vec<FlightStep<N>>,
+    pub steps: Vec<FlightStep<N, G>>,
     /// What the flight ended with.
-    pub summary: FlightSummary,
+    pub summary: FlightSummary<G>,
 }
 
 #[cfg(feature = "std")]
-impl<const N: usize> Flight<N> {
+impl<const N: usize, G: FlightGeometry> Flight<N, G> {
     /// Sum of the cycles' rewards.
     pub fn total_reward(&self) -> f64 {
         self.summary.total_reward
     }
 
     /// True state after the last cycle.
-    pub fn final_state(&self) -> SpacecraftState {
+    pub fn final_state(&self) -> G::State {
         self.summary.final_state
     }
 
@@ -482,9 +818,9 @@ impl<const N: usize> Flight<N> {
     }
 }
 
-/// Flies `scenario` as problem `P` and records every cycle (see [`fly_observed`]).
+/// Flies `scenario` as planar problem `P` and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
-pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>>(
+pub fn fly<const N: usize, P: PlanarProblem<N>, A: Guide<N, P::Target>>(
     problem: P,
     actor: &A,
     scenario: &Scenario,
@@ -494,7 +830,31 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>>(
     let mut steps = Vec::with_capacity(scenario.steps as usize);
     let summary = fly_observed(problem, actor, scenario, setup, seed, |s| steps.push(*s))?;
     Ok(Flight {
-        initial: SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0),
+        initial: Planar::departure(scenario),
+        steps,
+        summary,
+    })
+}
+
+/// Flies `scenario` in three dimensions as problem `P` and records every cycle (see
+/// [`fly_spatial_observed`]).
+#[cfg(feature = "std")]
+pub fn fly_spatial<const N: usize, P, A>(
+    problem: P,
+    actor: &A,
+    scenario: &SpatialScenario,
+    setup: &FlightSetup,
+    seed: u64,
+) -> Result<Flight<N, Spatial>, SilError>
+where
+    P: Problem<N, Geometry = Spatial>,
+    P::Target: SpatialTargetFeatures<N>,
+    A: Actor<N, ACTION3_LEN>,
+{
+    let mut steps = Vec::with_capacity(scenario.scenario.steps as usize);
+    let summary = fly_spatial_observed(problem, actor, scenario, setup, seed, |s| steps.push(*s))?;
+    Ok(Flight {
+        initial: Spatial::departure(scenario),
         steps,
         summary,
     })

@@ -20,7 +20,7 @@ use shared::orbit::{OrbitElements, OrbitShape};
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::{Spacecraft, SpacecraftError};
 
-use crate::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, FlightSummary, Problem, SilError};
+use crate::{fly_observed, Controller, Dispersions, FlightSetup, FlightStep, FlightSummary, PlanarProblem, SilError};
 
 /// First character of the lines a trace consumer must ignore (measurements, timings).
 pub const COMMENT: char = '#';
@@ -123,7 +123,7 @@ pub const RENDEZVOUS_FLIGHTS: [TraceFlight; 3] = flights(
 );
 
 /// The trace's flights of problem `P`.
-pub fn flights_of<const N: usize, P: Problem<N>>(_problem: P) -> &'static [TraceFlight; 3] {
+pub fn flights_of<const N: usize, P: crate::Problem<N>>(_problem: P) -> &'static [TraceFlight; 3] {
     match P::KIND {
         ProblemKind::Transfer => &TRANSFER_FLIGHTS,
         ProblemKind::Rendezvous => &RENDEZVOUS_FLIGHTS,
@@ -199,7 +199,7 @@ pub fn write_end<W: Write>(w: &mut W, result: &Result<FlightSummary, SilError>) 
 
 /// Flies `flight` as problem `P` with `actor`, writing its `flight`, `step` and `end` lines to
 /// `w`. The outer error is a failed write; the inner result is the flight's.
-pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
+pub fn fly<const N: usize, P: PlanarProblem<N>, A: Guide<N, P::Target>, W: Write>(
     w: &mut W,
     problem: P,
     actor: &A,
@@ -209,7 +209,7 @@ pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
 }
 
 /// [`fly`], each step also handed to `also` (after its line is written).
-pub fn fly_observing<const N: usize, P: Problem<N>, A: Guide<N, P::Target>, W: Write>(
+pub fn fly_observing<const N: usize, P: PlanarProblem<N>, A: Guide<N, P::Target>, W: Write>(
     w: &mut W,
     problem: P,
     actor: &A,

@@ -4,35 +4,42 @@
 //! actor's mean head and decodes its action. Any failure is a typed error: the caller (flight
 //! software) then commands thrust off; a NaN never reaches the thrusters.
 
-use shared::orbit::{CartesianState, OrbitShape};
+use shared::orbit::{CartesianState, OrbitPlane, OrbitShape, SpatialState};
 
 use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
 use crate::features::{
-    decode_action, rendezvous_features, rendezvous_residuals, to_network_input, transfer_features, transfer_residuals,
-    FeatureError, Residuals, ACTION_LEN, RENDEZVOUS_FEATURES, TRANSFER_FEATURES,
+    decode_action, decode_action3, rendezvous3_features, rendezvous3_residuals, rendezvous_features,
+    rendezvous_residuals, to_network_input, transfer3_features, transfer3_residuals, transfer_features,
+    transfer_residuals, FeatureError, Residuals, ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES,
+    TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
 use crate::kepler::coast;
 use crate::lookahead::{lookahead_step, Lookahead};
+use crate::spatial::{RtnCommand, SpatialCraftState};
 
-/// A deterministic actor: features in, action in [-1, 1]^3 out. Implemented by the onboard MLPs
-/// (f32 and int8) and by anything else that can fly (tests, baselines).
-pub trait Actor<const IN: usize> {
-    /// The action for `features` (already narrowed to f32): throttle and the two polar direction
-    /// components, each in [-1, 1], as [`crate::features::decode_action`] reads them.
-    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN];
+/// A deterministic actor: features in, action in [-1, 1]^OUT out. Implemented by the onboard
+/// MLPs (f32 and int8) and by anything else that can fly (tests, baselines). In the plane
+/// (`OUT` = 3) the action is the throttle and the two polar direction components, as
+/// [`crate::features::decode_action`] reads them; in three dimensions (`OUT` = 4) the throttle
+/// and the three RTN components ([`crate::features::decode_action3`]).
+pub trait Actor<const IN: usize, const OUT: usize = ACTION_LEN> {
+    /// The action for `features` (already narrowed to f32), each component in [-1, 1].
+    fn act(&self, features: &[f32; IN]) -> [f32; OUT];
 }
 
 /// A borrowed actor flies as the actor (so a [`crate::lookahead::Lookahead`] can hold a reference).
-impl<const IN: usize, A: Actor<IN> + ?Sized> Actor<IN> for &A {
-    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN] {
+impl<const IN: usize, const OUT: usize, A: Actor<IN, OUT> + ?Sized> Actor<IN, OUT> for &A {
+    fn act(&self, features: &[f32; IN]) -> [f32; OUT] {
         (**self).act(features)
     }
 }
 
 /// The onboard MLPs fly as actors: their output is already the tanh-squashed action.
-impl<const IN: usize, const H1: usize, const H2: usize> Actor<IN> for crate::policy::Mlp<'_, IN, H1, H2, ACTION_LEN> {
-    fn act(&self, features: &[f32; IN]) -> [f32; ACTION_LEN] {
+impl<const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Actor<IN, OUT>
+    for crate::policy::Mlp<'_, IN, H1, H2, OUT>
+{
+    fn act(&self, features: &[f32; IN]) -> [f32; OUT] {
         self.forward(features)
     }
 }
@@ -85,6 +92,87 @@ pub fn rendezvous_step<A: Actor<RENDEZVOUS_FEATURES>>(
     time_to_go: f64,
 ) -> Result<ThrustCommand, GuidanceError> {
     command_at(actor, target_body, navigation, 0.0, time_to_go)
+}
+
+/// Transfer guidance in three dimensions (docs/spec.md section 6.1): the 15 features of the
+/// navigation state against the target orbit (its shape in its plane), actor, decoded RTN
+/// command.
+pub fn transfer3_step<A: Actor<TRANSFER3_FEATURES, ACTION3_LEN>>(
+    actor: &A,
+    navigation: &SpatialCraftState,
+    target: &TargetOrbit3,
+    time_to_go: f64,
+) -> Result<RtnCommand, GuidanceError> {
+    command3_at(actor, target, navigation, time_to_go)
+}
+
+/// Rendezvous guidance in three dimensions (docs/spec.md section 6.1): the 30 features of the
+/// navigation state against the body's current state, actor, decoded RTN command.
+pub fn rendezvous3_step<A: Actor<RENDEZVOUS3_FEATURES, ACTION3_LEN>>(
+    actor: &A,
+    navigation: &SpatialCraftState,
+    target_body: &SpatialState,
+    time_to_go: f64,
+) -> Result<RtnCommand, GuidanceError> {
+    command3_at(actor, target_body, navigation, time_to_go)
+}
+
+/// A transfer's target in three dimensions: the orbit's shape in its own plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetOrbit3 {
+    /// Semi-major axis, eccentricity and periapsis argument, measured in `plane`.
+    pub shape: OrbitShape,
+    /// The orbit's plane.
+    pub plane: OrbitPlane,
+}
+
+/// A target as three-dimensional guidance sees it: the `N` features of a state against it.
+/// Implemented by the transfer's [`TargetOrbit3`] and the rendezvous body's current state.
+pub trait SpatialTargetFeatures<const N: usize> {
+    /// The `N` features of `state`, `time_to_go` before the arrival.
+    fn features(&self, state: &SpatialCraftState, time_to_go: f64) -> Result<[f64; N], FeatureError>;
+    /// The residuals read off the features.
+    fn residuals(features: &[f64; N]) -> Residuals;
+}
+
+impl SpatialTargetFeatures<TRANSFER3_FEATURES> for TargetOrbit3 {
+    fn features(&self, state: &SpatialCraftState, time_to_go: f64) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
+        transfer3_features(state, &self.shape, &self.plane, time_to_go)
+    }
+
+    fn residuals(features: &[f64; TRANSFER3_FEATURES]) -> Residuals {
+        transfer3_residuals(features)
+    }
+}
+
+impl SpatialTargetFeatures<RENDEZVOUS3_FEATURES> for SpatialState {
+    fn features(
+        &self,
+        state: &SpatialCraftState,
+        time_to_go: f64,
+    ) -> Result<[f64; RENDEZVOUS3_FEATURES], FeatureError> {
+        rendezvous3_features(state, self, time_to_go)
+    }
+
+    fn residuals(features: &[f64; RENDEZVOUS3_FEATURES]) -> Residuals {
+        rendezvous3_residuals(features)
+    }
+}
+
+/// The network's RTN command for `state` against `target`: features, actor, decoded command;
+/// the one path of both three-dimensional guidance steps.
+pub fn command3_at<const N: usize, A: Actor<N, ACTION3_LEN> + ?Sized, T: SpatialTargetFeatures<N>>(
+    actor: &A,
+    target: &T,
+    state: &SpatialCraftState,
+    time_to_go: f64,
+) -> Result<RtnCommand, GuidanceError> {
+    let features = target.features(state, time_to_go).map_err(GuidanceError::Input)?;
+    let action = actor.act(&to_network_input(&features));
+    if !action.iter().all(|a| a.is_finite()) {
+        return Err(GuidanceError::NonFiniteAction);
+    }
+    Ok(decode_action3(&action))
 }
 
 /// A guidance law as flight software calls it each cycle: navigation state, target and time to go

@@ -10,7 +10,7 @@
 
 use std::sync::Mutex;
 
-use firmware_sim::{fly, with_flight_problem, Controller, Dispersions, FlightSetup, Problem};
+use firmware_sim::{fly, with_flight_problem, Controller, Dispersions, FlightSetup, PlanarProblem};
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::guidance::{cycles_left, Actor, GuidanceError, Guide, TargetFeatures};
 use onboard::terminal::{terminal_step, Terminal, TerminalSettings};
@@ -66,7 +66,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-fn report<const N: usize, P: Problem<N> + Send + Sync, G: Guide<N, P::Target> + Sync>(
+fn report<const N: usize, P: PlanarProblem<N> + Send + Sync, G: Guide<N, P::Target> + Sync>(
     name: &str,
     kind: ScenarioKind,
     count: u64,

@@ -2,7 +2,7 @@
 //! in the SIL loop: the contract between the crates, end to end.
 
 use firmware_sim::{
-    fly, fly_observed, Controller, Dispersions, FlightSetup, FlightStep, Problem, Rendezvous, Transfer,
+    fly, fly_observed, Controller, Dispersions, FlightSetup, FlightStep, PlanarProblem, Rendezvous, Transfer,
 };
 use ground_core::env::{EnvConfig, Environment, MdpEnv, Planar};
 use onboard::features::{decode_action, to_network_input, RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
@@ -187,7 +187,7 @@ fn rendezvous_blob(quantization: Quantization) -> Vec<u8> {
 /// same episode bit for bit: observation, command, state, reward and residuals at every step.
 fn sil_is_the_environment<const N: usize, P, E>(problem: P, actor: &impl Actor<N>, scenario: &Scenario)
 where
-    P: Problem<N>,
+    P: PlanarProblem<N>,
     E: Environment<Obs = [f32; N], Geometry = Planar>,
 {
     let config = EnvConfig::default();
@@ -407,4 +407,139 @@ fn the_onboard_loader_refuses_what_does_not_fit() {
         TransferPolicy::from_bytes(&corrupt, ProblemKind::Transfer),
         Err(PolicyError::Blob(BlobError::CrcMismatch { .. }))
     ));
+}
+
+/// A family of `kind`'s orbits with the target's plane inclined 1 to 5 degrees, any node.
+fn inclined(kind: ScenarioKind) -> shared::mission::SpatialFamily {
+    use shared::mission::PlaneRanges;
+    use shared::scenario::Range;
+    shared::mission::SpatialFamily {
+        family: kind.family(),
+        departure_plane: PlaneRanges::REFERENCE,
+        target_plane: PlaneRanges {
+            inclination: Range {
+                lo: 1f64.to_radians(),
+                hi: 5f64.to_radians(),
+            },
+            raan: Range {
+                lo: 0.0,
+                hi: std::f64::consts::TAU,
+            },
+        },
+    }
+}
+
+/// A three-dimensional network of `inputs` features and 4 actions, as the ground exports it:
+/// the f32 blob, and the int8 blob calibrated on `calibration`.
+fn spatial_blobs(features: FeatureLayout, seed: u64, calibration: &[Vec<f32>]) -> [Vec<u8>; 2] {
+    use shared::quantize::{DenseWeights, MlpWeights};
+    let sizes = [features.len(), 256, 256, features.actions()];
+    let layers = sizes
+        .windows(2)
+        .enumerate()
+        .map(|(l, w)| DenseWeights {
+            inputs: w[0],
+            outputs: w[1],
+            weights: weights(w[0] * w[1], w[0], seed + l as u64),
+            bias: weights(w[1], w[0], seed + 100 + l as u64),
+            activation: if l == 2 { Activation::Tanh } else { Activation::Relu },
+        })
+        .collect();
+    let network = MlpWeights { features, layers };
+    let f32_blob = network.f32_blob("integration test").unwrap();
+    let (int8_blob, _) = network.int8_blob(calibration, "integration test").unwrap();
+    [f32_blob, int8_blob]
+}
+
+/// [`sil_is_the_environment`] in three dimensions: the SIL's RTN loop and the 3D environment fly
+/// the same episode bit for bit.
+fn spatial_sil_is_the_environment<const N: usize, P, E>(
+    problem: P,
+    actor: &impl Actor<N, 4>,
+    scenario: &shared::scenario::SpatialScenario,
+) where
+    P: firmware_sim::Problem<N, Geometry = firmware_sim::Spatial>,
+    P::Target: onboard::guidance::SpatialTargetFeatures<N>,
+    E: Environment<Obs = [f32; N], Geometry = ground_core::env::Spatial>,
+{
+    let config = EnvConfig::default();
+    let setup = FlightSetup::nominal(config.spacecraft.canonical().unwrap());
+    let flight = firmware_sim::fly_spatial(problem, actor, scenario, &setup, 0).unwrap();
+    assert_eq!(flight.summary.steps, scenario.scenario.steps);
+    let mut env = E::new(&config).unwrap();
+    let mut obs = env.reset(scenario).unwrap();
+    let mut thrusting = 0;
+    for k in &flight.steps {
+        assert_eq!(obs, to_network_input(&k.features), "observation at step {}", k.index);
+        let step = env.step(&actor.act(&obs)).unwrap();
+        assert_eq!(step.info.command, k.command, "command at step {}", k.index);
+        assert!(k.guidance_error.is_none());
+        assert_eq!(step.info.state, k.state, "state after step {}", k.index);
+        assert_eq!(step.info.residuals, k.residuals, "residuals after step {}", k.index);
+        assert_eq!(
+            step.info.base_reward.to_bits(),
+            k.reward.to_bits(),
+            "reward of step {}",
+            k.index
+        );
+        thrusting += usize::from(k.command.throttle > 0.0 && k.command.normal != 0.0);
+        obs = step.observation;
+    }
+    assert!(
+        thrusting > 0,
+        "the network never thrusted out of the plane: the test shows little"
+    );
+}
+
+#[test]
+fn without_dispersions_the_3d_sil_flies_the_ground_environments_episodes() {
+    use firmware_sim::{Rendezvous3, Transfer3};
+    use ground_core::env::{Rendezvous3 as Rendezvous3Mdp, Transfer3 as Transfer3Mdp};
+    use onboard::features::{ACTION3_LEN, RENDEZVOUS3_FEATURES, TRANSFER3_FEATURES};
+    let transfers = inclined(ScenarioKind::TransferCircular);
+    let rendezvous = inclined(ScenarioKind::RendezvousCircular);
+    // Calibration: the features at departure of other draws.
+    let at_departure = |family: &shared::mission::SpatialFamily, rendezvous: bool| -> Vec<Vec<f32>> {
+        (0..100)
+            .map(|i| {
+                let s = family.draw(99, i);
+                let state = onboard::spatial::SpatialCraftState {
+                    orbit: s.departure(),
+                    m: 1.0,
+                };
+                let ttg = s.scenario.time_of_flight();
+                if rendezvous {
+                    let body = s
+                        .target_plane
+                        .embed(&s.scenario.target.cartesian_at(s.scenario.target_nu0));
+                    to_network_input(&onboard::features::rendezvous3_features(&state, &body, ttg).unwrap()).to_vec()
+                } else {
+                    let f = onboard::features::transfer3_features(&state, &s.scenario.target, &s.target_plane, ttg);
+                    to_network_input(&f.unwrap()).to_vec()
+                }
+            })
+            .collect()
+    };
+    let transfer_blobs = spatial_blobs(FeatureLayout::TransferSpatial15, 23, &at_departure(&transfers, false));
+    let rendezvous_blobs = spatial_blobs(FeatureLayout::RendezvousSpatial30, 29, &at_departure(&rendezvous, true));
+    for (t, r) in transfer_blobs.iter().zip(&rendezvous_blobs) {
+        let transfer = Controller::<TRANSFER3_FEATURES, ACTION3_LEN>::load::<Transfer3>(t);
+        assert!(matches!(transfer, Controller::Network(_)));
+        let rendezvous_controller = Controller::<RENDEZVOUS3_FEATURES, ACTION3_LEN>::load::<Rendezvous3>(r);
+        assert!(matches!(rendezvous_controller, Controller::Network(_)));
+        // The planar loop refuses a 3D blob: safe mode.
+        assert!(matches!(Controller::load_transfer(t), Controller::SafeMode(_)));
+        for index in 0..2 {
+            spatial_sil_is_the_environment::<TRANSFER3_FEATURES, _, MdpEnv<Transfer3Mdp>>(
+                Transfer3,
+                &transfer,
+                &transfers.draw(2026, index),
+            );
+            spatial_sil_is_the_environment::<RENDEZVOUS3_FEATURES, _, MdpEnv<Rendezvous3Mdp>>(
+                Rendezvous3,
+                &rendezvous_controller,
+                &rendezvous.draw(2026, index),
+            );
+        }
+    }
 }

@@ -4,7 +4,7 @@
 //! a cost no higher than the network flown alone. The transfer's rollouts are the flight exactly;
 //! the rendezvous's to rounding (its body is coasted from each cycle's state, not the epoch's).
 
-use firmware_sim::{fly, Controller, Flight, FlightSetup, Problem, Rendezvous, Transfer};
+use firmware_sim::{fly, Controller, Flight, FlightSetup, PlanarProblem, Rendezvous, Transfer};
 use onboard::guidance::{Actor, TargetFeatures};
 use onboard::lookahead::{lookahead_step, Lookahead, LookaheadSettings, Prediction};
 use shared::blob::AlignedBlob;
@@ -31,7 +31,7 @@ fn arrival<const N: usize>(flight: &Flight<N>) -> Prediction {
 /// Flies `scenario` with the network alone and with lookahead, and checks the flight with
 /// lookahead cycle by cycle, its predictions to within `slack` (0: bit for bit). Returns the
 /// two arrivals.
-fn check<const N: usize, P: Problem<N>>(
+fn check<const N: usize, P: PlanarProblem<N>>(
     problem: P,
     actor: &impl Actor<N>,
     scenario: &Scenario,

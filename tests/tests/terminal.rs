@@ -3,7 +3,7 @@
 //! flown alone. Measured (docs/results.md) on 10,000: transfer-circular 3.5 % within 0.001 AU and
 //! 0.001 of the velocity unit alone, 99.7 % with the last 4 cycles targeted.
 
-use firmware_sim::{fly, Controller, FlightSetup, Problem, Rendezvous, Transfer};
+use firmware_sim::{fly, Controller, FlightSetup, PlanarProblem, Rendezvous, Transfer};
 use onboard::guidance::Guide;
 use onboard::terminal::{Terminal, TerminalSettings};
 use shared::blob::AlignedBlob;
@@ -11,7 +11,7 @@ use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
 
 /// Final (dr, dv, mass) of the first `count` Monte Carlo scenarios flown by `guide`.
-fn arrivals<const N: usize, P: Problem<N>>(
+fn arrivals<const N: usize, P: PlanarProblem<N>>(
     problem: P,
     kind: ScenarioKind,
     guide: &impl Guide<N, P::Target>,

@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use firmware_sim::trace::{self, flights_of};
-use firmware_sim::{Controller, Problem, Rendezvous, Transfer};
+use firmware_sim::{Controller, PlanarProblem, Rendezvous, Transfer};
 use onboard::guidance::Actor;
 
 /// Host latency: the median over batches of inferences on the nominal flight's features.
@@ -43,7 +43,7 @@ fn latency<const N: usize>(controller: &Controller<'_, N>, inputs: &[[f32; N]]) 
 }
 
 /// The trace of `blob` flown as problem `P`, as the image built for `P` writes it.
-fn trace_of<const N: usize, P: Problem<N>>(problem: P, blob: &[u8], timing: bool) -> Result<String, String> {
+fn trace_of<const N: usize, P: PlanarProblem<N>>(problem: P, blob: &[u8], timing: bool) -> Result<String, String> {
     let controller = Controller::<N>::load::<P>(blob);
     let mut out = String::new();
     let mut inputs = Vec::new();

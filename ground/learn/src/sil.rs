@@ -10,9 +10,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use firmware_sim::{
-    fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup, FlightStep, Problem, SilError,
+    fly_observed, fly_spatial_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions,
+    FlightGeometry, FlightSetup, FlightStep, PlanarProblem, SilError,
 };
+use onboard::features::ACTION3_LEN;
 use onboard::lookahead::Lookahead;
+use onboard::policy::PolicyError;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
@@ -24,10 +27,9 @@ use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal,
 use crate::export::actor_network;
 use crate::sac::agent::Sac;
 use ground_core::demo::DemoGeometry;
-use ground_core::env::batch::{draw_scenarios, EpisodeOutcome, TrajectoryPoint};
-use ground_core::env::{step_reward, EnvError, Planar, Spatial};
+use ground_core::env::batch::{EpisodeOutcome, TrajectoryPoint};
+use ground_core::env::{step_reward, EnvError, Geometry, Planar, Spatial};
 use ground_core::io::atomic_write;
-use ground_core::with_problem;
 use onboard::lookahead::LookaheadSettings;
 use onboard::terminal::{Terminal, TerminalSettings};
 
@@ -75,8 +77,11 @@ fn met_missed_thrust(bands: &[MissedThrustBand]) -> bool {
 
 /// The flights grouped by where their last missed thrust ended ([`MISSED_THRUST_BANDS`]), the
 /// flights without missed thrust first.
-pub fn by_last_missed_thrust(outcomes: &[EpisodeOutcome], missed: &[MissedThrust]) -> Vec<MissedThrustBand> {
-    let mut groups: Vec<(String, Vec<EpisodeOutcome>)> = vec![("none".into(), Vec::new())];
+pub fn by_last_missed_thrust<G: Geometry>(
+    outcomes: &[EpisodeOutcome<G>],
+    missed: &[MissedThrust],
+) -> Vec<MissedThrustBand> {
+    let mut groups: Vec<(String, Vec<EpisodeOutcome<G>>)> = vec![("none".into(), Vec::new())];
     let mut lower = 0.0;
     for upper in MISSED_THRUST_BANDS {
         groups.push((format!("{lower}-{upper}"), Vec::new()));
@@ -136,22 +141,27 @@ pub struct SilReport {
 
 /// One SIL flight as the evaluation's episode outcome, the reward re-summed with the
 /// environment's own step reward (terminal-accuracy term included) so the two compare.
-fn outcome<const N: usize>(
+fn outcome<const N: usize, G, F>(
     config: &ExperimentConfig,
     episode: usize,
-    scenario: &Scenario,
-    steps: &[FlightStep<N>],
+    scenario: &G::Scenario,
+    steps: &[FlightStep<N, F>],
     error: Option<SilError>,
     record: bool,
-) -> EpisodeOutcome {
-    let initial = onboard::dynamics::SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0);
+) -> EpisodeOutcome<G>
+where
+    G: Geometry,
+    F: FlightGeometry<State = G::State, Command = G::Command>,
+{
+    let plan = G::plan(scenario);
+    let initial = G::departure(scenario);
     let reward =
-        |k: &FlightStep<N>| step_reward(&config.env, scenario, &k.residuals, k.command.throttle, k.index + 1).0;
+        |k: &FlightStep<N, F>| step_reward(&config.env, plan, &k.residuals, G::throttle(&k.command), k.index + 1).0;
     let last = steps.last();
     EpisodeOutcome {
         episode,
         total_reward: steps.iter().map(reward).sum(),
-        final_mass: last.map_or(initial.m, |k| k.state.m),
+        final_mass: last.map_or(G::mass(&initial), |k| G::mass(&k.state)),
         terminal: last.map_or(
             onboard::features::Residuals {
                 position: f64::NAN,
@@ -160,7 +170,7 @@ fn outcome<const N: usize>(
             |k| k.residuals,
         ),
         steps: steps.len() as u32,
-        completed: error.is_none() && steps.len() == scenario.steps as usize,
+        completed: error.is_none() && steps.len() == plan.steps as usize,
         error: error.map(|e| match e {
             SilError::Plant { index, error } => EnvError::Propagation { step: index, error },
             SilError::Features { index, error } => EnvError::Features { step: index, error },
@@ -189,6 +199,39 @@ fn outcome<const N: usize>(
             .collect()
         }),
     }
+}
+
+/// One flight's outcome, guidance faults and missed thrust, from its recorded cycles.
+fn flown<const N: usize, G, F>(
+    config: &ExperimentConfig,
+    episode: usize,
+    scenario: &G::Scenario,
+    steps: &[FlightStep<N, F>],
+    error: Option<SilError>,
+    record: bool,
+) -> (EpisodeOutcome<G>, u64, MissedThrust)
+where
+    G: Geometry,
+    F: FlightGeometry<State = G::State, Command = G::Command>,
+{
+    let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
+    let missed = MissedThrust {
+        time: steps.iter().map(|k| k.missed_thrust).sum(),
+        last_end: steps
+            .iter()
+            .rposition(|k| k.missed_thrust > 0.0)
+            .map(|k| (k + 1) as f64 / f64::from(G::plan(scenario).steps)),
+    };
+    (outcome(config, episode, scenario, steps, error, record), faults, missed)
+}
+
+/// The flights' outcomes, guidance faults summed, and each flight's missed thrust.
+type SilFlown<G> = (Vec<EpisodeOutcome<G>>, u64, Vec<MissedThrust>);
+
+fn gather<G: Geometry>(flights: Vec<(EpisodeOutcome<G>, u64, MissedThrust)>) -> SilFlown<G> {
+    let faults = flights.iter().map(|f| f.1).sum();
+    let missed = flights.iter().map(|f| f.2).collect();
+    (flights.into_iter().map(|f| f.0).collect(), faults, missed)
 }
 
 /// How a Monte Carlo of a blob flies, beyond the config: the plant's dispersions, the seed
@@ -235,18 +278,21 @@ impl<'a> SilFlights<'a> {
 }
 
 /// Flies `blob` on `scenarios` as `flights` says, transfers or rendezvous as the config's
-/// scenario; returns the per-flight outcomes (trajectories recorded for the first
+/// scenario, in the plane; returns the per-flight outcomes (trajectories recorded for the first
 /// `flights.record`), guidance faults and each flight's missed thrust.
 pub fn fly_blob(
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
     flights: &SilFlights,
-) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
-    // A blob of another family of the same problem (its cycle, units or orbits) is the
-    // ground's error, not the flight software's, which cannot know the family; a blob of the
-    // other problem the flight software refuses itself (safe mode).
-    config.planar_family("the software-in-the-loop flight")?;
+) -> Result<SilFlown<Planar>, ExperimentError> {
+    Planar::fly_blob(config, blob, scenarios, flights)
+}
+
+/// A blob of another family of the same problem (its cycle, units or orbits) is the ground's
+/// error, not the flight software's, which cannot know the family; a blob of the other problem
+/// the flight software refuses itself (safe mode).
+fn check_mission(config: &ExperimentConfig, blob: &[u8]) -> Result<(), ExperimentError> {
     if let Ok(decoded) = shared::blob::decode(blob) {
         if decoded.kind == config.problem() {
             if let Some(why) = config.mission_refusal(&decoded.mission) {
@@ -254,50 +300,117 @@ pub fn fly_blob(
             }
         }
     }
-    with_flight_problem!(config.problem(), N, P => {
-        fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
-    })
+    Ok(())
 }
 
-/// How a geometry's learner flies as the onboard controller (its f32 blob) against the SIL's
-/// dispersed plant, for the relabelling rounds that relabel or score dispersed flights. The
-/// blob and the onboard guidance are planar: an inclined family is refused.
+/// How a geometry's blobs fly in the SIL loop against the dispersed plant: planar blobs with
+/// the onboard aids, three-dimensional ones ([`firmware_sim::fly_spatial_observed`]) with the
+/// network alone.
 pub trait SilGeometry: DemoGeometry {
-    /// The flights of `agent`'s f32 blob on `scenarios` as `flights` says.
+    /// Flies `blob` on `scenarios` as `flights` says (the config's problem in this geometry):
+    /// per-flight outcomes (trajectories recorded for the first `flights.record`), guidance
+    /// faults and each flight's missed thrust.
+    fn fly_blob(
+        config: &ExperimentConfig,
+        blob: &[u8],
+        scenarios: &[Self::Scenario],
+        flights: &SilFlights,
+    ) -> Result<SilFlown<Self>, ExperimentError>;
+
+    /// Why the flight software refuses `blob` for the config's problem (None: it flies).
+    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError>;
+
+    /// The flights of `agent`'s f32 blob on `scenarios` as `flights` says (the relabelling
+    /// rounds that relabel or score dispersed flights).
     fn fly_learner(
         config: &ExperimentConfig,
         agent: &Sac,
         scenarios: &[Self::Scenario],
         flights: &SilFlights,
-    ) -> Result<Vec<EpisodeOutcome<Self>>, ExperimentError>;
-}
-
-impl SilGeometry for Planar {
-    fn fly_learner(
-        config: &ExperimentConfig,
-        agent: &Sac,
-        scenarios: &[Scenario],
-        flights: &SilFlights,
-    ) -> Result<Vec<EpisodeOutcome>, ExperimentError> {
+    ) -> Result<Vec<EpisodeOutcome<Self>>, ExperimentError> {
         let blob = actor_network(agent, config.feature_layout())?
             .f32_blob_for("relabelling round", config.blob_mission())
             .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))?;
-        Ok(fly_blob(config, &blob, scenarios, flights)?.0)
+        Ok(Self::fly_blob(config, &blob, scenarios, flights)?.0)
+    }
+}
+
+impl SilGeometry for Planar {
+    fn fly_blob(
+        config: &ExperimentConfig,
+        blob: &[u8],
+        scenarios: &[Scenario],
+        flights: &SilFlights,
+    ) -> Result<SilFlown<Planar>, ExperimentError> {
+        config.planar_family("the software-in-the-loop flight")?;
+        check_mission(config, blob)?;
+        with_flight_problem!(config.problem(), N, P => {
+            fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
+        })
+    }
+
+    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError> {
+        with_flight_problem!(config.problem(), N, P => match Controller::<N>::load::<P>(blob) {
+            Controller::Network(_) => None,
+            Controller::SafeMode(e) => Some(e),
+        })
     }
 }
 
 impl SilGeometry for Spatial {
-    fn fly_learner(
+    fn fly_blob(
         config: &ExperimentConfig,
-        _agent: &Sac,
-        _scenarios: &[SpatialScenario],
-        _flights: &SilFlights,
-    ) -> Result<Vec<EpisodeOutcome<Spatial>>, ExperimentError> {
-        Err(ExperimentError::Inclined {
-            stage: "the software-in-the-loop flight",
-            family: config.family.label().to_string(),
+        blob: &[u8],
+        scenarios: &[SpatialScenario],
+        flights: &SilFlights,
+    ) -> Result<SilFlown<Spatial>, ExperimentError> {
+        if flights.lookahead.is_some() || flights.terminal.is_some() {
+            return Err(ExperimentError::Inclined {
+                stage: "the onboard aids (lookahead, terminal targeting)",
+                family: config.family.label().to_string(),
+            });
+        }
+        check_mission(config, blob)?;
+        with_spatial_flight_problem!(config.problem(), N, P => {
+            fly_spatial_blob_as::<N, P>(config, blob, scenarios, flights)
         })
     }
+
+    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError> {
+        with_spatial_flight_problem!(config.problem(), N, P => {
+            match Controller::<N, ACTION3_LEN>::load::<P>(blob) {
+                Controller::Network(_) => None,
+                Controller::SafeMode(e) => Some(e),
+            }
+        })
+    }
+}
+
+/// [`SilGeometry::fly_blob`] in three dimensions for one problem: the network alone.
+fn fly_spatial_blob_as<const N: usize, P>(
+    config: &ExperimentConfig,
+    blob: &[u8],
+    scenarios: &[SpatialScenario],
+    flights: &SilFlights,
+) -> Result<SilFlown<Spatial>, ExperimentError>
+where
+    P: firmware_sim::Problem<N, Geometry = firmware_sim::Spatial> + Default + Sync,
+    P::Target: onboard::guidance::SpatialTargetFeatures<N>,
+{
+    let setup = flight_setup(config, flights.dispersions)?;
+    let blob = AlignedBlob::new(blob);
+    let controller = Controller::<N, ACTION3_LEN>::load::<P>(blob.bytes());
+    let flown_flights = scenarios
+        .par_iter()
+        .enumerate()
+        .map(|(i, scenario)| {
+            let mut steps = Vec::with_capacity(scenario.scenario.steps as usize);
+            let seed = flights.seed.wrapping_add(i as u64);
+            let result = fly_spatial_observed(P::default(), &controller, scenario, &setup, seed, |k| steps.push(*k));
+            flown(config, i, scenario, &steps, result.err(), i < flights.record)
+        })
+        .collect();
+    Ok(gather(flown_flights))
 }
 
 /// The config's spacecraft, plant tolerances and reward weights, flown with `dispersions`.
@@ -315,14 +428,14 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
     })
 }
 
-/// [`fly_blob`] for one problem.
-fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
+/// [`SilGeometry::fly_blob`] in the plane for one problem, with the onboard aids.
+fn fly_blob_as<const N: usize, P: PlanarProblem<N> + Sync>(
     problem: P,
     config: &ExperimentConfig,
     blob: &[u8],
     scenarios: &[Scenario],
     flights: &SilFlights,
-) -> Result<(Vec<EpisodeOutcome>, u64, Vec<MissedThrust>), ExperimentError> {
+) -> Result<SilFlown<Planar>, ExperimentError> {
     let SilFlights {
         dispersions,
         seed,
@@ -334,7 +447,7 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
     // On a cache line: the host kernels' vector loads then never straddle two.
     let blob = AlignedBlob::new(blob);
     let controller = Controller::<N>::load::<P>(blob.bytes());
-    let flown: Vec<(EpisodeOutcome, u64, MissedThrust)> = scenarios
+    let flown_flights = scenarios
         .par_iter()
         .enumerate()
         .map(|(i, scenario)| {
@@ -365,24 +478,10 @@ fn fly_blob_as<const N: usize, P: Problem<N> + Sync>(
                     fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
                 }
             };
-            let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
-            let missed = MissedThrust {
-                time: steps.iter().map(|k| k.missed_thrust).sum(),
-                last_end: steps
-                    .iter()
-                    .rposition(|k| k.missed_thrust > 0.0)
-                    .map(|k| (k + 1) as f64 / f64::from(scenario.steps)),
-            };
-            (
-                outcome(config, i, scenario, &steps, result.err(), i < record),
-                faults,
-                missed,
-            )
+            flown(config, i, scenario, &steps, result.err(), i < record)
         })
         .collect();
-    let faults = flown.iter().map(|f| f.1).sum();
-    let missed = flown.iter().map(|f| f.2).collect();
-    Ok((flown.into_iter().map(|f| f.0).collect(), faults, missed))
+    Ok(gather(flown_flights))
 }
 
 /// `ground model sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
@@ -395,7 +494,20 @@ pub fn sil_monte_carlo(
     dispersions: &Dispersions,
     gap_cases: u64,
 ) -> Result<SilReport, ExperimentError> {
-    config.planar_family("the software-in-the-loop Monte Carlo")?;
+    crate::with_flown_problem!(config, P => sil_monte_carlo_for::<P>(config, blob_path, out, episodes, dispersions, gap_cases))
+}
+
+fn sil_monte_carlo_for<P: ground_core::env::Problem>(
+    config: &ExperimentConfig,
+    blob_path: &Path,
+    out: &Path,
+    episodes: Option<u64>,
+    dispersions: &Dispersions,
+    gap_cases: u64,
+) -> Result<SilReport, ExperimentError>
+where
+    P::Geometry: SilGeometry,
+{
     dispersions
         .validate()
         .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;
@@ -406,37 +518,31 @@ pub fn sil_monte_carlo(
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = with_flight_problem!(config.problem(), N, P => {
-        describe_controller(&Controller::<N>::load::<P>(&blob))
-    });
-    let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, n);
+    let controller = describe_controller::<P::Geometry>(config, &blob);
+    let family = crate::phase::family_of::<P::Geometry>(config)?;
+    let scenarios: Vec<_> = (0..n)
+        .map(|i| P::Geometry::draw(&family, config.seeds.monte_carlo, i))
+        .collect();
     let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
-    let (outcomes, guidance_faults, missed) = fly_blob(config, &blob, &scenarios, &flights)?;
+    let (outcomes, guidance_faults, missed) = P::Geometry::fly_blob(config, &blob, &scenarios, &flights)?;
     bar.finish_and_clear();
     // In the family's canonical time: each flight's cycles at its own length.
     let flown_time: f64 = outcomes
         .iter()
-        .map(|o| f64::from(o.steps) * scenarios[o.episode].cycle)
+        .map(|o| f64::from(o.steps) * P::Geometry::plan(&scenarios[o.episode]).cycle)
         .sum();
     let failed = outcomes
         .iter()
         .filter_map(|o| o.error.map(|e| (o.episode, e.to_string())))
         .collect();
-    let plotted: Vec<EpisodeOutcome> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
+    let plotted: Vec<_> = outcomes.iter().filter(|o| o.trajectory.is_some()).cloned().collect();
     let flown = Flown {
         scenarios: &scenarios,
         policy: &outcomes,
         plotted: &plotted,
     };
-    let monte_carlo = with_problem!(config.problem(), P => report_and_write::<P>(
-        config,
-        blob_path,
-        &flown,
-        out,
-        Some(gap_cases),
-        start,
-    ))?;
+    let monte_carlo = report_and_write::<P>(config, blob_path, &flown, out, Some(gap_cases), start)?;
     let report = SilReport {
         blob: blob_path.to_path_buf(),
         controller,
@@ -498,21 +604,21 @@ pub fn lookahead_monte_carlo(
 /// Why the flight software would refuse the blob at `blob_path` for the config's problem
 /// (None: it loads and flies). A refused blob flies its flights in safe mode, thrust off.
 pub fn blob_refusal(config: &ExperimentConfig, blob_path: &Path) -> Result<Option<String>, ExperimentError> {
-    config.planar_family("the onboard controller")?;
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
-    Ok(with_flight_problem!(config.problem(), N, P => {
-        match Controller::<N>::load::<P>(&blob) {
-            Controller::Network(_) => None,
-            Controller::SafeMode(e) => Some(e.to_string()),
-        }
-    }))
+    let refusal = if config.is_inclined() {
+        Spatial::refusal(config, &blob)
+    } else {
+        Planar::refusal(config, &blob)
+    };
+    Ok(refusal.map(|e| e.to_string()))
 }
 
 /// "f32", "int8", or "safe mode: <why the blob was refused>".
-fn describe_controller<const N: usize>(controller: &Controller<'_, N>) -> String {
-    match controller {
-        Controller::Network(p) => format!("{:?}", p.quantization()).to_lowercase(),
-        Controller::SafeMode(e) => format!("safe mode: {e}"),
+fn describe_controller<G: SilGeometry>(config: &ExperimentConfig, blob: &[u8]) -> String {
+    match (G::refusal(config, blob), shared::blob::decode(blob)) {
+        (None, Ok(decoded)) => format!("{:?}", decoded.quantization).to_lowercase(),
+        (Some(e), _) => format!("safe mode: {e}"),
+        (None, Err(e)) => format!("safe mode: {e}"),
     }
 }
 

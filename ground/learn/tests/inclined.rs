@@ -11,6 +11,7 @@ mod common;
 
 use common::{scratch_dir, toy_config, toy_dataset_of};
 
+use firmware_sim::Dispersions;
 use ground_core::env::{Environment, Spatial, Transfer3Env};
 use ground_core::generate::{generate, Manifest, Shard};
 use ground_core::solver::spatial::record::solve_spatial_draw;
@@ -73,6 +74,20 @@ fn inclined_config(dataset: &Path) -> ExperimentConfig {
     config.evaluate.episodes = 6;
     config.evaluate.optimality_gap_cases = 1;
     config
+}
+
+/// The flown network is 256 wide: `agent`'s actor widened function-preservingly (`config`'s
+/// learner otherwise), saved in `dir`.
+fn wide_actor(dir: &Path, agent: &Sac, config: &ExperimentConfig) -> PathBuf {
+    let narrow = dir.join("actor-32.safetensors");
+    agent.save_flown_actor(&narrow).unwrap();
+    let mut config = config.clone();
+    config.sac.hidden = vec![256, 256];
+    let mut widened = Sac::new(config.sac_for(true), Transfer3Env::OBS, 4, Device::Cpu);
+    widened.start_from_actor(&narrow).unwrap();
+    let wide = dir.join("actor-256.safetensors");
+    widened.save_flown_actor(&wide).unwrap();
+    wide
 }
 
 #[test]
@@ -183,12 +198,21 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         assert!((first_tuple - (steps - step) as usize..first_tuple - 1).all(|i| !tuples.get(i).done));
     }
     assert_eq!(first_tuple, tuples.len());
-    // Dispersed rounds fly the onboard blob, which is planar: refused before any work.
+    // Dispersed rounds relabel the onboard controller's flights in the 3D SIL plant, and score
+    // it there too.
     let mut dispersed = rounds.clone();
     dispersed.dagger.dispersed = true;
-    let refused = learn::dagger::dagger(&dispersed, &dir, &dir.join("dispersed"), &best, None);
-    assert!(matches!(refused, Err(ExperimentError::Inclined { .. })), "{refused:?}");
-    assert!(!dir.join("dispersed").exists());
+    dispersed.sac.hidden = vec![256, 256];
+    let summary = learn::dagger::dagger(
+        &dispersed,
+        &dir,
+        &dir.join("dispersed"),
+        &wide_actor(&dir, &agent, &config),
+        None,
+    )
+    .unwrap();
+    assert_eq!(summary.rows[1].relabels_attempted, 2);
+    assert!(summary.rows.iter().all(|r| r.within_goal_dispersed.is_some()));
 
     // A planar dataset is not one of this family's: refused, no pretraining written.
     let planar = toy_dataset_of(&dir, ScenarioKind::TransferCircular);
@@ -202,15 +226,11 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
 
     // The blobs in three dimensions: 15 inputs, 4 action outputs, the family's mission; the f32
     // blob flies the trained actor, and a planar policy refuses it.
-    // The flown network is 256 wide: the toy actor widened function-preservingly.
     let mut wide = config.clone();
     wide.sac.hidden = vec![256, 256];
-    let narrow_actor = dir.join("actor-32.safetensors");
-    agent.save_flown_actor(&narrow_actor).unwrap();
+    let wide_actor = wide_actor(&dir, &agent, &config);
     let mut widened = Sac::new(wide.sac_for(true), Transfer3Env::OBS, 4, Device::Cpu);
-    widened.start_from_actor(&narrow_actor).unwrap();
-    let wide_actor = dir.join("actor-256.safetensors");
-    widened.save_flown_actor(&wide_actor).unwrap();
+    widened.load_actor(&wide_actor).unwrap();
     let export = learn::export::export(&wide, &dir, &wide_actor, &dir.join("export")).unwrap();
     assert!(export.f32.action_error.max <= 1e-4, "{:?}", export.f32.action_error);
     assert!(export.int8.action_error.p50 <= 0.05, "{:?}", export.int8.action_error);
@@ -230,11 +250,48 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         assert!(OnboardPolicy::load(bytes.bytes(), FeatureLayout::TransferPolar10).is_err());
     }
 
+    // The blobs in the 3D SIL loop: without dispersions each flight is the ground environment's
+    // episode of the same blob (the export's closed loop); with the typical dispersions every
+    // flight is flown, and differently; a planar blob flies safe mode.
+    for (file, closed_loop) in [
+        (&export.f32.file, &export.f32.closed_loop),
+        (&export.int8.file, &export.int8.closed_loop),
+    ] {
+        assert_eq!(learn::sil::blob_refusal(&wide, file).unwrap(), None);
+        let nominal =
+            learn::sil::sil_monte_carlo(&wide, file, &dir.join("sil"), Some(6), &Dispersions::NONE, 0).unwrap();
+        assert_eq!((nominal.flights, nominal.guidance_faults), (6, 0));
+        let flown = &nominal.monte_carlo.policy;
+        assert_eq!(flown.completed, 6);
+        assert!(
+            (flown.total_reward.mean - closed_loop.total_reward.mean).abs()
+                <= 1e-12 * closed_loop.total_reward.mean.abs()
+        );
+        assert_eq!(flown.terminal_position.p50, closed_loop.terminal_position.p50);
+        let dispersed =
+            learn::sil::sil_monte_carlo(&wide, file, &dir.join("sil"), Some(6), &Dispersions::TYPICAL, 0).unwrap();
+        assert_eq!(dispersed.monte_carlo.policy.completed, 6);
+        assert_ne!(
+            dispersed.monte_carlo.policy.terminal_position.p50,
+            flown.terminal_position.p50
+        );
+    }
+    let planar_blob = dir.join("planar.blob");
+    std::fs::write(
+        &planar_blob,
+        std::fs::read("../../models/transfer-circular/transfer-f32.blob").unwrap(),
+    )
+    .unwrap();
+    let refusal = learn::sil::blob_refusal(&wide, &planar_blob).unwrap();
+    assert!(
+        refusal.is_some_and(|why| why.contains("feature layout")),
+        "a planar blob flies the 3D loop"
+    );
+
     // Planar-only stages refuse by name, and write nothing.
     let refusals = [
         learn::ship::ship(&config, &dir, &best, &dir.join("ship"), None, &[]).map(|_| ()),
         learn::plan::plan_recipe(&config, 4).map(|_| ()),
-        learn::sil::blob_refusal(&config, &best).map(|_| ()),
     ];
     for refused in refusals {
         assert!(matches!(refused, Err(ExperimentError::Inclined { .. })), "{refused:?}");

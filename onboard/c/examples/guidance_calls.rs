@@ -25,7 +25,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use firmware_sim::trace::{flights_of, RENDEZVOUS_FLIGHTS, TRANSFER_FLIGHTS};
-use firmware_sim::{fly_observed, Controller, Problem};
+use firmware_sim::{fly_observed, Controller, PlanarProblem, Problem};
 use lowthrust::{
     error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
 };
@@ -86,7 +86,7 @@ fn refused_inputs(nav: SpacecraftState) -> Vec<(SpacecraftState, Option<f64>, f6
 
 /// The guidance calls of the trace flights of problem `P`, flown by `controller` (`target`: the
 /// call's target components from the scenario and the step index, as flight software has them).
-fn flight_calls<const N: usize, P: Problem<N>>(
+fn flight_calls<const N: usize, P: PlanarProblem<N>>(
     problem: P,
     controller: &Controller<'_, N>,
     target: impl Fn(&Scenario, u32) -> Result<[f64; 4], String>,

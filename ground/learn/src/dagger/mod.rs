@@ -189,10 +189,6 @@ pub fn dagger(
     if config.dagger.rounds == 0 {
         return Err(crate::config::ConfigError::Invalid("dagger.rounds is 0: no round to run".into()).into());
     }
-    if config.dagger.dispersed {
-        // The dispersed flights are the onboard controller's, whose blob is planar.
-        config.planar_family("dispersed relabelling rounds")?;
-    }
     crate::with_flown_problem!(config, P => dagger_for::<P>(config, config_dir, run, start, relabels_from))
 }
 
