@@ -1,6 +1,6 @@
 //! The demonstrations stage: the config's scenarios solved by the indirect method into
-//! `RUN/dataset` (resumable), checked against the direct transcription where the config asks,
-//! and a sample plotted.
+//! `RUN/dataset` (resumable; an inclined family's by the three-dimensional method), checked
+//! against the direct transcription where the config asks, and a sample plotted.
 
 use std::path::Path;
 
@@ -9,6 +9,7 @@ use crate::error::ExperimentError;
 use ground_core::crosscheck::CrossCheckSettings;
 use ground_core::generate::{crosscheck_once, generate, CrossCheckSummary, Manifest, Shard, Summary};
 use ground_core::plot::plot_dataset_sample;
+use ground_core::spatial::plot_spatial_dataset_sample;
 
 /// Solves the config's `[generate]` draws into `dataset_dir` (finished records are skipped),
 /// repairs worse local optima found by the direct transcription when `generate.crosscheck` is
@@ -22,12 +23,30 @@ pub fn demonstrations(
         .env
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+    let options = config.generate.solve_options();
+    if config.is_inclined() {
+        // Records of the three-dimensional solver; the direct transcription is planar.
+        if config.generate.crosscheck {
+            return Err(ExperimentError::Inclined {
+                stage: "the direct transcription cross-check",
+                family: config.family.label().to_string(),
+            });
+        }
+        let manifest = Manifest {
+            family: config.family,
+            seed: config.generate.seed,
+            count: config.generate.count,
+        };
+        let dataset = generate(manifest, Shard::WHOLE, dataset_dir, &spacecraft, &options, true)
+            .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
+        let _ = plot_spatial_dataset_sample(dataset_dir, Shard::WHOLE, &config.env.spacecraft);
+        return Ok((dataset, None));
+    }
     let manifest = Manifest {
         family: config.planar_family("the demonstrations dataset")?,
         seed: config.generate.seed,
         count: config.generate.count,
     };
-    let options = config.generate.solve_options();
     let mut dataset = generate(manifest, Shard::WHOLE, dataset_dir, &spacecraft, &options, true)
         .map_err(|e| ExperimentError::Dataset(e.to_string()))?;
     // Worse local optima re-solved onto the better one the direct transcription finds, before

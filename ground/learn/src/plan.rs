@@ -11,9 +11,8 @@ use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
-use ground_core::env::{MdpEnv, Planar, Problem};
+use ground_core::env::{Geometry, MdpEnv, Problem};
 use ground_core::mission::{check_family, FamilyCheck};
-use ground_core::with_problem;
 
 /// Episodes flown to time one (lockstep, as the evaluations fly them).
 const TIMED_EPISODES: u64 = 32;
@@ -89,16 +88,12 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
     let options = config.generate.solve_options();
-    config.planar_family("the run plan")?;
     let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
-    let costs = with_problem!(config.problem(), P => measure::<P>(config, &check))?;
+    let costs = crate::with_flown_problem!(config, P => measure::<P>(config, &check))?;
     Ok(project(config, check, costs))
 }
 
-fn measure<P: Problem<Geometry = Planar>>(
-    config: &ExperimentConfig,
-    check: &FamilyCheck,
-) -> Result<UnitCosts, ExperimentError> {
+fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError> {
     let obs = P::OBS;
     let device = config.device()?;
     // RL's learner flies the timed episodes (untrained: an episode costs what a trained one
@@ -108,7 +103,7 @@ fn measure<P: Problem<Geometry = Planar>>(
     evaluate_agent::<MdpEnv<P>>(
         &learner,
         &config.env,
-        config.family.family,
+        crate::phase::family_of::<P::Geometry>(config)?,
         config.seeds.train,
         TIMED_EPISODES,
         false,
@@ -118,9 +113,9 @@ fn measure<P: Problem<Geometry = Planar>>(
     // Each phase's learner: pretraining's on demonstrations alone, RL's with half its rows
     // demonstrations when it keeps its cloning term.
     let mut pretraining = new_agent(config, true, obs, device);
-    let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, 3, 1, TIMED_UPDATES);
+    let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, P::Geometry::ACT, 1, TIMED_UPDATES);
     let demonstration_every = if config.train.keep_behaviour_cloning { 2 } else { 0 };
-    let update_s = seconds_per_update_of(&mut learner, obs, 3, demonstration_every, TIMED_UPDATES);
+    let update_s = seconds_per_update_of(&mut learner, obs, P::Geometry::ACT, demonstration_every, TIMED_UPDATES);
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
         pretrain_update_s,

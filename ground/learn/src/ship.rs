@@ -87,7 +87,6 @@ pub fn ship(
     rounds: Option<(u64, u64)>,
     notes: &[String],
 ) -> Result<Shipped, ExperimentError> {
-    config.planar_family("shipping a model")?;
     let commit = current_commit();
     let dataset_file = config.dataset_file(config_dir)?;
     // Absolute here, as the config's folder is not kept; the card writes it relative to the

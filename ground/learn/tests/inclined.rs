@@ -1,8 +1,8 @@
 //! An inclined family is learned in three dimensions: pretraining on a three-dimensional
 //! dataset, RL from the pretrained model in the 3D transfer environment with 4-component
 //! actions, relabelling rounds in 3D, and the Monte Carlo with its optimality gap solved in 3D,
-//! the blobs with the three-dimensional layout; a planar dataset is refused for it, and the
-//! stages that fly planar families only refuse it by name, before any work.
+//! the blobs with the three-dimensional layout flown in the 3D SIL loop, and `ground run` from
+//! the draws to the model folder; a planar dataset is refused for it.
 
 use std::path::{Path, PathBuf};
 
@@ -288,14 +288,48 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         "a planar blob flies the 3D loop"
     );
 
-    // Planar-only stages refuse by name, and write nothing.
-    let refusals = [
-        learn::ship::ship(&config, &dir, &best, &dir.join("ship"), None, &[]).map(|_| ()),
-        learn::plan::plan_recipe(&config, 4).map(|_| ()),
-    ];
-    for refused in refusals {
-        assert!(matches!(refused, Err(ExperimentError::Inclined { .. })), "{refused:?}");
+    // The run plan times the 3D environment and solves a sample in 3D.
+    let plan = learn::plan::plan_recipe(&config, 1).unwrap();
+    assert!(!plan.stages.is_empty() && plan.stages.iter().all(|s| s.seconds.is_finite() && s.seconds >= 0.0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `ground run` for an inclined family, at toy scale: the three-dimensional demonstrations,
+/// pretraining, RL, a relabelling round, the Monte Carlo, the 3D blobs flown in the SIL loop and
+/// the model folder, in one command; the report's links resolve and the folder opens.
+#[test]
+fn one_command_runs_an_inclined_family_from_the_draws_to_the_model_folder() {
+    use learn::pipeline::run_main_job;
+    use learn::report::broken_links;
+    let dir = scratch_dir("inclined-main-job");
+    let mut config = inclined_config(&dir.join("unused"));
+    config.pretrain.dataset = None;
+    config.generate.count = 2;
+    config.generate.seed = 9;
+    config.generate.final_eps = 0.3;
+    config.sac.hidden = vec![256, 256];
+    config.sil.episodes = 4;
+    config.dagger.rounds = 1;
+    config.dagger.episodes = 2;
+    config.dagger.fractions = vec![0.5];
+    config.dagger.updates = 20;
+    config.dagger.score_episodes = 4;
+    let run = dir.join("run");
+    let job = run_main_job(&config, &run).unwrap();
+    assert_eq!((job.dataset.records, job.dataset.converged), (2, 2));
+    assert!(job.crosscheck.is_none());
+    assert_eq!(job.monte_carlo.episodes, 6);
+    assert_eq!(broken_links(&job.report), Vec::<String>::new());
+    for (sil, name) in job.sil.iter().zip(["f32", "int8"]) {
+        assert_eq!(sil.controller, name);
+        assert_eq!(sil.monte_carlo.policy.completed, 4);
     }
-    assert!(!dir.join("ship").exists());
+    let model = learn::model::open_model(&run.join("model")).unwrap();
+    assert_eq!(model.card.sil.len(), 2);
+    let blob = std::fs::read(run.join("model/transfer-f32.blob")).unwrap();
+    assert_eq!(
+        shared::blob::decode(&blob).unwrap().features,
+        FeatureLayout::TransferSpatial15
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

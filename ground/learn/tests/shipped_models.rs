@@ -11,11 +11,12 @@
 use std::path::{Path, PathBuf};
 
 use firmware_sim::Dispersions;
-use ground_core::env::batch::{draw_scenarios, EpisodeOutcome};
+use ground_core::env::batch::EpisodeOutcome;
+use ground_core::env::{Planar, Spatial};
 use learn::eval::{within_accuracy_goal, ACCURACY_GOAL};
 use learn::export::blob_file;
-use learn::model::open_model;
-use learn::sil::{fly_blob, SilFlights};
+use learn::model::{open_model, ShippedModel};
+use learn::sil::{SilFlights, SilGeometry};
 use shared::blob::Quantization;
 
 /// Flights per shipped controller.
@@ -46,72 +47,84 @@ fn every_shipped_controller_flies_onboard_as_its_card_says() {
     assert!(!dirs.is_empty(), "no controller is shipped under models/");
     for dir in dirs {
         let model = open_model(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
-        let config = &model.config;
-        let problem = config.problem();
-        let card_share = model
-            .card
-            .monte_carlo
-            .share_within(ACCURACY_GOAL)
-            .unwrap_or_else(|| panic!("{}: the card has no share within the goal", dir.display()));
-        assert_eq!(model.card.monte_carlo_seed, config.seeds.monte_carlo);
-        let blob_path = dir.join(blob_file(problem, Quantization::F32));
-        let blob = std::fs::read(&blob_path).unwrap();
-        let scenarios = draw_scenarios(config.family.family, config.seeds.monte_carlo, FLIGHTS);
-        let alone = |blob: &[u8]| {
-            let flights = SilFlights::network_alone(&Dispersions::NONE, config.seeds.monte_carlo);
-            fly_blob(config, blob, &scenarios, &flights).unwrap()
-        };
-        let (outcomes, guidance_faults, _) = alone(&blob);
-        assert_eq!(guidance_faults, 0, "{}", dir.display());
-        assert!(outcomes.iter().all(|o| o.completed), "{}", dir.display());
-        let flown_share = within_accuracy_goal(&outcomes);
-        // The 1,000 flights are a subset of the card's episodes (the bound's sampling error is an
-        // upper one: the overlap only shrinks the difference).
+        // An inclined family's blobs fly the three-dimensional loop.
+        if model.config.is_inclined() {
+            flies_as_its_card_says::<Spatial>(&dir, &model);
+        } else {
+            flies_as_its_card_says::<Planar>(&dir, &model);
+        }
+    }
+}
+
+fn flies_as_its_card_says<G: SilGeometry>(dir: &Path, model: &ShippedModel) {
+    let config = &model.config;
+    let problem = config.problem();
+    let card_share = model
+        .card
+        .monte_carlo
+        .share_within(ACCURACY_GOAL)
+        .unwrap_or_else(|| panic!("{}: the card has no share within the goal", dir.display()));
+    assert_eq!(model.card.monte_carlo_seed, config.seeds.monte_carlo);
+    let blob_path = dir.join(blob_file(problem, Quantization::F32));
+    let blob = std::fs::read(&blob_path).unwrap();
+    let family = G::family_of(&config.family).unwrap();
+    let scenarios: Vec<G::Scenario> = (0..FLIGHTS)
+        .map(|i| G::draw(&family, config.seeds.monte_carlo, i))
+        .collect();
+    let alone = |blob: &[u8]| {
+        let flights = SilFlights::network_alone(&Dispersions::NONE, config.seeds.monte_carlo);
+        G::fly_blob(config, blob, &scenarios, &flights).unwrap()
+    };
+    let (outcomes, guidance_faults, _) = alone(&blob);
+    assert_eq!(guidance_faults, 0, "{}", dir.display());
+    assert!(outcomes.iter().all(|o| o.completed), "{}", dir.display());
+    let flown_share = within_accuracy_goal(&outcomes);
+    // The 1,000 flights are a subset of the card's episodes (the bound's sampling error is an
+    // upper one: the overlap only shrinks the difference).
+    assert!(
+        (flown_share - card_share).abs() <= bound(card_share, FLIGHTS),
+        "{}: flown onboard {:.2} % within the goal, the card says {:.2} %",
+        dir.display(),
+        100.0 * flown_share,
+        100.0 * card_share
+    );
+
+    let int8_path = dir.join(blob_file(problem, Quantization::Int8));
+    let int8_blob = std::fs::read(&int8_path).unwrap();
+    let (int8_outcomes, int8_faults, _) = alone(&int8_blob);
+    assert_eq!(int8_faults, 0, "{}", dir.display());
+    // Paired flights: only the scenarios that one blob ends within the goal and the other not
+    // carry sampling error, so the bound is three standard deviations of their count.
+    let inside = |o: &EpisodeOutcome<G>| o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL;
+    let discordant = outcomes
+        .iter()
+        .zip(&int8_outcomes)
+        .filter(|(a, b)| inside(a) != inside(b))
+        .count();
+    let int8_share = within_accuracy_goal(&int8_outcomes);
+    assert!(
+        int8_share >= flown_share - 0.01 - 3.0 * (discordant as f64).sqrt() / FLIGHTS as f64,
+        "{}: int8 {:.2} % within the goal, f32 {:.2} % ({discordant} flights differ)",
+        dir.display(),
+        100.0 * int8_share,
+        100.0 * flown_share
+    );
+
+    if let Some(lookahead) = &model.card.lookahead {
+        assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
+        let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
+        let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
+        let flights = SilFlights::of(config, &Dispersions::NONE, 0);
+        let (looked, faults, _) = G::fly_blob(config, &blob, first, &flights).unwrap();
+        assert_eq!(faults, 0);
+        let share = within_accuracy_goal(&looked);
         assert!(
-            (flown_share - card_share).abs() <= bound(card_share, FLIGHTS),
-            "{}: flown onboard {:.2} % within the goal, the card says {:.2} %",
+            (share - card_share).abs() <= bound(card_share, LOOKAHEAD_FLIGHTS),
+            "{}: flown with lookahead {:.2} % within the goal, the card says {:.2} %",
             dir.display(),
-            100.0 * flown_share,
+            100.0 * share,
             100.0 * card_share
         );
-
-        let int8_path = dir.join(blob_file(problem, Quantization::Int8));
-        let int8_blob = std::fs::read(&int8_path).unwrap();
-        let (int8_outcomes, int8_faults, _) = alone(&int8_blob);
-        assert_eq!(int8_faults, 0, "{}", dir.display());
-        // Paired flights: only the scenarios that one blob ends within the goal and the other not
-        // carry sampling error, so the bound is three standard deviations of their count.
-        let inside = |o: &EpisodeOutcome| o.terminal.position <= ACCURACY_GOAL && o.terminal.velocity <= ACCURACY_GOAL;
-        let discordant = outcomes
-            .iter()
-            .zip(&int8_outcomes)
-            .filter(|(a, b)| inside(a) != inside(b))
-            .count();
-        let int8_share = within_accuracy_goal(&int8_outcomes);
-        assert!(
-            int8_share >= flown_share - 0.01 - 3.0 * (discordant as f64).sqrt() / FLIGHTS as f64,
-            "{}: int8 {:.2} % within the goal, f32 {:.2} % ({discordant} flights differ)",
-            dir.display(),
-            100.0 * int8_share,
-            100.0 * flown_share
-        );
-
-        if let Some(lookahead) = &model.card.lookahead {
-            assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
-            let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
-            let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
-            let flights = SilFlights::of(config, &Dispersions::NONE, 0);
-            let (looked, faults, _) = fly_blob(config, &blob, first, &flights).unwrap();
-            assert_eq!(faults, 0);
-            let share = within_accuracy_goal(&looked);
-            assert!(
-                (share - card_share).abs() <= bound(card_share, LOOKAHEAD_FLIGHTS),
-                "{}: flown with lookahead {:.2} % within the goal, the card says {:.2} %",
-                dir.display(),
-                100.0 * share,
-                100.0 * card_share
-            );
-        }
     }
 }
 
