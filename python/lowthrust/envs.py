@@ -10,8 +10,10 @@ it is never truncated. ``lowthrust/Mission-v0`` flies any family: ``gymnasium.ma
 (docs/missions.md).
 
 Observation: the features the onboard network sees (float32; 10 for a transfer, 22 for a
-rendezvous). Action: three float32 in [-1, 1]: throttle (a0 + 1) / 2 and the thrust direction
-(a1, a2) in the local radial / transverse frame, thrust off when |(a1, a2)| < 1e-6. Reward: the
+rendezvous; for a family whose orbits are inclined, 15 and 30 in three dimensions). Action: three
+float32 in [-1, 1]: throttle (a0 + 1) / 2 and the thrust direction (a1, a2) in the local radial /
+transverse frame, thrust off when |(a1, a2)| < 1e-6; in three dimensions four: the throttle and
+the direction (a1, a2, a3) in the local radial / transverse / normal frame. Reward: the
 project's (docs/spec.md section 5), and ``info`` carries the terminal residuals ``dr`` (AU) and
 ``dv`` (AU / t*), the mass and the state.
 """
@@ -43,9 +45,9 @@ MISSION_ENV_ID = "lowthrust/Mission-v0"
 TRAINING_SEED = 1
 
 
-def _spaces(obs_dim: int) -> tuple[spaces.Box, spaces.Box]:
+def _spaces(obs_dim: int, act_dim: int) -> tuple[spaces.Box, spaces.Box]:
     observation = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
-    action = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+    action = spaces.Box(-1.0, 1.0, shape=(act_dim,), dtype=np.float32)
     return observation, action
 
 
@@ -75,7 +77,7 @@ class LowThrustEnv(gymnasium.Env):
     def __init__(self, scenario: str = "transfer-circular", env_config: str | None = None):
         self._env = _lowthrust.Env(scenario, env_config)
         self.scenario = scenario
-        self.observation_space, self.action_space = _spaces(self._env.obs_dim)
+        self.observation_space, self.action_space = _spaces(self._env.obs_dim, self._env.act_dim)
         self._stream = TRAINING_SEED
         self._next_index = 0
 
@@ -91,7 +93,7 @@ class LowThrustEnv(gymnasium.Env):
         return obs, {"scenario_seed": self._stream, "scenario_index": index, "steps": self._env.steps}
 
     def step(self, action):
-        obs, reward, done, info = self._env.step(_actions(action, (3,)))
+        obs, reward, done, info = self._env.step(_actions(action, self.action_space.shape))
         return obs, float(reward), bool(done), False, info
 
 
@@ -108,7 +110,7 @@ class LowThrustVecEnv(VectorEnv):
         self._env = _lowthrust.VecEnv(scenario, num_envs, env_config)
         self.num_envs = num_envs
         self.scenario = scenario
-        self.single_observation_space, self.single_action_space = _spaces(self._env.obs_dim)
+        self.single_observation_space, self.single_action_space = _spaces(self._env.obs_dim, self._env.act_dim)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self._stream = TRAINING_SEED
@@ -128,7 +130,7 @@ class LowThrustVecEnv(VectorEnv):
         return obs, {}
 
     def step(self, actions):
-        actions = _actions(actions, (self.num_envs, 3))
+        actions = _actions(actions, self.action_space.shape)
         resetting = self._needs_reset
         if resetting.any():
             # Only the finished episodes draw new scenarios; they do not step this call (their

@@ -8,14 +8,12 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
 
-use ground_core::env::{EnvConfig, Environment, MdpEnv, Planar, Problem, Step};
-use ground_core::with_problem;
-use onboard::dynamics::SpacecraftState;
-use onboard::features::ACTION_LEN;
-use shared::mission::MissionFamily;
-use shared::scenario::Scenario;
+use ground_core::demo::DemoGeometry;
+use ground_core::env::{ActionOf, EnvConfig, Environment, FamilyOf, Geometry, MdpEnv, Problem, Step};
+use ground_core::{with_problem, with_spatial_problem};
+use shared::mission::SpatialFamily;
 
-use crate::{refused, scenario_family};
+use crate::{refused, spatial_scenario_family};
 
 /// `(observation, reward, done, info)` of `Env.step`.
 type StepResult<'py> = (Bound<'py, PyArray1<f32>>, f64, bool, Bound<'py, PyDict>);
@@ -37,81 +35,108 @@ struct Transition {
     dr: f64,
     dv: f64,
     throttle: f64,
-    state: SpacecraftState,
+    /// `[x, y, vx, vy, m]` in the plane, `[x, y, z, vx, vy, vz, m]` in three dimensions.
+    state: Vec<f64>,
+    mass: f64,
     base_reward: f64,
     terminal_term: f64,
 }
 
-/// One environment of either problem, behind one interface (the problem's feature count is
-/// a property, not a type, on this side).
+/// One environment of any problem and geometry, with its family, behind one interface (the
+/// feature and action counts are properties, not types, on this side).
 trait AnyEnv: Send + Sync {
-    fn reset(&mut self, scenario: &Scenario) -> Result<Vec<f32>, String>;
-    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Transition, String>;
+    /// Starts scenario `index` of the stream `seed`: the observation and the episode's steps.
+    fn reset(&mut self, seed: u64, index: u64) -> Result<(Vec<f32>, u32), String>;
+    fn step(&mut self, action: &[f32]) -> Result<Transition, String>;
     fn features(&self) -> Option<Vec<f64>>;
     fn observation(&self) -> Option<Vec<f32>>;
-    fn state(&self) -> Option<SpacecraftState>;
+    fn state(&self) -> Option<Vec<f64>>;
     fn obs_dim(&self) -> usize;
+    fn act_dim(&self) -> usize;
     fn is_done(&self) -> bool;
 }
 
-impl<P: Problem<Geometry = Planar>> AnyEnv for MdpEnv<P> {
-    fn reset(&mut self, scenario: &Scenario) -> Result<Vec<f32>, String> {
-        Environment::reset(self, scenario)
-            .map(|o| o.as_ref().to_vec())
-            .map_err(|e| e.to_string())
+/// The MDP of problem `P` on the scenarios of `family`.
+struct FamilyEnv<P: Problem> {
+    family: FamilyOf<P::Geometry>,
+    env: MdpEnv<P>,
+}
+
+impl<P: Problem> AnyEnv for FamilyEnv<P>
+where
+    P::Geometry: DemoGeometry,
+    FamilyOf<P::Geometry>: Sync,
+{
+    fn reset(&mut self, seed: u64, index: u64) -> Result<(Vec<f32>, u32), String> {
+        let scenario = P::Geometry::draw(&self.family, seed, index);
+        let obs = Environment::reset(&mut self.env, &scenario).map_err(|e| e.to_string())?;
+        Ok((obs.as_ref().to_vec(), P::Geometry::plan(&scenario).steps))
     }
 
-    fn step(&mut self, action: &[f32; ACTION_LEN]) -> Result<Transition, String> {
+    fn step(&mut self, action: &[f32]) -> Result<Transition, String> {
+        let action = ActionOf::<P::Geometry>::try_from(action)
+            .map_err(|_| format!("an action has {} components, not {}", P::Geometry::ACT, action.len()))?;
         let Step {
             observation,
             reward,
             done,
             info,
-        } = Environment::step(self, action).map_err(|e| e.to_string())?;
+        } = Environment::step(&mut self.env, &action).map_err(|e| e.to_string())?;
         Ok(Transition {
             observation: observation.as_ref().to_vec(),
-            features: self.features().map_or_else(Vec::new, |f| f.as_ref().to_vec()),
+            features: self.env.features().map_or_else(Vec::new, |f| f.as_ref().to_vec()),
             reward,
             done,
             dr: info.residuals.position,
             dv: info.residuals.velocity,
             throttle: info.throttle,
-            state: info.state,
+            state: P::Geometry::state_numbers(&info.state),
+            mass: P::Geometry::mass(&info.state),
             base_reward: info.base_reward,
             terminal_term: info.terminal_term,
         })
     }
 
     fn features(&self) -> Option<Vec<f64>> {
-        MdpEnv::features(self).map(|f| f.as_ref().to_vec())
+        MdpEnv::features(&self.env).map(|f| f.as_ref().to_vec())
     }
 
     fn observation(&self) -> Option<Vec<f32>> {
-        Environment::observation(self).map(|o| o.as_ref().to_vec())
+        Environment::observation(&self.env).map(|o| o.as_ref().to_vec())
     }
 
-    fn state(&self) -> Option<SpacecraftState> {
-        Environment::state(self)
+    fn state(&self) -> Option<Vec<f64>> {
+        Environment::state(&self.env).map(|s| P::Geometry::state_numbers(&s))
     }
 
     fn obs_dim(&self) -> usize {
         P::OBS
     }
 
+    fn act_dim(&self) -> usize {
+        P::Geometry::ACT
+    }
+
     fn is_done(&self) -> bool {
-        Environment::is_done(self)
+        Environment::is_done(&self.env)
     }
 }
 
-/// A new environment of `family`'s problem, with the `[env]` settings of a config (TOML text;
-/// none: the defaults), its spacecraft in the family's units.
-fn new_env(family: &MissionFamily, config: &EnvConfig) -> PyResult<Box<dyn AnyEnv>> {
+/// A new environment of `family`'s problem (planar, or three-dimensional for an inclined
+/// family), with the `[env]` settings of a config (TOML text; none: the defaults), its
+/// spacecraft in the family's units.
+fn new_env(family: &SpatialFamily, config: &EnvConfig) -> PyResult<Box<dyn AnyEnv>> {
     let config = EnvConfig {
-        body: family.body,
+        body: family.family.body,
         ..*config
     };
-    with_problem!(family.problem, P => MdpEnv::<P>::new(&config).map(|e| Box::new(e) as Box<dyn AnyEnv>))
-        .map_err(refused)
+    match family.as_planar() {
+        Some(planar) => with_problem!(planar.problem, P => MdpEnv::<P>::new(&config)
+            .map(|env| Box::new(FamilyEnv::<P> { family: planar, env }) as Box<dyn AnyEnv>)),
+        None => with_spatial_problem!(family.family.problem, P => MdpEnv::<P>::new(&config)
+            .map(|env| Box::new(FamilyEnv::<P> { family: *family, env }) as Box<dyn AnyEnv>)),
+    }
+    .map_err(refused)
 }
 
 fn env_config(text: Option<&str>) -> PyResult<EnvConfig> {
@@ -121,15 +146,8 @@ fn env_config(text: Option<&str>) -> PyResult<EnvConfig> {
     }
 }
 
-fn state_array(state: &SpacecraftState) -> [f64; 5] {
-    [state.r[0], state.r[1], state.v[0], state.v[1], state.m]
-}
-
-/// The action as the environment takes it: three finite components.
-fn action_of(action: &[f32]) -> PyResult<[f32; ACTION_LEN]> {
-    let action: [f32; ACTION_LEN] = action
-        .try_into()
-        .map_err(|_| refused(format!("an action has {ACTION_LEN} components, not {}", action.len())))?;
+/// An action's components, all finite (their count is the environment's to check).
+fn finite_action(action: &[f32]) -> PyResult<&[f32]> {
     if !action.iter().all(|a| a.is_finite()) {
         return Err(refused("the action has a NaN or infinite component"));
     }
@@ -141,7 +159,6 @@ fn action_of(action: &[f32]) -> PyResult<[f32; ACTION_LEN]> {
 /// guidance cycle.
 #[pyclass(module = "lowthrust._lowthrust")]
 pub struct Env {
-    kind: MissionFamily,
     env: Box<dyn AnyEnv>,
     steps: u32,
 }
@@ -154,10 +171,9 @@ impl Env {
     #[new]
     #[pyo3(signature = (kind, env_config=None))]
     fn new(kind: &str, env_config: Option<&str>) -> PyResult<Self> {
-        let kind = scenario_family(kind)?;
+        let kind = spatial_scenario_family(kind)?;
         let config = self::env_config(env_config)?;
         Ok(Self {
-            kind,
             env: new_env(&kind, &config)?,
             steps: 0,
         })
@@ -165,34 +181,41 @@ impl Env {
 
     /// Starts scenario `index` of the stream `seed`; returns the observation (float32).
     fn reset<'py>(&mut self, py: Python<'py>, seed: u64, index: u64) -> PyResult<Bound<'py, PyArray1<f32>>> {
-        let scenario = self.kind.draw(seed, index);
-        let obs = self.env.reset(&scenario).map_err(refused)?;
-        self.steps = scenario.steps;
+        let (obs, steps) = self.env.reset(seed, index).map_err(refused)?;
+        self.steps = steps;
         Ok(PyArray1::from_vec(py, obs))
     }
 
-    /// One step under `action` (three float32 in [-1, 1]; outside is clamped): returns
-    /// `(observation, reward, done, info)`, info with the features (float64), the residuals
-    /// `dr`, `dv`, the throttle flown, the state `[x, y, vx, vy, m]` and the reward's parts.
+    /// One step under `action` (`act_dim` float32 in [-1, 1]: throttle and a direction, polar
+    /// in the plane, RTN in three dimensions; outside is clamped): returns `(observation, reward,
+    /// done, info)`, info with the features (float64), the residuals `dr`, `dv`, the throttle
+    /// flown, the state (`[x, y, vx, vy, m]`, in three dimensions `[x, y, z, vx, vy, vz, m]`)
+    /// and the reward's parts.
     fn step<'py>(&mut self, py: Python<'py>, action: PyReadonlyArray1<'py, f32>) -> PyResult<StepResult<'py>> {
-        let action = action_of(action.as_slice()?)?;
-        let t = self.env.step(&action).map_err(refused)?;
+        let t = self.env.step(finite_action(action.as_slice()?)?).map_err(refused)?;
         let info = PyDict::new(py);
         info.set_item("features", PyArray1::from_vec(py, t.features))?;
         info.set_item("dr", t.dr)?;
         info.set_item("dv", t.dv)?;
         info.set_item("throttle", t.throttle)?;
-        info.set_item("mass", t.state.m)?;
-        info.set_item("state", PyArray1::from_slice(py, &state_array(&t.state)))?;
+        info.set_item("mass", t.mass)?;
+        info.set_item("state", PyArray1::from_vec(py, t.state))?;
         info.set_item("base_reward", t.base_reward)?;
         info.set_item("terminal_term", t.terminal_term)?;
         Ok((PyArray1::from_vec(py, t.observation), t.reward, t.done, info))
     }
 
-    /// Number of observation features (10 transfer, 22 rendezvous).
+    /// Number of observation features (10 transfer, 22 rendezvous; 15 and 30 in three
+    /// dimensions).
     #[getter]
     fn obs_dim(&self) -> usize {
         self.env.obs_dim()
+    }
+
+    /// Number of action components (3 in the plane, 4 in three dimensions).
+    #[getter]
+    fn act_dim(&self) -> usize {
+        self.env.act_dim()
     }
 
     /// Steps N of the current episode (0 before the first reset).
@@ -213,10 +236,11 @@ impl Env {
         self.env.features().map(|f| PyArray1::from_vec(py, f))
     }
 
-    /// The current state `[x, y, vx, vy, m]` (AU, AU/t*, m0; None before the first reset).
+    /// The current state `[x, y, vx, vy, m]` (in three dimensions `[x, y, z, vx, vy, vz, m]`;
+    /// AU, AU/t*, m0; None before the first reset).
     #[getter]
     fn state<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        self.env.state().map(|s| PyArray1::from_slice(py, &state_array(&s)))
+        self.env.state().map(|s| PyArray1::from_vec(py, s))
     }
 }
 
@@ -225,9 +249,9 @@ impl Env {
 /// finished episodes (`reset` with a mask).
 #[pyclass(module = "lowthrust._lowthrust")]
 pub struct VecEnv {
-    kind: MissionFamily,
     envs: Vec<Box<dyn AnyEnv>>,
     obs_dim: usize,
+    act_dim: usize,
 }
 
 #[pymethods]
@@ -236,7 +260,7 @@ impl VecEnv {
     #[new]
     #[pyo3(signature = (kind, num_envs, env_config=None))]
     fn new(kind: &str, num_envs: usize, env_config: Option<&str>) -> PyResult<Self> {
-        let kind = scenario_family(kind)?;
+        let kind = spatial_scenario_family(kind)?;
         if num_envs == 0 {
             return Err(refused("num_envs must be at least 1"));
         }
@@ -244,8 +268,8 @@ impl VecEnv {
         let envs = (0..num_envs)
             .map(|_| new_env(&kind, &config))
             .collect::<PyResult<Vec<_>>>()?;
-        let obs_dim = envs[0].obs_dim();
-        Ok(Self { kind, envs, obs_dim })
+        let (obs_dim, act_dim) = (envs[0].obs_dim(), envs[0].act_dim());
+        Ok(Self { envs, obs_dim, act_dim })
     }
 
     /// Starts episode i on scenario `indices[i]` of the stream `seed`, for every i where `mask`
@@ -268,7 +292,6 @@ impl VecEnv {
             Some(m) => m.as_slice()?.to_vec(),
             None => vec![true; n],
         };
-        let kind = self.kind;
         let obs_dim = self.obs_dim;
         let indices = indices.to_vec();
         let envs = &mut self.envs;
@@ -279,7 +302,7 @@ impl VecEnv {
                     .zip(indices.par_iter().zip(mask.par_iter()))
                     .map(|(env, (&index, &reset))| {
                         if reset {
-                            env.reset(&kind.draw(seed, index))
+                            env.reset(seed, index).map(|(obs, _)| obs)
                         } else {
                             env.observation()
                                 .ok_or_else(|| "an episode never reset is masked out".to_string())
@@ -293,7 +316,7 @@ impl VecEnv {
         Ok(array.into_pyarray(py))
     }
 
-    /// Steps every episode under its row of `actions` `(num_envs, 3)` float32, or those where
+    /// Steps every episode under its row of `actions` `(num_envs, act_dim)` float32, or those where
     /// `mask` is true (the others keep their state and report their observation, reward 0):
     /// returns `(observations (num_envs, obs_dim) float32, rewards (num_envs,) float64, done
     /// (num_envs,) bool)`. A finished episode must be reset first.
@@ -305,9 +328,10 @@ impl VecEnv {
         mask: Option<PyReadonlyArray1<'py, bool>>,
     ) -> PyResult<VecStepResult<'py>> {
         let n = self.envs.len();
-        if actions.shape() != [n, ACTION_LEN] {
+        let act_dim = self.act_dim;
+        if actions.shape() != [n, act_dim] {
             return Err(refused(format!(
-                "actions of shape {:?} for {n} episodes of {ACTION_LEN} components",
+                "actions of shape {:?} for {n} episodes of {act_dim} components",
                 actions.shape()
             )));
         }
@@ -316,11 +340,8 @@ impl VecEnv {
             Some(m) => m.as_slice()?.to_vec(),
             None => vec![true; n],
         };
-        let actions = actions.as_slice()?;
-        let actions: Vec<[f32; ACTION_LEN]> = actions
-            .chunks_exact(ACTION_LEN)
-            .map(action_of)
-            .collect::<PyResult<_>>()?;
+        let actions = finite_action(actions.as_slice()?)?;
+        let actions: Vec<&[f32]> = actions.chunks_exact(act_dim).collect();
         let envs = &mut self.envs;
         // (observation, reward, done) of each episode.
         let steps = py
@@ -366,9 +387,15 @@ impl VecEnv {
     fn obs_dim(&self) -> usize {
         self.obs_dim
     }
+
+    /// Number of action components.
+    #[getter]
+    fn act_dim(&self) -> usize {
+        self.act_dim
+    }
 }
 
-/// Scenario `index` of the stream `seed` flown under `actions` `(k, 3)` by the Rust
+/// Scenario `index` of the stream `seed` flown under `actions` `(k, act_dim)` by the Rust
 /// environment driven from Rust (no Python between the steps): observations `(k + 1,
 /// obs_dim)` and rewards `(k,)`. The reference the Python environments are checked against.
 #[pyfunction]
@@ -381,15 +408,16 @@ fn reference_rollout<'py>(
     actions: PyReadonlyArray2<'py, f32>,
     env_config: Option<&str>,
 ) -> PyResult<Rollout<'py>> {
-    let kind = scenario_family(kind)?;
+    let kind = spatial_scenario_family(kind)?;
     let mut env = new_env(&kind, &self::env_config(env_config)?)?;
-    if actions.shape()[1] != ACTION_LEN {
-        return Err(refused("actions must be (k, 3)"));
+    let act_dim = env.act_dim();
+    if actions.shape()[1] != act_dim {
+        return Err(refused(format!("actions must be (k, {act_dim})")));
     }
-    let mut obs = env.reset(&kind.draw(seed, index)).map_err(refused)?;
+    let (mut obs, _) = env.reset(seed, index).map_err(refused)?;
     let mut rewards = Vec::new();
-    for action in actions.as_slice()?.chunks_exact(ACTION_LEN) {
-        let t = env.step(&action_of(action)?).map_err(refused)?;
+    for action in finite_action(actions.as_slice()?)?.chunks_exact(act_dim) {
+        let t = env.step(action).map_err(refused)?;
         obs.extend_from_slice(&t.observation);
         rewards.push(t.reward);
     }

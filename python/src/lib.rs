@@ -2,8 +2,9 @@
 //! (`python/lowthrust`) wraps it into Gymnasium environments; this module holds what runs in
 //! Rust:
 //!
-//! - [`env`]: the transfer and rendezvous MDPs (`Env`, and `VecEnv` stepping many episodes per
-//!   call in parallel), exactly `ground_core::env`'s.
+//! - [`env`]: the transfer and rendezvous MDPs, planar or (inclined families) three-dimensional
+//!   (`Env`, and `VecEnv` stepping many episodes per call in parallel), exactly
+//!   `ground_core::env`'s.
 //! - [`solver`]: the scenario draws, the indirect method (`solve`), dataset generation and
 //!   reading a dataset as numpy arrays.
 //!
@@ -28,18 +29,26 @@ pub(crate) fn refused(error: impl std::fmt::Display) -> PyErr {
     LowThrustError::new_err(error.to_string())
 }
 
-/// The scenario distribution of a name (`transfer-circular`, ...).
-/// A scenario family: a preset's name, a mission file's path, or a mission table as TOML text
-/// (docs/missions.md), checked.
-pub(crate) fn scenario_family(text: &str) -> PyResult<shared::mission::MissionFamily> {
+/// A scenario family's spec: a preset's name, a mission file's path, or a mission table as TOML
+/// text (docs/missions.md).
+fn family_spec(text: &str) -> PyResult<ground_core::mission::FamilySpec> {
     use ground_core::mission::{FamilySpec, FamilyTable};
-    let spec = if text.contains('=') {
+    if text.contains('=') {
         let table: FamilyTable = toml::from_str(text).map_err(|e| refused(format!("mission table: {e}")))?;
-        FamilySpec::Table(table)
+        Ok(FamilySpec::Table(table))
     } else {
-        FamilySpec::from_argument(text).map_err(refused)?
-    };
-    spec.family().map_err(refused)
+        FamilySpec::from_argument(text).map_err(refused)
+    }
+}
+
+/// A planar scenario family ([`family_spec`]'s text), checked; an inclined one is refused.
+pub(crate) fn scenario_family(text: &str) -> PyResult<shared::mission::MissionFamily> {
+    family_spec(text)?.family().map_err(refused)
+}
+
+/// A scenario family, planar or inclined (`inclination`, `raan` in the mission table), checked.
+pub(crate) fn spatial_scenario_family(text: &str) -> PyResult<shared::mission::SpatialFamily> {
+    family_spec(text)?.spatial_family().map_err(refused)
 }
 
 #[pymodule]

@@ -13,14 +13,19 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use rayon::prelude::*;
 
-use firmware_sim::{fly_observed, with_flight_problem, Controller, Dispersions, FlightSetup};
+use firmware_sim::{
+    fly_observed, fly_spatial_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions,
+    FlightSetup, FlightSummary,
+};
 use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
+use onboard::features::ACTION3_LEN;
 use onboard::guidance::Actor;
+use onboard::policy::PolicyError;
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
-use shared::blob::{AlignedBlob, ProblemKind, Quantization};
+use shared::blob::{AlignedBlob, FeatureLayout, ProblemKind, Quantization};
 
-use crate::{refused, scenario_family};
+use crate::{refused, spatial_scenario_family};
 
 fn problem_name(kind: ProblemKind) -> &'static str {
     match kind {
@@ -30,30 +35,58 @@ fn problem_name(kind: ProblemKind) -> &'static str {
 }
 
 /// An onboard weight blob (f32 or int8), checked as flight software checks it at load (magic,
-/// version, CRC-32, problem, shape), flown by the onboard kernels.
+/// version, CRC-32, problem, shape), flown by the onboard kernels: a planar network, or a
+/// three-dimensional one (15 or 30 features, 4 actions).
 #[pyclass(module = "lowthrust._lowthrust")]
 pub struct Policy {
     blob: AlignedBlob,
     kind: ProblemKind,
+    features: FeatureLayout,
     quantization: Quantization,
     /// The mission the blob flies (format 4; a format-3 blob's is the thesis's).
     mission: shared::blob::BlobMission,
 }
 
+/// The actions of `inputs` (rows of `N`) by the onboard controller of `blob`, `OUT` per row.
+fn actions_of<const N: usize, const OUT: usize>(controller: &Controller<'_, N, OUT>, inputs: &[f32]) -> Vec<f32> {
+    inputs
+        .par_chunks_exact(N)
+        .flat_map_iter(|x| {
+            let x: &[f32; N] = x.try_into().unwrap_or(&[0.0; N]);
+            controller.act(x)
+        })
+        .collect()
+}
+
+/// Why the onboard loader refuses `blob` as a network of `features` (None: it flies).
+fn loader_refusal(blob: &[u8], features: FeatureLayout) -> Option<PolicyError> {
+    if features.is_spatial() {
+        with_spatial_flight_problem!(features.problem(), N, P => match Controller::<N, ACTION3_LEN>::load::<P>(blob) {
+            Controller::SafeMode(e) => Some(e),
+            Controller::Network(_) => None,
+        })
+    } else {
+        with_flight_problem!(features.problem(), N, P => match Controller::<N>::load::<P>(blob) {
+            Controller::SafeMode(e) => Some(e),
+            Controller::Network(_) => None,
+        })
+    }
+}
+
 impl Policy {
     fn load(bytes: &[u8]) -> PyResult<Self> {
         let decoded = shared::blob::decode(bytes).map_err(|e| refused(format!("blob refused: {e:?}")))?;
-        let (kind, quantization, mission) = (decoded.kind, decoded.quantization, decoded.mission);
+        let (kind, features, quantization, mission) =
+            (decoded.kind, decoded.features, decoded.quantization, decoded.mission);
         let blob = AlignedBlob::new(bytes);
         // The loader flight software runs: a blob it refuses is refused here too.
-        with_flight_problem!(kind, N, P => {
-            if let Controller::<N>::SafeMode(e) = Controller::<N>::load::<P>(blob.bytes()) {
-                return Err(refused(format!("blob refused by the onboard loader: {e:?}")));
-            }
-        });
+        if let Some(e) = loader_refusal(blob.bytes(), features) {
+            return Err(refused(format!("blob refused by the onboard loader: {e:?}")));
+        }
         Ok(Self {
             blob,
             kind,
+            features,
             quantization,
             mission,
         })
@@ -75,8 +108,9 @@ impl Policy {
         Self::load(&bytes)
     }
 
-    /// The deterministic actions of observations `(n, features)` float32: `(n, 3)` float32 in
-    /// [-1, 1], computed by the onboard kernels as in flight.
+    /// The deterministic actions of observations `(n, features)` float32: `(n, actions)` float32
+    /// in [-1, 1] (3 in the plane, 4 in three dimensions), computed by the onboard kernels as in
+    /// flight.
     fn act<'py>(
         &self,
         py: Python<'py>,
@@ -90,23 +124,26 @@ impl Policy {
         if !inputs.iter().all(|x| x.is_finite()) {
             return Err(refused("an observation has a NaN or infinite component"));
         }
+        if width != self.features.len() {
+            return Err(refused(format!(
+                "observations of {width} features, this {} network takes {}",
+                problem_name(self.kind),
+                self.features.len()
+            )));
+        }
         let blob = self.blob.bytes();
-        let actions = with_flight_problem!(self.kind, N, P => {
-            if width != N {
-                return Err(refused(format!("observations of {width} features, this {} network takes {N}", problem_name(self.kind))));
-            }
-            let controller = Controller::<N>::load::<P>(blob);
-            py.detach(|| {
-                inputs
-                    .par_chunks_exact(N)
-                    .flat_map_iter(|x| {
-                        let x: &[f32; N] = x.try_into().unwrap_or(&[0.0; N]);
-                        controller.act(x)
-                    })
-                    .collect::<Vec<f32>>()
+        let actions = if self.features.is_spatial() {
+            with_spatial_flight_problem!(self.kind, N, P => {
+                let controller = Controller::<N, ACTION3_LEN>::load::<P>(blob);
+                py.detach(|| actions_of(&controller, inputs))
             })
-        });
-        Ok(Array2::from_shape_vec((n, 3), actions)
+        } else {
+            with_flight_problem!(self.kind, N, P => {
+                let controller = Controller::<N>::load::<P>(blob);
+                py.detach(|| actions_of(&controller, inputs))
+            })
+        };
+        Ok(Array2::from_shape_vec((n, self.features.actions()), actions)
             .map_err(refused)?
             .into_pyarray(py))
     }
@@ -115,6 +152,18 @@ impl Policy {
     #[getter]
     fn problem(&self) -> &'static str {
         problem_name(self.kind)
+    }
+
+    /// Network inputs (10 or 22 planar features, 15 or 30 in three dimensions).
+    #[getter]
+    fn obs_dim(&self) -> usize {
+        self.features.len()
+    }
+
+    /// Action components (3 in the plane, 4 in three dimensions).
+    #[getter]
+    fn act_dim(&self) -> usize {
+        self.features.actions()
     }
 
     /// `"f32"` or `"int8"`.
@@ -170,7 +219,7 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
         Some(toml::Value::Table(table)) => toml::to_string(table).map_err(|e| bad(&e.to_string()))?,
         _ => return Err(bad("its config has no scenario")),
     };
-    let kind = scenario_family(&scenario)?.problem;
+    let kind = spatial_scenario_family(&scenario)?.family.problem;
     let env_config = match config.get("env") {
         Some(toml::Value::Table(env)) => toml::to_string(env).map_err(|e| bad(&e.to_string()))?,
         _ => String::new(),
@@ -205,12 +254,32 @@ struct FlightEnd {
     faults: u32,
 }
 
+impl FlightEnd {
+    /// The end of a flight of geometry `G`, whose final mass `mass` reads.
+    fn of<G: firmware_sim::FlightGeometry>(
+        flown: Result<FlightSummary<G>, firmware_sim::SilError>,
+        mass: impl Fn(&G::State) -> f64,
+    ) -> Result<Self, String> {
+        let summary = flown.map_err(|e| e.to_string())?;
+        let res = summary.final_residuals.ok_or("no cycle flown")?;
+        Ok(Self {
+            dr: res.position,
+            dv: res.velocity,
+            mass: mass(&summary.final_state),
+            reward: summary.total_reward,
+            faults: summary.guidance_faults,
+        })
+    }
+}
+
 /// Flies `policy` in the SIL guidance loop on scenarios `0..episodes` of the stream `seed` of
 /// the family `kind` (a preset's name, a mission file or table; flight i's dispersions drawn
 /// from `seed + i`, as `ground model sil` does), against the nominal plant or (`dispersed`) the
 /// typical dispersions: navigation noise, thrust magnitude and pointing errors, missed-thrust
-/// events. With `terminal_cycles` the last that many cycles (1 to 4) are flown with terminal
-/// targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
+/// events. An inclined family's blob flies the three-dimensional loop (its pointing error a
+/// cone about the command). With `terminal_cycles` the last that many cycles (1 to 4) of a
+/// planar flight are flown with terminal targeting (`onboard::terminal`) counting the family's
+/// cycles. `env_config` (the `[env]` of a
 /// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
 /// weights, as the model's own SIL flew them. Returns per-flight arrays: `dr`, `dv` (terminal
 /// residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
@@ -227,7 +296,8 @@ fn fly_sil<'py>(
     terminal_cycles: Option<u32>,
     env_config: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let kind = scenario_family(kind)?;
+    let family = spatial_scenario_family(kind)?;
+    let kind = family.family;
     let env = match env_config {
         None => EnvConfig::default(),
         Some(text) => toml::from_str(text).map_err(|e| refused(format!("env config: {e}")))?,
@@ -252,16 +322,15 @@ fn fly_sil<'py>(
             Some(settings)
         }
     };
-    if kind.problem != policy.kind {
+    if kind.problem != policy.kind || family.as_planar().is_none() != policy.features.is_spatial() {
         return Err(refused(format!(
-            "a {} blob cannot fly {} scenarios",
+            "a {} blob ({:?}) cannot fly {} scenarios",
             policy.problem(),
-            kind.label()
+            policy.features,
+            family.label()
         )));
     }
-    if let Some(why) =
-        ground_core::mission::blob_refusal(&shared::mission::SpatialFamily::planar(kind), &policy.mission)
-    {
+    if let Some(why) = ground_core::mission::blob_refusal(&family, &policy.mission) {
         return Err(refused(why));
     }
     let spacecraft = env
@@ -279,39 +348,50 @@ fn fly_sil<'py>(
         time_unit_s: kind.body.units().time_s,
     };
     let blob = policy.blob.bytes();
-    let flights: Vec<Result<FlightEnd, String>> = with_flight_problem!(kind.problem, N, P => {
-        let controller = Controller::<N>::load::<P>(blob);
-        py.detach(|| {
-            (0..episodes)
-                .into_par_iter()
-                .map(|i| {
-                    let scenario = kind.draw(seed, i);
-                    let flight_seed = seed.wrapping_add(i);
-                    let summary = match terminal {
-                        None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
-                        Some(settings) => {
-                            let guide = Terminal {
-                                actor: &controller,
-                                spacecraft,
-                                settings,
-                                lookahead: None,
-                            };
-                            fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
-                        }
-                    }
-                    .map_err(|e| e.to_string())?;
-                    let res = summary.final_residuals.ok_or("no cycle flown")?;
-                    Ok(FlightEnd {
-                        dr: res.position,
-                        dv: res.velocity,
-                        mass: summary.final_state.m,
-                        reward: summary.total_reward,
-                        faults: summary.guidance_faults,
+    let flights: Vec<Result<FlightEnd, String>> = if family.as_planar().is_none() {
+        if terminal.is_some() {
+            return Err(refused("terminal targeting flies planar families only so far"));
+        }
+        with_spatial_flight_problem!(kind.problem, N, P => {
+            let controller = Controller::<N, ACTION3_LEN>::load::<P>(blob);
+            py.detach(|| {
+                (0..episodes)
+                    .into_par_iter()
+                    .map(|i| {
+                        let scenario = family.draw(seed, i);
+                        let flown = fly_spatial_observed(P::default(), &controller, &scenario, &setup, seed.wrapping_add(i), |_| ());
+                        FlightEnd::of(flown, |s| s.m)
                     })
-                })
-                .collect()
+                    .collect()
+            })
         })
-    });
+    } else {
+        with_flight_problem!(kind.problem, N, P => {
+            let controller = Controller::<N>::load::<P>(blob);
+            py.detach(|| {
+                (0..episodes)
+                    .into_par_iter()
+                    .map(|i| {
+                        let scenario = kind.draw(seed, i);
+                        let flight_seed = seed.wrapping_add(i);
+                        let flown = match terminal {
+                            None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
+                            Some(settings) => {
+                                let guide = Terminal {
+                                    actor: &controller,
+                                    spacecraft,
+                                    settings,
+                                    lookahead: None,
+                                };
+                                fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
+                            }
+                        };
+                        FlightEnd::of(flown, |s| s.m)
+                    })
+                    .collect()
+            })
+        })
+    };
     let completed: Vec<bool> = flights.iter().map(Result::is_ok).collect();
     let value =
         |f: fn(&FlightEnd) -> f64| -> Vec<f64> { flights.iter().map(|r| r.as_ref().map_or(f64::NAN, f)).collect() };

@@ -3,6 +3,7 @@ Rust environment driven from Rust, the vectorised form equal to single episodes,
 refused with a Python exception."""
 
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -29,7 +30,7 @@ def _fly(env, seed, rng, index=None):
     obs, info = env.reset(seed=seed, options=None if index is None else {"index": index})
     observations, actions, rewards = [obs], [], []
     while True:
-        action = rng.uniform(-1, 1, size=3).astype(np.float32)
+        action = rng.uniform(-1, 1, size=env.action_space.shape).astype(np.float32)
         obs, reward, terminated, truncated, info = env.step(action)
         assert not truncated
         actions.append(action)
@@ -93,6 +94,35 @@ def test_a_mission_family_is_an_environment_equal_to_the_rust_one():
         lowthrust.LowThrustEnv(VENUS_INWARD.replace("e = [0.0, 0.01] }\ntime", "e = [0.0, 1.5] }\ntime"))
     with pytest.raises(TypeError):
         gym.make(lowthrust.MISSION_ENV_ID)
+
+
+INCLINED = (Path(__file__).resolve().parents[2] / "configs/missions/transfer-circular-inclined.toml").read_text()
+
+
+def test_an_inclined_family_is_a_three_dimensional_environment_equal_to_the_rust_one():
+    """A family whose target orbit is inclined: 15 features, 4 actions (throttle and an RTN
+    direction), Gymnasium's checker, transitions equal to the Rust 3D environment's bit for bit,
+    the state in three dimensions; its vectorised form the same; 3-component actions refused."""
+    env = gym.make(lowthrust.MISSION_ENV_ID, scenario=INCLINED)
+    assert env.observation_space.shape == (15,) and env.action_space.shape == (4,)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*infinity.*")
+        check_env(env.unwrapped, skip_render_check=True)
+    rng = np.random.default_rng(9)
+    for index in range(2):
+        actions, observations, rewards, info = _fly(env, 13, rng, index)
+        ref_obs, ref_rewards = lowthrust.reference_rollout(INCLINED, 13, index, actions)
+        assert np.array_equal(observations, ref_obs) and np.array_equal(rewards, ref_rewards)
+        assert info["state"].shape == (7,) and info["state"][-1] == info["mass"]
+    venv = gym.make_vec(lowthrust.MISSION_ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", scenario=INCLINED)
+    obs, _ = venv.reset(seed=13)
+    assert obs.shape == (2, 15)
+    ref_obs, _ = lowthrust.reference_rollout(INCLINED, 13, 1, np.zeros((0, 4), dtype=np.float32))
+    assert np.array_equal(obs[1], ref_obs[0])
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(3, dtype=np.float32))
+    with pytest.raises(lowthrust.LowThrustError, match="4 components"):
+        lowthrust.Env(INCLINED).step(np.zeros(3, dtype=np.float32))
 
 
 def test_resets_walk_the_seeds_scenarios_in_order():

@@ -28,7 +28,10 @@ def test_every_shipped_model_opens_against_its_card(name):
     assert model["name"] == model["card"]["scenario"]
     # Its family flies as an environment with its [env] (spacecraft, reward).
     env = lowthrust.Env(model["scenario"], model["env_config"])
-    assert env.obs_dim == {"transfer": 10, "rendezvous": 22}[model["f32"].problem]
+    # Planar: 10 or 22 features and 3 actions; an inclined family's: 15 or 30 and 4.
+    layouts = {("transfer", 3): 10, ("rendezvous", 3): 22, ("transfer", 4): 15, ("rendezvous", 4): 30}
+    assert env.obs_dim == layouts[(model["f32"].problem, env.act_dim)]
+    assert (model["f32"].obs_dim, model["f32"].act_dim) == (env.obs_dim, env.act_dim)
     assert model["f32"].quantization == "f32" and model["int8"].quantization == "int8"
     assert "onnx" in model["files"], "every shipped model carries its ONNX actor"
 
@@ -66,16 +69,17 @@ def test_a_model_whose_files_disagree_with_its_card_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("quantization", ["f32", "int8"])
-@pytest.mark.parametrize("name", ["transfer-circular-dispersed", "venus-inward"])
+@pytest.mark.parametrize("name", ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined"])
 def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     """The dispersed SIL Monte Carlo of the card (1,000 flights, typical dispersions, the Monte
     Carlo seed), flown again from Python with the model's family and [env]: the same share within
-    each tolerance, the same medians; for a preset and for a mission family (7-day cycles,
-    another spacecraft)."""
+    each tolerance, the same medians; for a preset, for a mission family (7-day cycles, another
+    spacecraft) and for an inclined family (the three-dimensional loop)."""
     model = lowthrust.open_model(MODELS / name)
     figures = dict(model["card"]["sil"])[f"transfer-{quantization}.blob"]
-    # The card's SIL flies the last cycles with terminal targeting.
-    cycles = model["card"]["terminal"]["cycles"]
+    # The card's SIL flies the last cycles with terminal targeting, when it records it.
+    terminal = model["card"].get("terminal")
+    cycles = terminal["cycles"] if terminal else None
     flown = lowthrust.fly_sil(
         model[quantization],
         model["scenario"],
@@ -175,7 +179,7 @@ def test_every_onnx_actor_passes_the_checker_and_acts_as_the_actor(name):
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     observations = _visited_observations(model, model["scenario"], 10_000)
     actions = session.run(["action"], {"observation": observations})[0]
-    assert actions.shape == (10_000, 3) and actions.dtype == np.float32
+    assert actions.shape == (10_000, model["f32"].act_dim) and actions.dtype == np.float32
     reference = _forward(_actor_weights(model["files"]["actor"]), observations)
     # numpy's BLAS and onnxruntime each sum the 256-wide products in their own order, which
     # depends on the CPU's kernels (up to 2e-5 apart on an AMD EPYC, below 1e-6 on an Intel Xeon):
