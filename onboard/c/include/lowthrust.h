@@ -18,6 +18,12 @@
 // `lt_policy_info::problem`: a rendezvous (meet a body).
 #define LT_PROBLEM_RENDEZVOUS 1
 
+// `lt_policy_info::problem`: a transfer in three dimensions (an inclined target orbit).
+#define LT_PROBLEM_TRANSFER3 2
+
+// `lt_policy_info::problem`: a rendezvous in three dimensions.
+#define LT_PROBLEM_RENDEZVOUS3 3
+
 // `lt_policy_info::quantization`: f32 weights.
 #define LT_QUANTIZATION_F32 0
 
@@ -198,6 +204,54 @@ typedef struct lt_body_state {
   double v[2];
 } lt_body_state;
 
+// The navigation state in three dimensions: position (length units), velocity, mass (m0 = 1),
+// in the inertial frame the target's elements are given in.
+typedef struct lt_navigation_state3 {
+  // Position x, y, z.
+  double r[3];
+  // Velocity x, y, z.
+  double v[3];
+  // Mass (fraction of the initial mass).
+  double m;
+} lt_navigation_state3;
+
+// A transfer's target orbit in three dimensions (reached anywhere on it): its shape in its
+// plane, and the plane.
+typedef struct lt_target_orbit3 {
+  // Semi-major axis, > 0.
+  double a;
+  // Eccentricity, in [0, 1).
+  double e;
+  // Argument of periapsis from the ascending node (rad).
+  double omega;
+  // Inclination to the xy-plane (rad), in [0, pi].
+  double inclination;
+  // Right ascension of the ascending node (rad).
+  double raan;
+} lt_target_orbit3;
+
+// A thrust command in three dimensions, held for the guidance cycle in the local RTN frame
+// (radial; transverse, in the orbit plane ahead of the radius; normal, along the angular
+// momentum).
+typedef struct lt_rtn_command {
+  // Throttle in [0, 1]; 0 is thrust off.
+  double throttle;
+  // Radial component of the unit thrust direction.
+  double radial;
+  // Transverse component.
+  double transverse;
+  // Normal component.
+  double normal;
+} lt_rtn_command;
+
+// A rendezvous target body's state now, in three dimensions.
+typedef struct lt_body_state3 {
+  // Position x, y, z.
+  double r[3];
+  // Velocity x, y, z.
+  double v[3];
+} lt_body_state3;
+
 // What the lookahead weighs (`lt_lookahead_defaults` fills the defaults).
 typedef struct lt_lookahead_settings {
   // Position residual counted as one unit of miss (AU); default 0.01.
@@ -275,7 +329,8 @@ typedef struct lt_terminal_report {
 // What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
 // blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
 typedef struct lt_policy_info {
-  // `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS`.
+  // `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS` (planar), `LT_PROBLEM_TRANSFER3` or
+  // `LT_PROBLEM_RENDEZVOUS3` (three dimensions).
   uint32_t problem;
   // `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
   uint32_t quantization;
@@ -291,6 +346,10 @@ typedef struct lt_policy_info {
   // cycle).
   uint32_t family;
 } lt_policy_info;
+
+// The thrust-off command every failed three-dimensional step writes (`onboard`'s
+// `RtnCommand::OFF`).
+#define RTN_THRUST_OFF (lt_rtn_command){ .throttle = 0.0, .radial = 0.0, .transverse = 1.0, .normal = 0.0 }
 
 #ifdef __cplusplus
 extern "C" {
@@ -328,6 +387,19 @@ lt_status lt_transfer_load(struct lt_policy *policy, const uint8_t *blob, size_t
 // As `lt_transfer_load`.
 lt_status lt_rendezvous_load(struct lt_policy *policy, const uint8_t *blob, size_t blob_len);
 
+// `lt_transfer_load` for a three-dimensional transfer blob (15-256-256-4: the 15 features of an
+// inclined target orbit, throttle and an RTN direction out).
+//
+// # Safety
+// As `lt_transfer_load`.
+lt_status lt_transfer3_load(struct lt_policy *policy, const uint8_t *blob, size_t blob_len);
+
+// `lt_transfer_load` for a three-dimensional rendezvous blob (30-256-256-4).
+//
+// # Safety
+// As `lt_transfer_load`.
+lt_status lt_rendezvous3_load(struct lt_policy *policy, const uint8_t *blob, size_t blob_len);
+
 // One transfer guidance cycle: the command to hold until the next cycle, from the navigation
 // state, the target orbit and the time to go (t*, >= 0), through `onboard::guidance::
 // transfer_step` (features, network, action decoding).
@@ -357,6 +429,31 @@ lt_status lt_rendezvous_step(const struct lt_policy *policy,
                              const struct lt_body_state *body,
                              double time_to_go,
                              struct lt_thrust_command *command);
+
+// One three-dimensional transfer guidance cycle: the RTN command to hold until the next cycle,
+// from the navigation state, the target orbit (shape and plane) and the time to go (t*, >= 0),
+// through `onboard::guidance::transfer3_step`. Returns and writes as `lt_transfer_step` (a
+// state whose velocity lies along its radius has no orbit plane: `LT_ERR_INPUT_NO_ORBIT_PLANE`);
+// a planar policy is `LT_ERR_WRONG_POLICY_KIND`.
+//
+// # Safety
+// As `lt_transfer_step`, with `command` null or valid for writing an `lt_rtn_command`.
+lt_status lt_transfer3_step(const struct lt_policy *policy,
+                            const struct lt_navigation_state3 *navigation,
+                            const struct lt_target_orbit3 *target,
+                            double time_to_go,
+                            struct lt_rtn_command *command);
+
+// One three-dimensional rendezvous guidance cycle: as `lt_transfer3_step`, with the target
+// body's state now (propagated by the caller to this cycle's epoch) instead of an orbit.
+//
+// # Safety
+// As `lt_transfer3_step`.
+lt_status lt_rendezvous3_step(const struct lt_policy *policy,
+                              const struct lt_navigation_state3 *navigation,
+                              const struct lt_body_state3 *body,
+                              double time_to_go,
+                              struct lt_rtn_command *command);
 
 // Writes the default lookahead settings to `*out`. Returns `LT_OK`, or `LT_ERR_NULL_POINTER`.
 //

@@ -87,13 +87,16 @@ use core::mem::{align_of, size_of};
 use core::ptr;
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError, TargetFeatures};
+use onboard::guidance::{
+    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError, TargetFeatures, TargetOrbit3,
+};
 use onboard::lookahead::{lookahead_step, Decision, LookaheadSettings};
 use onboard::policy::Mlp;
-use onboard::policy::{RendezvousPolicy, TransferPolicy};
+use onboard::policy::{Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
+use onboard::spatial::{RtnCommand, SpatialCraftState};
 use onboard::terminal::{terminal_step, TerminalDecision, TerminalSettings};
-use shared::blob::{ProblemKind, Quantization, FORMAT_VERSION};
-use shared::orbit::{CartesianState, OrbitShape};
+use shared::blob::{FeatureLayout, Quantization, FORMAT_VERSION};
+use shared::orbit::{CartesianState, OrbitPlane, OrbitShape, SpatialState};
 use shared::spacecraft::CanonicalSpacecraft;
 
 pub use error::*;
@@ -106,6 +109,10 @@ pub const LT_POLICY_STORAGE_WORDS: usize = 48;
 pub const LT_PROBLEM_TRANSFER: u32 = 0;
 /// `lt_policy_info::problem`: a rendezvous (meet a body).
 pub const LT_PROBLEM_RENDEZVOUS: u32 = 1;
+/// `lt_policy_info::problem`: a transfer in three dimensions (an inclined target orbit).
+pub const LT_PROBLEM_TRANSFER3: u32 = 2;
+/// `lt_policy_info::problem`: a rendezvous in three dimensions.
+pub const LT_PROBLEM_RENDEZVOUS3: u32 = 3;
 /// `lt_policy_info::quantization`: f32 weights.
 pub const LT_QUANTIZATION_F32: u32 = 0;
 /// `lt_policy_info::quantization`: int8 weights, 16-bit activations.
@@ -149,7 +156,8 @@ pub struct lt_version_info {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct lt_policy_info {
-    /// `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS`.
+    /// `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS` (planar), `LT_PROBLEM_TRANSFER3` or
+    /// `LT_PROBLEM_RENDEZVOUS3` (three dimensions).
     pub problem: u32,
     /// `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
     pub quantization: u32,
@@ -244,6 +252,113 @@ impl From<lt_body_state> for CartesianState {
     }
 }
 
+/// The navigation state in three dimensions: position (length units), velocity, mass (m0 = 1),
+/// in the inertial frame the target's elements are given in.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_navigation_state3 {
+    /// Position x, y, z.
+    pub r: [f64; 3],
+    /// Velocity x, y, z.
+    pub v: [f64; 3],
+    /// Mass (fraction of the initial mass).
+    pub m: f64,
+}
+
+/// A transfer's target orbit in three dimensions (reached anywhere on it): its shape in its
+/// plane, and the plane.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_target_orbit3 {
+    /// Semi-major axis, > 0.
+    pub a: f64,
+    /// Eccentricity, in [0, 1).
+    pub e: f64,
+    /// Argument of periapsis from the ascending node (rad).
+    pub omega: f64,
+    /// Inclination to the xy-plane (rad), in [0, pi].
+    pub inclination: f64,
+    /// Right ascension of the ascending node (rad).
+    pub raan: f64,
+}
+
+/// A rendezvous target body's state now, in three dimensions.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_body_state3 {
+    /// Position x, y, z.
+    pub r: [f64; 3],
+    /// Velocity x, y, z.
+    pub v: [f64; 3],
+}
+
+/// A thrust command in three dimensions, held for the guidance cycle in the local RTN frame
+/// (radial; transverse, in the orbit plane ahead of the radius; normal, along the angular
+/// momentum).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_rtn_command {
+    /// Throttle in [0, 1]; 0 is thrust off.
+    pub throttle: f64,
+    /// Radial component of the unit thrust direction.
+    pub radial: f64,
+    /// Transverse component.
+    pub transverse: f64,
+    /// Normal component.
+    pub normal: f64,
+}
+
+impl From<RtnCommand> for lt_rtn_command {
+    fn from(c: RtnCommand) -> Self {
+        Self {
+            throttle: c.throttle,
+            radial: c.radial,
+            transverse: c.transverse,
+            normal: c.normal,
+        }
+    }
+}
+
+impl From<lt_navigation_state3> for SpatialCraftState {
+    fn from(s: lt_navigation_state3) -> Self {
+        Self {
+            orbit: SpatialState { r: s.r, v: s.v },
+            m: s.m,
+        }
+    }
+}
+
+impl From<lt_target_orbit3> for TargetOrbit3 {
+    fn from(t: lt_target_orbit3) -> Self {
+        Self {
+            shape: OrbitShape {
+                a: t.a,
+                e: t.e,
+                omega: t.omega,
+            },
+            plane: OrbitPlane {
+                inclination: t.inclination,
+                raan: t.raan,
+            },
+        }
+    }
+}
+
+impl From<lt_body_state3> for SpatialState {
+    fn from(b: lt_body_state3) -> Self {
+        Self { r: b.r, v: b.v }
+    }
+}
+
+/// The thrust-off command every failed three-dimensional step writes (`onboard`'s
+/// `RtnCommand::OFF`).
+pub const RTN_THRUST_OFF: lt_rtn_command = lt_rtn_command {
+    throttle: 0.0,
+    radial: 0.0,
+    transverse: 1.0,
+    normal: 0.0,
+};
+
 /// The thrust-off command every failed step writes (`onboard`'s `ThrustCommand::OFF`).
 pub const THRUST_OFF: lt_thrust_command = lt_thrust_command {
     throttle: 0.0,
@@ -263,6 +378,8 @@ enum Network {
     // 'static stands for the caller's promise that the blob outlives the policy.
     Transfer(TransferPolicy<'static>),
     Rendezvous(RendezvousPolicy<'static>),
+    Transfer3(Transfer3Policy<'static>),
+    Rendezvous3(Rendezvous3Policy<'static>),
 }
 
 /// "LTPOLICY": the storage holds a `Loaded`.
@@ -346,7 +463,7 @@ unsafe fn blob_bytes(blob: *const u8, len: usize) -> Result<&'static [u8], lt_st
 
 /// # Safety
 /// As `lt_transfer_load`.
-unsafe fn load(policy: *mut lt_policy, blob: *const u8, blob_len: usize, kind: ProblemKind) -> lt_status {
+unsafe fn load(policy: *mut lt_policy, blob: *const u8, blob_len: usize, features: FeatureLayout) -> lt_status {
     let storage = match policy_storage(policy) {
         Ok(_) => policy.cast::<Loaded>(),
         Err(code) => return code,
@@ -360,9 +477,12 @@ unsafe fn load(policy: *mut lt_policy, blob: *const u8, blob_len: usize, kind: P
         Ok(bytes) => bytes,
         Err(code) => return code,
     };
-    let network = match kind {
-        ProblemKind::Transfer => TransferPolicy::from_bytes(bytes, kind).map(Network::Transfer),
-        ProblemKind::Rendezvous => RendezvousPolicy::from_bytes(bytes, kind).map(Network::Rendezvous),
+    let kind = features.problem();
+    let network = match features {
+        FeatureLayout::TransferPolar10 => TransferPolicy::from_bytes(bytes, kind).map(Network::Transfer),
+        FeatureLayout::RendezvousPolar22 => RendezvousPolicy::from_bytes(bytes, kind).map(Network::Rendezvous),
+        FeatureLayout::TransferSpatial15 => Transfer3Policy::from_bytes(bytes, kind).map(Network::Transfer3),
+        FeatureLayout::RendezvousSpatial30 => Rendezvous3Policy::from_bytes(bytes, kind).map(Network::Rendezvous3),
     };
     match network {
         Ok(network) => {
@@ -395,7 +515,7 @@ unsafe fn load(policy: *mut lt_policy, blob: *const u8, blob_len: usize, kind: P
 #[no_mangle]
 pub unsafe extern "C" fn lt_transfer_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
     // SAFETY: the caller's contract, passed on.
-    unsafe { load(policy, blob, blob_len, ProblemKind::Transfer) }
+    unsafe { load(policy, blob, blob_len, FeatureLayout::TransferPolar10) }
 }
 
 /// `lt_transfer_load` for a rendezvous blob (22-256-256-3).
@@ -405,7 +525,28 @@ pub unsafe extern "C" fn lt_transfer_load(policy: *mut lt_policy, blob: *const u
 #[no_mangle]
 pub unsafe extern "C" fn lt_rendezvous_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
     // SAFETY: the caller's contract, passed on.
-    unsafe { load(policy, blob, blob_len, ProblemKind::Rendezvous) }
+    unsafe { load(policy, blob, blob_len, FeatureLayout::RendezvousPolar22) }
+}
+
+/// `lt_transfer_load` for a three-dimensional transfer blob (15-256-256-4: the 15 features of an
+/// inclined target orbit, throttle and an RTN direction out).
+///
+/// # Safety
+/// As `lt_transfer_load`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_transfer3_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
+    // SAFETY: the caller's contract, passed on.
+    unsafe { load(policy, blob, blob_len, FeatureLayout::TransferSpatial15) }
+}
+
+/// `lt_transfer_load` for a three-dimensional rendezvous blob (30-256-256-4).
+///
+/// # Safety
+/// As `lt_transfer_load`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_rendezvous3_load(policy: *mut lt_policy, blob: *const u8, blob_len: usize) -> lt_status {
+    // SAFETY: the caller's contract, passed on.
+    unsafe { load(policy, blob, blob_len, FeatureLayout::RendezvousSpatial30) }
 }
 
 /// The loaded network behind `policy`.
@@ -537,6 +678,79 @@ unsafe fn rendezvous(
         return Err(LT_ERR_WRONG_POLICY_KIND);
     };
     guided(rendezvous_step(actor, &navigation.into(), &body.into(), time_to_go))
+}
+
+/// Writes the outcome of a three-dimensional step: the command, or thrust off with the error's
+/// code.
+///
+/// # Safety
+/// `command` is null or valid for writing an `lt_rtn_command`.
+unsafe fn finish3(command: *mut lt_rtn_command, result: Result<RtnCommand, lt_status>) -> lt_status {
+    let (out, code) = match result {
+        Ok(c) => (c.into(), LT_OK),
+        Err(code) => (RTN_THRUST_OFF, code),
+    };
+    if command.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(command, out) };
+    code
+}
+
+/// One three-dimensional transfer guidance cycle: the RTN command to hold until the next cycle,
+/// from the navigation state, the target orbit (shape and plane) and the time to go (t*, >= 0),
+/// through `onboard::guidance::transfer3_step`. Returns and writes as `lt_transfer_step` (a
+/// state whose velocity lies along its radius has no orbit plane: `LT_ERR_INPUT_NO_ORBIT_PLANE`);
+/// a planar policy is `LT_ERR_WRONG_POLICY_KIND`.
+///
+/// # Safety
+/// As `lt_transfer_step`, with `command` null or valid for writing an `lt_rtn_command`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_transfer3_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    target: *const lt_target_orbit3,
+    time_to_go: f64,
+    command: *mut lt_rtn_command,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let inputs = unsafe { (loaded(policy), read_input(navigation), read_input(target)) };
+    let result = match inputs {
+        (Ok(Network::Transfer3(actor)), Ok(navigation), Ok(target)) => {
+            transfer3_step(actor, &navigation.into(), &target.into(), time_to_go).map_err(|e| guidance_error_code(&e))
+        }
+        (Err(code), _, _) | (_, Err(code), _) | (_, _, Err(code)) => Err(code),
+        (Ok(_), _, _) => Err(LT_ERR_WRONG_POLICY_KIND),
+    };
+    // SAFETY: the caller's contract on `command`, passed on.
+    unsafe { finish3(command, result) }
+}
+
+/// One three-dimensional rendezvous guidance cycle: as `lt_transfer3_step`, with the target
+/// body's state now (propagated by the caller to this cycle's epoch) instead of an orbit.
+///
+/// # Safety
+/// As `lt_transfer3_step`.
+#[no_mangle]
+pub unsafe extern "C" fn lt_rendezvous3_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    body: *const lt_body_state3,
+    time_to_go: f64,
+    command: *mut lt_rtn_command,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    let inputs = unsafe { (loaded(policy), read_input(navigation), read_input(body)) };
+    let result = match inputs {
+        (Ok(Network::Rendezvous3(actor)), Ok(navigation), Ok(body)) => {
+            rendezvous3_step(actor, &navigation.into(), &body.into(), time_to_go).map_err(|e| guidance_error_code(&e))
+        }
+        (Err(code), _, _) | (_, Err(code), _) | (_, _, Err(code)) => Err(code),
+        (Ok(_), _, _) => Err(LT_ERR_WRONG_POLICY_KIND),
+    };
+    // SAFETY: the caller's contract on `command`, passed on.
+    unsafe { finish3(command, result) }
 }
 
 /// The nominal spacecraft the lookahead's rollouts fly, in canonical units.
@@ -1011,6 +1225,8 @@ pub unsafe extern "C" fn lt_policy_describe(policy: *const lt_policy, info: *mut
     let (problem, q, mission) = match network {
         Network::Transfer(p) => (LT_PROBLEM_TRANSFER, p.quantization(), p.mission()),
         Network::Rendezvous(p) => (LT_PROBLEM_RENDEZVOUS, p.quantization(), p.mission()),
+        Network::Transfer3(p) => (LT_PROBLEM_TRANSFER3, p.quantization(), p.mission()),
+        Network::Rendezvous3(p) => (LT_PROBLEM_RENDEZVOUS3, p.quantization(), p.mission()),
     };
     let described = lt_policy_info {
         problem,
@@ -1047,7 +1263,7 @@ mod tests {
     use onboard::dynamics::StateError;
     use onboard::features::FeatureError;
     use onboard::policy::{LayerArray, LayerShape, PolicyError};
-    use shared::blob::{Activation, ArrayKind, BlobError, FeatureLayout, PayloadError};
+    use shared::blob::{Activation, ArrayKind, BlobError, PayloadError, ProblemKind};
     use std::collections::HashSet;
 
     #[test]

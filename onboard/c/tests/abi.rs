@@ -7,14 +7,17 @@ use std::ptr;
 
 use lowthrust::*;
 use onboard::dynamics::SpacecraftState;
-use onboard::guidance::{rendezvous_step, transfer_step};
-use onboard::policy::{RendezvousPolicy, TransferPolicy};
+use onboard::guidance::{rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, TargetOrbit3};
+use onboard::policy::{Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
+use onboard::spatial::SpatialCraftState;
 use shared::blob::{self, Activation, FeatureLayout, NetworkBlob, ProblemKind, FORMAT_VERSION, HEADER_LEN};
-use shared::orbit::{CartesianState, OrbitShape};
+use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::quantize::{DenseWeights, MlpWeights};
 
 const TRANSFER: [usize; 4] = [10, 256, 256, 3];
 const RENDEZVOUS: [usize; 4] = [22, 256, 256, 3];
+const TRANSFER3: [usize; 4] = [15, 256, 256, 4];
+const RENDEZVOUS3: [usize; 4] = [30, 256, 256, 4];
 
 /// Deterministic weights of roughly He scale, different per layer and seed.
 fn network(kind: ProblemKind, sizes: &[usize], seed: u32) -> MlpWeights {
@@ -40,8 +43,10 @@ fn network(kind: ProblemKind, sizes: &[usize], seed: u32) -> MlpWeights {
             }
         })
         .collect();
+    // The three-dimensional layout for its input count (15 or 30), else the planar one.
+    let spatial = sizes[0] == FeatureLayout::of(kind, true).len();
     MlpWeights {
-        features: shared::blob::FeatureLayout::of(kind, false),
+        features: FeatureLayout::of(kind, spatial),
         layers,
     }
 }
@@ -237,6 +242,172 @@ fn accepted_blobs_fly_the_onboard_commands_bit_for_bit() {
             assert_eq!(bits(&command), bits(&expected.into()));
         }
     }
+}
+
+const TARGET3: lt_target_orbit3 = lt_target_orbit3 {
+    a: 1.3,
+    e: 0.05,
+    omega: 0.4,
+    inclination: 0.06,
+    raan: 1.1,
+};
+const BODY3: lt_body_state3 = lt_body_state3 {
+    r: [-0.4, 1.2, 0.03],
+    v: [-0.8, -0.3, 0.02],
+};
+
+/// [`states`] lifted out of the plane: heights and vertical speeds of a few hundredths.
+fn states3(n: usize) -> Vec<(lt_navigation_state3, f64)> {
+    states(n)
+        .into_iter()
+        .enumerate()
+        .map(|(k, (nav, ttg))| {
+            let phase = 0.37 * k as f64;
+            let nav = lt_navigation_state3 {
+                r: [nav.r[0], nav.r[1], 0.04 * phase.sin()],
+                v: [nav.v[0], nav.v[1], 0.03 * phase.cos()],
+                m: nav.m,
+            };
+            (nav, ttg)
+        })
+        .collect()
+}
+
+fn rtn_bits(c: &lt_rtn_command) -> [u64; 4] {
+    [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits)
+}
+
+const STALE3: lt_rtn_command = lt_rtn_command {
+    throttle: 0.5,
+    radial: 0.6,
+    transverse: 0.0,
+    normal: 0.8,
+};
+
+fn transfer3(
+    policy: &lt_policy,
+    nav: &lt_navigation_state3,
+    target: &lt_target_orbit3,
+    ttg: f64,
+) -> (lt_status, lt_rtn_command) {
+    let mut command = STALE3;
+    let status = unsafe { lt_transfer3_step(policy, nav, target, ttg, &mut command) };
+    (status, command)
+}
+
+fn rendezvous3(
+    policy: &lt_policy,
+    nav: &lt_navigation_state3,
+    body: &lt_body_state3,
+    ttg: f64,
+) -> (lt_status, lt_rtn_command) {
+    let mut command = STALE3;
+    let status = unsafe { lt_rendezvous3_step(policy, nav, body, ttg, &mut command) };
+    (status, command)
+}
+
+/// Three-dimensional blobs from C: loaded by their own loads, each step the onboard crate's RTN
+/// command to the bit, described as 3D problems; the planar loads and steps refuse them, the 3D
+/// steps refuse planar policies and refused inputs, each with its code and thrust off.
+#[test]
+fn three_dimensional_blobs_fly_the_onboard_rtn_commands_bit_for_bit() {
+    let load = |f: unsafe extern "C" fn(*mut lt_policy, *const u8, usize) -> lt_status, bytes: &[u8]| {
+        let mut policy = lt_policy::default();
+        let status = unsafe { f(&mut policy, bytes.as_ptr(), bytes.len()) };
+        (status, policy)
+    };
+    let describe = |policy: &lt_policy| {
+        let mut info = lt_policy_info::default();
+        assert_eq!(unsafe { lt_policy_describe(policy, &mut info) }, LT_OK);
+        info.problem
+    };
+    for bytes in [
+        f32_blob(ProblemKind::Transfer, &TRANSFER3),
+        int8_blob(ProblemKind::Transfer, &TRANSFER3),
+    ] {
+        let (status, policy) = load(lt_transfer3_load, &bytes);
+        assert_eq!(status, LT_OK);
+        assert_eq!(describe(&policy), LT_PROBLEM_TRANSFER3);
+        let rust = Transfer3Policy::from_bytes(&bytes, ProblemKind::Transfer).unwrap();
+        let mut out_of_plane = 0;
+        for (nav, ttg) in states3(300) {
+            let (status, command) = transfer3(&policy, &nav, &TARGET3, ttg);
+            let expected =
+                transfer3_step(&rust, &SpatialCraftState::from(nav), &TargetOrbit3::from(TARGET3), ttg).unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(rtn_bits(&command), rtn_bits(&expected.into()));
+            out_of_plane += usize::from(command.throttle > 0.0 && command.normal.abs() > 1e-3);
+        }
+        assert!(out_of_plane > 100, "{out_of_plane}");
+        // Not a planar network: the planar load refuses it, the planar step does not fly it.
+        assert_eq!(load(lt_transfer_load, &bytes).0, LT_ERR_WRONG_FEATURES);
+        let (status, command) = transfer(&policy, &NAV, &TARGET, 1.0);
+        assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+        assert_thrust_off(&command);
+        let (status, command) = rendezvous3(&policy, &states3(1)[0].0, &BODY3, 1.0);
+        assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+        assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
+    }
+    for bytes in [
+        f32_blob(ProblemKind::Rendezvous, &RENDEZVOUS3),
+        int8_blob(ProblemKind::Rendezvous, &RENDEZVOUS3),
+    ] {
+        let (status, policy) = load(lt_rendezvous3_load, &bytes);
+        assert_eq!(status, LT_OK);
+        assert_eq!(describe(&policy), LT_PROBLEM_RENDEZVOUS3);
+        let rust = Rendezvous3Policy::from_bytes(&bytes, ProblemKind::Rendezvous).unwrap();
+        for (nav, ttg) in states3(100) {
+            let (status, command) = rendezvous3(&policy, &nav, &BODY3, ttg);
+            let expected =
+                rendezvous3_step(&rust, &SpatialCraftState::from(nav), &SpatialState::from(BODY3), ttg).unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(rtn_bits(&command), rtn_bits(&expected.into()));
+        }
+    }
+    // A planar policy does not fly a 3D step; a 3D load refuses a planar blob.
+    let planar = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let (_, planar_policy) = load(lt_transfer_load, &planar);
+    let (status, command) = transfer3(&planar_policy, &states3(1)[0].0, &TARGET3, 1.0);
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
+    assert_eq!(load(lt_transfer3_load, &planar).0, LT_ERR_WRONG_FEATURES);
+    // Refused inputs: their codes, thrust off; a null command is refused.
+    let (_, policy) = load(lt_transfer3_load, &f32_blob(ProblemKind::Transfer, &TRANSFER3));
+    let nav = states3(1)[0].0;
+    let radial = lt_navigation_state3 {
+        v: nav.r.map(|x| 0.5 * x),
+        ..nav
+    };
+    let cases = [
+        (radial, TARGET3, 1.0, LT_ERR_INPUT_NO_ORBIT_PLANE),
+        (
+            lt_navigation_state3 { m: -1.0, ..nav },
+            TARGET3,
+            1.0,
+            LT_ERR_INPUT_NON_POSITIVE_MASS,
+        ),
+        (
+            nav,
+            lt_target_orbit3 {
+                inclination: f64::NAN,
+                ..TARGET3
+            },
+            1.0,
+            LT_ERR_INPUT_TARGET,
+        ),
+        (nav, TARGET3, -1.0, LT_ERR_INPUT_TIME_TO_GO),
+    ];
+    for (n, t, ttg, code) in cases {
+        let (status, command) = transfer3(&policy, &n, &t, ttg);
+        assert_eq!(status, code, "{n:?} {t:?} {ttg}");
+        assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
+    }
+    let status = unsafe { lt_transfer3_step(&policy, &nav, &TARGET3, 1.0, ptr::null_mut()) };
+    assert_eq!(status, LT_ERR_NULL_POINTER);
+    let mut command = STALE3;
+    let status = unsafe { lt_rendezvous3_step(&policy, ptr::null(), &BODY3, 1.0, &mut command) };
+    assert_eq!(status, LT_ERR_NULL_POINTER);
+    assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
 }
 
 #[test]
