@@ -1172,3 +1172,109 @@ fn terminal_steps_are_the_onboard_terminal_targeting_bit_for_bit_and_refuse_unus
         assert_eq!(bits(&command), bits(&expected.command.into()));
     }
 }
+
+/// Hostile three-dimensional inputs (NaN, infinities, zeros, huge and tiny values among
+/// flight-like ones) through both 3D steps: no panic, and each outcome is the Rust step's (its
+/// command to the bit, or its error's code with thrust off); an accepted command has a throttle
+/// in [0, 1] and a unit direction.
+#[test]
+fn hostile_three_dimensional_inputs_fly_as_the_rust_steps_or_thrust_off() {
+    let mut s = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let mut hostile = |lo: f64, hi: f64| {
+        let u = (next() >> 11) as f64 / (1u64 << 53) as f64;
+        if next() % 100 < 85 {
+            lo + (hi - lo) * u
+        } else {
+            [
+                f64::NAN,
+                f64::INFINITY,
+                -f64::INFINITY,
+                0.0,
+                -0.0,
+                -1.0,
+                1e300,
+                -1e300,
+                5e-324,
+            ][(next() % 9) as usize]
+        }
+    };
+    let transfer_bytes = int8_blob(ProblemKind::Transfer, &TRANSFER3);
+    let rendezvous_bytes = f32_blob(ProblemKind::Rendezvous, &RENDEZVOUS3);
+    let mut policy = lt_policy::default();
+    assert_eq!(
+        unsafe { lt_transfer3_load(&mut policy, transfer_bytes.as_ptr(), transfer_bytes.len()) },
+        LT_OK
+    );
+    let mut rendezvous_policy = lt_policy::default();
+    assert_eq!(
+        unsafe {
+            lt_rendezvous3_load(
+                &mut rendezvous_policy,
+                rendezvous_bytes.as_ptr(),
+                rendezvous_bytes.len(),
+            )
+        },
+        LT_OK
+    );
+    let transfer_rust = Transfer3Policy::from_bytes(&transfer_bytes, ProblemKind::Transfer).unwrap();
+    let rendezvous_rust = Rendezvous3Policy::from_bytes(&rendezvous_bytes, ProblemKind::Rendezvous).unwrap();
+    let check = |code: lt_status, command: &lt_rtn_command, rust: Result<onboard::spatial::RtnCommand, _>| match rust {
+        Ok(c) => {
+            assert_eq!((code, rtn_bits(command)), (LT_OK, rtn_bits(&c.into())));
+            let norm = (command.radial.powi(2) + command.transverse.powi(2) + command.normal.powi(2)).sqrt();
+            assert!(
+                (0.0..=1.0).contains(&command.throttle) && (norm - 1.0).abs() <= 1e-6,
+                "{command:?}"
+            );
+        }
+        Err(e) => {
+            assert_eq!(code, lowthrust::error::guidance_error_code(&e));
+            assert_eq!(rtn_bits(command), rtn_bits(&RTN_THRUST_OFF));
+        }
+    };
+    let (mut accepted, mut refused) = (0, 0);
+    for _ in 0..20_000 {
+        let nav = lt_navigation_state3 {
+            r: [hostile(-2.0, 2.0), hostile(-2.0, 2.0), hostile(-0.2, 0.2)],
+            v: [hostile(-1.5, 1.5), hostile(-1.5, 1.5), hostile(-0.2, 0.2)],
+            m: hostile(0.2, 1.0),
+        };
+        let ttg = hostile(0.0, 12.0);
+        let target = lt_target_orbit3 {
+            a: hostile(0.5, 2.0),
+            e: hostile(0.0, 0.9),
+            omega: hostile(-4.0, 4.0),
+            inclination: hostile(0.0, 3.2),
+            raan: hostile(-7.0, 7.0),
+        };
+        let (code, command) = transfer3(&policy, &nav, &target, ttg);
+        let rust = transfer3_step(&transfer_rust, &nav.into(), &target.into(), ttg);
+        if rust.is_ok() {
+            accepted += 1;
+        } else {
+            refused += 1;
+        }
+        check(code, &command, rust);
+        let body = lt_body_state3 {
+            r: [hostile(-2.0, 2.0), hostile(-2.0, 2.0), hostile(-0.2, 0.2)],
+            v: [hostile(-1.5, 1.5), hostile(-1.5, 1.5), hostile(-0.2, 0.2)],
+        };
+        let (code, command) = rendezvous3(&rendezvous_policy, &nav, &body, ttg);
+        check(
+            code,
+            &command,
+            rendezvous3_step(&rendezvous_rust, &nav.into(), &body.into(), ttg),
+        );
+    }
+    // Both outcomes are exercised.
+    assert!(
+        accepted > 1000 && refused > 1000,
+        "{accepted} accepted, {refused} refused"
+    );
+}
