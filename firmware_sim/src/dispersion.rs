@@ -33,7 +33,9 @@ pub struct Dispersions {
     /// Thrust magnitude error (fraction), drawn once per flight: a thruster that is off
     /// nominal stays off nominal. Mass flow follows the actual thrust.
     pub thrust_magnitude: f64,
-    /// Pointing error (rad) of the applied thrust direction, each cycle.
+    /// Pointing error (rad) of the applied thrust direction, each cycle: in the plane the
+    /// in-plane angle's sigma; in three dimensions the sigma of each of two perpendicular
+    /// components (a cone about the command: off-axis angle RMS sigma sqrt 2).
     pub pointing: f64,
     /// Mean number of missed-thrust events per year of flight (Poisson arrivals, not tied to
     /// the guidance cycle: an event can start and end inside a cycle).
@@ -288,13 +290,19 @@ impl DispersedPlant {
             return *command;
         }
         let (s, c) = (libm::sin(angle), libm::cos(angle));
-        let turned: [f64; 3] = core::array::from_fn(|i| c * d[i] + s * (ex * u[i] + ey * w[i]) / angle);
-        // Renormalized: the command's own unit length is only good to 1e-6.
+        let ([d0, d1, d2], [u0, u1, u2], [w0, w1, w2]) = (d, u, w);
+        let turned = [
+            c * d0 + s * (ex * u0 + ey * w0) / angle,
+            c * d1 + s * (ex * u1 + ey * w1) / angle,
+            c * d2 + s * (ex * u2 + ey * w2) / angle,
+        ];
+        // Renormalized: the rounding of the rotation stays off the unit length.
+        let [t0, t1, t2] = turned;
         let n = norm3(&turned);
         RtnCommand {
-            radial: turned[0] / n,
-            transverse: turned[1] / n,
-            normal: turned[2] / n,
+            radial: t0 / n,
+            transverse: t1 / n,
+            normal: t2 / n,
             ..*command
         }
     }

@@ -18,10 +18,11 @@
 //!
 //! # Map
 //!
-//! - this module: the loop ([`fly_observed`], and [`fly`] recording it), what it flies with
-//!   beside the scenario ([`FlightSetup`]), the flight computer's network or safe mode
-//!   ([`Controller`]), the two problems ([`Transfer`], [`Rendezvous`]) and a hand-tuned
-//!   baseline law ([`ProxyTracking`]);
+//! - this module: the loop ([`fly_observed`], and [`fly`] recording it; in three dimensions
+//!   [`fly_spatial_observed`] and [`fly_spatial`], one loop for both geometries), what it flies
+//!   with beside the scenario ([`FlightSetup`]), the flight computer's network or safe mode
+//!   ([`Controller`]), the problems ([`Transfer`], [`Rendezvous`], and [`Transfer3`],
+//!   [`Rendezvous3`] on inclined orbits) and a hand-tuned baseline law ([`ProxyTracking`]);
 //! - [`dispersion`]: the real world's dispersions and the truth plant that draws them;
 //! - [`trace`]: the flights both the host and the Cortex-M4F image fly, written line by line
 //!   so the two can be compared bit for bit.

@@ -219,14 +219,18 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
         Some(toml::Value::Table(table)) => toml::to_string(table).map_err(|e| bad(&e.to_string()))?,
         _ => return Err(bad("its config has no scenario")),
     };
-    let kind = spatial_scenario_family(&scenario)?.family.problem;
+    let family = spatial_scenario_family(&scenario)?;
+    let kind = family.family.problem;
+    let features = FeatureLayout::of(kind, family.as_planar().is_none());
     let env_config = match config.get("env") {
         Some(toml::Value::Table(env)) => toml::to_string(env).map_err(|e| bad(&e.to_string()))?,
         _ => String::new(),
     };
     let files: BTreeMap<String, String> =
         serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
-    let checked = py.detach(|| verify_model_files(&dir, kind, &files)).map_err(refused)?;
+    let checked = py
+        .detach(|| verify_model_files(&dir, features, &files))
+        .map_err(refused)?;
     let d = PyDict::new(py);
     d.set_item("name", name)?;
     d.set_item("scenario", scenario)?;

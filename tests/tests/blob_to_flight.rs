@@ -482,7 +482,7 @@ fn spatial_sil_is_the_environment<const N: usize, P, E>(
             "reward of step {}",
             k.index
         );
-        thrusting += usize::from(k.command.throttle > 0.0 && k.command.normal != 0.0);
+        thrusting += usize::from(k.command.throttle > 0.0 && k.command.normal.abs() > 1e-3);
         obs = step.observation;
     }
     assert!(

@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use shared::blob::{ProblemKind, Quantization};
+use shared::blob::{FeatureLayout, ProblemKind, Quantization};
 
 use crate::actor_file::{read_actor, ActorFileError};
 
@@ -199,14 +199,17 @@ pub struct ModelFiles {
     pub int8_blob: Vec<u8>,
 }
 
-/// Checks the model folder `dir` of a `kind` controller against its card's `files` (name to
-/// CRC-32C): the actor and both blobs are listed, every listed file has its checksum, and the
-/// f32 blob is the actor's weights encoded again. Returns the blobs.
+/// Checks the model folder `dir` of a controller of input encoding `features` (its problem,
+/// planar or three-dimensional) against its card's `files` (name to CRC-32C): the actor and
+/// both blobs are listed, every listed file has its checksum, and the f32 blob is the actor's
+/// weights encoded again as a network of `features` (a blob of another problem or dimension
+/// disagrees). Returns the blobs.
 pub fn verify_model_files(
     dir: &Path,
-    kind: ProblemKind,
+    features: FeatureLayout,
     files: &BTreeMap<String, String>,
 ) -> Result<ModelFiles, ModelFilesError> {
+    let kind = features.problem();
     let f32_name = blob_file(kind, Quantization::F32);
     let int8_name = blob_file(kind, Quantization::Int8);
     for needed in [ACTOR_FILE, &f32_name, &int8_name] {
@@ -237,9 +240,10 @@ pub fn verify_model_files(
     let same = {
         let shipped =
             shared::blob::decode(&f32_blob).map_err(|_| ModelFilesError::BlobDisagrees { path: f32_path.clone() })?;
-        // Encoded again from the actor with the blob's own provenance and mission, it must be
-        // the same network (compared decoded: a format-3 blob is written again as format 4).
-        let rebuilt = read_actor(&dir.join(ACTOR_FILE), shipped.features)?
+        // Encoded again from the actor, as a network of the card's layout, with the blob's own
+        // provenance and mission, it must be the same network (compared decoded: a format-3
+        // blob is written again as format 4).
+        let rebuilt = read_actor(&dir.join(ACTOR_FILE), features)?
             .f32_blob_for(shipped.provenance, shipped.mission)
             .ok();
         rebuilt
@@ -267,6 +271,26 @@ mod tests {
             "lookahead": null,
             "tiny": 1.2345678901234567e-300,
         })
+    }
+
+    /// A shipped planar folder checks as its own layout, and disagrees as the three-dimensional
+    /// layout of its problem (its actor is not that network) or as the other problem (its blobs
+    /// are not that problem's).
+    #[test]
+    fn a_folder_checks_only_as_the_layout_of_its_card() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/transfer-circular");
+        let text = std::fs::read_to_string(dir.join("card.json")).unwrap();
+        let card = read_sealed_card(&dir.join("card.json"), &text).unwrap();
+        let files: BTreeMap<String, String> = serde_json::from_value(card["files"].clone()).unwrap();
+        assert!(verify_model_files(&dir, FeatureLayout::TransferPolar10, &files).is_ok());
+        assert!(matches!(
+            verify_model_files(&dir, FeatureLayout::TransferSpatial15, &files),
+            Err(ModelFilesError::BlobDisagrees { .. })
+        ));
+        assert!(matches!(
+            verify_model_files(&dir, FeatureLayout::RendezvousPolar22, &files),
+            Err(ModelFilesError::Incomplete { .. })
+        ));
     }
 
     #[test]

@@ -295,7 +295,7 @@ fn write_onnx(dir: &Path, kind: ProblemKind) -> Result<String, ModelError> {
 pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
     let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
     let kind = config.problem();
-    verify_model_files(dir, kind, &card.files)?;
+    verify_model_files(dir, config.feature_layout(), &card.files)?;
     let crc = write_onnx(dir, kind)?;
     card.files.insert(ONNX_FILE.to_string(), crc);
     write_cards(dir, &mut card)?;
@@ -314,7 +314,7 @@ const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
     let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
     let kind = config.problem();
-    verify_model_files(dir, kind, &card.files)?;
+    verify_model_files(dir, config.feature_layout(), &card.files)?;
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     config.sil.terminal = (cycles > 0).then(|| TerminalSettings {
         cycles,
@@ -625,7 +625,7 @@ impl ShippedModel {
 /// exactly the actor's weights.
 pub fn open_model(dir: &Path) -> Result<ShippedModel, ModelError> {
     let (card, config) = read_card(dir, Unsealed::Refused)?;
-    verify_model_files(dir, config.problem(), &card.files)?;
+    verify_model_files(dir, config.feature_layout(), &card.files)?;
     // card.md is what people read: it must say what card.json, the bound record, says.
     let md = dir.join(CARD_MD);
     let written = std::fs::read_to_string(&md).map_err(io(&md))?;

@@ -508,6 +508,8 @@ fn sil_monte_carlo_for<P: ground_core::env::Problem>(
 where
     P::Geometry: SilGeometry,
 {
+    // Refused before any folder is made (the flights would refuse them after).
+    config.validate()?;
     dispersions
         .validate()
         .map_err(|e| ExperimentError::Mismatch(format!("dispersions: {e}")))?;

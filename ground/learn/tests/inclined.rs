@@ -288,6 +288,22 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         "a planar blob flies the 3D loop"
     );
 
+    // The onboard aids are planar: an inclined config that asks for one is refused up front,
+    // and its SIL Monte Carlo writes nothing.
+    let mut aided = wide.clone();
+    aided.sil.terminal = Some(learn::config::TerminalSettings::default());
+    let refused = aided.validate().unwrap_err().to_string();
+    assert!(refused.contains("planar families only"), "{refused}");
+    let sil = learn::sil::sil_monte_carlo(
+        &aided,
+        &export.f32.file,
+        &dir.join("aided"),
+        Some(2),
+        &Dispersions::NONE,
+        0,
+    );
+    assert!(sil.is_err() && !dir.join("aided").exists());
+
     // The run plan times the 3D environment and solves a sample in 3D.
     let plan = learn::plan::plan_recipe(&config, 1).unwrap();
     assert!(!plan.stages.is_empty() && plan.stages.iter().all(|s| s.seconds.is_finite() && s.seconds >= 0.0));

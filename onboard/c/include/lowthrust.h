@@ -347,10 +347,6 @@ typedef struct lt_policy_info {
   uint32_t family;
 } lt_policy_info;
 
-// The thrust-off command every failed three-dimensional step writes (`onboard`'s
-// `RtnCommand::OFF`).
-#define RTN_THRUST_OFF (lt_rtn_command){ .throttle = 0.0, .radial = 0.0, .transverse = 1.0, .normal = 0.0 }
-
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus

@@ -23,8 +23,8 @@ use ground_core::env::{Geometry, MdpEnv, Problem, ScenarioOf};
 use ground_core::io::{decode_container, encode_container};
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";
-// Version 2: tuples of three or four action components (the buffer says which).
-const RELABELS_VERSION: u16 = 2;
+// The buffer says its action size (3 planar, 4 in three dimensions): the format is unchanged.
+const RELABELS_VERSION: u16 = 1;
 
 /// One round's relabelled tuples, as saved in `relabels-R.ltrl`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
