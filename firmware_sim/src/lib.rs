@@ -480,6 +480,22 @@ impl<'a> Controller<'a, RENDEZVOUS_FEATURES> {
     }
 }
 
+/// Why the flight computer's loader refuses `blob` as a network of `features` (None: it flies),
+/// as [`Controller::load`] of that layout's problem decides it.
+pub fn load_refusal(blob: &[u8], features: shared::blob::FeatureLayout) -> Option<PolicyError> {
+    fn refusal<const N: usize, const OUT: usize>(controller: Controller<'_, N, OUT>) -> Option<PolicyError> {
+        match controller {
+            Controller::Network(_) => None,
+            Controller::SafeMode(e) => Some(e),
+        }
+    }
+    if features.is_spatial() {
+        with_spatial_flight_problem!(features.problem(), N, P => refusal(Controller::<N, ACTION3_LEN>::load::<P>(blob)))
+    } else {
+        with_flight_problem!(features.problem(), N, P => refusal(Controller::<N>::load::<P>(blob)))
+    }
+}
+
 /// The action that decodes to thrust off (throttle (a0 + 1) / 2 = 0).
 pub const THRUST_OFF_ACTION: [f32; 3] = [-1.0, 0.0, 1.0];
 

@@ -21,7 +21,6 @@ use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
 use onboard::features::ACTION3_LEN;
 use onboard::guidance::Actor;
-use onboard::policy::PolicyError;
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, FeatureLayout, ProblemKind, Quantization};
 
@@ -58,21 +57,6 @@ fn actions_of<const N: usize, const OUT: usize>(controller: &Controller<'_, N, O
         .collect()
 }
 
-/// Why the onboard loader refuses `blob` as a network of `features` (None: it flies).
-fn loader_refusal(blob: &[u8], features: FeatureLayout) -> Option<PolicyError> {
-    if features.is_spatial() {
-        with_spatial_flight_problem!(features.problem(), N, P => match Controller::<N, ACTION3_LEN>::load::<P>(blob) {
-            Controller::SafeMode(e) => Some(e),
-            Controller::Network(_) => None,
-        })
-    } else {
-        with_flight_problem!(features.problem(), N, P => match Controller::<N>::load::<P>(blob) {
-            Controller::SafeMode(e) => Some(e),
-            Controller::Network(_) => None,
-        })
-    }
-}
-
 impl Policy {
     fn load(bytes: &[u8]) -> PyResult<Self> {
         let decoded = shared::blob::decode(bytes).map_err(|e| refused(format!("blob refused: {e:?}")))?;
@@ -80,7 +64,7 @@ impl Policy {
             (decoded.kind, decoded.features, decoded.quantization, decoded.mission);
         let blob = AlignedBlob::new(bytes);
         // The loader flight software runs: a blob it refuses is refused here too.
-        if let Some(e) = loader_refusal(blob.bytes(), features) {
+        if let Some(e) = firmware_sim::load_refusal(blob.bytes(), features) {
             return Err(refused(format!("blob refused by the onboard loader: {e:?}")));
         }
         Ok(Self {

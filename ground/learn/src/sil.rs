@@ -15,7 +15,6 @@ use firmware_sim::{
 };
 use onboard::features::ACTION3_LEN;
 use onboard::lookahead::Lookahead;
-use onboard::policy::PolicyError;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
@@ -317,9 +316,6 @@ pub trait SilGeometry: DemoGeometry {
         flights: &SilFlights,
     ) -> Result<SilFlown<Self>, ExperimentError>;
 
-    /// Why the flight software refuses `blob` for the config's problem (None: it flies).
-    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError>;
-
     /// The flights of `agent`'s f32 blob on `scenarios` as `flights` says (the relabelling
     /// rounds that relabel or score dispersed flights).
     fn fly_learner(
@@ -348,13 +344,6 @@ impl SilGeometry for Planar {
             fly_blob_as::<N, P>(P::default(), config, blob, scenarios, flights)
         })
     }
-
-    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError> {
-        with_flight_problem!(config.problem(), N, P => match Controller::<N>::load::<P>(blob) {
-            Controller::Network(_) => None,
-            Controller::SafeMode(e) => Some(e),
-        })
-    }
 }
 
 impl SilGeometry for Spatial {
@@ -373,15 +362,6 @@ impl SilGeometry for Spatial {
         check_mission(config, blob)?;
         with_spatial_flight_problem!(config.problem(), N, P => {
             fly_spatial_blob_as::<N, P>(config, blob, scenarios, flights)
-        })
-    }
-
-    fn refusal(config: &ExperimentConfig, blob: &[u8]) -> Option<PolicyError> {
-        with_spatial_flight_problem!(config.problem(), N, P => {
-            match Controller::<N, ACTION3_LEN>::load::<P>(blob) {
-                Controller::Network(_) => None,
-                Controller::SafeMode(e) => Some(e),
-            }
         })
     }
 }
@@ -520,7 +500,7 @@ where
     let start = Instant::now();
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
     std::fs::create_dir_all(out).map_err(|e| ExperimentError::Io(out.to_path_buf(), e))?;
-    let controller = describe_controller::<P::Geometry>(config, &blob);
+    let controller = describe_controller(config, &blob);
     let family = crate::phase::family_of::<P::Geometry>(config)?;
     let scenarios: Vec<_> = (0..n)
         .map(|i| P::Geometry::draw(&family, config.seeds.monte_carlo, i))
@@ -607,17 +587,15 @@ pub fn lookahead_monte_carlo(
 /// (None: it loads and flies). A refused blob flies its flights in safe mode, thrust off.
 pub fn blob_refusal(config: &ExperimentConfig, blob_path: &Path) -> Result<Option<String>, ExperimentError> {
     let blob = std::fs::read(blob_path).map_err(|e| ExperimentError::Io(blob_path.to_path_buf(), e))?;
-    let refusal = if config.is_inclined() {
-        Spatial::refusal(config, &blob)
-    } else {
-        Planar::refusal(config, &blob)
-    };
-    Ok(refusal.map(|e| e.to_string()))
+    Ok(firmware_sim::load_refusal(&blob, config.feature_layout()).map(|e| e.to_string()))
 }
 
 /// "f32", "int8", or "safe mode: <why the blob was refused>".
-fn describe_controller<G: SilGeometry>(config: &ExperimentConfig, blob: &[u8]) -> String {
-    match (G::refusal(config, blob), shared::blob::decode(blob)) {
+fn describe_controller(config: &ExperimentConfig, blob: &[u8]) -> String {
+    match (
+        firmware_sim::load_refusal(blob, config.feature_layout()),
+        shared::blob::decode(blob),
+    ) {
         (None, Ok(decoded)) => format!("{:?}", decoded.quantization).to_lowercase(),
         (Some(e), _) => format!("safe mode: {e}"),
         (None, Err(e)) => format!("safe mode: {e}"),
