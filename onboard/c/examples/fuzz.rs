@@ -1,7 +1,8 @@
 //! Fuzzes the weight-blob loader and the C entry points: millions of seeded inputs (random
 //! bytes, and bit flips, byte edits, truncations, extensions and splices of real blobs), each
-//! given to `shared::blob::decode`, to both policy loaders and to `lt_transfer_load` /
-//! `lt_rendezvous_load`; every loaded policy is flown through `lt_*_step` with hostile
+//! given to `shared::blob::decode`, to the four policy loaders and to `lt_transfer_load`,
+//! `lt_rendezvous_load` and their three-dimensional twins `lt_transfer3_load`,
+//! `lt_rendezvous3_load`; every loaded policy is flown through `lt_*_step` with hostile
 //! navigation inputs (now and then through `lt_transfer_lookahead_step` and
 //! `lt_transfer_terminal_step` too, with hostile spacecraft and settings as well), and the C
 //! entry points are called with null, misaligned and impossible arguments.
@@ -35,17 +36,20 @@ use std::time::Instant;
 
 use lowthrust::{
     error::{guidance_error_code, policy_error_code},
-    lt_body_state, lt_lookahead_defaults, lt_lookahead_settings, lt_navigation_state, lt_policy, lt_policy_describe,
-    lt_policy_info, lt_rendezvous_load, lt_rendezvous_step, lt_spacecraft, lt_status, lt_target_orbit,
-    lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer_load, lt_transfer_lookahead_step,
-    lt_transfer_step, lt_transfer_terminal_step, LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL,
-    LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK,
-    LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_TRANSFER,
+    lt_body_state, lt_body_state3, lt_lookahead_defaults, lt_lookahead_settings, lt_navigation_state,
+    lt_navigation_state3, lt_policy, lt_policy_describe, lt_policy_info, lt_rendezvous3_load, lt_rendezvous3_step,
+    lt_rendezvous_load, lt_rendezvous_step, lt_rtn_command, lt_spacecraft, lt_status, lt_target_orbit,
+    lt_target_orbit3, lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer3_load,
+    lt_transfer3_step, lt_transfer_load, lt_transfer_lookahead_step, lt_transfer_step, lt_transfer_terminal_step,
+    LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL, LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED,
+    LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK, LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3,
+    LT_PROBLEM_TRANSFER, LT_PROBLEM_TRANSFER3, RTN_THRUST_OFF,
 };
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
-use onboard::policy::{RendezvousPolicy, TransferPolicy};
-use shared::blob::{decode, Activation, ProblemKind, FORMAT_VERSION, HEADER_LEN, MAGIC, TRAILER_LEN};
+use onboard::guidance::{rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError};
+use onboard::policy::{Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
+use onboard::spatial::SpatialCraftState;
+use shared::blob::{decode, Activation, FeatureLayout, ProblemKind, FORMAT_VERSION, HEADER_LEN, MAGIC, TRAILER_LEN};
 use shared::orbit::{CartesianState, OrbitShape};
 use shared::quantize::{DenseWeights, MlpWeights};
 
@@ -93,21 +97,42 @@ struct Seed {
     bytes: Vec<u8>,
 }
 
-/// The real blobs: full-size transfer and rendezvous networks (the shapes the controller flies,
-/// f32 and int8), and small networks of every kind and quantization (decoded, then refused by
-/// the policies for their shape; cheap to checksum, so most structural edits start from them).
+/// The real blobs: full-size transfer and rendezvous networks, planar and three-dimensional (the
+/// shapes the controller flies, f32 and int8), and small networks of every layout and
+/// quantization (decoded, then refused by the policies for their shape; cheap to checksum, so
+/// most structural edits start from them).
 fn corpus() -> Result<Vec<Seed>, String> {
     let mut rng = Rng(0x5EED);
-    let shapes: [(&str, ProblemKind, &[usize]); 6] = [
-        ("transfer-10-256-256-3", ProblemKind::Transfer, &[10, 256, 256, 3]),
-        ("rendezvous-22-256-256-3", ProblemKind::Rendezvous, &[22, 256, 256, 3]),
-        ("transfer-10-4-5-3", ProblemKind::Transfer, &[10, 4, 5, 3]),
-        ("rendezvous-22-3-3", ProblemKind::Rendezvous, &[22, 3, 3]),
-        ("transfer-10-3", ProblemKind::Transfer, &[10, 3]),
-        ("transfer-10-2-2-2-3", ProblemKind::Transfer, &[10, 2, 2, 2, 3]),
+    let shapes: [(&str, FeatureLayout, &[usize]); 10] = [
+        (
+            "transfer-10-256-256-3",
+            FeatureLayout::TransferPolar10,
+            &[10, 256, 256, 3],
+        ),
+        (
+            "rendezvous-22-256-256-3",
+            FeatureLayout::RendezvousPolar22,
+            &[22, 256, 256, 3],
+        ),
+        (
+            "transfer3-15-256-256-4",
+            FeatureLayout::TransferSpatial15,
+            &[15, 256, 256, 4],
+        ),
+        (
+            "rendezvous3-30-256-256-4",
+            FeatureLayout::RendezvousSpatial30,
+            &[30, 256, 256, 4],
+        ),
+        ("transfer-10-4-5-3", FeatureLayout::TransferPolar10, &[10, 4, 5, 3]),
+        ("rendezvous-22-3-3", FeatureLayout::RendezvousPolar22, &[22, 3, 3]),
+        ("transfer-10-3", FeatureLayout::TransferPolar10, &[10, 3]),
+        ("transfer-10-2-2-2-3", FeatureLayout::TransferPolar10, &[10, 2, 2, 2, 3]),
+        ("transfer3-15-4-4", FeatureLayout::TransferSpatial15, &[15, 4, 4]),
+        ("rendezvous3-30-3-4", FeatureLayout::RendezvousSpatial30, &[30, 3, 4]),
     ];
     let mut seeds = Vec::new();
-    for (name, kind, sizes) in shapes {
+    for (name, features, sizes) in shapes {
         let layers = sizes
             .windows(2)
             .enumerate()
@@ -126,10 +151,7 @@ fn corpus() -> Result<Vec<Seed>, String> {
                 }
             })
             .collect();
-        let net = MlpWeights {
-            features: shared::blob::FeatureLayout::of(kind, false),
-            layers,
-        };
+        let net = MlpWeights { features, layers };
         let calibration: Vec<Vec<f32>> = (0..64)
             .map(|_| (0..sizes[0]).map(|_| rng.uniform(-2.0, 2.0) as f32).collect())
             .collect();
@@ -197,12 +219,23 @@ fn draw_class(rng: &mut Rng) -> Class {
     }
 }
 
-/// A seed blob: the full-size ones (indices 0..4) once in two hundred, the small ones otherwise.
+/// The full-size seeds (f32 and int8 of each flown layout) come first.
+const FULL_SIZE_SEEDS: usize = 2 * LAYOUTS.len();
+
+/// Every network layout the controller flies, in the corpus's order.
+const LAYOUTS: [FeatureLayout; 4] = [
+    FeatureLayout::TransferPolar10,
+    FeatureLayout::RendezvousPolar22,
+    FeatureLayout::TransferSpatial15,
+    FeatureLayout::RendezvousSpatial30,
+];
+
+/// A seed blob: the full-size ones once in two hundred, the small ones otherwise.
 fn draw_seed(rng: &mut Rng, seeds: &[Seed]) -> usize {
     if rng.chance(0.005) {
-        rng.below(4)
+        rng.below(FULL_SIZE_SEEDS)
     } else {
-        4 + rng.below(seeds.len() - 4)
+        FULL_SIZE_SEEDS + rng.below(seeds.len() - FULL_SIZE_SEEDS)
     }
 }
 
@@ -511,6 +544,104 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
     Ok(())
 }
 
+/// [`fly`] in three dimensions: a loaded 3D policy through a few hostile cycles, each command
+/// checked against the Rust step it wraps; the planar step refuses it.
+fn fly3(rng: &mut Rng, policy: &lt_policy, features: FeatureLayout, bytes: &[u8]) -> Result<(), String> {
+    let mut info = lt_policy_info::default();
+    // SAFETY: both pointers are valid references.
+    let code = unsafe { lt_policy_describe(policy, &mut info) };
+    let transfer = features == FeatureLayout::TransferSpatial15;
+    let problem = if transfer {
+        LT_PROBLEM_TRANSFER3
+    } else {
+        LT_PROBLEM_RENDEZVOUS3
+    };
+    if code != LT_OK || info.problem != problem {
+        return Err(format!(
+            "describe of a loaded {features:?} policy gave {code:?} / {info:?}"
+        ));
+    }
+    let kind = features.problem();
+    for _ in 0..3 {
+        let planar = navigation(rng);
+        let nav = lt_navigation_state3 {
+            r: [planar.r[0], planar.r[1], hostile(rng, -0.2, 0.2)],
+            v: [planar.v[0], planar.v[1], hostile(rng, -0.2, 0.2)],
+            m: planar.m,
+        };
+        let time_to_go = hostile(rng, 0.0, 12.0);
+        let mut command = lt_rtn_command {
+            throttle: f64::NAN,
+            radial: f64::NAN,
+            transverse: f64::NAN,
+            normal: f64::NAN,
+        };
+        let state: SpatialCraftState = nav.into();
+        let (code, rust) = if transfer {
+            let target = lt_target_orbit3 {
+                a: hostile(rng, 0.5, 2.0),
+                e: hostile(rng, 0.0, 0.9),
+                omega: hostile(rng, -4.0, 4.0),
+                inclination: hostile(rng, 0.0, 3.2),
+                raan: hostile(rng, -7.0, 7.0),
+            };
+            // SAFETY: every pointer is a valid reference.
+            let code = unsafe { lt_transfer3_step(policy, &nav, &target, time_to_go, &mut command) };
+            let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| format!("Rust refused: {e}"))?;
+            (code, transfer3_step(&actor, &state, &target.into(), time_to_go))
+        } else {
+            let body = lt_body_state3 {
+                r: [
+                    hostile(rng, -2.0, 2.0),
+                    hostile(rng, -2.0, 2.0),
+                    hostile(rng, -0.2, 0.2),
+                ],
+                v: [
+                    hostile(rng, -1.5, 1.5),
+                    hostile(rng, -1.5, 1.5),
+                    hostile(rng, -0.2, 0.2),
+                ],
+            };
+            // SAFETY: every pointer is a valid reference.
+            let code = unsafe { lt_rendezvous3_step(policy, &nav, &body, time_to_go, &mut command) };
+            let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| format!("Rust refused: {e}"))?;
+            (code, rendezvous3_step(&actor, &state, &body.into(), time_to_go))
+        };
+        let bits = |c: &lt_rtn_command| [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits);
+        let agrees = match &rust {
+            Ok(c) => code == LT_OK && bits(&command) == bits(&lt_rtn_command::from(*c)),
+            Err(e) => code == guidance_error_code(e) && bits(&command) == bits(&RTN_THRUST_OFF),
+        };
+        if !agrees {
+            return Err(format!("3D C step gave {code:?} {command:?}, Rust {rust:?}"));
+        }
+        if code == LT_OK {
+            let norm = (command.radial.powi(2) + command.transverse.powi(2) + command.normal.powi(2)).sqrt();
+            if !(0.0..=1.0).contains(&command.throttle) || (norm - 1.0).abs() > 1e-6 {
+                return Err(format!("accepted 3D step commanded {command:?}"));
+            }
+        }
+        // The planar step on this policy is refused, with thrust off.
+        let mut planar_command = lt_thrust_command {
+            throttle: 1.0,
+            alpha_r: 0.0,
+            alpha_theta: 1.0,
+        };
+        let target = lt_target_orbit {
+            a: 1.5,
+            e: 0.0,
+            omega: 0.0,
+        };
+        // SAFETY: every pointer is a valid reference.
+        let code = unsafe { lt_transfer_step(policy, &planar, &target, time_to_go, &mut planar_command) };
+        if code != LT_ERR_WRONG_POLICY_KIND {
+            return Err(format!("the planar step on a {features:?} policy gave {code:?}"));
+        }
+        check_command(code, &planar_command)?;
+    }
+    Ok(())
+}
+
 /// The spacecraft (now and then a hostile thrust) and target orbit an onboard aid's cycle is
 /// fuzzed with.
 fn hostile_aid_inputs(rng: &mut Rng) -> Result<(lt_spacecraft, lt_target_orbit), String> {
@@ -709,26 +840,34 @@ fn check_blob(rng: &mut Rng, input: &Input, seeds: &[Seed], tally: &mut Tally) -
     let bytes = input.bytes.as_slice();
     let decoded = decode(bytes);
     let mut accepted_any = decoded.is_ok();
-    for kind in [ProblemKind::Transfer, ProblemKind::Rendezvous] {
-        let rust = match kind {
-            ProblemKind::Transfer => TransferPolicy::from_bytes(bytes, kind).map(|_| ()),
-            ProblemKind::Rendezvous => RendezvousPolicy::from_bytes(bytes, kind).map(|_| ()),
+    for (index, features) in LAYOUTS.into_iter().enumerate() {
+        let kind = features.problem();
+        let rust = match features {
+            FeatureLayout::TransferPolar10 => TransferPolicy::from_bytes(bytes, kind).map(|_| ()),
+            FeatureLayout::RendezvousPolar22 => RendezvousPolicy::from_bytes(bytes, kind).map(|_| ()),
+            FeatureLayout::TransferSpatial15 => Transfer3Policy::from_bytes(bytes, kind).map(|_| ()),
+            FeatureLayout::RendezvousSpatial30 => Rendezvous3Policy::from_bytes(bytes, kind).map(|_| ()),
+        };
+        let load = |policy: &mut lt_policy, ptr: *const u8, len: usize| {
+            // SAFETY: the caller passes a valid reference and `len` readable bytes at `ptr`.
+            unsafe {
+                match features {
+                    FeatureLayout::TransferPolar10 => lt_transfer_load(policy, ptr, len),
+                    FeatureLayout::RendezvousPolar22 => lt_rendezvous_load(policy, ptr, len),
+                    FeatureLayout::TransferSpatial15 => lt_transfer3_load(policy, ptr, len),
+                    FeatureLayout::RendezvousSpatial30 => lt_rendezvous3_load(policy, ptr, len),
+                }
+            }
         };
         // A policy that held a network before: a refused load must leave it not loaded.
         let mut policy = lt_policy::default();
-        let seed_blob = &seeds[if kind == ProblemKind::Transfer { 0 } else { 2 }].bytes;
+        let seed_blob = &seeds[2 * index].bytes;
         // Rarely: each preload checksums a full-size blob.
         let preload = rng.chance(0.001);
         if preload {
-            // SAFETY: valid reference and slice.
-            let code = unsafe {
-                match kind {
-                    ProblemKind::Transfer => lt_transfer_load(&mut policy, seed_blob.as_ptr(), seed_blob.len()),
-                    ProblemKind::Rendezvous => lt_rendezvous_load(&mut policy, seed_blob.as_ptr(), seed_blob.len()),
-                }
-            };
+            let code = load(&mut policy, seed_blob.as_ptr(), seed_blob.len());
             if code != LT_OK {
-                return Err(format!("the real {kind:?} blob was refused: {code:?}"));
+                return Err(format!("the real {features:?} blob was refused: {code:?}"));
             }
         }
         // An empty input is passed as a dangling, non-null pointer, as C would pass an empty array.
@@ -737,13 +876,8 @@ fn check_blob(rng: &mut Rng, input: &Input, seeds: &[Seed], tally: &mut Tally) -
         } else {
             bytes.as_ptr()
         };
-        // SAFETY: `ptr` is valid for `bytes.len()` bytes, which outlive the policy's use here.
-        let code = unsafe {
-            match kind {
-                ProblemKind::Transfer => lt_transfer_load(&mut policy, ptr, bytes.len()),
-                ProblemKind::Rendezvous => lt_rendezvous_load(&mut policy, ptr, bytes.len()),
-            }
-        };
+        // `ptr` is valid for `bytes.len()` bytes, which outlive the policy's use here.
+        let code = load(&mut policy, ptr, bytes.len());
         *tally.codes.entry(code as i32).or_default() += 1;
         match &rust {
             Ok(()) if code == LT_OK => {
@@ -751,7 +885,11 @@ fn check_blob(rng: &mut Rng, input: &Input, seeds: &[Seed], tally: &mut Tally) -
                 if decoded.is_err() {
                     return Err("a policy loaded from bytes the decoder refuses".into());
                 }
-                fly(rng, &policy, kind, bytes)?;
+                if features.is_spatial() {
+                    fly3(rng, &policy, features, bytes)?;
+                } else {
+                    fly(rng, &policy, kind, bytes)?;
+                }
             }
             Err(e) if code == policy_error_code(e) => {
                 let mut info = lt_policy_info {
