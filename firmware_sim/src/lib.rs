@@ -63,18 +63,19 @@
 pub mod dispersion;
 pub mod trace;
 
-use onboard::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
+use onboard::dynamics::{PropagationError, SpacecraftState, ThrustCommand};
 use onboard::features::{
     reward, FeatureError, Residuals, RewardWeights, ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES,
     TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
+pub use onboard::geometry::{Dimension, Planar, Spatial};
 use onboard::guidance::{
     command3_at, Actor, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures, TargetOrbit3,
 };
 use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, coast3, KeplerError};
 use onboard::policy::{Mlp, PolicyError, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
-use onboard::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
+use onboard::spatial::{RtnCommand, SpatialCraftState};
 use shared::blob::ProblemKind;
 use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
@@ -155,71 +156,18 @@ const _: fn(RendezvousPolicy<'_>) -> Policy<'_, RENDEZVOUS_FEATURES> = |p| p;
 const _: fn(Transfer3Policy<'_>) -> Policy<'_, TRANSFER3_FEATURES, ACTION3_LEN> = |p| p;
 const _: fn(Rendezvous3Policy<'_>) -> Policy<'_, RENDEZVOUS3_FEATURES, ACTION3_LEN> = |p| p;
 
-/// A dimension of flight as the loop flies it: its scenario, state and command, and how the
-/// truth plant navigates, points and propagates them. Implemented by [`Planar`] (polar commands)
-/// and [`Spatial`] (RTN commands); the loop ([`fly_observed`], [`fly_spatial_observed`]) is one
-/// implementation for both.
-pub trait FlightGeometry: Copy + core::fmt::Debug + PartialEq {
-    /// What one flight flies.
-    type Scenario: Copy;
-    /// The spacecraft's state.
-    type State: Copy + core::fmt::Debug + PartialEq;
-    /// A thrust command held over a cycle.
-    type Command: Copy + core::fmt::Debug + PartialEq;
-    /// Thrust off.
-    const OFF: Self::Command;
-
-    /// The scenario's planar part: problem, cycles, cycle length, target shape and anomaly.
-    fn plan(scenario: &Self::Scenario) -> &Scenario;
-    /// Checks every figure of the scenario.
-    fn validate(scenario: &Self::Scenario) -> Result<(), ScenarioError>;
-    /// The spacecraft at departure (mass 1).
-    fn departure(scenario: &Self::Scenario) -> Self::State;
+/// A dimension of flight as the loop flies it: the dimension ([`Dimension`]: scenario, state,
+/// command, propagation) and how the truth plant navigates and points in it. Implemented by
+/// [`Planar`] (polar commands) and [`Spatial`] (RTN commands); the loop ([`fly_observed`],
+/// [`fly_spatial_observed`]) is one implementation for both.
+pub trait FlightGeometry: Dimension {
     /// What the navigation system reports for the true state.
     fn navigate(plant: &mut DispersedPlant, truth: &Self::State) -> Self::State;
     /// The command the thruster follows (pointing error applied).
     fn point(plant: &mut DispersedPlant, command: &Self::Command) -> Self::Command;
-    /// The command's throttle.
-    fn throttle(command: &Self::Command) -> f64;
-    /// The command with another throttle (what the thruster delivers, for the record).
-    fn with_throttle(command: &Self::Command, throttle: f64) -> Self::Command;
-    /// `state` propagated for `duration` under `command` (the onboard propagator).
-    fn propagate(
-        state: &Self::State,
-        command: &Self::Command,
-        spacecraft: &CanonicalSpacecraft,
-        duration: f64,
-        tolerances: &Tolerances,
-    ) -> Result<Self::State, PropagationError>;
 }
 
-/// Flight in the reference plane: polar commands ([`ThrustCommand`]).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Planar;
-
-/// Flight in three dimensions: RTN commands ([`RtnCommand`]); the pointing error is a cone
-/// about the commanded direction, the navigation error in every axis.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Spatial;
-
 impl FlightGeometry for Planar {
-    type Scenario = Scenario;
-    type State = SpacecraftState;
-    type Command = ThrustCommand;
-    const OFF: ThrustCommand = ThrustCommand::OFF;
-
-    fn plan(scenario: &Scenario) -> &Scenario {
-        scenario
-    }
-
-    fn validate(scenario: &Scenario) -> Result<(), ScenarioError> {
-        scenario.validate()
-    }
-
-    fn departure(scenario: &Scenario) -> SpacecraftState {
-        SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0)
-    }
-
     fn navigate(plant: &mut DispersedPlant, truth: &SpacecraftState) -> SpacecraftState {
         plant.navigate(truth)
     }
@@ -227,47 +175,11 @@ impl FlightGeometry for Planar {
     fn point(plant: &mut DispersedPlant, command: &ThrustCommand) -> ThrustCommand {
         plant.point(command)
     }
-
-    fn throttle(command: &ThrustCommand) -> f64 {
-        command.throttle
-    }
-
-    fn with_throttle(command: &ThrustCommand, throttle: f64) -> ThrustCommand {
-        ThrustCommand { throttle, ..*command }
-    }
-
-    fn propagate(
-        state: &SpacecraftState,
-        command: &ThrustCommand,
-        spacecraft: &CanonicalSpacecraft,
-        duration: f64,
-        tolerances: &Tolerances,
-    ) -> Result<SpacecraftState, PropagationError> {
-        propagate(state, command, spacecraft, duration, tolerances)
-    }
 }
 
+/// The pointing error in three dimensions is a cone about the commanded direction, the
+/// navigation error in every axis.
 impl FlightGeometry for Spatial {
-    type Scenario = SpatialScenario;
-    type State = SpatialCraftState;
-    type Command = RtnCommand;
-    const OFF: RtnCommand = RtnCommand::OFF;
-
-    fn plan(scenario: &SpatialScenario) -> &Scenario {
-        &scenario.scenario
-    }
-
-    fn validate(scenario: &SpatialScenario) -> Result<(), ScenarioError> {
-        scenario.validate()
-    }
-
-    fn departure(scenario: &SpatialScenario) -> SpatialCraftState {
-        SpatialCraftState {
-            orbit: scenario.departure(),
-            m: 1.0,
-        }
-    }
-
     fn navigate(plant: &mut DispersedPlant, truth: &SpatialCraftState) -> SpatialCraftState {
         plant.navigate3(truth)
     }
@@ -275,32 +187,14 @@ impl FlightGeometry for Spatial {
     fn point(plant: &mut DispersedPlant, command: &RtnCommand) -> RtnCommand {
         plant.point3(command)
     }
-
-    fn throttle(command: &RtnCommand) -> f64 {
-        command.throttle
-    }
-
-    fn with_throttle(command: &RtnCommand, throttle: f64) -> RtnCommand {
-        RtnCommand { throttle, ..*command }
-    }
-
-    fn propagate(
-        state: &SpatialCraftState,
-        command: &RtnCommand,
-        spacecraft: &CanonicalSpacecraft,
-        duration: f64,
-        tolerances: &Tolerances,
-    ) -> Result<SpatialCraftState, PropagationError> {
-        propagate_rtn(state, command, spacecraft, duration, tolerances)
-    }
 }
 
 /// The state type of a problem's geometry.
-pub type StateOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::State;
+pub type StateOf<P, const N: usize> = <<P as Problem<N>>::Geometry as Dimension>::State;
 /// The command type of a problem's geometry.
-pub type CommandOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::Command;
+pub type CommandOf<P, const N: usize> = <<P as Problem<N>>::Geometry as Dimension>::Command;
 /// The scenario type of a problem's geometry.
-pub type ScenarioOf<P, const N: usize> = <<P as Problem<N>>::Geometry as FlightGeometry>::Scenario;
+pub type ScenarioOf<P, const N: usize> = <<P as Problem<N>>::Geometry as Dimension>::Scenario;
 
 /// What the guidance loop steers to, and how flight software knows it at each cycle. The loop
 /// is generic over it so that every problem flies one implementation. Implemented by the
@@ -908,6 +802,7 @@ impl Actor<TRANSFER_FEATURES> for ProxyTracking {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use onboard::dynamics::propagate;
     use onboard::kepler::coast;
     use shared::orbit::{OrbitElements, OrbitShape};
     use shared::spacecraft::Spacecraft;

@@ -91,6 +91,7 @@
 
 pub mod dynamics;
 pub mod features;
+pub mod geometry;
 pub mod guidance;
 pub mod integrator;
 pub mod kepler;

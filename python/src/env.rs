@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 use rayon::prelude::*;
 
 use ground_core::demo::DemoGeometry;
-use ground_core::env::{ActionOf, EnvConfig, Environment, FamilyOf, Geometry, MdpEnv, Problem, Step};
+use ground_core::env::{ActionOf, Dimension, EnvConfig, Environment, FamilyOf, Geometry, MdpEnv, Problem, Step};
 use ground_core::{with_problem, with_spatial_problem};
 use shared::mission::SpatialFamily;
 

@@ -24,7 +24,7 @@ use crate::pretrain::load_demonstrations;
 use crate::sac::agent::Sac;
 use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::{evaluate, evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary, Stats};
-use ground_core::env::{ActionOf, Geometry, MdpEnv, Problem, ScenarioOf};
+use ground_core::env::{ActionOf, Dimension, Geometry, MdpEnv, Problem, ScenarioOf};
 use ground_core::io::atomic_write;
 
 /// Stream offsets that keep the export's scenarios apart from training and evaluation.

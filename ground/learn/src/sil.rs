@@ -27,7 +27,7 @@ use crate::export::actor_network;
 use crate::sac::agent::Sac;
 use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::{EpisodeOutcome, TrajectoryPoint};
-use ground_core::env::{step_reward, EnvError, Geometry, Planar, Spatial};
+use ground_core::env::{step_reward, Dimension, EnvError, Geometry, Planar, Spatial};
 use ground_core::io::atomic_write;
 use onboard::lookahead::LookaheadSettings;
 use onboard::terminal::{Terminal, TerminalSettings};
@@ -140,22 +140,21 @@ pub struct SilReport {
 
 /// One SIL flight as the evaluation's episode outcome, the reward re-summed with the
 /// environment's own step reward (terminal-accuracy term included) so the two compare.
-fn outcome<const N: usize, G, F>(
+fn outcome<const N: usize, G>(
     config: &ExperimentConfig,
     episode: usize,
     scenario: &G::Scenario,
-    steps: &[FlightStep<N, F>],
+    steps: &[FlightStep<N, G>],
     error: Option<SilError>,
     record: bool,
 ) -> EpisodeOutcome<G>
 where
-    G: Geometry,
-    F: FlightGeometry<State = G::State, Command = G::Command>,
+    G: Geometry + FlightGeometry,
 {
     let plan = G::plan(scenario);
     let initial = G::departure(scenario);
     let reward =
-        |k: &FlightStep<N, F>| step_reward(&config.env, plan, &k.residuals, G::throttle(&k.command), k.index + 1).0;
+        |k: &FlightStep<N, G>| step_reward(&config.env, plan, &k.residuals, G::throttle(&k.command), k.index + 1).0;
     let last = steps.last();
     EpisodeOutcome {
         episode,
@@ -201,17 +200,16 @@ where
 }
 
 /// One flight's outcome, guidance faults and missed thrust, from its recorded cycles.
-fn flown<const N: usize, G, F>(
+fn flown<const N: usize, G>(
     config: &ExperimentConfig,
     episode: usize,
     scenario: &G::Scenario,
-    steps: &[FlightStep<N, F>],
+    steps: &[FlightStep<N, G>],
     error: Option<SilError>,
     record: bool,
 ) -> (EpisodeOutcome<G>, u64, MissedThrust)
 where
-    G: Geometry,
-    F: FlightGeometry<State = G::State, Command = G::Command>,
+    G: Geometry + FlightGeometry,
 {
     let faults = steps.iter().filter(|k| k.guidance_error.is_some()).count() as u64;
     let missed = MissedThrust {

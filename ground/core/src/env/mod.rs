@@ -33,7 +33,7 @@ mod spatial_tests;
 #[cfg(test)]
 mod tests;
 
-pub use geometry::{ActionOf, CommandOf, FamilyOf, Geometry, Planar, ScenarioOf, Spatial, StateOf};
+pub use geometry::{ActionOf, CommandOf, Dimension, FamilyOf, Geometry, Planar, ScenarioOf, Spatial, StateOf};
 use onboard::dynamics::{PropagationError, SpacecraftState};
 use onboard::features::{
     rendezvous3_features, rendezvous3_residuals, rendezvous_features, rendezvous_residuals, reward, to_network_input,

@@ -19,7 +19,7 @@ use crate::sac::replay::{ReplayBuffer, Transition};
 use crate::sil::{SilFlights, SilGeometry};
 use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::evaluate_batched;
-use ground_core::env::{Geometry, MdpEnv, Problem, ScenarioOf};
+use ground_core::env::{Dimension, Geometry, MdpEnv, Problem, ScenarioOf};
 use ground_core::io::{decode_container, encode_container};
 
 const RELABELS_MAGIC: [u8; 4] = *b"LTRL";

@@ -1,0 +1,138 @@
+//! The dimension a flight is flown in: [`Planar`] (polar commands held in the orbit plane) or
+//! [`Spatial`] (RTN commands in three dimensions). What the ground environments and the
+//! software-in-the-loop flight both need of a dimension is here, once: its scenario, state and
+//! command, the departure, and the propagation of a held command.
+
+use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
+use shared::spacecraft::CanonicalSpacecraft;
+
+use crate::dynamics::{propagate, PropagationError, SpacecraftState, ThrustCommand};
+use crate::integrator::Tolerances;
+use crate::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
+
+/// A dimension of flight: its scenario, state and command, and how a command is flown.
+pub trait Dimension: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static {
+    /// What one flight flies.
+    type Scenario: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static;
+    /// The spacecraft's state.
+    type State: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static;
+    /// A thrust command held over one guidance cycle.
+    type Command: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static;
+    /// Thrust off.
+    const OFF: Self::Command;
+
+    /// The scenario's planar part: problem, cycles, cycle length, target shape and anomaly
+    /// (every figure measured in its own orbit's plane).
+    fn plan(scenario: &Self::Scenario) -> &Scenario;
+    /// Checks every figure of the scenario.
+    fn validate(scenario: &Self::Scenario) -> Result<(), ScenarioError>;
+    /// The spacecraft at departure (mass 1).
+    fn departure(scenario: &Self::Scenario) -> Self::State;
+    /// The state's mass (m0 units).
+    fn mass(state: &Self::State) -> f64;
+    /// The command's throttle in [0, 1].
+    fn throttle(command: &Self::Command) -> f64;
+    /// The command with another throttle.
+    fn with_throttle(command: &Self::Command, throttle: f64) -> Self::Command;
+    /// `state` propagated for `duration` under `command` (the onboard propagator).
+    fn propagate(
+        state: &Self::State,
+        command: &Self::Command,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<Self::State, PropagationError>;
+}
+
+/// In the reference plane: polar commands ([`ThrustCommand`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Planar;
+
+/// In three dimensions: RTN commands ([`RtnCommand`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Spatial;
+
+impl Dimension for Planar {
+    type Scenario = Scenario;
+    type State = SpacecraftState;
+    type Command = ThrustCommand;
+    const OFF: ThrustCommand = ThrustCommand::OFF;
+
+    fn plan(scenario: &Scenario) -> &Scenario {
+        scenario
+    }
+
+    fn validate(scenario: &Scenario) -> Result<(), ScenarioError> {
+        scenario.validate()
+    }
+
+    fn departure(scenario: &Scenario) -> SpacecraftState {
+        SpacecraftState::from_cartesian(&scenario.initial.cartesian(), 1.0)
+    }
+
+    fn mass(state: &SpacecraftState) -> f64 {
+        state.m
+    }
+
+    fn throttle(command: &ThrustCommand) -> f64 {
+        command.throttle
+    }
+
+    fn with_throttle(command: &ThrustCommand, throttle: f64) -> ThrustCommand {
+        ThrustCommand { throttle, ..*command }
+    }
+
+    fn propagate(
+        state: &SpacecraftState,
+        command: &ThrustCommand,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<SpacecraftState, PropagationError> {
+        propagate(state, command, spacecraft, duration, tolerances)
+    }
+}
+
+impl Dimension for Spatial {
+    type Scenario = SpatialScenario;
+    type State = SpatialCraftState;
+    type Command = RtnCommand;
+    const OFF: RtnCommand = RtnCommand::OFF;
+
+    fn plan(scenario: &SpatialScenario) -> &Scenario {
+        &scenario.scenario
+    }
+
+    fn validate(scenario: &SpatialScenario) -> Result<(), ScenarioError> {
+        scenario.validate()
+    }
+
+    fn departure(scenario: &SpatialScenario) -> SpatialCraftState {
+        SpatialCraftState {
+            orbit: scenario.departure(),
+            m: 1.0,
+        }
+    }
+
+    fn mass(state: &SpatialCraftState) -> f64 {
+        state.m
+    }
+
+    fn throttle(command: &RtnCommand) -> f64 {
+        command.throttle
+    }
+
+    fn with_throttle(command: &RtnCommand, throttle: f64) -> RtnCommand {
+        RtnCommand { throttle, ..*command }
+    }
+
+    fn propagate(
+        state: &SpatialCraftState,
+        command: &RtnCommand,
+        spacecraft: &CanonicalSpacecraft,
+        duration: f64,
+        tolerances: &Tolerances,
+    ) -> Result<SpatialCraftState, PropagationError> {
+        propagate_rtn(state, command, spacecraft, duration, tolerances)
+    }
+}
