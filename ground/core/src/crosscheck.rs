@@ -21,11 +21,16 @@ use shared::spacecraft::CanonicalSpacecraft;
 use crate::generate::count_bar;
 use crate::io::atomic_write;
 use crate::solver::direct::{
-    indirect_start_from, solve_direct_refined, DirectError, DirectGuess, DirectOptions, DirectSolution,
+    indirect_start_from, solve_direct_refined, DirectError, DirectGuess, DirectOptions, DirectSolution, CONTROL,
 };
 use crate::solver::record::TrajectoryRecord;
 use crate::solver::shooting::TransferVector;
+use crate::solver::spatial::direct::{
+    solve_spatial_direct_refined, tangential_guess, SpatialDirectProblem, SpatialDirectSolution, CONTROL3,
+};
+use crate::solver::spatial::record::SpatialRecord;
 use crate::solver::{solve_from_energy_start, SolveOptions};
+use crate::spatial::SpatialGoal;
 
 /// A direct solution re-flown by the onboard propagator within this terminal violation
 /// (canonical units, about 15 km and 3 cm/s) reaches the target.
@@ -55,9 +60,10 @@ impl Default for CrossCheckSettings {
     }
 }
 
-/// One record against the direct transcription on its finest mesh.
+/// One record against the direct transcription on its finest mesh (`C` controls per segment: 3
+/// in the plane, 4 in space).
 #[derive(Debug, Clone, PartialEq)]
-pub struct CrossCheck {
+pub struct CrossCheck<const C: usize = CONTROL> {
     /// The record's scenario index.
     pub index: u64,
     /// The cost both methods optimise (the record's final homotopy parameter).
@@ -77,10 +83,10 @@ pub struct CrossCheck {
     /// Wall time of the direct solves over all meshes, s.
     pub seconds: f64,
     /// The direct solution's controls (and nu_f): where [`repair_record`] starts.
-    pub direct: DirectGuess,
+    pub direct: DirectGuess<C>,
 }
 
-impl CrossCheck {
+impl<const C: usize> CrossCheck<C> {
     /// The direct solution, converged or not (its last SQP iterate), is a trajectory that
     /// reaches the target: what a proof of a better record needs, optimal or not.
     pub fn direct_flies(&self) -> bool {
@@ -123,11 +129,22 @@ pub fn crosscheck_record(
     options: &DirectOptions,
 ) -> Result<CrossCheck, DirectError> {
     let solutions = solve_alone(record, spacecraft, settings, options)?;
+    check_of(record.index, record.final_eps, record.final_mass, &solutions)
+}
+
+/// The check of a record (`index`, `final_eps`, `final_mass`) against its direct `solutions`,
+/// coarsest first.
+fn check_of<const N: usize, const C: usize>(
+    index: u64,
+    final_eps: f64,
+    final_mass: f64,
+    solutions: &[DirectSolution<N, C>],
+) -> Result<CrossCheck<C>, DirectError> {
     let finest = solutions.last().ok_or(DirectError::Guess)?;
     Ok(CrossCheck {
-        index: record.index,
-        final_eps: record.final_eps,
-        indirect_final_mass: record.final_mass,
+        index,
+        final_eps,
+        indirect_final_mass: final_mass,
         direct_final_mass: finest.final_mass,
         segments: finest.segments,
         direct_converged: finest.converged,
@@ -140,6 +157,34 @@ pub fn crosscheck_record(
             nu_f: finest.nu_f.unwrap_or(0.0),
         },
     })
+}
+
+/// The spatial direct problem of `record`'s scenario (each orbit in its plane) from tangential
+/// thrust at half throttle on `settings`' meshes, for the record's final eps.
+fn solve_spatial_alone(
+    record: &SpatialRecord,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &DirectOptions,
+) -> Result<Vec<SpatialDirectSolution>, DirectError> {
+    let goal = SpatialGoal::of_scenario(&record.scenario, *spacecraft).map_err(|_| DirectError::Kepler)?;
+    let problem = SpatialDirectProblem::of_goal(&goal);
+    let segments = settings.segments_per_step * record.scenario.scenario.steps as usize;
+    let guess = tangential_guess(&problem, segments, 0.5, &options.tolerances)?;
+    solve_spatial_direct_refined(&problem, guess, settings.refinements, record.final_eps, options)
+}
+
+/// Checks a record of an inclined family against the spatial direct transcription solved on
+/// its own, as [`crosscheck_record`] a planar one; the controls re-flown by
+/// `onboard::spatial::propagate_rtn`.
+pub fn crosscheck_spatial_record(
+    record: &SpatialRecord,
+    spacecraft: &CanonicalSpacecraft,
+    settings: &CrossCheckSettings,
+    options: &DirectOptions,
+) -> Result<CrossCheck<CONTROL3>, DirectError> {
+    let solutions = solve_spatial_alone(record, spacecraft, settings, options)?;
+    check_of(record.index, record.final_eps, record.final_mass, &solutions)
 }
 
 /// Re-solves `record` from the direct solution of its `check` ([`crosscheck_record`]) when that
@@ -237,9 +282,9 @@ pub fn crosscheck_records(
 
 /// The checks as CSV, one row per record (an outright failure has its reason and no figures),
 /// written atomically.
-pub fn write_crosscheck_csv(
+pub fn write_crosscheck_csv<const C: usize>(
     path: &Path,
-    checks: &[(u64, Result<CrossCheck, DirectError>)],
+    checks: &[(u64, Result<CrossCheck<C>, DirectError>)],
     margin: f64,
 ) -> std::io::Result<()> {
     let mut csv = String::from(
@@ -313,6 +358,37 @@ mod tests {
         let beaten: Vec<&str> = text.lines().skip(1).map(|l| l.split(',').nth(8).unwrap()).collect();
         assert_eq!(beaten, ["false", "true"]);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A record of the inclined transfer family against the spatial direct transcription from
+    /// its own start, and the same record with its final mass lowered by 0.01: the direct
+    /// solution flies (re-flown by the onboard RTN propagator), ends at most the mesh's loss below
+    /// the true record, beats the lowered one and not the true one.
+    #[test]
+    fn an_inclined_record_is_checked_by_the_spatial_direct_transcription() {
+        use crate::mission::FamilySpec;
+        use crate::solver::spatial::record::solve_spatial_draw;
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/transfer-circular-inclined.toml");
+        let family = FamilySpec::from_argument(path.to_str().unwrap())
+            .unwrap()
+            .spatial_family()
+            .unwrap();
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let record = solve_spatial_draw(&family, 7, 3, &sc, &SolveOptions::default());
+        assert!(record.converged, "{:?}", record.failure);
+        let settings = CrossCheckSettings::default();
+        let options = DirectOptions::default();
+        let check = crosscheck_spatial_record(&record, &sc, &settings, &options).unwrap();
+        assert!(check.direct_flies() && check.direct_converged, "{check:?}");
+        let difference = check.direct_final_mass - check.indirect_final_mass;
+        assert!((-1e-3..1e-6).contains(&difference), "{check:?}");
+        assert!(!check.beats_record(settings.margin));
+        let worse = SpatialRecord {
+            final_mass: record.final_mass - 0.01,
+            ..record
+        };
+        let worse_check = crosscheck_spatial_record(&worse, &sc, &settings, &options).unwrap();
+        assert!(worse_check.beats_record(settings.margin), "{worse_check:?}");
     }
 
     /// Solves draw `index` of `seed`, checks that the direct transcription beats its record and

@@ -33,6 +33,11 @@
 //! controls), the right-hand side differentiated by forward-mode dual numbers: exact to the
 //! integration tolerance. A unit test checks them against finite differences, and the plain
 //! segment map against `onboard::dynamics::propagate`.
+//!
+//! Dimensions. The segment maps, the QP and the SQP are written once over the numbers of
+//! states, controls and terminal conditions (the `Transcription` trait): this module supplies the
+//! plane's dynamics and targets, `solver::spatial::direct` the three-dimensional ones, so that
+//! the inclined problems are checked by the same method.
 
 use std::time::Instant;
 
@@ -50,7 +55,6 @@ use shared::spacecraft::CanonicalSpacecraft;
 use super::pontryagin::OptimalControlParams;
 use super::record::{sample_at, TrajectoryRecord};
 use super::shooting::{initial_state_costate, orbit_state};
-
 /// State (x, y, vx, vy, m).
 pub const STATE: usize = 5;
 /// Segment control (w_r, w_theta, s): polar thrust vector (|w| <= s) and throttle (mass flow).
@@ -67,7 +71,6 @@ pub type State = [f64; STATE];
 pub type Control = [f64; CONTROL];
 /// Jacobian of a segment map with respect to (x_k, p_k).
 pub type SegmentJacobian = SMatrix<f64, STATE, INPUTS>;
-type Dual8 = DualSVec64<INPUTS>;
 
 /// Right-hand side with the control held in the polar frame: the thrust acceleration is
 /// (T/m) (w_r r_hat + w_theta theta_hat), the mass flow -(T/c) s.
@@ -87,44 +90,101 @@ fn rhs<D: DualNum<Primitive = f64> + Copy>(y: &[D; STATE], p: &[D; CONTROL], sc:
     ]
 }
 
-/// One segment's ODE (plain state).
-struct Segment {
-    sc: CanonicalSpacecraft,
-    p: Control,
+/// One segment's ODE (plain state): `f` is the right-hand side at the held control `p`.
+struct Segment<F, const C: usize> {
+    f: F,
+    p: [f64; C],
 }
 
-impl OdeSystem<STATE> for Segment {
-    fn derivatives(&self, _t: f64, y: &State, dydt: &mut State) {
-        *dydt = rhs(y, &self.p, &self.sc);
+impl<F, const N: usize, const C: usize> OdeSystem<N> for Segment<F, C>
+where
+    F: Fn(&[f64; N], &[f64; C]) -> [f64; N],
+{
+    fn derivatives(&self, _t: f64, y: &[f64; N], dydt: &mut [f64; N]) {
+        *dydt = (self.f)(y, &self.p);
     }
 }
 
-const SENS_LEN: usize = STATE + STATE * INPUTS;
-
-/// One segment's ODE with the variational equations for d y / d (x_k, p_k): each state
-/// component is seeded with its row of the Jacobian and each control with a unit direction, so
-/// the dual parts of f are the variational right-hand side.
-struct SegmentSensitivity {
-    sc: CanonicalSpacecraft,
-    p: Control,
+/// One segment's ODE with the variational equations for d y / d (x_k, p_k) (`I` = N + C
+/// inputs, `S` = N + N I components): each state component is seeded with its row of the
+/// Jacobian and each control with a unit direction, so the dual parts of f are the variational
+/// right-hand side.
+struct SegmentSensitivity<F, const N: usize, const C: usize, const I: usize> {
+    f: F,
+    p: [f64; C],
 }
 
-impl OdeSystem<SENS_LEN> for SegmentSensitivity {
-    fn derivatives(&self, _t: f64, ys: &[f64; SENS_LEN], dydt: &mut [f64; SENS_LEN]) {
-        let y: [Dual8; STATE] = core::array::from_fn(|i| {
-            let row = SVector::<f64, INPUTS>::from_fn(|j, _| ys[STATE + j * STATE + i]);
-            Dual8::new(ys[i], Derivative::some(row))
+impl<F, const N: usize, const C: usize, const I: usize, const S: usize> OdeSystem<S> for SegmentSensitivity<F, N, C, I>
+where
+    F: Fn(&[DualSVec64<I>; N], &[DualSVec64<I>; C]) -> [DualSVec64<I>; N],
+{
+    fn derivatives(&self, _t: f64, ys: &[f64; S], dydt: &mut [f64; S]) {
+        let y: [DualSVec64<I>; N] = core::array::from_fn(|i| {
+            let row = SVector::<f64, I>::from_fn(|j, _| ys[N + j * N + i]);
+            DualSVec64::new(ys[i], Derivative::some(row))
         });
-        let p: [Dual8; CONTROL] = core::array::from_fn(|l| Dual8::from_re(self.p[l]).derivative(STATE + l));
-        let f = rhs(&y, &p, &self.sc);
+        let p: [DualSVec64<I>; C] = core::array::from_fn(|l| DualSVec64::from_re(self.p[l]).derivative(N + l));
+        let f = (self.f)(&y, &p);
         for (i, fi) in f.iter().enumerate() {
             dydt[i] = fi.re;
-            let d = fi.eps.unwrap_generic(nalgebra::Const::<INPUTS>, nalgebra::Const::<1>);
-            for j in 0..INPUTS {
-                dydt[STATE + j * STATE + i] = d[j];
+            let d = fi.eps.unwrap_generic(nalgebra::Const::<I>, nalgebra::Const::<1>);
+            for j in 0..I {
+                dydt[N + j * N + i] = d[j];
             }
         }
     }
+}
+
+/// The end of a segment of duration `h` under the right-hand side `f` held at control `p`.
+pub(crate) fn integrate_segment<F, const N: usize, const C: usize>(
+    f: F,
+    x: &[f64; N],
+    p: &[f64; C],
+    h: f64,
+    tol: &Tolerances,
+) -> Result<[f64; N], IntegrationError>
+where
+    F: Fn(&[f64; N], &[f64; C]) -> [f64; N],
+{
+    integrate(&Segment { f, p: *p }, 0.0, x, h, tol).map(|(y, _)| y)
+}
+
+/// The end of a segment and its exact Jacobians with respect to the initial state (N x N) and
+/// the control (N x C), by the variational equations of `f` in dual numbers of `I` = N + C
+/// components; `S` = N + N I is the length of the augmented system.
+pub(crate) fn integrate_segment_jacobian<F, const N: usize, const C: usize, const I: usize, const S: usize>(
+    f: F,
+    x: &[f64; N],
+    p: &[f64; C],
+    h: f64,
+    tol: &Tolerances,
+) -> Result<SegmentJacobians<N, C>, IntegrationError>
+where
+    F: Fn(&[DualSVec64<I>; N], &[DualSVec64<I>; C]) -> [DualSVec64<I>; N],
+{
+    const { assert!(I == N + C && S == N + N * I) };
+    let mut y0 = [0.0; S];
+    y0[..N].copy_from_slice(x);
+    for i in 0..N {
+        y0[N + i * N + i] = 1.0;
+    }
+    let (ys, _) = integrate(&SegmentSensitivity::<F, N, C, I> { f, p: *p }, 0.0, &y0, h, tol)?;
+    Ok(SegmentJacobians {
+        end: core::array::from_fn(|i| ys[i]),
+        state: SMatrix::from_fn(|i, j| ys[N + j * N + i]),
+        control: SMatrix::from_fn(|i, l| ys[N + (N + l) * N + i]),
+    })
+}
+
+/// A segment map's end state and its Jacobians.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct SegmentJacobians<const N: usize, const C: usize> {
+    /// The state at the end of the segment.
+    pub(crate) end: [f64; N],
+    /// d end / d (initial state).
+    pub(crate) state: SMatrix<f64, N, N>,
+    /// d end / d (control).
+    pub(crate) control: SMatrix<f64, N, C>,
 }
 
 /// The state at the end of a segment of duration `h`.
@@ -135,7 +195,7 @@ pub fn segment_map(
     h: f64,
     tol: &Tolerances,
 ) -> Result<State, IntegrationError> {
-    integrate(&Segment { sc: *sc, p: *p }, 0.0, x, h, tol).map(|(y, _)| y)
+    integrate_segment(|y: &State, p: &Control| rhs(y, p, sc), x, p, h, tol)
 }
 
 /// The state at the end of a segment and its exact Jacobian with respect to (x, p).
@@ -146,14 +206,31 @@ pub fn segment_map_jacobian(
     h: f64,
     tol: &Tolerances,
 ) -> Result<(State, SegmentJacobian), IntegrationError> {
-    let mut y0 = [0.0; SENS_LEN];
-    y0[..STATE].copy_from_slice(x);
-    for i in 0..STATE {
-        y0[STATE + i * STATE + i] = 1.0;
-    }
-    let (ys, _) = integrate(&SegmentSensitivity { sc: *sc, p: *p }, 0.0, &y0, h, tol)?;
-    let y = core::array::from_fn(|i| ys[i]);
-    Ok((y, SegmentJacobian::from_fn(|i, j| ys[STATE + j * STATE + i])))
+    let j = planar_jacobians(sc, x, p, h, tol)?;
+    let jac = SegmentJacobian::from_fn(|i, c| {
+        if c < STATE {
+            j.state[(i, c)]
+        } else {
+            j.control[(i, c - STATE)]
+        }
+    });
+    Ok((j.end, jac))
+}
+
+fn planar_jacobians(
+    sc: &CanonicalSpacecraft,
+    x: &State,
+    p: &Control,
+    h: f64,
+    tol: &Tolerances,
+) -> Result<SegmentJacobians<STATE, CONTROL>, IntegrationError> {
+    integrate_segment_jacobian::<_, STATE, CONTROL, INPUTS, { STATE + STATE * INPUTS }>(
+        |y: &[DualSVec64<INPUTS>; STATE], p: &[DualSVec64<INPUTS>; CONTROL]| rhs(y, p, sc),
+        x,
+        p,
+        h,
+        tol,
+    )
 }
 
 /// Where the spacecraft must be at tf, as a function of the free unknown (if any).
@@ -231,9 +308,9 @@ impl From<IntegrationError> for DirectError {
 
 /// A point of the direct problem: controls per segment and, for transfers, nu_f.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DirectGuess {
+pub struct DirectGuess<const C: usize = CONTROL> {
     /// One control per segment, in flight order.
-    pub controls: Vec<Control>,
+    pub controls: Vec<[f64; C]>,
     /// Transfers: the final true anomaly on the target orbit (ignored for rendezvous).
     pub nu_f: f64,
 }
@@ -293,7 +370,9 @@ impl DirectGuess {
             nu_f: record.final_anomaly.unwrap_or(0.0),
         })
     }
+}
 
+impl<const C: usize> DirectGuess<C> {
     /// The same control on a mesh `factor` times finer (each segment split into `factor`).
     pub fn refined(&self, factor: usize) -> Self {
         Self {
@@ -372,21 +451,22 @@ pub struct IterationLog {
 
 /// A direct solution.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DirectSolution {
+pub struct DirectSolution<const N: usize = STATE, const C: usize = CONTROL> {
     /// Number of equal segments K.
     pub segments: usize,
     /// Homotopy parameter of the cost that was minimised (0: fuel-optimal).
     pub eps: f64,
     /// One control per segment, in flight order.
-    pub controls: Vec<Control>,
+    pub controls: Vec<[f64; C]>,
     /// Transfers: the final true anomaly reached (rad).
     pub nu_f: Option<f64>,
-    /// 1 - (T/c) h sum s_k.
+    /// m_0 - (T/c) h sum s_k (m_0 = 1 at a departure at full mass).
     pub final_mass: f64,
     /// Largest terminal-condition violation of the transcription (canonical).
     pub infeasibility: f64,
-    /// Largest terminal violation when the controls are flown through
-    /// `onboard::dynamics::propagate` as zero-order-hold commands (throttle s, direction w/|w|).
+    /// Largest terminal violation when the controls are flown through the onboard
+    /// zero-order-hold propagator (`onboard::dynamics::propagate` in the plane,
+    /// `onboard::spatial::propagate_rtn` in space) as commands of throttle s, direction w/|w|.
     pub onboard_infeasibility: f64,
     /// Largest |w_k| - s_k gap on thrusting segments (0 at a tight relaxation).
     pub relaxation_gap: f64,
@@ -397,11 +477,116 @@ pub struct DirectSolution {
     /// Converged solutions: the costates at t = 0 that the QP's multipliers imply, in the
     /// indirect solver's convention (docs/spec.md section 3: the same running cost, so the same scale).
     /// See [`solve_direct`].
-    pub initial_costates: Option<[f64; STATE]>,
+    pub initial_costates: Option<[f64; N]>,
     /// Wall time of the solve, s.
     pub seconds: f64,
     /// One entry per SQP iteration.
     pub history: Vec<IterationLog>,
+}
+
+/// What the SQP needs of a transcription in `N` states, `C` controls (the thrust vector, then
+/// the throttle last) and `T` terminal conditions (the first `T` state components, r and v,
+/// against a target point): the plane's and space's dynamics and targets, one solver.
+pub(crate) trait Transcription<const N: usize, const C: usize, const T: usize> {
+    /// Thrust and exhaust speed, canonical.
+    fn spacecraft(&self) -> &CanonicalSpacecraft;
+    /// The state at t = 0.
+    fn initial_state(&self) -> [f64; N];
+    /// Time of flight (t*).
+    fn time_of_flight(&self) -> f64;
+    /// Whether the target point moves with a free final anomaly nu_f (transfers).
+    fn free_anomaly(&self) -> bool;
+    /// The state at the end of a segment of duration `h` under control `p`.
+    fn segment_map(&self, x: &[f64; N], p: &[f64; C], h: f64, tol: &Tolerances) -> Result<[f64; N], IntegrationError>;
+    /// [`Self::segment_map`] with its exact Jacobians.
+    fn segment_jacobians(
+        &self,
+        x: &[f64; N],
+        p: &[f64; C],
+        h: f64,
+        tol: &Tolerances,
+    ) -> Result<SegmentJacobians<N, C>, IntegrationError>;
+    /// The target point with its first and second derivatives in nu_f (zero for a body).
+    fn target_point(&self, nu: f64) -> [(f64, f64, f64); T];
+    /// The final state of the controls flown through the onboard zero-order-hold propagator.
+    fn fly_onboard(&self, controls: &[[f64; C]], h: f64, tol: &Tolerances) -> Result<[f64; N], PropagationError>;
+}
+
+/// The planar transcription of a scenario.
+struct Planar<'a> {
+    scenario: &'a Scenario,
+    sc: CanonicalSpacecraft,
+    target: Target,
+}
+
+impl<'a> Planar<'a> {
+    fn new(scenario: &'a Scenario, sc: &CanonicalSpacecraft) -> Result<Self, DirectError> {
+        Ok(Self {
+            scenario,
+            sc: *sc,
+            target: Target::of(scenario)?,
+        })
+    }
+}
+
+impl Transcription<STATE, CONTROL, TERMINAL> for Planar<'_> {
+    fn spacecraft(&self) -> &CanonicalSpacecraft {
+        &self.sc
+    }
+
+    fn initial_state(&self) -> State {
+        planar_initial_state(self.scenario)
+    }
+
+    fn time_of_flight(&self) -> f64 {
+        self.scenario.time_of_flight()
+    }
+
+    fn free_anomaly(&self) -> bool {
+        self.scenario.problem == ProblemKind::Transfer
+    }
+
+    fn segment_map(&self, x: &State, p: &Control, h: f64, tol: &Tolerances) -> Result<State, IntegrationError> {
+        segment_map(&self.sc, x, p, h, tol)
+    }
+
+    fn segment_jacobians(
+        &self,
+        x: &State,
+        p: &Control,
+        h: f64,
+        tol: &Tolerances,
+    ) -> Result<SegmentJacobians<STATE, CONTROL>, IntegrationError> {
+        planar_jacobians(&self.sc, x, p, h, tol)
+    }
+
+    fn target_point(&self, nu: f64) -> [(f64, f64, f64); TERMINAL] {
+        self.target.point(nu)
+    }
+
+    fn fly_onboard(&self, controls: &[Control], h: f64, tol: &Tolerances) -> Result<State, PropagationError> {
+        fly_onboard(self.scenario, &self.sc, controls, h, tol)
+    }
+}
+
+fn planar_initial_state(scenario: &Scenario) -> State {
+    let c = scenario.initial.cartesian();
+    [c.r[0], c.r[1], c.v[0], c.v[1], 1.0]
+}
+
+/// The states at every node x_0..x_K from `x0` under `controls`, each segment by `map`.
+pub(crate) fn nodes<const N: usize, const C: usize>(
+    x0: [f64; N],
+    controls: &[[f64; C]],
+    map: impl Fn(&[f64; N], &[f64; C]) -> Result<[f64; N], IntegrationError>,
+) -> Result<Vec<[f64; N]>, IntegrationError> {
+    let mut xs = Vec::with_capacity(controls.len() + 1);
+    xs.push(x0);
+    for p in controls {
+        let next = map(xs.last().expect("non-empty"), p)?;
+        xs.push(next);
+    }
+    Ok(xs)
 }
 
 /// The states at every node x_0..x_K for the given controls.
@@ -412,24 +597,29 @@ pub fn trajectory(
     h: f64,
     tol: &Tolerances,
 ) -> Result<Vec<State>, IntegrationError> {
-    let c = scenario.initial.cartesian();
-    let mut xs = Vec::with_capacity(controls.len() + 1);
-    xs.push([c.r[0], c.r[1], c.v[0], c.v[1], 1.0]);
-    for p in controls {
-        let next = segment_map(sc, xs.last().expect("non-empty"), p, h, tol)?;
-        xs.push(next);
-    }
-    Ok(xs)
+    nodes(planar_initial_state(scenario), controls, |x, p| {
+        segment_map(sc, x, p, h, tol)
+    })
 }
 
 /// Terminal violation r, v - target(nu).
-fn terminal(target: &Target, x: &State, nu: f64) -> [f64; TERMINAL] {
-    let t = target.point(nu);
+fn terminal<D: Transcription<N, C, T>, const N: usize, const C: usize, const T: usize>(
+    d: &D,
+    x: &[f64; N],
+    nu: f64,
+) -> [f64; T] {
+    let t = d.target_point(nu);
     core::array::from_fn(|i| x[i] - t[i].0)
 }
 
 fn amax(v: &[f64]) -> f64 {
     v.iter().fold(0.0, |a, b| a.max(b.abs()))
+}
+
+/// |w| of a control's thrust vector (every component but the last, the throttle). Folded by
+/// `hypot`, which is exact for a single component: the planar norm is `w_r.hypot(w_theta)`.
+pub(crate) fn thrust_norm(c: &[f64]) -> f64 {
+    c[..c.len() - 1].iter().fold(0.0, |a, w| a.hypot(*w))
 }
 
 /// Flies the controls through the onboard zero-order-hold propagator (throttle s, direction
@@ -460,18 +650,16 @@ pub fn fly_onboard(
 }
 
 /// The current iterate: controls, nu_f, terminal violation, cost.
-struct Iterate {
-    controls: Vec<Control>,
+struct Iterate<const C: usize, const T: usize> {
+    controls: Vec<[f64; C]>,
     nu: f64,
-    psi: [f64; TERMINAL],
+    psi: [f64; T],
     cost: f64,
 }
 
 /// Everything fixed during one solve.
-struct Problem<'a> {
-    scenario: &'a Scenario,
-    sc: CanonicalSpacecraft,
-    target: Target,
+struct Problem<'a, D> {
+    d: &'a D,
     h: f64,
     /// Homotopy parameter of the running cost (docs/spec.md section 3): 0 for the fuel-optimal problem.
     eps: f64,
@@ -480,21 +668,41 @@ struct Problem<'a> {
     tol: Tolerances,
 }
 
-impl Problem<'_> {
+impl<D> Problem<'_, D> {
     /// (T/c) h: the propellant of one segment at full throttle.
-    fn segment_propellant(&self) -> f64 {
-        self.sc.thrust / self.sc.exhaust_speed * self.h
+    fn segment_propellant<const N: usize, const C: usize, const T: usize>(&self) -> f64
+    where
+        D: Transcription<N, C, T>,
+    {
+        let sc = self.d.spacecraft();
+        sc.thrust / sc.exhaust_speed * self.h
     }
 
     /// The docs/spec.md section 3 cost (T/c) integral of (u - eps u (1 - u)) dt with u = s_k per segment.
-    fn cost(&self, controls: &[Control]) -> f64 {
-        let running: f64 = controls.iter().map(|c| c[2] - self.eps * c[2] * (1.0 - c[2])).sum();
+    fn cost<const N: usize, const C: usize, const T: usize>(&self, controls: &[[f64; C]]) -> f64
+    where
+        D: Transcription<N, C, T>,
+    {
+        let running: f64 = controls
+            .iter()
+            .map(|c| c[C - 1] - self.eps * c[C - 1] * (1.0 - c[C - 1]))
+            .sum();
         self.segment_propellant() * running
     }
 
-    fn iterate(&self, controls: Vec<Control>, nu: f64) -> Result<(Iterate, Vec<State>), IntegrationError> {
-        let xs = trajectory(self.scenario, &self.sc, &controls, self.h, &self.tol)?;
-        let psi = terminal(&self.target, xs.last().expect("K >= 1"), nu);
+    #[allow(clippy::type_complexity)]
+    fn iterate<const N: usize, const C: usize, const T: usize>(
+        &self,
+        controls: Vec<[f64; C]>,
+        nu: f64,
+    ) -> Result<(Iterate<C, T>, Vec<[f64; N]>), IntegrationError>
+    where
+        D: Transcription<N, C, T>,
+    {
+        let xs = nodes(self.d.initial_state(), &controls, |x, p| {
+            self.d.segment_map(x, p, self.h, &self.tol)
+        })?;
+        let psi = terminal(self.d, xs.last().expect("K >= 1"), nu);
         let cost = self.cost(&controls);
         Ok((
             Iterate {
@@ -508,32 +716,32 @@ impl Problem<'_> {
     }
 }
 
-/// Variable layout of the lifted QP: control steps dp_k (3K), state steps dx_1..dx_K (5K),
-/// dnu_f (0 or 1), elastic slacks e+ and e- of the terminal conditions (4 + 4).
-struct Layout {
+/// Variable layout of the lifted QP: control steps dp_k (C K), state steps dx_1..dx_K (N K),
+/// dnu_f (0 or 1), elastic slacks e+ and e- of the terminal conditions (T + T).
+struct Layout<const N: usize, const C: usize, const T: usize> {
     k: usize,
     free: usize,
 }
 
-impl Layout {
+impl<const N: usize, const C: usize, const T: usize> Layout<N, C, T> {
     fn p(&self, k: usize, l: usize) -> usize {
-        CONTROL * k + l
+        C * k + l
     }
     /// State x_k, k >= 1 (x_0 is fixed).
     fn x(&self, k: usize, i: usize) -> usize {
-        CONTROL * self.k + STATE * (k - 1) + i
+        C * self.k + N * (k - 1) + i
     }
     fn nu(&self) -> usize {
-        (CONTROL + STATE) * self.k
+        (C + N) * self.k
     }
     fn e_plus(&self, i: usize) -> usize {
         self.nu() + self.free + i
     }
     fn e_minus(&self, i: usize) -> usize {
-        self.e_plus(TERMINAL) + i
+        self.e_plus(T) + i
     }
     fn n(&self) -> usize {
-        self.e_minus(TERMINAL)
+        self.e_minus(T)
     }
 }
 
@@ -557,20 +765,20 @@ impl Triplets {
 /// Lagrangian in nu_f (the target orbit's curvature weighted by the terminal multipliers).
 /// The cost's own curvature in s is added by the QP; see the module documentation for why the
 /// segment maps' curvature is left out.
-struct Model {
-    jacobians: Vec<SegmentJacobian>,
+struct Model<const N: usize, const C: usize> {
+    jacobians: Vec<SegmentJacobians<N, C>>,
     curvature_nu: f64,
 }
 
 /// A solved QP.
-struct QpStep {
+struct QpStep<const N: usize, const T: usize> {
     d: Vec<f64>,
     /// Multipliers of the terminal conditions.
-    z_terminal: [f64; TERMINAL],
+    z_terminal: [f64; T],
     /// Multipliers of the first segment map x_1 = F(x_0, p_0): the discrete costate at node 1.
-    z_first: [f64; STATE],
+    z_first: [f64; N],
     /// Linearised terminal violation psi + J d.
-    terminal: [f64; TERMINAL],
+    terminal: [f64; T],
     /// Predicted decrease of the l1 merit function.
     predicted: f64,
     status: SolverStatus,
@@ -582,16 +790,17 @@ struct QpStep {
 ///        dx_K[r, v] - dtarget/dnu dnu + e+ - e- = rhs    (rhs = -psi, or the correction's)
 ///        s_k + ds_k <= 1,  |dp| <= radius, |dnu| <= radius,  e+, e- >= 0
 ///        (s_k + ds_k, w_k + dw_k) in the second-order cone.
-fn solve_qp(
-    pb: &Problem,
-    it: &Iterate,
-    model: &Model,
-    rhs: &[f64; TERMINAL],
+fn solve_qp<D: Transcription<N, C, T>, const N: usize, const C: usize, const T: usize>(
+    pb: &Problem<D>,
+    it: &Iterate<C, T>,
+    model: &Model<N, C>,
+    rhs: &[f64; T],
     radius: f64,
     penalty: f64,
-) -> Result<QpStep, DirectError> {
+) -> Result<QpStep<N, T>, DirectError> {
+    let throttle = C - 1;
     let kk = it.controls.len();
-    let lay = Layout { k: kk, free: pb.free };
+    let lay = Layout::<N, C, T> { k: kk, free: pb.free };
     let n = lay.n();
     let unit = pb.segment_propellant();
     // The QP objective is divided by `unit` so that its gradient in s is of order 1: the
@@ -600,16 +809,17 @@ fn solve_qp(
     let mut p = Triplets::default();
     for (k, c) in it.controls.iter().enumerate() {
         // Cost per segment unit * (s - eps s (1 - s)): gradient and (exact) curvature in s.
-        q[lay.p(k, 2)] = 1.0 - pb.eps + 2.0 * pb.eps * c[2];
+        q[lay.p(k, throttle)] = 1.0 - pb.eps + 2.0 * pb.eps * c[throttle];
         // A tiny proximal term keeps the QP strictly convex in the controls.
-        p.put(lay.p(k, 0), lay.p(k, 0), 1e-10);
-        p.put(lay.p(k, 1), lay.p(k, 1), 1e-10);
-        p.put(lay.p(k, 2), lay.p(k, 2), 2.0 * pb.eps + 1e-10);
+        for l in 0..throttle {
+            p.put(lay.p(k, l), lay.p(k, l), 1e-10);
+        }
+        p.put(lay.p(k, throttle), lay.p(k, throttle), 2.0 * pb.eps + 1e-10);
     }
     if pb.free == 1 {
         p.put(lay.nu(), lay.nu(), model.curvature_nu.max(0.0) / unit + 1e-10);
     }
-    for i in 0..TERMINAL {
+    for i in 0..T {
         q[lay.e_plus(i)] = penalty / unit;
         q[lay.e_minus(i)] = penalty / unit;
     }
@@ -620,22 +830,22 @@ fn solve_qp(
     let mut b = Vec::new();
     let mut row = 0;
     for (k, jac) in model.jacobians.iter().enumerate() {
-        for i in 0..STATE {
+        for i in 0..N {
             if k >= 1 {
-                for j in 0..STATE {
-                    a.put(row + i, lay.x(k, j), jac[(i, j)]);
+                for j in 0..N {
+                    a.put(row + i, lay.x(k, j), jac.state[(i, j)]);
                 }
             }
-            for l in 0..CONTROL {
-                a.put(row + i, lay.p(k, l), jac[(i, STATE + l)]);
+            for l in 0..C {
+                a.put(row + i, lay.p(k, l), jac.control[(i, l)]);
             }
             a.put(row + i, lay.x(k + 1, i), -1.0);
             b.push(0.0);
         }
-        row += STATE;
+        row += N;
     }
-    let point = pb.target.point(it.nu);
-    for i in 0..TERMINAL {
+    let point = pb.d.target_point(it.nu);
+    for i in 0..T {
         a.put(row, lay.x(kk, i), 1.0);
         if pb.free == 1 {
             a.put(row, lay.nu(), -point[i].1);
@@ -647,10 +857,10 @@ fn solve_qp(
     }
     let zero_rows = row;
     for (k, c) in it.controls.iter().enumerate() {
-        a.put(row, lay.p(k, 2), 1.0);
-        b.push(1.0 - c[2]);
+        a.put(row, lay.p(k, throttle), 1.0);
+        b.push(1.0 - c[throttle]);
         row += 1;
-        for l in 0..CONTROL {
+        for l in 0..C {
             for sign in [1.0, -1.0] {
                 a.put(row, lay.p(k, l), sign);
                 b.push(radius);
@@ -665,7 +875,7 @@ fn solve_qp(
             row += 1;
         }
     }
-    for i in 0..TERMINAL {
+    for i in 0..T {
         for col in [lay.e_plus(i), lay.e_minus(i)] {
             a.put(row, col, -1.0);
             b.push(0.0);
@@ -674,19 +884,19 @@ fn solve_qp(
     }
     let nonnegative_rows = row - zero_rows;
     for (k, c) in it.controls.iter().enumerate() {
-        // slack = (s + ds, w_r + dw_r, w_theta + dw_theta).
-        for (slot, l) in [2, 0, 1].into_iter().enumerate() {
+        // slack = (s + ds, w + dw): the throttle first, as the cone's axis.
+        for (slot, l) in core::iter::once(throttle).chain(0..throttle).enumerate() {
             a.put(row + slot, lay.p(k, l), -1.0);
             b.push(c[l]);
         }
-        row += 3;
+        row += C;
     }
     let a_mat = CscMatrix::new_from_triplets(row, n, a.rows, a.cols, a.values);
     let mut cones = vec![
         SupportedConeT::ZeroConeT(zero_rows),
         SupportedConeT::NonnegativeConeT(nonnegative_rows),
     ];
-    cones.extend(std::iter::repeat_n(SupportedConeT::SecondOrderConeT(3), kk));
+    cones.extend(std::iter::repeat_n(SupportedConeT::SecondOrderConeT(C), kk));
     let settings = DefaultSettings {
         verbose: false,
         tol_gap_abs: 1e-10,
@@ -703,27 +913,28 @@ fn solve_qp(
     // Predicted merit decrease, from the step itself: the terminal change by chaining the
     // segment Jacobians (the QP meets its equality constraints only to its own tolerance, and
     // the elastic slacks sit slightly off their bounds).
-    let mut dx = [0.0; STATE];
+    let mut dx = [0.0; N];
     for (k, jac) in model.jacobians.iter().enumerate() {
-        let input = SVector::<f64, INPUTS>::from_fn(|j, _| if j < STATE { dx[j] } else { d[lay.p(k, j - STATE)] });
-        let next = jac * input;
-        dx = core::array::from_fn(|i| next[i]);
+        dx = core::array::from_fn(|i| {
+            let along_state = (0..N).fold(0.0, |acc, j| acc + jac.state[(i, j)] * dx[j]);
+            (0..C).fold(along_state, |acc, l| acc + jac.control[(i, l)] * d[lay.p(k, l)])
+        });
     }
-    let terminal: [f64; TERMINAL] = core::array::from_fn(|i| {
+    let terminal: [f64; T] = core::array::from_fn(|i| {
         let dnu = if pb.free == 1 { d[lay.nu()] } else { 0.0 };
         it.psi[i] + dx[i] - point[i].1 * dnu
     });
     let mut quadratic = 0.0;
     for k in 0..kk {
-        let ds = d[lay.p(k, 2)];
-        quadratic += unit * (q[lay.p(k, 2)] * ds + pb.eps * ds * ds);
+        let ds = d[lay.p(k, throttle)];
+        quadratic += unit * (q[lay.p(k, throttle)] * ds + pb.eps * ds * ds);
     }
     if pb.free == 1 {
         quadratic += 0.5 * model.curvature_nu.max(0.0) * d[lay.nu()].powi(2);
     }
     let predicted = penalty * (l1(&it.psi) - l1(&terminal)) - quadratic;
     Ok(QpStep {
-        z_terminal: core::array::from_fn(|i| unit * sol.z[STATE * kk + i]),
+        z_terminal: core::array::from_fn(|i| unit * sol.z[N * kk + i]),
         z_first: core::array::from_fn(|i| unit * sol.z[i]),
         d: d.clone(),
         terminal,
@@ -734,7 +945,7 @@ fn solve_qp(
 
 /// A QP answer worth trying: the interior point's last iterate is finite and not an
 /// infeasibility certificate (the ratio test on the true merit function judges the rest).
-fn usable(qp: &QpStep) -> bool {
+fn usable<const N: usize, const T: usize>(qp: &QpStep<N, T>) -> bool {
     let certificate = matches!(
         qp.status,
         SolverStatus::PrimalInfeasible
@@ -748,11 +959,11 @@ fn usable(qp: &QpStep) -> bool {
 
 /// The nearest point of the control set {|w| <= s <= 1} reached by clipping s to [0, 1] and
 /// then shortening w (the QP's answer is inside it up to the interior point's tolerance).
-fn clip_control(c: Control) -> Control {
-    let s = c[2].clamp(0.0, 1.0);
-    let norm = c[0].hypot(c[1]);
+fn clip_control<const C: usize>(c: [f64; C]) -> [f64; C] {
+    let s = c[C - 1].clamp(0.0, 1.0);
+    let norm = thrust_norm(&c);
     let scale = if norm > s { s / norm } else { 1.0 };
-    [c[0] * scale, c[1] * scale, s]
+    core::array::from_fn(|l| if l == C - 1 { s } else { c[l] * scale })
 }
 
 fn l1(v: &[f64]) -> f64 {
@@ -768,50 +979,64 @@ pub fn solve_direct(
     eps: f64,
     options: &DirectOptions,
 ) -> Result<DirectSolution, DirectError> {
+    solve_transcription(&Planar::new(scenario, sc)?, guess, eps, options)
+}
+
+/// [`solve_direct`] for any transcription.
+pub(crate) fn solve_transcription<D: Transcription<N, C, T>, const N: usize, const C: usize, const T: usize>(
+    d: &D,
+    guess: &DirectGuess<C>,
+    eps: f64,
+    options: &DirectOptions,
+) -> Result<DirectSolution<N, C>, DirectError> {
     let start = Instant::now();
+    let throttle = C - 1;
     let kk = guess.controls.len();
     if kk == 0 || !(0.0..=1.0).contains(&eps) {
         return Err(DirectError::Guess);
     }
-    let free = usize::from(scenario.problem == ProblemKind::Transfer);
+    let free = usize::from(d.free_anomaly());
     let pb = Problem {
-        scenario,
-        sc: *sc,
-        target: Target::of(scenario)?,
-        h: scenario.time_of_flight() / kk as f64,
+        d,
+        h: d.time_of_flight() / kk as f64,
         eps,
         free,
         tol: options.tolerances,
     };
-    let lay = Layout { k: kk, free };
+    let lay = Layout::<N, C, T> { k: kk, free };
     let (mut it, mut xs) = pb.iterate(guess.controls.clone(), guess.nu_f)?;
     let mut radius = options.trust_radius;
     let mut penalty = options.penalty;
-    let mut z_terminal = [0.0; TERMINAL];
+    let mut z_terminal = [0.0; T];
     let mut history = Vec::new();
     let mut converged = false;
     let mut initial_costates = None;
     let mut iterations = 0;
-    let merit = |i: &Iterate, mu: f64| i.cost + mu * l1(&i.psi);
+    let merit = |i: &Iterate<C, T>, mu: f64| i.cost + mu * l1(&i.psi);
+    // The mass is the state's last component: 1 at a departure at full mass.
+    let initial_mass = d.initial_state()[N - 1];
+    let final_mass = |controls: &[[f64; C]]| {
+        initial_mass - pb.segment_propellant() * controls.iter().map(|c| c[throttle]).sum::<f64>()
+    };
     // The model is rebuilt only after an accepted step.
-    let mut model: Option<Model> = None;
+    let mut model: Option<Model<N, C>> = None;
     while iterations < options.max_iterations && radius > 1e-12 {
         iterations += 1;
         let current = match model.take() {
             Some(m) => m,
             None => {
                 let jacobians = (0..kk)
-                    .map(|k| segment_map_jacobian(&pb.sc, &xs[k], &it.controls[k], pb.h, &pb.tol).map(|(_, j)| j))
+                    .map(|k| d.segment_jacobians(&xs[k], &it.controls[k], pb.h, &pb.tol))
                     .collect::<Result<Vec<_>, _>>()?;
-                let point = pb.target.point(it.nu);
-                let curvature_nu = -(0..TERMINAL).map(|i| z_terminal[i] * point[i].2).sum::<f64>();
+                let point = d.target_point(it.nu);
+                let curvature_nu = -(0..T).map(|i| z_terminal[i] * point[i].2).sum::<f64>();
                 Model {
                     jacobians,
                     curvature_nu,
                 }
             }
         };
-        let minus_psi: [f64; TERMINAL] = core::array::from_fn(|i| -it.psi[i]);
+        let minus_psi: [f64; T] = core::array::from_fn(|i| -it.psi[i]);
         let qp = solve_qp(&pb, &it, &current, &minus_psi, radius, penalty)?;
         let qp_ok = usable(&qp);
         let infeasibility = amax(&it.psi);
@@ -822,23 +1047,22 @@ pub fn solve_direct(
             // Pontryagin's dH/du = 0), lambda_{k+1} = unit z_k; one step back through the
             // first segment, lambda_0 = (dx_1/dx_0)^T lambda_1. They approach the continuous
             // costates as the mesh is refined and seed the indirect solver's Newton.
-            let a0 = current.jacobians[0].fixed_view::<STATE, STATE>(0, 0);
-            let lambda0 = a0.transpose() * SVector::<f64, STATE>::from(qp.z_first);
+            let lambda0 = current.jacobians[0].state.transpose() * SVector::<f64, N>::from(qp.z_first);
             initial_costates = Some(core::array::from_fn(|i| lambda0[i]));
             break;
         }
-        let step = |d: &[f64]| {
-            let controls: Vec<Control> = (0..kk)
-                .map(|k| clip_control(core::array::from_fn(|l| it.controls[k][l] + d[lay.p(k, l)])))
+        let step = |dd: &[f64]| {
+            let controls: Vec<[f64; C]> = (0..kk)
+                .map(|k| clip_control(core::array::from_fn(|l| it.controls[k][l] + dd[lay.p(k, l)])))
                 .collect();
-            let nu = if free == 1 { it.nu + d[lay.nu()] } else { it.nu };
+            let nu = if free == 1 { it.nu + dd[lay.nu()] } else { it.nu };
             pb.iterate(controls, nu).ok()
         };
         let mut ratio = f64::NAN;
         let mut trial = None;
         if qp_ok && qp.predicted > 0.0 {
             let phi = merit(&it, penalty);
-            let ratio_of = |t: &Option<(Iterate, Vec<State>)>| {
+            let ratio_of = |t: &Option<(Iterate<C, T>, Vec<[f64; N]>)>| {
                 t.as_ref()
                     .map_or(f64::NEG_INFINITY, |(t, _)| (phi - merit(t, penalty)) / qp.predicted)
             };
@@ -849,7 +1073,7 @@ pub fn solve_direct(
                 // conditions shifted by their linearisation error at the trial point,
                 // rhs = -psi(x) - (psi(x + d) - psi(x) - J d).
                 if let Some((t, _)) = &trial {
-                    let rhs: [f64; TERMINAL] = core::array::from_fn(|i| qp.terminal[i] - it.psi[i] - t.psi[i]);
+                    let rhs: [f64; T] = core::array::from_fn(|i| qp.terminal[i] - it.psi[i] - t.psi[i]);
                     if let Ok(soc) = solve_qp(&pb, &it, &current, &rhs, radius, penalty) {
                         if usable(&soc) {
                             let corrected = step(&soc.d);
@@ -861,7 +1085,7 @@ pub fn solve_direct(
                     }
                 }
             }
-            let step_size = amax(&qp.d[..lay.nu() + free]).max(amax(&qp.d[..CONTROL * kk]));
+            let step_size = amax(&qp.d[..lay.nu() + free]).max(amax(&qp.d[..C * kk]));
             if ratio > 0.75 && step_size > 0.9 * radius {
                 radius = (2.0 * radius).min(1.0);
             } else if ratio < 0.25 {
@@ -885,7 +1109,7 @@ pub fn solve_direct(
             model = Some(current);
         }
         history.push(IterationLog {
-            final_mass: 1.0 - pb.segment_propellant() * it.controls.iter().map(|c| c[2]).sum::<f64>(),
+            final_mass: final_mass(&it.controls),
             infeasibility: amax(&it.psi),
             trust_radius: radius,
             ratio,
@@ -893,7 +1117,7 @@ pub fn solve_direct(
         });
         if let Some(window) = options.full_throttle_window {
             let n = history.len();
-            let full = it.controls.iter().all(|c| c[2] > FULL_THROTTLE);
+            let full = it.controls.iter().all(|c| c[throttle] > FULL_THROTTLE);
             if full && n > window && amax(&it.psi) > 0.9 * history[n - 1 - window].infeasibility {
                 break;
             }
@@ -920,14 +1144,19 @@ pub fn solve_direct(
         }
     }
     let infeasibility = amax(&it.psi);
-    let onboard_infeasibility = fly_onboard(scenario, sc, &it.controls, pb.h, &pb.tol)
-        .map(|xf| amax(&terminal(&pb.target, &xf, it.nu)))
+    let onboard_infeasibility = d
+        .fly_onboard(&it.controls, pb.h, &pb.tol)
+        .map(|xf| amax(&terminal(d, &xf, it.nu)))
         .unwrap_or(f64::INFINITY);
-    let relaxation_gap = it.controls.iter().map(|c| c[2] - c[0].hypot(c[1])).fold(0.0, f64::max);
+    let relaxation_gap = it
+        .controls
+        .iter()
+        .map(|c| c[throttle] - thrust_norm(c))
+        .fold(0.0, f64::max);
     Ok(DirectSolution {
         segments: kk,
         eps,
-        final_mass: 1.0 - pb.segment_propellant() * it.controls.iter().map(|c| c[2]).sum::<f64>(),
+        final_mass: final_mass(&it.controls),
         nu_f: (free == 1).then_some(it.nu),
         controls: it.controls,
         infeasibility,
@@ -951,8 +1180,19 @@ pub fn solve_direct_refined(
     eps: f64,
     options: &DirectOptions,
 ) -> Result<Vec<DirectSolution>, DirectError> {
+    refine_transcription(&Planar::new(scenario, sc)?, guess, refinements, eps, options)
+}
+
+/// [`solve_direct_refined`] for any transcription.
+pub(crate) fn refine_transcription<D: Transcription<N, C, T>, const N: usize, const C: usize, const T: usize>(
+    d: &D,
+    guess: DirectGuess<C>,
+    refinements: usize,
+    eps: f64,
+    options: &DirectOptions,
+) -> Result<Vec<DirectSolution<N, C>>, DirectError> {
     let mut guess = guess;
-    let mut solutions: Vec<DirectSolution> = Vec::with_capacity(refinements + 1);
+    let mut solutions: Vec<DirectSolution<N, C>> = Vec::with_capacity(refinements + 1);
     for _ in 0..=refinements {
         if let Some(coarser) = solutions.last() {
             guess = DirectGuess {
@@ -961,7 +1201,7 @@ pub fn solve_direct_refined(
             }
             .refined(2);
         }
-        solutions.push(solve_direct(scenario, sc, &guess, eps, options)?);
+        solutions.push(solve_transcription(d, &guess, eps, options)?);
     }
     Ok(solutions)
 }

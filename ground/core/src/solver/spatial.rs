@@ -728,6 +728,7 @@ pub fn sample_solution(
     Ok(samples)
 }
 
+pub mod direct;
 pub mod record;
 mod transfer;
 pub use transfer::{
