@@ -5,16 +5,21 @@
 # For each weight blob, onboard/c's guidance_calls example records the guidance calls of the
 # Rust SIL's trace flights (firmware_sim's sil_trace: same scenarios, dispersions, seeds; the
 # navigation state each step was given) plus inputs guidance must refuse, and writes what each
-# call must return. Then
+# call must return. The four problems are covered: transfer and rendezvous in the plane, and in
+# three dimensions on the inclined trace flights (lt_transfer3_step, lt_rendezvous3_step, RTN
+# commands). Then
 #   1. the host C program (onboard/c/examples/fly.c, gcc) flies every call and its output must
 #      equal the expected one, byte for byte (commands as f64 bits, refusal codes);
 #   2. its flight commands must equal the `cmd` bits of sil_trace's own trace of the blob;
 #   3. a C firmware image (onboard/c/examples/m4, arm-none-eabi-gcc, liblowthrust.a for
 #      thumbv7em-none-eabihf) flies the same calls on QEMU's mps2-an386 with the output equal
 #      too; it must contain no panic path, and the int8 image must fit 256 KiB flash / 64 KiB RAM.
-# Blobs: seeded random f32 and int8 transfer and rendezvous blobs (random_blob); refused: the
-# int8 transfer blob with one byte flipped, truncated, with the next format version, and a
-# rendezvous blob loaded as transfer (each must be refused with its code and fly thrust off).
+# Blobs: seeded random f32 and int8 blobs of the four problems (random_blob, with --spatial for
+# three dimensions); refused: the int8 transfer blob with one byte flipped, truncated, with the
+# next format version, a rendezvous blob loaded as transfer, a planar blob loaded as a transfer
+# in three dimensions and a three-dimensional one as a planar transfer (each must be refused with
+# its code and fly thrust off). The host program must also refuse a calls file of a format or
+# problem it does not know.
 # Exit status: non-zero on any difference or failed check. Outputs: target/c-sil/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -77,22 +82,28 @@ m4_image() {
         "$M4/startup.c" "$M4/semihost.c" "$M4/main.c" "$M4/data.S" "$EXAMPLES/replay.c" "$M4_LIB" -lgcc -o "$elf"
 }
 
-step "blobs: seeded random (random_blob --seed 1), and refused variants of the int8 transfer blob"
+step "blobs: seeded random of the four problems (random_blob --seed 1), and refused variants of the int8 transfer blob"
 "$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" >/dev/null
 "$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" --rendezvous >/dev/null
+"$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" --spatial >/dev/null
+"$BIN/release/random_blob" --seed 1 --out "$OUT/blobs" --rendezvous --spatial >/dev/null
+# put_le FILE OFFSET BYTES VALUE: writes VALUE into FILE at OFFSET, little-endian in BYTES bytes.
+put_le() {
+    local escapes="" i
+    for ((i = 0; i < $3; i++)); do escapes+=$(printf '\\%03o' $((($4 >> (8 * i)) & 0xff))); done
+    # shellcheck disable=SC2059 # the format is the bytes as octal escapes
+    printf "$escapes" | dd of="$1" bs=1 seek="$2" conv=notrunc status=none
+}
 good="$OUT/blobs/transfer-int8.blob"
 size=$(stat -c %s "$good")
 cp "$good" "$OUT/blobs/altered.blob"
 offset=$((size / 2))
 byte=$(od -An -tu1 -j "$offset" -N1 "$good" | tr -d ' ')
-# shellcheck disable=SC2059 # the format is the octal escape of the flipped byte
-printf "$(printf '\\%03o' $((byte ^ 0xff)))" | dd of="$OUT/blobs/altered.blob" bs=1 seek="$offset" conv=notrunc status=none
+put_le "$OUT/blobs/altered.blob" "$offset" 1 $((byte ^ 0xff))
 head -c $((size - 1000)) "$good" >"$OUT/blobs/truncated.blob"
 cp "$good" "$OUT/blobs/version.blob"
 version=$(od -An -tu2 -j 4 -N2 --endian=little "$good" | tr -d ' ')
-# shellcheck disable=SC2059 # little-endian u16 of the next format version, as octal escapes
-printf "$(printf '\\%03o\\%03o' $(((version + 1) & 0xff)) $(((version + 1) >> 8)))" |
-    dd of="$OUT/blobs/version.blob" bs=1 seek=4 conv=notrunc status=none
+put_le "$OUT/blobs/version.blob" 4 2 $((version + 1))
 ls -l "$OUT/blobs" | awk 'NR > 1 {print "  " $9 " (" $5 " bytes)"}'
 
 summary=()
@@ -102,17 +113,35 @@ fail() {
     failed=1
 }
 
-# The three f64 bit patterns after each `cmd` word.
-commands() { awk '{for (i = 1; i <= NF - 3; i++) if ($i == "cmd") print $(i + 1), $(i + 2), $(i + 3)}'; }
+# commands N: the N f64 bit patterns after each `cmd` word (3 in the plane, 4 in three
+# dimensions), which end the line (the C output) or come before `applied` (sil_trace's); any
+# other count prints the line as malformed, so the comparison fails.
+commands() {
+    awk -v n="$1" '{
+        for (i = 1; i <= NF; i++) if ($i == "cmd") {
+            if (i + n > NF || (i + n < NF && $(i + n + 1) != "applied")) { print "malformed: " $0; next }
+            s = $(i + 1)
+            for (k = 2; k <= n; k++) s = s " " $(i + k)
+            print s
+        }
+    }'
+}
 
-# run_case NAME BLOB transfer|rendezvous ok|refused
+# run_case NAME BLOB transfer|rendezvous|transfer3|rendezvous3 ok|refused
 run_case() {
     local name=$1 blob=$2 problem=$3 expect=$4
     local dir="$OUT/$name"
     step "$name: $(basename "$blob"), $problem, expected: $expect"
     mkdir -p "$dir"
-    local flag=()
-    [ "$problem" = rendezvous ] && flag=(--rendezvous)
+    # The flags of guidance_calls and sil_trace for the problem, and its command's length.
+    local flag=() command_len=3
+    case "$problem" in
+        transfer) ;;
+        rendezvous) flag=(--rendezvous) ;;
+        transfer3) flag=(--spatial) command_len=4 ;;
+        rendezvous3) flag=(--rendezvous --spatial) command_len=4 ;;
+        *) die "unknown problem $problem" ;;
+    esac
     "$BIN/release/examples/guidance_calls" "$blob" "$dir" "${flag[@]}"
     grep -v '^#' "$dir/expected.txt" >"$dir/expected.cmp"
     echo "$(grep -c '^call' "$dir/expected.cmp") guidance calls; $(sed -n 2p "$dir/expected.cmp")"
@@ -131,8 +160,8 @@ run_case() {
     "$BIN/release/sil_trace" "$blob" "${flag[@]}" >"$dir/sil_trace.txt"
     local steps
     steps=$(grep -c '^step' "$dir/sil_trace.txt")
-    grep '^step' "$dir/sil_trace.txt" | commands >"$dir/sil.cmd"
-    grep '^call' "$dir/host.txt" | head -n "$steps" | commands >"$dir/c.cmd"
+    grep '^step' "$dir/sil_trace.txt" | commands "$command_len" >"$dir/sil.cmd"
+    grep '^call' "$dir/host.txt" | head -n "$steps" | commands "$command_len" >"$dir/c.cmd"
     if [ "$steps" -gt 0 ] && cmp -s "$dir/sil.cmd" "$dir/c.cmd"; then
         echo "its $steps flight commands equal sil_trace's, bit for bit"
     else
@@ -160,14 +189,14 @@ run_case() {
     local load
     load=$(sed -n 2p "$dir/host.txt")
     if [ "$expect" = refused ]; then
-        [[ "$load" =~ ^load\ [a-z]+\ -[0-9]+\  ]] || fail "$name: the blob was not refused ($load)"
+        [[ "$load" =~ ^load\ [a-z0-9]+\ -[0-9]+\  ]] || fail "$name: the blob was not refused ($load)"
         # Every call refused with thrust off: throttle bits zero.
         grep '^call' "$dir/host.txt" | grep -v ' refused -4 not_loaded cmd 0000000000000000 ' >/dev/null &&
             fail "$name: a call of a refused policy was not refused with thrust off"
-        summary+=("$(printf '%-20s refused: %s' "$name" "${load#load }")")
+        summary+=("$(printf '%-25s refused: %s' "$name" "${load#load }")")
         return 0
     fi
-    [[ "$load" =~ ^load\ [a-z]+\ 0\ ok$ ]] || fail "$name: a good blob was refused ($load)"
+    [[ "$load" =~ ^load\ [a-z0-9]+\ 0\ ok$ ]] || fail "$name: a good blob was refused ($load)"
     local quant flash ram peak fit=""
     quant=$(sed -n 3p "$dir/host.txt" | awk '{print $3}')
     # Flash: what is loaded (vectors, code, constants with the blob and the calls, .data's
@@ -188,7 +217,7 @@ run_case() {
     local blob_bytes calls_bytes
     blob_bytes=$(stat -c %s "$blob")
     calls_bytes=$(stat -c %s "$dir/calls.bin")
-    summary+=("$(printf '%-20s %-4s image flash %d B (%.1f KiB; blob %d B, calls %d B, code and rest %d B); RAM %d B static + %d B stack peak %s' \
+    summary+=("$(printf '%-25s %-4s image flash %d B (%.1f KiB; blob %d B, calls %d B, code and rest %d B); RAM %d B static + %d B stack peak %s' \
         "$name" "$quant" "$flash" "$(awk "BEGIN {print $flash / 1024}")" "$blob_bytes" "$calls_bytes" \
         $((flash - blob_bytes - calls_bytes)) "$ram" "$peak" "$fit")")
 }
@@ -201,6 +230,27 @@ run_case altered "$OUT/blobs/altered.blob" transfer refused
 run_case truncated "$OUT/blobs/truncated.blob" transfer refused
 run_case version "$OUT/blobs/version.blob" transfer refused
 run_case wrong-kind "$OUT/blobs/rendezvous-int8.blob" transfer refused
+run_case transfer3-f32 "$OUT/blobs/transfer3-f32.blob" transfer3 ok
+run_case transfer3-int8 "$OUT/blobs/transfer3-int8.blob" transfer3 ok
+run_case rendezvous3-f32 "$OUT/blobs/rendezvous3-f32.blob" rendezvous3 ok
+run_case rendezvous3-int8 "$OUT/blobs/rendezvous3-int8.blob" rendezvous3 ok
+run_case transfer3-wrong-dimension "$OUT/blobs/transfer-int8.blob" transfer3 refused
+run_case wrong-dimension "$OUT/blobs/transfer3-int8.blob" transfer refused
+
+step "calls files the host program must refuse: another format, another problem"
+# The header's u32s: the format at byte 4 (1: the planar format before), the problem at byte 8.
+for refusal in "format 4 1" "problem 8 4"; do
+    read -r what offset value <<<"$refusal"
+    cp "$OUT/transfer3-int8/calls.bin" "$OUT/unknown-$what.bin"
+    put_le "$OUT/unknown-$what.bin" "$offset" 4 "$value"
+    if "$OUT/fly" "$OUT/blobs/transfer3-int8.blob" "$OUT/unknown-$what.bin" >/dev/null 2>"$OUT/unknown-$what.err"; then
+        fail "the host program flew a calls file of $what $value"
+    elif grep -q "$what" "$OUT/unknown-$what.err"; then
+        echo "$what $value: $(cat "$OUT/unknown-$what.err")"
+    else
+        fail "the host program refused a calls file of $what $value without saying so: $(cat "$OUT/unknown-$what.err")"
+    fi
+done
 
 step "summary ($(($(date +%s) - start)) s)"
 printf '%s\n' "${summary[@]}"

@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # The Cortex-M4F SIL check: for each weight blob, build the firmware image of the blob's problem
-# with the blob in flash (firmware_sim/m4; the `rendezvous` feature for a rendezvous blob), fly
-# the trace's flights of that problem on QEMU's mps2-an386, fly the same on the host
-# (firmware_sim's sil_trace, `--rendezvous` likewise), and require the two traces to be
-# identical (every command and state as f64 bits). Prints instructions per inference, flash/RAM
-# footprint, stack peak.
+# with the blob in flash (firmware_sim/m4; the `rendezvous` feature for a rendezvous blob,
+# `spatial` for a three-dimensional one), fly the trace's flights of that problem on QEMU's
+# mps2-an386, fly the same on the host (firmware_sim's sil_trace, `--rendezvous`, `--spatial`
+# likewise), and require the two traces to be identical (every command and state as f64 bits).
+# Prints instructions per inference, flash/RAM footprint, stack peak.
 #
-#   scripts/qemu-sil.sh                 # seeded random f32 + int8 transfer and rendezvous blobs (random_blob)
+#   scripts/qemu-sil.sh                 # seeded random f32 + int8 blobs of the four problems (random_blob)
 #   scripts/qemu-sil.sh A.blob B.blob   # these blobs (e.g. ground model export's transfer-*.blob, rendezvous-*.blob)
 #
-# Either way it also checks refusal, for each problem flown: its last blob altered (one byte
-# flipped), truncated and given the next format version, and a blob of the other problem, must
-# each be refused by that problem's image with the typed error, flown with thrust off (every
-# throttle bit zero), exit 0, and match the host.
+# Either way it also checks refusal: for each planar problem flown, its last blob altered (one
+# byte flipped), truncated and given the next format version, and a blob of the other problem;
+# for each problem, a blob of the other dimension (planar for a 3D image, 3D for the planar
+# transfer image). Each must be refused by that problem's image with the typed error, flown with
+# thrust off (every throttle bit zero), exit 0, and match the host.
 # Exit status: non-zero on any trace difference, failed run or failed check. The
 # instruction and footprint targets are reported (met / MISSED), not enforced.
 # QEMU_SIL_PROFILE=1 also times each stage of the forward pass (a second image per good blob,
@@ -31,7 +32,8 @@ mkdir -p "$OUT"
 OUT=$(cd "$OUT" && pwd)
 
 # Instruction and footprint targets of the Cortex-M4 image (the transfer policy's, applied to the
-# rendezvous policy too: its first layer has 22 inputs instead of 10).
+# others too: their first layers have 22, 15 or 30 inputs instead of 10, the 3D last layers 4
+# outputs instead of 3).
 F32_MAX_INSN=160000
 INT8_MAX_INSN=100000
 FLASH_MAX=$((256 * 1024))
@@ -63,23 +65,35 @@ echo "shared crates at the workspace's versions"
 step "host tools (release): random_blob, sil_trace"
 nice cargo build --release -q -p lowthrust-firmware-sim --bin random_blob --bin sil_trace
 
+# random_blob's four problems: its flags and blob name prefixes.
+random_blobs() {
+    local out=$1
+    "$HOST_BIN/random_blob" --seed 1 --out "$out" >/dev/null
+    "$HOST_BIN/random_blob" --seed 1 --out "$out" --rendezvous >/dev/null
+    "$HOST_BIN/random_blob" --seed 1 --out "$out" --spatial >/dev/null
+    "$HOST_BIN/random_blob" --seed 1 --out "$out" --rendezvous --spatial >/dev/null
+}
 blobs=("$@")
 if [ ${#blobs[@]} -eq 0 ]; then
-    "$HOST_BIN/random_blob" --seed 1 --out "$OUT/blobs" >/dev/null
-    "$HOST_BIN/random_blob" --seed 1 --out "$OUT/blobs" --rendezvous >/dev/null
-    blobs=("$OUT/blobs/transfer-f32.blob" "$OUT/blobs/transfer-int8.blob"
-        "$OUT/blobs/rendezvous-f32.blob" "$OUT/blobs/rendezvous-int8.blob")
+    random_blobs "$OUT/blobs"
+    blobs=()
+    for p in transfer rendezvous transfer3 rendezvous3; do
+        blobs+=("$OUT/blobs/$p-f32.blob" "$OUT/blobs/$p-int8.blob")
+    done
 fi
 for b in "${blobs[@]}"; do [ -f "$b" ] || die "no blob $b"; done
 
-# The problem a blob is for: the first payload byte (offset 10, after magic, version and
-# length) is the postcard index of NetworkBlob::kind, 0 transfer, 1 rendezvous
-# (shared/src/blob.rs). A misread kind would show as a good blob refused.
+# The problem a blob is for: the second payload byte (offset 11, after magic, version, length
+# and NetworkBlob::kind) is the postcard index of NetworkBlob::features, the FeatureLayout: 0
+# transfer, 1 rendezvous, 2 and 3 the same in three dimensions (shared/src/blob.rs). A misread
+# layout would show as a good blob refused.
 blob_problem() {
     [ "$(head -c 4 "$1")" = LTGB ] || die "$1 is not a weight blob (no LTGB magic)"
-    case $(od -An -tu1 -j 10 -N1 "$1" | tr -d ' ') in
+    case $(od -An -tu1 -j 11 -N1 "$1" | tr -d ' ') in
         0) echo transfer ;;
         1) echo rendezvous ;;
+        2) echo transfer3 ;;
+        3) echo rendezvous3 ;;
         *) die "$1: unknown problem" ;;
     esac
 }
@@ -91,12 +105,11 @@ for b in "${blobs[@]}"; do
     last[$p]=$b
 done
 
-# Refusal cases of each problem flown, derived from its last blob; the other problem's blob is
-# a seeded random one.
+# Refusal cases of each problem flown, derived from its last blob; the other problem's and other
+# dimension's blobs are seeded random ones.
 neg="$OUT/refused"
 mkdir -p "$neg"
-"$HOST_BIN/random_blob" --seed 1 --out "$neg" >/dev/null
-"$HOST_BIN/random_blob" --seed 1 --out "$neg" --rendezvous >/dev/null
+random_blobs "$neg"
 # spoil PREFIX BLOB: PREFIX{altered,truncated,version}.blob
 spoil() {
     local prefix=$1 blob=$2 size offset byte version
@@ -114,29 +127,34 @@ spoil() {
         dd of="$neg/${prefix}version.blob" bs=1 seek=4 conv=notrunc status=none
 }
 for p in "${problems[@]}"; do
-    if [ "$p" = transfer ]; then spoil "" "${last[$p]}"; else spoil "$p-" "${last[$p]}"; fi
+    case $p in
+        transfer) spoil "" "${last[$p]}" ;;
+        rendezvous) spoil "$p-" "${last[$p]}" ;;
+    esac
 done
 
 step "clippy and rustfmt for the image crate (excluded from the workspace), transfer and rendezvous images"
 any_blob=$(realpath "${blobs[0]}")
 (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$any_blob" nice cargo clippy --release -q -- -D warnings)
 (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$any_blob" nice cargo clippy --release -q --features rendezvous,profile -- -D warnings)
+(cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$any_blob" nice cargo clippy --release -q --features spatial,profile -- -D warnings)
 (cd "$M4" && cargo fmt --check)
 
 summary=()
 failed=0
 
-# run_case NAME BLOB ok|refused transfer|rendezvous (the image's problem)
+# run_case NAME BLOB ok|refused transfer|rendezvous|transfer3|rendezvous3 (the image's problem)
 run_case() {
     local name=$1 blob=$2 expect=$3 problem=$4
     local qemu="$OUT/$name.qemu.txt" host="$OUT/$name.host.txt"
-    # The rendezvous image and its host twin.
+    # The image's features and its host twin's flags.
     local features=() twin=() profile=profile
-    if [ "$problem" = rendezvous ]; then
-        features=(--features rendezvous)
-        twin=(--rendezvous)
-        profile=profile,rendezvous
-    fi
+    case $problem in
+        rendezvous) twin=(--rendezvous) profile=profile,rendezvous ;;
+        transfer3) twin=(--spatial) profile=profile,spatial ;;
+        rendezvous3) twin=(--rendezvous --spatial) profile=profile,rendezvous,spatial ;;
+    esac
+    [ "$problem" = transfer ] || features=(--features "${profile#profile,}")
     step "$name: $(basename "$blob") ($(stat -c %s "$blob") bytes), $problem image, expected: $expect"
     (cd "$M4" && CARGO_TARGET_DIR="$M4_TARGET" LOWTHRUST_BLOB="$(realpath "$blob")" nice cargo build --release -q "${features[@]}")
     cp "$M4_TARGET/thumbv7em-none-eabihf/release/lowthrust-m4" "$OUT/$name.elf"
@@ -208,17 +226,25 @@ for b in "${blobs[@]}"; do
     run_case "$(basename "$b" .blob)" "$b" ok "$(blob_problem "$b")"
 done
 for p in "${problems[@]}"; do
-    prefix=""
-    [ "$p" = rendezvous ] && prefix="$p-"
-    for n in altered truncated version; do
-        run_case "$prefix$n" "$neg/$prefix$n.blob" refused "$p"
-    done
-    # A blob of the other problem.
-    if [ "$p" = transfer ]; then
-        run_case wrong-kind "$neg/rendezvous-int8.blob" refused transfer
-    else
-        run_case rendezvous-wrong-kind "$neg/transfer-int8.blob" refused rendezvous
-    fi
+    case $p in
+        transfer | rendezvous)
+            prefix=""
+            [ "$p" = rendezvous ] && prefix="$p-"
+            for n in altered truncated version; do
+                run_case "$prefix$n" "$neg/$prefix$n.blob" refused "$p"
+            done
+            ;;
+    esac
+    # A blob of the other problem, and of the other dimension.
+    case $p in
+        transfer)
+            run_case wrong-kind "$neg/rendezvous-int8.blob" refused transfer
+            run_case wrong-dimension "$neg/transfer3-int8.blob" refused transfer
+            ;;
+        rendezvous) run_case rendezvous-wrong-kind "$neg/transfer-int8.blob" refused rendezvous ;;
+        transfer3) run_case transfer3-wrong-dimension "$neg/transfer-int8.blob" refused transfer3 ;;
+        rendezvous3) run_case rendezvous3-wrong-dimension "$neg/rendezvous-int8.blob" refused rendezvous3 ;;
+    esac
 done
 
 step "summary ($(($(date +%s) - start)) s)"

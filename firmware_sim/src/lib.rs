@@ -18,8 +18,8 @@
 //!
 //! # Map
 //!
-//! - this module: the loop ([`fly_observed`], and [`fly`] recording it; in three dimensions
-//!   [`fly_spatial_observed`] and [`fly_spatial`], one loop for both geometries), what it flies
+//! - this module: the loop ([`fly_observed`], and [`fly`] recording it; one loop for both
+//!   geometries), what it flies
 //!   with beside the scenario ([`FlightSetup`]), the flight computer's network or safe mode
 //!   ([`Controller`]), the problems ([`Transfer`], [`Rendezvous`], and [`Transfer3`],
 //!   [`Rendezvous3`] on inclined orbits) and a hand-tuned baseline law ([`ProxyTracking`]);
@@ -69,9 +69,7 @@ use onboard::features::{
     TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
 pub use onboard::geometry::{Dimension, Planar, Spatial};
-use onboard::guidance::{
-    command3_at, Actor, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures, TargetOrbit3,
-};
+use onboard::guidance::{Actor, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures, TargetOrbit3};
 use onboard::integrator::Tolerances;
 use onboard::kepler::{coast, coast3, KeplerError};
 use onboard::policy::{Mlp, PolicyError, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
@@ -158,8 +156,8 @@ const _: fn(Rendezvous3Policy<'_>) -> Policy<'_, RENDEZVOUS3_FEATURES, ACTION3_L
 
 /// A dimension of flight as the loop flies it: the dimension ([`Dimension`]: scenario, state,
 /// command, propagation) and how the truth plant navigates and points in it. Implemented by
-/// [`Planar`] (polar commands) and [`Spatial`] (RTN commands); the loop ([`fly_observed`],
-/// [`fly_spatial_observed`]) is one implementation for both.
+/// [`Planar`] (polar commands) and [`Spatial`] (RTN commands); the loop ([`fly_observed`]) is
+/// one implementation for both.
 pub trait FlightGeometry: Dimension {
     /// What the navigation system reports for the true state.
     fn navigate(plant: &mut DispersedPlant, truth: &Self::State) -> Self::State;
@@ -548,54 +546,29 @@ impl FlightSetup {
     }
 }
 
-/// Flies `scenario` closed loop as planar problem `P` and reports every cycle to `observer`: at
-/// each cycle the guidance step computes a command from the navigation state and the target at
-/// that time, the truth plant of `setup` flies it (its dispersions drawn from `seed`) to the
-/// next cycle. No allocation.
+/// Flies `scenario` closed loop as problem `P` and reports every cycle to `observer`: at each
+/// cycle the guidance step computes a command from the navigation state and the target at that
+/// time, the truth plant of `setup` flies it (its dispersions drawn from `seed`) to the next
+/// cycle. In the plane the command is polar; in three dimensions (docs/spec.md section 6.1) the
+/// network commands throttle and an RTN direction, held by the RTN propagator. No allocation.
 pub fn fly_observed<const N: usize, P, A, O>(
     _problem: P,
-    actor: &A,
-    scenario: &Scenario,
+    guide: &A,
+    scenario: &ScenarioOf<P, N>,
     setup: &FlightSetup,
     seed: u64,
     observer: O,
-) -> Result<FlightSummary, SilError>
+) -> Result<FlightSummary<P::Geometry>, SilError>
 where
-    P: PlanarProblem<N>,
-    A: Guide<N, P::Target>,
-    O: FnMut(&FlightStep<N>),
+    P: Problem<N>,
+    A: Guide<N, P::Target, P::Geometry>,
+    O: FnMut(&FlightStep<N, P::Geometry>),
 {
     fly_loop::<N, P, _, _>(
         scenario,
         setup,
         seed,
-        |navigation, target, time_to_go| actor.command(navigation, target, time_to_go),
-        observer,
-    )
-}
-
-/// Flies `scenario` closed loop in three dimensions as problem `P` (docs/spec.md section 6.1),
-/// the network `actor` commanding throttle and an RTN direction each cycle, and reports every
-/// cycle to `observer`, as [`fly_observed`] does in the plane. No allocation.
-pub fn fly_spatial_observed<const N: usize, P, A, O>(
-    _problem: P,
-    actor: &A,
-    scenario: &SpatialScenario,
-    setup: &FlightSetup,
-    seed: u64,
-    observer: O,
-) -> Result<FlightSummary<Spatial>, SilError>
-where
-    P: Problem<N, Geometry = Spatial>,
-    P::Target: SpatialTargetFeatures<N>,
-    A: Actor<N, ACTION3_LEN>,
-    O: FnMut(&FlightStep<N, Spatial>),
-{
-    fly_loop::<N, P, _, _>(
-        scenario,
-        setup,
-        seed,
-        |navigation, target, time_to_go| command3_at(actor, target, navigation, time_to_go),
+        |navigation, target, time_to_go| guide.command(navigation, target, time_to_go),
         observer,
     )
 }
@@ -729,43 +702,19 @@ impl<const N: usize, G: FlightGeometry> Flight<N, G> {
     }
 }
 
-/// Flies `scenario` as planar problem `P` and records every cycle (see [`fly_observed`]).
+/// Flies `scenario` as problem `P` and records every cycle (see [`fly_observed`]).
 #[cfg(feature = "std")]
-pub fn fly<const N: usize, P: PlanarProblem<N>, A: Guide<N, P::Target>>(
+pub fn fly<const N: usize, P: Problem<N>, A: Guide<N, P::Target, P::Geometry>>(
     problem: P,
-    actor: &A,
-    scenario: &Scenario,
+    guide: &A,
+    scenario: &ScenarioOf<P, N>,
     setup: &FlightSetup,
     seed: u64,
-) -> Result<Flight<N>, SilError> {
-    let mut steps = Vec::with_capacity(scenario.steps as usize);
-    let summary = fly_observed(problem, actor, scenario, setup, seed, |s| steps.push(*s))?;
+) -> Result<Flight<N, P::Geometry>, SilError> {
+    let mut steps = Vec::with_capacity(P::Geometry::plan(scenario).steps as usize);
+    let summary = fly_observed(problem, guide, scenario, setup, seed, |s| steps.push(*s))?;
     Ok(Flight {
-        initial: Planar::departure(scenario),
-        steps,
-        summary,
-    })
-}
-
-/// Flies `scenario` in three dimensions as problem `P` and records every cycle (see
-/// [`fly_spatial_observed`]).
-#[cfg(feature = "std")]
-pub fn fly_spatial<const N: usize, P, A>(
-    problem: P,
-    actor: &A,
-    scenario: &SpatialScenario,
-    setup: &FlightSetup,
-    seed: u64,
-) -> Result<Flight<N, Spatial>, SilError>
-where
-    P: Problem<N, Geometry = Spatial>,
-    P::Target: SpatialTargetFeatures<N>,
-    A: Actor<N, ACTION3_LEN>,
-{
-    let mut steps = Vec::with_capacity(scenario.scenario.steps as usize);
-    let summary = fly_spatial_observed(problem, actor, scenario, setup, seed, |s| steps.push(*s))?;
-    Ok(Flight {
-        initial: Spatial::departure(scenario),
+        initial: P::Geometry::departure(scenario),
         steps,
         summary,
     })

@@ -235,6 +235,15 @@ fn target_proxy(shape: &OrbitShape, plane: &OrbitPlane, r: &[f64; 3]) -> (PolarS
     (proxy, point, [p_hat, q_hat, w_hat])
 }
 
+/// The components of the transfer's miss in three dimensions: the target orbit's point
+/// against which [`transfer3_features`] measures `state` ([`target_proxy`]) less the state,
+/// position then velocity (their lengths are the residuals).
+pub(crate) fn transfer3_miss(state: &SpatialState, shape: &OrbitShape, plane: &OrbitPlane) -> [f64; 6] {
+    let (_, point, _) = target_proxy(shape, plane, &state.r);
+    let (dr, dv) = (difference(&point.r, &state.r), difference(&point.v, &state.v));
+    [dr[0], dr[1], dr[2], dv[0], dv[1], dv[2]]
+}
+
 /// a x + b y.
 fn combine(a: f64, x: &[f64; 3], b: f64, y: &[f64; 3]) -> [f64; 3] {
     [a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2]]

@@ -34,6 +34,16 @@ pub trait Dimension: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static
     fn throttle(command: &Self::Command) -> f64;
     /// The command with another throttle.
     fn with_throttle(command: &Self::Command, throttle: f64) -> Self::Command;
+    /// Components of a thrust vector (throttle times unit direction, in the local frame): 2
+    /// (radial, transverse) in the plane, 3 (radial, transverse, normal) in three dimensions.
+    const THRUST_AXES: usize;
+    /// The command as a thrust vector; components past [`Self::THRUST_AXES`] are 0.
+    fn thrust_vector(command: &Self::Command) -> [f64; 3];
+    /// The length of a thrust vector (its throttle).
+    fn thrust_norm(tau: &[f64; 3]) -> f64;
+    /// The command of a thrust vector: throttle its length (at most 1), along it; thrust off
+    /// for a vector shorter than 1e-12 or not a number.
+    fn command_of(tau: &[f64; 3]) -> Self::Command;
     /// `state` propagated for `duration` under `command` (the onboard propagator).
     fn propagate(
         state: &Self::State,
@@ -82,6 +92,32 @@ impl Dimension for Planar {
         ThrustCommand { throttle, ..*command }
     }
 
+    const THRUST_AXES: usize = 2;
+
+    fn thrust_vector(command: &ThrustCommand) -> [f64; 3] {
+        [
+            command.throttle * command.alpha_r,
+            command.throttle * command.alpha_theta,
+            0.0,
+        ]
+    }
+
+    fn thrust_norm(tau: &[f64; 3]) -> f64 {
+        libm::hypot(tau[0], tau[1])
+    }
+
+    fn command_of(tau: &[f64; 3]) -> ThrustCommand {
+        let norm = Self::thrust_norm(tau);
+        if norm.is_nan() || norm <= 1e-12 {
+            return ThrustCommand::OFF;
+        }
+        ThrustCommand {
+            throttle: norm.min(1.0),
+            alpha_r: tau[0] / norm,
+            alpha_theta: tau[1] / norm,
+        }
+    }
+
     fn propagate(
         state: &SpacecraftState,
         command: &ThrustCommand,
@@ -124,6 +160,30 @@ impl Dimension for Spatial {
 
     fn with_throttle(command: &RtnCommand, throttle: f64) -> RtnCommand {
         RtnCommand { throttle, ..*command }
+    }
+
+    const THRUST_AXES: usize = 3;
+
+    fn thrust_vector(command: &RtnCommand) -> [f64; 3] {
+        let u = command.throttle;
+        [u * command.radial, u * command.transverse, u * command.normal]
+    }
+
+    fn thrust_norm(tau: &[f64; 3]) -> f64 {
+        libm::hypot(libm::hypot(tau[0], tau[1]), tau[2])
+    }
+
+    fn command_of(tau: &[f64; 3]) -> RtnCommand {
+        let norm = Self::thrust_norm(tau);
+        if norm.is_nan() || norm <= 1e-12 {
+            return RtnCommand::OFF;
+        }
+        RtnCommand {
+            throttle: norm.min(1.0),
+            radial: tau[0] / norm,
+            transverse: tau[1] / norm,
+            normal: tau[2] / norm,
+        }
     }
 
     fn propagate(

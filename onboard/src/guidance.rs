@@ -10,11 +10,12 @@ use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
 use crate::features::{
     decode_action, decode_action3, rendezvous3_features, rendezvous3_residuals, rendezvous_features,
-    rendezvous_residuals, to_network_input, transfer3_features, transfer3_residuals, transfer_features,
+    rendezvous_residuals, to_network_input, transfer3_features, transfer3_miss, transfer3_residuals, transfer_features,
     transfer_residuals, FeatureError, Residuals, ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES,
     TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
-use crate::kepler::coast;
+use crate::geometry::{Dimension, Planar, Spatial};
+use crate::kepler::{coast, coast3};
 use crate::lookahead::{lookahead_step, Lookahead};
 use crate::spatial::{RtnCommand, SpatialCraftState};
 
@@ -126,66 +127,184 @@ pub struct TargetOrbit3 {
     pub plane: OrbitPlane,
 }
 
-/// A target as three-dimensional guidance sees it: the `N` features of a state against it.
-/// Implemented by the transfer's [`TargetOrbit3`] and the rendezvous body's current state.
+/// A target as three-dimensional guidance sees it: the `N` features of a state against it, now
+/// or (for terminal targeting's rollouts) a while after now. Implemented by the transfer's
+/// [`TargetOrbit3`] and the rendezvous body's current state.
 pub trait SpatialTargetFeatures<const N: usize> {
-    /// The `N` features of `state`, `time_to_go` before the arrival.
-    fn features(&self, state: &SpatialCraftState, time_to_go: f64) -> Result<[f64; N], FeatureError>;
+    /// The `N` features of `state`, `elapsed` after the guidance cycle's start, `time_to_go`
+    /// before the arrival.
+    fn features_after(
+        &self,
+        state: &SpatialCraftState,
+        elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; N], FeatureError>;
+    /// The `N` features of `state` at the cycle's start.
+    fn features(&self, state: &SpatialCraftState, time_to_go: f64) -> Result<[f64; N], FeatureError> {
+        self.features_after(state, 0.0, time_to_go)
+    }
     /// The residuals read off the features.
     fn residuals(features: &[f64; N]) -> Residuals;
+    /// The residuals' components at `state`, `elapsed` after the cycle's start (the target's
+    /// point or the body less the state, position then velocity; their lengths are the
+    /// residuals): what [`crate::terminal`] drives to zero.
+    fn miss_after(&self, state: &SpatialCraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError>;
 }
 
 impl SpatialTargetFeatures<TRANSFER3_FEATURES> for TargetOrbit3 {
-    fn features(&self, state: &SpatialCraftState, time_to_go: f64) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
+    fn features_after(
+        &self,
+        state: &SpatialCraftState,
+        _elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
         transfer3_features(state, &self.shape, &self.plane, time_to_go)
     }
 
     fn residuals(features: &[f64; TRANSFER3_FEATURES]) -> Residuals {
         transfer3_residuals(features)
     }
+
+    fn miss_after(&self, state: &SpatialCraftState, _elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
+        // The features' checks of the state and the target, then their components.
+        transfer3_features(state, &self.shape, &self.plane, 0.0)?;
+        finite_miss(transfer3_miss(&state.orbit, &self.shape, &self.plane))
+    }
 }
 
+/// The body is coasted from its state at the cycle's start; at the start itself it is taken as
+/// given, bit for bit.
 impl SpatialTargetFeatures<RENDEZVOUS3_FEATURES> for SpatialState {
-    fn features(
+    fn features_after(
         &self,
         state: &SpatialCraftState,
+        elapsed: f64,
         time_to_go: f64,
     ) -> Result<[f64; RENDEZVOUS3_FEATURES], FeatureError> {
-        rendezvous3_features(state, self, time_to_go)
+        if elapsed == 0.0 {
+            return rendezvous3_features(state, self, time_to_go);
+        }
+        let body = coast3(self, elapsed).map_err(|_| FeatureError::Target)?;
+        rendezvous3_features(state, &body, time_to_go)
     }
 
     fn residuals(features: &[f64; RENDEZVOUS3_FEATURES]) -> Residuals {
         rendezvous3_residuals(features)
     }
+
+    fn miss_after(&self, state: &SpatialCraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
+        let f = SpatialTargetFeatures::features_after(self, state, elapsed, 0.0)?;
+        finite_miss([f[20], f[21], f[22], f[23], f[24], f[25]])
+    }
 }
 
-/// The network's RTN command for `state` against `target`: features, actor, decoded command;
-/// the one path of both three-dimensional guidance steps.
+fn finite_miss(miss: [f64; MISS_LEN]) -> Result<[f64; MISS_LEN], FeatureError> {
+    if miss.iter().all(|v| v.is_finite()) {
+        Ok(miss)
+    } else {
+        Err(FeatureError::State(crate::dynamics::StateError::NonFinite))
+    }
+}
+
+/// Components of a miss vector: position then velocity, three each (in the plane the third of
+/// each is 0).
+pub const MISS_LEN: usize = 6;
+
+/// A target as every guidance step and the onboard aids see it, for a network of `N` features
+/// and `OUT` action components: the features of a state against it, how the action decodes,
+/// the arrival's miss. Implemented for every planar target ([`TargetFeatures`], 3 actions) and
+/// every three-dimensional one ([`SpatialTargetFeatures`], 4 actions), so one guidance path and
+/// one terminal targeting serve both dimensions.
+pub trait Aim<const N: usize, const OUT: usize> {
+    /// The dimension the target is flown in.
+    type Geometry: Dimension;
+    /// The `N` features of `state`, `elapsed` after the guidance cycle's start, `time_to_go`
+    /// before the arrival.
+    fn features_after(
+        &self,
+        state: &<Self::Geometry as Dimension>::State,
+        elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; N], FeatureError>;
+    /// The command of a finite action.
+    fn decode(action: &[f32; OUT]) -> <Self::Geometry as Dimension>::Command;
+    /// The arrival's miss components at `state`, `elapsed` after the cycle's start: position
+    /// (AU) then velocity (AU/t*), [`MISS_LEN`] of them.
+    fn miss_after(
+        &self,
+        state: &<Self::Geometry as Dimension>::State,
+        elapsed: f64,
+    ) -> Result<[f64; MISS_LEN], FeatureError>;
+}
+
+impl<const N: usize, T: TargetFeatures<N>> Aim<N, ACTION_LEN> for T {
+    type Geometry = Planar;
+
+    fn features_after(&self, state: &SpacecraftState, elapsed: f64, time_to_go: f64) -> Result<[f64; N], FeatureError> {
+        TargetFeatures::features_after(self, state, elapsed, time_to_go)
+    }
+
+    fn decode(action: &[f32; ACTION_LEN]) -> ThrustCommand {
+        decode_action(action)
+    }
+
+    fn miss_after(&self, state: &SpacecraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
+        let features = TargetFeatures::features_after(self, state, elapsed, 0.0)?;
+        Ok(T::miss(&features))
+    }
+}
+
+impl<const N: usize, T: SpatialTargetFeatures<N>> Aim<N, ACTION3_LEN> for T {
+    type Geometry = Spatial;
+
+    fn features_after(
+        &self,
+        state: &SpatialCraftState,
+        elapsed: f64,
+        time_to_go: f64,
+    ) -> Result<[f64; N], FeatureError> {
+        SpatialTargetFeatures::features_after(self, state, elapsed, time_to_go)
+    }
+
+    fn decode(action: &[f32; ACTION3_LEN]) -> RtnCommand {
+        decode_action3(action)
+    }
+
+    fn miss_after(&self, state: &SpatialCraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
+        SpatialTargetFeatures::miss_after(self, state, elapsed)
+    }
+}
+
+/// The network's RTN command for `state` against `target` at the cycle's start (see
+/// [`command_at`]).
 pub fn command3_at<const N: usize, A: Actor<N, ACTION3_LEN> + ?Sized, T: SpatialTargetFeatures<N>>(
     actor: &A,
     target: &T,
     state: &SpatialCraftState,
     time_to_go: f64,
 ) -> Result<RtnCommand, GuidanceError> {
-    let features = target.features(state, time_to_go).map_err(GuidanceError::Input)?;
-    let action = actor.act(&to_network_input(&features));
-    if !action.iter().all(|a| a.is_finite()) {
-        return Err(GuidanceError::NonFiniteAction);
-    }
-    Ok(decode_action3(&action))
+    command_at(actor, target, state, 0.0, time_to_go)
 }
 
 /// A guidance law as flight software calls it each cycle: navigation state, target and time to go
-/// in, the command to hold out. Any [`Actor`] is one (through [`transfer_step`] and
-/// [`rendezvous_step`]); so is an actor with rollout lookahead ([`crate::lookahead::Lookahead`]).
-pub trait Guide<const N: usize, T> {
+/// in, the command to hold out, in dimension `G` (the plane by default). Any [`Actor`] is one
+/// (through [`transfer_step`] and [`rendezvous_step`] in the plane, [`command3_at`] in three
+/// dimensions); so is an actor with rollout lookahead ([`crate::lookahead::Lookahead`]).
+pub trait Guide<const N: usize, T, G: Dimension = Planar> {
     /// The command for this cycle, or why there is none (the caller commands thrust off).
+    fn command(&self, navigation: &G::State, target: &T, time_to_go: f64) -> Result<G::Command, GuidanceError>;
+}
+
+/// Any four-output actor flies the three-dimensional guidance step of its problem.
+impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guide<N, T, Spatial> for A {
     fn command(
         &self,
-        navigation: &SpacecraftState,
+        navigation: &SpatialCraftState,
         target: &T,
         time_to_go: f64,
-    ) -> Result<ThrustCommand, GuidanceError>;
+    ) -> Result<RtnCommand, GuidanceError> {
+        command3_at(self, target, navigation, time_to_go)
+    }
 }
 
 /// Any actor flies the plain guidance step of its problem.
@@ -228,10 +347,11 @@ pub trait TargetFeatures<const N: usize> {
     fn features_after(&self, state: &SpacecraftState, elapsed: f64, time_to_go: f64) -> Result<[f64; N], FeatureError>;
     /// The residuals read off the features.
     fn residuals(features: &[f64; N]) -> Residuals;
-    /// The residuals' components, position ones first (AU, then AU/t*): what
-    /// [`crate::terminal`] drives to zero. A transfer's are the radius and polar velocity
-    /// differences to the target orbit at the spacecraft's polar angle, and a last 0.
-    fn miss(features: &[f64; N]) -> [f64; 4];
+    /// The residuals' components, position then velocity (AU, then AU/t*; [`MISS_LEN`], the
+    /// third of each 0 in the plane): what [`crate::terminal`] drives to zero. A transfer's are
+    /// the radius difference and the polar velocity differences to the target orbit at the
+    /// spacecraft's polar angle.
+    fn miss(features: &[f64; N]) -> [f64; MISS_LEN];
 }
 
 /// A transfer's target orbit does not move (docs/spec.md section 5).
@@ -249,9 +369,9 @@ impl TargetFeatures<TRANSFER_FEATURES> for OrbitShape {
         transfer_residuals(features)
     }
 
-    fn miss(f: &[f64; TRANSFER_FEATURES]) -> [f64; 4] {
+    fn miss(f: &[f64; TRANSFER_FEATURES]) -> [f64; MISS_LEN] {
         let [r, _, _, v_r, v_theta, _, r_t, v_r_t, v_theta_t, _] = *f;
-        [r_t - r, v_r_t - v_r, v_theta_t - v_theta, 0.0]
+        [r_t - r, 0.0, 0.0, v_r_t - v_r, v_theta_t - v_theta, 0.0]
     }
 }
 
@@ -275,9 +395,9 @@ impl TargetFeatures<RENDEZVOUS_FEATURES> for CartesianState {
         rendezvous_residuals(features)
     }
 
-    fn miss(f: &[f64; RENDEZVOUS_FEATURES]) -> [f64; 4] {
+    fn miss(f: &[f64; RENDEZVOUS_FEATURES]) -> [f64; MISS_LEN] {
         let [.., dx, dy, dvx, dvy, _, _, _, _] = *f;
-        [dx, dy, dvx, dvy]
+        [dx, dy, 0.0, dvx, dvy, 0.0]
     }
 }
 
@@ -300,25 +420,23 @@ pub(crate) fn cycle_duration(time_to_go: f64, start: f64, cycle: f64) -> f64 {
 }
 
 /// The network's command for `state`, `elapsed` after the cycle's start and `time_to_go` before
-/// the arrival: features, actor, decoded command; the one path of every guidance step.
-pub(crate) fn command_at<const N: usize, A: Actor<N> + ?Sized, T: TargetFeatures<N>>(
+/// the arrival: features, actor, decoded command; the one path of every guidance step, in
+/// either dimension.
+pub(crate) fn command_at<const N: usize, const OUT: usize, A: Actor<N, OUT> + ?Sized, T: Aim<N, OUT>>(
     actor: &A,
     target: &T,
-    state: &SpacecraftState,
+    state: &<T::Geometry as Dimension>::State,
     elapsed: f64,
     time_to_go: f64,
-) -> Result<ThrustCommand, GuidanceError> {
+) -> Result<<T::Geometry as Dimension>::Command, GuidanceError> {
     let features = target
         .features_after(state, elapsed, time_to_go)
         .map_err(GuidanceError::Input)?;
-    command_from(actor.act(&to_network_input(&features)))
-}
-
-fn command_from(action: [f32; ACTION_LEN]) -> Result<ThrustCommand, GuidanceError> {
+    let action = actor.act(&to_network_input(&features));
     if !action.iter().all(|a| a.is_finite()) {
         return Err(GuidanceError::NonFiniteAction);
     }
-    Ok(decode_action(&action))
+    Ok(T::decode(&action))
 }
 
 #[cfg(test)]

@@ -2,17 +2,19 @@
 //! for the arrival with the onboard propagator, instead of left to the network.
 //!
 //! With `k <= settings.cycles` cycles to go, the plan is the `k` thrust vectors
-//! `tau_j = u_j (alpha_r, alpha_theta)_j` (each held for its cycle in the local polar frame, as
-//! every command is; `|tau_j| <= 1`), started from the commands the network would fly along its
-//! own nominal continuation. The arrival's miss vector `e` (position then velocity components,
-//! each over its goal: a transfer's radius and polar velocity differences to the target orbit at
-//! the spacecraft's polar angle, a rendezvous's Cartesian differences to the body) is driven to
-//! zero by damped Gauss-Newton (Levenberg-Marquardt) steps, the Jacobian by forward differences:
+//! `tau_j = u_j alpha_j` (each held for its cycle in the local frame, as every command is: polar
+//! (alpha_r, alpha_theta) in the plane, RTN in three dimensions; `|tau_j| <= 1`), started from
+//! the commands the network would fly along its own nominal continuation. The arrival's miss
+//! vector `e` (position then velocity components, each over its goal: a planar transfer's radius
+//! and polar velocity differences to the target orbit at the spacecraft's polar angle, in three
+//! dimensions the differences to the target orbit's point the features measure against, a
+//! rendezvous's Cartesian differences to the body) is driven to zero by damped Gauss-Newton
+//! (Levenberg-Marquardt) steps, the Jacobian by forward differences:
 //!
 //! `d tau = -J^T (J J^T + lambda I)^-1 e`
 //!
-//! the minimum-norm change of the plan where it has more unknowns than conditions (two per
-//! cycle against three or four), least squares on the last cycle. A step that does not lower
+//! the minimum-norm change of the plan where it has more unknowns than conditions (two or three
+//! per cycle against three to six), least squares on the last cycle. A step that does not lower
 //! `|e|` is refused and lambda raised. Once the arrival is met (`|e| < 1e-3`), the iterations
 //! left lower the plan's propellant (the throttles times the cycles' durations): a step down its
 //! gradient projected on the null space of `J` (`p = g - J^T (J J^T)^-1 J g`, which leaves the
@@ -22,24 +24,34 @@
 //! The network's command is flown instead whenever the solved plan does not predict a smaller
 //! miss than the network's own continuation, or any rollout fails.
 //!
-//! The work per cycle is at most `2 + iterations x (2 k + 4)` rollouts of `k` cycles
-//! ([`TerminalDecision::rollouts`] counts them); no allocation, no panic.
+//! The work per cycle is at most `2 + iterations x (a k + 4)` rollouts of `k` cycles, `a` the
+//! thrust vector's components (2 in the plane, 3 in three dimensions;
+//! [`TerminalDecision::rollouts`] counts them); no allocation, no panic. One implementation
+//! serves both dimensions through [`Aim`] and [`Dimension`].
 
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
-use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
-use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, GuidanceError, Guide, TargetFeatures};
+use crate::dynamics::{SpacecraftState, ThrustCommand};
+use crate::features::ACTION3_LEN;
+use crate::geometry::{Dimension, Spatial};
+pub use crate::guidance::MISS_LEN;
+use crate::guidance::{
+    command_at, cycle_duration, cycles_left, Actor, Aim, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures,
+};
 use crate::integrator::Tolerances;
 use crate::lookahead::{lookahead_step, LookaheadSettings};
+use crate::spatial::{RtnCommand, SpatialCraftState};
 
 /// Most cycles a plan solves for.
 pub const MAX_CYCLES: usize = 4;
 /// Most Gauss-Newton iterations a cycle may be allowed: the work stays bounded whatever a
 /// caller asks for.
 pub const MAX_ITERATIONS: u32 = 64;
-/// Components of the miss vector (position then velocity; a transfer's last one is 0).
-pub const MISS_LEN: usize = 4;
+/// Most unknowns of a plan: three thrust components per cycle.
+const MAX_UNKNOWNS: usize = 3 * MAX_CYCLES;
+/// The miss vector's position components (the velocity ones follow).
+const POSITION_COMPONENTS: usize = 3;
 
 /// What terminal targeting does; `Default` targets the last 4 cycles with up to 3 iterations:
 /// at most 38 rollouts of 4 cycles, within 100 million Cortex-M4F instructions a cycle.
@@ -107,13 +119,14 @@ impl TerminalSettings {
     }
 }
 
-/// One terminal-targeting cycle: what was flown and why (telemetry).
+/// One terminal-targeting cycle: what was flown and why (telemetry). `C` is the dimension's
+/// command: polar in the plane, [`RtnCommand`] in three dimensions.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TerminalDecision {
+pub struct TerminalDecision<C = ThrustCommand> {
     /// The command to hold for the cycle.
-    pub command: ThrustCommand,
+    pub command: C,
     /// The network's own command.
-    pub network: ThrustCommand,
+    pub network: C,
     /// Whether the solved plan's command is flown (false: the network's).
     pub solved: bool,
     /// Predicted miss |e| (in goal units) of the network's continuation, when it was flown out.
@@ -121,68 +134,71 @@ pub struct TerminalDecision {
     /// Predicted miss of the plan flown, when a plan was solved.
     pub planned_miss: Option<f64>,
     /// Rollouts of the remaining cycles propagated this cycle (the network's continuation
-    /// included): the cycle's work, at most `2 + iterations x (2 k + 4)` for `k` cycles to go.
+    /// included): the cycle's work, at most `2 + iterations x (a k + 4)` for `k` cycles to go
+    /// and `a` thrust components.
     pub rollouts: u32,
 }
 
-/// A plan: the thrust vector of each remaining cycle (radial, transverse), `|tau| <= 1`.
-type Plan = [[f64; 2]; MAX_CYCLES];
+/// A plan: the thrust vector of each remaining cycle (radial, transverse and, in three
+/// dimensions, normal; the unused component 0), `|tau| <= 1`.
+type Plan = [[f64; 3]; MAX_CYCLES];
 
-fn command_of(tau: &[f64; 2]) -> ThrustCommand {
-    let norm = libm::hypot(tau[0], tau[1]);
-    // A NaN norm is thrust off too.
-    if norm.is_nan() || norm <= 1e-12 {
-        return ThrustCommand::OFF;
-    }
-    ThrustCommand {
-        throttle: norm.min(1.0),
-        alpha_r: tau[0] / norm,
-        alpha_theta: tau[1] / norm,
-    }
-}
+/// A vector of the plan's unknowns, cycle by cycle (the used ones first).
+type Unknowns = [f64; MAX_UNKNOWNS];
 
-fn tau_of(command: &ThrustCommand) -> [f64; 2] {
-    [
-        command.throttle * command.alpha_r,
-        command.throttle * command.alpha_theta,
-    ]
-}
+/// The miss's Jacobian: one row per miss component, one column per unknown.
+type Jacobian = [[f64; MAX_UNKNOWNS]; MISS_LEN];
 
 /// Everything a rollout needs besides its plan.
-struct Problem<'a, T> {
+struct Problem<'a, G: Dimension, T> {
     target: &'a T,
     spacecraft: &'a CanonicalSpacecraft,
     settings: &'a TerminalSettings,
-    navigation: &'a SpacecraftState,
+    navigation: &'a G::State,
     time_to_go: f64,
     cycles: usize,
     /// Rollouts flown so far.
     rollouts: core::cell::Cell<u32>,
 }
 
-impl<T> Problem<'_, T> {
+impl<G: Dimension, T> Problem<'_, G, T> {
     /// The duration of the plan's cycle `k` (the last one possibly shorter).
     fn duration(&self, k: usize) -> f64 {
         cycle_duration(self.time_to_go, k as f64 * self.settings.cycle, self.settings.cycle)
     }
 
+    /// The plan's unknowns: the thrust components of each cycle to go.
+    fn unknowns(&self) -> usize {
+        G::THRUST_AXES * self.cycles
+    }
+
     /// The miss vector, in goal units, of flying `plan` to the arrival (None if a propagation
-    /// fails or the arrival's features are refused).
-    fn miss<const N: usize>(&self, plan: &Plan) -> Option<[f64; MISS_LEN]>
+    /// fails or the arrival's state is refused).
+    fn miss<const N: usize, const OUT: usize>(&self, plan: &Plan) -> Option<[f64; MISS_LEN]>
     where
-        T: TargetFeatures<N>,
+        T: Aim<N, OUT, Geometry = G>,
     {
         self.rollouts.set(self.rollouts.get().saturating_add(1));
         let mut state = *self.navigation;
         for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
             let start = cycle as f64 * self.settings.cycle;
             let dt = cycle_duration(self.time_to_go, start, self.settings.cycle);
-            state = propagate(&state, &command_of(tau), self.spacecraft, dt, &self.settings.tolerances).ok()?;
+            state = G::propagate(
+                &state,
+                &G::command_of(tau),
+                self.spacecraft,
+                dt,
+                &self.settings.tolerances,
+            )
+            .ok()?;
         }
-        let features = self.target.features_after(&state, self.time_to_go, 0.0).ok()?;
-        let [x, y, vx, vy] = T::miss(&features);
+        let miss = self.target.miss_after(&state, self.time_to_go).ok()?;
         let (gp, gv) = (self.settings.goal_position, self.settings.goal_velocity);
-        let e = [x / gp, y / gp, vx / gv, vy / gv];
+        let mut e = miss;
+        // Position components first, then velocity.
+        for (i, v) in e.iter_mut().enumerate() {
+            *v /= if i < POSITION_COMPONENTS { gp } else { gv };
+        }
         e.iter().all(|v| v.is_finite()).then_some(e)
     }
 }
@@ -191,8 +207,8 @@ fn norm(e: &[f64; MISS_LEN]) -> f64 {
     libm::sqrt(e.iter().map(|v| v * v).sum::<f64>())
 }
 
-/// Solves `a x = b` for a symmetric positive definite 4 x 4 `a` (Cholesky); None if it is not.
-fn solve4(a: &[[f64; MISS_LEN]; MISS_LEN], b: &[f64; MISS_LEN]) -> Option<[f64; MISS_LEN]> {
+/// Solves `a x = b` for a symmetric positive definite `a` (Cholesky); None if it is not.
+fn solve_spd(a: &[[f64; MISS_LEN]; MISS_LEN], b: &[f64; MISS_LEN]) -> Option<[f64; MISS_LEN]> {
     let mut l = [[0.0f64; MISS_LEN]; MISS_LEN];
     for i in 0..MISS_LEN {
         for j in 0..=i {
@@ -231,20 +247,21 @@ fn solve4(a: &[[f64; MISS_LEN]; MISS_LEN], b: &[f64; MISS_LEN]) -> Option<[f64; 
     x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
-/// Each cycle's thrust vector clipped to the unit disk.
-fn clip(plan: &mut Plan) {
+/// Each cycle's thrust vector clipped to the unit ball.
+fn clip<G: Dimension>(plan: &mut Plan) {
     for tau in plan.iter_mut() {
-        let n = libm::hypot(tau[0], tau[1]);
+        let n = G::thrust_norm(tau);
         if n > 1.0 {
-            tau[0] /= n;
-            tau[1] /= n;
+            tau.iter_mut().for_each(|c| *c /= n);
         }
     }
 }
 
-/// Unknown `u` of a plan: component `u mod 2` of cycle `u / 2`'s thrust vector.
-fn component(plan: &mut Plan, u: usize) -> Option<&mut f64> {
-    plan.as_flattened_mut().get_mut(u)
+/// Unknown `u` of a plan: component `u mod a` of cycle `u / a`'s thrust vector, `a` the
+/// dimension's thrust components.
+fn component<G: Dimension>(plan: &mut Plan, u: usize) -> Option<&mut f64> {
+    plan.get_mut(u.checked_div(G::THRUST_AXES)?)?
+        .get_mut(u.checked_rem(G::THRUST_AXES)?)
 }
 
 /// Forward-difference step of the thrust vectors' components.
@@ -256,15 +273,15 @@ const MET: f64 = 1e-3;
 
 /// The miss's Jacobian by forward differences at `plan` (miss `e`): MISS_LEN rows, one column
 /// per unknown (cycle j, component c); None if a rollout fails.
-fn jacobian<const N: usize, T: TargetFeatures<N>>(
-    problem: &Problem<'_, T>,
+fn jacobian<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
+    problem: &Problem<'_, G, T>,
     plan: &Plan,
     e: &[f64; MISS_LEN],
-) -> Option<[[f64; 2 * MAX_CYCLES]; MISS_LEN]> {
-    let mut jacobian = [[0.0f64; 2 * MAX_CYCLES]; MISS_LEN];
-    for u in 0..2 * problem.cycles {
+) -> Option<Jacobian> {
+    let mut jacobian = [[0.0f64; MAX_UNKNOWNS]; MISS_LEN];
+    for u in 0..problem.unknowns() {
         let mut moved = *plan;
-        if let Some(v) = component(&mut moved, u) {
+        if let Some(v) = component::<G>(&mut moved, u) {
             *v += DIFFERENCE;
         }
         let em = problem.miss(&moved)?;
@@ -278,17 +295,13 @@ fn jacobian<const N: usize, T: TargetFeatures<N>>(
 }
 
 /// `J v` for a vector `v` of the unknowns.
-fn apply(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN], v: &[f64; 2 * MAX_CYCLES]) -> [f64; MISS_LEN] {
+fn apply(jacobian: &Jacobian, v: &Unknowns) -> [f64; MISS_LEN] {
     jacobian.map(|row| row.iter().zip(v.iter()).map(|(a, b)| a * b).sum())
 }
 
 /// `J^T y` over the first `unknowns` unknowns.
-fn apply_transposed(
-    jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN],
-    y: &[f64; MISS_LEN],
-    unknowns: usize,
-) -> [f64; 2 * MAX_CYCLES] {
-    let mut out = [0.0f64; 2 * MAX_CYCLES];
+fn apply_transposed(jacobian: &Jacobian, y: &[f64; MISS_LEN], unknowns: usize) -> Unknowns {
+    let mut out = [0.0f64; MAX_UNKNOWNS];
     for (u, slot) in out.iter_mut().enumerate().take(unknowns) {
         *slot = jacobian
             .iter()
@@ -300,7 +313,7 @@ fn apply_transposed(
 }
 
 /// `J J^T`.
-fn gram(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN]) -> [[f64; MISS_LEN]; MISS_LEN] {
+fn gram(jacobian: &Jacobian) -> [[f64; MISS_LEN]; MISS_LEN] {
     let mut gram = [[0.0f64; MISS_LEN]; MISS_LEN];
     for (i, row_i) in jacobian.iter().enumerate() {
         for (k, row_k) in jacobian.iter().enumerate() {
@@ -313,7 +326,8 @@ fn gram(jacobian: &[[f64; 2 * MAX_CYCLES]; MISS_LEN]) -> [[f64; MISS_LEN]; MISS_
     gram
 }
 
-/// `gram + lambda (1 + diag) I`.
+/// `gram + lambda (1 + diag) I`: also what keeps the rows of a miss component the dimension
+/// does not have (all zero) solvable.
 fn damped(gram: &[[f64; MISS_LEN]; MISS_LEN], lambda: f64) -> [[f64; MISS_LEN]; MISS_LEN] {
     let mut normal = *gram;
     for (i, row) in normal.iter_mut().enumerate() {
@@ -324,36 +338,36 @@ fn damped(gram: &[[f64; MISS_LEN]; MISS_LEN], lambda: f64) -> [[f64; MISS_LEN]; 
     normal
 }
 
-/// `plan` moved by `-step` (the unknowns' order) and clipped to the unit disks.
-fn moved_by(plan: &Plan, step: &[f64; 2 * MAX_CYCLES], unknowns: usize) -> Plan {
+/// `plan` moved by `-step` (the unknowns' order) and clipped to the unit balls.
+fn moved_by<G: Dimension>(plan: &Plan, step: &Unknowns, unknowns: usize) -> Plan {
     let mut moved = *plan;
     for (u, d) in step.iter().enumerate().take(unknowns) {
-        if let Some(v) = component(&mut moved, u) {
+        if let Some(v) = component::<G>(&mut moved, u) {
             *v -= d;
         }
     }
-    clip(&mut moved);
+    clip::<G>(&mut moved);
     moved
 }
 
 /// The propellant a plan commands, as throttle times duration summed over its cycles.
-fn fuel<T>(problem: &Problem<'_, T>, plan: &Plan) -> f64 {
+fn fuel<G: Dimension, T>(problem: &Problem<'_, G, T>, plan: &Plan) -> f64 {
     plan.iter()
         .take(problem.cycles)
         .enumerate()
-        .map(|(k, tau)| libm::hypot(tau[0], tau[1]) * problem.duration(k))
+        .map(|(k, tau)| G::thrust_norm(tau) * problem.duration(k))
         .sum()
 }
 
 /// Damped Gauss-Newton on `plan` (see the module documentation), then, with the arrival met
 /// and iterations left, steps that lower the plan's propellant along the miss's null space and
 /// keep it met; returns the best plan found and its miss vector.
-fn solve<const N: usize, T: TargetFeatures<N>>(
-    problem: &Problem<'_, T>,
+fn solve<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
+    problem: &Problem<'_, G, T>,
     mut plan: Plan,
     mut e: [f64; MISS_LEN],
 ) -> (Plan, [f64; MISS_LEN]) {
-    let unknowns = 2 * problem.cycles;
+    let unknowns = problem.unknowns();
     let mut lambda = 1e-6;
     let mut iterations = 0;
     while iterations < problem.settings.iterations && norm(&e) >= MET {
@@ -365,11 +379,11 @@ fn solve<const N: usize, T: TargetFeatures<N>>(
         let mut improved = false;
         // A few tries with more damping before the iteration gives up.
         for _ in 0..4 {
-            let Some(y) = solve4(&damped(&gram, lambda), &e) else {
+            let Some(y) = solve_spd(&damped(&gram, lambda), &e) else {
                 lambda *= 10.0;
                 continue;
             };
-            let candidate = moved_by(&plan, &apply_transposed(&jacobian, &y, unknowns), unknowns);
+            let candidate = moved_by::<G>(&plan, &apply_transposed(&jacobian, &y, unknowns), unknowns);
             match problem.miss(&candidate) {
                 Some(ec) if norm(&ec) < norm(&e) => {
                     plan = candidate;
@@ -391,14 +405,15 @@ fn solve<const N: usize, T: TargetFeatures<N>>(
 /// Up to `iterations` steps of a met plan down the propellant's gradient projected on the
 /// miss's null space (`p = g - J^T (J J^T)^-1 J g`, the change that leaves the arrival unmoved
 /// to first order), each followed by a Gauss-Newton correction and kept only if the plan
-/// still meets the arrival and commands less propellant. Each costs at most 2k + 2 rollouts.
-fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
-    problem: &Problem<'_, T>,
+/// still meets the arrival and commands less propellant. Each costs at most a k + 2 rollouts.
+fn lower_fuel<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
+    problem: &Problem<'_, G, T>,
     mut plan: Plan,
     mut e: [f64; MISS_LEN],
     iterations: u32,
 ) -> (Plan, [f64; MISS_LEN]) {
-    let unknowns = 2 * problem.cycles;
+    let unknowns = problem.unknowns();
+    let axes = G::THRUST_AXES;
     for _ in 0..iterations {
         if norm(&e) >= MET {
             break;
@@ -407,23 +422,25 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
             break;
         };
         // The propellant's gradient: each cycle's duration along its thrust vector.
-        let mut gradient = [0.0f64; 2 * MAX_CYCLES];
+        let mut gradient = [0.0f64; MAX_UNKNOWNS];
         for (cycle, tau) in plan.iter().take(problem.cycles).enumerate() {
-            let n = libm::hypot(tau[0], tau[1]);
+            let n = G::thrust_norm(tau);
             if n > 1e-9 {
                 let dt = problem.duration(cycle);
-                if let Some(g) = gradient.get_mut(2 * cycle..2 * cycle + 2) {
-                    g.copy_from_slice(&[dt * tau[0] / n, dt * tau[1] / n]);
+                if let Some(g) = gradient.get_mut(axes * cycle..axes * cycle + axes) {
+                    for (g, t) in g.iter_mut().zip(tau.iter()) {
+                        *g = dt * t / n;
+                    }
                 }
             }
         }
         // One normal matrix for the projection and the corrections back onto the arrival.
         let normal = damped(&gram(&jacobian), 1e-12);
-        let Some(y) = solve4(&normal, &apply(&jacobian, &gradient)) else {
+        let Some(y) = solve_spd(&normal, &apply(&jacobian, &gradient)) else {
             break;
         };
         let back = apply_transposed(&jacobian, &y, unknowns);
-        let mut projected = [0.0f64; 2 * MAX_CYCLES];
+        let mut projected = [0.0f64; MAX_UNKNOWNS];
         for ((p, g), b) in projected.iter_mut().zip(gradient.iter()).zip(back.iter()) {
             *p = g - b;
         }
@@ -436,15 +453,15 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
         // The first try moves some thrust vector component by a tenth, the second by a fortieth.
         for scale in [0.1, 0.025] {
             let step = projected.map(|p| p * scale / largest);
-            let trial = moved_by(&plan, &step, unknowns);
+            let trial = moved_by::<G>(&plan, &step, unknowns);
             let Some(et) = problem.miss(&trial) else {
                 break;
             };
             // Back onto the arrival: one Gauss-Newton correction from the trial plan.
-            let Some(y) = solve4(&normal, &et) else {
+            let Some(y) = solve_spd(&normal, &et) else {
                 break;
             };
-            let corrected = moved_by(&trial, &apply_transposed(&jacobian, &y, unknowns), unknowns);
+            let corrected = moved_by::<G>(&trial, &apply_transposed(&jacobian, &y, unknowns), unknowns);
             match problem.miss(&corrected) {
                 Some(ec) if norm(&ec) < MET && fuel(problem, &corrected) < before => {
                     plan = corrected;
@@ -462,19 +479,21 @@ fn lower_fuel<const N: usize, T: TargetFeatures<N>>(
     (plan, e)
 }
 
-/// One guidance cycle with terminal targeting: the network's command at `navigation` (refused
-/// inputs and non-finite actions are errors, as in [`crate::guidance`]); with `1 ..=
-/// settings.cycles` cycles to go (`time_to_go` cut into cycles of `settings.cycle`, the last
-/// possibly shorter), the first command of the solved plan when it predicts a smaller miss than the
-/// network's own continuation.
-pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+/// One guidance cycle with terminal targeting, in the plane or in three dimensions (the
+/// target's [`Aim`]): the network's command at `navigation` (refused inputs and non-finite
+/// actions are errors, as in [`crate::guidance`]); with `1 ..= settings.cycles` cycles to go
+/// (`time_to_go` cut into cycles of `settings.cycle`, the last possibly shorter), the first
+/// command of the solved plan when it predicts a smaller miss than the network's own
+/// continuation.
+#[allow(clippy::type_complexity)]
+pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     actor: &A,
-    navigation: &SpacecraftState,
+    navigation: &<T::Geometry as Dimension>::State,
     target: &T,
     time_to_go: f64,
     spacecraft: &CanonicalSpacecraft,
     settings: &TerminalSettings,
-) -> Result<TerminalDecision, GuidanceError> {
+) -> Result<TerminalDecision<<T::Geometry as Dimension>::Command>, GuidanceError> {
     let network = command_at(actor, target, navigation, 0.0, time_to_go)?;
     let mut decision = TerminalDecision {
         command: network,
@@ -493,7 +512,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     }
     let cycles = cycles as usize;
     // The network's continuation, flown nominally: the plan's start.
-    let mut plan: Plan = [[0.0; 2]; MAX_CYCLES];
+    let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
     let mut state = *navigation;
     decision.rollouts = 1;
     for (cycle, tau) in plan.iter_mut().take(cycles).enumerate() {
@@ -506,8 +525,8 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
                 Err(_) => return Ok(decision),
             }
         };
-        *tau = tau_of(&command);
-        match propagate(
+        *tau = T::Geometry::thrust_vector(&command);
+        match T::Geometry::propagate(
             &state,
             &command,
             spacecraft,
@@ -518,7 +537,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
             Err(_) => return Ok(decision),
         }
     }
-    let problem = Problem {
+    let problem = Problem::<T::Geometry, T> {
         target,
         spacecraft,
         settings,
@@ -536,7 +555,7 @@ pub fn terminal_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
     let (solved, e) = solve(&problem, plan, e0);
     decision.rollouts = problem.rollouts.get();
     if norm(&e) < norm(&e0) {
-        decision.command = command_of(&solved[0]);
+        decision.command = T::Geometry::command_of(&solved[0]);
         decision.solved = true;
         decision.planned_miss = Some(norm(&e));
     }
@@ -558,6 +577,7 @@ pub struct Terminal<A> {
     pub lookahead: Option<LookaheadSettings>,
 }
 
+/// In the plane, with rollout lookahead before the terminal cycles when it is set.
 impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal<A> {
     fn command(
         &self,
@@ -576,14 +596,37 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal
     }
 }
 
+/// In three dimensions the network flies before the terminal cycles: rollout lookahead is a
+/// planar aid, and `lookahead` is not read (the ground refuses it for inclined families).
+impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guide<N, T, Spatial> for Terminal<A> {
+    fn command(
+        &self,
+        navigation: &SpatialCraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<RtnCommand, GuidanceError> {
+        terminal_step(
+            &self.actor,
+            navigation,
+            target,
+            time_to_go,
+            &self.spacecraft,
+            &self.settings,
+        )
+        .map(|d| d.command)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dynamics::propagate;
     use crate::features::encode_action;
     use crate::features::{RENDEZVOUS_FEATURES, TRANSFER_FEATURES};
+    use crate::geometry::Planar;
     use crate::guidance::tests::Tangential;
     use crate::kepler::coast;
-    use shared::orbit::{CartesianState, OrbitShape};
+    use shared::orbit::{CartesianState, OrbitShape, SpatialState};
     use shared::spacecraft::Spacecraft;
 
     fn spacecraft() -> CanonicalSpacecraft {
@@ -608,7 +651,7 @@ mod tests {
             let tau = PLAN[3 - to_go.clamp(1, 3)];
             let (s, c) = (libm::sin(0.07), libm::cos(0.07));
             let turned = [0.9 * (tau[0] * c + tau[1] * s), 0.9 * (tau[1] * c - tau[0] * s)];
-            encode_action(&command_of(&turned)).map(|a| a as f32)
+            encode_action(&Planar::command_of(&[turned[0], turned[1], 0.0])).map(|a| a as f32)
         }
     }
 
@@ -628,7 +671,7 @@ mod tests {
         for tau in PLAN {
             arrival = propagate(
                 &arrival,
-                &command_of(&tau),
+                &Planar::command_of(&[tau[0], tau[1], 0.0]),
                 &spacecraft(),
                 cycle,
                 &Tolerances::default(),
@@ -703,6 +746,192 @@ mod tests {
         }
     }
 
+    /// [`PLAN`]'s thrust vectors with normal components: [`reachable3`]'s commands.
+    const PLAN3: [[f64; 3]; 3] = [[0.3, 0.6, 0.2], [0.0, 0.8, -0.3], [-0.2, 0.4, 0.3]];
+
+    /// [`NearlyRight`] in three dimensions: `plan`'s thrust at 90 %, turned by 4 degrees about
+    /// the local normal.
+    #[derive(Clone, Copy)]
+    struct NearlyRight3<const TTG: usize> {
+        cycle: f64,
+        plan: [[f64; 3]; 3],
+    }
+    impl<const N: usize, const TTG: usize> Actor<N, ACTION3_LEN> for NearlyRight3<TTG> {
+        fn act(&self, features: &[f32; N]) -> [f32; ACTION3_LEN] {
+            let to_go = (f64::from(features[TTG]) / self.cycle).round() as usize;
+            let tau = self.plan[3 - to_go.clamp(1, 3)];
+            let (s, c) = (libm::sin(0.07), libm::cos(0.07));
+            let turned = [
+                0.9 * (tau[0] * c + tau[1] * s),
+                0.9 * (tau[1] * c - tau[0] * s),
+                0.9 * tau[2],
+            ];
+            crate::features::encode_action3(&Spatial::command_of(&turned)).map(|a| a as f32)
+        }
+    }
+
+    /// [`reachable`] in three dimensions: three cycles of [`PLAN3`] from a 1 AU circular orbit
+    /// inclined by 2.3 degrees.
+    fn reachable3(cycle: f64) -> (SpatialCraftState, SpatialCraftState) {
+        let plane = shared::orbit::OrbitPlane {
+            inclination: 0.04,
+            raan: 0.5,
+        };
+        let circle = OrbitShape {
+            a: 1.0,
+            e: 0.0,
+            omega: 0.0,
+        };
+        let start = SpatialCraftState {
+            orbit: plane.embed(&circle.cartesian_at(0.3)),
+            m: 1.0,
+        };
+        let mut arrival = start;
+        for tau in PLAN3 {
+            arrival = Spatial::propagate(
+                &arrival,
+                &Spatial::command_of(&tau),
+                &spacecraft(),
+                cycle,
+                &Tolerances::default(),
+            )
+            .unwrap();
+        }
+        (start, arrival)
+    }
+
+    /// [`fly`] in three dimensions.
+    fn fly3<const N: usize, T: SpatialTargetFeatures<N>>(
+        guide: &impl Guide<N, T, Spatial>,
+        start: SpatialCraftState,
+        target: impl Fn(u32) -> T,
+        cycle: f64,
+    ) -> SpatialCraftState {
+        let mut state = start;
+        for k in 0..3u32 {
+            let time_to_go = f64::from(3 - k) * cycle;
+            let command = guide.command(&state, &target(k), time_to_go).unwrap();
+            state = Spatial::propagate(&state, &command, &spacecraft(), cycle, &Tolerances::default()).unwrap();
+        }
+        state
+    }
+
+    /// An inclined orbit and an inclined body the last three cycles can reach, with normal
+    /// thrust: the nearly right network misses them; terminal targeting in three dimensions
+    /// meets them within a thousandth of the goal, the reference being the orbit's own elements
+    /// and the body coasted by Kepler; with 14-day and 7-day cycles.
+    #[test]
+    fn a_reachable_inclined_orbit_and_body_are_met_in_three_dimensions() {
+        use crate::features::{RENDEZVOUS3_FEATURES, TRANSFER3_FEATURES};
+        use crate::guidance::TargetOrbit3;
+        use crate::kepler::coast3;
+        for cycle in [STEP, STEP / 2.0] {
+            let (start, arrival) = reachable3(cycle);
+            let settings = TerminalSettings {
+                cycle,
+                ..TerminalSettings::default()
+            };
+            let (elements, plane) = arrival.orbit.elements().unwrap();
+            let orbit = TargetOrbit3 {
+                shape: elements.shape,
+                plane,
+            };
+            let network = NearlyRight3::<14> { cycle, plan: PLAN3 };
+            let residuals = |end: &SpatialCraftState| TargetOrbit3::residuals(&orbit.features(end, 0.0).unwrap());
+            let off = residuals(&fly3::<TRANSFER3_FEATURES, _>(&network, start, |_| orbit, cycle));
+            assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+            let guide = Terminal {
+                actor: network,
+                spacecraft: spacecraft(),
+                settings,
+                lookahead: None,
+            };
+            let met = residuals(&fly3::<TRANSFER3_FEATURES, _>(&guide, start, |_| orbit, cycle));
+            assert!(met.position < 1e-5 && met.velocity < 1e-5, "transfer {cycle}: {met:?}");
+
+            let epoch = coast3(&arrival.orbit, -3.0 * cycle).unwrap();
+            let body = |k: u32| coast3(&epoch, f64::from(k) * cycle).unwrap();
+            let network = NearlyRight3::<28> { cycle, plan: PLAN3 };
+            let residuals = |end: &SpatialCraftState| SpatialState::residuals(&body(3).features(end, 0.0).unwrap());
+            let off = residuals(&fly3::<RENDEZVOUS3_FEATURES, _>(&network, start, body, cycle));
+            assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
+            let guide = Terminal {
+                actor: network,
+                spacecraft: spacecraft(),
+                settings,
+                lookahead: None,
+            };
+            let met = residuals(&fly3::<RENDEZVOUS3_FEATURES, _>(&guide, start, body, cycle));
+            assert!(
+                met.position < 1e-5 && met.velocity < 1e-5,
+                "rendezvous {cycle}: {met:?}"
+            );
+        }
+    }
+
+    /// In the reference plane, terminal targeting in three dimensions plans a rendezvous as the
+    /// planar one does (the same miss components, the normal ones zero): the same command to
+    /// 1e-6, no normal thrust, the same predicted misses.
+    #[test]
+    fn in_the_plane_the_spatial_rendezvous_plan_is_the_planar_one() {
+        use crate::features::RENDEZVOUS3_FEATURES;
+        let (start, arrival) = reachable(STEP);
+        let epoch = coast(
+            &CartesianState {
+                r: arrival.r,
+                v: arrival.v,
+            },
+            -3.0 * STEP,
+        )
+        .unwrap();
+        let settings = TerminalSettings::default();
+        let planar = terminal_step::<RENDEZVOUS_FEATURES, 3, _, _>(
+            &NearlyRight::<20> { cycle: STEP },
+            &start,
+            &epoch,
+            3.0 * STEP,
+            &spacecraft(),
+            &settings,
+        )
+        .unwrap();
+        let lifted = SpatialCraftState {
+            orbit: SpatialState::from_planar(&CartesianState { r: start.r, v: start.v }),
+            m: start.m,
+        };
+        let network = NearlyRight3::<28> {
+            cycle: STEP,
+            plan: PLAN.map(|t| [t[0], t[1], 0.0]),
+        };
+        let spatial = terminal_step::<RENDEZVOUS3_FEATURES, 4, _, _>(
+            &network,
+            &lifted,
+            &SpatialState::from_planar(&epoch),
+            3.0 * STEP,
+            &spacecraft(),
+            &settings,
+        )
+        .unwrap();
+        assert!(planar.solved && spatial.solved);
+        let (p, s) = (planar.command, spatial.command);
+        for (a, b) in [
+            (p.throttle, s.throttle),
+            (p.alpha_r, s.radial),
+            (p.alpha_theta, s.transverse),
+            (0.0, s.normal),
+        ] {
+            assert!((a - b).abs() < 1e-6, "{p:?} against {s:?}");
+        }
+        let close = |a: Option<f64>, b: Option<f64>| (a.unwrap() - b.unwrap()).abs() < 1e-6;
+        assert!(
+            close(planar.network_miss, spatial.network_miss),
+            "{planar:?} {spatial:?}"
+        );
+        assert!(
+            close(planar.planned_miss, spatial.planned_miss),
+            "{planar:?} {spatial:?}"
+        );
+    }
+
     /// The propellant phase on a plan that meets the arrival (the commands that built the
     /// target): a transfer leaves it three degrees of freedom beyond its three conditions, and
     /// the phase finds a cheaper plan that still meets the orbit when flown.
@@ -711,7 +940,7 @@ mod tests {
         let (start, arrival) = reachable(STEP);
         let target = orbit_through(&arrival);
         let (craft, settings) = (spacecraft(), TerminalSettings::default());
-        let problem = Problem {
+        let problem = Problem::<Planar, _> {
             target: &target,
             spacecraft: &craft,
             settings: &settings,
@@ -720,17 +949,19 @@ mod tests {
             cycles: 3,
             rollouts: core::cell::Cell::new(0),
         };
-        let mut plan: Plan = [[0.0; 2]; MAX_CYCLES];
-        plan[..3].copy_from_slice(&PLAN);
-        let e = problem.miss::<TRANSFER_FEATURES>(&plan).unwrap();
+        let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
+        for (planned, tau) in plan.iter_mut().zip(PLAN) {
+            *planned = [tau[0], tau[1], 0.0];
+        }
+        let e = problem.miss::<TRANSFER_FEATURES, 3>(&plan).unwrap();
         assert!(norm(&e) < MET, "{e:?}");
-        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, _>(&problem, plan, e, 8);
+        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, 3, _, _>(&problem, plan, e, 8);
         assert!(norm(&met) < MET, "{met:?}");
         let (before, after) = (fuel(&problem, &plan), fuel(&problem, &lowered));
         assert!(after < 0.99 * before, "propellant {after} against {before}");
         let mut state = start;
         for tau in lowered.iter().take(3) {
-            state = propagate(&state, &command_of(tau), &craft, STEP, &Tolerances::default()).unwrap();
+            state = propagate(&state, &Planar::command_of(tau), &craft, STEP, &Tolerances::default()).unwrap();
         }
         let flown = OrbitShape::residuals(
             &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, &state, 0.0, 0.0).unwrap(),
@@ -784,8 +1015,15 @@ mod tests {
             ..TerminalSettings::default()
         };
         let decide = |time_to_go: f64, settings: &TerminalSettings| {
-            terminal_step::<TRANSFER_FEATURES, _, _>(&Tangential, &start, &target, time_to_go, &spacecraft(), settings)
-                .unwrap()
+            terminal_step::<TRANSFER_FEATURES, 3, _, _>(
+                &Tangential,
+                &start,
+                &target,
+                time_to_go,
+                &spacecraft(),
+                settings,
+            )
+            .unwrap()
         };
         let early = decide(10.0 * STEP, &settings);
         assert!(!early.solved && early.command == early.network && early.network_miss.is_none());

@@ -14,8 +14,7 @@ use pyo3::types::{PyBytes, PyDict};
 use rayon::prelude::*;
 
 use firmware_sim::{
-    fly_observed, fly_spatial_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions,
-    FlightSetup, FlightSummary,
+    fly_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions, FlightSetup, FlightSummary,
 };
 use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
@@ -337,9 +336,6 @@ fn fly_sil<'py>(
     };
     let blob = policy.blob.bytes();
     let flights: Vec<Result<FlightEnd, String>> = if family.as_planar().is_none() {
-        if terminal.is_some() {
-            return Err(refused("terminal targeting flies planar families only so far"));
-        }
         with_spatial_flight_problem!(kind.problem, N, P => {
             let controller = Controller::<N, ACTION3_LEN>::load::<P>(blob);
             py.detach(|| {
@@ -347,7 +343,19 @@ fn fly_sil<'py>(
                     .into_par_iter()
                     .map(|i| {
                         let scenario = family.draw(seed, i);
-                        let flown = fly_spatial_observed(P::default(), &controller, &scenario, &setup, seed.wrapping_add(i), |_| ());
+                        let flight_seed = seed.wrapping_add(i);
+                        let flown = match terminal {
+                            None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
+                            Some(settings) => {
+                                let guide = Terminal {
+                                    actor: &controller,
+                                    spacecraft,
+                                    settings,
+                                    lookahead: None,
+                                };
+                                fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
+                            }
+                        };
                         FlightEnd::of(flown, |s| s.m)
                     })
                     .collect()

@@ -464,7 +464,7 @@ fn spatial_sil_is_the_environment<const N: usize, P, E>(
 {
     let config = EnvConfig::default();
     let setup = FlightSetup::nominal(config.spacecraft.canonical().unwrap());
-    let flight = firmware_sim::fly_spatial(problem, actor, scenario, &setup, 0).unwrap();
+    let flight = firmware_sim::fly(problem, actor, scenario, &setup, 0).unwrap();
     assert_eq!(flight.summary.steps, scenario.scenario.steps);
     let mut env = E::new(&config).unwrap();
     let mut obs = env.reset(scenario).unwrap();

@@ -12,7 +12,6 @@ use core::hint::black_box;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
-use onboard::features::ACTION_LEN;
 use onboard::guidance::Actor;
 
 /// The SysTick's 24-bit reload: the longest period, 2^24 ticks (671 M instructions).
@@ -85,7 +84,7 @@ pub struct Counted<'a, A, const N: usize> {
     first_input: Cell<Option<[f32; N]>>,
 }
 
-impl<'a, const N: usize, A: Actor<N>> Counted<'a, A, N> {
+impl<'a, A, const N: usize> Counted<'a, A, N> {
     pub fn new(inner: &'a A, counter: &'a Counter) -> Self {
         Self {
             inner,
@@ -114,7 +113,11 @@ impl<'a, const N: usize, A: Actor<N>> Counted<'a, A, N> {
 /// One inference between two SysTick reads. `black_box` on both sides keeps the work between
 /// the reads: LLVM may move pure arithmetic across a volatile read, not across an opaque call.
 #[inline(always)]
-fn timed<const N: usize, A: Actor<N>>(inner: &A, counter: &Counter, x: &[f32; N]) -> ([f32; ACTION_LEN], u32) {
+fn timed<const N: usize, const OUT: usize, A: Actor<N, OUT>>(
+    inner: &A,
+    counter: &Counter,
+    x: &[f32; N],
+) -> ([f32; OUT], u32) {
     let t0 = counter.now();
     let x = black_box(x);
     let y = black_box(inner.act(x));
@@ -122,8 +125,8 @@ fn timed<const N: usize, A: Actor<N>>(inner: &A, counter: &Counter, x: &[f32; N]
     (y, Counter::ticks(t0, t1))
 }
 
-impl<const N: usize, A: Actor<N>> Actor<N> for Counted<'_, A, N> {
-    fn act(&self, x: &[f32; N]) -> [f32; ACTION_LEN] {
+impl<const N: usize, const OUT: usize, A: Actor<N, OUT>> Actor<N, OUT> for Counted<'_, A, N> {
+    fn act(&self, x: &[f32; N]) -> [f32; OUT] {
         let (y, ticks) = timed(self.inner, self.counter, x);
         let n = self.count.get();
         if let Some(slot) = self.samples.get(n) {
@@ -138,7 +141,12 @@ impl<const N: usize, A: Actor<N>> Actor<N> for Counted<'_, A, N> {
 }
 
 /// Ticks of `reps` back-to-back inferences on `x` (the sub-tick resolution of the mean).
-pub fn repeated<const N: usize, A: Actor<N>>(inner: &A, counter: &Counter, x: &[f32; N], reps: u32) -> u32 {
+pub fn repeated<const N: usize, const OUT: usize, A: Actor<N, OUT>>(
+    inner: &A,
+    counter: &Counter,
+    x: &[f32; N],
+    reps: u32,
+) -> u32 {
     let t0 = counter.now();
     for _ in 0..reps {
         black_box(inner.act(black_box(x)));

@@ -3,8 +3,9 @@
 //! measurements written through semihosting.
 //!
 //! The image flies one problem, chosen at build time: transfers by default, rendezvous with the
-//! `rendezvous` feature (flight software is built for its mission, and one network's code keeps
-//! the image small). The blob is refused at load if it is of another version, problem or shape,
+//! `rendezvous` feature, and either in three dimensions with the `spatial` feature (the inclined
+//! trace flights, a 4-output network; flight software is built for its mission, and one
+//! network's code keeps the image small). The blob is refused at load if it is of another version, problem or shape,
 //! truncated or altered: the typed error goes into the trace and the flights are flown in safe
 //! mode (thrust off), then the image exits 0 as usual, since refusing is the correct behaviour.
 //! It exits 1 only when the firmware itself fails (panic, fault, output error).
@@ -35,21 +36,39 @@ use firmware_sim::Controller;
 
 use counter::{Counted, Counter, INSTRUCTIONS_PER_TICK, MAX_SAMPLES};
 
-/// The problem this image flies, and its network's input count.
-#[cfg(not(feature = "rendezvous"))]
+/// The problem this image flies, and its network's input and output counts.
+#[cfg(all(not(feature = "rendezvous"), not(feature = "spatial")))]
 mod mission {
     pub use firmware_sim::Transfer as Flown;
     pub const FEATURES: usize = onboard::features::TRANSFER_FEATURES;
+    pub const ACTIONS: usize = onboard::features::ACTION_LEN;
 }
-#[cfg(feature = "rendezvous")]
+#[cfg(all(feature = "rendezvous", not(feature = "spatial")))]
 mod mission {
     pub use firmware_sim::Rendezvous as Flown;
     pub const FEATURES: usize = onboard::features::RENDEZVOUS_FEATURES;
+    pub const ACTIONS: usize = onboard::features::ACTION_LEN;
 }
-use mission::{Flown, FEATURES};
+#[cfg(all(not(feature = "rendezvous"), feature = "spatial"))]
+mod mission {
+    pub use firmware_sim::Transfer3 as Flown;
+    pub const FEATURES: usize = onboard::features::TRANSFER3_FEATURES;
+    pub const ACTIONS: usize = onboard::features::ACTION3_LEN;
+}
+#[cfg(all(feature = "rendezvous", feature = "spatial"))]
+mod mission {
+    pub use firmware_sim::Rendezvous3 as Flown;
+    pub const FEATURES: usize = onboard::features::RENDEZVOUS3_FEATURES;
+    pub const ACTIONS: usize = onboard::features::ACTION3_LEN;
+}
+use mission::{Flown, ACTIONS, FEATURES};
 
 /// The flight computer's controller of this image's problem.
-type FlownController<'a> = Controller<'a, FEATURES>;
+type FlownController<'a> = Controller<'a, FEATURES, ACTIONS>;
+/// The state the flight's navigation reports.
+type FlownState = firmware_sim::StateOf<Flown, FEATURES>;
+/// A trace flight of this image's problem.
+type FlownFlight = trace::TraceFlight<firmware_sim::ScenarioOf<Flown, FEATURES>>;
 
 /// Aligns the blob in flash (64 bytes: a cache line on parts that have one); the decoder does
 /// not need it, since it reads every array byte-wise.
@@ -65,12 +84,13 @@ const CALIBRATION_LOOP: u32 = 1_000_000;
 const REPEATS: u32 = 64;
 /// Cycles left in the measured lookahead cycle: 26 rollouts of 4 cycles (one measurement stays
 /// well inside the SysTick's 2^24 ticks).
+#[cfg(not(feature = "spatial"))]
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
 const TERMINAL_CYCLES: u32 = 4;
 
 /// The first trace flight's navigation state with 1 ..= [`TERMINAL_CYCLES`] cycles to go.
-type TerminalStates = [Option<onboard::dynamics::SpacecraftState>; TERMINAL_CYCLES as usize];
+type TerminalStates = [Option<FlownState>; TERMINAL_CYCLES as usize];
 
 #[entry]
 fn main() -> ! {
@@ -114,7 +134,9 @@ fn fly(
     trace::write_header(out, blob, controller)?;
     let mut terminal_states = [None; TERMINAL_CYCLES as usize];
     for (i, flight) in trace::flights_of(Flown).iter().enumerate() {
-        let steps = flight.scenario.steps;
+        let steps =
+            <<Flown as firmware_sim::Problem<FEATURES>>::Geometry as firmware_sim::Dimension>::plan(&flight.scenario)
+                .steps;
         // The flight's outcome is in its `end` line.
         let _flown = trace::fly_observing(out, Flown, counted, flight, |step| {
             // Where the first flight's navigation stands with 1 ..= TERMINAL_CYCLES to go.
@@ -172,6 +194,8 @@ fn measure(
         total / u64::from(REPEATS),
         (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
     )?;
+    // Rollout lookahead flies in the plane only.
+    #[cfg(not(feature = "spatial"))]
     lookahead(out, counter, controller)?;
     terminal(out, counter, controller, terminal_states)?;
     // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
@@ -185,7 +209,7 @@ fn measure(
 /// The first trace flight, its target and the nominal spacecraft: what the onboard aids'
 /// measurements fly.
 fn first_flight() -> Option<(
-    &'static trace::TraceFlight,
+    &'static FlownFlight,
     <Flown as firmware_sim::Problem<FEATURES>>::Target,
     shared::spacecraft::CanonicalSpacecraft,
 )> {
@@ -199,6 +223,7 @@ fn first_flight() -> Option<(
 /// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
 /// start, [`LOOKAHEAD_CYCLES`] cycles before the arrival: its instructions, whole and per rollout
 /// cycle (an inference and a 14-day propagation), from which a cycle with more to go scales.
+#[cfg(not(feature = "spatial"))]
 #[inline(never)]
 fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownController<'_>) -> core::fmt::Result {
     use onboard::dynamics::SpacecraftState;
@@ -251,7 +276,8 @@ fn terminal(
         let total = u64::from(Counter::ticks(start, counter.now())) * u64::from(INSTRUCTIONS_PER_TICK);
         let rollouts = decision.map_or(0, |d| d.rollouts);
         let per_cycle = total / u64::from(rollouts.max(1) * to_go);
-        let bound = 2 + settings.iterations * (2 * to_go + 4);
+        let axes = <<Flown as firmware_sim::Problem<FEATURES>>::Geometry as firmware_sim::Dimension>::THRUST_AXES;
+        let bound = 2 + settings.iterations * (axes as u32 * to_go + 4);
         writeln!(
             out,
             "{COMMENT} instructions per terminal-targeting cycle, {to_go} cycle(s) to go: {total} ({rollouts} \

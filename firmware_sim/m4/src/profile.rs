@@ -45,10 +45,10 @@ impl fmt::Display for Stage {
 }
 
 /// Writes the breakdown of `policy.forward(x)` as comment lines.
-pub fn write<W: Write, const N: usize>(
+pub fn write<W: Write, const N: usize, const OUT: usize>(
     w: &mut W,
     counter: &Counter,
-    policy: &Policy<'_, N>,
+    policy: &Policy<'_, N, OUT>,
     x: &[f32; N],
 ) -> fmt::Result {
     let whole = per_call(counter, x, |x| policy.forward(x));
@@ -81,7 +81,7 @@ pub fn write<W: Write, const N: usize>(
                     all.saturating_sub(l2)
                 }),
                 (
-                    Stage("L3 f32 256x3", None, ""),
+                    Stage("L3 f32 256 to", Some(OUT), ""),
                     per_call(counter, &h2, |h| c.forward(h)),
                 ),
             ];
@@ -103,7 +103,10 @@ pub fn write<W: Write, const N: usize>(
             let stages = [
                 (Stage("L1", Some(N), "x256"), per_call(counter, x, |x| a.forward(x))),
                 (Stage("L2 256x256", None, ""), l2),
-                (Stage("L3 256x3", None, ""), per_call(counter, &h2, |h| c.forward(h))),
+                (
+                    Stage("L3 256 to", Some(OUT), ""),
+                    per_call(counter, &h2, |h| c.forward(h)),
+                ),
             ];
             for (name, v) in stages {
                 write!(w, "; {name} {}", Hundredths(v))?;

@@ -1,21 +1,29 @@
 //! Writes a deterministic, seeded, untrained transfer actor (10-256-256-3, He-uniform) as an
 //! f32 blob and an int8 blob, for the SIL and the Cortex-M4 image when no trained blob is given.
 //!
-//! `random_blob [--seed N] [--out DIR] [--rendezvous]` writes `DIR/transfer-f32.blob` and
-//! `DIR/transfer-int8.blob` (defaults: seed 1, the current folder); `--rendezvous` writes a
-//! 22-256-256-3 `DIR/rendezvous-f32.blob` and `DIR/rendezvous-int8.blob` instead (flown by the
-//! rendezvous image and the C interface's rendezvous step, refused by the transfer image). The
-//! blobs come from `shared::quantize`, the exporter's own writer; the int8 activation scales are
-//! calibrated on random feature vectors of flight-like magnitude.
+//! `random_blob [--seed N] [--out DIR] [--rendezvous] [--spatial]` writes
+//! `DIR/transfer-f32.blob` and `DIR/transfer-int8.blob` (defaults: seed 1, the current folder);
+//! `--rendezvous` writes a 22-256-256-3 `DIR/rendezvous-f32.blob` and `DIR/rendezvous-int8.blob`
+//! instead (flown by the rendezvous image and the C interface's rendezvous step, refused by the
+//! transfer image). `--spatial` writes the three-dimensional actor of the problem instead,
+//! 15-256-256-4 (`transfer3-*.blob`) or 30-256-256-4 (`rendezvous3-*.blob`). The blobs come from
+//! `shared::quantize`, the exporter's own writer; the int8 activation scales are calibrated on
+//! random feature vectors of flight-like magnitude (in three dimensions, onboard's own features
+//! of random inclined states).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use shared::blob::{Activation, ProblemKind};
+use onboard::guidance::{SpatialTargetFeatures, TargetOrbit3};
+use onboard::spatial::SpatialCraftState;
+use shared::blob::{Activation, FeatureLayout, ProblemKind};
+use shared::orbit::{CartesianState, OrbitPlane, OrbitShape, SpatialState};
 use shared::quantize::{DenseWeights, MlpWeights};
 
 const TRANSFER: [usize; 4] = [10, 256, 256, 3];
 const RENDEZVOUS: [usize; 4] = [22, 256, 256, 3];
+const TRANSFER3: [usize; 4] = [15, 256, 256, 4];
+const RENDEZVOUS3: [usize; 4] = [30, 256, 256, 4];
 /// Feature vectors the int8 input scales are calibrated on.
 const CALIBRATION_SAMPLES: usize = 512;
 
@@ -86,6 +94,48 @@ fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
     .to_vec()
 }
 
+/// A near-circular orbit point of 0.8-1.8 AU in a random plane inclined up to 5 degrees.
+fn spatial_point(rng: &mut Rng) -> SpatialState {
+    let (r, theta, v_r, v_theta) = orbit_point(rng);
+    let (c, s) = (theta.cos(), theta.sin());
+    plane(rng).embed(&CartesianState {
+        r: [r * c, r * s],
+        v: [v_r * c - v_theta * s, v_r * s + v_theta * c],
+    })
+}
+
+fn plane(rng: &mut Rng) -> OrbitPlane {
+    OrbitPlane {
+        inclination: rng.uniform(0.0, 5f64.to_radians()),
+        raan: rng.uniform(0.0, std::f64::consts::TAU),
+    }
+}
+
+/// Onboard's three-dimensional features of a random inclined state, mass 0.6-1, time to go up
+/// to 12 t*, against a random inclined target orbit (transfer) or body (rendezvous).
+fn spatial_sample(rng: &mut Rng, layout: FeatureLayout) -> Result<Vec<f32>, String> {
+    let state = SpatialCraftState {
+        orbit: spatial_point(rng),
+        m: rng.uniform(0.6, 1.0),
+    };
+    let time_to_go = rng.uniform(0.0, 12.0);
+    let features = if layout == FeatureLayout::RendezvousSpatial30 {
+        spatial_point(rng).features(&state, time_to_go).map(|f| f.to_vec())
+    } else {
+        let target = TargetOrbit3 {
+            shape: OrbitShape {
+                a: rng.uniform(0.8, 1.8),
+                e: rng.uniform(0.0, 0.1),
+                omega: rng.uniform(0.0, std::f64::consts::TAU),
+            },
+            plane: plane(rng),
+        };
+        target.features(&state, time_to_go).map(|f| f.to_vec())
+    };
+    let features = features.map_err(|e| format!("calibration features: {e}"))?;
+    Ok(features.into_iter().map(|v| v as f32).collect())
+}
+
 fn rendezvous_sample(rng: &mut Rng) -> Vec<f32> {
     let cartesian = |(r, theta, v_r, v_theta): (f64, f64, f64, f64)| {
         let (c, s) = (theta.cos(), theta.sin());
@@ -123,11 +173,12 @@ fn rendezvous_sample(rng: &mut Rng) -> Vec<f32> {
 }
 
 fn run() -> Result<(), String> {
-    let (mut seed, mut out, mut kind) = (1u64, PathBuf::from("."), ProblemKind::Transfer);
+    let (mut seed, mut out, mut kind, mut spatial) = (1u64, PathBuf::from("."), ProblemKind::Transfer, false);
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--rendezvous" => kind = ProblemKind::Rendezvous,
+            "--spatial" => spatial = true,
             "--seed" | "--out" => {
                 let v = args.next().ok_or(format!("{a} needs a value"))?;
                 if a == "--seed" {
@@ -138,14 +189,17 @@ fn run() -> Result<(), String> {
             }
             _ => {
                 return Err(format!(
-                    "usage: random_blob [--seed N] [--out DIR] [--rendezvous] (got {a})"
+                    "usage: random_blob [--seed N] [--out DIR] [--rendezvous] [--spatial] (got {a})"
                 ))
             }
         }
     }
-    let sizes = match kind {
-        ProblemKind::Transfer => TRANSFER,
-        ProblemKind::Rendezvous => RENDEZVOUS,
+    let features = FeatureLayout::of(kind, spatial);
+    let (sizes, name) = match features {
+        FeatureLayout::TransferPolar10 => (TRANSFER, "transfer"),
+        FeatureLayout::RendezvousPolar22 => (RENDEZVOUS, "rendezvous"),
+        FeatureLayout::TransferSpatial15 => (TRANSFER3, "transfer3"),
+        FeatureLayout::RendezvousSpatial30 => (RENDEZVOUS3, "rendezvous3"),
     };
     let mut rng = Rng(seed);
     let layers = sizes
@@ -160,22 +214,25 @@ fn run() -> Result<(), String> {
             he_layer(s[0], s[1], activation, &mut rng)
         })
         .collect();
-    let net = MlpWeights {
-        features: shared::blob::FeatureLayout::of(kind, false),
-        layers,
-    };
+    let net = MlpWeights { features, layers };
     let calibration: Vec<Vec<f32>> = (0..CALIBRATION_SAMPLES)
-        .map(|_| feature_sample(&mut rng, sizes[0]))
-        .collect();
+        .map(|_| {
+            if spatial {
+                spatial_sample(&mut rng, features)
+            } else {
+                Ok(feature_sample(&mut rng, sizes[0]))
+            }
+        })
+        .collect::<Result<_, _>>()?;
 
     let shape = sizes.map(|n| n.to_string()).join("-");
     let provenance = format!("random_blob seed {seed}: untrained He-uniform {shape}, for SIL tests");
     let (int8_blob, _) = net.int8_blob(&calibration, &provenance).map_err(|e| e.to_string())?;
     let f32_blob = net.f32_blob(&provenance).map_err(|e| e.to_string())?;
-    let blobs = match kind {
-        ProblemKind::Transfer => vec![("transfer-f32.blob", f32_blob), ("transfer-int8.blob", int8_blob)],
-        ProblemKind::Rendezvous => vec![("rendezvous-f32.blob", f32_blob), ("rendezvous-int8.blob", int8_blob)],
-    };
+    let blobs = [
+        (format!("{name}-f32.blob"), f32_blob),
+        (format!("{name}-int8.blob"), int8_blob),
+    ];
 
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     for (name, bytes) in &blobs {

@@ -1,22 +1,25 @@
 //! The host twin of the Cortex-M4 image: flies the trace's flights (`firmware_sim::trace`)
 //! with the blob in the given file and prints the same trace the image prints under QEMU.
 //!
-//! `sil_trace BLOB [--rendezvous] [--latency]`. The image is built for one problem, and so is
-//! its twin: transfer by default (a rendezvous blob is refused), with `--rendezvous` the
-//! rendezvous image (a transfer blob is refused). With `--latency` it also times the inference
-//! on the host (lines starting with `#`, which the trace diff ignores).
+//! `sil_trace BLOB [--rendezvous] [--spatial] [--latency]`. The image is built for one problem,
+//! and so is its twin: transfer by default (a rendezvous blob is refused), with `--rendezvous`
+//! the rendezvous image (a transfer blob is refused); with `--spatial` the problem in three
+//! dimensions (the inclined trace flights; a planar blob is refused, and a 3D blob by a planar
+//! twin). With `--latency` it also times the inference on the host (lines starting with `#`,
+//! which the trace diff ignores).
 
 use std::fmt::Write as _;
 use std::hint::black_box;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use firmware_sim::trace::{self, flights_of};
-use firmware_sim::{Controller, PlanarProblem, Rendezvous, Transfer};
-use onboard::guidance::Actor;
+use firmware_sim::trace::{self, flights_of, TraceProblem};
+use firmware_sim::{Controller, Rendezvous, Rendezvous3, Transfer, Transfer3};
+use onboard::features::{ACTION3_LEN, ACTION_LEN};
+use onboard::guidance::{Actor, Guide};
 
 /// Host latency: the median over batches of inferences on the nominal flight's features.
-fn latency<const N: usize>(controller: &Controller<'_, N>, inputs: &[[f32; N]]) -> String {
+fn latency<const N: usize, const OUT: usize>(controller: &Controller<'_, N, OUT>, inputs: &[[f32; N]]) -> String {
     const BATCHES: usize = 31;
     const PER_BATCH: usize = 200;
     let mut ns: Vec<f64> = Vec::with_capacity(BATCHES);
@@ -43,8 +46,15 @@ fn latency<const N: usize>(controller: &Controller<'_, N>, inputs: &[[f32; N]]) 
 }
 
 /// The trace of `blob` flown as problem `P`, as the image built for `P` writes it.
-fn trace_of<const N: usize, P: PlanarProblem<N>>(problem: P, blob: &[u8], timing: bool) -> Result<String, String> {
-    let controller = Controller::<N>::load::<P>(blob);
+fn trace_of<const N: usize, const OUT: usize, P: TraceProblem<N>>(
+    problem: P,
+    blob: &[u8],
+    timing: bool,
+) -> Result<String, String>
+where
+    for<'a> Recorder<'a, N, OUT>: Guide<N, P::Target, P::Geometry>,
+{
+    let controller = Controller::<N, OUT>::load::<P>(blob);
     let mut out = String::new();
     let mut inputs = Vec::new();
     trace::write_header(&mut out, blob, &controller).map_err(|e| e.to_string())?;
@@ -67,36 +77,39 @@ fn trace_of<const N: usize, P: PlanarProblem<N>>(problem: P, blob: &[u8], timing
 }
 
 fn run() -> Result<(), String> {
-    let usage = "usage: sil_trace BLOB [--rendezvous] [--latency]";
+    let usage = "usage: sil_trace BLOB [--rendezvous] [--spatial] [--latency]";
     let mut args = std::env::args().skip(1);
     let path = args.next().ok_or(usage)?;
-    let (mut rendezvous, mut timing) = (false, false);
+    let (mut rendezvous, mut spatial, mut timing) = (false, false, false);
     for a in args {
         match a.as_str() {
             "--rendezvous" => rendezvous = true,
+            "--spatial" => spatial = true,
             "--latency" => timing = true,
             _ => return Err(format!("unknown argument {a}; {usage}")),
         }
     }
     // On a cache line, as the image links it: the latency is the aligned kernels'.
     let blob = shared::blob::AlignedBlob::new(&std::fs::read(&path).map_err(|e| format!("{path}: {e}"))?);
-    let out = if rendezvous {
-        trace_of(Rendezvous, blob.bytes(), timing)?
-    } else {
-        trace_of(Transfer, blob.bytes(), timing)?
+    let bytes = blob.bytes();
+    let out = match (rendezvous, spatial) {
+        (false, false) => trace_of::<_, ACTION_LEN, _>(Transfer, bytes, timing)?,
+        (true, false) => trace_of::<_, ACTION_LEN, _>(Rendezvous, bytes, timing)?,
+        (false, true) => trace_of::<_, ACTION3_LEN, _>(Transfer3, bytes, timing)?,
+        (true, true) => trace_of::<_, ACTION3_LEN, _>(Rendezvous3, bytes, timing)?,
     };
     print!("{out}");
     Ok(())
 }
 
 /// Passes inferences through and keeps their inputs (for the latency measurement).
-struct Recorder<'a, const N: usize> {
-    inner: &'a Controller<'a, N>,
+struct Recorder<'a, const N: usize, const OUT: usize> {
+    inner: &'a Controller<'a, N, OUT>,
     inputs: std::cell::RefCell<Vec<[f32; N]>>,
 }
 
-impl<const N: usize> Actor<N> for Recorder<'_, N> {
-    fn act(&self, x: &[f32; N]) -> [f32; 3] {
+impl<const N: usize, const OUT: usize> Actor<N, OUT> for Recorder<'_, N, OUT> {
+    fn act(&self, x: &[f32; N]) -> [f32; OUT] {
         self.inputs.borrow_mut().push(*x);
         self.inner.act(x)
     }

@@ -625,10 +625,10 @@ impl ExperimentConfig {
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }
-        if self.is_inclined() && (self.sil.lookahead.is_some() || self.sil.terminal.is_some()) {
+        if self.is_inclined() && self.sil.lookahead.is_some() {
             return Err(ConfigError::Invalid(format!(
-                "sil.lookahead / sil.terminal: the onboard aids fly planar families only so far, and family {} \
-                 is inclined: fly its network alone",
+                "sil.lookahead: rollout lookahead flies planar families only, and family {} is inclined: fly \
+                 its network alone or with terminal targeting (sil.terminal)",
                 self.family.label()
             )));
         }

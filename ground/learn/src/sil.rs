@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use firmware_sim::{
-    fly_observed, fly_spatial_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions,
-    FlightGeometry, FlightSetup, FlightStep, PlanarProblem, SilError,
+    fly_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions, FlightGeometry,
+    FlightSetup, FlightStep, PlanarProblem, SilError,
 };
 use onboard::features::ACTION3_LEN;
 use onboard::lookahead::Lookahead;
@@ -301,7 +301,7 @@ fn check_mission(config: &ExperimentConfig, blob: &[u8]) -> Result<(), Experimen
 }
 
 /// How a geometry's blobs fly in the SIL loop against the dispersed plant: planar blobs with
-/// the onboard aids, three-dimensional ones ([`firmware_sim::fly_spatial_observed`]) with the
+/// the onboard aids, three-dimensional ones (the same [`firmware_sim::fly_observed`]) with the
 /// network alone.
 pub trait SilGeometry: DemoGeometry {
     /// Flies `blob` on `scenarios` as `flights` says (the config's problem in this geometry):
@@ -351,9 +351,9 @@ impl SilGeometry for Spatial {
         scenarios: &[SpatialScenario],
         flights: &SilFlights,
     ) -> Result<SilFlown<Spatial>, ExperimentError> {
-        if flights.lookahead.is_some() || flights.terminal.is_some() {
+        if flights.lookahead.is_some() {
             return Err(ExperimentError::Inclined {
-                stage: "the onboard aids (lookahead, terminal targeting)",
+                stage: "rollout lookahead",
                 family: config.family.label().to_string(),
             });
         }
@@ -364,7 +364,8 @@ impl SilGeometry for Spatial {
     }
 }
 
-/// [`SilGeometry::fly_blob`] in three dimensions for one problem: the network alone.
+/// [`SilGeometry::fly_blob`] in three dimensions for one problem: the network, with terminal
+/// targeting of its last cycles when the flights ask for it.
 fn fly_spatial_blob_as<const N: usize, P>(
     config: &ExperimentConfig,
     blob: &[u8],
@@ -384,7 +385,23 @@ where
         .map(|(i, scenario)| {
             let mut steps = Vec::with_capacity(scenario.scenario.steps as usize);
             let seed = flights.seed.wrapping_add(i as u64);
-            let result = fly_spatial_observed(P::default(), &controller, scenario, &setup, seed, |k| steps.push(*k));
+            let keep = |k: &FlightStep<N, Spatial>| steps.push(*k);
+            // A refused blob flies safe mode, thrust off every cycle: nothing to target.
+            let result = match flights
+                .terminal
+                .filter(|_| matches!(controller, Controller::Network(_)))
+            {
+                None => fly_observed(P::default(), &controller, scenario, &setup, seed, keep),
+                Some(settings) => {
+                    let guide = Terminal {
+                        actor: &controller,
+                        spacecraft: setup.spacecraft,
+                        settings,
+                        lookahead: None,
+                    };
+                    fly_observed(P::default(), &guide, scenario, &setup, seed, keep)
+                }
+            };
             flown(config, i, scenario, &steps, result.err(), i < flights.record)
         })
         .collect();

@@ -288,10 +288,13 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         "a planar blob flies the 3D loop"
     );
 
-    // The onboard aids are planar: an inclined config that asks for one is refused up front,
-    // and its SIL Monte Carlo writes nothing.
+    // Rollout lookahead is planar: an inclined config that asks for it is refused up front, and
+    // its SIL Monte Carlo writes nothing. Terminal targeting flies in three dimensions.
+    let mut targeted = wide.clone();
+    targeted.sil.terminal = Some(learn::config::TerminalSettings::default());
+    assert!(targeted.validate().is_ok());
     let mut aided = wide.clone();
-    aided.sil.terminal = Some(learn::config::TerminalSettings::default());
+    aided.sil.lookahead = Some(Default::default());
     let refused = aided.validate().unwrap_err().to_string();
     assert!(refused.contains("planar families only"), "{refused}");
     let sil = learn::sil::sil_monte_carlo(

@@ -4,6 +4,9 @@
  *
  *   fly BLOB CALLS.bin > out.txt
  *
+ * Exit status 1 when the calls file is refused (a format or problem this replay does not know;
+ * why on stderr) or the output cannot be written, 2 for wrong arguments or unreadable files.
+ *
  * Build: cc -std=c99 -I onboard/c/include fly.c replay.c target/c-release/liblowthrust.a
  *        -lpthread -ldl -lm */
 #include <stdio.h>
@@ -60,14 +63,12 @@ int main(int argc, char **argv) {
         fprintf(stderr, "fly: cannot read %s\n", blob == NULL ? argv[1] : argv[2]);
         return 2;
     }
-    int status = replay_calls(blob, blob_len, calls, calls_len, write_stdout, NULL);
-    if (status != 0) {
-        fprintf(stderr, "fly: %s is not a calls file\n", argv[2]);
+    const int status = replay_calls(blob, blob_len, calls, calls_len, write_stdout, NULL);
+    if (status != REPLAY_OK) {
+        fprintf(stderr, "fly: %s: %s\n", argv[2], replay_status_text(status));
     }
-    if (fflush(stdout) != 0) {
-        status = -1;
-    }
+    const int written = fflush(stdout) == 0;
     free(calls);
     free(blob);
-    return status == 0 ? 0 : 1;
+    return status == REPLAY_OK && written ? 0 : 1;
 }

@@ -1,127 +1,375 @@
 //! The Rust side of the C interface's bit-identity check (scripts/c-sil.sh): the guidance calls
 //! the Rust SIL makes, as inputs for the C programs and as the output they must print.
 //!
-//! `guidance_calls BLOB OUT_DIR [--rendezvous]` writes
+//! `guidance_calls BLOB OUT_DIR [--rendezvous] [--spatial]` writes
 //! - `OUT_DIR/calls.bin`: every guidance call's inputs (navigation state, target, time to go) as
 //!   f64 bit patterns, read by `replay.c` (the host program `fly.c` and the Cortex-M4F image);
 //! - `OUT_DIR/expected.txt`: what `replay.c` must print, command bits or refusal code per call,
 //!   computed here by the Rust crates without the C interface.
 //!
 //! The calls of `firmware_sim`'s trace flights of the problem (transfer by default, rendezvous
-//! with `--rendezvous`; `sil_trace`'s, the same scenarios, dispersions and seeds), recorded from
-//! the closed loop as it flew with the blob's controller, then inputs guidance must refuse.
-//! Each recorded navigation state is what the Rust controller was given, and the target what
-//! flight software gave it (the orbit, or the body's state propagated by the Kepler coast); the
-//! next state follows from the command through the plant. So a C-hosted controller that returns
-//! the same command bits on every one of these inputs would have flown the same flights, bit for
-//! bit.
+//! with `--rendezvous`, either in three dimensions on the inclined flights with `--spatial`;
+//! `sil_trace`'s, the same scenarios, dispersions and seeds), recorded from the closed loop as it
+//! flew with the blob's controller, then inputs guidance must refuse. Each recorded navigation
+//! state is what the Rust controller was given, and the target what flight software gave it (the
+//! orbit, or the body's state propagated by the Kepler coast); the next state follows from the
+//! command through the plant. So a C-hosted controller that returns the same command bits on
+//! every one of these inputs would have flown the same flights, bit for bit.
 //!
-//! calls.bin (little-endian): `LTGC`, u32 format 1, u32 problem (0 transfer, 1 rendezvous),
-//! u32 call count, then per call 10 f64: x, y, vx, vy, m; the target (a, e, omega, 0 for a
-//! transfer; the body's x, y, vx, vy for a rendezvous); the time to go.
+//! calls.bin (little-endian): `LTGC`, u32 format 2, u32 problem (the C interface's
+//! `LT_PROBLEM_*`: 0 transfer, 1 rendezvous, 2 transfer in three dimensions, 3 rendezvous in
+//! three dimensions), u32 call count, then per call its f64s: the navigation state (x, y, vx,
+//! vy, m; in three dimensions x, y, z, vx, vy, vz, m), the target (a, e, omega, 0 for a transfer;
+//! the body's x, y, vx, vy for a rendezvous; in three dimensions a, e, omega, inclination, raan,
+//! 0, or the body's x, y, z, vx, vy, vz), the time to go: 10 per planar call, 14 in three
+//! dimensions. (Format 1 was the planar problems alone, with the same records.)
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use firmware_sim::trace::{flights_of, RENDEZVOUS_FLIGHTS, TRANSFER_FLIGHTS};
-use firmware_sim::{fly_observed, Controller, PlanarProblem, Problem};
+use firmware_sim::trace::{flights_of, TraceProblem};
+use firmware_sim::{
+    fly_observed, CommandOf, Controller, Dimension, FlightGeometry, Planar, Policy, Rendezvous, Rendezvous3,
+    ScenarioOf, Spatial, StateOf, Transfer, Transfer3,
+};
 use lowthrust::{
-    error_name, guidance_error_code, lt_status, policy_error_code, LT_ERR_NOT_LOADED, LT_OK, THRUST_OFF, VERSION,
+    error_name, guidance_error_code, lt_rtn_command, lt_status, lt_thrust_command, policy_error_code,
+    LT_ERR_NOT_LOADED, LT_OK, LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3, LT_PROBLEM_TRANSFER, LT_PROBLEM_TRANSFER3,
+    RTN_THRUST_OFF, THRUST_OFF, VERSION,
 };
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::guidance::{rendezvous_step, transfer_step, GuidanceError};
-use onboard::policy::{RendezvousPolicy, TransferPolicy};
-use shared::blob::{ProblemKind, Quantization};
-use shared::orbit::{CartesianState, OrbitShape};
-use shared::scenario::Scenario;
+use onboard::features::{
+    ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES, TRANSFER3_FEATURES, TRANSFER_FEATURES,
+};
+use onboard::guidance::{
+    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError, Guide, TargetOrbit3,
+};
+use onboard::spatial::{RtnCommand, SpatialCraftState};
+use shared::blob::Quantization;
+use shared::orbit::{CartesianState, OrbitShape, SpatialState};
+use shared::scenario::{Scenario, SpatialScenario};
 
-/// One guidance call: its inputs and what the Rust controller answered.
-struct Call {
-    navigation: SpacecraftState,
-    /// a, e, omega, 0 (transfer) or x, y, vx, vy of the body (rendezvous).
-    target: [f64; 4],
+/// calls.bin's format number.
+const CALLS_FORMAT: u32 = 2;
+
+/// How the calls of a geometry are written, and how its navigation states are made unusable.
+trait CallGeometry: FlightGeometry {
+    /// The C interface's command struct of the geometry.
+    type CCommand: From<Self::Command>;
+    /// What the C interface writes on a refused step.
+    const REFUSED: Self::CCommand;
+
+    /// The navigation state as calls.bin has it: position, velocity, mass.
+    fn state_values(state: &Self::State) -> Vec<f64>;
+    /// The command as replay.c prints it, throttle first.
+    fn command_values(command: &Self::CCommand) -> Vec<f64>;
+    /// `state` with mass `m`.
+    fn with_mass(state: &Self::State, m: f64) -> Self::State;
+    /// `state` moved to `x` on the x-axis.
+    fn on_x_axis(state: &Self::State, x: f64) -> Self::State;
+    /// `state` made unusable through what only this geometry has.
+    fn unusable_here(state: &Self::State) -> Vec<Self::State>;
+}
+
+impl CallGeometry for Planar {
+    type CCommand = lt_thrust_command;
+    const REFUSED: lt_thrust_command = THRUST_OFF;
+
+    fn state_values(s: &SpacecraftState) -> Vec<f64> {
+        vec![s.r[0], s.r[1], s.v[0], s.v[1], s.m]
+    }
+
+    fn command_values(c: &lt_thrust_command) -> Vec<f64> {
+        vec![c.throttle, c.alpha_r, c.alpha_theta]
+    }
+
+    fn with_mass(s: &SpacecraftState, m: f64) -> SpacecraftState {
+        SpacecraftState { m, ..*s }
+    }
+
+    fn on_x_axis(s: &SpacecraftState, x: f64) -> SpacecraftState {
+        SpacecraftState { r: [x, 0.0], ..*s }
+    }
+
+    fn unusable_here(_: &SpacecraftState) -> Vec<SpacecraftState> {
+        Vec::new()
+    }
+}
+
+impl CallGeometry for Spatial {
+    type CCommand = lt_rtn_command;
+    const REFUSED: lt_rtn_command = RTN_THRUST_OFF;
+
+    fn state_values(s: &SpatialCraftState) -> Vec<f64> {
+        let SpatialState { r, v } = s.orbit;
+        vec![r[0], r[1], r[2], v[0], v[1], v[2], s.m]
+    }
+
+    fn command_values(c: &lt_rtn_command) -> Vec<f64> {
+        vec![c.throttle, c.radial, c.transverse, c.normal]
+    }
+
+    fn with_mass(s: &SpatialCraftState, m: f64) -> SpatialCraftState {
+        SpatialCraftState { m, ..*s }
+    }
+
+    fn on_x_axis(s: &SpatialCraftState, x: f64) -> SpatialCraftState {
+        let orbit = SpatialState {
+            r: [x, 0.0, 0.0],
+            ..s.orbit
+        };
+        SpatialCraftState { orbit, ..*s }
+    }
+
+    /// An out-of-plane position that is NaN, and a velocity along the radius (no orbit plane,
+    /// which the RTN features need).
+    fn unusable_here(s: &SpatialCraftState) -> Vec<SpatialCraftState> {
+        let [x, y, _] = s.orbit.r;
+        let z_nan = SpatialState {
+            r: [x, y, f64::NAN],
+            ..s.orbit
+        };
+        let radial_velocity = SpatialState {
+            v: s.orbit.r,
+            ..s.orbit
+        };
+        [z_nan, radial_velocity]
+            .map(|orbit| SpatialCraftState { orbit, ..*s })
+            .to_vec()
+    }
+}
+
+/// A problem whose guidance calls are recorded: its number and name in the C interface, its
+/// target as calls.bin has it, and the Rust guidance step the C step wraps, on `N` features
+/// with `OUT` action outputs.
+trait RecordedProblem<const N: usize, const OUT: usize>: TraceProblem<N, Geometry: CallGeometry> {
+    /// calls.bin's problem number: the C interface's `LT_PROBLEM_*`.
+    const CODE: u32;
+    /// The problem's name on the `load` and `policy` lines, as replay.c prints it.
+    const NAME: &'static str;
+
+    /// The target as calls.bin has it.
+    fn target_values(target: &Self::Target) -> Vec<f64>;
+    /// The target at the scenario's epoch, as given (not propagated): the refused inputs' target.
+    fn epoch_target(scenario: &ScenarioOf<Self, N>) -> Self::Target;
+    /// `target` made unusable.
+    fn unusable_targets(target: &Self::Target) -> Vec<Self::Target>;
+    /// The guidance step of `onboard` that the C interface's step of the problem wraps.
+    fn step(
+        policy: &Policy<'_, N, OUT>,
+        navigation: &StateOf<Self, N>,
+        target: &Self::Target,
+        time_to_go: f64,
+    ) -> Result<CommandOf<Self, N>, GuidanceError>;
+}
+
+impl RecordedProblem<TRANSFER_FEATURES, ACTION_LEN> for Transfer {
+    const CODE: u32 = LT_PROBLEM_TRANSFER;
+    const NAME: &'static str = "transfer";
+
+    fn target_values(t: &OrbitShape) -> Vec<f64> {
+        vec![t.a, t.e, t.omega, 0.0]
+    }
+
+    fn epoch_target(s: &Scenario) -> OrbitShape {
+        s.target
+    }
+
+    /// A negative semi-major axis.
+    fn unusable_targets(t: &OrbitShape) -> Vec<OrbitShape> {
+        vec![OrbitShape { a: -1.0, ..*t }]
+    }
+
+    fn step(
+        policy: &Policy<'_, TRANSFER_FEATURES>,
+        navigation: &SpacecraftState,
+        target: &OrbitShape,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        transfer_step(policy, navigation, target, time_to_go)
+    }
+}
+
+impl RecordedProblem<RENDEZVOUS_FEATURES, ACTION_LEN> for Rendezvous {
+    const CODE: u32 = LT_PROBLEM_RENDEZVOUS;
+    const NAME: &'static str = "rendezvous";
+
+    fn target_values(b: &CartesianState) -> Vec<f64> {
+        vec![b.r[0], b.r[1], b.v[0], b.v[1]]
+    }
+
+    fn epoch_target(s: &Scenario) -> CartesianState {
+        s.target.cartesian_at(s.target_nu0)
+    }
+
+    /// The body at r = 0.
+    fn unusable_targets(b: &CartesianState) -> Vec<CartesianState> {
+        vec![CartesianState { r: [0.0, 0.0], ..*b }]
+    }
+
+    fn step(
+        policy: &Policy<'_, RENDEZVOUS_FEATURES>,
+        navigation: &SpacecraftState,
+        body: &CartesianState,
+        time_to_go: f64,
+    ) -> Result<ThrustCommand, GuidanceError> {
+        rendezvous_step(policy, navigation, body, time_to_go)
+    }
+}
+
+impl RecordedProblem<TRANSFER3_FEATURES, ACTION3_LEN> for Transfer3 {
+    const CODE: u32 = LT_PROBLEM_TRANSFER3;
+    const NAME: &'static str = "transfer3";
+
+    /// Padded to the rendezvous body's six values: one record length per geometry.
+    fn target_values(t: &TargetOrbit3) -> Vec<f64> {
+        vec![
+            t.shape.a,
+            t.shape.e,
+            t.shape.omega,
+            t.plane.inclination,
+            t.plane.raan,
+            0.0,
+        ]
+    }
+
+    fn epoch_target(s: &SpatialScenario) -> TargetOrbit3 {
+        TargetOrbit3 {
+            shape: s.scenario.target,
+            plane: s.target_plane,
+        }
+    }
+
+    /// A negative semi-major axis, a non-finite inclination.
+    fn unusable_targets(t: &TargetOrbit3) -> Vec<TargetOrbit3> {
+        let hyperbolic = OrbitShape { a: -1.0, ..t.shape };
+        let mut no_plane = *t;
+        no_plane.plane.inclination = f64::NAN;
+        vec![
+            TargetOrbit3 {
+                shape: hyperbolic,
+                ..*t
+            },
+            no_plane,
+        ]
+    }
+
+    fn step(
+        policy: &Policy<'_, TRANSFER3_FEATURES, ACTION3_LEN>,
+        navigation: &SpatialCraftState,
+        target: &TargetOrbit3,
+        time_to_go: f64,
+    ) -> Result<RtnCommand, GuidanceError> {
+        transfer3_step(policy, navigation, target, time_to_go)
+    }
+}
+
+impl RecordedProblem<RENDEZVOUS3_FEATURES, ACTION3_LEN> for Rendezvous3 {
+    const CODE: u32 = LT_PROBLEM_RENDEZVOUS3;
+    const NAME: &'static str = "rendezvous3";
+
+    fn target_values(b: &SpatialState) -> Vec<f64> {
+        [b.r, b.v].concat()
+    }
+
+    /// The body at the epoch in its plane, as `Rendezvous3::target` coasts it from.
+    fn epoch_target(s: &SpatialScenario) -> SpatialState {
+        let plan = &s.scenario;
+        s.target_plane.embed(&plan.target.cartesian_at(plan.target_nu0))
+    }
+
+    /// The body at r = 0.
+    fn unusable_targets(b: &SpatialState) -> Vec<SpatialState> {
+        vec![SpatialState { r: [0.0; 3], ..*b }]
+    }
+
+    fn step(
+        policy: &Policy<'_, RENDEZVOUS3_FEATURES, ACTION3_LEN>,
+        navigation: &SpatialCraftState,
+        body: &SpatialState,
+        time_to_go: f64,
+    ) -> Result<RtnCommand, GuidanceError> {
+        rendezvous3_step(policy, navigation, body, time_to_go)
+    }
+}
+
+/// One guidance call of problem `P`: its inputs and what the Rust controller answered.
+struct Call<const N: usize, P: TraceProblem<N>> {
+    navigation: StateOf<P, N>,
+    target: P::Target,
     time_to_go: f64,
-    outcome: Result<ThrustCommand, lt_status>,
+    outcome: Result<CommandOf<P, N>, lt_status>,
 }
 
-fn bits(x: f64) -> String {
-    format!("{:016x}", x.to_bits())
-}
-
-fn command_bits(c: &lowthrust::lt_thrust_command) -> String {
-    format!("{} {} {}", bits(c.throttle), bits(c.alpha_r), bits(c.alpha_theta))
+fn bits(values: &[f64]) -> String {
+    let words: Vec<String> = values.iter().map(|x| format!("{:016x}", x.to_bits())).collect();
+    words.join(" ")
 }
 
 fn name(code: lt_status) -> String {
     error_name(code as i32).to_string_lossy().into_owned()
 }
 
-fn outcome(result: Result<ThrustCommand, GuidanceError>) -> Result<ThrustCommand, lt_status> {
-    result.map_err(|e| guidance_error_code(&e))
+/// Inputs every guidance step of `P` must refuse (and one the network cannot answer), around
+/// `navigation` and `target`: navigation state, target, time to go.
+fn refused_inputs<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
+    navigation: StateOf<P, N>,
+    target: P::Target,
+) -> Vec<(StateOf<P, N>, P::Target, f64)> {
+    let with_state = |s| (s, target, 5.0);
+    let mut inputs = vec![
+        with_state(P::Geometry::with_mass(&navigation, f64::NAN)),
+        with_state(P::Geometry::on_x_axis(&navigation, 0.0)),
+        with_state(P::Geometry::with_mass(&navigation, -0.25)),
+    ];
+    inputs.extend(P::unusable_targets(&target).into_iter().map(|t| (navigation, t, 5.0)));
+    inputs.extend([(navigation, target, -1.0), (navigation, target, f64::INFINITY)]);
+    // Finite in f64, infinite as the network's f32 input.
+    inputs.push(with_state(P::Geometry::on_x_axis(&navigation, 1e39)));
+    inputs.extend(P::Geometry::unusable_here(&navigation).into_iter().map(with_state));
+    inputs
 }
 
-fn orbit_target(t: &OrbitShape) -> [f64; 4] {
-    [t.a, t.e, t.omega, 0.0]
-}
-
-fn body_target(b: &CartesianState) -> [f64; 4] {
-    [b.r[0], b.r[1], b.v[0], b.v[1]]
-}
-
-/// Inputs every guidance step must refuse (and one the network cannot answer), around `nav`.
-fn refused_inputs(nav: SpacecraftState) -> Vec<(SpacecraftState, Option<f64>, f64)> {
-    vec![
-        (SpacecraftState { m: f64::NAN, ..nav }, None, 5.0),
-        (SpacecraftState { r: [0.0, 0.0], ..nav }, None, 5.0),
-        (SpacecraftState { m: -0.25, ..nav }, None, 5.0),
-        // The target's first component made unusable: a negative semi-major axis, a body at r = 0.
-        (nav, Some(-1.0), 5.0),
-        (nav, None, -1.0),
-        (nav, None, f64::INFINITY),
-        // Finite in f64, infinite as the network's f32 input.
-        (SpacecraftState { r: [1e39, 0.0], ..nav }, None, 5.0),
-    ]
-}
-
-/// The guidance calls of the trace flights of problem `P`, flown by `controller` (`target`: the
-/// call's target components from the scenario and the step index, as flight software has them).
-fn flight_calls<const N: usize, P: PlanarProblem<N>>(
+/// The guidance calls of the trace flights of problem `P`, flown by `controller`, then the
+/// inputs it must refuse; a comment line per group to `out`.
+fn problem_calls<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
     problem: P,
-    controller: &Controller<'_, N>,
-    target: impl Fn(&Scenario, u32) -> Result<[f64; 4], String>,
+    controller: &Controller<'_, N, OUT>,
     out: &mut String,
-) -> Result<Vec<Call>, String> {
-    // A refused blob flies the SIL in safe mode; through the C interface every step of a policy
-    // not loaded is refused with thrust off.
-    let loaded = matches!(controller, Controller::Network(_));
+) -> Result<Vec<Call<N, P>>, String>
+where
+    for<'a> Controller<'a, N, OUT>: Guide<N, P::Target, P::Geometry>,
+{
+    let policy = match controller {
+        Controller::Network(policy) => Some(policy),
+        Controller::SafeMode(_) => None,
+    };
     let mut calls = Vec::new();
     let mut first = 0;
     for flight in flights_of(problem) {
         let mut failed = None;
         // The trace flight itself, on the plant firmware_sim::trace::fly flies it on.
         let setup = flight.setup().map_err(|e| e.to_string())?;
-        fly_observed(
-            problem,
-            controller,
-            &flight.scenario,
-            &setup,
-            flight.seed,
-            |step| match target(&flight.scenario, step.index) {
+        let plan = P::Geometry::plan(&flight.scenario);
+        fly_observed(problem, controller, &flight.scenario, &setup, flight.seed, |step| {
+            match P::target(&flight.scenario, step.index) {
                 Ok(target) => calls.push(Call {
                     navigation: step.navigation,
                     target,
                     // As fly_observed computes it.
-                    time_to_go: flight.scenario.time_to_go(step.index),
+                    time_to_go: plan.time_to_go(step.index),
+                    // A refused blob flies the SIL in safe mode; through the C interface every
+                    // step of a policy not loaded is refused with thrust off.
                     outcome: match step.guidance_error {
-                        _ if !loaded => Err(LT_ERR_NOT_LOADED),
+                        _ if policy.is_none() => Err(LT_ERR_NOT_LOADED),
                         None => Ok(step.command),
                         Some(e) => Err(guidance_error_code(&e)),
                     },
                 }),
                 Err(e) => failed = Some(e),
-            },
-        )
+            }
+        })
         .map_err(|e| format!("flight {}: {e}", flight.name))?;
         if let Some(e) = failed {
             return Err(format!("flight {}: target: {e}", flight.name));
@@ -136,33 +384,17 @@ fn flight_calls<const N: usize, P: PlanarProblem<N>>(
         .map_err(|e| e.to_string())?;
         first = calls.len();
     }
-    Ok(calls)
-}
 
-fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
-    let controller = Controller::load_transfer(blob);
-    let mut calls = flight_calls(
-        firmware_sim::Transfer,
-        &controller,
-        |s, _| Ok(orbit_target(&s.target)),
-        out,
-    )?;
-    let first = calls.len();
-    let nominal = TRANSFER_FLIGHTS[0].scenario.target;
-    let nav = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
-    let policy = TransferPolicy::from_bytes(blob, ProblemKind::Transfer);
-    for (navigation, first_target_component, time_to_go) in refused_inputs(nav) {
-        let target = OrbitShape {
-            a: first_target_component.unwrap_or(nominal.a),
-            ..nominal
-        };
+    let navigation = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
+    let target = P::epoch_target(&flights_of(problem)[0].scenario);
+    for (navigation, target, time_to_go) in refused_inputs::<N, OUT, P>(navigation, target) {
         calls.push(Call {
             navigation,
-            target: orbit_target(&target),
+            target,
             time_to_go,
-            outcome: match &policy {
-                Ok(p) => outcome(transfer_step(p, &navigation, &target, time_to_go)),
-                Err(_) => Err(LT_ERR_NOT_LOADED),
+            outcome: match policy {
+                Some(p) => P::step(p, &navigation, &target, time_to_go).map_err(|e| guidance_error_code(&e)),
+                None => Err(LT_ERR_NOT_LOADED),
             },
         });
     }
@@ -170,114 +402,91 @@ fn transfer_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
     Ok(calls)
 }
 
-fn rendezvous_calls(blob: &[u8], out: &mut String) -> Result<Vec<Call>, String> {
-    let policy = RendezvousPolicy::from_bytes(blob, ProblemKind::Rendezvous);
-    let controller = Controller::load_rendezvous(blob);
-    let body_at = |s: &Scenario, index: u32| {
-        firmware_sim::Rendezvous::target(s, index)
-            .map(|b| body_target(&b))
-            .map_err(|e| e.to_string())
-    };
-    let mut calls = flight_calls(firmware_sim::Rendezvous, &controller, body_at, out)?;
-    let body0 = RENDEZVOUS_FLIGHTS[0]
-        .scenario
-        .target
-        .cartesian_at(RENDEZVOUS_FLIGHTS[0].scenario.target_nu0);
-    let step = |navigation: SpacecraftState, body: CartesianState, time_to_go: f64| Call {
-        navigation,
-        target: body_target(&body),
-        time_to_go,
-        outcome: match &policy {
-            Ok(p) => outcome(rendezvous_step(p, &navigation, &body, time_to_go)),
-            Err(_) => Err(LT_ERR_NOT_LOADED),
-        },
-    };
-    let first = calls.len();
-    let nav = calls.first().map(|c| c.navigation).ok_or("no steps")?;
-    for (navigation, first_target_component, time_to_go) in refused_inputs(nav) {
-        let body = CartesianState {
-            r: match first_target_component {
-                Some(_) => [0.0, 0.0],
-                None => body0.r,
-            },
-            ..body0
-        };
-        calls.push(step(navigation, body, time_to_go));
-    }
-    writeln!(out, "# calls {first}..{}: inputs guidance refuses", calls.len()).map_err(|e| e.to_string())?;
-    Ok(calls)
-}
-
-fn run() -> Result<(), String> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let (blob_path, out_dir, kind) = match args.as_slice() {
-        [b, o] => (b, o, ProblemKind::Transfer),
-        [b, o, flag] if flag == "--rendezvous" => (b, o, ProblemKind::Rendezvous),
-        _ => return Err("usage: guidance_calls BLOB OUT_DIR [--rendezvous]".into()),
-    };
-    let blob = std::fs::read(blob_path).map_err(|e| format!("{blob_path}: {e}"))?;
-    let out_dir = PathBuf::from(out_dir);
-    std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
-
-    let mut expected = String::new();
+/// calls.bin and expected.txt of `blob` loaded and flown as problem `P`.
+fn record<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
+    problem: P,
+    blob: &[u8],
+) -> Result<(Vec<u8>, String), String>
+where
+    for<'a> Controller<'a, N, OUT>: Guide<N, P::Target, P::Geometry>,
+{
     let w = |e: std::fmt::Error| e.to_string();
+    let mut expected = String::new();
     writeln!(
         expected,
         "lowthrust {}.{}.{} blob format {}",
         VERSION.major, VERSION.minor, VERSION.patch, VERSION.blob_format_version
     )
     .map_err(w)?;
-    let (problem, load, problem_code) = match kind {
-        ProblemKind::Transfer => {
-            let p = TransferPolicy::from_bytes(&blob, kind);
-            ("transfer", p.map(|p| p.quantization()), 0u32)
-        }
-        ProblemKind::Rendezvous => {
-            let p = RendezvousPolicy::from_bytes(&blob, kind);
-            ("rendezvous", p.map(|p| p.quantization()), 1u32)
-        }
+    let controller = Controller::<N, OUT>::load::<P>(blob);
+    let load_code = match &controller {
+        Controller::Network(_) => LT_OK,
+        Controller::SafeMode(e) => policy_error_code(e),
     };
-    let load_code = load.as_ref().map_or_else(policy_error_code, |_| LT_OK);
-    writeln!(expected, "load {problem} {} {}", load_code as i32, name(load_code)).map_err(w)?;
-    if let Ok(q) = load {
-        let q = match q {
+    writeln!(expected, "load {} {} {}", P::NAME, load_code as i32, name(load_code)).map_err(w)?;
+    if let Controller::Network(policy) = &controller {
+        let q = match policy.quantization() {
             Quantization::F32 => "f32",
             Quantization::Int8 => "int8",
         };
-        writeln!(expected, "policy {problem} {q}").map_err(w)?;
+        writeln!(expected, "policy {} {q}", P::NAME).map_err(w)?;
     }
-    let calls = match kind {
-        ProblemKind::Transfer => transfer_calls(&blob, &mut expected)?,
-        ProblemKind::Rendezvous => rendezvous_calls(&blob, &mut expected)?,
-    };
+    let calls = problem_calls(problem, &controller, &mut expected)?;
 
     let mut records = b"LTGC".to_vec();
-    records.extend(1u32.to_le_bytes());
-    records.extend(problem_code.to_le_bytes());
+    records.extend(CALLS_FORMAT.to_le_bytes());
+    records.extend(P::CODE.to_le_bytes());
     records.extend(u32::try_from(calls.len()).map_err(|e| e.to_string())?.to_le_bytes());
     for (i, call) in calls.iter().enumerate() {
-        let n = call.navigation;
-        let values = [n.r[0], n.r[1], n.v[0], n.v[1], n.m]
-            .into_iter()
-            .chain(call.target)
-            .chain([call.time_to_go]);
-        for v in values {
+        let values = [
+            P::Geometry::state_values(&call.navigation),
+            P::target_values(&call.target),
+            vec![call.time_to_go],
+        ];
+        for v in values.concat() {
             records.extend(v.to_le_bytes());
         }
+        let command = |c: &<P::Geometry as CallGeometry>::CCommand| bits(&P::Geometry::command_values(c));
         match call.outcome {
-            Ok(c) => writeln!(expected, "call {i} cmd {}", command_bits(&c.into())),
+            Ok(c) => writeln!(expected, "call {i} cmd {}", command(&c.into())),
             Err(code) => writeln!(
                 expected,
                 "call {i} refused {} {} cmd {}",
                 code as i32,
                 name(code),
-                command_bits(&THRUST_OFF)
+                command(&P::Geometry::REFUSED)
             ),
         }
         .map_err(w)?;
     }
     writeln!(expected, "end {} calls", calls.len()).map_err(w)?;
+    Ok((records, expected))
+}
 
+fn run() -> Result<(), String> {
+    let usage = "usage: guidance_calls BLOB OUT_DIR [--rendezvous] [--spatial]";
+    let mut args = std::env::args().skip(1);
+    let (Some(blob_path), Some(out_dir)) = (args.next(), args.next()) else {
+        return Err(usage.into());
+    };
+    let (mut rendezvous, mut spatial) = (false, false);
+    for a in args {
+        match a.as_str() {
+            "--rendezvous" => rendezvous = true,
+            "--spatial" => spatial = true,
+            _ => return Err(format!("unknown argument {a}; {usage}")),
+        }
+    }
+    let blob = std::fs::read(&blob_path).map_err(|e| format!("{blob_path}: {e}"))?;
+    let out_dir = PathBuf::from(out_dir);
+    std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
+
+    let (records, expected) = match (rendezvous, spatial) {
+        (false, false) => record::<_, ACTION_LEN, _>(Transfer, &blob)?,
+        (true, false) => record::<_, ACTION_LEN, _>(Rendezvous, &blob)?,
+        (false, true) => record::<_, ACTION3_LEN, _>(Transfer3, &blob)?,
+        (true, true) => record::<_, ACTION3_LEN, _>(Rendezvous3, &blob)?,
+    };
     for (file, bytes) in [("calls.bin", records), ("expected.txt", expected.into_bytes())] {
         let path = out_dir.join(file);
         std::fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;

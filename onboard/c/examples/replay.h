@@ -8,12 +8,34 @@
 #include <stddef.h>
 #include <stdint.h>
 
+/* The calls file format this replay reads (guidance_calls.rs documents it). */
+#define REPLAY_CALLS_FORMAT 2
+
+/* What replay_calls returns: the calls were flown, or why nothing was. */
+enum {
+    REPLAY_OK = 0,
+    /* Shorter than the header, or not starting with "LTGC". */
+    REPLAY_NOT_CALLS = -1,
+    /* A format other than REPLAY_CALLS_FORMAT. */
+    REPLAY_UNKNOWN_FORMAT = -2,
+    /* A problem other than the C interface's four (LT_PROBLEM_*). */
+    REPLAY_UNKNOWN_PROBLEM = -3,
+    /* The length is not the header's count of the problem's records. */
+    REPLAY_WRONG_LENGTH = -4,
+    /* lt_version refused. */
+    REPLAY_NO_VERSION = -5
+};
+
 /* Receives the output, a piece at a time (lines end with '\n'). */
 typedef void (*replay_write_fn)(void *context, const char *text, size_t len);
 
-/* Loads `blob` as the calls file says (transfer or rendezvous), flies every call, writes one
- * line per call. Returns 0, or -1 if `calls` is not a calls file (nothing is flown then). */
+/* Loads `blob` as the calls file's problem says (transfer or rendezvous, planar or in three
+ * dimensions), flies every call, writes one line per call. Returns REPLAY_OK, or a refusal of
+ * the calls file (nothing is written then). */
 int replay_calls(const uint8_t *blob, size_t blob_len, const uint8_t *calls, size_t calls_len,
                  replay_write_fn write, void *context);
+
+/* What a return value of replay_calls means, as a sentence without a final period. */
+const char *replay_status_text(int status);
 
 #endif /* LOWTHRUST_REPLAY_H */

@@ -36,6 +36,14 @@ static void write_line(void *context, const char *text, size_t len) {
     }
 }
 
+static void write_text(line_t *line, const char *text) {
+    size_t len = 0;
+    while (text[len] != '\0') {
+        len++;
+    }
+    write_line(line, text, len);
+}
+
 static void put_number(line_t *line, uint32_t v) {
     char digits[10];
     size_t i = sizeof digits;
@@ -50,12 +58,18 @@ int main(void) {
     static line_t line;
     const int status = replay_calls(lt_blob, (size_t)(lt_blob_end - lt_blob), lt_calls,
                                     (size_t)(lt_calls_end - lt_calls), write_line, &line);
+    if (status != REPLAY_OK) {
+        /* Not a comment: the comparison must show why nothing was flown. */
+        write_text(&line, "replay refused the calls file: ");
+        write_text(&line, replay_status_text(status));
+        write_text(&line, "\n");
+    }
     /* A comment line (the comparison skips lines starting with '#'). */
-    write_line(&line, "# stack high-water ", 19);
+    write_text(&line, "# stack high-water ");
     put_number(&line, stack_high_water());
-    write_line(&line, " bytes of ", 10);
+    write_text(&line, " bytes of ");
     put_number(&line, stack_reserved());
-    write_line(&line, "\n", 1);
+    write_text(&line, "\n");
     flush(&line);
-    return status == 0 && !line.failed ? 0 : 1;
+    return status == REPLAY_OK && !line.failed ? 0 : 1;
 }
