@@ -275,8 +275,8 @@ impl<const N: usize, T: SpatialTargetFeatures<N>> Aim<N, ACTION3_LEN> for T {
     }
 }
 
-/// The network's RTN command for `state` against `target` at the cycle's start (see
-/// [`command_at`]).
+/// The network's RTN command for `state` against `target` at the cycle's start: features,
+/// actor, decoded command (the one path of every guidance step, in either dimension).
 pub fn command3_at<const N: usize, A: Actor<N, ACTION3_LEN> + ?Sized, T: SpatialTargetFeatures<N>>(
     actor: &A,
     target: &T,
