@@ -17,6 +17,7 @@
 use core::fmt::{self, Write};
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::features::{RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES, TRANSFER3_FEATURES, TRANSFER_FEATURES};
 use onboard::guidance::Guide;
 use onboard::spatial::{RtnCommand, SpatialCraftState};
 use shared::blob::Quantization;
@@ -240,19 +241,19 @@ pub trait TraceProblem<const N: usize>: Problem<N, Geometry: TraceGeometry> {
     const FLIGHTS: &'static [TraceFlight<ScenarioOf<Self, N>>; 3];
 }
 
-impl TraceProblem<{ crate::__TRANSFER_FEATURES }> for Transfer {
+impl TraceProblem<TRANSFER_FEATURES> for Transfer {
     const FLIGHTS: &'static [TraceFlight; 3] = &TRANSFER_FLIGHTS;
 }
 
-impl TraceProblem<{ crate::__RENDEZVOUS_FEATURES }> for Rendezvous {
+impl TraceProblem<RENDEZVOUS_FEATURES> for Rendezvous {
     const FLIGHTS: &'static [TraceFlight; 3] = &RENDEZVOUS_FLIGHTS;
 }
 
-impl TraceProblem<{ crate::__TRANSFER3_FEATURES }> for Transfer3 {
+impl TraceProblem<TRANSFER3_FEATURES> for Transfer3 {
     const FLIGHTS: &'static [TraceFlight<SpatialScenario>; 3] = &TRANSFER3_FLIGHTS;
 }
 
-impl TraceProblem<{ crate::__RENDEZVOUS3_FEATURES }> for Rendezvous3 {
+impl TraceProblem<RENDEZVOUS3_FEATURES> for Rendezvous3 {
     const FLIGHTS: &'static [TraceFlight<SpatialScenario>; 3] = &RENDEZVOUS3_FLIGHTS;
 }
 

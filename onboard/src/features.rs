@@ -235,15 +235,6 @@ fn target_proxy(shape: &OrbitShape, plane: &OrbitPlane, r: &[f64; 3]) -> (PolarS
     (proxy, point, [p_hat, q_hat, w_hat])
 }
 
-/// The components of the transfer's miss in three dimensions: the target orbit's point
-/// against which [`transfer3_features`] measures `state` ([`target_proxy`]) less the state,
-/// position then velocity (their lengths are the residuals).
-pub(crate) fn transfer3_miss(state: &SpatialState, shape: &OrbitShape, plane: &OrbitPlane) -> [f64; 6] {
-    let (_, point, _) = target_proxy(shape, plane, &state.r);
-    let (dr, dv) = (difference(&point.r, &state.r), difference(&point.v, &state.v));
-    [dr[0], dr[1], dr[2], dv[0], dv[1], dv[2]]
-}
-
 /// a x + b y.
 fn combine(a: f64, x: &[f64; 3], b: f64, y: &[f64; 3]) -> [f64; 3] {
     [a * x[0] + b * y[0], a * x[1] + b * y[1], a * x[2] + b * y[2]]
@@ -267,12 +258,36 @@ pub fn transfer3_features(
     plane: &OrbitPlane,
     time_to_go: f64,
 ) -> Result<[f64; TRANSFER3_FEATURES], FeatureError> {
+    transfer3_features_and_point(state, target, plane, time_to_go).map(|(features, _)| features)
+}
+
+/// The components of the transfer's miss in three dimensions, checked as its features are:
+/// the target orbit's point that [`transfer3_features`] measures `state` against, less the
+/// state, position then velocity (their lengths are the residuals).
+pub(crate) fn transfer3_miss(
+    state: &SpatialCraftState,
+    target: &OrbitShape,
+    plane: &OrbitPlane,
+) -> Result<[f64; 6], FeatureError> {
+    let (_, point) = transfer3_features_and_point(state, target, plane, 0.0)?;
+    let o = &state.orbit;
+    let (dr, dv) = (difference(&point.r, &o.r), difference(&point.v, &o.v));
+    Ok([dr[0], dr[1], dr[2], dv[0], dv[1], dv[2]])
+}
+
+/// [`transfer3_features`] and the target orbit's point they measure the state against.
+fn transfer3_features_and_point(
+    state: &SpatialCraftState,
+    target: &OrbitShape,
+    plane: &OrbitPlane,
+    time_to_go: f64,
+) -> Result<([f64; TRANSFER3_FEATURES], SpatialState), FeatureError> {
     let [r_hat, t_hat, n_hat] = check_spatial(state, time_to_go)?;
     target.validate().map_err(|_| FeatureError::Target)?;
     plane.validate().map_err(|_| FeatureError::Target)?;
     let o = &state.orbit;
     let (proxy, point, [p_hat, q_hat, w_hat]) = target_proxy(target, plane, &o.r);
-    finite([
+    let features = finite([
         o.radius(),
         dot3(&o.v, &r_hat),
         dot3(&o.v, &t_hat),
@@ -288,7 +303,8 @@ pub fn transfer3_features(
         norm3(&difference(&point.r, &o.r)),
         norm3(&difference(&point.v, &o.v)),
         time_to_go,
-    ])
+    ])?;
+    Ok((features, point))
 }
 
 /// Features whose every component is finite: a finite state so large that a norm overflows

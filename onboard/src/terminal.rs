@@ -102,6 +102,16 @@ impl Default for TerminalSettings {
 pub struct InvalidTerminalSettings;
 
 impl TerminalSettings {
+    /// The most rollouts of `cycles` cycles one guidance cycle propagates in dimension `G`:
+    /// `2 + iterations x (a k + 4)`, `a` its thrust components.
+    pub fn most_rollouts<G: Dimension>(&self, cycles: u32) -> u32 {
+        let per_iteration = u32::try_from(G::THRUST_AXES)
+            .unwrap_or(u32::MAX)
+            .saturating_mul(cycles)
+            .saturating_add(4);
+        self.iterations.saturating_mul(per_iteration).saturating_add(2)
+    }
+
     /// Checks the ranges of [`InvalidTerminalSettings`].
     pub fn validate(&self) -> Result<(), InvalidTerminalSettings> {
         let positive = |x: f64| x.is_finite() && x > 0.0;
@@ -688,17 +698,17 @@ mod tests {
 
     /// Flies three cycles from `start` with `guide`; `target(k)` is the target as flight
     /// software knows it at cycle k. Returns the arrival.
-    fn fly<const N: usize, T: TargetFeatures<N>>(
-        guide: &impl Guide<N, T>,
-        start: SpacecraftState,
+    fn fly<const N: usize, G: Dimension, T>(
+        guide: &impl Guide<N, T, G>,
+        start: G::State,
         target: impl Fn(u32) -> T,
         cycle: f64,
-    ) -> SpacecraftState {
+    ) -> G::State {
         let mut state = start;
         for k in 0..3u32 {
             let time_to_go = f64::from(3 - k) * cycle;
             let command = guide.command(&state, &target(k), time_to_go).unwrap();
-            state = propagate(&state, &command, &spacecraft(), cycle, &Tolerances::default()).unwrap();
+            state = G::propagate(&state, &command, &spacecraft(), cycle, &Tolerances::default()).unwrap();
         }
         state
     }
@@ -718,7 +728,7 @@ mod tests {
                 )
             };
             let network = NearlyRight::<9> { cycle };
-            let alone = fly::<TRANSFER_FEATURES, _>(&network, start, |_| target, cycle);
+            let alone = fly::<TRANSFER_FEATURES, Planar, _>(&network, start, |_| target, cycle);
             let off = miss(&alone);
             assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
             let guide = Terminal {
@@ -730,7 +740,7 @@ mod tests {
                 },
                 lookahead: None,
             };
-            let end = fly::<TRANSFER_FEATURES, _>(&guide, start, |_| target, cycle);
+            let end = fly::<TRANSFER_FEATURES, Planar, _>(&guide, start, |_| target, cycle);
             let met = miss(&end);
             assert!(met.position < 1e-5 && met.velocity < 1e-5, "{cycle}: {met:?}");
             // Counting 14-day cycles in a 7-day flight, the aid plans the wrong horizon.
@@ -739,7 +749,7 @@ mod tests {
                     settings: TerminalSettings::default(),
                     ..guide
                 };
-                let end = fly::<TRANSFER_FEATURES, _>(&miscounted, start, |_| target, cycle);
+                let end = fly::<TRANSFER_FEATURES, Planar, _>(&miscounted, start, |_| target, cycle);
                 let off = miss(&end);
                 assert!(off.position.max(off.velocity) > 1e-4, "{off:?}");
             }
@@ -800,22 +810,6 @@ mod tests {
         (start, arrival)
     }
 
-    /// [`fly`] in three dimensions.
-    fn fly3<const N: usize, T: SpatialTargetFeatures<N>>(
-        guide: &impl Guide<N, T, Spatial>,
-        start: SpatialCraftState,
-        target: impl Fn(u32) -> T,
-        cycle: f64,
-    ) -> SpatialCraftState {
-        let mut state = start;
-        for k in 0..3u32 {
-            let time_to_go = f64::from(3 - k) * cycle;
-            let command = guide.command(&state, &target(k), time_to_go).unwrap();
-            state = Spatial::propagate(&state, &command, &spacecraft(), cycle, &Tolerances::default()).unwrap();
-        }
-        state
-    }
-
     /// An inclined orbit and an inclined body the last three cycles can reach, with normal
     /// thrust: the nearly right network misses them; terminal targeting in three dimensions
     /// meets them within a thousandth of the goal, the reference being the orbit's own elements
@@ -838,7 +832,12 @@ mod tests {
             };
             let network = NearlyRight3::<14> { cycle, plan: PLAN3 };
             let residuals = |end: &SpatialCraftState| TargetOrbit3::residuals(&orbit.features(end, 0.0).unwrap());
-            let off = residuals(&fly3::<TRANSFER3_FEATURES, _>(&network, start, |_| orbit, cycle));
+            let off = residuals(&fly::<TRANSFER3_FEATURES, Spatial, _>(
+                &network,
+                start,
+                |_| orbit,
+                cycle,
+            ));
             assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
             let guide = Terminal {
                 actor: network,
@@ -846,14 +845,14 @@ mod tests {
                 settings,
                 lookahead: None,
             };
-            let met = residuals(&fly3::<TRANSFER3_FEATURES, _>(&guide, start, |_| orbit, cycle));
+            let met = residuals(&fly::<TRANSFER3_FEATURES, Spatial, _>(&guide, start, |_| orbit, cycle));
             assert!(met.position < 1e-5 && met.velocity < 1e-5, "transfer {cycle}: {met:?}");
 
             let epoch = coast3(&arrival.orbit, -3.0 * cycle).unwrap();
             let body = |k: u32| coast3(&epoch, f64::from(k) * cycle).unwrap();
             let network = NearlyRight3::<28> { cycle, plan: PLAN3 };
             let residuals = |end: &SpatialCraftState| SpatialState::residuals(&body(3).features(end, 0.0).unwrap());
-            let off = residuals(&fly3::<RENDEZVOUS3_FEATURES, _>(&network, start, body, cycle));
+            let off = residuals(&fly::<RENDEZVOUS3_FEATURES, Spatial, _>(&network, start, body, cycle));
             assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
             let guide = Terminal {
                 actor: network,
@@ -861,7 +860,7 @@ mod tests {
                 settings,
                 lookahead: None,
             };
-            let met = residuals(&fly3::<RENDEZVOUS3_FEATURES, _>(&guide, start, body, cycle));
+            let met = residuals(&fly::<RENDEZVOUS3_FEATURES, Spatial, _>(&guide, start, body, cycle));
             assert!(
                 met.position < 1e-5 && met.velocity < 1e-5,
                 "rendezvous {cycle}: {met:?}"
@@ -992,11 +991,11 @@ mod tests {
                 },
                 lookahead: None,
             };
-            let end = fly::<RENDEZVOUS_FEATURES, _>(&guide, start, body, cycle);
+            let end = fly::<RENDEZVOUS_FEATURES, Planar, _>(&guide, start, body, cycle);
             let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &end, 0.0, 0.0).unwrap();
             let met = CartesianState::residuals(&features);
             assert!(met.position < 1e-5 && met.velocity < 1e-5, "{cycle}: {met:?}");
-            let alone = fly::<RENDEZVOUS_FEATURES, _>(&network, start, body, cycle);
+            let alone = fly::<RENDEZVOUS_FEATURES, Planar, _>(&network, start, body, cycle);
             let features = TargetFeatures::<RENDEZVOUS_FEATURES>::features_after(&body(3), &alone, 0.0, 0.0).unwrap();
             let off = CartesianState::residuals(&features);
             assert!(off.position.max(off.velocity) > 0.001, "{off:?}");
@@ -1064,6 +1063,8 @@ mod tests {
                     d.rollouts >= 2 && d.rollouts <= 2 + iterations * (2 * k + 4),
                     "{k} cycles, {iterations} iterations: {d:?}"
                 );
+                assert_eq!(settings.most_rollouts::<Planar>(k), 2 + iterations * (2 * k + 4));
+                assert_eq!(settings.most_rollouts::<Spatial>(k), 2 + iterations * (3 * k + 4));
             }
         }
     }

@@ -14,12 +14,13 @@ use pyo3::types::{PyBytes, PyDict};
 use rayon::prelude::*;
 
 use firmware_sim::{
-    fly_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions, FlightSetup, FlightSummary,
+    fly_observed, with_flight_problem, with_spatial_flight_problem, Controller, Dispersions, FlightSetup,
+    FlightSummary, ScenarioOf,
 };
 use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
-use onboard::features::ACTION3_LEN;
-use onboard::guidance::Actor;
+use onboard::features::{ACTION3_LEN, ACTION_LEN};
+use onboard::guidance::{Actor, Guide};
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, FeatureLayout, ProblemKind, Quantization};
 
@@ -242,21 +243,59 @@ struct FlightEnd {
 }
 
 impl FlightEnd {
-    /// The end of a flight of geometry `G`, whose final mass `mass` reads.
+    /// The end of a flight of geometry `G`.
     fn of<G: firmware_sim::FlightGeometry>(
         flown: Result<FlightSummary<G>, firmware_sim::SilError>,
-        mass: impl Fn(&G::State) -> f64,
     ) -> Result<Self, String> {
         let summary = flown.map_err(|e| e.to_string())?;
         let res = summary.final_residuals.ok_or("no cycle flown")?;
         Ok(Self {
             dr: res.position,
             dv: res.velocity,
-            mass: mass(&summary.final_state),
+            mass: G::mass(&summary.final_state),
             reward: summary.total_reward,
             faults: summary.guidance_faults,
         })
     }
+}
+
+/// Flies scenarios `scenario(i)`, i in `0..episodes`, as problem `P` with `blob`'s controller
+/// (safe mode when the blob is refused), flight i's dispersions drawn from `seed + i`, its last
+/// cycles with terminal targeting when `terminal` is set: one implementation for both
+/// dimensions.
+fn fly_flights<const N: usize, const OUT: usize, P>(
+    blob: &[u8],
+    scenario: impl Fn(u64) -> ScenarioOf<P, N> + Sync,
+    setup: &FlightSetup,
+    seed: u64,
+    episodes: u64,
+    terminal: Option<TerminalSettings>,
+) -> Vec<Result<FlightEnd, String>>
+where
+    P: firmware_sim::Problem<N> + Default,
+    for<'b> Controller<'b, N, OUT>: Guide<N, P::Target, P::Geometry> + Sync,
+    for<'b, 'c> Terminal<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
+{
+    let controller = Controller::<N, OUT>::load::<P>(blob);
+    (0..episodes)
+        .into_par_iter()
+        .map(|i| {
+            let flight_seed = seed.wrapping_add(i);
+            let flown = match terminal {
+                None => fly_observed(P::default(), &controller, &scenario(i), setup, flight_seed, |_| ()),
+                Some(settings) => {
+                    let guide = Terminal {
+                        actor: &controller,
+                        spacecraft: setup.spacecraft,
+                        settings,
+                        lookahead: None,
+                    };
+                    fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ())
+                }
+            };
+            FlightEnd::of(flown)
+        })
+        .collect()
 }
 
 /// Flies `policy` in the SIL guidance loop on scenarios `0..episodes` of the stream `seed` of
@@ -264,9 +303,8 @@ impl FlightEnd {
 /// from `seed + i`, as `ground model sil` does), against the nominal plant or (`dispersed`) the
 /// typical dispersions: navigation noise, thrust magnitude and pointing errors, missed-thrust
 /// events. An inclined family's blob flies the three-dimensional loop (its pointing error a
-/// cone about the command). With `terminal_cycles` the last that many cycles (1 to 4) of a
-/// planar flight are flown with terminal targeting (`onboard::terminal`) counting the family's
-/// cycles. `env_config` (the `[env]` of a
+/// cone about the command). With `terminal_cycles` the last that many cycles (1 to 4) of each
+/// flight are flown with terminal targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
 /// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
 /// weights, as the model's own SIL flew them. Returns per-flight arrays: `dr`, `dv` (terminal
 /// residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
@@ -335,58 +373,14 @@ fn fly_sil<'py>(
         time_unit_s: kind.body.units().time_s,
     };
     let blob = policy.blob.bytes();
-    let flights: Vec<Result<FlightEnd, String>> = if family.as_planar().is_none() {
-        with_spatial_flight_problem!(kind.problem, N, P => {
-            let controller = Controller::<N, ACTION3_LEN>::load::<P>(blob);
-            py.detach(|| {
-                (0..episodes)
-                    .into_par_iter()
-                    .map(|i| {
-                        let scenario = family.draw(seed, i);
-                        let flight_seed = seed.wrapping_add(i);
-                        let flown = match terminal {
-                            None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
-                            Some(settings) => {
-                                let guide = Terminal {
-                                    actor: &controller,
-                                    spacecraft,
-                                    settings,
-                                    lookahead: None,
-                                };
-                                fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
-                            }
-                        };
-                        FlightEnd::of(flown, |s| s.m)
-                    })
-                    .collect()
-            })
-        })
+    let flights = if family.as_planar().is_none() {
+        with_spatial_flight_problem!(kind.problem, N, P => py.detach(|| {
+            fly_flights::<N, ACTION3_LEN, P>(blob, |i| family.draw(seed, i), &setup, seed, episodes, terminal)
+        }))
     } else {
-        with_flight_problem!(kind.problem, N, P => {
-            let controller = Controller::<N>::load::<P>(blob);
-            py.detach(|| {
-                (0..episodes)
-                    .into_par_iter()
-                    .map(|i| {
-                        let scenario = kind.draw(seed, i);
-                        let flight_seed = seed.wrapping_add(i);
-                        let flown = match terminal {
-                            None => fly_observed(P::default(), &controller, &scenario, &setup, flight_seed, |_| ()),
-                            Some(settings) => {
-                                let guide = Terminal {
-                                    actor: &controller,
-                                    spacecraft,
-                                    settings,
-                                    lookahead: None,
-                                };
-                                fly_observed(P::default(), &guide, &scenario, &setup, flight_seed, |_| ())
-                            }
-                        };
-                        FlightEnd::of(flown, |s| s.m)
-                    })
-                    .collect()
-            })
-        })
+        with_flight_problem!(kind.problem, N, P => py.detach(|| {
+            fly_flights::<N, ACTION_LEN, P>(blob, |i| kind.draw(seed, i), &setup, seed, episodes, terminal)
+        }))
     };
     let completed: Vec<bool> = flights.iter().map(Result::is_ok).collect();
     let value =

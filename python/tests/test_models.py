@@ -227,3 +227,22 @@ def test_terminal_targeting_from_python_brings_arrivals_within_a_thousandth():
     assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.95
     with pytest.raises(lowthrust.LowThrustError, match="terminal_cycles"):
         lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 10, terminal_cycles=7)
+
+
+def test_terminal_targeting_from_python_flies_inclined_arrivals_in_three_dimensions():
+    """The shipped inclined network flown nominally on 200 draws of its family, alone and with its
+    last four cycles targeted in three dimensions: the share within 0.001 AU and 0.001."""
+    model = lowthrust.open_model(MODELS / "transfer-circular-inclined")
+    fly = lambda cycles: lowthrust.fly_sil(  # noqa: E731
+        model["f32"],
+        model["scenario"],
+        2000003,
+        200,
+        dispersed=False,
+        terminal_cycles=cycles,
+        env_config=model["env_config"],
+    )
+    alone, targeted = fly(None), fly(4)
+    assert alone["completed"].all() and targeted["completed"].all()
+    assert _within(alone["dr"], alone["dv"], 0.001).mean() < 0.2
+    assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.95

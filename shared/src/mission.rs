@@ -409,6 +409,17 @@ impl PlaneRanges {
         inclination: Range { lo: 0.0, hi: 0.0 },
         raan: Range { lo: 0.0, hi: 0.0 },
     };
+
+    /// Planes inclined within `inclination` (rad) with any ascending node.
+    pub const fn any_node(inclination: Range) -> Self {
+        Self {
+            inclination,
+            raan: Range {
+                lo: 0.0,
+                hi: core::f64::consts::TAU,
+            },
+        }
+    }
 }
 
 /// A family in three dimensions (docs/spec.md section 4, inclined families): a [`MissionFamily`] whose orbits
@@ -628,16 +639,10 @@ mod tests {
         SpatialFamily {
             family: ScenarioKind::TransferCircular.family(),
             departure_plane: PlaneRanges::REFERENCE,
-            target_plane: PlaneRanges {
-                inclination: Range {
-                    lo: 0.0,
-                    hi: 5f64.to_radians(),
-                },
-                raan: Range {
-                    lo: 0.0,
-                    hi: core::f64::consts::TAU,
-                },
-            },
+            target_plane: PlaneRanges::any_node(Range {
+                lo: 0.0,
+                hi: 5f64.to_radians(),
+            }),
         }
     }
 

@@ -10,7 +10,7 @@
 
 use std::sync::Mutex;
 
-use firmware_sim::{fly, with_flight_problem, Controller, Dispersions, FlightSetup, PlanarProblem};
+use firmware_sim::{fly, with_flight_problem, Controller, Dispersions, FlightSetup, Planar, PlanarProblem};
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::guidance::{cycles_left, Actor, GuidanceError, Guide, TargetFeatures};
 use onboard::terminal::{terminal_step, Terminal, TerminalSettings};
@@ -159,7 +159,7 @@ impl<A> Counted<A> {
                     n.len(),
                     at(0.5),
                     at(0.99),
-                    2 + self.terminal.settings.iterations * (2 * k + 4)
+                    self.terminal.settings.most_rollouts::<Planar>(k)
                 );
             }
         }

@@ -416,16 +416,10 @@ fn inclined(kind: ScenarioKind) -> shared::mission::SpatialFamily {
     shared::mission::SpatialFamily {
         family: kind.family(),
         departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges {
-            inclination: Range {
-                lo: 1f64.to_radians(),
-                hi: 5f64.to_radians(),
-            },
-            raan: Range {
-                lo: 0.0,
-                hi: std::f64::consts::TAU,
-            },
-        },
+        target_plane: PlaneRanges::any_node(Range {
+            lo: 1f64.to_radians(),
+            hi: 5f64.to_radians(),
+        }),
     }
 }
 

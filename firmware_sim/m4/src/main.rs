@@ -5,8 +5,8 @@
 //! The image flies one problem, chosen at build time: transfers by default, rendezvous with the
 //! `rendezvous` feature, and either in three dimensions with the `spatial` feature (the inclined
 //! trace flights, a 4-output network; flight software is built for its mission, and one
-//! network's code keeps the image small). The blob is refused at load if it is of another version, problem or shape,
-//! truncated or altered: the typed error goes into the trace and the flights are flown in safe
+//! network's code keeps the image small). The blob is refused at load if it is of another
+//! version, problem, dimension or shape, truncated or altered: the typed error goes into the trace and the flights are flown in safe
 //! mode (thrust off), then the image exits 0 as usual, since refusing is the correct behaviour.
 //! It exits 1 only when the firmware itself fails (panic, fault, output error).
 #![no_std]
@@ -65,6 +65,8 @@ use mission::{Flown, ACTIONS, FEATURES};
 
 /// The flight computer's controller of this image's problem.
 type FlownController<'a> = Controller<'a, FEATURES, ACTIONS>;
+/// The dimension this image flies in.
+type FlownGeometry = <Flown as firmware_sim::Problem<FEATURES>>::Geometry;
 /// The state the flight's navigation reports.
 type FlownState = firmware_sim::StateOf<Flown, FEATURES>;
 /// A trace flight of this image's problem.
@@ -134,9 +136,7 @@ fn fly(
     trace::write_header(out, blob, controller)?;
     let mut terminal_states = [None; TERMINAL_CYCLES as usize];
     for (i, flight) in trace::flights_of(Flown).iter().enumerate() {
-        let steps =
-            <<Flown as firmware_sim::Problem<FEATURES>>::Geometry as firmware_sim::Dimension>::plan(&flight.scenario)
-                .steps;
+        let steps = <FlownGeometry as firmware_sim::Dimension>::plan(&flight.scenario).steps;
         // The flight's outcome is in its `end` line.
         let _flown = trace::fly_observing(out, Flown, counted, flight, |step| {
             // Where the first flight's navigation stands with 1 ..= TERMINAL_CYCLES to go.
@@ -276,8 +276,7 @@ fn terminal(
         let total = u64::from(Counter::ticks(start, counter.now())) * u64::from(INSTRUCTIONS_PER_TICK);
         let rollouts = decision.map_or(0, |d| d.rollouts);
         let per_cycle = total / u64::from(rollouts.max(1) * to_go);
-        let axes = <<Flown as firmware_sim::Problem<FEATURES>>::Geometry as firmware_sim::Dimension>::THRUST_AXES;
-        let bound = 2 + settings.iterations * (axes as u32 * to_go + 4);
+        let bound = settings.most_rollouts::<FlownGeometry>(to_go);
         writeln!(
             out,
             "{COMMENT} instructions per terminal-targeting cycle, {to_go} cycle(s) to go: {total} ({rollouts} \

@@ -94,14 +94,19 @@ fn feature_sample(rng: &mut Rng, inputs: usize) -> Vec<f32> {
     .to_vec()
 }
 
-/// A near-circular orbit point of 0.8-1.8 AU in a random plane inclined up to 5 degrees.
-fn spatial_point(rng: &mut Rng) -> SpatialState {
-    let (r, theta, v_r, v_theta) = orbit_point(rng);
+/// The Cartesian state of a polar orbit point (radius, polar angle, radial and polar velocity).
+fn cartesian((r, theta, v_r, v_theta): (f64, f64, f64, f64)) -> CartesianState {
     let (c, s) = (theta.cos(), theta.sin());
-    plane(rng).embed(&CartesianState {
+    CartesianState {
         r: [r * c, r * s],
         v: [v_r * c - v_theta * s, v_r * s + v_theta * c],
-    })
+    }
+}
+
+/// A near-circular orbit point of 0.8-1.8 AU in a random plane inclined up to 5 degrees.
+fn spatial_point(rng: &mut Rng) -> SpatialState {
+    let point = cartesian(orbit_point(rng));
+    plane(rng).embed(&point)
 }
 
 fn plane(rng: &mut Rng) -> OrbitPlane {
@@ -137,12 +142,14 @@ fn spatial_sample(rng: &mut Rng, layout: FeatureLayout) -> Result<Vec<f32>, Stri
 }
 
 fn rendezvous_sample(rng: &mut Rng) -> Vec<f32> {
-    let cartesian = |(r, theta, v_r, v_theta): (f64, f64, f64, f64)| {
-        let (c, s) = (theta.cos(), theta.sin());
-        [r * c, r * s, v_r * c - v_theta * s, v_r * s + v_theta * c]
-    };
     let (craft, body) = (orbit_point(rng), orbit_point(rng));
-    let ([x, y, vx, vy], [xt, yt, vxt, vyt]) = (cartesian(craft), cartesian(body));
+    let (
+        CartesianState { r: [x, y], v: [vx, vy] },
+        CartesianState {
+            r: [xt, yt],
+            v: [vxt, vyt],
+        },
+    ) = (cartesian(craft), cartesian(body));
     let (dx, dy, dvx, dvy) = (xt - x, yt - y, vxt - vx, vyt - vy);
     [
         craft.0,

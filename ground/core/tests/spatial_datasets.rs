@@ -26,16 +26,10 @@ fn inclined() -> SpatialFamily {
     SpatialFamily {
         family: ScenarioKind::TransferCircular.family(),
         departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges {
-            inclination: Range {
-                lo: 2f64.to_radians(),
-                hi: 5f64.to_radians(),
-            },
-            raan: Range {
-                lo: 0.0,
-                hi: std::f64::consts::TAU,
-            },
-        },
+        target_plane: PlaneRanges::any_node(Range {
+            lo: 2f64.to_radians(),
+            hi: 5f64.to_radians(),
+        }),
     }
 }
 

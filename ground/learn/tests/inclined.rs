@@ -33,16 +33,10 @@ fn inclined() -> SpatialFamily {
     SpatialFamily {
         family: ScenarioKind::TransferCircular.family(),
         departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges {
-            inclination: Range {
-                lo: 1f64.to_radians(),
-                hi: 5f64.to_radians(),
-            },
-            raan: Range {
-                lo: 0.0,
-                hi: std::f64::consts::TAU,
-            },
-        },
+        target_plane: PlaneRanges::any_node(Range {
+            lo: 1f64.to_radians(),
+            hi: 5f64.to_radians(),
+        }),
     }
 }
 
@@ -293,6 +287,23 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     let mut targeted = wide.clone();
     targeted.sil.terminal = Some(learn::config::TerminalSettings::default());
     assert!(targeted.validate().is_ok());
+    // Nominally the rollouts are the plant: the targeted flights end nearer the orbit.
+    let fly = |config: &ExperimentConfig, name: &str| {
+        learn::sil::sil_monte_carlo(
+            config,
+            &export.f32.file,
+            &dir.join(name),
+            Some(6),
+            &Dispersions::NONE,
+            0,
+        )
+        .unwrap()
+    };
+    let (alone, aimed) = (fly(&wide, "alone"), fly(&targeted, "targeted"));
+    assert!(alone.terminal.is_none() && aimed.terminal.is_some());
+    assert_eq!((aimed.flights, aimed.guidance_faults), (6, 0));
+    let miss = |r: &learn::sil::SilReport| r.monte_carlo.policy.terminal_position.p50;
+    assert!(miss(&aimed) < miss(&alone), "{} against {}", miss(&aimed), miss(&alone));
     let mut aided = wide.clone();
     aided.sil.lookahead = Some(Default::default());
     let refused = aided.validate().unwrap_err().to_string();
