@@ -333,7 +333,7 @@ fn fly_sil<'py>(
         None => None,
         Some(cycles) => {
             let cycle = cycle.ok_or_else(|| {
-                refused("terminal targeting counts cycles of one length; this family cuts each flight into a count of cycles")
+                refused("terminal targeting counts cycles of one length; this family cuts flights of different lengths into a count of cycles each")
             })?;
             let settings = TerminalSettings {
                 cycles,

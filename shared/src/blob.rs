@@ -195,8 +195,8 @@ pub struct LayerBlob<'a> {
 /// family's fingerprint, so that a blob is never flown for another family unnoticed.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct BlobMission {
-    /// The guidance cycle, t* (0 when the family cuts each flight into a count of cycles: the
-    /// length differs per flight and the flight software gives it).
+    /// The guidance cycle, t* (0 when the family cuts flights of different lengths into a
+    /// count of cycles each: the length differs per flight and the flight software gives it).
     pub cycle: f64,
     /// The canonical length unit, m.
     pub length_unit_m: f64,

@@ -358,12 +358,15 @@ impl MissionFamily {
         }
     }
 
-    /// The cycle's length (t*) when every flight of the family has the same one (a cycle in
-    /// days); `None` for a count of cycles over each flight. What the onboard aids count.
+    /// The cycle's length (t*) when every flight of the family has the same one: a cycle in
+    /// days, or a count of cycles over a fixed time of flight (the same bits as its
+    /// scenarios' cycle); `None` for a count over flights of different lengths. What the
+    /// onboard aids count.
     pub fn fixed_cycle(&self) -> Option<f64> {
-        match self.cycle {
-            Cycle::Days(days) => Some(self.body.units().days(days)),
-            Cycle::Count(_) => None,
+        match (self.cycle, self.time_of_flight) {
+            (Cycle::Days(days), _) => Some(self.body.units().days(days)),
+            (Cycle::Count(_), TimeOfFlight::Fixed { days }) => Some(self.cycles_of(self.body.units().days(days)).1),
+            (Cycle::Count(_), _) => None,
         }
     }
 
@@ -422,6 +425,34 @@ impl PlaneRanges {
     }
 }
 
+/// The departure state's dispersion about the one its orbit gives (docs/spec.md section 4): a
+/// Gaussian error with this standard deviation on each inertial axis, in the body's length and
+/// velocity units; zero for none. How a real mission's departure uncertainty becomes a family.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StateDispersion {
+    /// Standard deviation of each position component (length units).
+    pub position: f64,
+    /// Standard deviation of each velocity component (velocity units).
+    pub velocity: f64,
+}
+
+impl StateDispersion {
+    /// No dispersion: every draw departs from its orbit's state exactly.
+    pub const NONE: Self = Self {
+        position: 0.0,
+        velocity: 0.0,
+    };
+
+    /// The largest standard deviation accepted, in length and velocity units: a dispersion
+    /// about one departure, not a second family (and every draw stays on a closed orbit).
+    pub const MAX_SIGMA: f64 = 0.01;
+
+    /// Whether it disperses anything.
+    pub fn is_none(&self) -> bool {
+        *self == Self::NONE
+    }
+}
+
 /// A family in three dimensions (docs/spec.md section 4, inclined families): a [`MissionFamily`] whose orbits
 /// each lie in a plane drawn from its own ranges. Every planar figure (the shapes, the
 /// anomalies, the time of flight, the cycle) is the planar family's, measured in each orbit's
@@ -434,11 +465,15 @@ pub struct SpatialFamily {
     pub departure_plane: PlaneRanges,
     /// The target orbit's plane.
     pub target_plane: PlaneRanges,
+    /// The departure state's dispersion ([`StateDispersion::NONE`]: none).
+    pub departure_dispersion: StateDispersion,
 }
 
 /// Where the plane draws start in an index's stream, in 32-bit words: after the planar
 /// family's nine draws, so that a scenario's planar figures are the planar family's.
 const PLANE_WORDS: u128 = 18;
+/// Where the departure dispersion's draws start: after the four plane draws.
+const DISPERSION_WORDS: u128 = PLANE_WORDS + 8;
 
 impl SpatialFamily {
     /// The planar family, in the reference plane.
@@ -447,13 +482,17 @@ impl SpatialFamily {
             family,
             departure_plane: PlaneRanges::REFERENCE,
             target_plane: PlaneRanges::REFERENCE,
+            departure_dispersion: StateDispersion::NONE,
         }
     }
 
-    /// The planar family when both planes are fixed at the reference plane.
+    /// The planar family when both planes are fixed at the reference plane and the departure
+    /// is not dispersed (a dispersed state leaves the plane).
     pub fn as_planar(&self) -> Option<MissionFamily> {
-        (self.departure_plane == PlaneRanges::REFERENCE && self.target_plane == PlaneRanges::REFERENCE)
-            .then_some(self.family)
+        (self.departure_plane == PlaneRanges::REFERENCE
+            && self.target_plane == PlaneRanges::REFERENCE
+            && self.departure_dispersion.is_none())
+        .then_some(self.family)
     }
 
     /// Checks the planar family and both planes' ranges: the first offending field.
@@ -476,6 +515,18 @@ impl SpatialFamily {
                 return refuse(inclination, "inclinations must lie in [0, pi]");
             }
         }
+        let dispersion = &self.departure_dispersion;
+        for (sigma, field) in [
+            (dispersion.position, "departure.dispersion.r"),
+            (dispersion.velocity, "departure.dispersion.v"),
+        ] {
+            if !(sigma.is_finite() && (0.0..=StateDispersion::MAX_SIGMA).contains(&sigma)) {
+                return refuse(
+                    field,
+                    "a standard deviation must be finite, >= 0 and at most 0.01 of the body's unit",
+                );
+            }
+        }
         Ok(())
     }
 
@@ -490,22 +541,32 @@ impl SpatialFamily {
             inclination: uniform(&mut rng, ranges.inclination),
             raan: uniform(&mut rng, ranges.raan),
         };
-        SpatialScenario {
+        let drawn = SpatialScenario {
             initial_plane: plane(&self.departure_plane),
             target_plane: plane(&self.target_plane),
             scenario,
+        };
+        if self.departure_dispersion.is_none() {
+            return drawn;
         }
+        rng.set_word_pos(DISPERSION_WORDS);
+        disperse(drawn, &self.departure_dispersion, &mut rng)
     }
 
     /// The planar family's fingerprint when it is planar; else the CRC-32C of the whole
-    /// family's postcard encoding.
+    /// family's postcard encoding, the dispersion left out when there is none (so a family
+    /// without one keeps the fingerprint it had before families could disperse).
     pub fn fingerprint(&self) -> u32 {
         if let Some(planar) = self.as_planar() {
             return planar.fingerprint();
         }
         let mut buffer = [0u8; 320];
-        let encoded = postcard::to_slice(self, &mut buffer).map(|b| &*b).unwrap_or(&[]);
-        crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(encoded)
+        let encoded = if self.departure_dispersion.is_none() {
+            postcard::to_slice(&(&self.family, &self.departure_plane, &self.target_plane), &mut buffer)
+        } else {
+            postcard::to_slice(self, &mut buffer)
+        };
+        crc::Crc::<u32>::new(&crc::CRC_32_ISCSI).checksum(encoded.map(|b| &*b).unwrap_or(&[]))
     }
 
     /// A name for messages: the planar family's, or `custom-XXXXXXXX` with the fingerprint.
@@ -516,6 +577,39 @@ impl SpatialFamily {
         let mut text = heapless::String::new();
         let _ = write!(text, "custom-{:08x}", self.fingerprint());
         FamilyLabel(text)
+    }
+}
+
+/// `drawn` with its departure state moved by a Gaussian error of `dispersion` on each axis
+/// (six normal deviates by Box-Muller from the stream, position then velocity), the orbit and
+/// plane through the moved state in place of the drawn ones. A moved state on no closed orbit
+/// (not reachable within [`StateDispersion::MAX_SIGMA`] of a bound orbit in practice) keeps the
+/// drawn departure.
+fn disperse(drawn: SpatialScenario, dispersion: &StateDispersion, rng: &mut ChaCha8Rng) -> SpatialScenario {
+    let unit = Range { lo: 0.0, hi: 1.0 };
+    let mut normals = [0.0; 6];
+    for pair in normals.chunks_exact_mut(2) {
+        // 1 - u lies in (0, 1]: its logarithm is finite.
+        let radius = libm::sqrt(-2.0 * libm::log(1.0 - uniform(rng, unit)));
+        let angle = core::f64::consts::TAU * uniform(rng, unit);
+        pair[0] = radius * libm::cos(angle);
+        pair[1] = radius * libm::sin(angle);
+    }
+    let mut state = drawn.departure();
+    for axis in 0..3 {
+        state.r[axis] += dispersion.position * normals[axis];
+        state.v[axis] += dispersion.velocity * normals[3 + axis];
+    }
+    match state.elements() {
+        Some((initial, initial_plane)) => SpatialScenario {
+            initial_plane,
+            scenario: Scenario {
+                initial,
+                ..drawn.scenario
+            },
+            ..drawn
+        },
+        None => drawn,
     }
 }
 
@@ -633,6 +727,14 @@ mod tests {
             "same drawn time"
         );
         assert_eq!(a.initial, b.initial);
+        // A count of cycles has one length only over a fixed flight: the aids' cycle is then
+        // the draws' own, bit for bit.
+        assert_eq!(counted.fixed_cycle(), None);
+        counted.time_of_flight = TimeOfFlight::Fixed { days: 348.79 };
+        let fixed = counted.draw(3, 9);
+        assert_eq!(counted.fixed_cycle().map(f64::to_bits), Some(fixed.cycle.to_bits()));
+        assert_eq!(fixed.steps, 40);
+        assert_eq!(family.fixed_cycle(), Some(units.days(7.0)));
     }
 
     fn inclined() -> SpatialFamily {
@@ -643,6 +745,7 @@ mod tests {
                 lo: 0.0,
                 hi: 5f64.to_radians(),
             }),
+            departure_dispersion: StateDispersion::NONE,
         }
     }
 
@@ -697,6 +800,99 @@ mod tests {
             Err("target.raan")
         );
         assert_eq!(field(&|f| f.family.cycle = Cycle::Count(0)), Err("cycle.count"));
+    }
+
+    #[test]
+    fn a_dispersed_departure_moves_each_axis_by_its_gaussian_and_nothing_else() {
+        let nominal = SpatialFamily::planar(ScenarioKind::RendezvousCircular.family());
+        let dispersion = StateDispersion {
+            position: 1e-3,
+            velocity: 2e-3,
+        };
+        let dispersed = SpatialFamily {
+            departure_dispersion: dispersion,
+            ..nominal
+        };
+        assert!(dispersed.validate().is_ok());
+        assert_eq!(dispersed.as_planar(), None, "a dispersed state leaves the plane");
+        assert_ne!(dispersed.fingerprint(), nominal.fingerprint());
+        let n = 4000;
+        let (mut sum, mut squares) = ([0.0f64; 6], [0.0f64; 6]);
+        let mut cross = 0.0;
+        for index in 0..n {
+            let (a, b) = (nominal.draw(5, index), dispersed.draw(5, index));
+            assert_eq!(b, dispersed.draw(5, index));
+            assert!(b.validate().is_ok());
+            // The target, its anomaly, the flight and its cycles are the undispersed draw's.
+            assert_eq!(
+                (
+                    b.scenario.target,
+                    b.scenario.target_nu0,
+                    b.scenario.steps,
+                    b.target_plane
+                ),
+                (
+                    a.scenario.target,
+                    a.scenario.target_nu0,
+                    a.scenario.steps,
+                    a.target_plane
+                )
+            );
+            let (from, to) = (a.departure(), b.departure());
+            let errors: [f64; 6] = core::array::from_fn(|k| {
+                let (d, sigma) = if k < 3 {
+                    (to.r[k] - from.r[k], dispersion.position)
+                } else {
+                    (to.v[k - 3] - from.v[k - 3], dispersion.velocity)
+                };
+                d / sigma
+            });
+            for k in 0..6 {
+                sum[k] += errors[k];
+                squares[k] += errors[k] * errors[k];
+            }
+            cross += errors[0] * errors[3];
+        }
+        let n = n as f64;
+        for k in 0..6 {
+            let (mean, variance) = (sum[k] / n, squares[k] / n - (sum[k] / n).powi(2));
+            // Standard normal deviates: mean within 4 standard errors, variance within 10 %.
+            assert!(mean.abs() < 4.0 / n.sqrt(), "axis {k}: mean {mean}");
+            assert!((variance - 1.0).abs() < 0.1, "axis {k}: variance {variance}");
+        }
+        assert!(
+            (cross / n).abs() < 4.0 / n.sqrt(),
+            "position and velocity errors correlated"
+        );
+        for (bad, field) in [
+            (
+                StateDispersion {
+                    position: -1e-9,
+                    ..dispersion
+                },
+                "departure.dispersion.r",
+            ),
+            (
+                StateDispersion {
+                    velocity: f64::NAN,
+                    ..dispersion
+                },
+                "departure.dispersion.v",
+            ),
+            (
+                StateDispersion {
+                    velocity: 0.02,
+                    ..dispersion
+                },
+                "departure.dispersion.v",
+            ),
+        ] {
+            let family = SpatialFamily {
+                departure_dispersion: bad,
+                ..nominal
+            };
+            assert_eq!(family.validate().map_err(|e| e.field), Err(field));
+        }
     }
 
     #[test]

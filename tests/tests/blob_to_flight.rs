@@ -420,6 +420,7 @@ fn inclined(kind: ScenarioKind) -> shared::mission::SpatialFamily {
             lo: 1f64.to_radians(),
             hi: 5f64.to_radians(),
         }),
+        departure_dispersion: shared::mission::StateDispersion::NONE,
     }
 }
 

@@ -114,6 +114,7 @@ fn targeting_the_last_cycles_brings_inclined_arrivals_within_a_thousandth() {
             lo: 0.0,
             hi: 5f64.to_radians(),
         }),
+        departure_dispersion: shared::mission::StateDispersion::NONE,
     };
     let scenario = |i| family.draw(2_000_003, i);
     let alone = arrivals(Transfer3, scenario, &network, 100);

@@ -7,7 +7,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use shared::mission::{
-    CentralBody, Cycle, FamilyError, MissionFamily, OrbitRanges, PlaneRanges, SpatialFamily, TimeOfFlight,
+    CentralBody, Cycle, FamilyError, MissionFamily, OrbitRanges, PlaneRanges, SpatialFamily, StateDispersion,
+    TimeOfFlight,
 };
 use shared::scenario::{ProblemKind, Range, ScenarioKind};
 
@@ -99,6 +100,58 @@ pub struct OrbitSpec {
     /// flight, rounded up to whole cycles of a cycle in days), in the body's units or km and km/s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub arrival: Option<crate::spatial::StateSpec>,
+    /// The departure's dispersion: a Gaussian error on each inertial axis of the departure
+    /// state (the departure only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dispersion: Option<DispersionSpec>,
+}
+
+/// A departure state's dispersion as written: the standard deviation of each position and
+/// velocity component, in the body's units (`r`, `v`) or km and km/s (`r_km`, `v_km_s`); a
+/// component not given is not dispersed.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DispersionSpec {
+    /// Position, length units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r: Option<f64>,
+    /// Position, km.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r_km: Option<f64>,
+    /// Velocity, velocity units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub v: Option<f64>,
+    /// Velocity, km/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub v_km_s: Option<f64>,
+}
+
+impl DispersionSpec {
+    /// The dispersion in the body's units (checked by [`SpatialFamily::validate`]).
+    fn dispersion(&self, units: &shared::mission::Units) -> Result<StateDispersion, MissionError> {
+        let refuse = |why: &str| MissionError::Orbit {
+            field: "departure.dispersion",
+            why: why.to_string(),
+        };
+        let position = match (self.r, self.r_km) {
+            (Some(_), Some(_)) => return Err(refuse("give the position's deviation once: r or r_km")),
+            (r, km) => r.or(km.map(|x| x * 1e3 / units.length_m)).unwrap_or(0.0),
+        };
+        let velocity = match (self.v, self.v_km_s) {
+            (Some(_), Some(_)) => return Err(refuse("give the velocity's deviation once: v or v_km_s")),
+            (v, km_s) => v.or(km_s.map(|x| x * 1e3 / units.velocity_m_s())).unwrap_or(0.0),
+        };
+        Ok(StateDispersion { position, velocity })
+    }
+
+    /// As written back: in the body's units, `None` for no dispersion.
+    fn of(dispersion: &StateDispersion) -> Option<Self> {
+        (!dispersion.is_none()).then_some(Self {
+            r: Some(dispersion.position),
+            v: Some(dispersion.velocity),
+            ..Self::default()
+        })
+    }
 }
 
 /// A fixed value or a `[lo, hi]` range.
@@ -411,6 +464,16 @@ impl FamilyTable {
         let rendezvous = self.problem == ProblemName::Rendezvous;
         let (departure, departure_plane) = self.departure.ranges("departure", &body, None, false)?;
         let (target, target_plane) = self.target.ranges("target", &body, time_of_flight, rendezvous)?;
+        if self.target.dispersion.is_some() {
+            return Err(MissionError::Orbit {
+                field: "target.dispersion",
+                why: "only the departure is dispersed (the target is the goal the flight must meet)".to_string(),
+            });
+        }
+        let departure_dispersion = match &self.departure.dispersion {
+            Some(spec) => spec.dispersion(&body.units())?,
+            None => StateDispersion::NONE,
+        };
         Ok(SpatialFamily {
             family: MissionFamily {
                 problem: match self.problem {
@@ -425,6 +488,7 @@ impl FamilyTable {
             },
             departure_plane,
             target_plane,
+            departure_dispersion,
         })
     }
 
@@ -446,6 +510,7 @@ impl FamilyTable {
             spec.inclination = Some(RangeSpec::of(plane.inclination));
             spec.raan = Some(RangeSpec::of(plane.raan));
         }
+        table.departure.dispersion = DispersionSpec::of(&family.departure_dispersion);
         table
     }
 
@@ -885,6 +950,47 @@ cycle = { days = 7.0 }
         let table: FamilyTable = toml::from_str(&bad).unwrap();
         let refusal = FamilySpec::Table(table).spatial_family().unwrap_err().to_string();
         assert!(refusal.starts_with("target.inclination:"), "{refusal}");
+    }
+
+    #[test]
+    fn a_dispersed_departure_reads_in_km_writes_back_in_body_units_and_only_the_departure_takes_one() {
+        let dispersed = |dispersion: &str| {
+            INWARD.replace(
+                "departure = { a = [0.95, 1.05], e = [0.0, 0.02] }",
+                &format!("departure = {{ a = [0.95, 1.05], e = [0.0, 0.02], dispersion = {dispersion} }}"),
+            )
+        };
+        let text = dispersed("{ r_km = 1.0, v_km_s = 0.05 }");
+        let table: FamilyTable = toml::from_str(&text).unwrap();
+        let family = FamilySpec::Table(table.clone()).spatial_family().unwrap();
+        let units = family.family.body.units();
+        let sigma = family.departure_dispersion;
+        assert!((sigma.position * units.length_m - 1e3).abs() < 1e-9, "{sigma:?}");
+        assert!((sigma.velocity * units.velocity_m_s() - 50.0).abs() < 1e-9, "{sigma:?}");
+        // A dispersed departure leaves the plane: planar commands refuse it.
+        assert!(matches!(
+            FamilySpec::Table(table).family(),
+            Err(MissionError::Inclined(_))
+        ));
+        // Written back (in the body's units) it reads as the same family, fingerprint and all.
+        let written = toml::to_string(&FamilyTable::of_spatial(&family)).unwrap();
+        let back: FamilyTable = toml::from_str(&written).unwrap();
+        let back = FamilySpec::Table(back).spatial_family().unwrap();
+        assert_eq!(back, family, "{written}");
+        assert_eq!(back.fingerprint(), family.fingerprint());
+        let refusal = |text: &str| {
+            let table: FamilyTable = toml::from_str(text).unwrap();
+            FamilySpec::Table(table).spatial_family().unwrap_err().to_string()
+        };
+        let twice = refusal(&dispersed("{ r = 1e-8, r_km = 1.0 }"));
+        assert!(twice.starts_with("departure.dispersion:"), "{twice}");
+        let too_wide = refusal(&dispersed("{ v = 0.5 }"));
+        assert!(too_wide.starts_with("departure.dispersion.v:"), "{too_wide}");
+        let target = refusal(&INWARD.replace(
+            "target = { a = [0.70, 0.74], e = [0.0, 0.01] }",
+            "target = { a = [0.70, 0.74], e = [0.0, 0.01], dispersion = { r = 1e-8 } }",
+        ));
+        assert!(target.starts_with("target.dispersion:"), "{target}");
     }
 
     #[test]

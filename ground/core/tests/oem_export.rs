@@ -620,6 +620,7 @@ fn an_inclined_record_is_written_with_its_out_of_plane_components() {
             raan: fixed(plane.raan),
         },
         target_plane: PlaneRanges::REFERENCE,
+        departure_dispersion: shared::mission::StateDispersion::NONE,
     };
     let tof = 2.0 * PI;
     let ephemeris: Vec<SpatialSample> = (0..N)

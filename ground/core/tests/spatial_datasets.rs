@@ -30,6 +30,7 @@ fn inclined() -> SpatialFamily {
             lo: 2f64.to_radians(),
             hi: 5f64.to_radians(),
         }),
+        departure_dispersion: shared::mission::StateDispersion::NONE,
     }
 }
 

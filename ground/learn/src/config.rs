@@ -635,7 +635,8 @@ impl ExperimentConfig {
         if self.aid_cycle().is_none() && (self.sil.lookahead.is_some() || self.sil.terminal.is_some()) {
             return Err(ConfigError::Invalid(format!(
                 "sil.lookahead / sil.terminal: the onboard aids count cycles of one length, and family {} \
-                 cuts each flight into a count of cycles: give its cycle in days, or fly its network alone",
+                 cuts flights of different lengths into a count of cycles each: give its cycle in days, or fly \
+                 its network alone",
                 self.family.label()
             )));
         }
@@ -1072,13 +1073,19 @@ mod tests {
             "terminal".into(),
             toml::Value::Table(toml::from_str("cycles = 2").unwrap()),
         );
-        let counted = ExperimentConfig::from_toml(&toml::to_string(&counted).unwrap())
+        let refused = ExperimentConfig::from_toml(&toml::to_string(&counted).unwrap())
             .unwrap_err()
             .to_string();
         assert!(
-            counted.contains("sil.lookahead / sil.terminal") && counted.contains("custom-"),
-            "{counted}"
+            refused.contains("sil.lookahead / sil.terminal") && refused.contains("custom-"),
+            "{refused}"
         );
+        // A count over a fixed flight is one length: the aids fly it, at the draws' own cycle.
+        counted["scenario"]["time_of_flight"] = toml::Value::Table(toml::from_str("days = 300.0").unwrap());
+        let fixed = ExperimentConfig::from_toml(&toml::to_string(&counted).unwrap()).unwrap();
+        let cycle = fixed.terminal_settings().unwrap().cycle;
+        assert_eq!(cycle.to_bits(), fixed.family.draw(1, 0).scenario.cycle.to_bits());
+        assert_eq!(cycle, 7.5 * 86_400.0 / shared::units::TIME_UNIT_S);
 
         let bad = ExperimentConfig::from_toml("scenario = { problem = \"transfer\", body = \"sun\" }").unwrap_err();
         assert!(bad.to_string().contains("config does not parse"), "{bad}");
@@ -1160,7 +1167,8 @@ mod tests {
                 count += 1;
             }
         }
-        assert!((3..=13).contains(&count), "configs/ holds {count} configs");
+        // The main job, one recipe per shipped model (9) and a few studies.
+        assert!((3..=14).contains(&count), "configs/ holds {count} configs");
     }
 
     /// A recipe's stages: each applies its changes on top of the stage before, round-trips

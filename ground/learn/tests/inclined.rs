@@ -37,6 +37,7 @@ fn inclined() -> SpatialFamily {
             lo: 1f64.to_radians(),
             hi: 5f64.to_radians(),
         }),
+        departure_dispersion: shared::mission::StateDispersion::NONE,
     }
 }
 

@@ -335,8 +335,8 @@ typedef struct lt_policy_info {
   // `LT_QUANTIZATION_F32` or `LT_QUANTIZATION_INT8`.
   uint32_t quantization;
   // The guidance cycle the network was trained for (t*), for `lt_lookahead_settings.cycle` and
-  // `lt_terminal_settings.cycle`; 0 when its family cuts each flight into a count of cycles
-  // (the flight software knows the length).
+  // `lt_terminal_settings.cycle`; 0 when its family cuts flights of different lengths into a
+  // count of cycles each (the flight software knows the length).
   double cycle;
   // The canonical length unit of its features and states, m.
   double length_unit_m;

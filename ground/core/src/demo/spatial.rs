@@ -450,6 +450,7 @@ mod tests {
                 inclination: Range { lo: 0.07, hi: 0.07 },
                 raan: Range { lo: 1.0, hi: 1.0 },
             },
+            departure_dispersion: shared::mission::StateDispersion::NONE,
         }
     }
 
@@ -476,6 +477,7 @@ mod tests {
                 inclination: Range { lo: 0.07, hi: 0.07 },
                 raan: Range { lo: 1.0, hi: 1.0 },
             },
+            departure_dispersion: shared::mission::StateDispersion::NONE,
         };
         let record = solve_spatial_draw(&family, 2, 0, &sc, &quick());
         assert!(record.converged, "{:?}", record.failure);
