@@ -627,7 +627,7 @@ pub mod by_spec {
 pub struct FamilyCheck {
     /// The family's label.
     pub family: String,
-    /// Whether its orbits are inclined (solved in three dimensions; unsolved draws unclassified).
+    /// Whether its orbits are inclined (solved and classified in three dimensions).
     pub inclined: bool,
     /// Canonical units: length (m), time (s), velocity (m/s).
     pub length_unit_m: f64,
@@ -750,7 +750,7 @@ pub fn check_lines(c: &FamilyCheck) -> Vec<String> {
 
 /// Draws `sample` scenarios of `family` (seed `seed`), solves each by the indirect method (the
 /// planar one for draws in the reference plane, the three-dimensional one otherwise),
-/// classifies the unsolved planar draws by their minimum time of flight, and gathers the units,
+/// classifies the unsolved draws by their minimum time of flight (in the same dimension), and gathers the units,
 /// the times and the tank's reach ([`FamilyCheck`]). Parallel over the draws (rayon).
 pub fn check_family(
     family: &SpatialFamily,
@@ -761,8 +761,9 @@ pub fn check_family(
 ) -> FamilyCheck {
     use rayon::prelude::*;
 
-    use crate::solver::min_time::{classify_draw, Feasibility};
+    use crate::solver::min_time::classify_draw;
     use crate::solver::solve_scenario;
+    use crate::solver::spatial::min_time::classify_spatial_draw;
 
     let units = family.family.body.units();
     let solved: Vec<_> = (0..sample)
@@ -777,19 +778,15 @@ pub fn check_family(
                     final_mass: record.converged.then_some(record.final_mass),
                     seconds: record.seconds,
                 };
-                // No minimum-time method in three dimensions yet: an unsolved draw is unclassified.
-                let verdict = outcome.final_mass.is_none().then_some(Verdict::Unknown);
+                let verdict = outcome
+                    .final_mass
+                    .is_none()
+                    .then(|| Verdict::of(&classify_spatial_draw(&drawn, spacecraft, options), &scenario));
                 return (scenario, outcome, verdict);
             }
             let record = solve_scenario(family.family, seed, index, &scenario, spacecraft, options);
-            let verdict = (!record.converged).then(|| {
-                let tof = scenario.time_of_flight();
-                match classify_draw(&scenario, spacecraft, options) {
-                    Feasibility::MinTime { tf_min, .. } if tf_min > tof => Verdict::Infeasible,
-                    Feasibility::Unknown(_) => Verdict::Unknown,
-                    _ => Verdict::Feasible,
-                }
-            });
+            let verdict =
+                (!record.converged).then(|| Verdict::of(&classify_draw(&scenario, spacecraft, options), &scenario));
             let outcome = Outcome {
                 final_mass: record.converged.then_some(record.final_mass),
                 seconds: record.seconds,
@@ -873,6 +870,18 @@ enum Verdict {
     Infeasible,
     Feasible,
     Unknown,
+}
+
+impl Verdict {
+    /// An unsolved draw's verdict from its classification, in either dimension.
+    fn of<Z, S>(found: &crate::solver::min_time::Feasibility<Z, S>, scenario: &shared::scenario::Scenario) -> Self {
+        use crate::solver::min_time::Feasibility;
+        match found {
+            Feasibility::MinTime { tf_min, .. } if *tf_min > scenario.time_of_flight() => Self::Infeasible,
+            Feasibility::Unknown(_) => Self::Unknown,
+            _ => Self::Feasible,
+        }
+    }
 }
 
 #[cfg(test)]

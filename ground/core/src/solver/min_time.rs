@@ -88,7 +88,7 @@ fn min_time_initial(scenario: &Scenario, z: &MinTimeVector) -> [f64; Y_LEN] {
 }
 
 /// The largest time of flight at full thrust that keeps 5 % of the initial mass.
-fn mass_limit(spacecraft: &CanonicalSpacecraft) -> f64 {
+pub(crate) fn mass_limit(spacecraft: &CanonicalSpacecraft) -> f64 {
     0.95 * spacecraft.exhaust_speed / spacecraft.thrust
 }
 
@@ -405,14 +405,15 @@ impl ShootingProblem<TRANSFER_UNKNOWNS> for TransferAtTime<'_> {
     }
 }
 
-/// What the time-of-flight continuation and the minimum-time solve found for a transfer.
+/// What the time-of-flight continuation and the minimum-time solve found for a transfer: the
+/// planar unknowns by default, those of [`super::spatial::min_time`] in three dimensions.
 #[derive(Debug, Clone, PartialEq)]
-pub enum Feasibility {
+pub enum Feasibility<Z = MinTimeVector, S = TransferVector> {
     /// The energy-optimal problem was solved at the real time of flight: a start for the
     /// homotopy (z: costates and nu_f), so the draw is feasible.
     Recovered {
         /// Initial costates and nu_f of the energy-optimal (eps = 1) solution.
-        z: TransferVector,
+        z: S,
     },
     /// A minimum-time extremal: tf_min (canonical) and its unknowns; `stopped_at` is where the
     /// time-of-flight continuation stopped (canonical; NaN for an extremal of the direct
@@ -421,7 +422,7 @@ pub enum Feasibility {
         /// Minimum time of flight (t*).
         tf_min: f64,
         /// The extremal's unknowns.
-        z: MinTimeVector,
+        z: Z,
         /// Time of flight where the continuation stopped (t*), or NaN.
         stopped_at: f64,
     },
@@ -429,7 +430,7 @@ pub enum Feasibility {
     Unknown(String),
 }
 
-impl Feasibility {
+impl<Z, S> Feasibility<Z, S> {
     /// The draw's time of flight is below its (local) minimum time.
     pub fn infeasible(&self, tof: f64) -> bool {
         matches!(self, Self::MinTime { tf_min, .. } if *tf_min > tof)
@@ -453,7 +454,7 @@ const WIDE_TOF_FACTORS: [f64; 4] = [4.0, 6.0, 8.0, 12.0];
 /// Work budget of each pass of the classification, in multi-start budgets.
 const CLASSIFY_WORK: u64 = 12;
 /// Final-time multiples of the direct minimum-time multi-start.
-const MULTISTART_TOF_FACTORS: [f64; 6] = [1.0, 1.5, 2.5, 4.0, 6.0, 8.0];
+pub(crate) const MULTISTART_TOF_FACTORS: [f64; 6] = [1.0, 1.5, 2.5, 4.0, 6.0, 8.0];
 
 /// Newton at eps = 1 on `problem` from `guess` within what is left of `work` since `start`, and
 /// at most one multi-start budget.
@@ -623,7 +624,7 @@ impl TimeClass<RENDEZVOUS_UNKNOWNS> for RendezvousClass<'_> {
         let y = propagate_full_thrust(self.scenario, &self.spacecraft, guess, tolerances).ok()?;
         let body = body_motion(self.scenario, guess[4]).ok()?;
         let h = rendezvous_end_condition(&y, &self.spacecraft, &body) - 1.0;
-        scaled_by(guess, h)
+        scaled_by(guess, 4, h)
     }
 
     fn solve_min_time(&self, guess: &MinTimeVector, tolerances: &Tolerances) -> Option<MinTimeVector> {
@@ -751,7 +752,7 @@ where
 }
 
 /// The Newton settings of the minimum-time problems.
-fn min_time_newton() -> NewtonSettings {
+pub(crate) fn min_time_newton() -> NewtonSettings {
     NewtonSettings {
         max_iterations: 40,
         tolerance: 1e-10,
@@ -759,14 +760,14 @@ fn min_time_newton() -> NewtonSettings {
     }
 }
 
-/// The guess with lambda_r, lambda_v scaled by k = -1 / h > 0, where the end condition is
-/// 1 + h(lambda) with h linear in lambda; None where h >= 0.
-fn scaled_by(guess: &MinTimeVector, h: f64) -> Option<MinTimeVector> {
+/// The guess with its first `costates` components (lambda_r, lambda_v) scaled by k = -1 / h > 0,
+/// where the end condition is 1 + h(lambda) with h linear in lambda; None where h >= 0.
+pub(crate) fn scaled_by<const N: usize>(guess: &SVector<f64, N>, costates: usize, h: f64) -> Option<SVector<f64, N>> {
     if h.is_nan() || h >= 0.0 {
         return None;
     }
     let mut scaled = *guess;
-    for i in 0..4 {
+    for i in 0..costates {
         scaled[i] /= -h;
     }
     Some(scaled)
@@ -782,7 +783,7 @@ pub fn scaled_to_zero_hamiltonian(
     tolerances: &Tolerances,
 ) -> Option<MinTimeVector> {
     let y = propagate_full_thrust(scenario, spacecraft, guess, tolerances).ok()?;
-    scaled_by(guess, reduced_hamiltonian(&y, spacecraft) - 1.0)
+    scaled_by(guess, 4, reduced_hamiltonian(&y, spacecraft) - 1.0)
 }
 
 /// Solves the minimum-time transfer from `guess`.

@@ -729,6 +729,7 @@ pub fn sample_solution(
 }
 
 pub mod direct;
+pub mod min_time;
 pub mod record;
 mod transfer;
 pub use transfer::{

@@ -309,7 +309,7 @@ impl SpatialShooting<SPATIAL_TRANSFER_UNKNOWNS> for SpatialTransfer {
 }
 
 /// The target orbit seen in `frame` (rows: the frame's axes in inertial coordinates).
-fn orbit_in_frame(frame: &[[f64; 3]; 3], orbit: &SpatialOrbitShape) -> SpatialOrbitShape {
+pub(crate) fn orbit_in_frame(frame: &[[f64; 3]; 3], orbit: &SpatialOrbitShape) -> SpatialOrbitShape {
     let (p, q) = orbit.perifocal();
     SpatialOrbitShape::from_perifocal(orbit.a, orbit.e, &to_frame(frame, &p), &to_frame(frame, &q))
 }
