@@ -141,6 +141,47 @@ fn full_thrust_sensitivity3<const N: usize>(
     Ok(ys)
 }
 
+/// The end of a full-thrust arc with what the minimum-time Jacobians need: y(tf), the gradient
+/// of [`reduced_hamiltonian3`] there, and d y(tf) / d z for the costates and tf.
+struct ArcEnd {
+    sensitivity: [f64; FULL_SENSITIVITY_LEN],
+    y: [f64; Y3_LEN],
+    hamiltonian_gradient: [f64; Y3_LEN],
+    rate: [f64; Y3_LEN],
+}
+
+impl ArcEnd {
+    fn of<const N: usize>(
+        departure: &SpatialState,
+        spacecraft: &CanonicalSpacecraft,
+        z: &SVector<f64, N>,
+        tolerances: &Tolerances,
+    ) -> Result<Self, IntegrationError> {
+        let sensitivity = full_thrust_sensitivity3(departure, spacecraft, z, tolerances)?;
+        let y: [f64; Y3_LEN] = core::array::from_fn(|i| sensitivity[i]);
+        Ok(Self {
+            sensitivity,
+            y,
+            hamiltonian_gradient: hamiltonian_gradient3(&y, spacecraft),
+            rate: state_costate_rhs3_in(&y, &full_params(spacecraft), Regime::Full),
+        })
+    }
+
+    /// d y_i(tf) / d z_k: the costate columns of the sensitivity, then dy/dt for tf.
+    fn dy(&self, i: usize, k: usize) -> f64 {
+        if k < COSTATES {
+            self.sensitivity[Y3_LEN + k * Y3_LEN + i]
+        } else {
+            self.rate[i]
+        }
+    }
+
+    /// d H(tf) / d z_k.
+    fn dh(&self, k: usize) -> f64 {
+        (0..Y3_LEN).map(|i| self.hamiltonian_gradient[i] * self.dy(i, k)).sum()
+    }
+}
+
 /// The minimum-time Hamiltonian without its lambda_m term (lambda_m(tf) = 0): 1 + lambda_r . v
 /// + lambda_v . g(r) - T |lambda_v| / m, at full thrust along the primer.
 pub fn reduced_hamiltonian3(y: &[f64; Y3_LEN], spacecraft: &CanonicalSpacecraft) -> f64 {
@@ -210,26 +251,16 @@ impl ShootingProblem<SPATIAL_MIN_TIME_UNKNOWNS> for SpatialMinTimeTransfer {
         z: &SpatialMinTimeVector,
         tolerances: &Tolerances,
     ) -> Result<(SpatialMinTimeVector, nalgebra::SMatrix<f64, 8, 8>), IntegrationError> {
-        let ys = full_thrust_sensitivity3(&self.departure, &self.spacecraft, z, tolerances)?;
-        let y: [f64; Y3_LEN] = core::array::from_fn(|i| ys[i]);
+        let end = ArcEnd::of(&self.departure, &self.spacecraft, z, tolerances)?;
+        let y = end.y;
         let (f, orbit) = self.terminal(&y, z[NU_F]);
-        let grad = hamiltonian_gradient3(&y, &self.spacecraft);
-        let rate = state_costate_rhs3_in(&y, &full_params(&self.spacecraft), Regime::Full);
-        // d y(tf) / d z: the costate columns of the sensitivity, then dy/dt for tf.
-        let dy = |i: usize, k: usize| {
-            if k < COSTATES {
-                ys[Y3_LEN + k * Y3_LEN + i]
-            } else {
-                rate[i]
-            }
-        };
         let mut jac = nalgebra::SMatrix::<f64, 8, 8>::zeros();
         for k in 0..=TF {
             for i in 0..6 {
-                jac[(i, k)] = dy(idx3::R + i, k);
+                jac[(i, k)] = end.dy(idx3::R + i, k);
             }
-            jac[(6, k)] = (0..6).map(|i| dy(idx3::LR + i, k) * orbit[i].v1).sum();
-            jac[(7, k)] = (0..Y3_LEN).map(|i| grad[i] * dy(i, k)).sum();
+            jac[(6, k)] = (0..6).map(|i| end.dy(idx3::LR + i, k) * orbit[i].v1).sum();
+            jac[(7, k)] = end.dh(k);
         }
         for i in 0..6 {
             jac[(i, NU_F)] = -orbit[i].v1;
@@ -315,26 +346,16 @@ impl ShootingProblem<SPATIAL_MIN_TIME_RENDEZVOUS_UNKNOWNS> for SpatialMinTimeRen
         z: &SpatialMinTimeRendezvousVector,
         tolerances: &Tolerances,
     ) -> Result<(SpatialMinTimeRendezvousVector, nalgebra::SMatrix<f64, 7, 7>), IntegrationError> {
-        let ys = full_thrust_sensitivity3(&self.departure, &self.spacecraft, z, tolerances)?;
-        let y: [f64; Y3_LEN] = core::array::from_fn(|i| ys[i]);
+        let end = ArcEnd::of(&self.departure, &self.spacecraft, z, tolerances)?;
+        let y = end.y;
         let body = self.body(z[TF])?;
         let f = self.terminal(&y, &body);
-        let grad = hamiltonian_gradient3(&y, &self.spacecraft);
-        let rate = state_costate_rhs3_in(&y, &full_params(&self.spacecraft), Regime::Full);
-        let dy = |i: usize, k: usize| {
-            if k < COSTATES {
-                ys[Y3_LEN + k * Y3_LEN + i]
-            } else {
-                rate[i]
-            }
-        };
         let mut jac = nalgebra::SMatrix::<f64, 7, 7>::zeros();
         for k in 0..=TF {
             for i in 0..6 {
-                jac[(i, k)] = dy(idx3::R + i, k);
+                jac[(i, k)] = end.dy(idx3::R + i, k);
             }
-            jac[(6, k)] = (0..Y3_LEN).map(|i| grad[i] * dy(i, k)).sum::<f64>()
-                - (0..6).map(|i| dy(idx3::LR + i, k) * body.rate[i]).sum::<f64>();
+            jac[(6, k)] = end.dh(k) - (0..6).map(|i| end.dy(idx3::LR + i, k) * body.rate[i]).sum::<f64>();
         }
         // The body moves on as tf does.
         for i in 0..6 {
