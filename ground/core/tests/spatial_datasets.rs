@@ -141,10 +141,16 @@ fn the_earth_mars_family_poses_the_problem_files_rendezvous() {
     use ground_core::mission::FamilySpec;
     use ground_core::spatial::{SpatialGoal, SpatialProblemSpec};
     let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions");
-    let family = FamilySpec::from_argument(configs.join("earth-mars.toml").to_str().unwrap())
+    let dispersed = FamilySpec::from_argument(configs.join("earth-mars.toml").to_str().unwrap())
         .unwrap()
         .spatial_family()
         .unwrap();
+    // The mission file disperses the departure by the study's state uncertainty; without it, it
+    // is the problem file's nominal.
+    let family = shared::mission::SpatialFamily {
+        departure_dispersion: shared::mission::StateDispersion::NONE,
+        ..dispersed
+    };
     let posed = SpatialProblemSpec::from_file(&configs.join("earth-mars-optimum.toml"))
         .unwrap()
         .pose()
@@ -165,6 +171,15 @@ fn the_earth_mars_family_poses_the_problem_files_rendezvous() {
             .fold(0.0, f64::max)
     };
     assert!(gap(&ours.departure, &theirs.departure) < 1e-14);
+    // A dispersed draw departs within six sigmas of the nominal on each axis, and not on it.
+    let moved = dispersed.draw(0, 0).departure();
+    let sigma = dispersed.departure_dispersion;
+    let nominal = draw.departure();
+    for k in 0..3 {
+        assert!((moved.r[k] - nominal.r[k]).abs() < 6.0 * sigma.position);
+        assert!((moved.v[k] - nominal.v[k]).abs() < 6.0 * sigma.velocity);
+    }
+    assert!(gap(&moved, &nominal) > 0.0);
     assert!(
         gap(&ours.arrival, &theirs.arrival) < 1e-12,
         "{:e}",
