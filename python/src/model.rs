@@ -183,7 +183,8 @@ impl Policy {
 /// must have the CRC-32C it records, the actor and both blobs must be listed, and the f32 blob
 /// must hold exactly the actor's weights. Returns a dict: `name` (the card's), `scenario` (its
 /// family: a preset's name or the family's table as TOML text), `env_config` (its `[env]` as
-/// TOML text: spacecraft, reward), `card` (card.json as a dict), `f32` and `int8` (`Policy`),
+/// TOML text: spacecraft, reward), `sil_dispersions` (its `[sil.dispersions]` as TOML text, the
+/// dispersions its card's SIL flew; empty when the config has none), `card` (card.json as a dict), `f32` and `int8` (`Policy`),
 /// `files` (paths of the actor, the blobs and, when the folder has it, `onnx`).
 #[pyfunction]
 fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>> {
@@ -210,6 +211,11 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
         Some(toml::Value::Table(env)) => toml::to_string(env).map_err(|e| bad(&e.to_string()))?,
         _ => String::new(),
     };
+    // The dispersions its SIL flew (`[sil.dispersions]`), for `fly_sil`'s `dispersions`.
+    let sil_dispersions = match config.get("sil").and_then(|sil| sil.get("dispersions")) {
+        Some(toml::Value::Table(dispersions)) => toml::to_string(dispersions).map_err(|e| bad(&e.to_string()))?,
+        _ => String::new(),
+    };
     let files: BTreeMap<String, String> =
         serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
     let checked = py
@@ -219,6 +225,7 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
     d.set_item("name", name)?;
     d.set_item("scenario", scenario)?;
     d.set_item("env_config", env_config)?;
+    d.set_item("sil_dispersions", sil_dispersions)?;
     d.set_item("card", py.import("json")?.call_method1("loads", (text,))?)?;
     d.set_item("f32", Policy::load(&checked.f32_blob)?)?;
     d.set_item("int8", Policy::load(&checked.int8_blob)?)?;
@@ -306,10 +313,12 @@ where
 /// cone about the command). With `terminal_cycles` the last that many cycles (1 to 4) of each
 /// flight are flown with terminal targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
 /// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
-/// weights, as the model's own SIL flew them. Returns per-flight arrays: `dr`, `dv` (terminal
+/// weights, as the model's own SIL flew them; `dispersions` (a `[sil.dispersions]` table as TOML
+/// text, `open_model`'s `sil_dispersions`) replaces the typical dispersions of a dispersed
+/// flight. Returns per-flight arrays: `dr`, `dv` (terminal
 /// residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
 #[pyfunction]
-#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None, env_config=None))]
+#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None, env_config=None, dispersions=None))]
 #[allow(clippy::too_many_arguments)] // the Python signature's keywords
 fn fly_sil<'py>(
     py: Python<'py>,
@@ -320,6 +329,7 @@ fn fly_sil<'py>(
     dispersed: bool,
     terminal_cycles: Option<u32>,
     env_config: Option<&str>,
+    dispersions: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let family = spatial_scenario_family(kind)?;
     let kind = family.family;
@@ -365,10 +375,14 @@ fn fly_sil<'py>(
         spacecraft,
         tolerances: env.integrator.tolerances(),
         weights: env.reward.weights(),
-        dispersions: if dispersed {
-            Dispersions::typical_in(&kind.body.units())
-        } else {
-            Dispersions::NONE
+        dispersions: match (dispersed, dispersions.filter(|text| !text.trim().is_empty())) {
+            (false, _) => Dispersions::NONE,
+            (true, None) => Dispersions::typical_in(&kind.body.units()),
+            (true, Some(text)) => {
+                let given: Dispersions = toml::from_str(text).map_err(|e| refused(format!("dispersions: {e}")))?;
+                given.validate().map_err(|e| refused(format!("dispersions: {e:?}")))?;
+                given
+            }
         },
         time_unit_s: kind.body.units().time_s,
     };

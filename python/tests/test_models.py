@@ -68,15 +68,31 @@ def test_a_model_whose_files_disagree_with_its_card_is_refused(tmp_path):
         lowthrust.Policy(b"LTGB" + bytes(100))
 
 
+def test_dispersions_that_cannot_be_flown_are_refused_by_name():
+    model = lowthrust.open_model(MODELS / "venus-inward")
+    for bad in ("thrust_magnitude = -0.1", "pointing = nan", "color = 3", "thrust_magnitude = ["):
+        with pytest.raises(lowthrust.LowThrustError, match="dispersions"):
+            lowthrust.fly_sil(model["f32"], model["scenario"], 1, 1, env_config=model["env_config"], dispersions=bad)
+    # Without dispersions the text is not read: the nominal plant.
+    nominal = lowthrust.fly_sil(
+        model["f32"], model["scenario"], 1, 2, dispersed=False, env_config=model["env_config"], dispersions="color = 3"
+    )
+    assert nominal["completed"].all()
+
+
 @pytest.mark.parametrize("quantization", ["f32", "int8"])
-@pytest.mark.parametrize("name", ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined"])
+@pytest.mark.parametrize(
+    "name", ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined", "earth-mars"]
+)
 def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
-    """The dispersed SIL Monte Carlo of the card (1,000 flights, typical dispersions, the Monte
-    Carlo seed), flown again from Python with the model's family and [env]: the same share within
-    each tolerance, the same medians; for a preset, for a mission family (7-day cycles, another
-    spacecraft) and for an inclined family (the three-dimensional loop)."""
+    """The dispersed SIL Monte Carlo of the card (1,000 flights, its config's dispersions, the
+    Monte Carlo seed), flown again from Python with the model's family, [env] and dispersions:
+    the same share within each tolerance, the same medians; for a preset, for a mission family
+    (7-day cycles, another spacecraft), for an inclined family (the three-dimensional loop) and
+    for a real mission (a three-dimensional rendezvous from a dispersed departure, 40 cycles
+    over a fixed flight, the study's uncertainties)."""
     model = lowthrust.open_model(MODELS / name)
-    figures = dict(model["card"]["sil"])[f"transfer-{quantization}.blob"]
+    figures = dict(model["card"]["sil"])[f"{model['f32'].problem}-{quantization}.blob"]
     # The card's SIL flies the last cycles with terminal targeting, when it records it.
     terminal = model["card"].get("terminal")
     cycles = terminal["cycles"] if terminal else None
@@ -88,6 +104,7 @@ def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
         dispersed=True,
         terminal_cycles=cycles,
         env_config=model["env_config"],
+        dispersions=model["sil_dispersions"],
     )
     assert flown["completed"].all()
     for tolerance, share in figures["within"]:
