@@ -74,7 +74,8 @@ impl OdeSystem<Y_LEN> for FullThrust {
     }
 }
 
-fn full_params(spacecraft: &CanonicalSpacecraft) -> OptimalControlParams {
+/// The fuel problem's parameters at eps = 1, for the right-hand side at full thrust.
+pub(crate) fn full_params(spacecraft: &CanonicalSpacecraft) -> OptimalControlParams {
     OptimalControlParams {
         spacecraft: *spacecraft,
         eps: 1.0,
@@ -1093,7 +1094,7 @@ pub fn full_thrust_fraction<const N: usize>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::solver::pontryagin::hamiltonian;
     use crate::solver::pontryagin::propagate;
@@ -1106,7 +1107,7 @@ mod tests {
     }
 
     /// Earth-like circle (1 AU) to Mars-like circle (1.52 AU) in 8 steps (112 days).
-    fn circle_raise() -> Scenario {
+    pub(crate) fn circle_raise() -> Scenario {
         let initial = OrbitElements {
             shape: OrbitShape {
                 a: 1.0,

@@ -36,8 +36,8 @@ use super::{
     Y3_LEN,
 };
 use crate::solver::min_time::{
-    classify_draw, mass_limit, min_time_newton, multistart_extremals, rendezvous_multistart_extremals, scaled_by,
-    Feasibility, MinTimeVector, MULTISTART_TOF_FACTORS,
+    classify_draw, full_params, mass_limit, min_time_newton, multistart_extremals, rendezvous_multistart_extremals,
+    scaled_by, Feasibility, MinTimeVector, MULTISTART_TOF_FACTORS,
 };
 use crate::solver::pontryagin::{charge_stats, variational_rhs, OptimalControlParams, Regime, SENSITIVITY_STEP_WORK};
 use crate::solver::shooting::{newton, ShootingProblem};
@@ -69,13 +69,6 @@ const FULL_SENSITIVITY_LEN: usize = Y3_LEN + Y3_LEN * COSTATES;
 const LIFTED_EXTREMALS: usize = 3;
 /// What the lifted extremals are continued in.
 const TILT: &str = "the target's inclination to the departure plane";
-
-fn full_params(spacecraft: &CanonicalSpacecraft) -> OptimalControlParams {
-    OptimalControlParams {
-        spacecraft: *spacecraft,
-        eps: 1.0,
-    }
-}
 
 /// The spatial state-costate system at full thrust.
 struct FullThrust3(OptimalControlParams);
@@ -724,7 +717,7 @@ pub fn classify_spatial_draw(
 mod tests {
     use super::*;
     use crate::solver::spatial::{hamiltonian3, propagate3};
-    use shared::orbit::{OrbitElements, OrbitPlane, OrbitShape};
+    use shared::orbit::OrbitPlane;
     use shared::spacecraft::Spacecraft;
 
     fn sc() -> CanonicalSpacecraft {
@@ -735,28 +728,12 @@ mod tests {
     /// (its planar minimum time is 269 days); `lead` rad: a rendezvous with the body that far
     /// ahead at departure, None: the free-anomaly transfer.
     fn circle_raise(lead: Option<f64>) -> Scenario {
-        let initial = OrbitElements {
-            shape: OrbitShape {
-                a: 1.0,
-                e: 0.0,
-                omega: 0.0,
-            },
-            nu: 0.3,
-        };
-        let target = OrbitShape {
-            a: 1.52,
-            e: 0.0,
-            omega: 0.0,
-        };
-        let transfer = Scenario {
-            steps: 8,
-            ..Scenario::transfer(initial, target)
-        };
+        let transfer = crate::solver::min_time::tests::circle_raise();
         match lead {
             None => transfer,
             Some(lead) => Scenario {
                 problem: ProblemKind::Rendezvous,
-                target_nu0: initial.nu + lead,
+                target_nu0: transfer.initial.nu + lead,
                 ..transfer
             },
         }
