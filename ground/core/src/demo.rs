@@ -532,30 +532,50 @@ pub fn placed_demonstration<P: Problem<Geometry = Planar>>(
             unclipped_position: (exact.r[0] - s_next.r[0]).hypot(exact.r[1] - s_next.r[1]),
         });
     }
-    // Arrived early: coast with the target to the episode's end.
-    // The environment's own steps: a coast is what it flies exactly, so its rewards and
-    // observations are the tuples'.
     let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
-    let coast = coast_action();
-    if first_coast < scenario.steps {
-        let mut observation = env
-            .reset_at(scenario, &placed(arrived), first_coast)
-            .map_err(DemoError::Env)?;
-        for k in first_coast..scenario.steps {
-            let flown = env.step(&coast).map_err(DemoError::Env)?;
-            transitions.push(Transition {
-                observation,
-                action: coast,
-                reward: flown.reward,
-                next_observation: flown.observation,
-                done: flown.done,
-                record: record.index,
-                step: k,
-            });
-            observation = flown.observation;
-        }
-    }
+    coast_to_the_end(
+        &mut env,
+        scenario,
+        &placed(arrived),
+        first_coast..scenario.steps,
+        coast_action(),
+        record.index,
+        &mut transitions,
+    )?;
     Ok(RecordDemonstration { transitions, mismatch })
+}
+
+/// After a record that arrived early (an arrival margin), its flight coasts with the target
+/// over `cycles` from `arrived`: the environment's own cycles, both geometries. A coast is what
+/// the environment flies exactly, so its rewards and observations are the tuples'. Nothing
+/// for an empty range (a record that arrives on time).
+pub(crate) fn coast_to_the_end<P: Problem>(
+    env: &mut MdpEnv<P>,
+    scenario: &ScenarioOf<P::Geometry>,
+    arrived: &StateOf<P::Geometry>,
+    cycles: core::ops::Range<u32>,
+    coast: ActionOf<P::Geometry>,
+    record: u64,
+    transitions: &mut Vec<Transition<P::Obs, ActionOf<P::Geometry>>>,
+) -> Result<(), DemoError> {
+    if cycles.is_empty() {
+        return Ok(());
+    }
+    let mut observation = env.reset_at(scenario, arrived, cycles.start).map_err(DemoError::Env)?;
+    for k in cycles {
+        let flown = env.step(&coast).map_err(DemoError::Env)?;
+        transitions.push(Transition {
+            observation,
+            action: coast,
+            reward: flown.reward,
+            next_observation: flown.observation,
+            done: flown.done,
+            record,
+            step: k,
+        });
+        observation = flown.observation;
+    }
+    Ok(())
 }
 
 /// Tuples of a record set, in record order, with the records that gave none.
@@ -666,22 +686,28 @@ pub trait DemoGeometry: crate::env::Geometry {
     ) -> Option<Vec<Transition<P::Obs, Self::Action>>>;
 }
 
+/// The arrival margin of the dataset at `path`: its run's request says it; a folder without one
+/// (written before it existed, or a file moved out of its folder) shows it by its records'
+/// `shortfalls` (cycles each ends before its episode).
+fn dataset_arrival_margin(path: &Path, shortfalls: impl Iterator<Item = u32>) -> Result<u32, DemoError> {
+    Ok(match crate::generate::dataset_solve_request(path)? {
+        Some(request) => request.arrival_margin_steps,
+        None => shortfalls.max().unwrap_or(0),
+    })
+}
+
 impl DemoGeometry for Planar {
     type Record = TrajectoryRecord;
 
     fn load_dataset(path: &Path) -> Result<LoadedDataset<TrajectoryRecord>, DemoError> {
         let dataset = read_dataset(path)?;
-        // The run's request says its margin; a folder without one (written before it existed,
-        // or a file moved out of its folder) shows it by its records.
-        let arrival_margin = match crate::generate::dataset_solve_request(path)? {
-            Some(request) => request.arrival_margin_steps,
-            None => dataset
+        let arrival_margin = dataset_arrival_margin(
+            path,
+            dataset
                 .records
                 .iter()
-                .map(|r| Placement::whole(r).episode.steps - r.scenario.steps)
-                .max()
-                .unwrap_or(0),
-        };
+                .map(|r| Placement::whole(r).episode.steps - r.scenario.steps),
+        )?;
         Ok(LoadedDataset {
             family: shared::mission::SpatialFamily::planar(dataset.manifest.family),
             records: dataset.records,
@@ -735,12 +761,17 @@ impl DemoGeometry for crate::env::Spatial {
 
     fn load_dataset(path: &Path) -> Result<LoadedDataset<Self::Record>, DemoError> {
         let dataset = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(path)?;
+        let arrival_margin = dataset_arrival_margin(
+            path,
+            dataset
+                .records
+                .iter()
+                .map(|r| spatial::episode_of(r).scenario.steps - r.scenario.scenario.steps),
+        )?;
         Ok(LoadedDataset {
             family: dataset.manifest.family,
             records: dataset.records,
-            // Three-dimensional records are solved to arrive on time (an arrival margin is
-            // refused for them).
-            arrival_margin: 0,
+            arrival_margin,
         })
     }
 

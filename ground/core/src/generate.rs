@@ -33,7 +33,7 @@ use crate::progress;
 use crate::solver::direct::DirectError;
 use crate::solver::min_time::{classify_draw, Feasibility};
 use crate::solver::record::{RecordFormat1, TrajectoryRecord};
-use crate::solver::spatial::record::{solve_spatial_draw, SpatialRecord};
+use crate::solver::spatial::record::{solve_spatial_arriving_early, SpatialRecord};
 use crate::solver::{solve_arriving_early, solve_from_energy_start, SolveOptions};
 
 const RECORD_MAGIC: [u8; 4] = *b"LTRC";
@@ -81,10 +81,6 @@ pub trait DatasetFamily: WrittenFamily + Copy + PartialEq + std::fmt::Debug + Se
     fn decode_record(bytes: &[u8]) -> Result<Self::Record, ContainerError>;
     /// Decodes a dataset file (older formats included).
     fn decode_dataset(bytes: &[u8]) -> Result<DatasetFile<Self>, ContainerError>;
-    /// Why these solve options cannot make the family's records, if they cannot.
-    fn unsupported(_options: &SolveOptions) -> Option<&'static str> {
-        None
-    }
 }
 
 /// The figures the summaries read from a record.
@@ -207,7 +203,8 @@ impl DatasetFamily for SpatialFamily {
     }
 
     fn solve(&self, seed: u64, index: u64, spacecraft: &CanonicalSpacecraft, options: &SolveOptions) -> SpatialRecord {
-        solve_spatial_draw(self, seed, index, spacecraft, options)
+        let scenario = self.draw(seed, index);
+        solve_spatial_arriving_early(self, (seed, index), &scenario, spacecraft, options)
     }
 
     fn drew(&self, record: &SpatialRecord, seed: u64, index: u64) -> bool {
@@ -220,11 +217,6 @@ impl DatasetFamily for SpatialFamily {
 
     fn decode_dataset(bytes: &[u8]) -> Result<DatasetFile<Self>, ContainerError> {
         decode_container(SPATIAL_DATASET_MAGIC, FORMAT_VERSION, bytes)
-    }
-
-    fn unsupported(options: &SolveOptions) -> Option<&'static str> {
-        (options.arrival_margin_steps != 0)
-            .then_some("an arrival margin is not supported in three dimensions yet: leave --arrival-margin at 0")
     }
 }
 
@@ -390,9 +382,6 @@ pub enum GenerateError {
         /// The run's.
         wanted: String,
     },
-    /// The solve options cannot make this family's records.
-    #[error("{0}")]
-    Unsupported(&'static str),
     /// The folder holds records solved to another final eps.
     #[error("output folder holds records solved to final eps {found}, not {wanted}: use another --out or --final-eps {found}")]
     FinalEpsMismatch {
@@ -1099,9 +1088,6 @@ pub fn check_request<F: DatasetFamily>(
     let eps = options.final_eps;
     if !(eps.is_finite() && eps > 0.0 && eps <= 1.0) {
         return Err(GenerateError::InvalidFinalEps(eps));
-    }
-    if let Some(why) = F::unsupported(options) {
-        return Err(GenerateError::Unsupported(why));
     }
     Ok(())
 }

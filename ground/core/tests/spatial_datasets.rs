@@ -115,15 +115,33 @@ fn an_inclined_family_generates_records_that_join_the_target_orbit_and_resume_an
     };
     let refused = generate(planar, Shard::WHOLE, &whole, &sc, &options, false).unwrap_err();
     assert!(refused.to_string().contains("inclined orbits"), "{refused}");
-    // An arrival margin is not posed in three dimensions: refused before any folder exists.
+    // With an arrival margin the records end early, and the dataset says by how much.
     let margin = SolveOptions {
         arrival_margin_steps: 2,
         ..options
     };
-    let fresh = temp_dir("margin");
-    let refused = generate(manifest, Shard::WHOLE, &fresh, &sc, &margin, false).unwrap_err();
-    assert!(matches!(refused, GenerateError::Unsupported(_)), "{refused}");
-    assert!(!fresh.exists());
+    let early = temp_dir("margin");
+    generate(manifest, Shard::WHOLE, &early, &sc, &margin, false).unwrap();
+    let early_file = read_dataset_of::<SpatialFamily>(&dataset_path(&early, Shard::WHOLE)).unwrap();
+    // Each solved to arrive 2 cycles early where that converges, on time otherwise.
+    let shortfalls: Vec<u32> = early_file
+        .records
+        .iter()
+        .zip(&first.records)
+        .filter(|(a, _)| a.converged)
+        .map(|(a, b)| b.scenario.scenario.steps - a.scenario.scenario.steps)
+        .collect();
+    assert!(
+        shortfalls.contains(&2) && shortfalls.iter().all(|&d| d == 0 || d == 2),
+        "{shortfalls:?}"
+    );
+    let loaded = <ground_core::env::Spatial as ground_core::demo::DemoGeometry>::load_dataset(&dataset_path(
+        &early,
+        Shard::WHOLE,
+    ))
+    .unwrap();
+    assert_eq!(loaded.arrival_margin, 2);
+    let _ = std::fs::remove_dir_all(early);
     for dir in [whole, merged]
         .into_iter()
         .chain(shards.iter().map(|p| p.parent().unwrap().to_path_buf()))

@@ -20,12 +20,12 @@ use shared::mission::SpatialFamily;
 use shared::scenario::{ProblemKind, Scenario, SpatialScenario};
 
 use super::{
-    tuple_at, DemoError, Demonstrations, Placement, RecordDemonstration, StepMismatch, ACTION_BOUND, COAST_THROTTLE,
-    CONSISTENCY_TOLERANCE,
+    coast_to_the_end, tuple_at, DemoError, Demonstrations, Placement, RecordDemonstration, StepMismatch, ACTION_BOUND,
+    COAST_THROTTLE, CONSISTENCY_TOLERANCE,
 };
 use crate::env::{self, EnvConfig, EnvError, Environment, MdpEnv, Problem};
 use crate::solver::pontryagin::{run_modal, BranchRhs, NoClock, OptimalControlParams, Regime};
-use crate::solver::spatial::record::solve_spatial_scenario;
+use crate::solver::spatial::record::solve_spatial_arriving_early;
 use crate::solver::spatial::record::SpatialRecord;
 use crate::solver::spatial::{
     idx3, initial_state_costate3, state_costate_rhs3_in, switching_function3, Spatial, SpatialSample, Y3_LEN,
@@ -108,6 +108,15 @@ impl RtnZoh {
     }
 }
 
+/// The action of a cycle with the thrust off (the 3D [`super::coast_action`]).
+pub fn coast_action3() -> [f32; ACTION3_LEN] {
+    RtnZoh {
+        w: [0.0; 3],
+        mean_throttle: 0.0,
+    }
+    .action()
+}
+
 /// The ZOH controls of every cycle of a three-dimensional record, the re-integrated states
 /// checked against its step samples.
 pub fn rtn_zoh_controls(
@@ -180,11 +189,31 @@ pub fn spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
     tolerances: &Tolerances,
 ) -> Result<RecordDemonstration<P::Obs, [f32; ACTION3_LEN]>, DemoError> {
     let whole = Placement {
-        episode: record.scenario,
+        episode: episode_of(record),
         start_step: 0,
         start_mass: 1.0,
     };
     placed_spatial_demonstration::<P>(record, &whole, config, tolerances)
+}
+
+/// The episode a record from departure fills: its draw's scenario, of which the record's is the
+/// scenario itself or, for a record that arrives early (an arrival margin), the same shortened;
+/// a record of no draw fills its own scenario's (the 3D [`Placement::whole`]).
+pub fn episode_of(record: &SpatialRecord) -> SpatialScenario {
+    let draw = record.family.draw(record.seed, record.index);
+    let shortened = SpatialScenario {
+        scenario: Scenario {
+            steps: draw.scenario.steps,
+            ..record.scenario.scenario
+        },
+        ..record.scenario
+    } == draw
+        && record.scenario.scenario.steps < draw.scenario.steps;
+    if shortened {
+        draw
+    } else {
+        record.scenario
+    }
 }
 
 /// Relabels a three-dimensional state a policy visited (DAgger-style, the 3D twin of
@@ -193,7 +222,8 @@ pub fn spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
 /// departs from the state's osculating orbit in its own plane; a rendezvous rest chases the same
 /// body from where it is at that cycle; the spacecraft's thrust is counted in units of the
 /// state's mass. `None` when the state has no orbit (not bound, or no plane), the step leaves no
-/// flight, or the body's state cannot be computed. Labelled with `family` and (`seed`, `index`).
+/// flight, or the body's state cannot be computed. Solved with the options' arrival margin
+/// ([`solve_spatial_arriving_early`]); labelled with `family` and (`seed`, `index`).
 pub fn relabel_spatial(
     family: &SpatialFamily,
     (seed, index): (u64, u64),
@@ -232,7 +262,7 @@ pub fn relabel_spatial(
         thrust: spacecraft.thrust / state.m,
         ..*spacecraft
     };
-    let record = solve_spatial_scenario(family, (seed, index), &rest, &scaled, options);
+    let record = solve_spatial_arriving_early(family, (seed, index), &rest, &scaled, options);
     let placement = Placement {
         episode: *episode,
         start_step: step,
@@ -261,7 +291,11 @@ pub fn placed_spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
             });
         }
     }
-    if placement.start_step + record.scenario.scenario.steps != scenario.scenario.steps
+    // A record shorter than its episode arrived early (an arrival margin) and is coasted to
+    // the end: only a converged one has arrived.
+    let first_coast = placement.start_step + record.scenario.scenario.steps;
+    if first_coast > scenario.scenario.steps
+        || (first_coast < scenario.scenario.steps && !record.converged)
         || !(placement.start_mass > 0.0 && placement.start_mass <= 1.0)
     {
         return Err(DemoError::Placement);
@@ -322,6 +356,16 @@ pub fn placed_spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
             unclipped_position: gap(&unclipped.orbit.r, &s_next.orbit.r),
         });
     }
+    let arrived = record.steps.last().ok_or(DemoError::NoSolution)?;
+    coast_to_the_end(
+        &mut env,
+        scenario,
+        &placed(arrived),
+        first_coast..scenario.scenario.steps,
+        coast_action3(),
+        record.index,
+        &mut demo.transitions,
+    )?;
     Ok(demo)
 }
 
@@ -462,6 +506,73 @@ mod tests {
     #[test]
     fn an_inclined_rendezvous_resolved_from_mid_flight_gives_the_tail_of_the_whole_tuples() {
         resolved_from_mid_flight_gives_the_tail::<Rendezvous3>(&inclined_target(ScenarioKind::RendezvousCircular));
+    }
+
+    /// Solved with an arrival margin, an inclined rendezvous meets the body `margin` cycles
+    /// early: in the plane the same optimum as the planar method's margin (final mass to 1e-8);
+    /// inclined, its tuples fill the draw's whole episode, the last `margin` coasting on the body
+    /// to the end (the environment's terminal reward there); a relabel keeps the margin.
+    #[test]
+    fn an_inclined_rendezvous_arriving_early_coasts_with_the_body_to_the_end_of_its_episode() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let margin = 2;
+        let options = SolveOptions {
+            arrival_margin_steps: margin,
+            ..quick()
+        };
+        let flat = SpatialFamily::planar(kind.family());
+        let early3 = solve_spatial_arriving_early(&flat, (9, 0), &flat.draw(9, 0), &sc, &options);
+        let early2 = crate::solver::solve_arriving_early(kind, 9, 0, &kind.draw(9, 0), &sc, &options);
+        assert!(
+            early3.converged && early2.converged,
+            "{:?} {:?}",
+            early3.failure,
+            early2.failure
+        );
+        assert_eq!(early3.scenario.scenario.steps, early2.scenario.steps);
+        assert!((early3.final_mass / early2.final_mass - 1.0).abs() < 1e-8);
+
+        let family = inclined_target(kind);
+        let draw = family.draw(9, 0);
+        let n = draw.scenario.steps;
+        let record = solve_spatial_arriving_early(&family, (9, 0), &draw, &sc, &options);
+        assert!(record.converged, "{:?}", record.failure);
+        assert_eq!(record.scenario.scenario.steps, n - margin);
+        assert_eq!(episode_of(&record), draw);
+        let config = EnvConfig::default();
+        let demo = spatial_demonstration::<Rendezvous3>(&record, &config, &default_tolerances()).unwrap();
+        assert_eq!(demo.transitions.len(), n as usize);
+        let coast = coast_action3();
+        let mut env = MdpEnv::<Rendezvous3>::new(&config).unwrap();
+        let mut state = craft(record.steps.last().unwrap());
+        for (k, t) in (0u32..).zip(&demo.transitions) {
+            assert_eq!((t.step, t.done), (k, k + 1 == n));
+            if k < n - margin {
+                continue;
+            }
+            assert_eq!(t.action, coast, "cycle {k}");
+            let body = env::body_at3(&draw, k).unwrap();
+            let gap = |a: [f64; 3], b: [f64; 3]| norm3(&[a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
+            let (miss, speed) = (gap(state.orbit.r, body.r), gap(state.orbit.v, body.v));
+            assert!(miss < 1e-6 && speed < 1e-6, "cycle {k}: {miss:e} AU, {speed:e}");
+            assert_eq!(t.observation, env.reset_at(&draw, &state, k).unwrap());
+            state = env.step(&coast).unwrap().info.state;
+            assert_eq!(t.next_observation, env.reset_at(&draw, &state, k + 1).unwrap());
+        }
+        let last = demo.transitions.last().unwrap();
+        let (reward, ..) = MdpEnv::<Rendezvous3>::reward_at(&config, &draw, &state, n, 0.0).unwrap();
+        assert_eq!(last.reward.to_bits(), reward.to_bits());
+
+        // From mid-flight the rest is solved to arrive early too, and placed it fills the episode.
+        let k = n / 2;
+        let mid = craft(&record.steps[k as usize]);
+        let (tail, placement) = relabel_spatial(&family, (9, 0), &draw, &mid, k, &sc, &options).unwrap();
+        assert!(tail.converged, "{:?}", tail.failure);
+        assert_eq!(tail.scenario.scenario.steps, n - k - margin);
+        assert!((placement.start_mass * tail.final_mass - record.final_mass).abs() < 1e-6);
+        let placed = placed_spatial_demonstration::<Rendezvous3>(&tail, &placement, &config, &default_tolerances());
+        assert_eq!(placed.unwrap().transitions.len(), (n - k) as usize);
     }
 
     /// An inclined transfer: coast cycles flown by the onboard RTN propagation land on the

@@ -74,8 +74,9 @@ pub struct SolveOptions {
     /// solver.md). Rendezvous keep [`Self::max_homotopy_work`]: a larger budget let a
     /// rendezvous converge from a poor start.
     pub max_transfer_homotopy_work: u64,
-    /// [`solve_arriving_early`] solves a flight to end this many 14-day steps before its time of
-    /// flight (then coasting with its target) where that converges; 0: on time.
+    /// [`solve_arriving_early`] (and its three-dimensional twin) solves a flight to end this many
+    /// guidance cycles before its time of flight (then coasting with its target) where that
+    /// converges; 0: on time.
     pub arrival_margin_steps: u32,
 }
 
@@ -216,24 +217,49 @@ pub fn solve_arriving_early(
     options: &SolveOptions,
 ) -> TrajectoryRecord {
     let family = family.into();
-    let margin = options.arrival_margin_steps;
-    if margin == 0 || margin >= scenario.steps {
-        return solve_scenario(family, seed, index, scenario, spacecraft, options);
+    arriving_early(scenario.steps, options.arrival_margin_steps, |steps| {
+        let scenario = Scenario { steps, ..*scenario };
+        solve_scenario(family, seed, index, &scenario, spacecraft, options)
+    })
+}
+
+/// What the arrival-margin rule reads and amends of a solve's record, in either geometry.
+pub(crate) trait SolveOutcome {
+    /// Whether the solve converged.
+    fn converged(&self) -> bool;
+    /// Its wall time (s) and why it failed, to be amended.
+    fn seconds_and_failure(&mut self) -> (&mut f64, &mut Option<String>);
+}
+
+impl SolveOutcome for TrajectoryRecord {
+    fn converged(&self) -> bool {
+        self.converged
     }
-    let early = Scenario {
-        steps: scenario.steps - margin,
-        ..*scenario
-    };
-    let first = solve_scenario(family, seed, index, &early, spacecraft, options);
-    if first.converged {
+
+    fn seconds_and_failure(&mut self) -> (&mut f64, &mut Option<String>) {
+        (&mut self.seconds, &mut self.failure)
+    }
+}
+
+/// The arrival-margin rule of both geometries: `solve(steps - margin)` where that converges,
+/// else `solve(steps)` with the early attempt's time and failure added to its own; `solve(steps)`
+/// alone when there is no margin or the flight cannot hold it.
+pub(crate) fn arriving_early<R: SolveOutcome>(steps: u32, margin: u32, solve: impl Fn(u32) -> R) -> R {
+    if margin == 0 || margin >= steps {
+        return solve(steps);
+    }
+    let mut first = solve(steps - margin);
+    if first.converged() {
         return first;
     }
-    let mut on_time = solve_scenario(family, seed, index, scenario, spacecraft, options);
-    on_time.seconds += first.seconds;
-    if let Some(why) = &mut on_time.failure {
+    let mut on_time = solve(steps);
+    let (early_seconds, early_failure) = first.seconds_and_failure();
+    let (seconds, failure) = on_time.seconds_and_failure();
+    *seconds += *early_seconds;
+    if let Some(why) = failure {
         *why = format!(
             "{why}; arriving {margin} steps early: {}",
-            first.failure.as_deref().unwrap_or("not converged")
+            early_failure.as_deref().unwrap_or("not converged")
         );
     }
     on_time

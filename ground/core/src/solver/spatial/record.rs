@@ -11,7 +11,7 @@ use shared::spacecraft::CanonicalSpacecraft;
 
 use super::{sample_solution, SpatialSample};
 use crate::solver::record::{count_arcs, sample_grids};
-use crate::solver::SolveOptions;
+use crate::solver::{arriving_early, SolveOptions, SolveOutcome};
 use crate::spatial::SpatialGoal;
 
 /// One solved (or failed) draw of an inclined family.
@@ -63,6 +63,39 @@ pub fn solve_spatial_draw(
     options: &SolveOptions,
 ) -> SpatialRecord {
     solve_spatial_scenario(family, (seed, index), &family.draw(seed, index), spacecraft, options)
+}
+
+/// [`solve_spatial_scenario`] on the scenario shortened by [`SolveOptions::arrival_margin_steps`]
+/// where that converges, on the scenario itself otherwise: the three-dimensional
+/// [`crate::solver::solve_arriving_early`] (a flight that arrives early coasts with its target,
+/// on its orbit or with the body, for the margin's cycles).
+pub fn solve_spatial_arriving_early(
+    family: &SpatialFamily,
+    draw: (u64, u64),
+    scenario: &SpatialScenario,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> SpatialRecord {
+    arriving_early(scenario.scenario.steps, options.arrival_margin_steps, |steps| {
+        let shortened = SpatialScenario {
+            scenario: shared::scenario::Scenario {
+                steps,
+                ..scenario.scenario
+            },
+            ..*scenario
+        };
+        solve_spatial_scenario(family, draw, &shortened, spacecraft, options)
+    })
+}
+
+impl SolveOutcome for SpatialRecord {
+    fn converged(&self) -> bool {
+        self.converged
+    }
+
+    fn seconds_and_failure(&mut self) -> (&mut f64, &mut Option<String>) {
+        (&mut self.seconds, &mut self.failure)
+    }
 }
 
 /// Solves `scenario` by the indirect method in three dimensions and samples the solution, as
