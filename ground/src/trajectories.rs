@@ -4,6 +4,7 @@
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 
+use ground_core::crosscheck::{crosscheck_records, write_crosscheck_csv, CrossCheck, CrossCheckSettings};
 use ground_core::generate::{
     generate_in, hold_run, holds_spatial_records, merge, read_dataset, read_dataset_of, trajectory_difference,
     DatasetFamily, DatasetRecord, GenerateError, Manifest, Shard, Summary,
@@ -12,6 +13,7 @@ use ground_core::io::{atomic_write, require_parent_folder, RunLock};
 use ground_core::mission::FamilySpec;
 use ground_core::oem::{oem_string, write_thrust_csv, CalendarEpoch, OemOptions, OemSource};
 use ground_core::plot::{check_svg_path, plot_dataset_sample, plot_trajectories};
+use ground_core::solver::direct::DirectError;
 use ground_core::solver::shooting::FINAL_EPS;
 use ground_core::solver::{solve_scenario, SolveOptions};
 use shared::mission::{MissionFamily, SpatialFamily};
@@ -143,14 +145,7 @@ pub struct CheckMissionArgs {
 
 /// `ground data check-mission`: exit status 1 when no draw of the sample was solved.
 pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let craft = Spacecraft {
-        max_thrust_n: args.thrust_n,
-        isp_s: args.isp_s,
-        initial_mass_kg: args.mass_kg,
-    };
-    let sc = craft
-        .canonical_in(&args.scenario.family.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))?;
+    let sc = canonical_spacecraft(args.thrust_n, args.isp_s, args.mass_kg, &args.scenario.family)?;
     if args.sample == 0 {
         return Err("--sample must be at least 1".into());
     }
@@ -179,6 +174,24 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
         return Err(format!("no draw of the sample of {} was solved", check.family).into());
     }
     Ok(())
+}
+
+/// The spacecraft of `--thrust-n`, `--isp-s` and `--mass-kg` in the canonical units of
+/// `family`'s central body, checked.
+fn canonical_spacecraft(
+    thrust_n: f64,
+    isp_s: f64,
+    mass_kg: f64,
+    family: &MissionFamily,
+) -> Result<CanonicalSpacecraft, String> {
+    let craft = Spacecraft {
+        max_thrust_n: thrust_n,
+        isp_s,
+        initial_mass_kg: mass_kg,
+    };
+    craft
+        .canonical_in(&family.body.units())
+        .map_err(|e| format!("spacecraft: {e}"))
 }
 
 /// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
@@ -468,13 +481,23 @@ pub struct CrossCheckArgs {
     csv: Option<PathBuf>,
     /// Re-solve each record a direct solution beats from that solution, and replace it when the
     /// result converges heavier by the margin, or else cut it from the demonstrations (the
-    /// dataset and summaries are rewritten; --dataset must be a run folder).
+    /// dataset and summaries are rewritten; --dataset must be a run folder of a planar family).
     #[arg(long)]
     repair: bool,
+    /// Maximum thrust, N (default: the thesis's spacecraft). A dataset does not record its
+    /// spacecraft: this must be the one its records were solved with, or the direct solution
+    /// differs from them for that reason alone.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.max_thrust_n)]
+    thrust_n: f64,
+    /// Specific impulse, s (the spacecraft the dataset was solved with, as --thrust-n).
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.isp_s)]
+    isp_s: f64,
+    /// Initial mass, kg (the spacecraft the dataset was solved with, as --thrust-n).
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.initial_mass_kg)]
+    mass_kg: f64,
 }
 
 pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::error::Error>> {
-    use ground_core::crosscheck::{crosscheck_records, write_crosscheck_csv, CrossCheckSettings};
     use ground_core::generate::{crosscheck_run, run_solve_options};
     if !(args.margin.is_finite() && args.margin >= 0.0) {
         return Err(format!("--margin must be a finite number >= 0, not {}", args.margin).into());
@@ -496,16 +519,31 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
     if let Some(csv) = &args.csv {
         require_parent_folder(csv)?;
     }
+    let file = dataset_file(&args.dataset);
+    let spatial = holds_spatial_records(&file)?;
+    if args.repair && spatial {
+        return Err(format!(
+            "--repair re-solves planar records only: {} holds records of an inclined family (check them without --repair)",
+            args.dataset.display()
+        )
+        .into());
+    }
     let settings = CrossCheckSettings {
         segments_per_step: args.segments_per_step.get(),
         refinements: args.refinements,
         margin: args.margin,
     };
-    let family = read_dataset(&dataset_file(&args.dataset))?.manifest.family;
-    let spacecraft = Spacecraft::MSR_ERO
-        .canonical_in(&family.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))?;
-    let (checks, repaired, cut) = if args.repair {
+    let spacecraft_of = |family: &MissionFamily| canonical_spacecraft(args.thrust_n, args.isp_s, args.mass_kg, family);
+    let limit = args.count.map(NonZeroUsize::get);
+    if spatial {
+        let dataset = read_dataset_of::<SpatialFamily>(&file)?;
+        let spacecraft = spacecraft_of(&dataset.manifest.family.family)?;
+        let checks = crosscheck_records(&dataset.records, limit, &spacecraft, &settings, true);
+        return report_crosscheck(args, &settings, &checks, &[], &[]);
+    }
+    let dataset = read_dataset(&file)?;
+    let spacecraft = spacecraft_of(&dataset.manifest.family)?;
+    if args.repair {
         let run = crosscheck_run(
             &args.dataset,
             &spacecraft,
@@ -514,23 +552,27 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
             true,
             true,
         )?;
-        (run.checks, run.repaired, run.cut)
+        report_crosscheck(args, &settings, &run.checks, &run.repaired, &run.cut)
     } else {
-        let dataset = read_dataset(&dataset_file(&args.dataset))?;
-        let checks = crosscheck_records(
-            &dataset.records,
-            args.count.map(NonZeroUsize::get),
-            &spacecraft,
-            &settings,
-            true,
-        );
-        (checks, Vec::new(), Vec::new())
-    };
+        let checks = crosscheck_records(&dataset.records, limit, &spacecraft, &settings, true);
+        report_crosscheck(args, &settings, &checks, &[], &[])
+    }
+}
+
+/// The end of [`crosscheck_command`], planar (`C` = 3) or inclined (4): the CSV, the beaten,
+/// repaired and cut records, and the summary line; an error when a beaten record is left.
+fn report_crosscheck<const C: usize>(
+    args: &CrossCheckArgs,
+    settings: &CrossCheckSettings,
+    checks: &[(u64, Result<CrossCheck<C>, DirectError>)],
+    repaired: &[(u64, f64, f64)],
+    cut: &[(u64, f64, f64)],
+) -> Result<(), Box<dyn std::error::Error>> {
     if checks.is_empty() {
         return Err(format!("{}: no converged record to check", args.dataset.display()).into());
     }
     if let Some(csv) = &args.csv {
-        write_crosscheck_csv(csv, &checks, settings.margin).map_err(|e| format!("{}: {e}", csv.display()))?;
+        write_crosscheck_csv(csv, checks, settings.margin).map_err(|e| format!("{}: {e}", csv.display()))?;
     }
     let flown: Vec<_> = checks
         .iter()
@@ -552,13 +594,13 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
             c.direct_final_mass - c.indirect_final_mass
         );
     }
-    for (index, before, after) in &repaired {
+    for (index, before, after) in repaired {
         println!("#{index}: repaired, re-solved from the direct solution: {before:.6} -> {after:.6}");
     }
-    for (index, _, _) in &cut {
+    for (index, _, _) in cut {
         println!("#{index}: its re-solve from the direct solution did not end heavier: cut from the demonstrations");
     }
-    for (index, check) in &checks {
+    for (index, check) in checks {
         if let Err(e) = check {
             println!("#{index}: the direct solve failed: {e}");
         }

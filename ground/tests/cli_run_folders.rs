@@ -227,6 +227,97 @@ fn crosscheck_refuses_bad_settings_and_writes_one_row_per_record() {
     let _ = std::fs::remove_dir_all(&parent);
 }
 
+/// `crosscheck` on a run of an inclined family (configs/missions/transfer-circular-inclined.toml,
+/// seed 7, draws 0 to 2; draw 1's homotopy stalls): each converged record is checked by the
+/// spatial direct transcription, which flies (re-flown by the onboard RTN propagator) and ends
+/// at most the mesh's loss below the record, one CSV row per record; the folder is left as it
+/// was. `--repair` (planar records only) and an impossible spacecraft are refused with the
+/// reason before any solve, and nothing changes.
+#[test]
+fn crosscheck_checks_an_inclined_run_and_refuses_to_repair_it() {
+    use ground_core::generate::read_dataset_of;
+    use shared::mission::SpatialFamily;
+    let parent = scratch("crosscheck-inclined");
+    let run = parent.join("run");
+    let mission = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/transfer-circular-inclined.toml");
+    let out = ground(&[
+        "data",
+        "generate",
+        "--scenario",
+        text(&mission),
+        "--count",
+        "3",
+        "--seed",
+        "7",
+        "--threads",
+        "2",
+        "--out",
+        text(&run),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let dataset = read_dataset_of::<SpatialFamily>(&run.join("dataset.ltds")).unwrap();
+    let converged: Vec<_> = dataset.records.iter().filter(|r| r.converged).collect();
+    assert!(
+        converged.len() >= 2 && converged.len() < dataset.records.len(),
+        "{} of {} converged",
+        converged.len(),
+        dataset.records.len()
+    );
+    let before = snapshot(&run);
+
+    for (args, needle) in [
+        (
+            &["data", "crosscheck", "--dataset", text(&run), "--repair"][..],
+            "--repair re-solves planar records only",
+        ),
+        (
+            &["data", "crosscheck", "--dataset", text(&run), "--thrust-n", "0"][..],
+            "spacecraft:",
+        ),
+    ] {
+        assert_refused(args, needle);
+        assert_eq!(snapshot(&run), before, "{args:?} changed the run");
+    }
+
+    let csv = parent.join("crosscheck.csv");
+    let out = ground(&["data", "crosscheck", "--dataset", text(&run), "--csv", text(&csv)]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        stdout.contains(&format!("{} records checked", converged.len())),
+        "{stdout}"
+    );
+    let table = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = table.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), converged.len(), "{table}");
+    for (row, record) in rows.iter().zip(&converged) {
+        let number = |name: &str| row[column(name)].parse::<f64>().unwrap();
+        assert_eq!(row[column("index")], record.index.to_string(), "{table}");
+        assert_eq!(row[column("error")], "", "{table}");
+        assert_eq!(number("indirect_final_mass"), record.final_mass);
+        assert_eq!(number("final_eps"), record.final_eps);
+        // 1 segment per 14-day step; the 3D direct solution converged and flies.
+        assert_eq!(row[column("segments")], record.scenario.scenario.steps.to_string());
+        assert_eq!(row[column("direct_converged")], "true", "{table}");
+        assert!(
+            number("onboard_violation") < ground_core::crosscheck::FLOWN_VIOLATION,
+            "{table}"
+        );
+        assert_eq!(row[column("record_beaten")], "false", "{table}");
+        let difference = number("direct_final_mass") - record.final_mass;
+        println!(
+            "inclined transfer 7 #{}: direct - indirect {difference:+.3e}",
+            record.index
+        );
+        assert!((-1e-3..1e-6).contains(&difference), "#{}: {difference:e}", record.index);
+    }
+    assert_eq!(snapshot(&run), before, "crosscheck changed the run");
+    let _ = std::fs::remove_dir_all(&parent);
+}
+
 /// `feasibility` solves a recovered draw as the run's other records were solved (its
 /// `request.json`): a run whose request is corrupt is refused with the file's name before any
 /// work, and nothing in it changes.

@@ -18,7 +18,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use rayon::prelude::*;
 use shared::spacecraft::CanonicalSpacecraft;
 
-use crate::generate::count_bar;
+use crate::generate::{count_bar, DatasetRecord};
 use crate::io::atomic_write;
 use crate::solver::direct::{
     indirect_start_from, solve_direct_refined, DirectError, DirectGuess, DirectOptions, DirectSolution, CONTROL,
@@ -247,18 +247,54 @@ pub fn cut_record(record: &TrajectoryRecord, check: &CrossCheck) -> TrajectoryRe
     }
 }
 
+/// A dataset record the check solves again by the direct transcription: a planar record
+/// ([`crosscheck_record`], `C` = 3 controls per segment) or an inclined one
+/// ([`crosscheck_spatial_record`], 4).
+pub trait CrossCheckedRecord<const C: usize>: DatasetRecord {
+    /// Checks the record against the direct transcription of its scenario solved on its own.
+    fn crosscheck(
+        &self,
+        spacecraft: &CanonicalSpacecraft,
+        settings: &CrossCheckSettings,
+        options: &DirectOptions,
+    ) -> Result<CrossCheck<C>, DirectError>;
+}
+
+impl CrossCheckedRecord<CONTROL> for TrajectoryRecord {
+    fn crosscheck(
+        &self,
+        spacecraft: &CanonicalSpacecraft,
+        settings: &CrossCheckSettings,
+        options: &DirectOptions,
+    ) -> Result<CrossCheck, DirectError> {
+        crosscheck_record(self, spacecraft, settings, options)
+    }
+}
+
+impl CrossCheckedRecord<CONTROL3> for SpatialRecord {
+    fn crosscheck(
+        &self,
+        spacecraft: &CanonicalSpacecraft,
+        settings: &CrossCheckSettings,
+        options: &DirectOptions,
+    ) -> Result<CrossCheck<CONTROL3>, DirectError> {
+        crosscheck_spatial_record(self, spacecraft, settings, options)
+    }
+}
+
 /// Checks the converged records among `records` (the first `limit` of them, all with `None`)
 /// in parallel, in index order; a direct solve that fails outright is returned as its error.
-pub fn crosscheck_records(
-    records: &[TrajectoryRecord],
+/// Planar and inclined records alike ([`CrossCheckedRecord`]).
+pub fn crosscheck_records<R: CrossCheckedRecord<C>, const C: usize>(
+    records: &[R],
     limit: Option<usize>,
     spacecraft: &CanonicalSpacecraft,
     settings: &CrossCheckSettings,
     show_progress: bool,
-) -> Vec<(u64, Result<CrossCheck, DirectError>)> {
-    let chosen: Vec<&TrajectoryRecord> = records
+) -> Vec<(u64, Result<CrossCheck<C>, DirectError>)> {
+    let chosen: Vec<&R> = records
         .iter()
-        .filter(|r| r.converged)
+        .filter(|r| r.figures().converged)
         .take(limit.unwrap_or(usize::MAX))
         .collect();
     let bar = count_bar(chosen.len(), "records checked", show_progress);
@@ -267,13 +303,13 @@ pub fn crosscheck_records(
     let checks = chosen
         .par_iter()
         .map(|record| {
-            let check = crosscheck_record(record, spacecraft, settings, &options);
+            let check = record.crosscheck(spacecraft, settings, &options);
             if matches!(&check, Ok(c) if c.beats_record(settings.margin)) {
                 beaten.fetch_add(1, Ordering::Relaxed);
             }
             bar.set_message(format!("{} beaten", beaten.load(Ordering::Relaxed)));
             bar.inc(1);
-            (record.index, check)
+            (record.figures().index, check)
         })
         .collect();
     bar.finish();
