@@ -8,7 +8,7 @@ use ground_core::plot::check_svg_path;
 use ground_core::solver::SolveOptions;
 use ground_core::spatial::{
     compare_with_planar, missed_thrust_cases, missed_thrust_csv, plot_spatial_optimum, solve_posed, trajectory_csv,
-    MissedThrustCase, SpatialProblemSpec,
+    MissedThrustCase, PosedProblem, SpatialProblemSpec,
 };
 use shared::mission::MissionFamily;
 use shared::spacecraft::Spacecraft;
@@ -33,6 +33,11 @@ pub struct Solve3dArgs {
     /// each loss costs, or why the goal is out of reach.
     #[arg(long)]
     missed_thrust: Option<u32>,
+    /// Plan to arrive this many of the --missed-thrust cycles early (a rendezvous meets its
+    /// body where it is then) and coast with the target to the end: the plan reported, flown
+    /// with each of its cycles lost, re-planned to the goal at its own time.
+    #[arg(long, default_value_t = 0, requires = "missed_thrust")]
+    arrival_margin: u32,
     /// Also draw the optimum (the path on the xy-plane, z and the throttle against time, and
     /// the missed-thrust costs with --missed-thrust) into this SVG file (its folder must exist).
     #[arg(long)]
@@ -78,7 +83,24 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
         }
     }
     let options = SolveOptions::default();
-    let (report, solved, samples) = solve_posed(&posed, &options)?;
+    let plan = match args.missed_thrust {
+        Some(cycles) if args.arrival_margin > 0 => {
+            if args.arrival_margin >= cycles {
+                return Err(format!(
+                    "--arrival-margin {} leaves no cycle of the {cycles} to fly",
+                    args.arrival_margin
+                )
+                .into());
+            }
+            let by = posed.goal.time_of_flight() * f64::from(args.arrival_margin) / f64::from(cycles);
+            PosedProblem {
+                goal: posed.goal.arriving_early(by)?,
+                ..posed
+            }
+        }
+        _ => posed,
+    };
+    let (report, solved, samples) = solve_posed(&plan, &options)?;
     let missed = args
         .missed_thrust
         .map(|cycles| missed_thrust_cases(&posed, &solved, cycles, &options));

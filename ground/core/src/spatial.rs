@@ -231,6 +231,28 @@ impl SpatialGoal {
         }
     }
 
+    /// The same goal met `by` (t*, in (0, time of flight)) earlier: a rendezvous meets its body
+    /// where it is then (its arrival state coasted back), a transfer reaches its orbit sooner.
+    /// The flight then coasts with its target to the original time: a margin kept for thrust
+    /// lost on the way.
+    pub fn arriving_early(&self, by: f64) -> Result<Self, SpatialSolveError> {
+        let time_of_flight = self.time_of_flight() - by;
+        if !(by > 0.0 && time_of_flight > 0.0) {
+            return Err(SpatialSolveError::Invalid(
+                "an arrival margin must lie inside the time of flight",
+            ));
+        }
+        Ok(match *self {
+            Self::Rendezvous(p) => Self::Rendezvous(SpatialRendezvous {
+                arrival: onboard::kepler::coast3(&p.arrival, -by)
+                    .map_err(|e| SpatialSolveError::NotSolved(format!("the body's earlier state: {e:?}")))?,
+                time_of_flight,
+                ..p
+            }),
+            Self::Transfer(p) => Self::Transfer(SpatialTransfer { time_of_flight, ..p }),
+        })
+    }
+
     /// The time of flight (t*).
     pub fn time_of_flight(&self) -> f64 {
         match self {
@@ -461,12 +483,14 @@ pub struct MissedThrustCase {
     pub failure: Option<String>,
 }
 
-/// Flies the optimum `solution` of `posed` with the thrust lost over each of `cycles` equal
-/// guidance cycles in turn (a Keplerian coast where the optimum would thrust), and re-plans the
-/// rest of the flight from the end of the lost cycle, with the mass it had there, to the same
-/// goal (arrival state, or target orbit) at the same time, by the indirect method (docs/spec.md
-/// section 3.6). A loss in the last cycle leaves no time to re-plan: it is a recovery only if
-/// the optimum coasts there.
+/// Flies the plan `solved` (the optimum of `posed`, or of its goal arriving whole cycles early:
+/// [`SpatialGoal::arriving_early`]) with the thrust lost over each of its guidance cycles in
+/// turn (`cycles` equal cycles over `posed`'s time of flight; a Keplerian coast where the plan
+/// would thrust), and re-plans the rest of the flight from the end of the lost cycle, with the
+/// mass it had there, to `posed`'s goal (arrival state, or target orbit) at its time, by the
+/// indirect method (docs/spec.md section 3.6); the extra propellant is counted against the plan.
+/// A plan that arrives early has its margin's cycles left to re-plan in; without one, a loss in
+/// the last cycle leaves no time: it is a recovery only if the optimum coasts there.
 pub fn missed_thrust_cases(
     posed: &PosedProblem,
     solved: &SolvedGoal,
@@ -482,7 +506,10 @@ pub fn missed_thrust_cases(
         eps: solution.final_eps,
     };
     let y0 = problem.initial_state_costate(&solution.costates);
-    let cycle = problem.time_of_flight / f64::from(cycles.max(1));
+    let goal_time = posed.goal.time_of_flight();
+    let cycle = goal_time / f64::from(cycles.max(1));
+    // The plan's own cycles: all of them, or those before its early arrival.
+    let planned = ((problem.time_of_flight / cycle).round() as u32).min(cycles);
     let m0 = posed.spacecraft.initial_mass_kg;
     let at = |t: f64| {
         if t > 0.0 {
@@ -491,7 +518,7 @@ pub fn missed_thrust_cases(
             Ok(y0)
         }
     };
-    (0..cycles)
+    (0..planned)
         .into_par_iter()
         .map(|k| {
             let start = f64::from(k) * cycle;
@@ -529,7 +556,7 @@ pub fn missed_thrust_cases(
                     return case;
                 }
             };
-            let left = problem.time_of_flight - f64::from(k + 1) * cycle;
+            let left = goal_time - f64::from(k + 1) * cycle;
             if k + 1 == cycles {
                 // No time left: the loss is recovered only where the coast ends where the
                 // optimum does (it coasts through the whole cycle), to the acceptance accuracy.
@@ -977,5 +1004,38 @@ mod tests {
         }
         assert!(cases[0].extra_propellant_kg.unwrap() > 1.0);
         assert!(cases[39].failure.as_deref().unwrap().contains("no time left"));
+    }
+
+    /// A plan that meets the body one cycle early (585.4 kg) has one cycle fewer to lose, and
+    /// its margin to re-plan in: every loss where the plan coasts is recovered at least as heavy
+    /// as the plan (the plan itself, coasting with the body to the end, is still a flight to the
+    /// goal), and the loss of its last cycle is re-planned, not refused for want of time.
+    #[test]
+    fn a_plan_arriving_a_cycle_early_recovers_its_coasting_cycles_at_no_cost() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/earth-mars-optimum.toml");
+        let posed = SpatialProblemSpec::from_file(&path).unwrap().pose().unwrap();
+        let options = SolveOptions::default();
+        let cycle = posed.goal.time_of_flight() / 40.0;
+        let plan = PosedProblem {
+            goal: posed.goal.arriving_early(cycle).unwrap(),
+            ..posed
+        };
+        let (report, solved, _) = solve_posed(&plan, &options).unwrap();
+        assert!((report.final_mass_kg - 585.4).abs() < 0.05, "{}", report.final_mass_kg);
+        let cases = missed_thrust_cases(&posed, &solved, 40, &options);
+        assert_eq!(cases.len(), 39);
+        let coasting: Vec<_> = cases.iter().filter(|c| c.optimum_thrusting_share == 0.0).collect();
+        assert!(coasting.len() >= 10, "{} coasting cycles", coasting.len());
+        for c in &coasting {
+            let mass = c
+                .final_mass_kg
+                .unwrap_or_else(|| panic!("cycle {}: {:?}", c.cycle, c.failure));
+            assert!(mass >= report.final_mass_kg * (1.0 - 2e-8), "cycle {}: {mass}", c.cycle);
+        }
+        assert!(!cases[38].failure.as_deref().unwrap_or("").contains("no time left"));
+        assert!(matches!(
+            posed.goal.arriving_early(posed.goal.time_of_flight()),
+            Err(SpatialSolveError::Invalid(_))
+        ));
     }
 }

@@ -219,6 +219,33 @@ fn the_earth_mars_family_poses_the_problem_files_rendezvous() {
     );
     assert!((a - b).abs() < 1e-9 * b, "{a} vs {b}");
     assert!((a * 1000.0 - 603.556).abs() < 5e-4, "{a}");
+    // One cycle early, two ways: the family's draw shortened by an arrival margin (the body
+    // coasted forward from departure over 39 cycles) and the problem file's goal met a cycle
+    // early (its arrival coasted back one): the same optimum.
+    let margin = SolveOptions {
+        arrival_margin_steps: 1,
+        ..options
+    };
+    let early =
+        ground_core::solver::spatial::record::solve_spatial_arriving_early(&family, (0, 0), &draw, &sc, &margin);
+    assert!(
+        early.converged && early.scenario.scenario.steps == 39,
+        "{:?}",
+        early.failure
+    );
+    let cycle = theirs.time_of_flight / 40.0;
+    let b_early = SpatialGoal::Rendezvous(theirs)
+        .arriving_early(cycle)
+        .unwrap()
+        .solve(&options)
+        .unwrap()
+        .solution
+        .final_mass;
+    assert!(
+        (early.final_mass - b_early).abs() < 1e-8 * b_early,
+        "{} vs {b_early}",
+        early.final_mass
+    );
     // Refusals, each naming its field.
     let text = std::fs::read_to_string(configs.join("earth-mars.toml")).unwrap();
     let refusal = |edit: &dyn Fn(&str) -> String| {
