@@ -38,6 +38,11 @@ pub struct Solve3dArgs {
     /// with each of its cycles lost, re-planned to the goal at its own time.
     #[arg(long, default_value_t = 0, requires = "missed_thrust")]
     arrival_margin: u32,
+    /// Plan with this fraction of the thrust held back (in [0, 0.5]; flown at full thrust with
+    /// the plan's throttle scaled): the plan reported, and with --missed-thrust its cycles lost
+    /// re-planned at full thrust.
+    #[arg(long, default_value_t = 0.0)]
+    thrust_margin: f64,
     /// Also draw the optimum (the path on the xy-plane, z and the throttle against time, and
     /// the missed-thrust costs with --missed-thrust) into this SVG file (its folder must exist).
     #[arg(long)]
@@ -83,7 +88,10 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
         }
     }
     let options = SolveOptions::default();
-    let plan = match args.missed_thrust {
+    if !(0.0..=0.5).contains(&args.thrust_margin) {
+        return Err(format!("--thrust-margin must lie in [0, 0.5], not {}", args.thrust_margin).into());
+    }
+    let mut plan = match args.missed_thrust {
         Some(cycles) if args.arrival_margin > 0 => {
             if args.arrival_margin >= cycles {
                 return Err(format!(
@@ -100,6 +108,7 @@ pub fn solve_3d_command(args: &Solve3dArgs) -> Result<(), Box<dyn std::error::Er
         }
         _ => posed,
     };
+    plan.goal = plan.goal.with_thrust_scaled(1.0 - args.thrust_margin);
     let (report, solved, samples) = solve_posed(&plan, &options)?;
     let missed = args
         .missed_thrust

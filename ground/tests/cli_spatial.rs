@@ -82,6 +82,25 @@ fn solve_3d_writes_the_optimum_and_its_trajectory() {
     ]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--missed-thrust"));
+    // Margins that leave nothing to fly are refused by name.
+    for (flag, value) in [
+        ("--thrust-margin", "0.6"),
+        ("--thrust-margin", "NaN"),
+        ("--arrival-margin", "40"),
+    ] {
+        let out = ground(&[
+            "data",
+            "solve-3d",
+            "--problem",
+            earth_mars().to_str().unwrap(),
+            "--missed-thrust",
+            "40",
+            flag,
+            value,
+        ]);
+        assert!(!out.status.success(), "{flag} {value}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains(flag), "{flag} {value}");
+    }
 }
 
 #[test]

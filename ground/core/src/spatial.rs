@@ -253,6 +253,26 @@ impl SpatialGoal {
         })
     }
 
+    /// The same goal for a spacecraft with its thrust scaled by `scale` (the exhaust speed
+    /// kept): a plan at (1 - margin) of the thrust, flown at full thrust with its throttle
+    /// scaled, keeps the margin in hand on every thrust arc.
+    pub fn with_thrust_scaled(&self, scale: f64) -> Self {
+        let scaled = |sc: CanonicalSpacecraft| CanonicalSpacecraft {
+            thrust: sc.thrust * scale,
+            ..sc
+        };
+        match *self {
+            Self::Rendezvous(p) => Self::Rendezvous(SpatialRendezvous {
+                spacecraft: scaled(p.spacecraft),
+                ..p
+            }),
+            Self::Transfer(p) => Self::Transfer(SpatialTransfer {
+                spacecraft: scaled(p.spacecraft),
+                ..p
+            }),
+        }
+    }
+
     /// The time of flight (t*).
     pub fn time_of_flight(&self) -> f64 {
         match self {
@@ -1009,9 +1029,10 @@ mod tests {
     /// A plan that meets the body one cycle early (585.4 kg) has one cycle fewer to lose, and
     /// its margin to re-plan in: every loss where the plan coasts is recovered at least as heavy
     /// as the plan (the plan itself, coasting with the body to the end, is still a flight to the
-    /// goal), and the loss of its last cycle is re-planned, not refused for want of time.
+    /// goal), and the loss of its last cycle is re-planned, not refused for want of time. A plan
+    /// at a share of the thrust is that weaker spacecraft's optimum.
     #[test]
-    fn a_plan_arriving_a_cycle_early_recovers_its_coasting_cycles_at_no_cost() {
+    fn a_plan_with_a_margin_recovers_its_coasting_cycles_at_no_cost() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/missions/earth-mars-optimum.toml");
         let posed = SpatialProblemSpec::from_file(&path).unwrap().pose().unwrap();
         let options = SolveOptions::default();
@@ -1033,6 +1054,20 @@ mod tests {
             assert!(mass >= report.final_mass_kg * (1.0 - 2e-8), "cycle {}: {mass}", c.cycle);
         }
         assert!(!cases[38].failure.as_deref().unwrap_or("").contains("no time left"));
+        // A plan at 95 % of the thrust is the optimum of the spacecraft whose thrust is 95 % of
+        // it, posed from its own file: 599.1 kg.
+        let mut weaker = SpatialProblemSpec::from_file(&path).unwrap();
+        weaker.spacecraft.max_thrust_n *= 0.95;
+        let direct = weaker.pose().unwrap().goal.solve(&options).unwrap().solution.final_mass;
+        let scaled = posed
+            .goal
+            .with_thrust_scaled(0.95)
+            .solve(&options)
+            .unwrap()
+            .solution
+            .final_mass;
+        assert!((direct - scaled).abs() < 1e-9 * direct, "{direct} vs {scaled}");
+        assert!((scaled * 1000.0 - 599.1).abs() < 0.05, "{scaled}");
         assert!(matches!(
             posed.goal.arriving_early(posed.goal.time_of_flight()),
             Err(SpatialSolveError::Invalid(_))
