@@ -82,7 +82,8 @@ def test_dispersions_that_cannot_be_flown_are_refused_by_name():
 
 @pytest.mark.parametrize("quantization", ["f32", "int8"])
 @pytest.mark.parametrize(
-    "name", ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined", "earth-mars"]
+    "name",
+    ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined", "earth-mars", "earth-mars-robust"],
 )
 def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     """The dispersed SIL Monte Carlo of the card (1,000 flights, its config's dispersions, the
