@@ -123,15 +123,8 @@ pub struct CheckMissionArgs {
     /// Seed of the draws.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Maximum thrust, N (default: the thesis's spacecraft, as configs default).
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.max_thrust_n)]
-    thrust_n: f64,
-    /// Specific impulse, s.
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.isp_s)]
-    isp_s: f64,
-    /// Initial mass, kg.
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.initial_mass_kg)]
-    mass_kg: f64,
+    #[command(flatten)]
+    spacecraft: SpacecraftArgs,
     /// Records of the dataset whose generation time is projected.
     #[arg(long, default_value_t = 1000)]
     dataset_count: u64,
@@ -145,7 +138,7 @@ pub struct CheckMissionArgs {
 
 /// `ground data check-mission`: exit status 1 when no draw of the sample was solved.
 pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let sc = canonical_spacecraft(args.thrust_n, args.isp_s, args.mass_kg, &args.scenario.family)?;
+    let sc = args.spacecraft.canonical_in(&args.scenario.family)?;
     if args.sample == 0 {
         return Err("--sample must be at least 1".into());
     }
@@ -176,22 +169,34 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
     Ok(())
 }
 
-/// The spacecraft of `--thrust-n`, `--isp-s` and `--mass-kg` in the canonical units of
-/// `family`'s central body, checked.
-fn canonical_spacecraft(
+/// `--thrust-n`, `--isp-s` and `--mass-kg`: a spacecraft (default: the thesis's, as configs
+/// default). A dataset does not record its spacecraft: a command that reads one must be given
+/// the one its records were solved with.
+#[derive(clap::Args)]
+pub struct SpacecraftArgs {
+    /// Maximum thrust, N.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.max_thrust_n)]
     thrust_n: f64,
+    /// Specific impulse, s.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.isp_s)]
     isp_s: f64,
+    /// Initial mass, kg.
+    #[arg(long, default_value_t = Spacecraft::MSR_ERO.initial_mass_kg)]
     mass_kg: f64,
-    family: &MissionFamily,
-) -> Result<CanonicalSpacecraft, String> {
-    let craft = Spacecraft {
-        max_thrust_n: thrust_n,
-        isp_s,
-        initial_mass_kg: mass_kg,
-    };
-    craft
-        .canonical_in(&family.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))
+}
+
+impl SpacecraftArgs {
+    /// The spacecraft in the canonical units of `family`'s central body, checked.
+    fn canonical_in(&self, family: &MissionFamily) -> Result<CanonicalSpacecraft, String> {
+        let craft = Spacecraft {
+            max_thrust_n: self.thrust_n,
+            isp_s: self.isp_s,
+            initial_mass_kg: self.mass_kg,
+        };
+        craft
+            .canonical_in(&family.body.units())
+            .map_err(|e| format!("spacecraft: {e}"))
+    }
 }
 
 /// `--threads`: a whole number, at least 1 (rayon would read 0 as "all cores").
@@ -484,17 +489,10 @@ pub struct CrossCheckArgs {
     /// dataset and summaries are rewritten; --dataset must be a run folder of a planar family).
     #[arg(long)]
     repair: bool,
-    /// Maximum thrust, N (default: the thesis's spacecraft). A dataset does not record its
-    /// spacecraft: this must be the one its records were solved with, or the direct solution
-    /// differs from them for that reason alone.
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.max_thrust_n)]
-    thrust_n: f64,
-    /// Specific impulse, s (the spacecraft the dataset was solved with, as --thrust-n).
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.isp_s)]
-    isp_s: f64,
-    /// Initial mass, kg (the spacecraft the dataset was solved with, as --thrust-n).
-    #[arg(long, default_value_t = Spacecraft::MSR_ERO.initial_mass_kg)]
-    mass_kg: f64,
+    /// The spacecraft the dataset was solved with (another makes the direct solution differ
+    /// from the records for that reason alone).
+    #[command(flatten)]
+    spacecraft: SpacecraftArgs,
 }
 
 pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -533,7 +531,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
         refinements: args.refinements,
         margin: args.margin,
     };
-    let spacecraft_of = |family: &MissionFamily| canonical_spacecraft(args.thrust_n, args.isp_s, args.mass_kg, family);
+    let spacecraft_of = |family: &MissionFamily| args.spacecraft.canonical_in(family);
     let limit = args.count.map(NonZeroUsize::get);
     if spatial {
         let dataset = read_dataset_of::<SpatialFamily>(&file)?;

@@ -988,6 +988,23 @@ mod tests {
         }
     }
 
+    /// The cycles the plan coasts through, each with the final mass (kg) of its re-plan; at
+    /// least 10 of them, every one re-planned.
+    fn coasting_recoveries(cases: &[MissedThrustCase]) -> Vec<(u32, f64)> {
+        let coasting: Vec<(u32, f64)> = cases
+            .iter()
+            .filter(|c| c.optimum_thrusting_share == 0.0)
+            .map(|c| {
+                let mass = c
+                    .final_mass_kg
+                    .unwrap_or_else(|| panic!("cycle {}: {:?}", c.cycle, c.failure));
+                (c.cycle, mass)
+            })
+            .collect();
+        assert!(coasting.len() >= 10, "{} coasting cycles", coasting.len());
+        coasting
+    }
+
     /// Bellman's principle as a check of the re-plans from mid-flight: losing the thrust in a
     /// cycle where the optimum coasts loses nothing, so the re-plan from the end of that cycle
     /// (its own multi-start and homotopy, from a mass below 1) must find the optimum's final mass
@@ -1001,19 +1018,13 @@ mod tests {
         let (report, solved, _) = solve_posed(&posed, &options).unwrap();
         let cases = missed_thrust_cases(&posed, &solved, 40, &options);
         assert_eq!(cases.len(), 40);
-        let coasting: Vec<_> = cases.iter().filter(|c| c.optimum_thrusting_share == 0.0).collect();
-        assert!(coasting.len() >= 10, "{} coasting cycles", coasting.len());
-        for c in &coasting {
-            let mass = c
-                .final_mass_kg
-                .unwrap_or_else(|| panic!("cycle {}: {:?}", c.cycle, c.failure));
+        for (cycle, mass) in coasting_recoveries(&cases) {
             // Both solutions meet their terminal conditions to 1e-8: their masses agree to
             // about that (measured: 5e-9 relative at worst).
             let relative = (mass - report.final_mass_kg).abs() / report.final_mass_kg;
             assert!(
                 relative < 2e-8,
-                "cycle {}: {mass} against {}",
-                c.cycle,
+                "cycle {cycle}: {mass} against {}",
                 report.final_mass_kg
             );
         }
@@ -1045,13 +1056,8 @@ mod tests {
         assert!((report.final_mass_kg - 585.4).abs() < 0.05, "{}", report.final_mass_kg);
         let cases = missed_thrust_cases(&posed, &solved, 40, &options);
         assert_eq!(cases.len(), 39);
-        let coasting: Vec<_> = cases.iter().filter(|c| c.optimum_thrusting_share == 0.0).collect();
-        assert!(coasting.len() >= 10, "{} coasting cycles", coasting.len());
-        for c in &coasting {
-            let mass = c
-                .final_mass_kg
-                .unwrap_or_else(|| panic!("cycle {}: {:?}", c.cycle, c.failure));
-            assert!(mass >= report.final_mass_kg * (1.0 - 2e-8), "cycle {}: {mass}", c.cycle);
+        for (cycle, mass) in coasting_recoveries(&cases) {
+            assert!(mass >= report.final_mass_kg * (1.0 - 2e-8), "cycle {cycle}: {mass}");
         }
         assert!(!cases[38].failure.as_deref().unwrap_or("").contains("no time left"));
         // A plan at 95 % of the thrust is the optimum of the spacecraft whose thrust is 95 % of
