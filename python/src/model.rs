@@ -207,15 +207,14 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
     let family = spatial_scenario_family(&scenario)?;
     let kind = family.family.problem;
     let features = FeatureLayout::of(kind, family.as_planar().is_none());
-    let env_config = match config.get("env") {
-        Some(toml::Value::Table(env)) => toml::to_string(env).map_err(|e| bad(&e.to_string()))?,
-        _ => String::new(),
+    // A table of the config as TOML text, empty when the config has none.
+    let table_text = |value: Option<&toml::Value>| match value {
+        Some(toml::Value::Table(table)) => toml::to_string(table).map_err(|e| bad(&e.to_string())),
+        _ => Ok(String::new()),
     };
+    let env_config = table_text(config.get("env"))?;
     // The dispersions its SIL flew (`[sil.dispersions]`), for `fly_sil`'s `dispersions`.
-    let sil_dispersions = match config.get("sil").and_then(|sil| sil.get("dispersions")) {
-        Some(toml::Value::Table(dispersions)) => toml::to_string(dispersions).map_err(|e| bad(&e.to_string()))?,
-        _ => String::new(),
-    };
+    let sil_dispersions = table_text(config.get("sil").and_then(|sil| sil.get("dispersions")))?;
     let files: BTreeMap<String, String> =
         serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
     let checked = py

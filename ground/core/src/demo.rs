@@ -48,7 +48,7 @@ use crate::generate::{read_dataset, GenerateError};
 use crate::solver::pontryagin::{OptimalControlParams, StateCostate, SWITCH_EVENTS, Y_LEN};
 use crate::solver::record::{sample, TrajectoryRecord, TrajectorySample};
 use crate::solver::shooting::initial_state_costate;
-use crate::solver::{solve_arriving_early, SolveOptions};
+use crate::solver::{solve_arriving_early, CycledScenario, SolveOptions};
 
 /// Actions are clipped to [-ACTION_BOUND, ACTION_BOUND] so a squashed-Gaussian log-probability
 /// stays finite (docs/spec.md section 7).
@@ -350,17 +350,22 @@ impl Placement {
     /// or, for a record that arrives early, the scenario it shortened; a record of no draw fills
     /// the episode of its own scenario.
     pub fn whole(record: &TrajectoryRecord) -> Self {
-        let draw = record.family.draw(record.seed, record.index);
-        let shortened = Scenario {
-            steps: draw.steps,
-            ..record.scenario
-        } == draw
-            && record.scenario.steps < draw.steps;
         Self {
-            episode: if shortened { draw } else { record.scenario },
+            episode: episode_of_draw(record.scenario, record.family.draw(record.seed, record.index)),
             start_step: 0,
             start_mass: 1.0,
         }
+    }
+}
+
+/// The episode a record from departure fills, both geometries: `draw` (its draw's scenario)
+/// where the record's scenario `own` is the draw shortened by an arrival margin or the draw
+/// itself, `own` otherwise (a record of no draw).
+pub(crate) fn episode_of_draw<S: CycledScenario>(own: S, draw: S) -> S {
+    if own.with_cycles(draw.cycles()) == draw && own.cycles() < draw.cycles() {
+        draw
+    } else {
+        own
     }
 }
 

@@ -200,20 +200,7 @@ pub fn spatial_demonstration<P: Problem<Geometry = env::Spatial>>(
 /// scenario itself or, for a record that arrives early (an arrival margin), the same shortened;
 /// a record of no draw fills its own scenario's (the 3D [`Placement::whole`]).
 pub fn episode_of(record: &SpatialRecord) -> SpatialScenario {
-    let draw = record.family.draw(record.seed, record.index);
-    let shortened = SpatialScenario {
-        scenario: Scenario {
-            steps: draw.scenario.steps,
-            ..record.scenario.scenario
-        },
-        ..record.scenario
-    } == draw
-        && record.scenario.scenario.steps < draw.scenario.steps;
-    if shortened {
-        draw
-    } else {
-        record.scenario
-    }
+    super::episode_of_draw(record.scenario, record.family.draw(record.seed, record.index))
 }
 
 /// Relabels a three-dimensional state a policy visited (DAgger-style, the 3D twin of

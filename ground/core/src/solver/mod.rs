@@ -217,10 +217,41 @@ pub fn solve_arriving_early(
     options: &SolveOptions,
 ) -> TrajectoryRecord {
     let family = family.into();
-    arriving_early(scenario.steps, options.arrival_margin_steps, |steps| {
-        let scenario = Scenario { steps, ..*scenario };
-        solve_scenario(family, seed, index, &scenario, spacecraft, options)
+    arriving_early(scenario, options.arrival_margin_steps, |scenario| {
+        solve_scenario(family, seed, index, scenario, spacecraft, options)
     })
+}
+
+/// A scenario of either geometry by its count of guidance cycles, which an arrival margin
+/// shortens (the cycle's length, and so a rendezvous body's path, kept).
+pub(crate) trait CycledScenario: Copy + PartialEq {
+    /// Its guidance cycles N.
+    fn cycles(&self) -> u32;
+    /// The same scenario over `cycles` cycles.
+    fn with_cycles(self, cycles: u32) -> Self;
+}
+
+impl CycledScenario for Scenario {
+    fn cycles(&self) -> u32 {
+        self.steps
+    }
+
+    fn with_cycles(self, steps: u32) -> Self {
+        Self { steps, ..self }
+    }
+}
+
+impl CycledScenario for shared::scenario::SpatialScenario {
+    fn cycles(&self) -> u32 {
+        self.scenario.steps
+    }
+
+    fn with_cycles(self, cycles: u32) -> Self {
+        Self {
+            scenario: self.scenario.with_cycles(cycles),
+            ..self
+        }
+    }
 }
 
 /// What the arrival-margin rule reads and amends of a solve's record, in either geometry.
@@ -241,18 +272,24 @@ impl SolveOutcome for TrajectoryRecord {
     }
 }
 
-/// The arrival-margin rule of both geometries: `solve(steps - margin)` where that converges,
-/// else `solve(steps)` with the early attempt's time and failure added to its own; `solve(steps)`
-/// alone when there is no margin or the flight cannot hold it.
-pub(crate) fn arriving_early<R: SolveOutcome>(steps: u32, margin: u32, solve: impl Fn(u32) -> R) -> R {
+/// The arrival-margin rule of both geometries: `solve` of `scenario` shortened by `margin`
+/// cycles where that converges, else of `scenario` itself with the early attempt's time and
+/// failure added to its own; of `scenario` alone when there is no margin or the flight cannot
+/// hold it.
+pub(crate) fn arriving_early<S: CycledScenario, R: SolveOutcome>(
+    scenario: &S,
+    margin: u32,
+    solve: impl Fn(&S) -> R,
+) -> R {
+    let steps = scenario.cycles();
     if margin == 0 || margin >= steps {
-        return solve(steps);
+        return solve(scenario);
     }
-    let mut first = solve(steps - margin);
+    let mut first = solve(&scenario.with_cycles(steps - margin));
     if first.converged() {
         return first;
     }
-    let mut on_time = solve(steps);
+    let mut on_time = solve(scenario);
     let (early_seconds, early_failure) = first.seconds_and_failure();
     let (seconds, failure) = on_time.seconds_and_failure();
     *seconds += *early_seconds;

@@ -76,15 +76,8 @@ pub fn solve_spatial_arriving_early(
     spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> SpatialRecord {
-    arriving_early(scenario.scenario.steps, options.arrival_margin_steps, |steps| {
-        let shortened = SpatialScenario {
-            scenario: shared::scenario::Scenario {
-                steps,
-                ..scenario.scenario
-            },
-            ..*scenario
-        };
-        solve_spatial_scenario(family, draw, &shortened, spacecraft, options)
+    arriving_early(scenario, options.arrival_margin_steps, |scenario| {
+        solve_spatial_scenario(family, draw, scenario, spacecraft, options)
     })
 }
 
