@@ -215,18 +215,21 @@ pub struct ModelCard {
     /// The terminal targeting the SIL rows flew their last cycles with (`[sil] terminal`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub terminal: Option<TerminalSettings>,
+    /// The controller flown with terminal targeting and no lookahead: its nominal Monte Carlo
+    /// (with lookahead, `lookahead` holds it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub with_terminal: Option<FlownFigures>,
     /// The CRC-32C of the rest of the card's content (`ground_core::model_files::card_seal`),
     /// set when it is written: a card edited by hand is refused.
     #[serde(default)]
     pub seal: String,
 }
 
-/// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
+/// The f32 blob flown with its onboard aids on the Monte Carlo's scenarios, no dispersions: the
+/// controller as it flies, where the card's Monte Carlo row is the network alone.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct LookaheadFigures {
-    /// What the lookahead weighed.
-    pub settings: LookaheadSettings,
-    /// Figures of the nominal Monte Carlo flown with lookahead.
+pub struct FlownFigures {
+    /// Figures of the nominal Monte Carlo flown with the aids.
     pub monte_carlo: FlightFigures,
     /// Propellant overspend against the indirect optimum: (scenarios, median, p95).
     pub overspend: Option<(usize, f64, f64)>,
@@ -236,17 +239,47 @@ pub struct LookaheadFigures {
     pub by_eccentricity: Vec<EccentricityBand>,
 }
 
-impl LookaheadFigures {
-    /// The figures of a nominal SIL Monte Carlo flown with lookahead (None without it).
-    pub fn of(report: &SilReport) -> Option<Self> {
+impl FlownFigures {
+    /// The figures of a nominal SIL Monte Carlo.
+    pub fn of(report: &SilReport) -> Self {
         let mc = &report.monte_carlo;
-        Some(Self {
-            settings: report.lookahead?,
+        Self {
             monte_carlo: FlightFigures::of(mc),
             overspend: mc.overspend.as_ref().map(|o| (o.count, o.p50, o.p95)),
             where_solved: mc.where_solved,
             by_eccentricity: mc.accuracy_by_eccentricity.clone(),
+        }
+    }
+}
+
+/// The f32 blob flown with rollout lookahead on the Monte Carlo's scenarios, no dispersions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LookaheadFigures {
+    /// What the lookahead weighed.
+    pub settings: LookaheadSettings,
+    /// The nominal Monte Carlo flown with lookahead (and terminal targeting where the config
+    /// flies it too).
+    #[serde(flatten)]
+    pub flown: FlownFigures,
+}
+
+impl LookaheadFigures {
+    /// The figures of a nominal SIL Monte Carlo flown with lookahead (None without it).
+    pub fn of(report: &SilReport) -> Option<Self> {
+        Some(Self {
+            settings: report.lookahead?,
+            flown: FlownFigures::of(report),
         })
+    }
+}
+
+/// The card's figures of a nominal Monte Carlo flown with the onboard aids ([`aided_monte_carlo`]
+/// (crate::sil::aided_monte_carlo)): (with lookahead, with terminal targeting alone).
+fn aided_figures(report: Option<&SilReport>) -> (Option<LookaheadFigures>, Option<FlownFigures>) {
+    match report {
+        Some(r) if r.lookahead.is_some() => (LookaheadFigures::of(r), None),
+        Some(r) if r.terminal.is_some() => (None, Some(FlownFigures::of(r))),
+        _ => (None, None),
     }
 }
 
@@ -308,8 +341,8 @@ const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 /// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
 /// flown in the SIL loop with terminal targeting over their last `K` cycles (its other settings
 /// the defaults; 0: without), which
-/// the card then records: its config's `[sil] terminal`, its SIL rows (flown under `RUN`) and a
-/// note of the command. The actor, the blobs and the Monte Carlo stay as they are. The folder's
+/// the card then records: its config's `[sil] terminal`, its SIL rows and its nominal Monte
+/// Carlo with the aids (flown under `RUN`) and a note of the command. The actor, the blobs and the Monte Carlo stay as they are. The folder's
 /// files must match its card first.
 pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
     let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
@@ -327,6 +360,9 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
         .to_vec();
     card.sil = sil_figures(&sil);
     card.terminal = config.terminal_settings();
+    let aided = crate::sil::aided_monte_carlo(&config, &blob(Quantization::F32), &run.join(crate::sil::AIDED_FOLDER))
+        .map_err(experiment)?;
+    (card.lookahead, card.with_terminal) = aided_figures(aided.as_ref());
     card.config = portable_config(&config);
     let flown = match cycles {
         0 => "without terminal targeting".to_string(),
@@ -389,8 +425,9 @@ pub struct ModelSources<'a> {
     pub export: &'a ExportReport,
     /// The blobs' SIL Monte Carlos with the config's dispersions.
     pub sil: &'a [SilReport],
-    /// The nominal Monte Carlo of the f32 blob with lookahead, when the config flies it.
-    pub lookahead: Option<&'a SilReport>,
+    /// The nominal Monte Carlo of the f32 blob with the onboard aids, when the config flies
+    /// any ([`aided_monte_carlo`](crate::sil::aided_monte_carlo)).
+    pub aided: Option<&'a SilReport>,
     /// Lines for the card on where the controller came from beyond the config (e.g. the
     /// shipped actor its rounds started from).
     pub notes: &'a [String],
@@ -423,6 +460,7 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         files.insert(name, crc_of(&target)?);
     }
     let mc = sources.monte_carlo;
+    let (lookahead, with_terminal) = aided_figures(sources.aided);
     let mut card = ModelCard {
         format: CARD_FORMAT,
         scenario: config.display_name(),
@@ -447,8 +485,9 @@ pub fn write_model(dir: &Path, sources: &ModelSources) -> Result<ModelCard, Mode
         notes: sources.notes.to_vec(),
         where_solved: mc.where_solved,
         by_eccentricity: mc.accuracy_by_eccentricity.clone(),
-        lookahead: sources.lookahead.and_then(LookaheadFigures::of),
+        lookahead,
         terminal: config.terminal_settings(),
+        with_terminal,
         seal: String::new(),
     };
     write_cards(dir, &mut card)?;
@@ -535,9 +574,9 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
-    let lookahead =
-        crate::sil::lookahead_monte_carlo(&config, &export.f32.file, &run.join("mc-lookahead")).map_err(experiment)?;
-    card.lookahead = lookahead.as_ref().and_then(LookaheadFigures::of);
+    let aided = crate::sil::aided_monte_carlo(&config, &export.f32.file, &run.join(crate::sil::AIDED_FOLDER))
+        .map_err(experiment)?;
+    (card.lookahead, card.with_terminal) = aided_figures(aided.as_ref());
     card.reexported = Some((portable_command(), current_commit(), utc_date()));
     card.reexported_format = Some(shared::blob::FORMAT_VERSION);
     write_cards(dir, &mut card)?;
@@ -808,12 +847,17 @@ fn front_matter(card: &ModelCard) -> String {
         );
     }
     if let Some(lookahead) = &card.lookahead {
+        let mc = &lookahead.flown.monte_carlo;
         result(
-            &format!(
-                "f32 blob with rollout lookahead, {} nominal flights",
-                lookahead.monte_carlo.episodes
-            ),
-            &shares(&lookahead.monte_carlo, "with lookahead"),
+            &format!("f32 blob with rollout lookahead, {} nominal flights", mc.episodes),
+            &shares(mc, "with lookahead"),
+        );
+    }
+    if let Some(flown) = &card.with_terminal {
+        let mc = &flown.monte_carlo;
+        result(
+            &format!("f32 blob with terminal targeting, {} nominal flights", mc.episodes),
+            &shares(mc, "with terminal targeting"),
         );
     }
     s.push_str("---\n\n");
@@ -873,11 +917,10 @@ pub fn card_markdown(card: &ModelCard) -> String {
         s.push_str(&figures_row(&format!("{blob}, SIL"), f));
     }
     against_the_optimum(&mut s, card.overspend, card.where_solved, &card.by_eccentricity);
-    if let Some(l) = &card.lookahead {
+    let flown_section = |s: &mut String, heading: &str, row: &str, f: &FlownFigures| {
         let _ = writeln!(
             s,
-            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}; the SIL rows above fly with it too). The f32 blob on the Monte Carlo's scenarios without dispersions:\n",
-            l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
+            "{heading} The f32 blob on the Monte Carlo's scenarios without dispersions:\n"
         );
         let _ = writeln!(
             s,
@@ -885,8 +928,22 @@ pub fn card_markdown(card: &ModelCard) -> String {
             tolerances.join(" | ")
         );
         let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
-        s.push_str(&figures_row("f32 blob with lookahead, no dispersions", &l.monte_carlo));
-        against_the_optimum(&mut s, l.overspend, l.where_solved, &l.by_eccentricity);
+        s.push_str(&figures_row(row, &f.monte_carlo));
+        against_the_optimum(s, f.overspend, f.where_solved, &f.by_eccentricity);
+    };
+    if let Some(l) = &card.lookahead {
+        let heading = format!(
+            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}; the SIL rows above fly with it too).",
+            l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
+        );
+        flown_section(&mut s, &heading, "f32 blob with lookahead, no dispersions", &l.flown);
+    }
+    if let (Some(f), Some(t)) = (&card.with_terminal, card.terminal) {
+        let heading = format!(
+            "\n## As flown: with terminal targeting\n\nThe Monte Carlo row above is the network alone; onboard, the last {} cycles fly with terminal targeting, as the SIL rows do.",
+            t.cycles
+        );
+        flown_section(&mut s, &heading, "f32 blob with terminal targeting, no dispersions", f);
     }
     let _ = writeln!(s, "\n## Files\n");
     for (name, crc) in &card.files {

@@ -8,6 +8,7 @@ use crate::config::ExperimentConfig;
 use crate::dagger::DaggerSummary;
 use crate::eval::{accuracy_line, eccentricity_line, gap_line, solved_line};
 use crate::export::ExportReport;
+use crate::model::ModelCard;
 use crate::phase::PhaseSummary;
 use crate::pipeline::MainJob;
 use crate::sil::{missed_thrust_bands, SilReport};
@@ -178,7 +179,13 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         s,
         "Per-episode figures: [mc.csv](mc/mc.csv); summary: [summary.json](mc/summary.json).\n"
     );
-    export_section(&mut s, &job.export, &job.sil, &config.family.family.body.units());
+    export_section(
+        &mut s,
+        &job.export,
+        &job.sil,
+        &config.family.family.body.units(),
+        &job.model,
+    );
     let _ = writeln!(
         s,
         "## The controller, ready to ship\n\n[model/](model/card.md): the flown actor (actor.safetensors), both blobs and the model card, bound by their CRC-32C. Copy the folder to `models/NAME/`; `ground model evaluate --model` and `ground model sil --model` fly it as it is.\n"
@@ -219,7 +226,13 @@ fn rounds_section(s: &mut String, rounds: &DaggerSummary, folder: &str) {
     let _ = writeln!(s, "![relabelling rounds]({folder}/rounds.svg)\n");
 }
 
-fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2], units: &shared::mission::Units) {
+fn export_section(
+    s: &mut String,
+    export: &ExportReport,
+    sil: &[SilReport; 2],
+    units: &shared::mission::Units,
+    card: &ModelCard,
+) {
     let _ = writeln!(s, "## Onboard blobs and software-in-the-loop flight\n");
     let _ = writeln!(
         s,
@@ -272,19 +285,27 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2], u
         d.missed_thrust_per_year,
         d.missed_thrust_days
     );
+    if let Some(t) = sil[0].terminal {
+        let _ = writeln!(
+            s,
+            "The blobs fly their last {} cycles with terminal targeting (`onboard::terminal`).\n",
+            t.cycles
+        );
+    }
     let _ = writeln!(
         s,
-        "| blob | flights | reward | final mass | dr p50 | dr p95 | dv p50 | guidance faults | missed thrust |"
+        "| blob | flights | within the goal | reward | final mass | dr p50 | dr p95 | dv p50 | guidance faults | missed thrust |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     for (r, folder) in sil.iter().zip(crate::sil::SIL_FOLDERS) {
         let p = &r.monte_carlo.policy;
         let _ = writeln!(
             s,
-            "| {} ([summary]({folder}/sil.json)) | {}/{} | {:.4} ± {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {} | {:.1} % |",
+            "| {} ([summary]({folder}/sil.json)) | {}/{} | {:.1} % | {:.4} ± {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {} | {:.1} % |",
             r.controller,
             p.completed,
             r.flights,
+            100.0 * r.monte_carlo.within_accuracy_goal,
             p.total_reward.mean,
             p.total_reward.std,
             p.final_mass.mean,
@@ -301,8 +322,41 @@ fn export_section(s: &mut String, export: &ExportReport, sil: &[SilReport; 2], u
             "\nWithin the goal (f32) by where a flight's last missed thrust ended, as a fraction of the flight (flights): {bands}."
         );
     }
-    let _ = writeln!(s, "\n![SIL histograms, int8](sil-int8/histograms.svg)\n");
+    s.push('\n');
+    flown_section(s, card);
+    let _ = writeln!(s, "![SIL histograms, int8](sil-int8/histograms.svg)\n");
     let _ = writeln!(s, "![SIL flights, int8](sil-int8/trajectories.svg)\n");
+}
+
+/// The controller as it flies, where the Monte Carlo above is the network alone: the card's
+/// nominal Monte Carlo of the f32 blob with its onboard aids, when the config flies any.
+fn flown_section(s: &mut String, card: &ModelCard) {
+    let (what, flown) = match (&card.lookahead, &card.with_terminal, card.terminal) {
+        (Some(l), _, _) => ("rollout lookahead".to_string(), &l.flown),
+        (None, Some(f), Some(t)) => (format!("terminal targeting of the last {} cycles", t.cycles), f),
+        _ => return,
+    };
+    let mc = &flown.monte_carlo;
+    let shares: Vec<String> = mc
+        .within
+        .iter()
+        .map(|(t, share)| format!("{:.1} % within {t}", 100.0 * share))
+        .collect();
+    let overspend = flown.overspend.map_or(String::new(), |(n, p50, _)| {
+        format!("; propellant overspend median {:.1} % ({n} scenarios)", 100.0 * p50)
+    });
+    let _ = writeln!(
+        s,
+        "**As flown**: the f32 blob with {what}, on the Monte Carlo's {} scenarios without dispersions ([summary]({}/sil.json)): {}; dr p50 / p95 {:.4} / {:.4} AU, dv p50 / p95 {:.4} / {:.4}; final mass {:.4}{overspend}.\n",
+        mc.episodes,
+        crate::sil::AIDED_FOLDER,
+        shares.join(", "),
+        mc.dr_p50,
+        mc.dr_p95,
+        mc.dv_p50,
+        mc.dv_p95,
+        mc.final_mass_mean
+    );
 }
 
 /// Replaces the image lines of `report` whose figure is absent under `run` (too few points to

@@ -520,7 +520,12 @@ where
     let scenarios: Vec<_> = (0..n)
         .map(|i| P::Geometry::draw(&family, config.seeds.monte_carlo, i))
         .collect();
-    let bar = ground_core::progress::spinner(format!("SIL: {n} dispersed flights"));
+    let plant = if *dispersions == Dispersions::NONE {
+        "nominal"
+    } else {
+        "dispersed"
+    };
+    let bar = ground_core::progress::spinner(format!("SIL: {n} {plant} flights"));
     let flights = SilFlights::of(config, dispersions, PLOTTED_FLIGHTS);
     let (outcomes, guidance_faults, missed) = P::Geometry::fly_blob(config, &blob, &scenarios, &flights)?;
     bar.finish_and_clear();
@@ -576,15 +581,19 @@ pub fn sil_of_blobs(
     Ok([fly(f32_blob, f32_folder)?, fly(int8_blob, int8_folder)?])
 }
 
-/// When the config flies with lookahead (`[sil] lookahead`): the nominal Monte Carlo of `blob`
-/// with it (the config's `[evaluate]` episodes and optimality-gap cases, no dispersions) in
-/// `out`, for the model card. None otherwise.
-pub fn lookahead_monte_carlo(
+/// The folder under a run of [`aided_monte_carlo`]'s flights.
+pub const AIDED_FOLDER: &str = "mc-aided";
+
+/// When the config flies an onboard aid (`[sil] lookahead` or `[sil] terminal`): the nominal
+/// Monte Carlo of `blob` flown with it (the config's `[evaluate]` episodes and optimality-gap
+/// cases, no dispersions) in `out`, for the model card: the controller as it flies, where the
+/// card's Monte Carlo is the network alone. None otherwise.
+pub fn aided_monte_carlo(
     config: &ExperimentConfig,
     blob: &Path,
     out: &Path,
 ) -> Result<Option<SilReport>, ExperimentError> {
-    if config.sil.lookahead.is_none() {
+    if config.sil.lookahead.is_none() && config.sil.terminal.is_none() {
         return Ok(None);
     }
     sil_monte_carlo(

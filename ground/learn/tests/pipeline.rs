@@ -364,8 +364,34 @@ fn main_job_writes_a_report_whose_links_resolve() {
     )
     .unwrap();
     assert_eq!(reopened.card.sil[0].1.within, again.monte_carlo.within_tolerances);
+    // The card adds the controller as it flies: the f32 blob with terminal targeting on the Monte
+    // Carlo's scenarios without dispersions (a nominal SIL of the same count, flown on its own).
+    let flown = card
+        .with_terminal
+        .as_ref()
+        .expect("the card records the flown Monte Carlo");
+    assert_eq!(flown.monte_carlo.episodes as u64, reopened.config.evaluate.episodes);
+    let nominal = learn::sil::sil_monte_carlo(
+        &reopened.config,
+        &reopened.blob(shared::blob::Quantization::F32),
+        &dir.join("terminal-nominal"),
+        Some(reopened.config.evaluate.episodes),
+        &firmware_sim::Dispersions::NONE,
+        0,
+    )
+    .unwrap();
+    assert_eq!(flown.monte_carlo.within, nominal.monte_carlo.within_tolerances);
+    assert_eq!(
+        flown.monte_carlo.dr_p50,
+        nominal.monte_carlo.policy.terminal_position.p50
+    );
+    assert!(learn::model::card_markdown(&card).contains("As flown: with terminal targeting"));
     let (without, _) = learn::model::fly_terminal(&aided, &dir.join("terminal-off"), 0).unwrap();
     assert_eq!((without.terminal, without.sil), (None, model.card.sil.clone()));
+    assert!(
+        without.with_terminal.is_none(),
+        "no figures of an aid it no longer flies"
+    );
     // One note says how the rows were flown: the latest.
     assert_eq!(without.notes.len(), model.card.notes.len() + 1, "{:?}", without.notes);
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
@@ -428,7 +454,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert!(learn::model::card_markdown(&card).contains(&note));
     let lookahead = card.lookahead.as_ref().expect("the card records the lookahead");
     assert_eq!(Some(lookahead.settings), dispersed.sil.lookahead);
-    assert_eq!(lookahead.monte_carlo.episodes as u64, dispersed.evaluate.episodes);
+    assert_eq!(lookahead.flown.monte_carlo.episodes as u64, dispersed.evaluate.episodes);
     assert!(shipped.sil.iter().all(|r| r.lookahead == dispersed.sil.lookahead));
     assert!(learn::model::card_markdown(&card).contains("With rollout lookahead"));
     // Exported again from its own actor (after a blob format change, say): the dataset the card

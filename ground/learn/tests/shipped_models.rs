@@ -112,7 +112,7 @@ fn flies_as_its_card_says<G: SilGeometry>(dir: &Path, model: &ShippedModel) {
 
     if let Some(lookahead) = &model.card.lookahead {
         assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
-        let card_share = lookahead.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
+        let card_share = lookahead.flown.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
         let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
         let flights = SilFlights::of(config, &Dispersions::NONE, 0);
         let (looked, faults, _) = G::fly_blob(config, &blob, first, &flights).unwrap();
