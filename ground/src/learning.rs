@@ -133,8 +133,8 @@ pub enum ModelCommand {
         onnx_only: bool,
         /// With --model: fly the folder's blobs, unchanged, in the SIL loop with terminal
         /// targeting over their last K cycles (0: without) and record it in the card (its
-        /// config's [sil] terminal, its SIL rows, its nominal Monte Carlo as flown, a note); the actor,
-        /// blobs and Monte Carlo stay as they are; --out holds the SIL runs.
+        /// config's [sil] terminal, its SIL rows, its nominal Monte Carlo as flown, a note);
+        /// the actor, blobs and Monte Carlo stay as they are; --out holds the SIL runs.
         #[arg(long, value_name = "K", requires = "model", conflicts_with = "onnx_only")]
         terminal_cycles: Option<u32>,
     },

@@ -218,7 +218,7 @@ def test_every_card_opens_with_the_metadata_a_model_hub_reads(name):
     (entry,) = meta["model-index"]
     assert entry["name"] == card["scenario"]
     results = entry["results"]
-    assert len(results) == 1 + len(card["sil"]) + ("lookahead" in card)
+    assert len(results) == 1 + len(card["sil"]) + ("lookahead" in card) + ("with_terminal" in card)
     spec = gym.spec(results[0]["dataset"]["type"])
     if card["scenario"] in lowthrust.SCENARIOS:
         assert spec.kwargs["scenario"] == card["scenario"]
@@ -233,6 +233,11 @@ def test_every_card_opens_with_the_metadata_a_model_hub_reads(name):
     for result, (blob, figures) in zip(results[1:], card["sil"]):
         assert blob in result["dataset"]["name"]
         assert [m["value"] for m in result["metrics"]] == [share for _, share in figures["within"]]
+    if "with_terminal" in card:
+        # The controller as flown: the last entry, its own nominal flights.
+        flown = card["with_terminal"]["monte_carlo"]
+        assert "terminal targeting" in results[-1]["dataset"]["name"]
+        assert [m["value"] for m in results[-1]["metrics"]] == [share for _, share in flown["within"]]
 
 
 def test_terminal_targeting_from_python_brings_arrivals_within_a_thousandth():
