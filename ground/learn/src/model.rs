@@ -273,6 +273,20 @@ impl LookaheadFigures {
     }
 }
 
+/// The onboard aids a card's config flies, in words: "rollout lookahead", "terminal targeting
+/// of the last K cycles", or both.
+pub fn aids_flown(card: &ModelCard) -> String {
+    let terminal = card
+        .terminal
+        .map(|t| format!("terminal targeting of the last {} cycles", t.cycles));
+    match (card.lookahead.is_some(), terminal) {
+        (true, Some(t)) => format!("rollout lookahead and {t}"),
+        (true, None) => "rollout lookahead".into(),
+        (false, Some(t)) => t,
+        (false, None) => "the network alone".into(),
+    }
+}
+
 /// The card's figures of a nominal Monte Carlo flown with the onboard aids ([`aided_monte_carlo`]
 /// (crate::sil::aided_monte_carlo)): (with lookahead, with terminal targeting alone).
 fn aided_figures(report: Option<&SilReport>) -> (Option<LookaheadFigures>, Option<FlownFigures>) {
@@ -340,10 +354,10 @@ const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 
 /// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
 /// flown in the SIL loop with terminal targeting over their last `K` cycles (its other settings
-/// the defaults; 0: without), which
-/// the card then records: its config's `[sil] terminal`, its SIL rows and its nominal Monte
-/// Carlo with the aids (flown under `RUN`) and a note of the command. The actor, the blobs and the Monte Carlo stay as they are. The folder's
-/// files must match its card first.
+/// the defaults; 0: without), which the card then records: its config's `[sil] terminal`, its
+/// SIL rows and its nominal Monte Carlo with the aids (flown under `RUN`) and a note of the
+/// command. The actor, the blobs and the Monte Carlo stay as they are. The folder's files must
+/// match its card first.
 pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
     let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
     let kind = config.problem();
@@ -556,13 +570,9 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     // The card's paths are relative to the folder the producing command ran in: the repository.
     let export = crate::export::export(&config, Path::new("."), &actor, &run.join("export")).map_err(experiment)?;
-    let sil = if config.problem() == ProblemKind::Transfer {
-        crate::sil::sil_of_blobs(&config, &export.f32.file, &export.int8.file, run)
-            .map_err(experiment)?
-            .to_vec()
-    } else {
-        Vec::new()
-    };
+    let sil = crate::sil::sil_of_blobs(&config, &export.f32.file, &export.int8.file, run)
+        .map_err(experiment)?
+        .to_vec();
     for blob in [&export.f32.file, &export.int8.file, &export.onnx] {
         let name = blob
             .file_name()
@@ -849,7 +859,7 @@ fn front_matter(card: &ModelCard) -> String {
     if let Some(lookahead) = &card.lookahead {
         let mc = &lookahead.flown.monte_carlo;
         result(
-            &format!("f32 blob with rollout lookahead, {} nominal flights", mc.episodes),
+            &format!("f32 blob with {}, {} nominal flights", aids_flown(card), mc.episodes),
             &shares(mc, "with lookahead"),
         );
     }
@@ -936,7 +946,8 @@ pub fn card_markdown(card: &ModelCard) -> String {
             "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}; the SIL rows above fly with it too).",
             l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
         );
-        flown_section(&mut s, &heading, "f32 blob with lookahead, no dispersions", &l.flown);
+        let row = format!("f32 blob with {}, no dispersions", aids_flown(card));
+        flown_section(&mut s, &heading, &row, &l.flown);
     }
     if let (Some(f), Some(t)) = (&card.with_terminal, card.terminal) {
         let heading = format!(

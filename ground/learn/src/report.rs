@@ -331,11 +331,15 @@ fn export_section(
 /// The controller as it flies, where the Monte Carlo above is the network alone: the card's
 /// nominal Monte Carlo of the f32 blob with its onboard aids, when the config flies any.
 fn flown_section(s: &mut String, card: &ModelCard) {
-    let (what, flown) = match (&card.lookahead, &card.with_terminal, card.terminal) {
-        (Some(l), _, _) => ("rollout lookahead".to_string(), &l.flown),
-        (None, Some(f), Some(t)) => (format!("terminal targeting of the last {} cycles", t.cycles), f),
-        _ => return,
+    let Some(flown) = card
+        .lookahead
+        .as_ref()
+        .map(|l| &l.flown)
+        .or(card.with_terminal.as_ref())
+    else {
+        return;
     };
+    let what = crate::model::aids_flown(card);
     let mc = &flown.monte_carlo;
     let shares: Vec<String> = mc
         .within
@@ -393,4 +397,37 @@ pub fn broken_links(report: &Path) -> Vec<String> {
         rest = &rest[end..];
     }
     broken
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped_card(name: &str) -> ModelCard {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../models/{name}/card.json"));
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap()
+    }
+
+    /// The report's as-flown line reads the card's own figures and names the aids flown, and a
+    /// card of the network alone has none.
+    #[test]
+    fn the_as_flown_line_gives_the_cards_figures_and_aids() {
+        let mut card = shipped_card("venus-inward");
+        let flown = card.with_terminal.clone().unwrap();
+        let mut s = String::new();
+        flown_section(&mut s, &card);
+        assert!(
+            s.starts_with("**As flown**: the f32 blob with terminal targeting of the last 4 cycles"),
+            "{s}"
+        );
+        for (tolerance, share) in &flown.monte_carlo.within {
+            assert!(s.contains(&format!("{:.1} % within {tolerance}", 100.0 * share)), "{s}");
+        }
+        assert!(s.contains(&format!("({}/sil.json)", crate::sil::AIDED_FOLDER)), "{s}");
+        card.with_terminal = None;
+        card.terminal = None;
+        let mut none = String::new();
+        flown_section(&mut none, &card);
+        assert!(none.is_empty(), "{none}");
+    }
 }

@@ -5,8 +5,8 @@
 //! are different implementations of the policy on overlapping samples: they must agree within
 //! the sampling error of 1,000 flights. Its int8 blob, flown on the same scenarios, scores within
 //! a point of the f32 blob (the export's promise), within the paired sampling error. A controller
-//! whose card records flying with rollout lookahead scores, flown so on the first scenarios, the
-//! card's lookahead share within the sampling error.
+//! whose card records flying with an onboard aid (rollout lookahead, terminal targeting) scores,
+//! flown so on the first scenarios, the card's as-flown share within the sampling error.
 
 use std::path::{Path, PathBuf};
 
@@ -21,8 +21,8 @@ use shared::blob::Quantization;
 
 /// Flights per shipped controller.
 const FLIGHTS: u64 = 1000;
-/// Flights with lookahead (about 26 times the work of a flight alone).
-const LOOKAHEAD_FLIGHTS: u64 = 300;
+/// Flights with the onboard aids (with lookahead about 26 times the work of a flight alone).
+const AIDED_FLIGHTS: u64 = 300;
 
 /// Three binomial standard deviations of `n` flights around `share`, plus half a point for the
 /// flights near the goal's edge that two implementations end on either side of.
@@ -110,17 +110,29 @@ fn flies_as_its_card_says<G: SilGeometry>(dir: &Path, model: &ShippedModel) {
         100.0 * flown_share
     );
 
-    if let Some(lookahead) = &model.card.lookahead {
-        assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
-        let card_share = lookahead.flown.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
-        let first = &scenarios[..LOOKAHEAD_FLIGHTS as usize];
+    // The controller as flown (its config's onboard aids) on the first Monte Carlo scenarios
+    // without dispersions: the card's as-flown share.
+    let flown = match (&model.card.lookahead, &model.card.with_terminal) {
+        (Some(lookahead), _) => {
+            assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
+            Some(("lookahead", &lookahead.flown))
+        }
+        (None, Some(flown)) => {
+            assert!(config.sil.terminal.is_some(), "{}", dir.display());
+            Some(("terminal targeting", flown))
+        }
+        (None, None) => None,
+    };
+    if let Some((aid, flown)) = flown {
+        let card_share = flown.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
+        let first = &scenarios[..AIDED_FLIGHTS as usize];
         let flights = SilFlights::of(config, &Dispersions::NONE, 0);
-        let (looked, faults, _) = G::fly_blob(config, &blob, first, &flights).unwrap();
+        let (aided, faults, _) = G::fly_blob(config, &blob, first, &flights).unwrap();
         assert_eq!(faults, 0);
-        let share = within_accuracy_goal(&looked);
+        let share = within_accuracy_goal(&aided);
         assert!(
-            (share - card_share).abs() <= bound(card_share, LOOKAHEAD_FLIGHTS),
-            "{}: flown with lookahead {:.2} % within the goal, the card says {:.2} %",
+            (share - card_share).abs() <= bound(card_share, AIDED_FLIGHTS),
+            "{}: flown with {aid} {:.2} % within the goal, the card says {:.2} %",
             dir.display(),
             100.0 * share,
             100.0 * card_share
