@@ -225,6 +225,17 @@ pub struct ModelCard {
     pub seal: String,
 }
 
+impl ModelCard {
+    /// The figures of the controller as it flies, with its onboard aids (the lookahead's, or
+    /// terminal targeting's alone); None for a network flown alone.
+    pub fn as_flown(&self) -> Option<&FlownFigures> {
+        self.lookahead
+            .as_ref()
+            .map(|l| &l.flown)
+            .or(self.with_terminal.as_ref())
+    }
+}
+
 /// The f32 blob flown with its onboard aids on the Monte Carlo's scenarios, no dispersions: the
 /// controller as it flies, where the card's Monte Carlo row is the network alone.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -285,6 +296,17 @@ pub fn aids_flown(card: &ModelCard) -> String {
         (false, Some(t)) => t,
         (false, None) => "the network alone".into(),
     }
+}
+
+/// `blob` flown with the config's onboard aids ([`aided_monte_carlo`](crate::sil::aided_monte_carlo),
+/// under `run`): the card's figures of it, as [`aided_figures`] sorts them.
+fn fly_aided(
+    config: &ExperimentConfig,
+    blob: &Path,
+    run: &Path,
+) -> Result<(Option<LookaheadFigures>, Option<FlownFigures>), ModelError> {
+    let aided = crate::sil::aided_monte_carlo(config, blob, run).map_err(|e| ModelError::Experiment(Box::new(e)))?;
+    Ok(aided_figures(aided.as_ref()))
 }
 
 /// The card's figures of a nominal Monte Carlo flown with the onboard aids ([`aided_monte_carlo`]
@@ -374,9 +396,7 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
         .to_vec();
     card.sil = sil_figures(&sil);
     card.terminal = config.terminal_settings();
-    let aided = crate::sil::aided_monte_carlo(&config, &blob(Quantization::F32), &run.join(crate::sil::AIDED_FOLDER))
-        .map_err(experiment)?;
-    (card.lookahead, card.with_terminal) = aided_figures(aided.as_ref());
+    (card.lookahead, card.with_terminal) = fly_aided(&config, &blob(Quantization::F32), run)?;
     card.config = portable_config(&config);
     let flown = match cycles {
         0 => "without terminal targeting".to_string(),
@@ -584,9 +604,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
-    let aided = crate::sil::aided_monte_carlo(&config, &export.f32.file, &run.join(crate::sil::AIDED_FOLDER))
-        .map_err(experiment)?;
-    (card.lookahead, card.with_terminal) = aided_figures(aided.as_ref());
+    (card.lookahead, card.with_terminal) = fly_aided(&config, &export.f32.file, run)?;
     card.reexported = Some((portable_command(), current_commit(), utc_date()));
     card.reexported_format = Some(shared::blob::FORMAT_VERSION);
     write_cards(dir, &mut card)?;

@@ -331,12 +331,7 @@ fn export_section(
 /// The controller as it flies, where the Monte Carlo above is the network alone: the card's
 /// nominal Monte Carlo of the f32 blob with its onboard aids, when the config flies any.
 fn flown_section(s: &mut String, card: &ModelCard) {
-    let Some(flown) = card
-        .lookahead
-        .as_ref()
-        .map(|l| &l.flown)
-        .or(card.with_terminal.as_ref())
-    else {
+    let Some(flown) = card.as_flown() else {
         return;
     };
     let what = crate::model::aids_flown(card);

@@ -9,7 +9,7 @@ use crate::error::ExperimentError;
 use crate::eval::{monte_carlo, MonteCarloReport};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
-use crate::sil::{aided_monte_carlo, sil_of_blobs, SilReport, AIDED_FOLDER};
+use crate::sil::{aided_monte_carlo, sil_of_blobs, SilReport};
 use ground_core::generate::Summary;
 
 /// Where a shipped learner came from, as its card records it.
@@ -43,7 +43,7 @@ pub(crate) fn export_and_ship(
     } = *lineage;
     let export = export(config, config_dir, checkpoint, &run.join("export"))?;
     let sil = sil_of_blobs(config, &export.f32.file, &export.int8.file, run)?;
-    let aided = aided_monte_carlo(config, &export.f32.file, &run.join(AIDED_FOLDER))?;
+    let aided = aided_monte_carlo(config, &export.f32.file, run)?;
     let model = write_model(
         &run.join("model"),
         &ModelSources {

@@ -586,12 +586,12 @@ pub const AIDED_FOLDER: &str = "mc-aided";
 
 /// When the config flies an onboard aid (`[sil] lookahead` or `[sil] terminal`): the nominal
 /// Monte Carlo of `blob` flown with it (the config's `[evaluate]` episodes and optimality-gap
-/// cases, no dispersions) in `out`, for the model card: the controller as it flies, where the
-/// card's Monte Carlo is the network alone. None otherwise.
+/// cases, no dispersions) in `run`'s [`AIDED_FOLDER`], for the model card: the controller as it
+/// flies, where the card's Monte Carlo is the network alone. None otherwise.
 pub fn aided_monte_carlo(
     config: &ExperimentConfig,
     blob: &Path,
-    out: &Path,
+    run: &Path,
 ) -> Result<Option<SilReport>, ExperimentError> {
     if config.sil.lookahead.is_none() && config.sil.terminal.is_none() {
         return Ok(None);
@@ -599,7 +599,7 @@ pub fn aided_monte_carlo(
     sil_monte_carlo(
         config,
         blob,
-        out,
+        &run.join(AIDED_FOLDER),
         Some(config.evaluate.episodes),
         &Dispersions::NONE,
         config.evaluate.optimality_gap_cases,

@@ -112,18 +112,14 @@ fn flies_as_its_card_says<G: SilGeometry>(dir: &Path, model: &ShippedModel) {
 
     // The controller as flown (its config's onboard aids) on the first Monte Carlo scenarios
     // without dispersions: the card's as-flown share.
-    let flown = match (&model.card.lookahead, &model.card.with_terminal) {
-        (Some(lookahead), _) => {
-            assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
-            Some(("lookahead", &lookahead.flown))
-        }
-        (None, Some(flown)) => {
-            assert!(config.sil.terminal.is_some(), "{}", dir.display());
-            Some(("terminal targeting", flown))
-        }
-        (None, None) => None,
-    };
-    if let Some((aid, flown)) = flown {
+    if let Some(lookahead) = &model.card.lookahead {
+        assert_eq!(config.sil.lookahead, Some(lookahead.settings), "{}", dir.display());
+    }
+    if model.card.with_terminal.is_some() {
+        assert!(config.sil.terminal.is_some(), "{}", dir.display());
+    }
+    if let Some(flown) = model.card.as_flown() {
+        let aid = learn::model::aids_flown(&model.card);
         let card_share = flown.monte_carlo.share_within(ACCURACY_GOAL).unwrap();
         let first = &scenarios[..AIDED_FLIGHTS as usize];
         let flights = SilFlights::of(config, &Dispersions::NONE, 0);
