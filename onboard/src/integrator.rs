@@ -10,7 +10,8 @@
 //! Everything lives on the stack: the stages are `[[f64; N]; 16]`, so N = 5 (the flight code)
 //! costs 640 bytes and N = 130 (the ground's state + costate + sensitivities) about 17 KB.
 //! No allocation, no panic, and every loop is bounded: the main loop by
-//! [`Tolerances::max_steps`], the root finder and the retries by constants.
+//! [`Tolerances::max_steps`], the root finder and the retries by constants, fixed steps by
+//! [`Tolerances::MAX_FIXED_STEPS`].
 //!
 //! Events: after every trial step the system's [`OdeSystem::events`] are evaluated at the end
 //! point. When one changed sign (strictly, relative to the side it was on after the previous
@@ -51,6 +52,13 @@ pub struct Tolerances {
     pub max_steps: u32,
     /// First trial step (t units); 0 lets the integrator choose.
     pub initial_step: f64,
+    /// When positive: exactly this many equal DOP853 steps, without error control (the
+    /// tolerances, `max_steps` and `initial_step` are then not read). What the onboard aids'
+    /// rollouts use: 12 evaluations a step, and a result that is a smooth function of the
+    /// initial state and the system (no step-size decision changes under a small
+    /// perturbation), so finite differences through it are clean. Systems with events are
+    /// refused ([`IntegrationError::InvalidInput`]): fixed steps cannot land on a switch.
+    pub fixed_steps: u32,
 }
 
 impl Default for Tolerances {
@@ -60,6 +68,23 @@ impl Default for Tolerances {
             absolute: 1e-13,
             max_steps: 100_000,
             initial_step: 0.0,
+            fixed_steps: 0,
+        }
+    }
+}
+
+impl Tolerances {
+    /// Most fixed steps one call may ask for: the work stays bounded.
+    pub const MAX_FIXED_STEPS: u32 = 1024;
+
+    /// `steps` equal DOP853 steps without error control (see [`Tolerances::fixed_steps`]).
+    pub const fn fixed(steps: u32) -> Self {
+        Self {
+            relative: 1e-12,
+            absolute: 1e-13,
+            max_steps: 100_000,
+            initial_step: 0.0,
+            fixed_steps: steps,
         }
     }
 }
@@ -83,7 +108,8 @@ pub enum IntegrationError {
         t: f64,
     },
     /// Bad arguments: non-finite times or state, tolerances that are not finite and positive,
-    /// `max_steps` = 0, or a negative or non-finite `initial_step`.
+    /// `max_steps` = 0, a negative or non-finite `initial_step`, or fixed steps above
+    /// [`Tolerances::MAX_FIXED_STEPS`] or for a system with events.
     InvalidInput,
 }
 
@@ -95,7 +121,7 @@ impl core::fmt::Display for IntegrationError {
             Self::NonFinite { t } => write!(f, "derivatives or state not finite at t = {t}"),
             Self::InvalidInput => f.write_str(
                 "invalid input: times and state must be finite, tolerances finite and > 0, max_steps > 0, \
-                 initial_step finite and >= 0",
+                 initial_step finite and >= 0, fixed steps at most 1024 and only for systems without events",
             ),
         }
     }
@@ -466,6 +492,22 @@ fn stage<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     system.derivatives(t + c * h, &ys, out);
 }
 
+/// The 8th-order solution of one DOP853 step from (t, y) with k[0] = f(t, y): fills k[1..12].
+fn advance<S: OdeSystem<N, E>, const N: usize, const E: usize>(
+    system: &S,
+    t: f64,
+    y: &[f64; N],
+    h: f64,
+    k: &mut [[f64; N]; ALL_STAGES],
+) -> [f64; N] {
+    for s in 1..STAGES {
+        stage(system, t, y, h, k, s);
+    }
+    let mut y1 = [0.0; N];
+    combine(y, h, &B, k, &mut y1);
+    y1
+}
+
 /// One DOP853 trial step from (t, y) with k[0] = f(t, y): fills k[1..12] and returns the new
 /// state and the scaled error norm (<= 1 means acceptable; NaN when something was not finite).
 fn trial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
@@ -476,11 +518,7 @@ fn trial_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(
     k: &mut [[f64; N]; ALL_STAGES],
     tol: &Tolerances,
 ) -> ([f64; N], f64) {
-    for s in 1..STAGES {
-        stage(system, t, y, h, k, s);
-    }
-    let mut y1 = [0.0; N];
-    combine(y, h, &B, k, &mut y1);
+    let y1 = advance(system, t, y, h, k);
     let e5 = weighted(&E5, k);
     let e3 = weighted(&E3, k);
     let (mut err5, mut err3) = (0.0, 0.0);
@@ -715,13 +753,18 @@ pub fn integrate_observed<S: OdeSystem<N, E>, O: Observer<N>, const N: usize, co
         && positive(tol.absolute)
         && tol.max_steps > 0
         && tol.initial_step.is_finite()
-        && tol.initial_step >= 0.0;
+        && tol.initial_step >= 0.0
+        && tol.fixed_steps <= Tolerances::MAX_FIXED_STEPS
+        && (tol.fixed_steps == 0 || E == 0);
     if !valid {
         return Err(IntegrationError::InvalidInput);
     }
     let mut stats = IntegrationStats::default();
     if t1 == t0 {
         return Ok((*y0, stats));
+    }
+    if tol.fixed_steps > 0 {
+        return integrate_fixed(system, t0, y0, t1, tol.fixed_steps, observer);
     }
     let direction = if t1 > t0 { 1.0 } else { -1.0 };
     let hmax = (t1 - t0).abs();
@@ -970,4 +1013,37 @@ pub fn integrate_observed<S: OdeSystem<N, E>, O: Observer<N>, const N: usize, co
             return Ok((y, stats));
         }
     }
+}
+
+/// `steps` equal DOP853 steps from (t0, y0) to t1 (`steps >= 1`, no events: checked by the
+/// caller), each reported to the observer. Step `i` spans `t0 + i h .. t0 + (i + 1) h`, the last
+/// ending on `t1` exactly.
+fn integrate_fixed<S: OdeSystem<N, E>, O: Observer<N>, const N: usize, const E: usize>(
+    system: &S,
+    t0: f64,
+    y0: &[f64; N],
+    t1: f64,
+    steps: u32,
+    observer: &mut O,
+) -> Result<([f64; N], IntegrationStats), IntegrationError> {
+    let mut stats = IntegrationStats::default();
+    let mut k = [[0.0; N]; ALL_STAGES];
+    let h = (t1 - t0) / f64::from(steps);
+    let (mut t, mut y) = (t0, *y0);
+    for i in 1..=steps {
+        let t_new = if i == steps { t1 } else { t0 + f64::from(i) * h };
+        {
+            let [k0, ..] = &mut k;
+            system.derivatives(t, &y, k0);
+        }
+        let y_new = advance(system, t, &y, t_new - t, &mut k);
+        bump(&mut stats.derivative_evaluations, STAGES as u32);
+        if !all_finite(&y_new) {
+            return Err(IntegrationError::NonFinite { t });
+        }
+        bump(&mut stats.accepted_steps, 1);
+        (t, y) = (t_new, y_new);
+        observer.on_step(t, &y);
+    }
+    Ok((y, stats))
 }

@@ -24,9 +24,12 @@
 //! The network's command is flown instead whenever the solved plan does not predict a smaller
 //! miss than the network's own continuation, or any rollout fails.
 //!
-//! The work per cycle is at most `2 + iterations x (a k + 4)` rollouts of `k` cycles, `a` the
-//! thrust vector's components (2 in the plane, 3 in three dimensions;
-//! [`TerminalDecision::rollouts`] counts them); no allocation, no panic. One implementation
+//! A rollout keeps the state at the start of each of its cycles, so a Jacobian column for cycle
+//! `j`'s command flies only the cycles from `j` on. The work per cycle is at most
+//! `k + iterations x (a k (k + 1) / 2 + 4 k)` propagated cycles, `a` the thrust vector's
+//! components (2 in the plane, 3 in three dimensions; [`TerminalDecision::rollout_cycles`]
+//! counts them), each one fixed DOP853 step by default ([`TerminalSettings::rollout_steps`]);
+//! no allocation, no panic. One implementation
 //! serves both dimensions through [`Aim`] and [`Dimension`].
 
 use shared::spacecraft::CanonicalSpacecraft;
@@ -40,7 +43,7 @@ use crate::guidance::{
     command_at, cycle_duration, cycles_left, Actor, Aim, GuidanceError, Guide, SpatialTargetFeatures, TargetFeatures,
 };
 use crate::integrator::Tolerances;
-use crate::lookahead::{lookahead_step, LookaheadSettings};
+use crate::lookahead::{lookahead_step, rollout_tolerances, LookaheadSettings, MAX_ROLLOUT_STEPS};
 use crate::spatial::{RtnCommand, SpatialCraftState};
 
 /// Most cycles a plan solves for.
@@ -54,7 +57,7 @@ const MAX_UNKNOWNS: usize = 3 * MAX_CYCLES;
 const POSITION_COMPONENTS: usize = 3;
 
 /// What terminal targeting does; `Default` targets the last 4 cycles with up to 3 iterations:
-/// at most 38 rollouts of 4 cycles, within 100 million Cortex-M4F instructions a cycle.
+/// at most 124 propagated cycles in the plane, 142 in three dimensions.
 /// The ground's configs read it (feature `serde`: `cycles` and `iterations` by name, each
 /// defaulted; the goals are the evaluation's, the tolerances the environment's).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -75,7 +78,12 @@ pub struct TerminalSettings {
     /// Velocity residual that counts as one unit of miss (AU/t*; default 0.01).
     #[cfg_attr(feature = "serde", serde(skip))]
     pub goal_velocity: f64,
-    /// Tolerances of the rollouts' propagation (default: the onboard ones).
+    /// DOP853 steps per cycle of each rollout, without error control (1 to
+    /// [`MAX_ROLLOUT_STEPS`]; default 1: 12 evaluations a cycle, and finite differences as
+    /// clean as the arithmetic), or 0: the adaptive integrator at `tolerances`.
+    pub rollout_steps: u32,
+    /// Tolerances of the rollouts' adaptive propagation, with `rollout_steps` 0 (default: the
+    /// onboard ones).
     #[cfg_attr(feature = "serde", serde(skip))]
     pub tolerances: Tolerances,
     /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
@@ -90,6 +98,7 @@ impl Default for TerminalSettings {
             iterations: 3,
             goal_position: 0.01,
             goal_velocity: 0.01,
+            rollout_steps: 1,
             tolerances: Tolerances::default(),
             cycle: STEP,
         }
@@ -97,19 +106,27 @@ impl Default for TerminalSettings {
 }
 
 /// Settings out of range: cycles not in 1..=[`MAX_CYCLES`], iterations not in
-/// 1..=[`MAX_ITERATIONS`], a goal or the cycle not finite and positive.
+/// 1..=[`MAX_ITERATIONS`], rollout steps above [`MAX_ROLLOUT_STEPS`], a goal or the cycle not
+/// finite and positive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct InvalidTerminalSettings;
 
 impl TerminalSettings {
-    /// The most rollouts of `cycles` cycles one guidance cycle propagates in dimension `G`:
-    /// `2 + iterations x (a k + 4)`, `a` its thrust components.
-    pub fn most_rollouts<G: Dimension>(&self, cycles: u32) -> u32 {
+    /// The most cycles one guidance cycle with `k` cycles to go propagates in dimension `G`:
+    /// `k + iterations x (a k (k + 1) / 2 + 4 k)`, `a` its thrust components (the network's
+    /// continuation, then per iteration a Jacobian and at most four trial plans).
+    pub fn most_rollout_cycles<G: Dimension>(&self, k: u32) -> u32 {
         let per_iteration = u32::try_from(G::THRUST_AXES)
             .unwrap_or(u32::MAX)
-            .saturating_mul(cycles)
-            .saturating_add(4);
-        self.iterations.saturating_mul(per_iteration).saturating_add(2)
+            .saturating_mul(k.saturating_mul(k.saturating_add(1)) >> 1)
+            .saturating_add(k.saturating_mul(4));
+        self.iterations.saturating_mul(per_iteration).saturating_add(k)
+    }
+
+    /// The integrator settings of the rollouts: `rollout_steps` fixed steps a cycle, or the
+    /// adaptive `tolerances`.
+    pub fn rollout_tolerances(&self) -> Tolerances {
+        rollout_tolerances(self.rollout_steps, &self.tolerances)
     }
 
     /// Checks the ranges of [`InvalidTerminalSettings`].
@@ -118,6 +135,7 @@ impl TerminalSettings {
         let cycles = usize::try_from(self.cycles).unwrap_or(usize::MAX);
         if (1..=MAX_CYCLES).contains(&cycles)
             && (1..=MAX_ITERATIONS).contains(&self.iterations)
+            && self.rollout_steps <= MAX_ROLLOUT_STEPS
             && positive(self.goal_position)
             && positive(self.goal_velocity)
             && positive(self.cycle)
@@ -143,10 +161,9 @@ pub struct TerminalDecision<C = ThrustCommand> {
     pub network_miss: Option<f64>,
     /// Predicted miss of the plan flown, when a plan was solved.
     pub planned_miss: Option<f64>,
-    /// Rollouts of the remaining cycles propagated this cycle (the network's continuation
-    /// included): the cycle's work, at most `2 + iterations x (a k + 4)` for `k` cycles to go
-    /// and `a` thrust components.
-    pub rollouts: u32,
+    /// Cycles the rollouts propagated this cycle (the network's continuation included): the
+    /// cycle's work, at most [`TerminalSettings::most_rollout_cycles`].
+    pub rollout_cycles: u32,
 }
 
 /// A plan: the thrust vector of each remaining cycle (radial, transverse and, in three
@@ -167,8 +184,19 @@ struct Problem<'a, G: Dimension, T> {
     navigation: &'a G::State,
     time_to_go: f64,
     cycles: usize,
-    /// Rollouts flown so far.
-    rollouts: core::cell::Cell<u32>,
+    /// The rollouts' integrator settings.
+    tolerances: Tolerances,
+    /// Cycles propagated so far.
+    propagated: core::cell::Cell<u32>,
+}
+
+/// A plan flown out: its miss vector (goal units) and the state at the start of each of its
+/// cycles, from which a change of a later cycle's command flies without repeating the cycles
+/// before it.
+#[derive(Debug, Clone, Copy)]
+struct Rollout<S> {
+    e: [f64; MISS_LEN],
+    starts: [S; MAX_CYCLES],
 }
 
 impl<G: Dimension, T> Problem<'_, G, T> {
@@ -182,29 +210,55 @@ impl<G: Dimension, T> Problem<'_, G, T> {
         G::THRUST_AXES * self.cycles
     }
 
-    /// The miss vector, in goal units, of flying `plan` to the arrival (None if a propagation
-    /// fails or the arrival's state is refused).
-    fn miss<const N: usize, const OUT: usize>(&self, plan: &Plan) -> Option<[f64; MISS_LEN]>
+    /// `plan` flown to the arrival from the start of its cycle `from`, where the state is
+    /// `start` (None if a propagation fails or the arrival's state is refused). The states at
+    /// the starts of the cycles before `from` are left at `start`.
+    fn rollout_from<const N: usize, const OUT: usize>(
+        &self,
+        plan: &Plan,
+        from: usize,
+        start: &G::State,
+    ) -> Option<Rollout<G::State>>
     where
         T: Aim<N, OUT, Geometry = G>,
     {
-        self.rollouts.set(self.rollouts.get().saturating_add(1));
-        let mut state = *self.navigation;
-        for (cycle, tau) in plan.iter().take(self.cycles).enumerate() {
-            let start = cycle as f64 * self.settings.cycle;
-            let dt = cycle_duration(self.time_to_go, start, self.settings.cycle);
+        let mut starts = [*start; MAX_CYCLES];
+        let mut state = *start;
+        for (cycle, tau) in plan.iter().enumerate().take(self.cycles).skip(from) {
+            if let Some(slot) = starts.get_mut(cycle) {
+                *slot = state;
+            }
+            self.propagated.set(self.propagated.get().saturating_add(1));
             state = G::propagate(
                 &state,
                 &G::command_of(tau),
                 self.spacecraft,
-                dt,
-                &self.settings.tolerances,
+                self.duration(cycle),
+                &self.tolerances,
             )
             .ok()?;
         }
-        let miss = self.target.miss_after(&state, self.time_to_go).ok()?;
+        Some(Rollout {
+            e: self.miss_at(&state)?,
+            starts,
+        })
+    }
+
+    /// `plan` flown from the navigation state to the arrival.
+    fn rollout<const N: usize, const OUT: usize>(&self, plan: &Plan) -> Option<Rollout<G::State>>
+    where
+        T: Aim<N, OUT, Geometry = G>,
+    {
+        self.rollout_from(plan, 0, self.navigation)
+    }
+
+    /// The miss vector, in goal units, of the arrival `state` (None if it is refused).
+    fn miss_at<const N: usize, const OUT: usize>(&self, state: &G::State) -> Option<[f64; MISS_LEN]>
+    where
+        T: Aim<N, OUT, Geometry = G>,
+    {
+        let mut e = self.target.miss_after(state, self.time_to_go).ok()?;
         let (gp, gv) = (self.settings.goal_position, self.settings.goal_velocity);
-        let mut e = miss;
         // Position components first, then velocity.
         for (i, v) in e.iter_mut().enumerate() {
             *v /= if i < POSITION_COMPONENTS { gp } else { gv };
@@ -281,21 +335,23 @@ const DIFFERENCE: f64 = 1e-7;
 /// propagation, and a cheaper plan must stay within it.
 const MET: f64 = 1e-3;
 
-/// The miss's Jacobian by forward differences at `plan` (miss `e`): MISS_LEN rows, one column
-/// per unknown (cycle j, component c); None if a rollout fails.
+/// The miss's Jacobian by forward differences at `plan` (flown out as `base`): MISS_LEN rows,
+/// one column per unknown (cycle j, component c), each flown from cycle j's start; None if a
+/// rollout fails.
 fn jacobian<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
     problem: &Problem<'_, G, T>,
     plan: &Plan,
-    e: &[f64; MISS_LEN],
+    base: &Rollout<G::State>,
 ) -> Option<Jacobian> {
     let mut jacobian = [[0.0f64; MAX_UNKNOWNS]; MISS_LEN];
     for u in 0..problem.unknowns() {
+        let cycle = u.checked_div(G::THRUST_AXES)?;
         let mut moved = *plan;
         if let Some(v) = component::<G>(&mut moved, u) {
             *v += DIFFERENCE;
         }
-        let em = problem.miss(&moved)?;
-        for (row, (a, b)) in jacobian.iter_mut().zip(em.iter().zip(e.iter())) {
+        let em = problem.rollout_from(&moved, cycle, base.starts.get(cycle)?)?.e;
+        for (row, (a, b)) in jacobian.iter_mut().zip(em.iter().zip(base.e.iter())) {
             if let Some(slot) = row.get_mut(u) {
                 *slot = (a - b) / DIFFERENCE;
             }
@@ -369,35 +425,35 @@ fn fuel<G: Dimension, T>(problem: &Problem<'_, G, T>, plan: &Plan) -> f64 {
         .sum()
 }
 
-/// Damped Gauss-Newton on `plan` (see the module documentation), then, with the arrival met
-/// and iterations left, steps that lower the plan's propellant along the miss's null space and
-/// keep it met; returns the best plan found and its miss vector.
+/// Damped Gauss-Newton on `plan` (flown out as `flown`; see the module documentation), then,
+/// with the arrival met and iterations left, steps that lower the plan's propellant along the
+/// miss's null space and keep it met; returns the best plan found and its rollout.
 fn solve<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
     problem: &Problem<'_, G, T>,
     mut plan: Plan,
-    mut e: [f64; MISS_LEN],
-) -> (Plan, [f64; MISS_LEN]) {
+    mut flown: Rollout<G::State>,
+) -> (Plan, Rollout<G::State>) {
     let unknowns = problem.unknowns();
     let mut lambda = 1e-6;
     let mut iterations = 0;
-    while iterations < problem.settings.iterations && norm(&e) >= MET {
+    while iterations < problem.settings.iterations && norm(&flown.e) >= MET {
         iterations += 1;
-        let Some(jacobian) = jacobian(problem, &plan, &e) else {
-            return (plan, e);
+        let Some(jacobian) = jacobian(problem, &plan, &flown) else {
+            return (plan, flown);
         };
         let gram = gram(&jacobian);
         let mut improved = false;
         // A few tries with more damping before the iteration gives up.
         for _ in 0..4 {
-            let Some(y) = solve_spd(&damped(&gram, lambda), &e) else {
+            let Some(y) = solve_spd(&damped(&gram, lambda), &flown.e) else {
                 lambda *= 10.0;
                 continue;
             };
             let candidate = moved_by::<G>(&plan, &apply_transposed(&jacobian, &y, unknowns), unknowns);
-            match problem.miss(&candidate) {
-                Some(ec) if norm(&ec) < norm(&e) => {
+            match problem.rollout(&candidate) {
+                Some(rolled) if norm(&rolled.e) < norm(&flown.e) => {
                     plan = candidate;
-                    e = ec;
+                    flown = rolled;
                     lambda = (lambda / 10.0).max(1e-12);
                     improved = true;
                     break;
@@ -406,29 +462,30 @@ fn solve<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry
             }
         }
         if !improved {
-            return (plan, e);
+            return (plan, flown);
         }
     }
-    lower_fuel(problem, plan, e, problem.settings.iterations - iterations)
+    lower_fuel(problem, plan, flown, problem.settings.iterations - iterations)
 }
 
 /// Up to `iterations` steps of a met plan down the propellant's gradient projected on the
 /// miss's null space (`p = g - J^T (J J^T)^-1 J g`, the change that leaves the arrival unmoved
 /// to first order), each followed by a Gauss-Newton correction and kept only if the plan
-/// still meets the arrival and commands less propellant. Each costs at most a k + 2 rollouts.
+/// still meets the arrival and commands less propellant. Each costs a Jacobian and at most 4
+/// rollouts.
 fn lower_fuel<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geometry = G>>(
     problem: &Problem<'_, G, T>,
     mut plan: Plan,
-    mut e: [f64; MISS_LEN],
+    mut flown: Rollout<G::State>,
     iterations: u32,
-) -> (Plan, [f64; MISS_LEN]) {
+) -> (Plan, Rollout<G::State>) {
     let unknowns = problem.unknowns();
     let axes = G::THRUST_AXES;
     for _ in 0..iterations {
-        if norm(&e) >= MET {
+        if norm(&flown.e) >= MET {
             break;
         }
-        let Some(jacobian) = jacobian(problem, &plan, &e) else {
+        let Some(jacobian) = jacobian(problem, &plan, &flown) else {
             break;
         };
         // The propellant's gradient: each cycle's duration along its thrust vector.
@@ -464,7 +521,7 @@ fn lower_fuel<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geo
         for scale in [0.1, 0.025] {
             let step = projected.map(|p| p * scale / largest);
             let trial = moved_by::<G>(&plan, &step, unknowns);
-            let Some(et) = problem.miss(&trial) else {
+            let Some(et) = problem.rollout(&trial).map(|rolled| rolled.e) else {
                 break;
             };
             // Back onto the arrival: one Gauss-Newton correction from the trial plan.
@@ -472,10 +529,10 @@ fn lower_fuel<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geo
                 break;
             };
             let corrected = moved_by::<G>(&trial, &apply_transposed(&jacobian, &y, unknowns), unknowns);
-            match problem.miss(&corrected) {
-                Some(ec) if norm(&ec) < MET && fuel(problem, &corrected) < before => {
+            match problem.rollout(&corrected) {
+                Some(rolled) if norm(&rolled.e) < MET && fuel(problem, &corrected) < before => {
                     plan = corrected;
-                    e = ec;
+                    flown = rolled;
                     lowered = true;
                     break;
                 }
@@ -486,7 +543,7 @@ fn lower_fuel<const N: usize, const OUT: usize, G: Dimension, T: Aim<N, OUT, Geo
             break;
         }
     }
-    (plan, e)
+    (plan, flown)
 }
 
 /// One guidance cycle with terminal targeting, in the plane or in three dimensions (the
@@ -511,7 +568,7 @@ pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<
         solved: false,
         network_miss: None,
         planned_miss: None,
-        rollouts: 0,
+        rollout_cycles: 0,
     };
     if settings.validate().is_err() {
         return Ok(decision);
@@ -521,32 +578,6 @@ pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<
         return Ok(decision);
     }
     let cycles = cycles as usize;
-    // The network's continuation, flown nominally: the plan's start.
-    let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
-    let mut state = *navigation;
-    decision.rollouts = 1;
-    for (cycle, tau) in plan.iter_mut().take(cycles).enumerate() {
-        let start = cycle as f64 * settings.cycle;
-        let command = if cycle == 0 {
-            network
-        } else {
-            match command_at(actor, target, &state, start, time_to_go - start) {
-                Ok(c) => c,
-                Err(_) => return Ok(decision),
-            }
-        };
-        *tau = T::Geometry::thrust_vector(&command);
-        match T::Geometry::propagate(
-            &state,
-            &command,
-            spacecraft,
-            cycle_duration(time_to_go, start, settings.cycle),
-            &settings.tolerances,
-        ) {
-            Ok(next) => state = next,
-            Err(_) => return Ok(decision),
-        }
-    }
     let problem = Problem::<T::Geometry, T> {
         target,
         spacecraft,
@@ -554,20 +585,47 @@ pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<
         navigation,
         time_to_go,
         cycles,
-        rollouts: core::cell::Cell::new(decision.rollouts),
+        tolerances: settings.rollout_tolerances(),
+        propagated: core::cell::Cell::new(0),
     };
-    let e0 = problem.miss(&plan);
-    decision.rollouts = problem.rollouts.get();
-    let Some(e0) = e0 else {
+    // The network's continuation, flown nominally: the plan's start.
+    let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
+    let mut starts = [*navigation; MAX_CYCLES];
+    let mut continuation = || {
+        let mut state = *navigation;
+        for (cycle, (tau, start)) in plan.iter_mut().zip(starts.iter_mut()).take(cycles).enumerate() {
+            let elapsed = cycle as f64 * settings.cycle;
+            let command = if cycle == 0 {
+                network
+            } else {
+                command_at(actor, target, &state, elapsed, time_to_go - elapsed).ok()?
+            };
+            *tau = T::Geometry::thrust_vector(&command);
+            *start = state;
+            problem.propagated.set(problem.propagated.get().saturating_add(1));
+            state = T::Geometry::propagate(
+                &state,
+                &command,
+                spacecraft,
+                problem.duration(cycle),
+                &problem.tolerances,
+            )
+            .ok()?;
+        }
+        problem.miss_at(&state)
+    };
+    let flown = continuation();
+    decision.rollout_cycles = problem.propagated.get();
+    let Some(e0) = flown else {
         return Ok(decision);
     };
     decision.network_miss = Some(norm(&e0));
-    let (solved, e) = solve(&problem, plan, e0);
-    decision.rollouts = problem.rollouts.get();
-    if norm(&e) < norm(&e0) {
+    let (solved, best) = solve(&problem, plan, Rollout { e: e0, starts });
+    decision.rollout_cycles = problem.propagated.get();
+    if norm(&best.e) < norm(&e0) {
         decision.command = T::Geometry::command_of(&solved[0]);
         decision.solved = true;
-        decision.planned_miss = Some(norm(&e));
+        decision.planned_miss = Some(norm(&best.e));
     }
     Ok(decision)
 }
@@ -946,16 +1004,17 @@ mod tests {
             navigation: &start,
             time_to_go: 3.0 * STEP,
             cycles: 3,
-            rollouts: core::cell::Cell::new(0),
+            tolerances: settings.rollout_tolerances(),
+            propagated: core::cell::Cell::new(0),
         };
         let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
         for (planned, tau) in plan.iter_mut().zip(PLAN) {
             *planned = [tau[0], tau[1], 0.0];
         }
-        let e = problem.miss::<TRANSFER_FEATURES, 3>(&plan).unwrap();
-        assert!(norm(&e) < MET, "{e:?}");
-        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, 3, _, _>(&problem, plan, e, 8);
-        assert!(norm(&met) < MET, "{met:?}");
+        let flown = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
+        assert!(norm(&flown.e) < MET, "{:?}", flown.e);
+        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, 3, _, _>(&problem, plan, flown, 8);
+        assert!(norm(&met.e) < MET, "{:?}", met.e);
         let (before, after) = (fuel(&problem, &plan), fuel(&problem, &lowered));
         assert!(after < 0.99 * before, "propellant {after} against {before}");
         let mut state = start;
@@ -967,6 +1026,47 @@ mod tests {
         );
         assert!(flown.position < 1e-5 && flown.velocity < 1e-5, "{flown:?}");
         assert!(state.m > arrival.m, "final mass {} against {}", state.m, arrival.m);
+    }
+
+    /// A Jacobian column flown from its cycle's start is the column of the whole rollout bit for
+    /// bit (the cycles before it are the same propagation), for a fraction of the work: columns
+    /// of cycle j fly 3 - j of the 3 cycles.
+    #[test]
+    fn jacobian_columns_from_each_cycles_start_equal_whole_rollouts() {
+        let (start, arrival) = reachable(STEP);
+        let target = orbit_through(&arrival);
+        let (craft, settings) = (spacecraft(), TerminalSettings::default());
+        let problem = Problem::<Planar, _> {
+            target: &target,
+            spacecraft: &craft,
+            settings: &settings,
+            navigation: &start,
+            time_to_go: 3.0 * STEP,
+            cycles: 3,
+            tolerances: settings.rollout_tolerances(),
+            propagated: core::cell::Cell::new(0),
+        };
+        // The plan that built the target, moved off it.
+        let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
+        for (planned, tau) in plan.iter_mut().zip(PLAN) {
+            *planned = [0.9 * tau[0] + 0.05, 0.9 * tau[1], 0.0];
+        }
+        let base = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
+        problem.propagated.set(0);
+        let jacobian = jacobian(&problem, &plan, &base).unwrap();
+        assert_eq!(problem.propagated.get(), 2 * (3 + 2 + 1));
+        for u in 0..problem.unknowns() {
+            let mut moved = plan;
+            *component::<Planar>(&mut moved, u).unwrap() += DIFFERENCE;
+            let whole = problem.rollout::<TRANSFER_FEATURES, 3>(&moved).unwrap().e;
+            for (row, (a, b)) in jacobian.iter().zip(whole.iter().zip(base.e.iter())) {
+                assert_eq!(row[u].to_bits(), ((a - b) / DIFFERENCE).to_bits(), "unknown {u}");
+            }
+            assert!(
+                jacobian.iter().any(|row| row[u].abs() > 1.0),
+                "unknown {u}: {jacobian:?}"
+            );
+        }
     }
 
     /// A rendezvous with a body that the last three cycles can meet (the arrival coasted back
@@ -1054,17 +1154,19 @@ mod tests {
         assert!(late.command.validate().is_ok());
         // The cycle's work is counted and within the settings' bound; outside the last cycles
         // there is none.
-        assert_eq!(early.rollouts, 0);
+        assert_eq!(early.rollout_cycles, 0);
         for iterations in [1, 2, 5, 8] {
             let settings = TerminalSettings { iterations, ..settings };
             for k in 1..=3u32 {
                 let d = decide(f64::from(k) * STEP, &settings);
+                let most = settings.most_rollout_cycles::<Planar>(k);
                 assert!(
-                    d.rollouts >= 2 && d.rollouts <= 2 + iterations * (2 * k + 4),
+                    d.rollout_cycles > k && d.rollout_cycles <= most,
                     "{k} cycles, {iterations} iterations: {d:?}"
                 );
-                assert_eq!(settings.most_rollouts::<Planar>(k), 2 + iterations * (2 * k + 4));
-                assert_eq!(settings.most_rollouts::<Spatial>(k), 2 + iterations * (3 * k + 4));
+                assert_eq!(most, k + iterations * (k * (k + 1) + 4 * k));
+                let spatial = settings.most_rollout_cycles::<Spatial>(k);
+                assert_eq!(spatial, k + iterations * (3 * k * (k + 1) / 2 + 4 * k));
             }
         }
     }

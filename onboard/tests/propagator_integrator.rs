@@ -86,6 +86,7 @@ fn one_step<S: OdeSystem<N, E>, const N: usize, const E: usize>(system: &S, y0: 
         absolute: 1.0,
         max_steps: 1,
         initial_step: h,
+        fixed_steps: 0,
     };
     let (y, stats) = integrate(system, 0.0, &y0, h, &single).unwrap();
     assert_eq!((stats.accepted_steps, stats.rejected_steps), (1, 0));
@@ -235,6 +236,80 @@ fn stats_count_steps_and_evaluations_consistently() {
     let expected = 2 + 11 * (s.accepted_steps + s.rejected_steps) + s.accepted_steps;
     assert_eq!(s.derivative_evaluations, expected, "{s:?}");
     assert_eq!(s.events_located, 0);
+}
+
+/// Fixed steps are the adaptive integrator's steps without its control: one fixed step is the
+/// adaptive step of the same length bit for bit, n of them converge at order 8 (global error
+/// C h^8: doubling n divides it by 256), the observer sees each step, the last ending on t1.
+#[test]
+fn fixed_steps_are_dop853_steps_without_error_control() {
+    let y0 = [1.0, 0.0, 0.0, 1.0];
+    for h in [0.3, 1.1] {
+        let (y, s) = integrate(&Circular, 0.0, &y0, h, &Tolerances::fixed(1)).unwrap();
+        assert_eq!(y.map(f64::to_bits), one_step(&Circular, y0, h).map(f64::to_bits));
+        assert_eq!(
+            (s.accepted_steps, s.rejected_steps, s.derivative_evaluations),
+            (1, 0, 12)
+        );
+    }
+    // A quarter of the circular orbit: the arc of a guidance cycle is a tenth of that.
+    let t1 = 0.5 * PI;
+    let errors: Vec<f64> = [2u32, 4, 8]
+        .iter()
+        .map(|&n| {
+            let (y, _) = integrate(&Circular, 0.0, &y0, t1, &Tolerances::fixed(n)).unwrap();
+            (y[0] - t1.cos()).hypot(y[1] - t1.sin())
+        })
+        .collect();
+    for pair in errors.windows(2) {
+        let ratio = pair[0] / pair[1];
+        assert!((180.0..1100.0).contains(&ratio), "errors {errors:?}, ratio {ratio}");
+    }
+    assert!(errors[2] < 1e-10, "{errors:?}");
+    // Forwards and backwards, each step reported, the last on t1 exactly.
+    for t1 in [2.5, -2.5] {
+        let mut recorder = Recorder::default();
+        let (_, s) = integrate_observed(&Circular, 0.5, &y0, t1, &Tolerances::fixed(7), &mut recorder).unwrap();
+        assert_eq!((s.accepted_steps, s.derivative_evaluations), (7, 84));
+        assert_eq!(recorder.steps.len(), 7);
+        assert_eq!(recorder.steps.last().copied(), Some(t1));
+        let h = (t1 - 0.5) / 7.0;
+        for (i, t) in recorder.steps.iter().enumerate() {
+            assert!((t - (0.5 + (i + 1) as f64 * h)).abs() < 1e-15, "{:?}", recorder.steps);
+        }
+    }
+}
+
+/// Fixed steps cannot land on a switch, so a system with events is refused, as is a step count
+/// above the bound; a non-finite state is the typed error, as in the adaptive path.
+#[test]
+fn fixed_steps_refuse_events_and_unbounded_work() {
+    let osc = Oscillator {
+        events: false,
+        velocity_event: false,
+    };
+    assert_eq!(
+        integrate(&osc, 0.0, &[1.0, 0.0], 1.0, &Tolerances::fixed(4)).unwrap_err(),
+        IntegrationError::InvalidInput
+    );
+    let too_many = Tolerances::fixed(Tolerances::MAX_FIXED_STEPS + 1);
+    assert_eq!(
+        integrate(&Growth, 0.0, &[1.0], 1.0, &too_many).unwrap_err(),
+        IntegrationError::InvalidInput
+    );
+    assert!(integrate(
+        &Growth,
+        0.0,
+        &[1.0],
+        1.0,
+        &Tolerances::fixed(Tolerances::MAX_FIXED_STEPS)
+    )
+    .is_ok());
+    // y' = y from 1e300 overflows within the first step.
+    assert!(matches!(
+        integrate(&Growth, 0.0, &[1e300], 1000.0, &Tolerances::fixed(1)),
+        Err(IntegrationError::NonFinite { .. })
+    ));
 }
 
 // ------------------------------------------------------------------------------------------
@@ -689,6 +764,7 @@ fn arbitrary_inputs_never_panic() {
                     absolute: 1e-12,
                     max_steps: 2_000,
                     initial_step: h0,
+                    fixed_steps: 0,
                 };
                 let osc = Oscillator {
                     events: true,

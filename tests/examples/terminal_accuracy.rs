@@ -115,7 +115,7 @@ fn report<const N: usize, P: PlanarProblem<N> + Send + Sync, G: Guide<N, P::Targ
     );
 }
 
-/// Terminal targeting that keeps each terminal cycle's (cycles to go, rollouts).
+/// Terminal targeting that keeps each terminal cycle's (cycles to go, propagated cycles).
 struct Counted<A> {
     terminal: Terminal<A>,
     rollouts: Mutex<Vec<(u32, u32)>>,
@@ -135,9 +135,12 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Counted<
             ..
         } = &self.terminal;
         let decision = terminal_step(actor, navigation, target, time_to_go, spacecraft, settings)?;
-        if decision.rollouts > 0 {
+        if decision.rollout_cycles > 0 {
             if let Ok(mut kept) = self.rollouts.lock() {
-                kept.push((cycles_left(time_to_go, shared::units::STEP) as u32, decision.rollouts));
+                kept.push((
+                    cycles_left(time_to_go, shared::units::STEP) as u32,
+                    decision.rollout_cycles,
+                ));
             }
         }
         Ok(decision.command)
@@ -155,11 +158,11 @@ impl<A> Counted<A> {
             if let (Some(max), false) = (n.last(), n.is_empty()) {
                 let at = |q: f64| n[((n.len() - 1) as f64 * q) as usize];
                 println!(
-                    "  {k} cycle(s) to go: {} cycles, rollouts of {k} cycle(s) p50 {} p99 {} max {max} (bound {})",
+                    "  {k} cycle(s) to go: {} cycles, propagated cycles p50 {} p99 {} max {max} (bound {})",
                     n.len(),
                     at(0.5),
                     at(0.99),
-                    self.terminal.settings.most_rollouts::<Planar>(k)
+                    self.terminal.settings.most_rollout_cycles::<Planar>(k)
                 );
             }
         }

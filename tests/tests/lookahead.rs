@@ -1,8 +1,11 @@
 //! The rollout lookahead (`onboard::lookahead`) flown with the shipped networks in the SIL loop
 //! without dispersions, checked against the rollout algorithm's own guarantees: its predictions
 //! are the flight (bit for bit), its predicted cost never rises along a flight, and it arrives at
-//! a cost no higher than the network flown alone. The transfer's rollouts are the flight exactly;
-//! the rendezvous's to rounding (its body is coasted from each cycle's state, not the epoch's).
+//! a cost no higher than the network flown alone. The guarantees hold where the plant is the
+//! rollouts' model, so the plant here propagates as the rollouts do (one fixed DOP853 step a
+//! cycle; how closely that model predicts the flight propagator is `onboard::lookahead`'s unit
+//! test). The transfer's rollouts are the flight exactly; the rendezvous's to rounding (its body
+//! is coasted from each cycle's state, not the epoch's).
 
 use firmware_sim::{fly, Controller, Flight, FlightSetup, PlanarProblem, Rendezvous, Transfer};
 use onboard::guidance::{Actor, TargetFeatures};
@@ -43,7 +46,7 @@ where
     let sc = spacecraft();
     let settings = LookaheadSettings::default();
     let setup = FlightSetup {
-        tolerances: settings.tolerances,
+        tolerances: settings.rollout_tolerances(),
         ..FlightSetup::nominal(sc)
     };
     let alone = fly(problem, actor, scenario, &setup, 0).unwrap();

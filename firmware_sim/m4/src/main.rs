@@ -251,8 +251,8 @@ fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownControlle
 
 /// Terminal targeting (`onboard::terminal`, default settings) over the last
 /// [`TERMINAL_CYCLES`] cycles of the first trace flight, from where its navigation stood: each
-/// cycle's instructions, the rollouts it propagated and so the instructions per rollout cycle,
-/// and the settings' bound (their most rollouts at that cost).
+/// cycle's instructions, the cycles its rollouts propagated and so the instructions per
+/// propagated cycle, and the settings' bound (their most propagated cycles at that cost).
 #[inline(never)]
 fn terminal(
     out: &mut semi::Out,
@@ -274,14 +274,14 @@ fn terminal(
         let start = counter.now();
         let decision = terminal_step(controller, state, &target, time_to_go, &spacecraft, &settings);
         let total = u64::from(Counter::ticks(start, counter.now())) * u64::from(INSTRUCTIONS_PER_TICK);
-        let rollouts = decision.map_or(0, |d| d.rollouts);
-        let per_cycle = total / u64::from(rollouts.max(1) * to_go);
-        let bound = settings.most_rollouts::<FlownGeometry>(to_go);
+        let cycles = decision.map_or(0, |d| d.rollout_cycles);
+        let per_cycle = total / u64::from(cycles.max(1));
+        let bound = settings.most_rollout_cycles::<FlownGeometry>(to_go);
         writeln!(
             out,
-            "{COMMENT} instructions per terminal-targeting cycle, {to_go} cycle(s) to go: {total} ({rollouts} \
-             rollouts, {per_cycle} per rollout cycle; the settings' most, {bound} rollouts: {})",
-            u64::from(bound * to_go) * per_cycle
+            "{COMMENT} instructions per terminal-targeting cycle, {to_go} cycle(s) to go: {total} ({cycles} \
+             propagated cycles, {per_cycle} each; the settings' most, {bound} cycles: {})",
+            u64::from(bound) * per_cycle
         )?;
     }
     Ok(())

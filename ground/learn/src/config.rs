@@ -376,13 +376,13 @@ pub struct SilConfig {
     /// around the Sun; see `firmware_sim::dispersion`).
     pub dispersions: firmware_sim::Dispersions,
     /// Fly the blob with rollout lookahead (`onboard::lookahead::LookaheadSettings`, its
-    /// fields by name, each defaulted; the rollouts propagate with `[env.integrator]`) instead of
-    /// alone (unset). In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0,
+    /// fields by name, each defaulted; the rollouts take `rollout_steps` fixed steps a cycle, 1
+    /// by default, or with 0 `[env.integrator]`'s adaptive tolerances) instead of alone (unset). In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0,
     /// thrust_margin = 0.05 }`, or `ground model sil --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadSettings>,
     /// Fly the blob's last cycles with terminal targeting (`onboard::terminal::TerminalSettings`:
-    /// `cycles`, `iterations`, each defaulted; the rollouts propagate with `[env.integrator]`),
+    /// `cycles`, `iterations`, `rollout_steps`, each defaulted; rollouts as the lookahead's),
     /// the cycles before as without it (the network, or with `lookahead`). In a TOML config:
     /// `terminal = { cycles = 4 }`, or `ground model sil --terminal 4`.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -517,8 +517,9 @@ impl ExperimentConfig {
         toml::to_string_pretty(self).unwrap_or_default()
     }
 
-    /// The onboard lookahead the SIL flies (`[sil] lookahead`), its rollouts propagated with the
-    /// environment's integrator settings, cycles of the family's length.
+    /// The onboard lookahead the SIL flies (`[sil] lookahead`), cycles of the family's length;
+    /// rollouts asking for the adaptive integrator (`rollout_steps = 0`) run at the
+    /// environment's tolerances.
     pub fn lookahead_settings(&self) -> Option<LookaheadSettings> {
         self.sil.lookahead.map(|settings| LookaheadSettings {
             tolerances: self.env.integrator.tolerances(),
@@ -527,8 +528,9 @@ impl ExperimentConfig {
         })
     }
 
-    /// The terminal targeting the SIL flies (`[sil] terminal`), its rollouts propagated with the
-    /// environment's integrator settings, cycles of the family's length.
+    /// The terminal targeting the SIL flies (`[sil] terminal`), cycles of the family's length;
+    /// rollouts asking for the adaptive integrator (`rollout_steps = 0`) run at the
+    /// environment's tolerances.
     pub fn terminal_settings(&self) -> Option<TerminalSettings> {
         self.sil.terminal.map(|settings| TerminalSettings {
             tolerances: self.env.integrator.tolerances(),
@@ -963,6 +965,8 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 5 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { iterations = 0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { rollout_steps = 17 }",
+            "scenario = \"transfer-circular\"\n[sil]\nlookahead = { rollout_steps = 17 }",
             "scenario = \"transfer-circular\"\n[generate]\ncount = 0",
             "scenario = \"transfer-circular\"\n[pretrain]\nupdates = 0",
             "scenario = \"transfer-circular\"\n[dagger]\nrounds = 5\npatience = 0",
@@ -1119,8 +1123,8 @@ mod tests {
         assert_eq!(weekly.blob_mission().cycle, weekly.family.family.draw(1, 2).cycle);
     }
 
-    /// `[sil] terminal` reads its two settings by name and takes the environment's integrator
-    /// for its rollouts, as the lookahead does.
+    /// `[sil] terminal` reads its settings by name and takes the environment's integrator
+    /// tolerances for adaptive rollouts, as the lookahead does.
     #[test]
     fn terminal_targeting_reads_its_cycles_and_flies_with_the_environments_integrator() {
         let c = ExperimentConfig::from_toml(

@@ -214,6 +214,7 @@ impl IntegratorConfig {
             absolute: self.absolute,
             max_steps: self.max_steps,
             initial_step: 0.0,
+            fixed_steps: 0,
         }
     }
 }

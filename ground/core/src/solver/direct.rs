@@ -421,6 +421,7 @@ impl Default for DirectOptions {
                 absolute: 1e-13,
                 max_steps: 10_000,
                 initial_step: 0.0,
+                fixed_steps: 0,
             },
             max_iterations: 200,
             trust_radius: 0.5,

@@ -104,6 +104,7 @@ impl Default for SolveOptions {
                 absolute: 3e-15,
                 max_steps: 5_000,
                 initial_step: 0.0,
+                fixed_steps: 0,
             },
             newton: NewtonSettings {
                 max_iterations: 15,
@@ -124,6 +125,7 @@ impl Default for SolveOptions {
                 absolute: 1e-8,
                 max_steps: 4_000,
                 initial_step: 0.0,
+                fixed_steps: 0,
             },
             search_newton_tolerance: 1e-5,
             search_progress: Progress { window: 5, factor: 0.8 },
