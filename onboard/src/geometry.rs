@@ -30,6 +30,10 @@ pub trait Dimension: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static
     fn departure(scenario: &Self::Scenario) -> Self::State;
     /// The state's mass (m0 units).
     fn mass(state: &Self::State) -> f64;
+    /// The periapsis radius of the state's osculating orbit (canonical units, mu = 1; 0 for a
+    /// radial orbit, NaN for a non-finite state): the shortest dynamical time ahead, which
+    /// sizes the onboard aids' fixed rollout steps.
+    fn periapsis(state: &Self::State) -> f64;
     /// The command's throttle in [0, 1].
     fn throttle(command: &Self::Command) -> f64;
     /// The command with another throttle.
@@ -82,6 +86,11 @@ impl Dimension for Planar {
 
     fn mass(state: &SpacecraftState) -> f64 {
         state.m
+    }
+
+    fn periapsis(state: &SpacecraftState) -> f64 {
+        let ([x, y], [vx, vy]) = (state.r, state.v);
+        periapsis_of(libm::hypot(x, y), vx * vx + vy * vy, x * vy - y * vx)
     }
 
     fn throttle(command: &ThrustCommand) -> f64 {
@@ -154,6 +163,17 @@ impl Dimension for Spatial {
         state.m
     }
 
+    fn periapsis(state: &SpatialCraftState) -> f64 {
+        let (r, v) = (state.orbit.r, state.orbit.v);
+        let h = [
+            r[1] * v[2] - r[2] * v[1],
+            r[2] * v[0] - r[0] * v[2],
+            r[0] * v[1] - r[1] * v[0],
+        ];
+        let norm = |a: [f64; 3]| libm::sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        periapsis_of(norm(r), v[0] * v[0] + v[1] * v[1] + v[2] * v[2], norm(h))
+    }
+
     fn throttle(command: &RtnCommand) -> f64 {
         command.throttle
     }
@@ -195,4 +215,13 @@ impl Dimension for Spatial {
     ) -> Result<SpatialCraftState, PropagationError> {
         propagate_rtn(state, command, spacecraft, duration, tolerances)
     }
+}
+
+/// The periapsis radius `h^2 / (1 + e)` of the orbit through radius `r` at speed squared `v2`
+/// with angular momentum `h` (mu = 1), `e = sqrt(1 + 2 E h^2)` from the energy
+/// `E = v2 / 2 - 1 / r`: valid for every conic.
+fn periapsis_of(r: f64, v2: f64, h: f64) -> f64 {
+    let energy = 0.5 * v2 - 1.0 / r;
+    let e = libm::sqrt((1.0 + 2.0 * energy * h * h).max(0.0));
+    h * h / (1.0 + e)
 }

@@ -28,6 +28,7 @@ use shared::units::STEP;
 
 use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
 use crate::features::Residuals;
+use crate::geometry::{Dimension, Planar};
 use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, GuidanceError, TargetFeatures};
 use crate::integrator::Tolerances;
 
@@ -54,9 +55,9 @@ enum Throttle {
 }
 
 /// What the lookahead weighs; `Default` is the goal of docs/spec.md's accuracy figures. The one
-/// definition: the ground's configs read it (feature `serde`: the floor, the fuel weight and the
-/// thrust margin by name, each defaulted; the goals are the evaluation's, the cycle cap the
-/// default, the tolerances the environment's) and the C interface mirrors it.
+/// definition: the ground's configs read it (feature `serde`: the floor, the fuel weight, the
+/// thrust margin, the cycle cap and the rollout steps by name, each defaulted; the goals are the
+/// evaluation's, adaptive rollouts' tolerances the environment's) and the C interface mirrors it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(
     feature = "serde",
@@ -74,16 +75,16 @@ pub struct LookaheadSettings {
     pub accuracy_floor: f64,
     /// Cost of spending the whole initial mass as propellant, in goal units (>= 0).
     pub fuel_weight: f64,
-    /// DOP853 steps per cycle of each rollout, without error control (1 to
-    /// [`MAX_ROLLOUT_STEPS`]; default 1: 12 evaluations a cycle), or 0: the adaptive integrator
-    /// at `tolerances`.
+    /// DOP853 steps per cycle of each rollout, without error control, at least (1 to
+    /// [`MAX_ROLLOUT_STEPS`]; default 1: 12 evaluations a cycle, more near a periapsis, see
+    /// [`rollout_tolerances`]), or 0: the adaptive integrator at `tolerances`.
     pub rollout_steps: u32,
     /// Tolerances of the rollouts' adaptive propagation, with `rollout_steps` 0 (default: the
     /// flight propagator's).
     #[cfg_attr(feature = "serde", serde(skip))]
     pub tolerances: Tolerances,
     /// Most cycles a rollout may fly; with more left the network's command is flown unexamined.
-    #[cfg_attr(feature = "serde", serde(skip))]
+    /// The bound on a cycle's work: at most [`CANDIDATES`] x `max_cycles` rollout cycles.
     pub max_cycles: u32,
     /// Fraction of the thrust the rollouts plan without, in [0, 1): a duty-cycle margin against
     /// thrust the flight will lose (missed-thrust events, a weak thruster). 0 plans with the
@@ -118,16 +119,39 @@ impl Default for LookaheadSettings {
     }
 }
 
-/// Most DOP853 steps per cycle an onboard aid's rollout may take.
-pub const MAX_ROLLOUT_STEPS: u32 = 16;
+/// Most DOP853 steps a cycle of an onboard aid's rollout may take.
+pub const MAX_ROLLOUT_STEPS: u32 = 32;
 
-/// The integrator settings of an aid's rollouts: `steps` fixed steps a cycle, or with `steps`
-/// 0 the adaptive `tolerances`. One fixed DOP853 step predicts a 14-day thrust arc at 1 AU to
-/// about 1e-11 (at 0.72 AU 1e-9, at 0.4 AU 5e-6 in velocity) in 12 evaluations, where the
-/// flight propagator's tolerances take 38 to 98; and the prediction is smooth in the commands.
-pub fn rollout_tolerances(steps: u32, tolerances: &Tolerances) -> Tolerances {
+/// The longest fixed rollout step as a fraction of the periapsis's dynamical time `rp^1.5`
+/// (t*, mu = 1): one such step of a 14-day thrust arc from an orbit of periapsis 0.68 AU
+/// predicts it to about 1e-9, and the error falls as the ninth power of the step.
+const STEP_SPAN: f64 = 0.43;
+
+/// The integrator settings of one rollout cycle of `duration` from a state whose osculating
+/// orbit has periapsis `periapsis`: with `steps` 0 the adaptive `tolerances`; otherwise equal
+/// DOP853 steps without error control, at least `steps` and at least
+/// `duration / (0.43 rp^1.5)`, at most [`MAX_ROLLOUT_STEPS`] (a non-finite periapsis takes the
+/// most). One step then predicts a 14-day thrust arc to about 1e-11 AU at 1 AU and 1e-9 down
+/// to 0.68 AU in 12 evaluations, where the flight propagator's tolerances take 38 to 98; closer
+/// to the Sun more steps keep it near 1e-7 of the radius (19 from a periapsis at 0.1 AU); and
+/// the prediction is smooth in the commands.
+pub fn rollout_tolerances(steps: u32, tolerances: &Tolerances, duration: f64, periapsis: f64) -> Tolerances {
+    if steps == 0 {
+        return Tolerances {
+            fixed_steps: 0,
+            ..*tolerances
+        };
+    }
+    let needed = libm::ceil(libm::fabs(duration) / (STEP_SPAN * periapsis * libm::sqrt(periapsis)));
+    let most = f64::from(MAX_ROLLOUT_STEPS);
+    // Saturating: NaN (no periapsis) and anything past the bound take the most.
+    let needed = if needed <= most {
+        needed as u32
+    } else {
+        MAX_ROLLOUT_STEPS
+    };
     Tolerances {
-        fixed_steps: steps,
+        fixed_steps: steps.max(needed).min(MAX_ROLLOUT_STEPS),
         ..*tolerances
     }
 }
@@ -140,15 +164,16 @@ impl core::fmt::Display for InvalidSettings {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str(
             "lookahead goals, floor and cycle must be finite and > 0, the fuel weight finite and >= 0, the thrust margin in [0, 1), \
-             the rollout steps at most 16",
+             the rollout steps at most 32",
         )
     }
 }
 
 impl LookaheadSettings {
-    /// The integrator settings of the rollouts (see [`rollout_tolerances`]).
-    pub fn rollout_tolerances(&self) -> Tolerances {
-        rollout_tolerances(self.rollout_steps, &self.tolerances)
+    /// The integrator settings of a rollout cycle of `duration` from a state of periapsis
+    /// `periapsis` (see [`rollout_tolerances`]).
+    pub fn rollout_tolerances(&self, duration: f64, periapsis: f64) -> Tolerances {
+        rollout_tolerances(self.rollout_steps, &self.tolerances, duration, periapsis)
     }
 
     /// Checks the figures (the integrator checks its own tolerances when a rollout runs).
@@ -249,7 +274,8 @@ fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         if cycle > 0 {
             command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
         }
-        state = propagate(&state, &command, spacecraft, duration, &settings.rollout_tolerances()).ok()?;
+        let tolerances = settings.rollout_tolerances(duration, Planar::periapsis(&state));
+        state = propagate(&state, &command, spacecraft, duration, &tolerances).ok()?;
     }
     let features = target.features_after(&state, time_to_go, 0.0).ok()?;
     let residuals = T::residuals(&features);
@@ -354,11 +380,13 @@ mod tests {
             })
     }
 
-    /// One fixed DOP853 step predicts a 14-day thrust arc of the flight propagator (its adaptive
-    /// tolerances) to the accuracy the rollout tolerances' documentation states, planar and in
-    /// three dimensions, on orbits at 1.2, 1 and 0.72 AU; a second step tightens it.
+    /// The fixed rollout steps predict a 14-day thrust arc of the flight propagator (its
+    /// adaptive tolerances) to the accuracy [`rollout_tolerances`] states, planar and in three
+    /// dimensions: one step on orbits at 1.2, 1 and 0.72 AU (to 1e-9 AU), 19 from the
+    /// periapsis of an orbit that passes 0.1 AU from the Sun (to 2e-8 AU, a 1e-7 part of its
+    /// radius); one more step always tightens it.
     #[test]
-    fn one_fixed_step_a_cycle_predicts_the_flight_propagator() {
+    fn fixed_rollout_steps_predict_the_flight_propagator() {
         use crate::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
         use shared::orbit::SpatialState;
         let sc = spacecraft();
@@ -367,20 +395,27 @@ mod tests {
             alpha_r: 0.6,
             alpha_theta: 0.8,
         };
-        let fixed = |steps| rollout_tolerances(steps, &Tolerances::default());
-        for a in [1.2, 1.0, 0.72] {
-            let shape = OrbitShape { a, e: 0.05, omega: 0.0 };
+        let adaptive = Tolerances::default();
+        for (a, e, steps, scale) in [
+            (1.2, 0.05, 1, 1.0),
+            (1.0, 0.05, 1, 1.0),
+            (0.72, 0.05, 1, 1.0),
+            (0.39, 0.75, 19, 20.0),
+        ] {
+            let shape = OrbitShape { a, e, omega: 0.0 };
             let start = SpacecraftState::from_cartesian(&shape.cartesian_at(0.3), 0.9);
-            let exact = propagate(&start, &command, &sc, STEP, &Tolerances::default()).expect("propagates");
-            let gaps = [1, 2].map(|steps| {
-                let end = propagate(&start, &command, &sc, STEP, &fixed(steps)).expect("propagates");
+            let fixed = rollout_tolerances(1, &adaptive, STEP, Planar::periapsis(&start));
+            assert_eq!(fixed.fixed_steps, steps, "a = {a}, e = {e}");
+            let exact = propagate(&start, &command, &sc, STEP, &adaptive).expect("propagates");
+            let gaps = [fixed.fixed_steps, fixed.fixed_steps + 1].map(|steps| {
+                let end = propagate(&start, &command, &sc, STEP, &Tolerances::fixed(steps)).expect("propagates");
                 let (e, x) = (end.cartesian(), exact.cartesian());
                 let position = libm::hypot(e.r[0] - x.r[0], e.r[1] - x.r[1]);
                 let velocity = libm::hypot(e.v[0] - x.v[0], e.v[1] - x.v[1]);
                 (position, velocity, (end.m - exact.m).abs())
             });
             assert!(
-                gaps[0].0 < 1e-9 && gaps[0].1 < 1e-8 && gaps[0].2 < 1e-14,
+                gaps[0].0 < 1e-9 * scale && gaps[0].1 < 1e-8 * scale && gaps[0].2 < 1e-14,
                 "a = {a}: {gaps:?}"
             );
             assert!(gaps[1].0 < gaps[0].0 && gaps[1].1 < gaps[0].1, "a = {a}: {gaps:?}");
@@ -394,21 +429,41 @@ mod tests {
                 },
                 m: 0.9,
             };
+            assert!((crate::geometry::Spatial::periapsis(&craft) / Planar::periapsis(&start) - 1.0).abs() < 1e-12);
             let rtn = RtnCommand {
                 throttle: 1.0,
                 radial: 0.6,
                 transverse: 0.64,
                 normal: 0.48,
             };
-            let exact = propagate_rtn(&craft, &rtn, &sc, STEP, &Tolerances::default()).expect("propagates");
-            let end = propagate_rtn(&craft, &rtn, &sc, STEP, &fixed(1)).expect("propagates");
+            let exact = propagate_rtn(&craft, &rtn, &sc, STEP, &adaptive).expect("propagates");
+            let end = propagate_rtn(&craft, &rtn, &sc, STEP, &fixed).expect("propagates");
             let gap = |x: [f64; 3], y: [f64; 3]| libm::sqrt((0..3).map(|i| (x[i] - y[i]) * (x[i] - y[i])).sum());
             let (position, velocity) = (gap(end.orbit.r, exact.orbit.r), gap(end.orbit.v, exact.orbit.v));
             assert!(
-                position < 1e-9 && velocity < 1e-8,
+                position < 1e-9 * scale && velocity < 1e-8 * scale,
                 "a = {a}, 3D: {position:e} {velocity:e}"
             );
         }
+        // The periapsis of a circular orbit is its radius; a radial or non-finite state takes
+        // the most steps; 0 keeps the adaptive integrator; a larger setting is a floor.
+        let circular = SpacecraftState::from_cartesian(&ORBIT.cartesian_at(0.0), 1.0);
+        // (e = sqrt(1 + 2 E h^2) turns rounding near 0 into about 1e-8.)
+        assert!((Planar::periapsis(&circular) - 1.2).abs() < 1e-7);
+        let radial = SpacecraftState {
+            v: [0.3, 0.0],
+            ..SpacecraftState::from_cartesian(&ORBIT.cartesian_at(0.0), 1.0)
+        };
+        assert_eq!(
+            rollout_tolerances(1, &adaptive, STEP, Planar::periapsis(&radial)).fixed_steps,
+            MAX_ROLLOUT_STEPS
+        );
+        assert_eq!(
+            rollout_tolerances(1, &adaptive, STEP, f64::NAN).fixed_steps,
+            MAX_ROLLOUT_STEPS
+        );
+        assert_eq!(rollout_tolerances(0, &adaptive, STEP, 1.0), adaptive);
+        assert_eq!(rollout_tolerances(5, &adaptive, STEP, 1.0).fixed_steps, 5);
     }
 
     #[test]
@@ -472,7 +527,7 @@ mod tests {
                 },
                 &spacecraft(),
                 STEP,
-                &settings.rollout_tolerances(),
+                &settings.rollout_tolerances(STEP, Planar::periapsis(&x)),
             )
             .expect("propagates");
         }

@@ -78,9 +78,10 @@ pub struct TerminalSettings {
     /// Velocity residual that counts as one unit of miss (AU/t*; default 0.01).
     #[cfg_attr(feature = "serde", serde(skip))]
     pub goal_velocity: f64,
-    /// DOP853 steps per cycle of each rollout, without error control (1 to
-    /// [`MAX_ROLLOUT_STEPS`]; default 1: 12 evaluations a cycle, and finite differences as
-    /// clean as the arithmetic), or 0: the adaptive integrator at `tolerances`.
+    /// DOP853 steps per cycle of each rollout, without error control, at least (1 to
+    /// [`MAX_ROLLOUT_STEPS`]; default 1: 12 evaluations a cycle, more near a periapsis, and
+    /// finite differences as clean as the arithmetic), or 0: the adaptive integrator at
+    /// `tolerances`.
     pub rollout_steps: u32,
     /// Tolerances of the rollouts' adaptive propagation, with `rollout_steps` 0 (default: the
     /// onboard ones).
@@ -123,10 +124,11 @@ impl TerminalSettings {
         self.iterations.saturating_mul(per_iteration).saturating_add(k)
     }
 
-    /// The integrator settings of the rollouts: `rollout_steps` fixed steps a cycle, or the
-    /// adaptive `tolerances`.
-    pub fn rollout_tolerances(&self) -> Tolerances {
-        rollout_tolerances(self.rollout_steps, &self.tolerances)
+    /// The integrator settings of a rollout cycle of `duration` from a state of periapsis
+    /// `periapsis`: at least `rollout_steps` fixed steps, or the adaptive `tolerances`
+    /// ([`rollout_tolerances`]).
+    pub fn rollout_tolerances(&self, duration: f64, periapsis: f64) -> Tolerances {
+        rollout_tolerances(self.rollout_steps, &self.tolerances, duration, periapsis)
     }
 
     /// Checks the ranges of [`InvalidTerminalSettings`].
@@ -184,8 +186,6 @@ struct Problem<'a, G: Dimension, T> {
     navigation: &'a G::State,
     time_to_go: f64,
     cycles: usize,
-    /// The rollouts' integrator settings.
-    tolerances: Tolerances,
     /// Cycles propagated so far.
     propagated: core::cell::Cell<u32>,
 }
@@ -228,20 +228,20 @@ impl<G: Dimension, T> Problem<'_, G, T> {
             if let Some(slot) = starts.get_mut(cycle) {
                 *slot = state;
             }
-            self.propagated.set(self.propagated.get().saturating_add(1));
-            state = G::propagate(
-                &state,
-                &G::command_of(tau),
-                self.spacecraft,
-                self.duration(cycle),
-                &self.tolerances,
-            )
-            .ok()?;
+            state = self.propagate(&state, &G::command_of(tau), cycle)?;
         }
         Some(Rollout {
             e: self.miss_at(&state)?,
             starts,
         })
+    }
+
+    /// `state` flown for the plan's cycle `cycle` under `command` (counted).
+    fn propagate(&self, state: &G::State, command: &G::Command, cycle: usize) -> Option<G::State> {
+        self.propagated.set(self.propagated.get().saturating_add(1));
+        let duration = self.duration(cycle);
+        let tolerances = self.settings.rollout_tolerances(duration, G::periapsis(state));
+        G::propagate(state, command, self.spacecraft, duration, &tolerances).ok()
     }
 
     /// `plan` flown from the navigation state to the arrival.
@@ -585,7 +585,6 @@ pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<
         navigation,
         time_to_go,
         cycles,
-        tolerances: settings.rollout_tolerances(),
         propagated: core::cell::Cell::new(0),
     };
     // The network's continuation, flown nominally: the plan's start.
@@ -602,15 +601,7 @@ pub fn terminal_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<
             };
             *tau = T::Geometry::thrust_vector(&command);
             *start = state;
-            problem.propagated.set(problem.propagated.get().saturating_add(1));
-            state = T::Geometry::propagate(
-                &state,
-                &command,
-                spacecraft,
-                problem.duration(cycle),
-                &problem.tolerances,
-            )
-            .ok()?;
+            state = problem.propagate(&state, &command, cycle)?;
         }
         problem.miss_at(&state)
     };
@@ -1004,7 +995,6 @@ mod tests {
             navigation: &start,
             time_to_go: 3.0 * STEP,
             cycles: 3,
-            tolerances: settings.rollout_tolerances(),
             propagated: core::cell::Cell::new(0),
         };
         let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
@@ -1043,7 +1033,6 @@ mod tests {
             navigation: &start,
             time_to_go: 3.0 * STEP,
             cycles: 3,
-            tolerances: settings.rollout_tolerances(),
             propagated: core::cell::Cell::new(0),
         };
         // The plan that built the target, moved off it.

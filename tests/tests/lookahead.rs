@@ -1,11 +1,11 @@
 //! The rollout lookahead (`onboard::lookahead`) flown with the shipped networks in the SIL loop
 //! without dispersions, checked against the rollout algorithm's own guarantees: its predictions
-//! are the flight (bit for bit), its predicted cost never rises along a flight, and it arrives at
-//! a cost no higher than the network flown alone. The guarantees hold where the plant is the
-//! rollouts' model, so the plant here propagates as the rollouts do (one fixed DOP853 step a
-//! cycle; how closely that model predicts the flight propagator is `onboard::lookahead`'s unit
-//! test). The transfer's rollouts are the flight exactly; the rendezvous's to rounding (its body
-//! is coasted from each cycle's state, not the epoch's).
+//! are the flight, its predicted cost never rises along a flight, and it arrives at a cost no
+//! higher than the network flown alone. The guarantees are exact where the plant is the
+//! rollouts' model; the plant here is the flight propagator (adaptive DOP853), which the
+//! rollouts' fixed steps predict to about 1e-9 a cycle (`onboard::lookahead`'s unit test), so
+//! each holds to 1e-4 goal units (a 50-cycle hard transfer closed through the network drifts
+//! 1e-5): far below any difference the cost makes between candidates.
 
 use firmware_sim::{fly, Controller, Flight, FlightSetup, PlanarProblem, Rendezvous, Transfer};
 use onboard::guidance::{Actor, TargetFeatures};
@@ -14,6 +14,10 @@ use shared::blob::AlignedBlob;
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 use shared::units::STEP;
+
+/// How far a prediction may stand from the flight (goal units and m0): the rollouts' fixed
+/// steps against the flight propagator.
+const SLACK: f64 = 1e-4;
 
 fn spacecraft() -> CanonicalSpacecraft {
     Spacecraft::MSR_ERO.canonical().unwrap()
@@ -32,7 +36,7 @@ fn arrival<const N: usize>(flight: &Flight<N>) -> Prediction {
 }
 
 /// Flies `scenario` with the network alone and with lookahead, and checks the flight with
-/// lookahead cycle by cycle, its predictions to within `slack` (0: bit for bit). Returns the
+/// lookahead cycle by cycle, its predictions to within `slack`. Returns the
 /// two arrivals.
 fn check<const N: usize, P: PlanarProblem<N>>(
     problem: P,
@@ -45,10 +49,7 @@ where
 {
     let sc = spacecraft();
     let settings = LookaheadSettings::default();
-    let setup = FlightSetup {
-        tolerances: settings.rollout_tolerances(),
-        ..FlightSetup::nominal(sc)
-    };
+    let setup = FlightSetup::nominal(sc);
     let alone = fly(problem, actor, scenario, &setup, 0).unwrap();
     let guide = Lookahead {
         actor,
@@ -110,8 +111,11 @@ fn on_hard_transfers_the_lookahead_predicts_its_flight_and_never_arrives_worse_t
     let (mut alone_within, mut looked_within) = (0, 0);
     for index in [0, 3, 5, 7] {
         let scenario = ScenarioKind::TransferHard.draw(2_000_003, index);
-        let (alone, looked) = check(Transfer, &controller, &scenario, 0.0);
-        assert!(looked.cost <= alone.cost, "draw {index}: {looked:?} against {alone:?}");
+        let (alone, looked) = check(Transfer, &controller, &scenario, SLACK);
+        assert!(
+            looked.cost <= alone.cost + SLACK,
+            "draw {index}: {looked:?} against {alone:?}"
+        );
         let within = |p: &Prediction| p.residuals.position < 0.01 && p.residuals.velocity < 0.01;
         alone_within += usize::from(within(&alone));
         looked_within += usize::from(within(&looked));
@@ -127,9 +131,12 @@ fn on_rendezvous_the_body_is_coasted_in_the_rollouts_as_the_flight_meets_it() {
     assert!(matches!(controller, Controller::Network(_)));
     for index in [0, 1] {
         let scenario = ScenarioKind::RendezvousCircular.draw(2_000_003, index);
-        // The rollouts coast the body from its state at each cycle, the flight from its epoch: the
-        // two ephemerides differ in the last bits.
-        let (alone, looked) = check(Rendezvous, &controller, &scenario, 1e-12);
-        assert!(looked.cost <= alone.cost, "draw {index}: {looked:?} against {alone:?}");
+        // The rollouts also coast the body from its state at each cycle, the flight from its
+        // epoch: the two ephemerides differ in the last bits.
+        let (alone, looked) = check(Rendezvous, &controller, &scenario, SLACK);
+        assert!(
+            looked.cost <= alone.cost + SLACK,
+            "draw {index}: {looked:?} against {alone:?}"
+        );
     }
 }
