@@ -84,8 +84,8 @@ static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), 
 const CALIBRATION_LOOP: u32 = 1_000_000;
 /// Back-to-back inferences of the repeated measurement (resolution 40 / 64 instructions).
 const REPEATS: u32 = 64;
-/// Cycles left in the measured lookahead cycle: 26 rollouts of 4 cycles (one measurement stays
-/// well inside the SysTick's 2^24 ticks).
+/// Cycles left in the measured lookahead cycle: at most 26 rollouts of 4 cycles (one
+/// measurement stays well inside the SysTick's 2^24 ticks).
 #[cfg(not(feature = "spatial"))]
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
@@ -238,12 +238,13 @@ fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownControlle
     let start = counter.now();
     let decision = lookahead_step(controller, &state, &target, time_to_go, &spacecraft, &settings);
     let ticks = Counter::ticks(start, counter.now());
-    let rollout_cycles = CANDIDATES as u64 * u64::from(LOOKAHEAD_CYCLES);
+    let flown = decision.map_or(0, |d| d.rollouts);
+    let rollout_cycles = u64::from(flown.max(1)) * u64::from(LOOKAHEAD_CYCLES);
     let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
     writeln!(
         out,
-        "{COMMENT} instructions per lookahead cycle, {LOOKAHEAD_CYCLES} cycles to go ({CANDIDATES} candidates, \
-         {rollout_cycles} rollout cycles): {total}, {} per rollout cycle; chosen candidate {}",
+        "{COMMENT} instructions per lookahead cycle, {LOOKAHEAD_CYCLES} cycles to go ({flown} of {CANDIDATES} \
+         candidates flown, {rollout_cycles} rollout cycles): {total}, {} per rollout cycle; chosen candidate {}",
         total / rollout_cycles,
         decision.map_or(-1, |d| d.chosen as i64)
     )
