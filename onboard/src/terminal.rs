@@ -983,8 +983,10 @@ mod tests {
     /// The propellant phase on a plan that meets the arrival (the commands that built the
     /// target): a transfer leaves it three degrees of freedom beyond its three conditions, and
     /// the phase finds a cheaper plan that still meets the orbit when flown.
-    #[test]
-    fn the_propellant_phase_lowers_a_met_plan_and_keeps_it_met() {
+    /// The 3-cycle transfer problem to the orbit through where [`PLAN`] flies from
+    /// [`reachable`]'s start, with the default settings, given to `test` with that start and
+    /// arrival.
+    fn on_reachable_orbit(test: impl FnOnce(&Problem<'_, Planar, OrbitShape>, &SpacecraftState, &SpacecraftState)) {
         let (start, arrival) = reachable(STEP);
         let target = orbit_through(&arrival);
         let (craft, settings) = (spacecraft(), TerminalSettings::default());
@@ -997,25 +999,39 @@ mod tests {
             cycles: 3,
             propagated: core::cell::Cell::new(0),
         };
+        test(&problem, &start, &arrival);
+    }
+
+    /// [`PLAN`]'s thrust vectors scaled by `scale` and their radial components moved by `shift`.
+    fn plan_near(scale: f64, shift: f64) -> Plan {
         let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
         for (planned, tau) in plan.iter_mut().zip(PLAN) {
-            *planned = [tau[0], tau[1], 0.0];
+            *planned = [scale * tau[0] + shift, scale * tau[1], 0.0];
         }
-        let flown = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
-        assert!(norm(&flown.e) < MET, "{:?}", flown.e);
-        let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, 3, _, _>(&problem, plan, flown, 8);
-        assert!(norm(&met.e) < MET, "{:?}", met.e);
-        let (before, after) = (fuel(&problem, &plan), fuel(&problem, &lowered));
-        assert!(after < 0.99 * before, "propellant {after} against {before}");
-        let mut state = start;
-        for tau in lowered.iter().take(3) {
-            state = propagate(&state, &Planar::command_of(tau), &craft, STEP, &Tolerances::default()).unwrap();
-        }
-        let flown = OrbitShape::residuals(
-            &TargetFeatures::<TRANSFER_FEATURES>::features_after(&target, &state, 0.0, 0.0).unwrap(),
-        );
-        assert!(flown.position < 1e-5 && flown.velocity < 1e-5, "{flown:?}");
-        assert!(state.m > arrival.m, "final mass {} against {}", state.m, arrival.m);
+        plan
+    }
+
+    #[test]
+    fn the_propellant_phase_lowers_a_met_plan_and_keeps_it_met() {
+        on_reachable_orbit(|problem, start, arrival| {
+            let (target, craft) = (problem.target, problem.spacecraft);
+            let plan = plan_near(1.0, 0.0);
+            let flown = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
+            assert!(norm(&flown.e) < MET, "{:?}", flown.e);
+            let (lowered, met) = lower_fuel::<TRANSFER_FEATURES, 3, _, _>(problem, plan, flown, 8);
+            assert!(norm(&met.e) < MET, "{:?}", met.e);
+            let (before, after) = (fuel(problem, &plan), fuel(problem, &lowered));
+            assert!(after < 0.99 * before, "propellant {after} against {before}");
+            let mut state = *start;
+            for tau in lowered.iter().take(3) {
+                state = propagate(&state, &Planar::command_of(tau), craft, STEP, &Tolerances::default()).unwrap();
+            }
+            let flown = OrbitShape::residuals(
+                &TargetFeatures::<TRANSFER_FEATURES>::features_after(target, &state, 0.0, 0.0).unwrap(),
+            );
+            assert!(flown.position < 1e-5 && flown.velocity < 1e-5, "{flown:?}");
+            assert!(state.m > arrival.m, "final mass {} against {}", state.m, arrival.m);
+        });
     }
 
     /// A Jacobian column flown from its cycle's start is the column of the whole rollout bit for
@@ -1023,39 +1039,26 @@ mod tests {
     /// of cycle j fly 3 - j of the 3 cycles.
     #[test]
     fn jacobian_columns_from_each_cycles_start_equal_whole_rollouts() {
-        let (start, arrival) = reachable(STEP);
-        let target = orbit_through(&arrival);
-        let (craft, settings) = (spacecraft(), TerminalSettings::default());
-        let problem = Problem::<Planar, _> {
-            target: &target,
-            spacecraft: &craft,
-            settings: &settings,
-            navigation: &start,
-            time_to_go: 3.0 * STEP,
-            cycles: 3,
-            propagated: core::cell::Cell::new(0),
-        };
-        // The plan that built the target, moved off it.
-        let mut plan: Plan = [[0.0; 3]; MAX_CYCLES];
-        for (planned, tau) in plan.iter_mut().zip(PLAN) {
-            *planned = [0.9 * tau[0] + 0.05, 0.9 * tau[1], 0.0];
-        }
-        let base = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
-        problem.propagated.set(0);
-        let jacobian = jacobian(&problem, &plan, &base).unwrap();
-        assert_eq!(problem.propagated.get(), 2 * (3 + 2 + 1));
-        for u in 0..problem.unknowns() {
-            let mut moved = plan;
-            *component::<Planar>(&mut moved, u).unwrap() += DIFFERENCE;
-            let whole = problem.rollout::<TRANSFER_FEATURES, 3>(&moved).unwrap().e;
-            for (row, (a, b)) in jacobian.iter().zip(whole.iter().zip(base.e.iter())) {
-                assert_eq!(row[u].to_bits(), ((a - b) / DIFFERENCE).to_bits(), "unknown {u}");
+        on_reachable_orbit(|problem, _, _| {
+            // The plan that built the target, moved off it.
+            let plan = plan_near(0.9, 0.05);
+            let base = problem.rollout::<TRANSFER_FEATURES, 3>(&plan).unwrap();
+            problem.propagated.set(0);
+            let jacobian = jacobian(problem, &plan, &base).unwrap();
+            assert_eq!(problem.propagated.get(), 2 * (3 + 2 + 1));
+            for u in 0..problem.unknowns() {
+                let mut moved = plan;
+                *component::<Planar>(&mut moved, u).unwrap() += DIFFERENCE;
+                let whole = problem.rollout::<TRANSFER_FEATURES, 3>(&moved).unwrap().e;
+                for (row, (a, b)) in jacobian.iter().zip(whole.iter().zip(base.e.iter())) {
+                    assert_eq!(row[u].to_bits(), ((a - b) / DIFFERENCE).to_bits(), "unknown {u}");
+                }
+                assert!(
+                    jacobian.iter().any(|row| row[u].abs() > 1.0),
+                    "unknown {u}: {jacobian:?}"
+                );
             }
-            assert!(
-                jacobian.iter().any(|row| row[u].abs() > 1.0),
-                "unknown {u}: {jacobian:?}"
-            );
-        }
+        });
     }
 
     /// A rendezvous with a body that the last three cycles can meet (the arrival coasted back
