@@ -184,7 +184,7 @@ pub enum ModelCommand {
         /// (replaces the config's).
         #[arg(long)]
         thrust_margin: Option<f64>,
-        /// Fly the last N cycles (1 to 4) with terminal targeting (onboard::terminal): the
+        /// Fly the last N cycles (1 to 8) with terminal targeting (onboard::terminal): the
         /// remaining commands solved for the arrival each cycle (replaces the config's
         /// [sil] terminal cycles).
         #[arg(long)]

@@ -309,7 +309,7 @@ where
 /// from `seed + i`, as `ground model sil` does), against the nominal plant or (`dispersed`) the
 /// typical dispersions: navigation noise, thrust magnitude and pointing errors, missed-thrust
 /// events. An inclined family's blob flies the three-dimensional loop (its pointing error a
-/// cone about the command). With `terminal_cycles` the last that many cycles (1 to 4) of each
+/// cone about the command). With `terminal_cycles` the last that many cycles (1 to 8) of each
 /// flight are flown with terminal targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
 /// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
 /// weights, as the model's own SIL flew them; `dispersions` (a `[sil.dispersions]` table as TOML

@@ -89,7 +89,7 @@ const REPEATS: u32 = 64;
 #[cfg(not(feature = "spatial"))]
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
-const TERMINAL_CYCLES: u32 = 4;
+const TERMINAL_CYCLES: u32 = 8;
 
 /// The first trace flight's navigation state with 1 ..= [`TERMINAL_CYCLES`] cycles to go.
 type TerminalStates = [Option<FlownState>; TERMINAL_CYCLES as usize];

@@ -962,7 +962,7 @@ mod tests {
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 0 }",
             "scenario = \"transfer-circular\"\nname = \"two words\"",
             "scenario = \"transfer-circular\"\nname = \"\"",
-            "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 5 }",
+            "scenario = \"transfer-circular\"\n[sil]\nterminal = { cycles = 9 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { iterations = 0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { goal_position = 1.0 }",
             "scenario = \"transfer-circular\"\n[sil]\nterminal = { rollout_steps = 33 }",

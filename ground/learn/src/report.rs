@@ -412,7 +412,7 @@ mod tests {
         let mut s = String::new();
         flown_section(&mut s, &card);
         assert!(
-            s.starts_with("**As flown**: the f32 blob with terminal targeting of the last 4 cycles"),
+            s.starts_with("**As flown**: the f32 blob with terminal targeting of the last 8 cycles"),
             "{s}"
         );
         for (tolerance, share) in &flown.monte_carlo.within {

@@ -130,7 +130,7 @@ enum lt_status
   // and >= 0, the thrust margin in [0, 1)).
   LT_ERR_INPUT_LOOKAHEAD = -46,
   // Terminal targeting refused: the spacecraft's thrust or exhaust speed is not finite and
-  // positive, or the settings are unusable (cycles 1 to 4, iterations 1 to 64, goals finite
+  // positive, or the settings are unusable (cycles 1 to 8, iterations 1 to 64, goals finite
   // and > 0).
   LT_ERR_INPUT_TERMINAL = -47,
   // Guidance input refused: the velocity lies along the radius, so the spacecraft has no orbit
@@ -305,7 +305,7 @@ typedef struct lt_terminal_settings {
   double goal_velocity;
   // Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
   double cycle;
-  // Cycles to go from which the remaining commands are solved (1 to 4); default 4.
+  // Cycles to go from which the remaining commands are solved (1 to 8); default 8.
   uint32_t cycles;
   // Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering
   // steps once the arrival is met; default 3.

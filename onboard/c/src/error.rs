@@ -115,7 +115,7 @@ pub enum lt_status {
     /// and >= 0, the thrust margin in [0, 1)).
     LT_ERR_INPUT_LOOKAHEAD = -46,
     /// Terminal targeting refused: the spacecraft's thrust or exhaust speed is not finite and
-    /// positive, or the settings are unusable (cycles 1 to 4, iterations 1 to 64, goals finite
+    /// positive, or the settings are unusable (cycles 1 to 8, iterations 1 to 64, goals finite
     /// and > 0).
     LT_ERR_INPUT_TERMINAL = -47,
     /// Guidance input refused: the velocity lies along the radius, so the spacecraft has no orbit

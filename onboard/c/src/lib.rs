@@ -1024,7 +1024,7 @@ pub struct lt_terminal_settings {
     pub goal_velocity: f64,
     /// Length of a guidance cycle (t*); default 14 days, 0.240829... (the scenario family's).
     pub cycle: f64,
-    /// Cycles to go from which the remaining commands are solved (1 to 4); default 4.
+    /// Cycles to go from which the remaining commands are solved (1 to 8); default 8.
     pub cycles: u32,
     /// Iterations per cycle, at most (1 to 64): Gauss-Newton steps, then propellant-lowering
     /// steps once the arrival is met; default 3.

@@ -1104,7 +1104,7 @@ fn terminal_steps_are_the_onboard_terminal_targeting_bit_for_bit_and_refuse_unus
         (
             sc,
             lt_terminal_settings {
-                cycles: 5,
+                cycles: 9,
                 ..terminal_defaults()
             },
         ),
