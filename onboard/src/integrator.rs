@@ -63,28 +63,28 @@ pub struct Tolerances {
 
 impl Default for Tolerances {
     fn default() -> Self {
-        Self {
-            relative: 1e-12,
-            absolute: 1e-13,
-            max_steps: 100_000,
-            initial_step: 0.0,
-            fixed_steps: 0,
-        }
+        Self::DEFAULT
     }
 }
 
 impl Tolerances {
+    /// The flight propagator's settings (`Default`): adaptive, relative 1e-12, absolute 1e-13.
+    pub const DEFAULT: Self = Self {
+        relative: 1e-12,
+        absolute: 1e-13,
+        max_steps: 100_000,
+        initial_step: 0.0,
+        fixed_steps: 0,
+    };
+
     /// Most fixed steps one call may ask for: the work stays bounded.
     pub const MAX_FIXED_STEPS: u32 = 1024;
 
     /// `steps` equal DOP853 steps without error control (see [`Tolerances::fixed_steps`]).
     pub const fn fixed(steps: u32) -> Self {
         Self {
-            relative: 1e-12,
-            absolute: 1e-13,
-            max_steps: 100_000,
-            initial_step: 0.0,
             fixed_steps: steps,
+            ..Self::DEFAULT
         }
     }
 }

@@ -59,8 +59,9 @@ const POSITION_COMPONENTS: usize = 3;
 /// What terminal targeting does; `Default` targets the last 8 cycles with up to 3 iterations:
 /// at most 320 propagated cycles in the plane, 428 in three dimensions. A miss corrected
 /// earlier costs less: over 8 cycles the plan spends less propellant than the network alone.
-/// The ground's configs read it (feature `serde`: `cycles` and `iterations` by name, each
-/// defaulted; the goals are the evaluation's, the tolerances the environment's).
+/// The ground's configs read it (feature `serde`: `cycles`, `iterations` and `rollout_steps` by
+/// name, each defaulted; the goals are the evaluation's, adaptive rollouts' tolerances the
+/// environment's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(
     feature = "serde",
@@ -981,9 +982,6 @@ mod tests {
         );
     }
 
-    /// The propellant phase on a plan that meets the arrival (the commands that built the
-    /// target): a transfer leaves it three degrees of freedom beyond its three conditions, and
-    /// the phase finds a cheaper plan that still meets the orbit when flown.
     /// The 3-cycle transfer problem to the orbit through where [`PLAN`] flies from
     /// [`reachable`]'s start, with the default settings, given to `test` with that start and
     /// arrival.
@@ -1012,6 +1010,9 @@ mod tests {
         plan
     }
 
+    /// The propellant phase on a plan that meets the arrival (the commands that built the
+    /// target): a transfer leaves it three degrees of freedom beyond its three conditions, and
+    /// the phase finds a cheaper plan that still meets the orbit when flown.
     #[test]
     fn the_propellant_phase_lowers_a_met_plan_and_keeps_it_met() {
         on_reachable_orbit(|problem, start, arrival| {

@@ -377,14 +377,15 @@ pub struct SilConfig {
     pub dispersions: firmware_sim::Dispersions,
     /// Fly the blob with rollout lookahead (`onboard::lookahead::LookaheadSettings`, its
     /// fields by name, each defaulted; the rollouts take `rollout_steps` fixed steps a cycle, 1
-    /// by default, or with 0 `[env.integrator]`'s adaptive tolerances) instead of alone (unset). In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0,
+    /// by default, or with 0 `[env.integrator]`'s adaptive tolerances) instead of alone
+    /// (unset). In a TOML config: `lookahead = { accuracy_floor = 0.5, fuel_weight = 5.0,
     /// thrust_margin = 0.05 }`, or `ground model sil --lookahead` for the defaults.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lookahead: Option<LookaheadSettings>,
     /// Fly the blob's last cycles with terminal targeting (`onboard::terminal::TerminalSettings`:
     /// `cycles`, `iterations`, `rollout_steps`, each defaulted; rollouts as the lookahead's),
     /// the cycles before as without it (the network, or with `lookahead`). In a TOML config:
-    /// `terminal = { cycles = 4 }`, or `ground model sil --terminal 4`.
+    /// `terminal = { cycles = 8 }`, or `ground model sil --terminal 8`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub terminal: Option<TerminalSettings>,
 }
