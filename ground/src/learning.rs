@@ -137,6 +137,11 @@ pub enum ModelCommand {
         /// the actor, blobs and Monte Carlo stay as they are; --out holds the SIL runs.
         #[arg(long, value_name = "K", requires = "model", conflicts_with = "onnx_only")]
         terminal_cycles: Option<u32>,
+        /// With --model: fly the folder's blobs, unchanged, with the onboard aids of FILE (TOML:
+        /// the [lookahead] and [terminal] tables of a config's [sil] settings; an absent table,
+        /// that aid not flown) and record them in the card, as --terminal-cycles does.
+        #[arg(long, value_name = "FILE", requires = "model", conflicts_with_all = ["onnx_only", "terminal_cycles"])]
+        aids: Option<PathBuf>,
     },
     /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported
     /// and flown in the SIL loop (OUT/export, OUT/sil-*), and the model folder OUT/model
@@ -299,11 +304,18 @@ fn run_model(command: ModelCommand) -> CommandResult {
             model,
             onnx_only,
             terminal_cycles,
+            aids,
         } => match (checkpoint, model) {
-            (_, Some(model)) if terminal_cycles.is_some() => {
-                let cycles = terminal_cycles.unwrap_or_default();
+            (_, Some(model)) if terminal_cycles.is_some() || aids.is_some() => {
+                // Read before the run folder is made: a refused file leaves nothing behind.
+                let aids = aids.map(|path| learn::model::Aids::read(&path)).transpose()?;
                 let (card, sil) = in_run_folder(&experiment.out, || {
-                    Ok(learn::model::fly_terminal(&model, &experiment.out, cycles)?)
+                    Ok(match (&aids, terminal_cycles) {
+                        (Some(aids), _) => learn::model::fly_aids(&model, &experiment.out, aids)?,
+                        (None, cycles) => {
+                            learn::model::fly_terminal(&model, &experiment.out, cycles.unwrap_or_default())?
+                        }
+                    })
                 })?;
                 for report in &sil {
                     println!("{}", learn::sil::describe(report));

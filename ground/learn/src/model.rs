@@ -66,6 +66,14 @@ pub enum ModelError {
         /// What is wrong with it.
         reason: String,
     },
+    /// An aids file ([`Aids`]) does not parse.
+    #[error("{}: not an aids file (the [lookahead] and [terminal] tables of a config's [sil] settings): {reason}", .path.display())]
+    Aids {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
     /// card.md does not say what card.json says (edited by hand, or written by another writer).
     #[error("{}: does not say what card.json says (both are written by the card's writer)", .path.display())]
     MarkdownDisagrees {
@@ -371,24 +379,79 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
     Ok(card)
 }
 
-/// How a card's note on SIL rows flown again by [`fly_terminal`] begins.
+/// How a card's note on SIL rows flown again by [`fly_aids`] begins.
 const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 
-/// `ground model export --model DIR --terminal-cycles K --out RUN`: the shipped blobs, unchanged,
-/// flown in the SIL loop with terminal targeting over their last `K` cycles (its other settings
-/// the defaults; 0: without), which the card then records: its config's `[sil] terminal`, its
-/// SIL rows and its nominal Monte Carlo with the aids (flown under `RUN`) and a note of the
-/// command. The actor, the blobs and the Monte Carlo stay as they are. The folder's files must
-/// match its card first.
+/// The onboard aids a shipped model's blobs are flown with: the `[sil]` tables `lookahead` and
+/// `terminal` of a config (an absent table: that aid not flown). Read by `ground model export
+/// --model DIR --aids FILE` from a TOML file holding those two tables.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Aids {
+    /// Rollout lookahead before the terminal cycles.
+    pub lookahead: Option<LookaheadSettings>,
+    /// Terminal targeting over the last cycles.
+    pub terminal: Option<TerminalSettings>,
+}
+
+impl Aids {
+    /// Reads an aids file (TOML; see [`Aids`]).
+    pub fn read(path: &Path) -> Result<Self, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        toml::from_str(&text).map_err(|e| ModelError::Aids {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+    }
+
+    /// How the blobs are flown, for the card's note.
+    fn describe(&self) -> String {
+        let lookahead = self.lookahead.map(|l| {
+            if l.thrust_margin > 0.0 {
+                format!("rollout lookahead planning without {} of the thrust", l.thrust_margin)
+            } else {
+                "rollout lookahead".to_string()
+            }
+        });
+        let terminal = self
+            .terminal
+            .map(|t| format!("terminal targeting of the last {} cycles", t.cycles));
+        match (lookahead, terminal) {
+            (None, None) => "without onboard aids".to_string(),
+            (Some(l), None) => format!("with {l}"),
+            (None, Some(t)) => format!("with {t}"),
+            (Some(l), Some(t)) => format!("with {l} and {t}"),
+        }
+    }
+}
+
+/// `ground model export --model DIR --terminal-cycles K --out RUN`: [`fly_aids`] with terminal
+/// targeting over the last `K` cycles (its other settings the defaults; 0: without) and the
+/// card's lookahead as it was.
 pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
+    let (_, config) = read_card(dir, Unsealed::Refused)?;
+    let aids = Aids {
+        lookahead: config.sil.lookahead,
+        terminal: (cycles > 0).then(|| TerminalSettings {
+            cycles,
+            ..TerminalSettings::default()
+        }),
+    };
+    fly_aids(dir, run, &aids)
+}
+
+/// `ground model export --model DIR --aids FILE --out RUN`: the shipped blobs, unchanged, flown
+/// in the SIL loop with the onboard `aids`, which the card then records: its config's `[sil]`
+/// lookahead and terminal tables, its SIL rows and its nominal Monte Carlo with the aids (flown
+/// under `RUN`) and a note of the command. The actor, the blobs and the Monte Carlo stay as they
+/// are. The folder's files must match its card first.
+pub fn fly_aids(dir: &Path, run: &Path, aids: &Aids) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
     let (mut card, mut config) = read_card(dir, Unsealed::Refused)?;
     let kind = config.problem();
     verify_model_files(dir, config.feature_layout(), &card.files)?;
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
-    config.sil.terminal = (cycles > 0).then(|| TerminalSettings {
-        cycles,
-        ..TerminalSettings::default()
-    });
+    config.sil.lookahead = aids.lookahead;
+    config.sil.terminal = aids.terminal;
     config.validate().map_err(|e| experiment(e.into()))?;
     let blob = |q| dir.join(blob_file(kind, q));
     let sil = crate::sil::sil_of_blobs(&config, &blob(Quantization::F32), &blob(Quantization::Int8), run)
@@ -398,14 +461,11 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
     card.terminal = config.terminal_settings();
     (card.lookahead, card.with_terminal) = fly_aided(&config, &blob(Quantization::F32), run)?;
     card.config = portable_config(&config);
-    let flown = match cycles {
-        0 => "without terminal targeting".to_string(),
-        k => format!("with terminal targeting of the last {k} cycles"),
-    };
     // The rows are flown once more: an earlier such note no longer describes them.
     card.notes.retain(|note| !note.starts_with(REFLOWN_NOTE));
     card.notes.push(format!(
-        "{REFLOWN_NOTE} {flown}, by `{}` at commit `{}` on {}; the actor, the blobs and the Monte Carlo are unchanged.",
+        "{REFLOWN_NOTE} {}, by `{}` at commit `{}` on {}; the actor, the blobs and the Monte Carlo are unchanged.",
+        aids.describe(),
         portable_command(),
         current_commit(),
         utc_date()

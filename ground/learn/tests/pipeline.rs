@@ -394,6 +394,37 @@ fn main_job_writes_a_report_whose_links_resolve() {
     );
     // One note says how the rows were flown: the latest.
     assert_eq!(without.notes.len(), model.card.notes.len() + 1, "{:?}", without.notes);
+    // Aids from a file: the card's config flies them and its note names them; a file with a
+    // key an aid does not take is refused with the reason, before anything is flown.
+    let aids_file = dir.join("aids.toml");
+    std::fs::write(
+        &aids_file,
+        "[lookahead]\nthrust_margin = 0.1\nmax_cycles = 3\n\n[terminal]\ncycles = 2\n",
+    )
+    .unwrap();
+    let aids = learn::model::Aids::read(&aids_file).unwrap();
+    let (card, sil) = learn::model::fly_aids(&aided, &dir.join("aids-runs"), &aids).unwrap();
+    assert!(sil
+        .iter()
+        .all(|r| r.lookahead.is_some_and(|l| l.thrust_margin == 0.1) && r.terminal.is_some_and(|t| t.cycles == 2)));
+    let reopened = learn::model::open_model(&aided).unwrap();
+    assert_eq!(reopened.card, card);
+    assert_eq!(
+        reopened.config.sil.lookahead.map(|l| (l.thrust_margin, l.max_cycles)),
+        Some((0.1, 3))
+    );
+    assert!(card.lookahead.is_some(), "the nominal Monte Carlo with the lookahead");
+    let note = card.notes.last().unwrap();
+    assert!(
+        note.contains(
+            "with rollout lookahead planning without 0.1 of the thrust and terminal targeting of the last 2 cycles"
+        ),
+        "{note}"
+    );
+    assert_eq!(card.notes.len(), without.notes.len(), "{:?}", card.notes);
+    std::fs::write(&aids_file, "[terminal]\ncycles = 2\ngoal_position = 0.1\n").unwrap();
+    let refused = learn::model::Aids::read(&aids_file).unwrap_err();
+    assert!(refused.to_string().contains("goal_position"), "{refused}");
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),
