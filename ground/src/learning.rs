@@ -137,10 +137,10 @@ pub enum ModelCommand {
         /// the actor, blobs and Monte Carlo stay as they are; --out holds the SIL runs.
         #[arg(long, value_name = "K", requires = "model", conflicts_with = "onnx_only")]
         terminal_cycles: Option<u32>,
-        /// With --model: fly the folder's blobs, unchanged, with the onboard aids of FILE (TOML:
-        /// the [lookahead] and [terminal] tables of a config's [sil] settings; an absent table,
-        /// that aid not flown) and record them in the card, as --terminal-cycles does.
-        #[arg(long, value_name = "FILE", requires = "model", conflicts_with_all = ["onnx_only", "terminal_cycles"])]
+        /// With --model: fly the folder's blobs, unchanged, with the onboard aids of the config
+        /// CONFIG (its [sil] lookahead and terminal tables; an absent table, that aid not flown)
+        /// and record them in the card, as --terminal-cycles does.
+        #[arg(long, value_name = "CONFIG", requires = "model", conflicts_with_all = ["onnx_only", "terminal_cycles"])]
         aids: Option<PathBuf>,
     },
     /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported

@@ -66,8 +66,8 @@ pub enum ModelError {
         /// What is wrong with it.
         reason: String,
     },
-    /// An aids file ([`Aids`]) does not parse.
-    #[error("{}: not an aids file (the [lookahead] and [terminal] tables of a config's [sil] settings): {reason}", .path.display())]
+    /// A config's onboard aids ([`Aids`]) are refused.
+    #[error("{}: no onboard aids to fly (the [sil] tables lookahead and terminal of a config): {reason}", .path.display())]
     Aids {
         /// The file.
         path: PathBuf,
@@ -383,8 +383,8 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
 const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 
 /// The onboard aids a shipped model's blobs are flown with: the `[sil]` tables `lookahead` and
-/// `terminal` of a config (an absent table: that aid not flown). Read by `ground model export
-/// --model DIR --aids FILE` from a TOML file holding those two tables.
+/// `terminal` of a config (an absent table: that aid not flown). `ground model export --model
+/// DIR --aids CONFIG` reads them from a config, the model's recipe as a rule.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Aids {
@@ -395,12 +395,30 @@ pub struct Aids {
 }
 
 impl Aids {
-    /// Reads an aids file (TOML; see [`Aids`]).
+    /// The aids of the config file at `path` (TOML): its `[sil]` tables `lookahead` and
+    /// `terminal`, their keys checked; the rest of the file is not read.
     pub fn read(path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(io(path))?;
-        toml::from_str(&text).map_err(|e| ModelError::Aids {
+        let refused = |reason: String| ModelError::Aids {
             path: path.to_path_buf(),
-            reason: e.to_string(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        let mut file: toml::Table = toml::from_str(&text).map_err(|e| refused(e.to_string()))?;
+        let Some(toml::Value::Table(mut sil)) = file.remove("sil") else {
+            return Err(refused("it has no [sil] table".into()));
+        };
+        fn aid<T: serde::de::DeserializeOwned>(sil: &mut toml::Table, name: &str) -> Result<Option<T>, String> {
+            sil.remove(name)
+                .map(|table| {
+                    table
+                        .try_into()
+                        .map_err(|e: toml::de::Error| format!("sil.{name}: {e}"))
+                })
+                .transpose()
+        }
+        Ok(Self {
+            lookahead: aid(&mut sil, "lookahead").map_err(refused)?,
+            terminal: aid(&mut sil, "terminal").map_err(refused)?,
         })
     }
 
@@ -440,7 +458,7 @@ pub fn fly_terminal(dir: &Path, run: &Path, cycles: u32) -> Result<(ModelCard, V
     fly_aids(dir, run, &aids)
 }
 
-/// `ground model export --model DIR --aids FILE --out RUN`: the shipped blobs, unchanged, flown
+/// `ground model export --model DIR --aids CONFIG --out RUN`: the shipped blobs, unchanged, flown
 /// in the SIL loop with the onboard `aids`, which the card then records: its config's `[sil]`
 /// lookahead and terminal tables, its SIL rows and its nominal Monte Carlo with the aids (flown
 /// under `RUN`) and a note of the command. The actor, the blobs and the Monte Carlo stay as they

@@ -394,12 +394,12 @@ fn main_job_writes_a_report_whose_links_resolve() {
     );
     // One note says how the rows were flown: the latest.
     assert_eq!(without.notes.len(), model.card.notes.len() + 1, "{:?}", without.notes);
-    // Aids from a file: the card's config flies them and its note names them; a file with a
-    // key an aid does not take is refused with the reason, before anything is flown.
+    // The aids of a config's [sil] tables: the card's config flies them and its note names
+    // them; a key an aid does not take, or no [sil] table, is refused with the reason.
     let aids_file = dir.join("aids.toml");
     std::fs::write(
         &aids_file,
-        "[lookahead]\nthrust_margin = 0.1\nmax_cycles = 3\n\n[terminal]\ncycles = 2\n",
+        "scenario = \"ignored\"\n[sil]\nepisodes = 3\nlookahead = { thrust_margin = 0.1, max_cycles = 3 }\nterminal = { cycles = 2 }\n",
     )
     .unwrap();
     let aids = learn::model::Aids::read(&aids_file).unwrap();
@@ -422,9 +422,12 @@ fn main_job_writes_a_report_whose_links_resolve() {
         "{note}"
     );
     assert_eq!(card.notes.len(), without.notes.len(), "{:?}", card.notes);
-    std::fs::write(&aids_file, "[terminal]\ncycles = 2\ngoal_position = 0.1\n").unwrap();
+    std::fs::write(&aids_file, "[sil.terminal]\ncycles = 2\ngoal_position = 0.1\n").unwrap();
     let refused = learn::model::Aids::read(&aids_file).unwrap_err();
     assert!(refused.to_string().contains("goal_position"), "{refused}");
+    std::fs::write(&aids_file, "[terminal]\ncycles = 2\n").unwrap();
+    let refused = learn::model::Aids::read(&aids_file).unwrap_err();
+    assert!(refused.to_string().contains("no [sil] table"), "{refused}");
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
         learn::model::open_model(&swapped),
