@@ -48,6 +48,12 @@ pub trait Dimension: Copy + core::fmt::Debug + PartialEq + Send + Sync + 'static
     /// The command of a thrust vector: throttle its length (at most 1), along it; thrust off
     /// for a vector shorter than 1e-12 or not a number.
     fn command_of(tau: &[f64; 3]) -> Self::Command;
+    /// The command's unit direction in the local frame (radial, transverse, normal; the normal
+    /// 0 in the plane), as it holds it: for thrust off, the direction it would thrust along.
+    fn direction(command: &Self::Command) -> [f64; 3];
+    /// The command of `throttle` along the unit `direction` (local frame; components past
+    /// [`Self::THRUST_AXES`] ignored), taken as given.
+    fn command_along(throttle: f64, direction: &[f64; 3]) -> Self::Command;
     /// `state` propagated for `duration` under `command` (the onboard propagator).
     fn propagate(
         state: &Self::State,
@@ -127,6 +133,18 @@ impl Dimension for Planar {
         }
     }
 
+    fn direction(command: &ThrustCommand) -> [f64; 3] {
+        [command.alpha_r, command.alpha_theta, 0.0]
+    }
+
+    fn command_along(throttle: f64, direction: &[f64; 3]) -> ThrustCommand {
+        ThrustCommand {
+            throttle,
+            alpha_r: direction[0],
+            alpha_theta: direction[1],
+        }
+    }
+
     fn propagate(
         state: &SpacecraftState,
         command: &ThrustCommand,
@@ -203,6 +221,19 @@ impl Dimension for Spatial {
             radial: tau[0] / norm,
             transverse: tau[1] / norm,
             normal: tau[2] / norm,
+        }
+    }
+
+    fn direction(command: &RtnCommand) -> [f64; 3] {
+        [command.radial, command.transverse, command.normal]
+    }
+
+    fn command_along(throttle: f64, direction: &[f64; 3]) -> RtnCommand {
+        RtnCommand {
+            throttle,
+            radial: direction[0],
+            transverse: direction[1],
+            normal: direction[2],
         }
     }
 

@@ -226,6 +226,13 @@ pub trait Aim<const N: usize, const OUT: usize> {
         state: &<Self::Geometry as Dimension>::State,
         elapsed: f64,
     ) -> Result<[f64; MISS_LEN], FeatureError>;
+    /// The arrival's residuals at `state`, `elapsed` after the cycle's start (docs/spec.md
+    /// sections 5, 6), as the evaluation reads them off the features.
+    fn residuals_after(
+        &self,
+        state: &<Self::Geometry as Dimension>::State,
+        elapsed: f64,
+    ) -> Result<Residuals, FeatureError>;
 }
 
 impl<const N: usize, T: TargetFeatures<N>> Aim<N, ACTION_LEN> for T {
@@ -242,6 +249,11 @@ impl<const N: usize, T: TargetFeatures<N>> Aim<N, ACTION_LEN> for T {
     fn miss_after(&self, state: &SpacecraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
         let features = TargetFeatures::features_after(self, state, elapsed, 0.0)?;
         Ok(T::miss(&features))
+    }
+
+    fn residuals_after(&self, state: &SpacecraftState, elapsed: f64) -> Result<Residuals, FeatureError> {
+        let features = TargetFeatures::features_after(self, state, elapsed, 0.0)?;
+        Ok(T::residuals(&features))
     }
 }
 
@@ -263,6 +275,11 @@ impl<const N: usize, T: SpatialTargetFeatures<N>> Aim<N, ACTION3_LEN> for T {
 
     fn miss_after(&self, state: &SpatialCraftState, elapsed: f64) -> Result<[f64; MISS_LEN], FeatureError> {
         SpatialTargetFeatures::miss_after(self, state, elapsed)
+    }
+
+    fn residuals_after(&self, state: &SpatialCraftState, elapsed: f64) -> Result<Residuals, FeatureError> {
+        let features = SpatialTargetFeatures::features_after(self, state, elapsed, 0.0)?;
+        Ok(T::residuals(&features))
     }
 }
 
@@ -317,6 +334,25 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Lookahea
         target: &T,
         time_to_go: f64,
     ) -> Result<ThrustCommand, GuidanceError> {
+        lookahead_step(
+            &self.actor,
+            navigation,
+            target,
+            time_to_go,
+            &self.spacecraft,
+            &self.settings,
+        )
+        .map(|d| d.command)
+    }
+}
+
+impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guide<N, T, Spatial> for Lookahead<A> {
+    fn command(
+        &self,
+        navigation: &SpatialCraftState,
+        target: &T,
+        time_to_go: f64,
+    ) -> Result<RtnCommand, GuidanceError> {
         lookahead_step(
             &self.actor,
             navigation,

@@ -26,10 +26,10 @@
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
 
-use crate::dynamics::{propagate, SpacecraftState, ThrustCommand};
+use crate::dynamics::ThrustCommand;
 use crate::features::Residuals;
-use crate::geometry::{Dimension, Planar};
-use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, GuidanceError, TargetFeatures};
+use crate::geometry::Dimension;
+use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, Aim, GuidanceError};
 use crate::integrator::Tolerances;
 
 /// Throttle offsets of the candidates from the network's throttle (clamped to [0, 1]); the last
@@ -214,13 +214,14 @@ pub struct Prediction {
     pub cost: f64,
 }
 
-/// One lookahead guidance cycle: the command and why it was chosen (telemetry).
+/// One lookahead guidance cycle: the command and why it was chosen (telemetry). `C` is the
+/// dimension's command: polar in the plane, [`crate::spatial::RtnCommand`] in three dimensions.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Decision {
+pub struct Decision<C = ThrustCommand> {
     /// The command to hold for the cycle.
-    pub command: ThrustCommand,
+    pub command: C,
     /// The network's own command.
-    pub network: ThrustCommand,
+    pub network: C,
     /// Which candidate was chosen (0: the network's).
     pub chosen: usize,
     /// The chosen candidate's predicted arrival (None when no rollout succeeded or none ran).
@@ -232,47 +233,46 @@ pub struct Decision {
     pub rollouts: u32,
 }
 
-/// The `index`-th candidate around the network's command `network` (0: itself).
-pub fn candidate(network: &ThrustCommand, index: usize) -> Option<ThrustCommand> {
+/// The `index`-th candidate around the network's command `network` (0: itself), in dimension
+/// `G`: the direction turned about the local normal (towards the radial), its normal component
+/// kept.
+pub fn candidate<G: Dimension>(network: &G::Command, index: usize) -> Option<G::Command> {
     let Some(k) = index.checked_sub(1) else {
         return Some(*network);
     };
     let throttle = THROTTLES.get(k.checked_div(TURNS_DEG.len())?)?;
     let turn = TURNS_DEG.get(k.checked_rem(TURNS_DEG.len())?)?.to_radians();
+    let network_throttle = G::throttle(network);
     let u = match *throttle {
-        Throttle::Offset(d) => (network.throttle + d).clamp(0.0, 1.0),
+        Throttle::Offset(d) => (network_throttle + d).clamp(0.0, 1.0),
         Throttle::Fixed(u) => u,
     };
     // Thrust off from the network has no direction: turn the along-track one.
-    let (ar, at) = if network.throttle > 0.0 {
-        (network.alpha_r, network.alpha_theta)
+    let [ar, at, an] = if network_throttle > 0.0 {
+        G::direction(network)
     } else {
-        (0.0, 1.0)
+        [0.0, 1.0, 0.0]
     };
     let (s, c) = (libm::sin(turn), libm::cos(turn));
-    Some(ThrustCommand {
-        throttle: u,
-        alpha_r: ar * c + at * s,
-        alpha_theta: at * c - ar * s,
-    })
+    Some(G::command_along(u, &[ar * c + at * s, at * c - ar * s, an]))
 }
 
 /// Whether two commands fly the same: equal, or both thrust off (whatever their directions).
-fn flies_as(a: &ThrustCommand, b: &ThrustCommand) -> bool {
-    a == b || (a.throttle == 0.0 && b.throttle == 0.0)
+fn flies_as<G: Dimension>(a: &G::Command, b: &G::Command) -> bool {
+    a == b || (G::throttle(a) == 0.0 && G::throttle(b) == 0.0)
 }
 
 /// Flies `first` for one cycle from `navigation`, then the network to the arrival.
 #[allow(clippy::too_many_arguments)] // one rollout's inputs
-fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     actor: &A,
     target: &T,
     spacecraft: &CanonicalSpacecraft,
     settings: &LookaheadSettings,
-    navigation: &SpacecraftState,
+    navigation: &<T::Geometry as Dimension>::State,
     time_to_go: f64,
     cycles: u32,
-    first: &ThrustCommand,
+    first: &<T::Geometry as Dimension>::Command,
 ) -> Option<Prediction> {
     let mut state = *navigation;
     let mut command = *first;
@@ -282,33 +282,34 @@ fn rollout<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         if cycle > 0 {
             command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
         }
-        let tolerances = settings.rollout_tolerances(duration, Planar::periapsis(&state));
-        state = propagate(&state, &command, spacecraft, duration, &tolerances).ok()?;
+        let tolerances = settings.rollout_tolerances(duration, T::Geometry::periapsis(&state));
+        state = T::Geometry::propagate(&state, &command, spacecraft, duration, &tolerances).ok()?;
     }
-    let features = target.features_after(&state, time_to_go, 0.0).ok()?;
-    let residuals = T::residuals(&features);
+    let residuals = target.residuals_after(&state, time_to_go).ok()?;
     let mut arrival = Prediction {
         residuals,
-        mass: state.m,
+        mass: T::Geometry::mass(&state),
         cost: 0.0,
     };
     arrival.cost = settings.cost(&arrival);
     arrival.cost.is_finite().then_some(arrival)
 }
 
-/// One guidance cycle with lookahead: the network's command at `navigation` (refused inputs and
-/// non-finite actions are errors, as in [`crate::guidance`]), improved by the rollouts of the
-/// module documentation. `time_to_go` is cut into cycles of `settings.cycle` from now (the last one shorter
-/// when it is not a whole number of them); with more than `settings.max_cycles` cycles left, or
-/// none, the network's command is returned unexamined.
-pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
+/// One guidance cycle with lookahead, in the plane or in three dimensions (the target's
+/// [`Aim`]): the network's command at `navigation` (refused inputs and non-finite actions are
+/// errors, as in [`crate::guidance`]), improved by the rollouts of the module documentation.
+/// `time_to_go` is cut into cycles of `settings.cycle` from now (the last one shorter when it
+/// is not a whole number of them); with more than `settings.max_cycles` cycles left, or none,
+/// the network's command is returned unexamined.
+#[allow(clippy::type_complexity)]
+pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     actor: &A,
-    navigation: &SpacecraftState,
+    navigation: &<T::Geometry as Dimension>::State,
     target: &T,
     time_to_go: f64,
     spacecraft: &CanonicalSpacecraft,
     settings: &LookaheadSettings,
-) -> Result<Decision, GuidanceError> {
+) -> Result<Decision<<T::Geometry as Dimension>::Command>, GuidanceError> {
     let network = command_at(actor, target, navigation, 0.0, time_to_go)?;
     let mut decision = Decision {
         command: network,
@@ -330,15 +331,18 @@ pub fn lookahead_step<const N: usize, A: Actor<N>, T: TargetFeatures<N>>(
         thrust: spacecraft.thrust * (1.0 - settings.thrust_margin),
         ..*spacecraft
     };
-    let mut candidates = [ThrustCommand::OFF; CANDIDATES];
+    let mut candidates = [<T::Geometry as Dimension>::OFF; CANDIDATES];
     for index in 0..CANDIDATES {
-        let Some(first) = candidate(&network, index) else {
+        let Some(first) = candidate::<T::Geometry>(&network, index) else {
             break;
         };
         // A candidate that flies as an earlier one would repeat its rollout and cannot beat it
         // (ties go to the lower index): offsets that clamp to 0 or 1, the unturned offset 0,
         // every direction of thrust off.
-        let repeated = candidates.iter().take(index).any(|c| flies_as(c, &first));
+        let repeated = candidates
+            .iter()
+            .take(index)
+            .any(|c| flies_as::<T::Geometry>(c, &first));
         if let Some(slot) = candidates.get_mut(index) {
             *slot = first;
         }
@@ -378,7 +382,9 @@ pub struct Lookahead<A> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dynamics::{propagate, SpacecraftState};
     use crate::features::{transfer_features, transfer_residuals, ACTION_LEN};
+    use crate::geometry::Planar;
     use crate::guidance::tests::{Broken, Tangential};
     use shared::orbit::OrbitShape;
 
@@ -406,6 +412,54 @@ mod tests {
     /// dimensions: one step on orbits at 1.2, 1 and 0.72 AU (to 1e-9 AU), 19 from the
     /// periapsis of an orbit that passes 0.1 AU from the Sun (to 2e-8 AU, a 1e-7 part of its
     /// radius); one more step always tightens it.
+    /// In three dimensions a candidate turns the direction about the local normal: a unit
+    /// direction with the network's normal component, the transverse one turned towards the
+    /// radial; in the plane, with no normal component, the planar candidate to 1e-15.
+    #[test]
+    fn spatial_candidates_turn_about_the_normal_and_match_the_plane() {
+        use crate::geometry::Spatial;
+        use crate::spatial::RtnCommand;
+        let network = RtnCommand {
+            throttle: 0.6,
+            radial: 0.36,
+            transverse: 0.8,
+            normal: 0.48,
+        };
+        for index in 0..CANDIDATES {
+            let c = candidate::<Spatial>(&network, index).expect("in range");
+            let norm = libm::sqrt(c.radial * c.radial + c.transverse * c.transverse + c.normal * c.normal);
+            assert!(
+                (norm - 1.0).abs() < 1e-15 && c.normal == network.normal,
+                "{index}: {c:?}"
+            );
+            let flat = ThrustCommand {
+                throttle: 0.6,
+                alpha_r: 0.6,
+                alpha_theta: 0.8,
+            };
+            let planar = candidate::<Planar>(&flat, index).expect("in range");
+            let lifted = candidate::<Spatial>(
+                &RtnCommand {
+                    throttle: 0.6,
+                    radial: 0.6,
+                    transverse: 0.8,
+                    normal: 0.0,
+                },
+                index,
+            )
+            .expect("in range");
+            assert_eq!(
+                (planar.throttle, planar.alpha_r, planar.alpha_theta),
+                (lifted.throttle, lifted.radial, lifted.transverse)
+            );
+        }
+        let turned = candidate::<Spatial>(&network, 2).expect("in range");
+        assert!(
+            turned.radial > network.radial && turned.transverse < network.transverse,
+            "{turned:?}"
+        );
+    }
+
     #[test]
     fn fixed_rollout_steps_predict_the_flight_propagator() {
         use crate::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
@@ -494,19 +548,19 @@ mod tests {
             alpha_r: 0.6,
             alpha_theta: 0.8,
         };
-        assert_eq!(candidate(&network, 0), Some(network));
+        assert_eq!(candidate::<Planar>(&network, 0), Some(network));
         for index in 1..CANDIDATES {
-            let c = candidate(&network, index).expect("in range");
+            let c = candidate::<Planar>(&network, index).expect("in range");
             assert!(c.validate().is_ok(), "candidate {index}: {c:?}");
         }
         // Throttle + 0.25 clamps at full; a 10 degree turn keeps the angle to the network's.
-        let up = candidate(&network, 1 + 2 * TURNS_DEG.len() + 1).expect("in range");
+        let up = candidate::<Planar>(&network, 1 + 2 * TURNS_DEG.len() + 1).expect("in range");
         assert_eq!(up.throttle, 1.0);
         let dot = up.alpha_r * network.alpha_r + up.alpha_theta * network.alpha_theta;
         assert!((dot - 10f64.to_radians().cos()).abs() < 1e-12);
-        assert_eq!(candidate(&network, CANDIDATES), None);
+        assert_eq!(candidate::<Planar>(&network, CANDIDATES), None);
         // Off from the network: the along-track direction is turned.
-        let off = candidate(&ThrustCommand::OFF, 1 + 4 * TURNS_DEG.len()).expect("in range");
+        let off = candidate::<Planar>(&ThrustCommand::OFF, 1 + 4 * TURNS_DEG.len()).expect("in range");
         assert_eq!((off.throttle, off.alpha_r, off.alpha_theta), (1.0, 0.0, 1.0));
     }
 
@@ -576,7 +630,7 @@ mod tests {
             assert_eq!(d.rollouts, distinct, "action {action}");
             let mut best: Option<(usize, Prediction)> = None;
             for index in 0..CANDIDATES {
-                let first = candidate(&d.network, index).expect("in range");
+                let first = candidate::<Planar>(&d.network, index).expect("in range");
                 let arrival =
                     rollout(&actor, &ORBIT, &sc, &settings, &on_orbit(), time_to_go, 3, &first).expect("flies");
                 if best.is_none_or(|(_, b)| arrival.cost < b.cost) {

@@ -657,8 +657,7 @@ impl<const N: usize, T: TargetFeatures<N>, A: Actor<N>> Guide<N, T> for Terminal
     }
 }
 
-/// In three dimensions the network flies before the terminal cycles: rollout lookahead is a
-/// planar aid, and `lookahead` is not read (the ground refuses it for inclined families).
+/// In three dimensions, the same: rollout lookahead before the terminal cycles when it is set.
 impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guide<N, T, Spatial> for Terminal<A> {
     fn command(
         &self,
@@ -666,15 +665,14 @@ impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guid
         target: &T,
         time_to_go: f64,
     ) -> Result<RtnCommand, GuidanceError> {
-        terminal_step(
-            &self.actor,
-            navigation,
-            target,
-            time_to_go,
-            &self.spacecraft,
-            &self.settings,
-        )
-        .map(|d| d.command)
+        let (actor, spacecraft) = (&self.actor, &self.spacecraft);
+        let cycles = cycles_left(time_to_go, self.settings.cycle);
+        match self.lookahead {
+            Some(settings) if cycles > f64::from(self.settings.cycles) => {
+                lookahead_step(actor, navigation, target, time_to_go, spacecraft, &settings).map(|d| d.command)
+            }
+            _ => terminal_step(actor, navigation, target, time_to_go, spacecraft, &self.settings).map(|d| d.command),
+        }
     }
 }
 
@@ -980,6 +978,75 @@ mod tests {
             close(planar.planned_miss, spatial.planned_miss),
             "{planar:?} {spatial:?}"
         );
+    }
+
+    /// In the plane the spatial rollout lookahead decides as the planar one: the same candidate
+    /// from as many rollouts, the same command and predicted arrivals to 1e-9.
+    #[test]
+    fn in_the_plane_the_spatial_lookahead_decides_as_the_planar_one() {
+        use crate::features::RENDEZVOUS3_FEATURES;
+        use crate::lookahead::lookahead_step;
+        let (start, arrival) = reachable(STEP);
+        let epoch = coast(
+            &CartesianState {
+                r: arrival.r,
+                v: arrival.v,
+            },
+            -3.0 * STEP,
+        )
+        .unwrap();
+        let settings = LookaheadSettings::default();
+        let planar = lookahead_step::<RENDEZVOUS_FEATURES, 3, _, _>(
+            &NearlyRight::<20> { cycle: STEP },
+            &start,
+            &epoch,
+            3.0 * STEP,
+            &spacecraft(),
+            &settings,
+        )
+        .unwrap();
+        let lifted = SpatialCraftState {
+            orbit: SpatialState::from_planar(&CartesianState { r: start.r, v: start.v }),
+            m: start.m,
+        };
+        let network = NearlyRight3::<28> {
+            cycle: STEP,
+            plan: PLAN.map(|t| [t[0], t[1], 0.0]),
+        };
+        let spatial = lookahead_step::<RENDEZVOUS3_FEATURES, 4, _, _>(
+            &network,
+            &lifted,
+            &SpatialState::from_planar(&epoch),
+            3.0 * STEP,
+            &spacecraft(),
+            &settings,
+        )
+        .unwrap();
+        assert_eq!(
+            (planar.chosen, planar.rollouts),
+            (spatial.chosen, spatial.rollouts),
+            "{planar:?} {spatial:?}"
+        );
+        assert!(planar.rollouts > 1, "{planar:?}");
+        let (p, s) = (planar.command, spatial.command);
+        for (a, b) in [
+            (p.throttle, s.throttle),
+            (p.alpha_r, s.radial),
+            (p.alpha_theta, s.transverse),
+            (0.0, s.normal),
+        ] {
+            assert!((a - b).abs() < 1e-9, "{p:?} against {s:?}");
+        }
+        for (a, b) in [
+            (planar.predicted, spatial.predicted),
+            (planar.network_predicted, spatial.network_predicted),
+        ] {
+            let (a, b) = (a.unwrap(), b.unwrap());
+            assert!(
+                (a.cost - b.cost).abs() < 1e-9 && (a.mass - b.mass).abs() < 1e-12,
+                "{a:?} {b:?}"
+            );
+        }
     }
 
     /// The 3-cycle transfer problem to the orbit through where [`PLAN`] flies from

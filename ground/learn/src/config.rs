@@ -628,13 +628,6 @@ impl ExperimentConfig {
                 .validate()
                 .map_err(|e| ConfigError::Invalid(format!("sil.lookahead: {e}")))?;
         }
-        if self.is_inclined() && self.sil.lookahead.is_some() {
-            return Err(ConfigError::Invalid(format!(
-                "sil.lookahead: rollout lookahead flies planar families only, and family {} is inclined: fly \
-                 its network alone or with terminal targeting (sil.terminal)",
-                self.family.label()
-            )));
-        }
         if self.aid_cycle().is_none() && (self.sil.lookahead.is_some() || self.sil.terminal.is_some()) {
             return Err(ConfigError::Invalid(format!(
                 "sil.lookahead / sil.terminal: the onboard aids count cycles of one length, and family {} \

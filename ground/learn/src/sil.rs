@@ -351,12 +351,6 @@ impl SilGeometry for Spatial {
         scenarios: &[SpatialScenario],
         flights: &SilFlights,
     ) -> Result<SilFlown<Spatial>, ExperimentError> {
-        if flights.lookahead.is_some() {
-            return Err(ExperimentError::Inclined {
-                stage: "rollout lookahead",
-                family: config.family.label().to_string(),
-            });
-        }
         check_mission(config, blob)?;
         with_spatial_flight_problem!(config.problem(), N, P => {
             fly_spatial_blob_as::<N, P>(config, blob, scenarios, flights)
@@ -364,8 +358,8 @@ impl SilGeometry for Spatial {
     }
 }
 
-/// [`SilGeometry::fly_blob`] in three dimensions for one problem: the network, with terminal
-/// targeting of its last cycles when the flights ask for it.
+/// [`SilGeometry::fly_blob`] in three dimensions for one problem: the network, with the
+/// onboard aids the flights ask for.
 fn fly_spatial_blob_as<const N: usize, P>(
     config: &ExperimentConfig,
     blob: &[u8],
@@ -386,18 +380,26 @@ where
             let mut steps = Vec::with_capacity(scenario.scenario.steps as usize);
             let seed = flights.seed.wrapping_add(i as u64);
             let keep = |k: &FlightStep<N, Spatial>| steps.push(*k);
-            // A refused blob flies safe mode, thrust off every cycle: nothing to target.
-            let result = match flights
-                .terminal
-                .filter(|_| matches!(controller, Controller::Network(_)))
-            {
-                None => fly_observed(P::default(), &controller, scenario, &setup, seed, keep),
-                Some(settings) => {
+            // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with
+            // or to target.
+            let network = matches!(controller, Controller::Network(_));
+            let lookahead = flights.lookahead.filter(|_| network);
+            let result = match (flights.terminal.filter(|_| network), lookahead) {
+                (None, None) => fly_observed(P::default(), &controller, scenario, &setup, seed, keep),
+                (None, Some(settings)) => {
+                    let guide = Lookahead {
+                        actor: &controller,
+                        spacecraft: setup.spacecraft,
+                        settings,
+                    };
+                    fly_observed(P::default(), &guide, scenario, &setup, seed, keep)
+                }
+                (Some(settings), lookahead) => {
                     let guide = Terminal {
                         actor: &controller,
                         spacecraft: setup.spacecraft,
                         settings,
-                        lookahead: None,
+                        lookahead,
                     };
                     fly_observed(P::default(), &guide, scenario, &setup, seed, keep)
                 }

@@ -283,8 +283,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         "a planar blob flies the 3D loop"
     );
 
-    // Rollout lookahead is planar: an inclined config that asks for it is refused up front, and
-    // its SIL Monte Carlo writes nothing. Terminal targeting flies in three dimensions.
+    // Terminal targeting flies in three dimensions.
     let mut targeted = wide.clone();
     targeted.sil.terminal = Some(learn::config::TerminalSettings::default());
     assert!(targeted.validate().is_ok());
@@ -305,19 +304,21 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     assert_eq!((aimed.flights, aimed.guidance_faults), (6, 0));
     let miss = |r: &learn::sil::SilReport| r.monte_carlo.policy.terminal_position.p50;
     assert!(miss(&aimed) < miss(&alone), "{} against {}", miss(&aimed), miss(&alone));
-    let mut aided = wide.clone();
+    // Rollout lookahead flies in three dimensions too, before the terminal cycles.
+    let mut aided = targeted.clone();
     aided.sil.lookahead = Some(Default::default());
-    let refused = aided.validate().unwrap_err().to_string();
-    assert!(refused.contains("planar families only"), "{refused}");
-    let sil = learn::sil::sil_monte_carlo(
+    aided.validate().unwrap();
+    let looked = learn::sil::sil_monte_carlo(
         &aided,
         &export.f32.file,
         &dir.join("aided"),
         Some(2),
         &Dispersions::NONE,
         0,
-    );
-    assert!(sil.is_err() && !dir.join("aided").exists());
+    )
+    .unwrap();
+    assert!(looked.lookahead.is_some() && looked.terminal.is_some());
+    assert_eq!((looked.flights, looked.guidance_faults), (2, 0));
 
     // The run plan times the 3D environment and solves a sample in 3D.
     let plan = learn::plan::plan_recipe(&config, 1).unwrap();
