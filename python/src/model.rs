@@ -21,6 +21,7 @@ use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
 use onboard::features::{ACTION3_LEN, ACTION_LEN};
 use onboard::guidance::{Actor, Guide};
+use onboard::lookahead::{Lookahead, LookaheadSettings};
 use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, FeatureLayout, ProblemKind, Quantization};
 
@@ -184,7 +185,9 @@ impl Policy {
 /// must hold exactly the actor's weights. Returns a dict: `name` (the card's), `scenario` (its
 /// family: a preset's name or the family's table as TOML text), `env_config` (its `[env]` as
 /// TOML text: spacecraft, reward), `sil_dispersions` (its `[sil.dispersions]` as TOML text, the
-/// dispersions its card's SIL flew; empty when the config has none), `card` (card.json as a dict), `f32` and `int8` (`Policy`),
+/// dispersions its card's SIL flew; empty when the config has none), `sil_aids` (the onboard aids
+/// its card's SIL flew: its `[sil]` tables `lookahead` and `terminal` as TOML text, for
+/// `fly_sil`'s `aids`; empty when it flies none), `card` (card.json as a dict), `f32` and `int8` (`Policy`),
 /// `files` (paths of the actor, the blobs and, when the folder has it, `onnx`).
 #[pyfunction]
 fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>> {
@@ -215,6 +218,14 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
     let env_config = table_text(config.get("env"))?;
     // The dispersions its SIL flew (`[sil.dispersions]`), for `fly_sil`'s `dispersions`.
     let sil_dispersions = table_text(config.get("sil").and_then(|sil| sil.get("dispersions")))?;
+    // The aids its SIL flew (`[sil] lookahead`, `terminal`), for `fly_sil`'s `aids`.
+    let mut aids = toml::Table::new();
+    for name in ["lookahead", "terminal"] {
+        if let Some(table) = config.get("sil").and_then(|sil| sil.get(name)) {
+            aids.insert(name.into(), table.clone());
+        }
+    }
+    let sil_aids = toml::to_string(&aids).map_err(|e| bad(&e.to_string()))?;
     let files: BTreeMap<String, String> =
         serde_json::from_value(card["files"].clone()).map_err(|e| bad(&format!("its files do not read: {e}")))?;
     let checked = py
@@ -225,6 +236,7 @@ fn open_model<'py>(py: Python<'py>, dir: PathBuf) -> PyResult<Bound<'py, PyDict>
     d.set_item("scenario", scenario)?;
     d.set_item("env_config", env_config)?;
     d.set_item("sil_dispersions", sil_dispersions)?;
+    d.set_item("sil_aids", sil_aids)?;
     d.set_item("card", py.import("json")?.call_method1("loads", (text,))?)?;
     d.set_item("f32", Policy::load(&checked.f32_blob)?)?;
     d.set_item("int8", Policy::load(&checked.int8_blob)?)?;
@@ -265,36 +277,56 @@ impl FlightEnd {
     }
 }
 
+/// The onboard aids a flight flies: a config's `[sil]` tables `lookahead` and `terminal`.
+#[derive(Debug, Clone, Copy, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Aids {
+    lookahead: Option<LookaheadSettings>,
+    terminal: Option<TerminalSettings>,
+}
+
 /// Flies scenarios `scenario(i)`, i in `0..episodes`, as problem `P` with `blob`'s controller
-/// (safe mode when the blob is refused), flight i's dispersions drawn from `seed + i`, its last
-/// cycles with terminal targeting when `terminal` is set: one implementation for both
-/// dimensions.
+/// (safe mode when the blob is refused), flight i's dispersions drawn from `seed + i`, with the
+/// onboard `aids` (rollout lookahead, then terminal targeting of the last cycles, each when
+/// set): one implementation for both dimensions.
 fn fly_flights<const N: usize, const OUT: usize, P>(
     blob: &[u8],
     scenario: impl Fn(u64) -> ScenarioOf<P, N> + Sync,
     setup: &FlightSetup,
     seed: u64,
     episodes: u64,
-    terminal: Option<TerminalSettings>,
+    aids: Aids,
 ) -> Vec<Result<FlightEnd, String>>
 where
     P: firmware_sim::Problem<N> + Default,
     for<'b> Controller<'b, N, OUT>: Guide<N, P::Target, P::Geometry> + Sync,
     for<'b, 'c> Terminal<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
+    for<'b, 'c> Lookahead<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
 {
     let controller = Controller::<N, OUT>::load::<P>(blob);
     (0..episodes)
         .into_par_iter()
         .map(|i| {
             let flight_seed = seed.wrapping_add(i);
-            let flown = match terminal {
-                None => fly_observed(P::default(), &controller, &scenario(i), setup, flight_seed, |_| ()),
-                Some(settings) => {
+            // A refused blob flies safe mode, thrust off every cycle: no aid to fly.
+            let network = matches!(controller, Controller::Network(_));
+            let lookahead = aids.lookahead.filter(|_| network);
+            let flown = match (aids.terminal.filter(|_| network), lookahead) {
+                (None, None) => fly_observed(P::default(), &controller, &scenario(i), setup, flight_seed, |_| ()),
+                (None, Some(settings)) => {
+                    let guide = Lookahead {
+                        actor: &controller,
+                        spacecraft: setup.spacecraft,
+                        settings,
+                    };
+                    fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ())
+                }
+                (Some(settings), lookahead) => {
                     let guide = Terminal {
                         actor: &controller,
                         spacecraft: setup.spacecraft,
                         settings,
-                        lookahead: None,
+                        lookahead,
                     };
                     fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ())
                 }
@@ -310,14 +342,17 @@ where
 /// typical dispersions: navigation noise, thrust magnitude and pointing errors, missed-thrust
 /// events. An inclined family's blob flies the three-dimensional loop (its pointing error a
 /// cone about the command). With `terminal_cycles` the last that many cycles (1 to 8) of each
-/// flight are flown with terminal targeting (`onboard::terminal`) counting the family's cycles. `env_config` (the `[env]` of a
+/// flight are flown with terminal targeting (`onboard::terminal`) counting the family's cycles;
+/// `aids` (the `[sil]` tables `lookahead` and `terminal` of a config as TOML text, `open_model`'s
+/// `sil_aids`) flies the onboard aids they set instead, rollout lookahead (`onboard::lookahead`)
+/// included, as the model's own SIL flew them. `env_config` (the `[env]` of a
 /// config as TOML text, `open_model`'s `env_config`) sets the spacecraft, integrator and reward
 /// weights, as the model's own SIL flew them; `dispersions` (a `[sil.dispersions]` table as TOML
 /// text, `open_model`'s `sil_dispersions`) replaces the typical dispersions of a dispersed
 /// flight. Returns per-flight arrays: `dr`, `dv` (terminal
 /// residuals), `final_mass`, `total_reward`, `guidance_faults`, `completed`.
 #[pyfunction]
-#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None, env_config=None, dispersions=None))]
+#[pyo3(signature = (policy, kind, seed, episodes, dispersed=true, terminal_cycles=None, env_config=None, dispersions=None, aids=None))]
 #[allow(clippy::too_many_arguments)] // the Python signature's keywords
 fn fly_sil<'py>(
     py: Python<'py>,
@@ -329,6 +364,7 @@ fn fly_sil<'py>(
     terminal_cycles: Option<u32>,
     env_config: Option<&str>,
     dispersions: Option<&str>,
+    aids: Option<&str>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let family = spatial_scenario_family(kind)?;
     let kind = family.family;
@@ -338,23 +374,40 @@ fn fly_sil<'py>(
     };
     let env = EnvConfig { body: kind.body, ..env };
     let cycle = kind.fixed_cycle();
-    let terminal = match terminal_cycles {
-        None => None,
-        Some(cycles) => {
-            let cycle = cycle.ok_or_else(|| {
-                refused("terminal targeting counts cycles of one length; this family cuts flights of different lengths into a count of cycles each")
-            })?;
-            let settings = TerminalSettings {
+    let given = match (terminal_cycles, aids) {
+        (Some(_), Some(_)) => return Err(refused("give terminal_cycles or aids, not both")),
+        (None, Some(text)) => toml::from_str(text).map_err(|e| refused(format!("aids: {e}")))?,
+        (cycles, None) => Aids {
+            lookahead: None,
+            terminal: cycles.map(|cycles| TerminalSettings {
                 cycles,
-                cycle,
-                tolerances: env.integrator.tolerances(),
                 ..TerminalSettings::default()
-            };
-            settings
-                .validate()
-                .map_err(|_| refused(format!("terminal_cycles must be 1 to {MAX_CYCLES}, not {cycles}")))?;
-            Some(settings)
+            }),
+        },
+    };
+    let flown_aids = if given.lookahead.is_none() && given.terminal.is_none() {
+        given
+    } else {
+        // The aids count the family's cycles and propagate as its environment does.
+        let cycle = cycle.ok_or_else(|| {
+            refused("the onboard aids count cycles of one length; this family cuts flights of different lengths into a count of cycles each")
+        })?;
+        let tolerances = env.integrator.tolerances();
+        let aids = Aids {
+            lookahead: given.lookahead.map(|l| LookaheadSettings { cycle, tolerances, ..l }),
+            terminal: given.terminal.map(|t| TerminalSettings { cycle, tolerances, ..t }),
+        };
+        if aids.terminal.is_some_and(|t| t.validate().is_err()) {
+            let cycles = aids.terminal.map_or(0, |t| t.cycles);
+            return Err(refused(match terminal_cycles {
+                Some(_) => format!("terminal_cycles must be 1 to {MAX_CYCLES}, not {cycles}"),
+                None => format!("aids: terminal: cycles must be 1 to {MAX_CYCLES} and iterations 1 to 64"),
+            }));
         }
+        if let Some(Err(e)) = aids.lookahead.map(|l| l.validate()) {
+            return Err(refused(format!("aids: lookahead: {e}")));
+        }
+        aids
     };
     if kind.problem != policy.kind || family.as_planar().is_none() != policy.features.is_spatial() {
         return Err(refused(format!(
@@ -388,11 +441,11 @@ fn fly_sil<'py>(
     let blob = policy.blob.bytes();
     let flights = if family.as_planar().is_none() {
         with_spatial_flight_problem!(kind.problem, N, P => py.detach(|| {
-            fly_flights::<N, ACTION3_LEN, P>(blob, |i| family.draw(seed, i), &setup, seed, episodes, terminal)
+            fly_flights::<N, ACTION3_LEN, P>(blob, |i| family.draw(seed, i), &setup, seed, episodes, flown_aids)
         }))
     } else {
         with_flight_problem!(kind.problem, N, P => py.detach(|| {
-            fly_flights::<N, ACTION_LEN, P>(blob, |i| kind.draw(seed, i), &setup, seed, episodes, terminal)
+            fly_flights::<N, ACTION_LEN, P>(blob, |i| kind.draw(seed, i), &setup, seed, episodes, flown_aids)
         }))
     };
     let completed: Vec<bool> = flights.iter().map(Result::is_ok).collect();

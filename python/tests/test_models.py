@@ -83,7 +83,14 @@ def test_dispersions_that_cannot_be_flown_are_refused_by_name():
 @pytest.mark.parametrize("quantization", ["f32", "int8"])
 @pytest.mark.parametrize(
     "name",
-    ["transfer-circular-dispersed", "venus-inward", "transfer-circular-inclined", "earth-mars", "earth-mars-robust"],
+    [
+        "transfer-circular-dispersed",
+        "rendezvous-circular-dispersed",
+        "venus-inward",
+        "transfer-circular-inclined",
+        "earth-mars",
+        "earth-mars-robust",
+    ],
 )
 def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     """The dispersed SIL Monte Carlo of the card (1,000 flights, its config's dispersions, the
@@ -91,21 +98,20 @@ def test_the_sil_from_python_flies_the_cards_figures(name, quantization):
     the same share within each tolerance, the same medians; for a preset, for a mission family
     (7-day cycles, another spacecraft), for an inclined family (the three-dimensional loop) and
     for a real mission (a three-dimensional rendezvous from a dispersed departure, 40 cycles
-    over a fixed flight, the study's uncertainties)."""
+    over a fixed flight, the study's uncertainties); each with the onboard aids its card flew
+    (rendezvous-circular-dispersed: rollout lookahead with a thrust margin, then terminal
+    targeting)."""
     model = lowthrust.open_model(MODELS / name)
     figures = dict(model["card"]["sil"])[f"{model['f32'].problem}-{quantization}.blob"]
-    # The card's SIL flies the last cycles with terminal targeting, when it records it.
-    terminal = model["card"].get("terminal")
-    cycles = terminal["cycles"] if terminal else None
     flown = lowthrust.fly_sil(
         model[quantization],
         model["scenario"],
         2000003,
         figures["episodes"],
         dispersed=True,
-        terminal_cycles=cycles,
         env_config=model["env_config"],
         dispersions=model["sil_dispersions"],
+        aids=model["sil_aids"],
     )
     assert flown["completed"].all()
     for tolerance, share in figures["within"]:
@@ -250,6 +256,12 @@ def test_terminal_targeting_from_python_brings_arrivals_within_a_thousandth():
     assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.95
     with pytest.raises(lowthrust.LowThrustError, match="terminal_cycles"):
         lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 10, terminal_cycles=9)
+    with pytest.raises(lowthrust.LowThrustError, match="not both"):
+        lowthrust.fly_sil(model["f32"], "transfer-circular", 0, 1, terminal_cycles=4, aids="[terminal]\ncycles = 4\n")
+    with pytest.raises(lowthrust.LowThrustError, match="(?s)aids.*goal_position"):
+        lowthrust.fly_sil(model["f32"], "transfer-circular", 0, 1, aids="[terminal]\ngoal_position = 0.1\n")
+    with pytest.raises(lowthrust.LowThrustError, match="aids: lookahead"):
+        lowthrust.fly_sil(model["f32"], "transfer-circular", 0, 1, aids="[lookahead]\nthrust_margin = 1.5\n")
 
 
 def test_terminal_targeting_from_python_flies_inclined_arrivals_in_three_dimensions():
