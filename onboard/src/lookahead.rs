@@ -92,6 +92,13 @@ pub struct LookaheadSettings {
     /// network in the nominal model.
     #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero"))]
     pub thrust_margin: f64,
+    /// Whole cycles before the arrival at which the rollouts are judged (default 0): the
+    /// arrival's residuals and mass are taken that much earlier, the target met early and
+    /// followed (an orbit coasted along, a body coasted with), so the rollouts keep the last
+    /// cycles in reserve against thrust the flight will lose. With no more cycles left than the
+    /// margin, the arrival itself.
+    #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero_cycles"))]
+    pub arrival_margin: u32,
     /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
     #[cfg_attr(feature = "serde", serde(skip))]
     pub cycle: f64,
@@ -101,6 +108,12 @@ pub struct LookaheadSettings {
 #[cfg(feature = "serde")]
 fn is_zero(x: &f64) -> bool {
     *x == 0.0
+}
+
+/// Whether a count of cycles is at its default of zero (left out when written).
+#[cfg(feature = "serde")]
+fn is_zero_cycles(n: &u32) -> bool {
+    *n == 0
 }
 
 impl Default for LookaheadSettings {
@@ -114,6 +127,7 @@ impl Default for LookaheadSettings {
             tolerances: Tolerances::default(),
             max_cycles: 200,
             thrust_margin: 0.0,
+            arrival_margin: 0,
             cycle: STEP,
         }
     }
@@ -262,7 +276,9 @@ fn flies_as<G: Dimension>(a: &G::Command, b: &G::Command) -> bool {
     a == b || (G::throttle(a) == 0.0 && G::throttle(b) == 0.0)
 }
 
-/// Flies `first` for one cycle from `navigation`, then the network to the arrival.
+/// Flies `first` for one cycle from `navigation`, then the network, `cycles` cycles to the
+/// `horizon` (the arrival `time_to_go` away, or earlier by the settings' margin), where the
+/// arrival is judged.
 #[allow(clippy::too_many_arguments)] // one rollout's inputs
 fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     actor: &A,
@@ -271,6 +287,7 @@ fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     settings: &LookaheadSettings,
     navigation: &<T::Geometry as Dimension>::State,
     time_to_go: f64,
+    horizon: f64,
     cycles: u32,
     first: &<T::Geometry as Dimension>::Command,
 ) -> Option<Prediction> {
@@ -278,14 +295,14 @@ fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     let mut command = *first;
     for cycle in 0..cycles {
         let start = f64::from(cycle) * settings.cycle;
-        let duration = cycle_duration(time_to_go, start, settings.cycle);
+        let duration = cycle_duration(horizon, start, settings.cycle);
         if cycle > 0 {
             command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
         }
         let tolerances = settings.rollout_tolerances(duration, T::Geometry::periapsis(&state));
         state = T::Geometry::propagate(&state, &command, spacecraft, duration, &tolerances).ok()?;
     }
-    let residuals = target.residuals_after(&state, time_to_go).ok()?;
+    let residuals = target.residuals_after(&state, horizon).ok()?;
     let mut arrival = Prediction {
         residuals,
         mass: T::Geometry::mass(&state),
@@ -326,7 +343,14 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
     if !(cycles >= 1.0 && cycles <= f64::from(settings.max_cycles)) {
         return Ok(decision);
     }
-    let cycles = cycles as u32;
+    // The rollouts' horizon: the arrival, or `arrival_margin` whole cycles before it.
+    let margin = f64::from(settings.arrival_margin) * settings.cycle;
+    let horizon = if cycles > f64::from(settings.arrival_margin) {
+        time_to_go - margin
+    } else {
+        time_to_go
+    };
+    let cycles = cycles_left(horizon, settings.cycle) as u32;
     let planned = CanonicalSpacecraft {
         thrust: spacecraft.thrust * (1.0 - settings.thrust_margin),
         ..*spacecraft
@@ -351,7 +375,7 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         }
         decision.rollouts += 1;
         let Some(arrival) = rollout(
-            actor, target, &planned, settings, navigation, time_to_go, cycles, &first,
+            actor, target, &planned, settings, navigation, time_to_go, horizon, cycles, &first,
         ) else {
             continue;
         };
@@ -631,14 +655,49 @@ mod tests {
             let mut best: Option<(usize, Prediction)> = None;
             for index in 0..CANDIDATES {
                 let first = candidate::<Planar>(&d.network, index).expect("in range");
-                let arrival =
-                    rollout(&actor, &ORBIT, &sc, &settings, &on_orbit(), time_to_go, 3, &first).expect("flies");
+                let arrival = rollout(
+                    &actor,
+                    &ORBIT,
+                    &sc,
+                    &settings,
+                    &on_orbit(),
+                    time_to_go,
+                    time_to_go,
+                    3,
+                    &first,
+                )
+                .expect("flies");
                 if best.is_none_or(|(_, b)| arrival.cost < b.cost) {
                     best = Some((index, arrival));
                 }
             }
             let (chosen, predicted) = best.expect("a candidate");
             assert_eq!((d.chosen, d.predicted), (chosen, Some(predicted)), "action {action}");
+        }
+    }
+
+    /// With an arrival margin the rollouts are judged that many cycles early: a network that
+    /// ignores its inputs predicts, 3.5 cycles out with a margin of 1, what it predicts 2.5
+    /// cycles out without one, bit for bit (the same commands and cycles, the partial one last);
+    /// with no more cycles left than the margin, the arrival itself.
+    #[test]
+    fn an_arrival_margin_judges_the_rollouts_that_many_cycles_early() {
+        let sc = spacecraft();
+        let plain = LookaheadSettings::default();
+        let early = LookaheadSettings {
+            arrival_margin: 1,
+            ..plain
+        };
+        let decide = |time_to_go: f64, settings: &LookaheadSettings| {
+            lookahead_step(&Tangential, &on_orbit(), &ORBIT, time_to_go, &sc, settings).expect("valid inputs")
+        };
+        let (judged_early, judged_there) = (decide(3.5 * STEP, &early), decide(2.5 * STEP, &plain));
+        assert!(judged_early.network_predicted.is_some());
+        assert_eq!(judged_early.network_predicted, judged_there.network_predicted);
+        assert_eq!(judged_early.predicted, judged_there.predicted);
+        assert_ne!(judged_early.predicted, decide(3.5 * STEP, &plain).predicted);
+        for time_to_go in [0.5 * STEP, STEP] {
+            assert_eq!(decide(time_to_go, &early), decide(time_to_go, &plain));
         }
     }
 

@@ -686,6 +686,7 @@ fn lookahead(
     settings.fuel_weight = hostile(rng, 0.0, 10.0);
     settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
     settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
+    settings.arrival_margin = [0, 0, 1, 2, u32::MAX][rng.below(5)];
     let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // At most 12 t* ahead (50 cycles): a hostile huge time to go flies the network unexamined.
     let time_to_go = time_to_go.min(12.0);
@@ -715,6 +716,7 @@ fn lookahead(
         fuel_weight: settings.fuel_weight,
         max_cycles: settings.max_cycles,
         thrust_margin: settings.thrust_margin,
+        arrival_margin: settings.arrival_margin,
         ..LookaheadSettings::default()
     };
     let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {

@@ -269,6 +269,9 @@ typedef struct lt_lookahead_settings {
   double cycle;
   // Most cycles a rollout flies; with more left the network's command is flown unexamined.
   uint32_t max_cycles;
+  // Whole cycles before the arrival at which the rollouts are judged (the target met early
+  // and followed, the last cycles kept in reserve); default 0.
+  uint32_t arrival_margin;
 } lt_lookahead_settings;
 
 // The nominal spacecraft the lookahead's rollouts fly, in canonical units.

@@ -782,6 +782,9 @@ pub struct lt_lookahead_settings {
     pub cycle: f64,
     /// Most cycles a rollout flies; with more left the network's command is flown unexamined.
     pub max_cycles: u32,
+    /// Whole cycles before the arrival at which the rollouts are judged (the target met early
+    /// and followed, the last cycles kept in reserve); default 0.
+    pub arrival_margin: u32,
 }
 
 /// What one lookahead cycle decided, for telemetry.
@@ -813,6 +816,7 @@ impl From<lt_lookahead_settings> for LookaheadSettings {
             fuel_weight: s.fuel_weight,
             max_cycles: s.max_cycles,
             thrust_margin: s.thrust_margin,
+            arrival_margin: s.arrival_margin,
             cycle: s.cycle,
             ..Self::default()
         }
@@ -836,6 +840,7 @@ pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) 
         fuel_weight: d.fuel_weight,
         max_cycles: d.max_cycles,
         thrust_margin: d.thrust_margin,
+        arrival_margin: d.arrival_margin,
         cycle: d.cycle,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.

@@ -825,6 +825,7 @@ fn defaults() -> lt_lookahead_settings {
         fuel_weight: 0.0,
         max_cycles: 0,
         thrust_margin: 1.0,
+        arrival_margin: u32::MAX,
         cycle: 0.0,
     };
     assert_eq!(unsafe { lt_lookahead_defaults(&mut s) }, LT_OK);
@@ -843,6 +844,7 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
             settings.accuracy_floor,
             settings.fuel_weight,
             settings.max_cycles,
+            settings.arrival_margin,
             settings.cycle
         ),
         (
@@ -851,6 +853,7 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
             d.accuracy_floor,
             d.fuel_weight,
             d.max_cycles,
+            d.arrival_margin,
             d.cycle
         )
     );
@@ -864,6 +867,16 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
     // A few cycles before the arrival (rollouts of 1 to 4 cycles, the last one partial).
     for (k, (nav, _)) in states(8).into_iter().enumerate() {
         let ttg = 0.2408 * (0.5 + k as f64 / 2.0);
+        // Every other cycle judged a cycle early.
+        let margin = (k % 2) as u32;
+        let settings = lt_lookahead_settings {
+            arrival_margin: margin,
+            ..settings
+        };
+        let d = LookaheadSettings {
+            arrival_margin: margin,
+            ..d
+        };
         let mut command = STALE;
         let mut report = std::mem::MaybeUninit::<lt_lookahead_report>::uninit();
         let status = unsafe {
