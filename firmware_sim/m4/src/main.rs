@@ -86,7 +86,6 @@ const CALIBRATION_LOOP: u32 = 1_000_000;
 const REPEATS: u32 = 64;
 /// Cycles left in the measured lookahead cycle: at most 26 rollouts of 4 cycles (one
 /// measurement stays well inside the SysTick's 2^24 ticks).
-#[cfg(not(feature = "spatial"))]
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
 const TERMINAL_CYCLES: u32 = 8;
@@ -194,8 +193,6 @@ fn measure(
         total / u64::from(REPEATS),
         (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
     )?;
-    // Rollout lookahead flies in the plane only.
-    #[cfg(not(feature = "spatial"))]
     lookahead(out, counter, controller)?;
     terminal(out, counter, controller, terminal_states)?;
     // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
@@ -223,16 +220,15 @@ fn first_flight() -> Option<(
 /// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
 /// start, [`LOOKAHEAD_CYCLES`] cycles before the arrival: its instructions, whole and per rollout
 /// cycle (an inference and a 14-day propagation), from which a cycle with more to go scales.
-#[cfg(not(feature = "spatial"))]
 #[inline(never)]
 fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownController<'_>) -> core::fmt::Result {
-    use onboard::dynamics::SpacecraftState;
+    use firmware_sim::Dimension;
     use onboard::lookahead::{lookahead_step, LookaheadSettings, CANDIDATES};
 
     let Some((flight, target, spacecraft)) = first_flight() else {
         return writeln!(out, "{COMMENT} lookahead: no flight, target or spacecraft");
     };
-    let state = SpacecraftState::from_cartesian(&flight.scenario.initial.cartesian(), 1.0);
+    let state = FlownGeometry::departure(&flight.scenario);
     let time_to_go = f64::from(LOOKAHEAD_CYCLES) * shared::units::STEP;
     let settings = LookaheadSettings::default();
     let start = counter.now();

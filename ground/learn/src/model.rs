@@ -425,11 +425,19 @@ impl Aids {
     /// How the blobs are flown, for the card's note.
     fn describe(&self) -> String {
         let lookahead = self.lookahead.map(|l| {
+            let mut words = "rollout lookahead".to_string();
             if l.thrust_margin > 0.0 {
-                format!("rollout lookahead planning without {} of the thrust", l.thrust_margin)
-            } else {
-                "rollout lookahead".to_string()
+                words += &format!(" planning without {} of the thrust", l.thrust_margin);
             }
+            if l.arrival_margin > 0 {
+                let and = if l.thrust_margin > 0.0 { " and" } else { "" };
+                let cycles = if l.arrival_margin == 1 { "cycle" } else { "cycles" };
+                words += &format!(
+                    "{and} judging its rollouts {} {cycles} before the arrival",
+                    l.arrival_margin
+                );
+            }
+            words
         });
         let terminal = self
             .terminal

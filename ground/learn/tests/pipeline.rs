@@ -399,7 +399,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let aids_file = dir.join("aids.toml");
     std::fs::write(
         &aids_file,
-        "scenario = \"ignored\"\n[sil]\nepisodes = 3\nlookahead = { thrust_margin = 0.1, max_cycles = 3 }\nterminal = { cycles = 2 }\n",
+        "scenario = \"ignored\"\n[sil]\nepisodes = 3\nlookahead = { thrust_margin = 0.1, max_cycles = 3, arrival_margin = 1 }\nterminal = { cycles = 2 }\n",
     )
     .unwrap();
     let aids = learn::model::Aids::read(&aids_file).unwrap();
@@ -410,14 +410,19 @@ fn main_job_writes_a_report_whose_links_resolve() {
     let reopened = learn::model::open_model(&aided).unwrap();
     assert_eq!(reopened.card, card);
     assert_eq!(
-        reopened.config.sil.lookahead.map(|l| (l.thrust_margin, l.max_cycles)),
-        Some((0.1, 3))
+        reopened
+            .config
+            .sil
+            .lookahead
+            .map(|l| (l.thrust_margin, l.max_cycles, l.arrival_margin)),
+        Some((0.1, 3, 1))
     );
     assert!(card.lookahead.is_some(), "the nominal Monte Carlo with the lookahead");
     let note = card.notes.last().unwrap();
     assert!(
         note.contains(
-            "with rollout lookahead planning without 0.1 of the thrust and terminal targeting of the last 2 cycles"
+            "with rollout lookahead planning without 0.1 of the thrust and judging its rollouts 1 cycle before \
+             the arrival and terminal targeting of the last 2 cycles"
         ),
         "{note}"
     );
