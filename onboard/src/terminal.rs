@@ -917,12 +917,17 @@ mod tests {
         }
     }
 
-    /// In the reference plane, terminal targeting in three dimensions plans a rendezvous as the
-    /// planar one does (the same miss components, the normal ones zero): the same command to
-    /// 1e-6, no normal thrust, the same predicted misses.
-    #[test]
-    fn in_the_plane_the_spatial_rendezvous_plan_is_the_planar_one() {
-        use crate::features::RENDEZVOUS3_FEATURES;
+    /// A rendezvous the last three cycles can meet, in the plane and the same lifted into three
+    /// dimensions: the planar start, the body's epoch (the arrival coasted back), the start in
+    /// three dimensions and the network that flies [`PLAN`] there.
+    struct InPlane {
+        start: SpacecraftState,
+        epoch: CartesianState,
+        lifted: SpatialCraftState,
+        network: NearlyRight3<28>,
+    }
+
+    fn in_plane() -> InPlane {
         let (start, arrival) = reachable(STEP);
         let epoch = coast(
             &CartesianState {
@@ -930,16 +935,6 @@ mod tests {
                 v: arrival.v,
             },
             -3.0 * STEP,
-        )
-        .unwrap();
-        let settings = TerminalSettings::default();
-        let planar = terminal_step::<RENDEZVOUS_FEATURES, 3, _, _>(
-            &NearlyRight::<20> { cycle: STEP },
-            &start,
-            &epoch,
-            3.0 * STEP,
-            &spacecraft(),
-            &settings,
         )
         .unwrap();
         let lifted = SpatialCraftState {
@@ -950,6 +945,36 @@ mod tests {
             cycle: STEP,
             plan: PLAN.map(|t| [t[0], t[1], 0.0]),
         };
+        InPlane {
+            start,
+            epoch,
+            lifted,
+            network,
+        }
+    }
+
+    /// In the reference plane, terminal targeting in three dimensions plans a rendezvous as the
+    /// planar one does (the same miss components, the normal ones zero): the same command to
+    /// 1e-6, no normal thrust, the same predicted misses.
+    #[test]
+    fn in_the_plane_the_spatial_rendezvous_plan_is_the_planar_one() {
+        use crate::features::RENDEZVOUS3_FEATURES;
+        let InPlane {
+            start,
+            epoch,
+            lifted,
+            network,
+        } = in_plane();
+        let settings = TerminalSettings::default();
+        let planar = terminal_step::<RENDEZVOUS_FEATURES, 3, _, _>(
+            &NearlyRight::<20> { cycle: STEP },
+            &start,
+            &epoch,
+            3.0 * STEP,
+            &spacecraft(),
+            &settings,
+        )
+        .unwrap();
         let spatial = terminal_step::<RENDEZVOUS3_FEATURES, 4, _, _>(
             &network,
             &lifted,
@@ -986,15 +1011,12 @@ mod tests {
     fn in_the_plane_the_spatial_lookahead_decides_as_the_planar_one() {
         use crate::features::RENDEZVOUS3_FEATURES;
         use crate::lookahead::lookahead_step;
-        let (start, arrival) = reachable(STEP);
-        let epoch = coast(
-            &CartesianState {
-                r: arrival.r,
-                v: arrival.v,
-            },
-            -3.0 * STEP,
-        )
-        .unwrap();
+        let InPlane {
+            start,
+            epoch,
+            lifted,
+            network,
+        } = in_plane();
         let settings = LookaheadSettings::default();
         let planar = lookahead_step::<RENDEZVOUS_FEATURES, 3, _, _>(
             &NearlyRight::<20> { cycle: STEP },
@@ -1005,14 +1027,6 @@ mod tests {
             &settings,
         )
         .unwrap();
-        let lifted = SpatialCraftState {
-            orbit: SpatialState::from_planar(&CartesianState { r: start.r, v: start.v }),
-            m: start.m,
-        };
-        let network = NearlyRight3::<28> {
-            cycle: STEP,
-            plan: PLAN.map(|t| [t[0], t[1], 0.0]),
-        };
         let spatial = lookahead_step::<RENDEZVOUS3_FEATURES, 4, _, _>(
             &network,
             &lifted,

@@ -1046,8 +1046,13 @@ pub fn card_markdown(card: &ModelCard) -> String {
         against_the_optimum(s, f.overspend, f.where_solved, &f.by_eccentricity);
     };
     if let Some(l) = &card.lookahead {
+        let judged = match l.settings.arrival_margin {
+            0 => String::new(),
+            1 => ", its rollouts judged 1 cycle before the arrival".to_string(),
+            n => format!(", its rollouts judged {n} cycles before the arrival"),
+        };
         let heading = format!(
-            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}; the SIL rows above fly with it too).",
+            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}{judged}; the SIL rows above fly with it too).",
             l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
         );
         let row = format!("f32 blob with {}, no dispersions", aids_flown(card));
