@@ -431,14 +431,9 @@ mod tests {
             })
     }
 
-    /// The fixed rollout steps predict a 14-day thrust arc of the flight propagator (its
-    /// adaptive tolerances) to the accuracy [`rollout_tolerances`] states, planar and in three
-    /// dimensions: one step on orbits at 1.2, 1 and 0.72 AU (to 1e-9 AU), 19 from the
-    /// periapsis of an orbit that passes 0.1 AU from the Sun (to 2e-8 AU, a 1e-7 part of its
-    /// radius); one more step always tightens it.
     /// In three dimensions a candidate turns the direction about the local normal: a unit
     /// direction with the network's normal component, the transverse one turned towards the
-    /// radial; in the plane, with no normal component, the planar candidate to 1e-15.
+    /// radial; in the plane, with no normal component, the planar candidate bit for bit.
     #[test]
     fn spatial_candidates_turn_about_the_normal_and_match_the_plane() {
         use crate::geometry::Spatial;
@@ -449,6 +444,17 @@ mod tests {
             transverse: 0.8,
             normal: 0.48,
         };
+        let flat = ThrustCommand {
+            throttle: 0.6,
+            alpha_r: 0.6,
+            alpha_theta: 0.8,
+        };
+        let lifted_flat = RtnCommand {
+            throttle: 0.6,
+            radial: 0.6,
+            transverse: 0.8,
+            normal: 0.0,
+        };
         for index in 0..CANDIDATES {
             let c = candidate::<Spatial>(&network, index).expect("in range");
             let norm = libm::sqrt(c.radial * c.radial + c.transverse * c.transverse + c.normal * c.normal);
@@ -456,22 +462,8 @@ mod tests {
                 (norm - 1.0).abs() < 1e-15 && c.normal == network.normal,
                 "{index}: {c:?}"
             );
-            let flat = ThrustCommand {
-                throttle: 0.6,
-                alpha_r: 0.6,
-                alpha_theta: 0.8,
-            };
             let planar = candidate::<Planar>(&flat, index).expect("in range");
-            let lifted = candidate::<Spatial>(
-                &RtnCommand {
-                    throttle: 0.6,
-                    radial: 0.6,
-                    transverse: 0.8,
-                    normal: 0.0,
-                },
-                index,
-            )
-            .expect("in range");
+            let lifted = candidate::<Spatial>(&lifted_flat, index).expect("in range");
             assert_eq!(
                 (planar.throttle, planar.alpha_r, planar.alpha_theta),
                 (lifted.throttle, lifted.radial, lifted.transverse)
@@ -484,6 +476,11 @@ mod tests {
         );
     }
 
+    /// The fixed rollout steps predict a 14-day thrust arc of the flight propagator (its
+    /// adaptive tolerances) to the accuracy [`rollout_tolerances`] states, planar and in three
+    /// dimensions: one step on orbits at 1.2, 1 and 0.72 AU (to 1e-9 AU), 19 from the
+    /// periapsis of an orbit that passes 0.1 AU from the Sun (to 2e-8 AU, a 1e-7 part of its
+    /// radius); one more step always tightens it.
     #[test]
     fn fixed_rollout_steps_predict_the_flight_propagator() {
         use crate::spatial::{propagate_rtn, RtnCommand, SpatialCraftState};
