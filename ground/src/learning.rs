@@ -308,7 +308,7 @@ fn run_model(command: ModelCommand) -> CommandResult {
         } => match (checkpoint, model) {
             (_, Some(model)) if terminal_cycles.is_some() || aids.is_some() => {
                 // Read before the run folder is made: a refused file leaves nothing behind.
-                let aids = aids.map(|path| learn::model::Aids::read(&path)).transpose()?;
+                let aids = aids.map(|path| learn::model::read_aids(&path)).transpose()?;
                 let (card, sil) = in_run_folder(&experiment.out, || {
                     Ok(match (&aids, terminal_cycles) {
                         (Some(aids), _) => learn::model::fly_aids(&model, &experiment.out, aids)?,

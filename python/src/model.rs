@@ -18,7 +18,7 @@ use firmware_sim::{
     FlightSummary, ScenarioOf,
 };
 use ground_core::env::EnvConfig;
-use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, ACTOR_FILE, ONNX_FILE};
+use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, Aids, ACTOR_FILE, ONNX_FILE};
 use onboard::features::{ACTION3_LEN, ACTION_LEN};
 use onboard::guidance::{Actor, Guide};
 use onboard::lookahead::{Lookahead, LookaheadSettings};
@@ -275,14 +275,6 @@ impl FlightEnd {
             faults: summary.guidance_faults,
         })
     }
-}
-
-/// The onboard aids a flight flies: a config's `[sil]` tables `lookahead` and `terminal`.
-#[derive(Debug, Clone, Copy, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Aids {
-    lookahead: Option<LookaheadSettings>,
-    terminal: Option<TerminalSettings>,
 }
 
 /// Flies scenarios `scenario(i)`, i in `0..episodes`, as problem `P` with `blob`'s controller

@@ -335,3 +335,45 @@ mod tests {
         }
     }
 }
+
+/// The onboard aids a model's blobs are flown with: a config's `[sil]` tables `lookahead` and
+/// `terminal` (an absent table: that aid not flown). What `ground model export --model DIR
+/// --aids CONFIG` records in a card and the Python package's `fly_sil(aids=)` flies.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Aids {
+    /// Rollout lookahead before the terminal cycles.
+    pub lookahead: Option<onboard::lookahead::LookaheadSettings>,
+    /// Terminal targeting over the last cycles.
+    pub terminal: Option<onboard::terminal::TerminalSettings>,
+}
+
+impl Aids {
+    /// How the blobs are flown, for the card's note.
+    pub fn describe(&self) -> String {
+        let lookahead = self.lookahead.map(|l| {
+            let mut words = "rollout lookahead".to_string();
+            if l.thrust_margin > 0.0 {
+                words += &format!(" planning without {} of the thrust", l.thrust_margin);
+            }
+            if l.arrival_margin > 0 {
+                let and = if l.thrust_margin > 0.0 { " and" } else { "" };
+                let cycles = if l.arrival_margin == 1 { "cycle" } else { "cycles" };
+                words += &format!(
+                    "{and} judging its rollouts {} {cycles} before the arrival",
+                    l.arrival_margin
+                );
+            }
+            words
+        });
+        let terminal = self
+            .terminal
+            .map(|t| format!("terminal targeting of the last {} cycles", t.cycles));
+        match (lookahead, terminal) {
+            (None, None) => "without onboard aids".to_string(),
+            (Some(l), None) => format!("with {l}"),
+            (None, Some(t)) => format!("with {t}"),
+            (Some(l), Some(t)) => format!("with {l} and {t}"),
+        }
+    }
+}

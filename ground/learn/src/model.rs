@@ -37,7 +37,7 @@ use ground_core::model_files::{verify_model_files, ModelFilesError};
 use onboard::lookahead::LookaheadSettings;
 use onboard::terminal::TerminalSettings;
 
-pub use ground_core::model_files::{ACTOR_FILE, ONNX_FILE};
+pub use ground_core::model_files::{Aids, ACTOR_FILE, ONNX_FILE};
 /// The card for machines.
 pub const CARD_JSON: &str = "card.json";
 /// The card for people.
@@ -382,73 +382,32 @@ pub fn add_onnx(dir: &Path) -> Result<ModelCard, ModelError> {
 /// How a card's note on SIL rows flown again by [`fly_aids`] begins.
 const REFLOWN_NOTE: &str = "The SIL rows are the same blobs flown";
 
-/// The onboard aids a shipped model's blobs are flown with: the `[sil]` tables `lookahead` and
-/// `terminal` of a config (an absent table: that aid not flown). `ground model export --model
-/// DIR --aids CONFIG` reads them from a config, the model's recipe as a rule.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Aids {
-    /// Rollout lookahead before the terminal cycles.
-    pub lookahead: Option<LookaheadSettings>,
-    /// Terminal targeting over the last cycles.
-    pub terminal: Option<TerminalSettings>,
-}
-
-impl Aids {
-    /// The aids of the config file at `path` (TOML): its `[sil]` tables `lookahead` and
-    /// `terminal`, their keys checked; the rest of the file is not read.
-    pub fn read(path: &Path) -> Result<Self, ModelError> {
-        let refused = |reason: String| ModelError::Aids {
-            path: path.to_path_buf(),
-            reason,
-        };
-        let text = std::fs::read_to_string(path).map_err(io(path))?;
-        let mut file: toml::Table = toml::from_str(&text).map_err(|e| refused(e.to_string()))?;
-        let Some(toml::Value::Table(mut sil)) = file.remove("sil") else {
-            return Err(refused("it has no [sil] table".into()));
-        };
-        fn aid<T: serde::de::DeserializeOwned>(sil: &mut toml::Table, name: &str) -> Result<Option<T>, String> {
-            sil.remove(name)
-                .map(|table| {
-                    table
-                        .try_into()
-                        .map_err(|e: toml::de::Error| format!("sil.{name}: {e}"))
-                })
-                .transpose()
-        }
-        Ok(Self {
-            lookahead: aid(&mut sil, "lookahead").map_err(refused)?,
-            terminal: aid(&mut sil, "terminal").map_err(refused)?,
-        })
+/// The onboard aids of the config file at `path` (TOML; `ground model export --model DIR --aids
+/// CONFIG`, the model's recipe as a rule): its `[sil]` tables `lookahead` and `terminal`, their
+/// keys checked; the rest of the file is not read.
+pub fn read_aids(path: &Path) -> Result<Aids, ModelError> {
+    let refused = |reason: String| ModelError::Aids {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let text = std::fs::read_to_string(path).map_err(io(path))?;
+    let mut file: toml::Table = toml::from_str(&text).map_err(|e| refused(e.to_string()))?;
+    let Some(toml::Value::Table(mut sil)) = file.remove("sil") else {
+        return Err(refused("it has no [sil] table".into()));
+    };
+    fn aid<T: serde::de::DeserializeOwned>(sil: &mut toml::Table, name: &str) -> Result<Option<T>, String> {
+        sil.remove(name)
+            .map(|table| {
+                table
+                    .try_into()
+                    .map_err(|e: toml::de::Error| format!("sil.{name}: {e}"))
+            })
+            .transpose()
     }
-
-    /// How the blobs are flown, for the card's note.
-    fn describe(&self) -> String {
-        let lookahead = self.lookahead.map(|l| {
-            let mut words = "rollout lookahead".to_string();
-            if l.thrust_margin > 0.0 {
-                words += &format!(" planning without {} of the thrust", l.thrust_margin);
-            }
-            if l.arrival_margin > 0 {
-                let and = if l.thrust_margin > 0.0 { " and" } else { "" };
-                let cycles = if l.arrival_margin == 1 { "cycle" } else { "cycles" };
-                words += &format!(
-                    "{and} judging its rollouts {} {cycles} before the arrival",
-                    l.arrival_margin
-                );
-            }
-            words
-        });
-        let terminal = self
-            .terminal
-            .map(|t| format!("terminal targeting of the last {} cycles", t.cycles));
-        match (lookahead, terminal) {
-            (None, None) => "without onboard aids".to_string(),
-            (Some(l), None) => format!("with {l}"),
-            (None, Some(t)) => format!("with {t}"),
-            (Some(l), Some(t)) => format!("with {l} and {t}"),
-        }
-    }
+    Ok(Aids {
+        lookahead: aid(&mut sil, "lookahead").map_err(refused)?,
+        terminal: aid(&mut sil, "terminal").map_err(refused)?,
+    })
 }
 
 /// `ground model export --model DIR --terminal-cycles K --out RUN`: [`fly_aids`] with terminal

@@ -402,7 +402,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
         "scenario = \"ignored\"\n[sil]\nepisodes = 3\nlookahead = { thrust_margin = 0.1, max_cycles = 3, arrival_margin = 1 }\nterminal = { cycles = 2 }\n",
     )
     .unwrap();
-    let aids = learn::model::Aids::read(&aids_file).unwrap();
+    let aids = learn::model::read_aids(&aids_file).unwrap();
     let (card, sil) = learn::model::fly_aids(&aided, &dir.join("aids-runs"), &aids).unwrap();
     assert!(sil
         .iter()
@@ -428,10 +428,10 @@ fn main_job_writes_a_report_whose_links_resolve() {
     );
     assert_eq!(card.notes.len(), without.notes.len(), "{:?}", card.notes);
     std::fs::write(&aids_file, "[sil.terminal]\ncycles = 2\ngoal_position = 0.1\n").unwrap();
-    let refused = learn::model::Aids::read(&aids_file).unwrap_err();
+    let refused = learn::model::read_aids(&aids_file).unwrap_err();
     assert!(refused.to_string().contains("goal_position"), "{refused}");
     std::fs::write(&aids_file, "[terminal]\ncycles = 2\n").unwrap();
-    let refused = learn::model::Aids::read(&aids_file).unwrap_err();
+    let refused = learn::model::read_aids(&aids_file).unwrap_err();
     assert!(refused.to_string().contains("no [sil] table"), "{refused}");
     std::fs::write(swapped.join("card.json"), b"{ not a card").unwrap();
     assert!(matches!(
