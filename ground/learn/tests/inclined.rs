@@ -85,8 +85,13 @@ fn wide_actor(dir: &Path, agent: &Sac, config: &ExperimentConfig) -> PathBuf {
     wide
 }
 
+/// The tests of this file train with torch, whose thread count is process-wide: run one at a
+/// time, so each trains as it would alone.
+static TORCH: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
+    let _torch = TORCH.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch_dir("inclined");
     let spatial = spatial_dataset(&dir);
     let config = inclined_config(&spatial);
@@ -337,6 +342,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
 /// the model folder, in one command; the report's links resolve and the folder opens.
 #[test]
 fn one_command_runs_an_inclined_family_from_the_draws_to_the_model_folder() {
+    let _torch = TORCH.lock().unwrap_or_else(|e| e.into_inner());
     use learn::pipeline::run_main_job;
     use learn::report::broken_links;
     let dir = scratch_dir("inclined-main-job");
