@@ -18,8 +18,9 @@
 //! (the rollout algorithm's cost improvement; `tests/tests/lookahead.rs` checks it flight by
 //! flight). Under dispersions each cycle replans from the navigation state.
 //!
-//! The work is `CANDIDATES` x the cycles left propagations per cycle (about 1,300 for a 50-cycle
-//! transfer at its start); no allocation, no panic; a candidate whose rollout fails (tank dry,
+//! The work is at most `CANDIDATES` x the cycles left rollout cycles (an inference and a
+//! propagation each; 1,050 for a 50-cycle transfer at its start), or the settings'
+//! `rollout_budget`, which flies the most useful candidates first; no allocation, no panic; a candidate whose rollout fails (tank dry,
 //! integrator refusal) is simply not chosen, and if every rollout fails the network's command is
 //! flown.
 
@@ -32,23 +33,37 @@ use crate::geometry::Dimension;
 use crate::guidance::{command_at, cycle_duration, cycles_left, Actor, Aim, GuidanceError};
 use crate::integrator::Tolerances;
 
-/// Throttle offsets of the candidates from the network's throttle (clamped to [0, 1]); the last
-/// two are thrust off and full throttle outright.
-const THROTTLES: [Throttle; 5] = [
-    Throttle::Offset(0.0),
-    Throttle::Offset(-0.25),
-    Throttle::Offset(0.25),
-    Throttle::Fixed(0.0),
-    Throttle::Fixed(1.0),
+/// The candidates after the network's own command, most useful first, so that a rollout
+/// budget flies the best prefix: a throttle (an offset from the network's, clamped to [0, 1], or
+/// fixed) with a turn of the network's direction in degrees (towards the radial). Thrust off is
+/// listed once: in any direction it flies the same.
+const ALTERNATIVES: [(Throttle, f64); 20] = [
+    (Throttle::Fixed(0.0), 0.0),
+    (Throttle::Fixed(1.0), 0.0),
+    (Throttle::Offset(0.0), 10.0),
+    (Throttle::Offset(0.0), -10.0),
+    (Throttle::Fixed(1.0), 10.0),
+    (Throttle::Fixed(1.0), -10.0),
+    (Throttle::Offset(0.0), 30.0),
+    (Throttle::Offset(0.0), -30.0),
+    (Throttle::Offset(-0.25), 0.0),
+    (Throttle::Offset(0.25), 0.0),
+    (Throttle::Offset(-0.25), 10.0),
+    (Throttle::Offset(-0.25), -10.0),
+    (Throttle::Offset(0.25), 10.0),
+    (Throttle::Offset(0.25), -10.0),
+    (Throttle::Fixed(1.0), 30.0),
+    (Throttle::Fixed(1.0), -30.0),
+    (Throttle::Offset(-0.25), 30.0),
+    (Throttle::Offset(-0.25), -30.0),
+    (Throttle::Offset(0.25), 30.0),
+    (Throttle::Offset(0.25), -30.0),
 ];
 
-/// Turns of the candidates' direction from the network's, in degrees (towards the radial).
-const TURNS_DEG: [f64; 5] = [0.0, 10.0, -10.0, 30.0, -30.0];
+/// Candidates per cycle: the network's command, then the alternatives in order.
+pub const CANDIDATES: usize = 1 + ALTERNATIVES.len();
 
-/// Candidates per cycle: the network's command, then every throttle with every turn.
-pub const CANDIDATES: usize = 1 + THROTTLES.len() * TURNS_DEG.len();
-
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Throttle {
     Offset(f64),
     Fixed(f64),
@@ -84,7 +99,7 @@ pub struct LookaheadSettings {
     #[cfg_attr(feature = "serde", serde(skip))]
     pub tolerances: Tolerances,
     /// Most cycles a rollout may fly; with more left the network's command is flown unexamined.
-    /// The bound on a cycle's work: at most [`CANDIDATES`] x `max_cycles` rollout cycles.
+    /// A bound on a cycle's work: at most [`CANDIDATES`] x `max_cycles` rollout cycles.
     pub max_cycles: u32,
     /// Fraction of the thrust the rollouts plan without, in [0, 1): a duty-cycle margin against
     /// thrust the flight will lose (missed-thrust events, a weak thruster). 0 plans with the
@@ -99,6 +114,13 @@ pub struct LookaheadSettings {
     /// margin, the arrival itself.
     #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero_cycles"))]
     pub arrival_margin: u32,
+    /// Most rollout cycles (one candidate propagated over one cycle: an inference and a
+    /// propagation) a guidance cycle may fly in all, or 0 for no limit (default): the candidates
+    /// are flown in their order of usefulness while a whole rollout still fits, so with `n`
+    /// cycles to go `rollout_budget / n` of them (none: the network's command unexamined). The
+    /// bound on a cycle's work that holds at any time to go, where `max_cycles` stops looking.
+    #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero_cycles"))]
+    pub rollout_budget: u32,
     /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
     #[cfg_attr(feature = "serde", serde(skip))]
     pub cycle: f64,
@@ -128,6 +150,7 @@ impl Default for LookaheadSettings {
             max_cycles: 200,
             thrust_margin: 0.0,
             arrival_margin: 0,
+            rollout_budget: 0,
             cycle: STEP,
         }
     }
@@ -254,10 +277,10 @@ pub fn candidate<G: Dimension>(network: &G::Command, index: usize) -> Option<G::
     let Some(k) = index.checked_sub(1) else {
         return Some(*network);
     };
-    let throttle = THROTTLES.get(k.checked_div(TURNS_DEG.len())?)?;
-    let turn = TURNS_DEG.get(k.checked_rem(TURNS_DEG.len())?)?.to_radians();
+    let &(throttle, turn_deg) = ALTERNATIVES.get(k)?;
+    let turn = turn_deg.to_radians();
     let network_throttle = G::throttle(network);
-    let u = match *throttle {
+    let u = match throttle {
         Throttle::Offset(d) => (network_throttle + d).clamp(0.0, 1.0),
         Throttle::Fixed(u) => u,
     };
@@ -317,7 +340,8 @@ fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
 /// errors, as in [`crate::guidance`]), improved by the rollouts of the module documentation.
 /// `time_to_go` is cut into cycles of `settings.cycle` from now (the last one shorter when it
 /// is not a whole number of them); with more than `settings.max_cycles` cycles left, or none,
-/// the network's command is returned unexamined.
+/// or a `rollout_budget` smaller than the cycles left, the network's command is returned
+/// unexamined.
 #[allow(clippy::type_complexity)]
 pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     actor: &A,
@@ -372,6 +396,9 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         }
         if repeated {
             continue;
+        }
+        if settings.rollout_budget > 0 && (decision.rollouts + 1).saturating_mul(cycles) > settings.rollout_budget {
+            break;
         }
         decision.rollouts += 1;
         let Some(arrival) = rollout(
@@ -469,7 +496,9 @@ mod tests {
                 (lifted.throttle, lifted.radial, lifted.transverse)
             );
         }
-        let turned = candidate::<Spatial>(&network, 2).expect("in range");
+        // Candidate 3: the network's throttle, turned 10 degrees towards the radial.
+        assert_eq!(ALTERNATIVES[2], (Throttle::Offset(0.0), 10.0));
+        let turned = candidate::<Spatial>(&network, 3).expect("in range");
         assert!(
             turned.radial > network.radial && turned.transverse < network.transverse,
             "{turned:?}"
@@ -575,13 +604,15 @@ mod tests {
             assert!(c.validate().is_ok(), "candidate {index}: {c:?}");
         }
         // Throttle + 0.25 clamps at full; a 10 degree turn keeps the angle to the network's.
-        let up = candidate::<Planar>(&network, 1 + 2 * TURNS_DEG.len() + 1).expect("in range");
+        let index_of =
+            |alternative: (Throttle, f64)| 1 + ALTERNATIVES.iter().position(|a| *a == alternative).expect("listed");
+        let up = candidate::<Planar>(&network, index_of((Throttle::Offset(0.25), 10.0))).expect("in range");
         assert_eq!(up.throttle, 1.0);
         let dot = up.alpha_r * network.alpha_r + up.alpha_theta * network.alpha_theta;
         assert!((dot - 10f64.to_radians().cos()).abs() < 1e-12);
         assert_eq!(candidate::<Planar>(&network, CANDIDATES), None);
         // Off from the network: the along-track direction is turned.
-        let off = candidate::<Planar>(&ThrustCommand::OFF, 1 + 4 * TURNS_DEG.len()).expect("in range");
+        let off = candidate::<Planar>(&ThrustCommand::OFF, index_of((Throttle::Fixed(1.0), 0.0))).expect("in range");
         assert_eq!((off.throttle, off.alpha_r, off.alpha_theta), (1.0, 0.0, 1.0));
     }
 
@@ -632,7 +663,7 @@ mod tests {
     }
 
     /// Candidates that fly as an earlier one are not flown, and the decision is the one over
-    /// all 26 rollouts (the lowest cost, the lowest index of equal costs): 21 distinct
+    /// all 21 rollouts (the lowest cost, the lowest index of equal costs): 21 distinct
     /// candidates at half throttle, 16 near full (the +0.25 offsets clamp to full throttle), 11
     /// at thrust off (every zero throttle coasts alike).
     #[test]
@@ -671,6 +702,89 @@ mod tests {
             let (chosen, predicted) = best.expect("a candidate");
             assert_eq!((d.chosen, d.predicted), (chosen, Some(predicted)), "action {action}");
         }
+    }
+
+    /// A rollout budget flies the first candidates whose whole rollouts fit, `budget / cycles`
+    /// of them, and decides among those alone as a search over that prefix would; a budget
+    /// smaller than the cycles left flies the network's command unexamined, 0 flies them all.
+    #[test]
+    fn a_rollout_budget_flies_the_first_candidates_that_fit() {
+        struct Constant;
+        impl<const N: usize> Actor<N> for Constant {
+            fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+                [0.0, 0.3, 0.9]
+            }
+        }
+        let sc = spacecraft();
+        let time_to_go = 3.0 * STEP;
+        let unlimited = LookaheadSettings::default();
+        let predictions: [Prediction; CANDIDATES] = core::array::from_fn(|index| {
+            let first = candidate::<Planar>(
+                &command_at(&Constant, &ORBIT, &on_orbit(), 0.0, time_to_go).expect("acts"),
+                index,
+            )
+            .expect("in range");
+            rollout(
+                &Constant,
+                &ORBIT,
+                &sc,
+                &unlimited,
+                &on_orbit(),
+                time_to_go,
+                time_to_go,
+                3,
+                &first,
+            )
+            .expect("flies")
+        });
+        // The budget's candidates must decide differently from the whole set somewhere.
+        let mut decided_otherwise = false;
+        for (budget, flown) in [
+            (0, 21),
+            (2, 0),
+            (3, 1),
+            (8, 2),
+            (9, 3),
+            (20, 6),
+            (62, 20),
+            (63, 21),
+            (1000, 21),
+        ] {
+            let settings = LookaheadSettings {
+                rollout_budget: budget,
+                ..unlimited
+            };
+            let d = lookahead_step(&Constant, &on_orbit(), &ORBIT, time_to_go, &sc, &settings).expect("valid inputs");
+            assert_eq!(d.rollouts, flown, "budget {budget}");
+            let best = predictions.iter().take(flown as usize).enumerate().fold(
+                None,
+                |best: Option<(usize, Prediction)>, (i, p)| match best {
+                    Some((_, b)) if b.cost <= p.cost => best,
+                    _ => Some((i, *p)),
+                },
+            );
+            match best {
+                Some((chosen, predicted)) => {
+                    assert_eq!((d.chosen, d.predicted), (chosen, Some(predicted)), "budget {budget}");
+                    let whole = candidate::<Planar>(&d.network, chosen).expect("in range");
+                    assert_eq!(d.command, whole);
+                }
+                None => assert_eq!((d.command, d.chosen, d.predicted), (d.network, 0, None)),
+            }
+            decided_otherwise |= flown > 0 && d.chosen != predictions_best(&predictions);
+        }
+        assert!(decided_otherwise, "every budget chose what the whole set chose");
+    }
+
+    /// The index of the lowest cost (the lowest index of equal costs).
+    fn predictions_best(predictions: &[Prediction]) -> usize {
+        (0..predictions.len()).fold(0, |best, i| {
+            if predictions[i].cost < predictions[best].cost {
+                i
+            } else {
+                best
+            }
+        })
     }
 
     /// With an arrival margin the rollouts are judged that many cycles early: a network that

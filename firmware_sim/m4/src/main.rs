@@ -84,9 +84,13 @@ static BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), 
 const CALIBRATION_LOOP: u32 = 1_000_000;
 /// Back-to-back inferences of the repeated measurement (resolution 40 / 64 instructions).
 const REPEATS: u32 = 64;
-/// Cycles left in the measured lookahead cycle: at most 26 rollouts of 4 cycles (one
+/// Cycles left in the measured lookahead cycle: at most 21 rollouts of 4 cycles (one
 /// measurement stays well inside the SysTick's 2^24 ticks).
 const LOOKAHEAD_CYCLES: u32 = 4;
+/// Cycles left in the measured lookahead cycle under a rollout budget: a transfer's start.
+const BUDGETED_CYCLES: u32 = 50;
+/// The rollout budget of that measurement: 6 rollouts of 50 cycles.
+const ROLLOUT_BUDGET: u32 = 300;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
 const TERMINAL_CYCLES: u32 = 8;
 
@@ -193,7 +197,8 @@ fn measure(
         total / u64::from(REPEATS),
         (total % u64::from(REPEATS)) * 100 / u64::from(REPEATS),
     )?;
-    lookahead(out, counter, controller)?;
+    lookahead(out, counter, controller, LOOKAHEAD_CYCLES, 0)?;
+    lookahead(out, counter, controller, BUDGETED_CYCLES, ROLLOUT_BUDGET)?;
     terminal(out, counter, controller, terminal_states)?;
     // Built only with `--features profile`: its standalone kernel copies cost ~40 KB of flash.
     #[cfg(feature = "profile")]
@@ -218,10 +223,16 @@ fn first_flight() -> Option<(
 }
 
 /// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
-/// start, [`LOOKAHEAD_CYCLES`] cycles before the arrival: its instructions, whole and per rollout
-/// cycle (an inference and a 14-day propagation), from which a cycle with more to go scales.
+/// start, `cycles` cycles before the arrival, with a rollout budget (0: none): its instructions,
+/// whole and per rollout cycle (an inference and a 14-day propagation).
 #[inline(never)]
-fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownController<'_>) -> core::fmt::Result {
+fn lookahead(
+    out: &mut semi::Out,
+    counter: &Counter,
+    controller: &FlownController<'_>,
+    cycles: u32,
+    rollout_budget: u32,
+) -> core::fmt::Result {
     use firmware_sim::Dimension;
     use onboard::lookahead::{lookahead_step, LookaheadSettings, CANDIDATES};
 
@@ -229,18 +240,22 @@ fn lookahead(out: &mut semi::Out, counter: &Counter, controller: &FlownControlle
         return writeln!(out, "{COMMENT} lookahead: no flight, target or spacecraft");
     };
     let state = FlownGeometry::departure(&flight.scenario);
-    let time_to_go = f64::from(LOOKAHEAD_CYCLES) * shared::units::STEP;
-    let settings = LookaheadSettings::default();
+    let time_to_go = f64::from(cycles) * shared::units::STEP;
+    let settings = LookaheadSettings {
+        rollout_budget,
+        ..LookaheadSettings::default()
+    };
     let start = counter.now();
     let decision = lookahead_step(controller, &state, &target, time_to_go, &spacecraft, &settings);
     let ticks = Counter::ticks(start, counter.now());
     let flown = decision.map_or(0, |d| d.rollouts);
-    let rollout_cycles = u64::from(flown.max(1)) * u64::from(LOOKAHEAD_CYCLES);
+    let rollout_cycles = u64::from(flown.max(1)) * u64::from(cycles);
     let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
     writeln!(
         out,
-        "{COMMENT} instructions per lookahead cycle, {LOOKAHEAD_CYCLES} cycles to go ({flown} of {CANDIDATES} \
-         candidates flown, {rollout_cycles} rollout cycles): {total}, {} per rollout cycle; chosen candidate {}",
+        "{COMMENT} instructions per lookahead cycle, {cycles} cycles to go, rollout budget {rollout_budget} \
+         ({flown} of {CANDIDATES} candidates flown, {rollout_cycles} rollout cycles): {total}, {} per rollout \
+         cycle; chosen candidate {}",
         total / rollout_cycles,
         decision.map_or(-1, |d| d.chosen as i64)
     )

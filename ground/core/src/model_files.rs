@@ -348,23 +348,37 @@ pub struct Aids {
     pub terminal: Option<onboard::terminal::TerminalSettings>,
 }
 
+/// The lookahead's margins and bound in words, those set (the thrust margin, the arrival margin,
+/// the rollout budget): the one wording of the card's note and its lookahead section.
+pub fn lookahead_terms(l: &onboard::lookahead::LookaheadSettings) -> Vec<String> {
+    let mut terms = Vec::new();
+    if l.thrust_margin > 0.0 {
+        terms.push(format!("planning without {} of the thrust", l.thrust_margin));
+    }
+    match l.arrival_margin {
+        0 => {}
+        1 => terms.push("judging its rollouts 1 cycle before the arrival".to_string()),
+        n => terms.push(format!("judging its rollouts {n} cycles before the arrival")),
+    }
+    if l.rollout_budget > 0 {
+        terms.push(format!(
+            "flying at most {} rollout cycles a guidance cycle",
+            l.rollout_budget
+        ));
+    }
+    terms
+}
+
 impl Aids {
     /// How the blobs are flown, for the card's note.
     pub fn describe(&self) -> String {
         let lookahead = self.lookahead.map(|l| {
-            let mut words = "rollout lookahead".to_string();
-            if l.thrust_margin > 0.0 {
-                words += &format!(" planning without {} of the thrust", l.thrust_margin);
+            let terms = lookahead_terms(&l);
+            match terms.split_last() {
+                None => "rollout lookahead".to_string(),
+                Some((last, [])) => format!("rollout lookahead {last}"),
+                Some((last, rest)) => format!("rollout lookahead {} and {last}", rest.join(", ")),
             }
-            if l.arrival_margin > 0 {
-                let and = if l.thrust_margin > 0.0 { " and" } else { "" };
-                let cycles = if l.arrival_margin == 1 { "cycle" } else { "cycles" };
-                words += &format!(
-                    "{and} judging its rollouts {} {cycles} before the arrival",
-                    l.arrival_margin
-                );
-            }
-            words
         });
         let terminal = self
             .terminal

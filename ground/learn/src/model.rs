@@ -33,7 +33,7 @@ use crate::sil::SilReport;
 use ground_core::env::batch::OutcomeSummary;
 use ground_core::generate::Summary;
 use ground_core::io::atomic_write;
-use ground_core::model_files::{verify_model_files, ModelFilesError};
+use ground_core::model_files::{lookahead_terms, verify_model_files, ModelFilesError};
 use onboard::lookahead::LookaheadSettings;
 use onboard::terminal::TerminalSettings;
 
@@ -1005,14 +1005,10 @@ pub fn card_markdown(card: &ModelCard) -> String {
         against_the_optimum(s, f.overspend, f.where_solved, &f.by_eccentricity);
     };
     if let Some(l) = &card.lookahead {
-        let judged = match l.settings.arrival_margin {
-            0 => String::new(),
-            1 => ", its rollouts judged 1 cycle before the arrival".to_string(),
-            n => format!(", its rollouts judged {n} cycles before the arrival"),
-        };
+        let terms: String = lookahead_terms(&l.settings).iter().map(|t| format!(", {t}")).collect();
         let heading = format!(
-            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}, thrust margin {}{judged}; the SIL rows above fly with it too).",
-            l.settings.accuracy_floor, l.settings.fuel_weight, l.settings.thrust_margin
+            "\n## With rollout lookahead\n\nFlown with `onboard::lookahead` (accuracy floor {}, fuel weight {}{terms}; the SIL rows above fly with it too).",
+            l.settings.accuracy_floor, l.settings.fuel_weight
         );
         let row = format!("f32 blob with {}, no dispersions", aids_flown(card));
         flown_section(&mut s, &heading, &row, &l.flown);

@@ -507,7 +507,7 @@ fn fly(rng: &mut Rng, policy: &lt_policy, kind: ProblemKind, bytes: &[u8]) -> Re
         if !agrees_with_rust(code, &command, &rust) {
             return Err(format!("C step gave {code:?} {command:?}, Rust {rust:?}"));
         }
-        // Rarely (a lookahead cycle costs up to 26 x 200 rollout cycles), the same state through
+        // Rarely (a lookahead cycle costs up to 21 x 200 rollout cycles), the same state through
         // the lookahead with hostile spacecraft and settings.
         if kind == ProblemKind::Transfer && rng.chance(0.002) {
             lookahead(rng, policy, &transfer_actor, &nav, time_to_go)?;
@@ -687,6 +687,7 @@ fn lookahead(
     settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
     settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
     settings.arrival_margin = [0, 0, 1, 2, u32::MAX][rng.below(5)];
+    settings.rollout_budget = [0, 0, 1, 7, 60, u32::MAX][rng.below(6)];
     let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // At most 12 t* ahead (50 cycles): a hostile huge time to go flies the network unexamined.
     let time_to_go = time_to_go.min(12.0);
@@ -717,6 +718,7 @@ fn lookahead(
         max_cycles: settings.max_cycles,
         thrust_margin: settings.thrust_margin,
         arrival_margin: settings.arrival_margin,
+        rollout_budget: settings.rollout_budget,
         ..LookaheadSettings::default()
     };
     let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {

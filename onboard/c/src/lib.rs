@@ -785,6 +785,9 @@ pub struct lt_lookahead_settings {
     /// Whole cycles before the arrival at which the rollouts are judged (the target met early
     /// and followed, the last cycles kept in reserve); default 0.
     pub arrival_margin: u32,
+    /// Most rollout cycles (a candidate's inference and propagation over one cycle) a guidance
+    /// cycle flies in all, the most useful candidates first; 0 (default): no limit.
+    pub rollout_budget: u32,
 }
 
 /// What one lookahead cycle decided, for telemetry.
@@ -817,6 +820,7 @@ impl From<lt_lookahead_settings> for LookaheadSettings {
             max_cycles: s.max_cycles,
             thrust_margin: s.thrust_margin,
             arrival_margin: s.arrival_margin,
+            rollout_budget: s.rollout_budget,
             cycle: s.cycle,
             ..Self::default()
         }
@@ -841,6 +845,7 @@ pub unsafe extern "C" fn lt_lookahead_defaults(out: *mut lt_lookahead_settings) 
         max_cycles: d.max_cycles,
         thrust_margin: d.thrust_margin,
         arrival_margin: d.arrival_margin,
+        rollout_budget: d.rollout_budget,
         cycle: d.cycle,
     };
     // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
@@ -945,10 +950,10 @@ unsafe fn finish_with_report<R: Copy>(
 }
 
 /// One transfer guidance cycle with rollout lookahead (`onboard::lookahead::lookahead_step`):
-/// the network's command and 25 alternatives around it are each held for this cycle, the
+/// the network's command and 20 alternatives around it are each held for this cycle, the
 /// network flies every later one with the onboard propagator and `spacecraft`, and the command
-/// of the cheapest predicted arrival is returned. About 26 x the cycles left propagations: run it
-/// at the 14-day guidance rate, not in a fast loop.
+/// of the cheapest predicted arrival is returned. At most 21 x the cycles left rollout cycles, or
+/// the settings' `rollout_budget`: run it at the 14-day guidance rate, not in a fast loop.
 ///
 /// Returns as `lt_transfer_step`, and `LT_ERR_INPUT_LOOKAHEAD` for an unusable spacecraft or
 /// settings; `report` may be null, else it receives the decision (nothing predicted on error).

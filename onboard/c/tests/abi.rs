@@ -826,6 +826,7 @@ fn defaults() -> lt_lookahead_settings {
         max_cycles: 0,
         thrust_margin: 1.0,
         arrival_margin: u32::MAX,
+        rollout_budget: u32::MAX,
         cycle: 0.0,
     };
     assert_eq!(unsafe { lt_lookahead_defaults(&mut s) }, LT_OK);
@@ -845,6 +846,7 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
             settings.fuel_weight,
             settings.max_cycles,
             settings.arrival_margin,
+            settings.rollout_budget,
             settings.cycle
         ),
         (
@@ -854,6 +856,7 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
             d.fuel_weight,
             d.max_cycles,
             d.arrival_margin,
+            d.rollout_budget,
             d.cycle
         )
     );
@@ -867,14 +870,17 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
     // A few cycles before the arrival (rollouts of 1 to 4 cycles, the last one partial).
     for (k, (nav, _)) in states(8).into_iter().enumerate() {
         let ttg = 0.2408 * (0.5 + k as f64 / 2.0);
-        // Every other cycle judged a cycle early.
+        // Every other cycle judged a cycle early; every third on a budget of 5 rollout cycles.
         let margin = (k % 2) as u32;
+        let budget = if k % 3 == 0 { 5 } else { 0 };
         let settings = lt_lookahead_settings {
             arrival_margin: margin,
+            rollout_budget: budget,
             ..settings
         };
         let d = LookaheadSettings {
             arrival_margin: margin,
+            rollout_budget: budget,
             ..d
         };
         let mut command = STALE;
