@@ -5,6 +5,7 @@
 //! software) then commands thrust off; a NaN never reaches the thrusters.
 
 use shared::orbit::{CartesianState, OrbitPlane, OrbitShape, SpatialState};
+use shared::spacecraft::CanonicalSpacecraft;
 
 use crate::dynamics::SpacecraftState;
 use crate::dynamics::ThrustCommand;
@@ -16,8 +17,9 @@ use crate::features::{
 };
 use crate::geometry::{Dimension, Planar, Spatial};
 use crate::kepler::{coast, coast3};
-use crate::lookahead::{lookahead_step, Lookahead};
+use crate::lookahead::{lookahead_step, Lookahead, LookaheadSettings};
 use crate::spatial::{RtnCommand, SpatialCraftState};
+use crate::terminal::{Terminal, TerminalSettings};
 
 /// A deterministic actor: features in, action in [-1, 1]^OUT out. Implemented by the onboard
 /// MLPs (f32 and int8) and by anything else that can fly (tests, baselines). In the plane
@@ -297,7 +299,8 @@ pub fn command3_at<const N: usize, A: Actor<N, ACTION3_LEN> + ?Sized, T: Spatial
 /// A guidance law as flight software calls it each cycle: navigation state, target and time to go
 /// in, the command to hold out, in dimension `G` (the plane by default). Any [`Actor`] is one
 /// (through [`transfer_step`] and [`rendezvous_step`] in the plane, [`command3_at`] in three
-/// dimensions); so is an actor with rollout lookahead ([`crate::lookahead::Lookahead`]).
+/// dimensions); so is an actor with rollout lookahead ([`crate::lookahead::Lookahead`]), with
+/// terminal targeting ([`crate::terminal::Terminal`]), or with whichever are set ([`Aided`]).
 pub trait Guide<const N: usize, T, G: Dimension = Planar> {
     /// The command for this cycle, or why there is none (the caller commands thrust off).
     fn command(&self, navigation: &G::State, target: &T, time_to_go: f64) -> Result<G::Command, GuidanceError>;
@@ -362,6 +365,49 @@ impl<const N: usize, T: SpatialTargetFeatures<N>, A: Actor<N, ACTION3_LEN>> Guid
             &self.settings,
         )
         .map(|d| d.command)
+    }
+}
+
+/// An actor flown with whichever onboard aids are set, as a configuration chooses them at run
+/// time: terminal targeting over the last cycles (with the lookahead before them when set),
+/// else rollout lookahead, else the plain step. The one choice the SIL, the Python package and
+/// flight software holding optional settings make alike.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aided<A> {
+    /// The network.
+    pub actor: A,
+    /// The nominal spacecraft of the aids' rollouts.
+    pub spacecraft: CanonicalSpacecraft,
+    /// Rollout lookahead (None: not flown).
+    pub lookahead: Option<LookaheadSettings>,
+    /// Terminal targeting of the last cycles (None: not flown).
+    pub terminal: Option<TerminalSettings>,
+}
+
+impl<const N: usize, T, G: Dimension, A> Guide<N, T, G> for Aided<A>
+where
+    A: Guide<N, T, G>,
+    for<'a> Lookahead<&'a A>: Guide<N, T, G>,
+    for<'a> Terminal<&'a A>: Guide<N, T, G>,
+{
+    fn command(&self, navigation: &G::State, target: &T, time_to_go: f64) -> Result<G::Command, GuidanceError> {
+        let (actor, spacecraft) = (&self.actor, self.spacecraft);
+        match (self.terminal, self.lookahead) {
+            (Some(settings), lookahead) => Terminal {
+                actor,
+                spacecraft,
+                settings,
+                lookahead,
+            }
+            .command(navigation, target, time_to_go),
+            (None, Some(settings)) => Lookahead {
+                actor,
+                spacecraft,
+                settings,
+            }
+            .command(navigation, target, time_to_go),
+            (None, None) => actor.command(navigation, target, time_to_go),
+        }
     }
 }
 

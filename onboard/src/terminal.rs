@@ -805,6 +805,74 @@ mod tests {
         }
     }
 
+    /// [`crate::guidance::Aided`] flies as the aids it holds: terminal targeting (with the
+    /// lookahead before it), the lookahead alone, the actor alone, bit for bit; the flights
+    /// differ, so the choice is seen.
+    #[test]
+    fn an_aided_actor_flies_as_the_aids_it_holds() {
+        use crate::guidance::Aided;
+        use crate::lookahead::{Lookahead, LookaheadSettings};
+        let (start, arrival) = reachable(STEP);
+        let target = orbit_through(&arrival);
+        let network = NearlyRight::<9> { cycle: STEP };
+        let settings = TerminalSettings {
+            cycles: 2,
+            ..TerminalSettings::default()
+        };
+        // A floor far below the network's miss, so that the lookahead has a reason to differ.
+        let lookahead = LookaheadSettings {
+            accuracy_floor: 1e-6,
+            ..LookaheadSettings::default()
+        };
+        let end = |guide: &dyn Guide<TRANSFER_FEATURES, OrbitShape>| {
+            fly::<TRANSFER_FEATURES, Planar, _>(&GuideRef(guide), start, |_| target, STEP)
+        };
+        let aided = |lookahead, terminal| Aided {
+            actor: network,
+            spacecraft: spacecraft(),
+            lookahead,
+            terminal,
+        };
+        let terminal = |lookahead| Terminal {
+            actor: network,
+            spacecraft: spacecraft(),
+            settings,
+            lookahead,
+        };
+        let looking = Lookahead {
+            actor: network,
+            spacecraft: spacecraft(),
+            settings: lookahead,
+        };
+        let ends = [
+            (
+                end(&aided(Some(lookahead), Some(settings))),
+                end(&terminal(Some(lookahead))),
+            ),
+            (end(&aided(None, Some(settings))), end(&terminal(None))),
+            (end(&aided(Some(lookahead), None)), end(&looking)),
+            (end(&aided(None, None)), end(&network)),
+        ];
+        for (k, (aided, reference)) in ends.iter().enumerate() {
+            assert_eq!(aided, reference, "case {k}");
+        }
+        assert_ne!(ends[1].1, ends[3].1, "terminal targeting flew as the network");
+        assert_ne!(ends[2].1, ends[3].1, "the lookahead flew as the network");
+    }
+
+    /// A `dyn Guide` as a sized one, for [`fly`].
+    struct GuideRef<'a, const N: usize, T>(&'a dyn Guide<N, T>);
+    impl<const N: usize, T> Guide<N, T> for GuideRef<'_, N, T> {
+        fn command(
+            &self,
+            navigation: &SpacecraftState,
+            target: &T,
+            time_to_go: f64,
+        ) -> Result<ThrustCommand, GuidanceError> {
+            self.0.command(navigation, target, time_to_go)
+        }
+    }
+
     /// [`PLAN`]'s thrust vectors with normal components: [`reachable3`]'s commands.
     const PLAN3: [[f64; 3]; 3] = [[0.3, 0.6, 0.2], [0.0, 0.8, -0.3], [-0.2, 0.4, 0.3]];
 

@@ -20,9 +20,9 @@ use firmware_sim::{
 use ground_core::env::EnvConfig;
 use ground_core::model_files::{blob_file, read_sealed_card, verify_model_files, Aids, ACTOR_FILE, ONNX_FILE};
 use onboard::features::{ACTION3_LEN, ACTION_LEN};
-use onboard::guidance::{Actor, Guide};
-use onboard::lookahead::{Lookahead, LookaheadSettings};
-use onboard::terminal::{Terminal, TerminalSettings, MAX_CYCLES};
+use onboard::guidance::{Actor, Aided, Guide};
+use onboard::lookahead::LookaheadSettings;
+use onboard::terminal::{TerminalSettings, MAX_CYCLES};
 use shared::blob::{AlignedBlob, FeatureLayout, ProblemKind, Quantization};
 
 use crate::{refused, spatial_scenario_family};
@@ -291,9 +291,8 @@ fn fly_flights<const N: usize, const OUT: usize, P>(
 ) -> Vec<Result<FlightEnd, String>>
 where
     P: firmware_sim::Problem<N> + Default,
-    for<'b> Controller<'b, N, OUT>: Guide<N, P::Target, P::Geometry> + Sync,
-    for<'b, 'c> Terminal<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
-    for<'b, 'c> Lookahead<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
+    for<'b> Controller<'b, N, OUT>: Sync,
+    for<'b, 'c> Aided<&'c Controller<'b, N, OUT>>: Guide<N, P::Target, P::Geometry>,
 {
     let controller = Controller::<N, OUT>::load::<P>(blob);
     (0..episodes)
@@ -302,27 +301,13 @@ where
             let flight_seed = seed.wrapping_add(i);
             // A refused blob flies safe mode, thrust off every cycle: no aid to fly.
             let network = matches!(controller, Controller::Network(_));
-            let lookahead = aids.lookahead.filter(|_| network);
-            let flown = match (aids.terminal.filter(|_| network), lookahead) {
-                (None, None) => fly_observed(P::default(), &controller, &scenario(i), setup, flight_seed, |_| ()),
-                (None, Some(settings)) => {
-                    let guide = Lookahead {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                    };
-                    fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ())
-                }
-                (Some(settings), lookahead) => {
-                    let guide = Terminal {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                        lookahead,
-                    };
-                    fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ())
-                }
+            let guide = Aided {
+                actor: &controller,
+                spacecraft: setup.spacecraft,
+                lookahead: aids.lookahead.filter(|_| network),
+                terminal: aids.terminal.filter(|_| network),
             };
+            let flown = fly_observed(P::default(), &guide, &scenario(i), setup, flight_seed, |_| ());
             FlightEnd::of(flown)
         })
         .collect()

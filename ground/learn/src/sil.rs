@@ -14,7 +14,7 @@ use firmware_sim::{
     FlightSetup, FlightStep, PlanarProblem, SilError,
 };
 use onboard::features::ACTION3_LEN;
-use onboard::lookahead::Lookahead;
+use onboard::guidance::Aided;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared::blob::AlignedBlob;
@@ -29,8 +29,9 @@ use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::{EpisodeOutcome, TrajectoryPoint};
 use ground_core::env::{step_reward, Dimension, EnvError, Geometry, Planar, Spatial};
 use ground_core::io::atomic_write;
+use ground_core::model_files::lookahead_terms;
 use onboard::lookahead::LookaheadSettings;
-use onboard::terminal::{Terminal, TerminalSettings};
+use onboard::terminal::TerminalSettings;
 
 /// Flights whose paths are drawn.
 const PLOTTED_FLIGHTS: usize = 6;
@@ -383,27 +384,13 @@ where
             // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with
             // or to target.
             let network = matches!(controller, Controller::Network(_));
-            let lookahead = flights.lookahead.filter(|_| network);
-            let result = match (flights.terminal.filter(|_| network), lookahead) {
-                (None, None) => fly_observed(P::default(), &controller, scenario, &setup, seed, keep),
-                (None, Some(settings)) => {
-                    let guide = Lookahead {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                    };
-                    fly_observed(P::default(), &guide, scenario, &setup, seed, keep)
-                }
-                (Some(settings), lookahead) => {
-                    let guide = Terminal {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                        lookahead,
-                    };
-                    fly_observed(P::default(), &guide, scenario, &setup, seed, keep)
-                }
+            let guide = Aided {
+                actor: &controller,
+                spacecraft: setup.spacecraft,
+                lookahead: flights.lookahead.filter(|_| network),
+                terminal: flights.terminal.filter(|_| network),
             };
+            let result = fly_observed(P::default(), &guide, scenario, &setup, seed, keep);
             flown(config, i, scenario, &steps, result.err(), i < flights.record)
         })
         .collect();
@@ -454,27 +441,13 @@ fn fly_blob_as<const N: usize, P: PlanarProblem<N> + Sync>(
             // A refused blob flies safe mode, thrust off every cycle: nothing to look ahead with
             // or to target.
             let network = matches!(controller, Controller::Network(_));
-            let lookahead = lookahead.filter(|_| network);
-            let result = match (terminal.filter(|_| network), lookahead) {
-                (None, None) => fly_observed(problem, &controller, scenario, &setup, flight_seed, keep),
-                (None, Some(settings)) => {
-                    let guide = Lookahead {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                    };
-                    fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
-                }
-                (Some(settings), lookahead) => {
-                    let guide = Terminal {
-                        actor: &controller,
-                        spacecraft: setup.spacecraft,
-                        settings,
-                        lookahead,
-                    };
-                    fly_observed(problem, &guide, scenario, &setup, flight_seed, keep)
-                }
+            let guide = Aided {
+                actor: &controller,
+                spacecraft: setup.spacecraft,
+                lookahead: lookahead.filter(|_| network),
+                terminal: terminal.filter(|_| network),
             };
+            let result = fly_observed(problem, &guide, scenario, &setup, flight_seed, keep);
             flown(config, i, scenario, &steps, result.err(), i < record)
         })
         .collect();
@@ -632,10 +605,13 @@ fn describe_controller(config: &ExperimentConfig, blob: &[u8]) -> String {
 pub fn describe(report: &SilReport) -> String {
     let p = &report.monte_carlo.policy;
     let mut controller = match &report.lookahead {
-        Some(l) => format!(
-            "{} with lookahead, accuracy floor {}, fuel weight {}, thrust margin {}",
-            report.controller, l.accuracy_floor, l.fuel_weight, l.thrust_margin
-        ),
+        Some(l) => {
+            let terms: String = lookahead_terms(l).iter().map(|t| format!(", {t}")).collect();
+            format!(
+                "{} with lookahead, accuracy floor {}, fuel weight {}{terms}",
+                report.controller, l.accuracy_floor, l.fuel_weight
+            )
+        }
         None => report.controller.clone(),
     };
     if let Some(t) = &report.terminal {

@@ -3,8 +3,9 @@
 //! given to `shared::blob::decode`, to the four policy loaders and to `lt_transfer_load`,
 //! `lt_rendezvous_load` and their three-dimensional twins `lt_transfer3_load`,
 //! `lt_rendezvous3_load`; every loaded policy is flown through `lt_*_step` with hostile
-//! navigation inputs (now and then through `lt_transfer_lookahead_step` and
-//! `lt_transfer_terminal_step` too, with hostile spacecraft and settings as well), and the C
+//! navigation inputs (now and then through the lookahead and terminal-targeting steps too,
+//! `lt_transfer_lookahead_step`, `lt_transfer_terminal_step` and the three-dimensional
+//! `lt_transfer3_*` and `lt_rendezvous3_*` ones, with hostile spacecraft and settings as well), and the C
 //! entry points are called with null, misaligned and impossible arguments.
 //!
 //! ```text
@@ -37,20 +38,23 @@ use std::time::Instant;
 use lowthrust::{
     error::{guidance_error_code, policy_error_code},
     lt_body_state, lt_body_state3, lt_lookahead_defaults, lt_lookahead_settings, lt_navigation_state,
-    lt_navigation_state3, lt_policy, lt_policy_describe, lt_policy_info, lt_rendezvous3_load, lt_rendezvous3_step,
-    lt_rendezvous_load, lt_rendezvous_step, lt_rtn_command, lt_spacecraft, lt_status, lt_target_orbit,
-    lt_target_orbit3, lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer3_load,
-    lt_transfer3_step, lt_transfer_load, lt_transfer_lookahead_step, lt_transfer_step, lt_transfer_terminal_step,
-    LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL, LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED,
-    LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK, LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3,
-    LT_PROBLEM_TRANSFER, LT_PROBLEM_TRANSFER3, RTN_THRUST_OFF,
+    lt_navigation_state3, lt_policy, lt_policy_describe, lt_policy_info, lt_rendezvous3_load,
+    lt_rendezvous3_lookahead_step, lt_rendezvous3_step, lt_rendezvous3_terminal_step, lt_rendezvous_load,
+    lt_rendezvous_step, lt_rtn_command, lt_spacecraft, lt_status, lt_target_orbit, lt_target_orbit3,
+    lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer3_load, lt_transfer3_lookahead_step,
+    lt_transfer3_step, lt_transfer3_terminal_step, lt_transfer_load, lt_transfer_lookahead_step, lt_transfer_step,
+    lt_transfer_terminal_step, LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL,
+    LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK,
+    LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3, LT_PROBLEM_TRANSFER, LT_PROBLEM_TRANSFER3, RTN_THRUST_OFF,
 };
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
-use onboard::guidance::{rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError};
+use onboard::guidance::{
+    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError, TargetOrbit3,
+};
 use onboard::policy::{Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use onboard::spatial::SpatialCraftState;
 use shared::blob::{decode, Activation, FeatureLayout, ProblemKind, FORMAT_VERSION, HEADER_LEN, MAGIC, TRAILER_LEN};
-use shared::orbit::{CartesianState, OrbitShape};
+use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::quantize::{DenseWeights, MlpWeights};
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -585,6 +589,9 @@ fn fly3(rng: &mut Rng, policy: &lt_policy, features: FeatureLayout, bytes: &[u8]
                 inclination: hostile(rng, 0.0, 3.2),
                 raan: hostile(rng, -7.0, 7.0),
             };
+            if rng.chance(AID3_CHANCE) {
+                aid3(rng, policy, bytes, kind, &nav, Target3::Orbit(target), time_to_go)?;
+            }
             // SAFETY: every pointer is a valid reference.
             let code = unsafe { lt_transfer3_step(policy, &nav, &target, time_to_go, &mut command) };
             let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| format!("Rust refused: {e}"))?;
@@ -602,10 +609,16 @@ fn fly3(rng: &mut Rng, policy: &lt_policy, features: FeatureLayout, bytes: &[u8]
                     hostile(rng, -0.2, 0.2),
                 ],
             };
+            if rng.chance(AID3_CHANCE) {
+                aid3(rng, policy, bytes, kind, &nav, Target3::Body(body), time_to_go)?;
+            }
             // SAFETY: every pointer is a valid reference.
             let code = unsafe { lt_rendezvous3_step(policy, &nav, &body, time_to_go, &mut command) };
             let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| format!("Rust refused: {e}"))?;
-            (code, rendezvous3_step(&actor, &state, &body.into(), time_to_go))
+            (
+                code,
+                rendezvous3_step(&actor, &state, &SpatialState::from(body), time_to_go),
+            )
         };
         let bits = |c: &lt_rtn_command| [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits);
         let agrees = match &rust {
@@ -642,6 +655,242 @@ fn fly3(rng: &mut Rng, policy: &lt_policy, features: FeatureLayout, bytes: &[u8]
     Ok(())
 }
 
+/// How often a fuzzed 3D step also flies an onboard aid (a cycle costs up to thousands of
+/// propagations).
+const AID3_CHANCE: f64 = 0.003;
+
+/// What a three-dimensional aid cycle aims at.
+#[derive(Clone, Copy)]
+enum Target3 {
+    Orbit(lt_target_orbit3),
+    Body(lt_body_state3),
+}
+
+/// One three-dimensional aid cycle, lookahead or terminal targeting at random, with hostile
+/// spacecraft and settings: the C call commands the Rust aid's bits, or refuses unusable inputs
+/// with its code and thrust off.
+fn aid3(
+    rng: &mut Rng,
+    policy: &lt_policy,
+    bytes: &[u8],
+    kind: ProblemKind,
+    nav: &lt_navigation_state3,
+    target: Target3,
+    time_to_go: f64,
+) -> Result<(), String> {
+    use onboard::lookahead::lookahead_step;
+    use onboard::terminal::terminal_step;
+    let (spacecraft, _) = hostile_aid_inputs(rng)?;
+    let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
+        thrust: spacecraft.thrust,
+        exhaust_speed: spacecraft.exhaust_speed,
+    };
+    let state: SpatialCraftState = (*nav).into();
+    let mut command = lt_rtn_command {
+        throttle: f64::NAN,
+        radial: f64::NAN,
+        transverse: f64::NAN,
+        normal: f64::NAN,
+    };
+    let refused = |e: String| format!("Rust refused: {e}");
+    // The C call's code, and the Rust aid's command (None: unusable settings or spacecraft).
+    let (code, rust, unusable_code) = if rng.chance(0.5) {
+        let (settings, rust_settings) = hostile_lookahead_settings(rng)?;
+        let time_to_go = time_to_go.min(12.0);
+        let usable = rust_spacecraft.is_valid() && rust_settings.validate().is_ok();
+        let (code, rust) = match target {
+            // SAFETY (both calls): every pointer is a valid reference; the report may be null.
+            Target3::Orbit(orbit) => {
+                let code = unsafe {
+                    lt_transfer3_lookahead_step(
+                        policy,
+                        nav,
+                        &orbit,
+                        time_to_go,
+                        &spacecraft,
+                        &settings,
+                        &mut command,
+                        std::ptr::null_mut(),
+                    )
+                };
+                let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+                let rust = usable.then(|| {
+                    lookahead_step(
+                        &actor,
+                        &state,
+                        &TargetOrbit3::from(orbit),
+                        time_to_go,
+                        &rust_spacecraft,
+                        &rust_settings,
+                    )
+                    .map(|d| d.command)
+                });
+                (code, rust)
+            }
+            Target3::Body(body) => {
+                let code = unsafe {
+                    lt_rendezvous3_lookahead_step(
+                        policy,
+                        nav,
+                        &body,
+                        time_to_go,
+                        &spacecraft,
+                        &settings,
+                        &mut command,
+                        std::ptr::null_mut(),
+                    )
+                };
+                let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+                let rust = usable.then(|| {
+                    lookahead_step(
+                        &actor,
+                        &state,
+                        &SpatialState::from(body),
+                        time_to_go,
+                        &rust_spacecraft,
+                        &rust_settings,
+                    )
+                    .map(|d| d.command)
+                });
+                (code, rust)
+            }
+        };
+        (code, rust, LT_ERR_INPUT_LOOKAHEAD)
+    } else {
+        let (settings, rust_settings) = hostile_terminal_settings(rng)?;
+        let time_to_go = if rng.chance(0.5) {
+            time_to_go.min(1.0)
+        } else {
+            time_to_go
+        };
+        let usable = rust_spacecraft.is_valid() && rust_settings.validate().is_ok();
+        let (code, rust) = match target {
+            // SAFETY (both calls): every pointer is a valid reference; the report may be null.
+            Target3::Orbit(orbit) => {
+                let code = unsafe {
+                    lt_transfer3_terminal_step(
+                        policy,
+                        nav,
+                        &orbit,
+                        time_to_go,
+                        &spacecraft,
+                        &settings,
+                        &mut command,
+                        std::ptr::null_mut(),
+                    )
+                };
+                let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+                let rust = usable.then(|| {
+                    terminal_step(
+                        &actor,
+                        &state,
+                        &TargetOrbit3::from(orbit),
+                        time_to_go,
+                        &rust_spacecraft,
+                        &rust_settings,
+                    )
+                    .map(|d| d.command)
+                });
+                (code, rust)
+            }
+            Target3::Body(body) => {
+                let code = unsafe {
+                    lt_rendezvous3_terminal_step(
+                        policy,
+                        nav,
+                        &body,
+                        time_to_go,
+                        &spacecraft,
+                        &settings,
+                        &mut command,
+                        std::ptr::null_mut(),
+                    )
+                };
+                let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+                let rust = usable.then(|| {
+                    terminal_step(
+                        &actor,
+                        &state,
+                        &SpatialState::from(body),
+                        time_to_go,
+                        &rust_spacecraft,
+                        &rust_settings,
+                    )
+                    .map(|d| d.command)
+                });
+                (code, rust)
+            }
+        };
+        (code, rust, LT_ERR_INPUT_TERMINAL)
+    };
+    let bits = |c: &lt_rtn_command| [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits);
+    let agrees = match &rust {
+        None => code == unusable_code && bits(&command) == bits(&RTN_THRUST_OFF),
+        Some(Ok(c)) => code == LT_OK && bits(&command) == bits(&lt_rtn_command::from(*c)),
+        Some(Err(e)) => code == guidance_error_code(e) && bits(&command) == bits(&RTN_THRUST_OFF),
+    };
+    if agrees {
+        Ok(())
+    } else {
+        Err(format!("3D C aid gave {code:?} {command:?}, Rust {rust:?}"))
+    }
+}
+
+/// Hostile lookahead settings, as C gets them and as the Rust lookahead reads them.
+fn hostile_lookahead_settings(
+    rng: &mut Rng,
+) -> Result<(lt_lookahead_settings, onboard::lookahead::LookaheadSettings), String> {
+    let mut settings = MaybeUninit::<lt_lookahead_settings>::uninit();
+    // SAFETY: a valid pointer to writable storage.
+    if unsafe { lt_lookahead_defaults(settings.as_mut_ptr()) } != LT_OK {
+        return Err("lt_lookahead_defaults failed".into());
+    }
+    // SAFETY: written by lt_lookahead_defaults.
+    let mut settings = unsafe { settings.assume_init() };
+    settings.accuracy_floor = hostile(rng, 0.1, 1.0);
+    settings.fuel_weight = hostile(rng, 0.0, 10.0);
+    settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
+    settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
+    settings.arrival_margin = [0, 0, 1, 2, u32::MAX][rng.below(5)];
+    settings.rollout_budget = [0, 0, 1, 7, 60, u32::MAX][rng.below(6)];
+    let rust = onboard::lookahead::LookaheadSettings {
+        goal_position: settings.goal_position,
+        goal_velocity: settings.goal_velocity,
+        accuracy_floor: settings.accuracy_floor,
+        fuel_weight: settings.fuel_weight,
+        max_cycles: settings.max_cycles,
+        thrust_margin: settings.thrust_margin,
+        arrival_margin: settings.arrival_margin,
+        rollout_budget: settings.rollout_budget,
+        ..onboard::lookahead::LookaheadSettings::default()
+    };
+    Ok((settings, rust))
+}
+
+/// Hostile terminal-targeting settings, as C gets them and as the Rust step reads them.
+fn hostile_terminal_settings(
+    rng: &mut Rng,
+) -> Result<(lt_terminal_settings, onboard::terminal::TerminalSettings), String> {
+    let mut settings = MaybeUninit::<lt_terminal_settings>::uninit();
+    // SAFETY: a valid pointer to writable storage.
+    if unsafe { lt_terminal_defaults(settings.as_mut_ptr()) } != LT_OK {
+        return Err("lt_terminal_defaults failed".into());
+    }
+    // SAFETY: written by lt_terminal_defaults.
+    let mut settings = unsafe { settings.assume_init() };
+    settings.cycles = [0, 1, 2, 3, 4, 5, u32::MAX][rng.below(7)];
+    settings.iterations = [0, 1, 8, 64, 65, u32::MAX][rng.below(6)];
+    settings.goal_position = if rng.chance(0.8) { 0.01 } else { hostile(rng, 0.0, 0.1) };
+    let rust = onboard::terminal::TerminalSettings {
+        goal_position: settings.goal_position,
+        goal_velocity: settings.goal_velocity,
+        cycles: settings.cycles,
+        iterations: settings.iterations,
+        ..onboard::terminal::TerminalSettings::default()
+    };
+    Ok((settings, rust))
+}
+
 /// The spacecraft (now and then a hostile thrust) and target orbit an onboard aid's cycle is
 /// fuzzed with.
 fn hostile_aid_inputs(rng: &mut Rng) -> Result<(lt_spacecraft, lt_target_orbit), String> {
@@ -674,20 +923,8 @@ fn lookahead(
     nav: &lt_navigation_state,
     time_to_go: f64,
 ) -> Result<(), String> {
-    use onboard::lookahead::{lookahead_step, LookaheadSettings};
-    let mut settings = MaybeUninit::<lt_lookahead_settings>::uninit();
-    // SAFETY: a valid pointer to writable storage.
-    if unsafe { lt_lookahead_defaults(settings.as_mut_ptr()) } != LT_OK {
-        return Err("lt_lookahead_defaults failed".into());
-    }
-    // SAFETY: written by lt_lookahead_defaults.
-    let mut settings = unsafe { settings.assume_init() };
-    settings.accuracy_floor = hostile(rng, 0.1, 1.0);
-    settings.fuel_weight = hostile(rng, 0.0, 10.0);
-    settings.max_cycles = [0, 1, 3, 12, 200, u32::MAX][rng.below(6)];
-    settings.thrust_margin = if rng.chance(0.5) { 0.0 } else { hostile(rng, 0.0, 0.2) };
-    settings.arrival_margin = [0, 0, 1, 2, u32::MAX][rng.below(5)];
-    settings.rollout_budget = [0, 0, 1, 7, 60, u32::MAX][rng.below(6)];
+    use onboard::lookahead::lookahead_step;
+    let (settings, rust_settings) = hostile_lookahead_settings(rng)?;
     let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // At most 12 t* ahead (50 cycles): a hostile huge time to go flies the network unexamined.
     let time_to_go = time_to_go.min(12.0);
@@ -710,17 +947,6 @@ fn lookahead(
         )
     };
     check_command(code, &command)?;
-    let rust_settings = LookaheadSettings {
-        goal_position: settings.goal_position,
-        goal_velocity: settings.goal_velocity,
-        accuracy_floor: settings.accuracy_floor,
-        fuel_weight: settings.fuel_weight,
-        max_cycles: settings.max_cycles,
-        thrust_margin: settings.thrust_margin,
-        arrival_margin: settings.arrival_margin,
-        rollout_budget: settings.rollout_budget,
-        ..LookaheadSettings::default()
-    };
     let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
         thrust: spacecraft.thrust,
         exhaust_speed: spacecraft.exhaust_speed,
@@ -759,17 +985,8 @@ fn terminal(
     nav: &lt_navigation_state,
     time_to_go: f64,
 ) -> Result<(), String> {
-    use onboard::terminal::{terminal_step, TerminalSettings};
-    let mut settings = MaybeUninit::<lt_terminal_settings>::uninit();
-    // SAFETY: a valid pointer to writable storage.
-    if unsafe { lt_terminal_defaults(settings.as_mut_ptr()) } != LT_OK {
-        return Err("lt_terminal_defaults failed".into());
-    }
-    // SAFETY: written by lt_terminal_defaults.
-    let mut settings = unsafe { settings.assume_init() };
-    settings.cycles = [0, 1, 2, 3, 4, 5, u32::MAX][rng.below(7)];
-    settings.iterations = [0, 1, 8, 64, 65, u32::MAX][rng.below(6)];
-    settings.goal_position = if rng.chance(0.8) { 0.01 } else { hostile(rng, 0.0, 0.1) };
+    use onboard::terminal::terminal_step;
+    let (settings, rust_settings) = hostile_terminal_settings(rng)?;
     let (spacecraft, target) = hostile_aid_inputs(rng)?;
     // Within the last cycles as often as not (a huge time to go flies the network unexamined).
     let time_to_go = if rng.chance(0.5) {
@@ -796,13 +1013,6 @@ fn terminal(
         )
     };
     check_command(code, &command)?;
-    let rust_settings = TerminalSettings {
-        goal_position: settings.goal_position,
-        goal_velocity: settings.goal_velocity,
-        cycles: settings.cycles,
-        iterations: settings.iterations,
-        ..TerminalSettings::default()
-    };
     let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
         thrust: spacecraft.thrust,
         exhaust_speed: spacecraft.exhaust_speed,

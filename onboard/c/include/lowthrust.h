@@ -332,6 +332,40 @@ typedef struct lt_terminal_report {
   double planned_miss;
 } lt_terminal_report;
 
+// What one three-dimensional lookahead cycle decided, for telemetry: as `lt_lookahead_report`,
+// with the network's RTN command.
+typedef struct lt_lookahead_report3 {
+  // The network's own command.
+  struct lt_rtn_command network;
+  // The candidate commanded (0: the network's).
+  uint32_t chosen;
+  // 1 when the predicted arrival below is valid (a rollout flew), else 0.
+  uint32_t predicted_valid;
+  // Predicted position residual at the arrival (AU).
+  double predicted_position;
+  // Predicted velocity residual at the arrival (AU/t*).
+  double predicted_velocity;
+  // Predicted mass at the arrival (m0 = 1).
+  double predicted_mass;
+  // The predicted arrival's cost (goal units).
+  double predicted_cost;
+} lt_lookahead_report3;
+
+// What one three-dimensional terminal-targeting cycle decided, for telemetry: as
+// `lt_terminal_report`, with the network's RTN command.
+typedef struct lt_terminal_report3 {
+  // The network's own command.
+  struct lt_rtn_command network;
+  // 1 when the solved plan's command is flown, 0 when the network's.
+  uint32_t solved;
+  // 1 when the network's continuation was flown out (its miss below is valid), else 0.
+  uint32_t predicted_valid;
+  // Predicted miss of the network's continuation, in goal units.
+  double network_miss;
+  // Predicted miss of the plan flown, in goal units (NaN when none was solved).
+  double planned_miss;
+} lt_terminal_report3;
+
 // What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
 // blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
 typedef struct lt_policy_info {
@@ -541,6 +575,66 @@ lt_status lt_rendezvous_terminal_step(const struct lt_policy *policy,
                                       const struct lt_terminal_settings *settings,
                                       struct lt_thrust_command *command,
                                       struct lt_terminal_report *report);
+
+// One three-dimensional transfer guidance cycle with rollout lookahead: as
+// `lt_transfer_lookahead_step`, with the state, target orbit and command of
+// `lt_transfer3_step` (candidates turned about the local normal, their normal component kept).
+//
+// # Safety
+// As `lt_transfer_lookahead_step`, with `command` null or valid for writing an
+// `lt_rtn_command` and `report` null or valid for writing an `lt_lookahead_report3`.
+lt_status lt_transfer3_lookahead_step(const struct lt_policy *policy,
+                                      const struct lt_navigation_state3 *navigation,
+                                      const struct lt_target_orbit3 *target,
+                                      double time_to_go,
+                                      const struct lt_spacecraft *spacecraft,
+                                      const struct lt_lookahead_settings *settings,
+                                      struct lt_rtn_command *command,
+                                      struct lt_lookahead_report3 *report);
+
+// One three-dimensional rendezvous guidance cycle with rollout lookahead: as
+// `lt_transfer3_lookahead_step`, with the target body's state now (the rollouts coast it).
+//
+// # Safety
+// As `lt_transfer3_lookahead_step`.
+lt_status lt_rendezvous3_lookahead_step(const struct lt_policy *policy,
+                                        const struct lt_navigation_state3 *navigation,
+                                        const struct lt_body_state3 *body,
+                                        double time_to_go,
+                                        const struct lt_spacecraft *spacecraft,
+                                        const struct lt_lookahead_settings *settings,
+                                        struct lt_rtn_command *command,
+                                        struct lt_lookahead_report3 *report);
+
+// One three-dimensional transfer guidance cycle with terminal targeting: as
+// `lt_transfer_terminal_step`, with the state, target orbit and command of `lt_transfer3_step`
+// (three thrust components a cycle: with the defaults at most 428 propagated cycles).
+//
+// # Safety
+// As `lt_transfer_terminal_step`, with `command` null or valid for writing an
+// `lt_rtn_command` and `report` null or valid for writing an `lt_terminal_report3`.
+lt_status lt_transfer3_terminal_step(const struct lt_policy *policy,
+                                     const struct lt_navigation_state3 *navigation,
+                                     const struct lt_target_orbit3 *target,
+                                     double time_to_go,
+                                     const struct lt_spacecraft *spacecraft,
+                                     const struct lt_terminal_settings *settings,
+                                     struct lt_rtn_command *command,
+                                     struct lt_terminal_report3 *report);
+
+// One three-dimensional rendezvous guidance cycle with terminal targeting: as
+// `lt_transfer3_terminal_step`, with the target body's state now (the rollouts coast it).
+//
+// # Safety
+// As `lt_transfer3_terminal_step`.
+lt_status lt_rendezvous3_terminal_step(const struct lt_policy *policy,
+                                       const struct lt_navigation_state3 *navigation,
+                                       const struct lt_body_state3 *body,
+                                       double time_to_go,
+                                       const struct lt_spacecraft *spacecraft,
+                                       const struct lt_terminal_settings *settings,
+                                       struct lt_rtn_command *command,
+                                       struct lt_terminal_report3 *report);
 
 // Writes what a loaded policy flies (problem, quantization) and the mission its blob carries
 // (guidance cycle, units, family) to `*info`: for telemetry, and for the aids' settings.

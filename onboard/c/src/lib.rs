@@ -87,11 +87,11 @@ use core::mem::{align_of, size_of};
 use core::ptr;
 
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
+use onboard::geometry::Dimension;
 use onboard::guidance::{
-    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError, TargetFeatures, TargetOrbit3,
+    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, Actor, Aim, GuidanceError, TargetOrbit3,
 };
-use onboard::lookahead::{lookahead_step, Decision, LookaheadSettings};
-use onboard::policy::Mlp;
+use onboard::lookahead::{lookahead_step, Decision, LookaheadSettings, Prediction};
 use onboard::policy::{Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use onboard::spatial::{RtnCommand, SpatialCraftState};
 use onboard::terminal::{terminal_step, TerminalDecision, TerminalSettings};
@@ -810,6 +810,27 @@ pub struct lt_lookahead_report {
     pub predicted_cost: f64,
 }
 
+/// What one three-dimensional lookahead cycle decided, for telemetry: as `lt_lookahead_report`,
+/// with the network's RTN command.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_lookahead_report3 {
+    /// The network's own command.
+    pub network: lt_rtn_command,
+    /// The candidate commanded (0: the network's).
+    pub chosen: u32,
+    /// 1 when the predicted arrival below is valid (a rollout flew), else 0.
+    pub predicted_valid: u32,
+    /// Predicted position residual at the arrival (AU).
+    pub predicted_position: f64,
+    /// Predicted velocity residual at the arrival (AU/t*).
+    pub predicted_velocity: f64,
+    /// Predicted mass at the arrival (m0 = 1).
+    pub predicted_mass: f64,
+    /// The predicted arrival's cost (goal units).
+    pub predicted_cost: f64,
+}
+
 impl From<lt_lookahead_settings> for LookaheadSettings {
     fn from(s: lt_lookahead_settings) -> Self {
         Self {
@@ -895,27 +916,58 @@ unsafe fn lookahead_inputs(
     unsafe { aid_inputs(spacecraft, settings, usable, LT_ERR_INPUT_LOOKAHEAD) }
 }
 
-/// One lookahead cycle of `actor` towards `target`, and its report.
-fn looked_ahead<const N: usize, const H1: usize, const H2: usize, T: TargetFeatures<N>>(
-    actor: &Mlp<'_, N, H1, H2, 3>,
-    navigation: &SpacecraftState,
+/// One lookahead cycle of `actor` towards `target`, in either dimension.
+fn looked_ahead<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
+    actor: &A,
+    navigation: &<T::Geometry as Dimension>::State,
     target: &T,
     time_to_go: f64,
     inputs: (CanonicalSpacecraft, LookaheadSettings),
-) -> Result<(lt_thrust_command, lt_lookahead_report), lt_status> {
-    let decision: Decision = lookahead_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1)
-        .map_err(|e| guidance_error_code(&e))?;
-    let p = decision.predicted;
-    let report = lt_lookahead_report {
-        network: decision.network.into(),
-        chosen: u32::try_from(decision.chosen).unwrap_or(u32::MAX),
-        predicted_valid: u32::from(p.is_some()),
-        predicted_position: p.map_or(f64::NAN, |p| p.residuals.position),
-        predicted_velocity: p.map_or(f64::NAN, |p| p.residuals.velocity),
-        predicted_mass: p.map_or(f64::NAN, |p| p.mass),
-        predicted_cost: p.map_or(f64::NAN, |p| p.cost),
-    };
-    Ok((decision.command.into(), report))
+) -> Result<Decision<<T::Geometry as Dimension>::Command>, lt_status> {
+    lookahead_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1).map_err(|e| guidance_error_code(&e))
+}
+
+/// A predicted arrival's telemetry fields: valid, position, velocity, mass, cost (NaN when none).
+fn predicted_fields(p: Option<Prediction>) -> (u32, f64, f64, f64, f64) {
+    (
+        u32::from(p.is_some()),
+        p.map_or(f64::NAN, |p| p.residuals.position),
+        p.map_or(f64::NAN, |p| p.residuals.velocity),
+        p.map_or(f64::NAN, |p| p.mass),
+        p.map_or(f64::NAN, |p| p.cost),
+    )
+}
+
+impl From<Decision<ThrustCommand>> for lt_lookahead_report {
+    fn from(d: Decision<ThrustCommand>) -> Self {
+        let (predicted_valid, predicted_position, predicted_velocity, predicted_mass, predicted_cost) =
+            predicted_fields(d.predicted);
+        Self {
+            network: d.network.into(),
+            chosen: u32::try_from(d.chosen).unwrap_or(u32::MAX),
+            predicted_valid,
+            predicted_position,
+            predicted_velocity,
+            predicted_mass,
+            predicted_cost,
+        }
+    }
+}
+
+impl From<Decision<RtnCommand>> for lt_lookahead_report3 {
+    fn from(d: Decision<RtnCommand>) -> Self {
+        let (predicted_valid, predicted_position, predicted_velocity, predicted_mass, predicted_cost) =
+            predicted_fields(d.predicted);
+        Self {
+            network: d.network.into(),
+            chosen: u32::try_from(d.chosen).unwrap_or(u32::MAX),
+            predicted_valid,
+            predicted_position,
+            predicted_velocity,
+            predicted_mass,
+            predicted_cost,
+        }
+    }
 }
 
 /// The lookahead report of a refused cycle: the thrust-off command, nothing predicted.
@@ -929,15 +981,27 @@ const LOOKAHEAD_REFUSED: lt_lookahead_report = lt_lookahead_report {
     predicted_cost: f64::NAN,
 };
 
-/// Writes an aided cycle's outcome: the command (thrust off on error) and, when `report` is not
-/// null, its report (`refused` on error).
+/// The three-dimensional lookahead report of a refused cycle.
+const LOOKAHEAD3_REFUSED: lt_lookahead_report3 = lt_lookahead_report3 {
+    network: RTN_THRUST_OFF,
+    chosen: 0,
+    predicted_valid: 0,
+    predicted_position: f64::NAN,
+    predicted_velocity: f64::NAN,
+    predicted_mass: f64::NAN,
+    predicted_cost: f64::NAN,
+};
+
+/// Writes an aided cycle's outcome, in either dimension: the command (`off`, thrust off, on
+/// error) and, when `report` is not null, its report (`refused` on error).
 ///
 /// # Safety
 /// `command` and `report` are null or valid for writing their structs.
-unsafe fn finish_with_report<R: Copy>(
-    command: *mut lt_thrust_command,
+unsafe fn finish_with_report<C: Copy, R: Copy>(
+    command: *mut C,
     report: *mut R,
-    result: Result<(lt_thrust_command, R), lt_status>,
+    result: Result<(C, R), lt_status>,
+    off: C,
     refused: R,
 ) -> lt_status {
     let written = result.map_or(refused, |(_, r)| r);
@@ -945,8 +1009,16 @@ unsafe fn finish_with_report<R: Copy>(
         // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
         unsafe { ptr::write_unaligned(report, written) };
     }
-    // SAFETY: the caller's contract on `command`, passed on.
-    unsafe { finish(command, result.map(|(c, _)| c)) }
+    let (out, code) = match result {
+        Ok((c, _)) => (c, LT_OK),
+        Err(code) => (off, code),
+    };
+    if command.is_null() {
+        return LT_ERR_NULL_POINTER;
+    }
+    // SAFETY: non-null and writable by the caller's contract; unaligned writes are allowed.
+    unsafe { ptr::write_unaligned(command, out) };
+    code
 }
 
 /// One transfer guidance cycle with rollout lookahead (`onboard::lookahead::lookahead_step`):
@@ -981,9 +1053,10 @@ pub unsafe extern "C" fn lt_transfer_lookahead_step(
             let Network::Transfer(actor) = network else {
                 return Err(LT_ERR_WRONG_POLICY_KIND);
             };
-            looked_ahead(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
+            let d = looked_ahead(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)?;
+            Ok((d.command.into(), d.into()))
         })();
-        finish_with_report(command, report, result, LOOKAHEAD_REFUSED)
+        finish_with_report(command, report, result, THRUST_OFF, LOOKAHEAD_REFUSED)
     }
 }
 
@@ -1012,15 +1085,16 @@ pub unsafe extern "C" fn lt_rendezvous_lookahead_step(
             let Network::Rendezvous(actor) = network else {
                 return Err(LT_ERR_WRONG_POLICY_KIND);
             };
-            looked_ahead(
+            let d = looked_ahead(
                 actor,
                 &navigation.into(),
                 &CartesianState::from(body),
                 time_to_go,
                 inputs,
-            )
+            )?;
+            Ok((d.command.into(), d.into()))
         })();
-        finish_with_report(command, report, result, LOOKAHEAD_REFUSED)
+        finish_with_report(command, report, result, THRUST_OFF, LOOKAHEAD_REFUSED)
     }
 }
 
@@ -1047,6 +1121,23 @@ pub struct lt_terminal_settings {
 pub struct lt_terminal_report {
     /// The network's own command.
     pub network: lt_thrust_command,
+    /// 1 when the solved plan's command is flown, 0 when the network's.
+    pub solved: u32,
+    /// 1 when the network's continuation was flown out (its miss below is valid), else 0.
+    pub predicted_valid: u32,
+    /// Predicted miss of the network's continuation, in goal units.
+    pub network_miss: f64,
+    /// Predicted miss of the plan flown, in goal units (NaN when none was solved).
+    pub planned_miss: f64,
+}
+
+/// What one three-dimensional terminal-targeting cycle decided, for telemetry: as
+/// `lt_terminal_report`, with the network's RTN command.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct lt_terminal_report3 {
+    /// The network's own command.
+    pub network: lt_rtn_command,
     /// 1 when the solved plan's command is flown, 0 when the network's.
     pub solved: u32,
     /// 1 when the network's continuation was flown out (its miss below is valid), else 0.
@@ -1106,24 +1197,39 @@ unsafe fn terminal_inputs(
     unsafe { aid_inputs(spacecraft, settings, usable, LT_ERR_INPUT_TERMINAL) }
 }
 
-/// One terminal-targeting cycle of `actor` towards `target`, and its report.
-fn targeted<const N: usize, const H1: usize, const H2: usize, T: TargetFeatures<N>>(
-    actor: &Mlp<'_, N, H1, H2, 3>,
-    navigation: &SpacecraftState,
+/// One terminal-targeting cycle of `actor` towards `target`, in either dimension.
+fn targeted<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
+    actor: &A,
+    navigation: &<T::Geometry as Dimension>::State,
     target: &T,
     time_to_go: f64,
     inputs: (CanonicalSpacecraft, TerminalSettings),
-) -> Result<(lt_thrust_command, lt_terminal_report), lt_status> {
-    let decision: TerminalDecision = terminal_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1)
-        .map_err(|e| guidance_error_code(&e))?;
-    let report = lt_terminal_report {
-        network: decision.network.into(),
-        solved: u32::from(decision.solved),
-        predicted_valid: u32::from(decision.network_miss.is_some()),
-        network_miss: decision.network_miss.unwrap_or(f64::NAN),
-        planned_miss: decision.planned_miss.unwrap_or(f64::NAN),
-    };
-    Ok((decision.command.into(), report))
+) -> Result<TerminalDecision<<T::Geometry as Dimension>::Command>, lt_status> {
+    terminal_step(actor, navigation, target, time_to_go, &inputs.0, &inputs.1).map_err(|e| guidance_error_code(&e))
+}
+
+impl From<TerminalDecision<ThrustCommand>> for lt_terminal_report {
+    fn from(d: TerminalDecision<ThrustCommand>) -> Self {
+        Self {
+            network: d.network.into(),
+            solved: u32::from(d.solved),
+            predicted_valid: u32::from(d.network_miss.is_some()),
+            network_miss: d.network_miss.unwrap_or(f64::NAN),
+            planned_miss: d.planned_miss.unwrap_or(f64::NAN),
+        }
+    }
+}
+
+impl From<TerminalDecision<RtnCommand>> for lt_terminal_report3 {
+    fn from(d: TerminalDecision<RtnCommand>) -> Self {
+        Self {
+            network: d.network.into(),
+            solved: u32::from(d.solved),
+            predicted_valid: u32::from(d.network_miss.is_some()),
+            network_miss: d.network_miss.unwrap_or(f64::NAN),
+            planned_miss: d.planned_miss.unwrap_or(f64::NAN),
+        }
+    }
 }
 
 /// The terminal-targeting report of a refused cycle: the thrust-off command, nothing predicted.
@@ -1169,9 +1275,10 @@ pub unsafe extern "C" fn lt_transfer_terminal_step(
             let Network::Transfer(actor) = network else {
                 return Err(LT_ERR_WRONG_POLICY_KIND);
             };
-            targeted(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)
+            let d = targeted(actor, &navigation.into(), &OrbitShape::from(target), time_to_go, inputs)?;
+            Ok((d.command.into(), d.into()))
         })();
-        finish_with_report(command, report, result, TERMINAL_REFUSED)
+        finish_with_report(command, report, result, THRUST_OFF, TERMINAL_REFUSED)
     }
 }
 
@@ -1200,15 +1307,169 @@ pub unsafe extern "C" fn lt_rendezvous_terminal_step(
             let Network::Rendezvous(actor) = network else {
                 return Err(LT_ERR_WRONG_POLICY_KIND);
             };
-            targeted(
+            let d = targeted(
                 actor,
                 &navigation.into(),
                 &CartesianState::from(body),
                 time_to_go,
                 inputs,
-            )
+            )?;
+            Ok((d.command.into(), d.into()))
         })();
-        finish_with_report(command, report, result, TERMINAL_REFUSED)
+        finish_with_report(command, report, result, THRUST_OFF, TERMINAL_REFUSED)
+    }
+}
+
+/// The three-dimensional terminal-targeting report of a refused cycle.
+const TERMINAL3_REFUSED: lt_terminal_report3 = lt_terminal_report3 {
+    network: RTN_THRUST_OFF,
+    solved: 0,
+    predicted_valid: 0,
+    network_miss: f64::NAN,
+    planned_miss: f64::NAN,
+};
+
+/// One three-dimensional transfer guidance cycle with rollout lookahead: as
+/// `lt_transfer_lookahead_step`, with the state, target orbit and command of
+/// `lt_transfer3_step` (candidates turned about the local normal, their normal component kept).
+///
+/// # Safety
+/// As `lt_transfer_lookahead_step`, with `command` null or valid for writing an
+/// `lt_rtn_command` and `report` null or valid for writing an `lt_lookahead_report3`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_transfer3_lookahead_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    target: *const lt_target_orbit3,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_lookahead_settings,
+    command: *mut lt_rtn_command,
+    report: *mut lt_lookahead_report3,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, target) = (loaded(policy)?, read_input(navigation)?, read_input(target)?);
+            let inputs = lookahead_inputs(spacecraft, settings)?;
+            let Network::Transfer3(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            let d = looked_ahead(
+                actor,
+                &navigation.into(),
+                &TargetOrbit3::from(target),
+                time_to_go,
+                inputs,
+            )?;
+            Ok((d.command.into(), d.into()))
+        })();
+        finish_with_report(command, report, result, RTN_THRUST_OFF, LOOKAHEAD3_REFUSED)
+    }
+}
+
+/// One three-dimensional rendezvous guidance cycle with rollout lookahead: as
+/// `lt_transfer3_lookahead_step`, with the target body's state now (the rollouts coast it).
+///
+/// # Safety
+/// As `lt_transfer3_lookahead_step`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_rendezvous3_lookahead_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    body: *const lt_body_state3,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_lookahead_settings,
+    command: *mut lt_rtn_command,
+    report: *mut lt_lookahead_report3,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, body) = (loaded(policy)?, read_input(navigation)?, read_input(body)?);
+            let inputs = lookahead_inputs(spacecraft, settings)?;
+            let Network::Rendezvous3(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            let d = looked_ahead(actor, &navigation.into(), &SpatialState::from(body), time_to_go, inputs)?;
+            Ok((d.command.into(), d.into()))
+        })();
+        finish_with_report(command, report, result, RTN_THRUST_OFF, LOOKAHEAD3_REFUSED)
+    }
+}
+
+/// One three-dimensional transfer guidance cycle with terminal targeting: as
+/// `lt_transfer_terminal_step`, with the state, target orbit and command of `lt_transfer3_step`
+/// (three thrust components a cycle: with the defaults at most 428 propagated cycles).
+///
+/// # Safety
+/// As `lt_transfer_terminal_step`, with `command` null or valid for writing an
+/// `lt_rtn_command` and `report` null or valid for writing an `lt_terminal_report3`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_transfer3_terminal_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    target: *const lt_target_orbit3,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_terminal_settings,
+    command: *mut lt_rtn_command,
+    report: *mut lt_terminal_report3,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, target) = (loaded(policy)?, read_input(navigation)?, read_input(target)?);
+            let inputs = terminal_inputs(spacecraft, settings)?;
+            let Network::Transfer3(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            let d = targeted(
+                actor,
+                &navigation.into(),
+                &TargetOrbit3::from(target),
+                time_to_go,
+                inputs,
+            )?;
+            Ok((d.command.into(), d.into()))
+        })();
+        finish_with_report(command, report, result, RTN_THRUST_OFF, TERMINAL3_REFUSED)
+    }
+}
+
+/// One three-dimensional rendezvous guidance cycle with terminal targeting: as
+/// `lt_transfer3_terminal_step`, with the target body's state now (the rollouts coast it).
+///
+/// # Safety
+/// As `lt_transfer3_terminal_step`.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)] // the C signature: one pointer per struct
+pub unsafe extern "C" fn lt_rendezvous3_terminal_step(
+    policy: *const lt_policy,
+    navigation: *const lt_navigation_state3,
+    body: *const lt_body_state3,
+    time_to_go: f64,
+    spacecraft: *const lt_spacecraft,
+    settings: *const lt_terminal_settings,
+    command: *mut lt_rtn_command,
+    report: *mut lt_terminal_report3,
+) -> lt_status {
+    // SAFETY: the caller's contract on each pointer, passed on.
+    unsafe {
+        let result = (|| {
+            let (network, navigation, body) = (loaded(policy)?, read_input(navigation)?, read_input(body)?);
+            let inputs = terminal_inputs(spacecraft, settings)?;
+            let Network::Rendezvous3(actor) = network else {
+                return Err(LT_ERR_WRONG_POLICY_KIND);
+            };
+            let d = targeted(actor, &navigation.into(), &SpatialState::from(body), time_to_go, inputs)?;
+            Ok((d.command.into(), d.into()))
+        })();
+        finish_with_report(command, report, result, RTN_THRUST_OFF, TERMINAL3_REFUSED)
     }
 }
 

@@ -872,7 +872,7 @@ fn lookahead_steps_are_the_onboard_lookahead_bit_for_bit_and_refuse_unusable_set
         let ttg = 0.2408 * (0.5 + k as f64 / 2.0);
         // Every other cycle judged a cycle early; every third on a budget of 5 rollout cycles.
         let margin = (k % 2) as u32;
-        let budget = if k % 3 == 0 { 5 } else { 0 };
+        let budget = if k.is_multiple_of(3) { 5 } else { 0 };
         let settings = lt_lookahead_settings {
             arrival_margin: margin,
             rollout_budget: budget,
@@ -1296,4 +1296,288 @@ fn hostile_three_dimensional_inputs_fly_as_the_rust_steps_or_thrust_off() {
         accepted > 1000 && refused > 1000,
         "{accepted} accepted, {refused} refused"
     );
+}
+
+/// The three-dimensional aids from C: each step the onboard lookahead's and terminal
+/// targeting's RTN command and decision to the bit, for a transfer and a rendezvous policy
+/// (f32 and int8); a planar policy, unusable settings and null inputs refused with their codes,
+/// thrust off and nothing predicted.
+#[test]
+fn three_dimensional_aids_are_the_onboard_aids_bit_for_bit() {
+    use onboard::lookahead::{lookahead_step, LookaheadSettings};
+    use onboard::terminal::{terminal_step, TerminalSettings};
+    let load = |f: unsafe extern "C" fn(*mut lt_policy, *const u8, usize) -> lt_status, bytes: &[u8]| {
+        let mut policy = lt_policy::default();
+        assert_eq!(unsafe { f(&mut policy, bytes.as_ptr(), bytes.len()) }, LT_OK);
+        policy
+    };
+    let (sc, canonical) = (
+        spacecraft(),
+        shared::spacecraft::Spacecraft::MSR_ERO.canonical().unwrap(),
+    );
+    // Every other cycle on a budget of 5 rollout cycles, so the prefix is flown through C too.
+    let lookahead = |k: usize| lt_lookahead_settings {
+        rollout_budget: if k.is_multiple_of(2) { 5 } else { 0 },
+        ..defaults()
+    };
+    let rust_lookahead = |k: usize| LookaheadSettings {
+        rollout_budget: if k.is_multiple_of(2) { 5 } else { 0 },
+        ..LookaheadSettings::default()
+    };
+    let terminal = lt_terminal_settings {
+        cycles: 3,
+        ..terminal_defaults()
+    };
+    let rust_terminal = TerminalSettings {
+        cycles: 3,
+        ..TerminalSettings::default()
+    };
+    let prediction_bits = |r: &lt_lookahead_report3| {
+        [
+            r.predicted_position,
+            r.predicted_velocity,
+            r.predicted_mass,
+            r.predicted_cost,
+        ]
+        .map(f64::to_bits)
+    };
+    let (mut overridden, mut solved) = (0, 0);
+    for quantized in [false, true] {
+        let blob = |kind, sizes: &[usize]| {
+            if quantized {
+                int8_blob(kind, sizes)
+            } else {
+                f32_blob(kind, sizes)
+            }
+        };
+        let transfer_bytes = blob(ProblemKind::Transfer, &TRANSFER3);
+        let rendezvous_bytes = blob(ProblemKind::Rendezvous, &RENDEZVOUS3);
+        let transfer_policy = load(lt_transfer3_load, &transfer_bytes);
+        let rendezvous_policy = load(lt_rendezvous3_load, &rendezvous_bytes);
+        let transfer_rust = Transfer3Policy::from_bytes(&transfer_bytes, ProblemKind::Transfer).unwrap();
+        let rendezvous_rust = Rendezvous3Policy::from_bytes(&rendezvous_bytes, ProblemKind::Rendezvous).unwrap();
+        for (k, (nav, _)) in states3(6).into_iter().enumerate() {
+            // 1 to 3.5 cycles to go: the terminal plans and partial last cycles.
+            let ttg = 0.2408 * (1.0 + k as f64 / 2.0);
+            let state = SpatialCraftState::from(nav);
+            // Lookahead, transfer then rendezvous.
+            let mut command = STALE3;
+            let mut report = std::mem::MaybeUninit::<lt_lookahead_report3>::uninit();
+            let status = unsafe {
+                lt_transfer3_lookahead_step(
+                    &transfer_policy,
+                    &nav,
+                    &TARGET3,
+                    ttg,
+                    &sc,
+                    &lookahead(k),
+                    &mut command,
+                    report.as_mut_ptr(),
+                )
+            };
+            let report = unsafe { report.assume_init() };
+            let expected = lookahead_step(
+                &transfer_rust,
+                &state,
+                &TargetOrbit3::from(TARGET3),
+                ttg,
+                &canonical,
+                &rust_lookahead(k),
+            )
+            .unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(rtn_bits(&command), rtn_bits(&expected.command.into()));
+            assert_eq!(rtn_bits(&report.network), rtn_bits(&expected.network.into()));
+            assert_eq!(report.chosen as usize, expected.chosen);
+            let p = expected.predicted.unwrap();
+            assert_eq!(report.predicted_valid, 1);
+            assert_eq!(
+                prediction_bits(&report),
+                [p.residuals.position, p.residuals.velocity, p.mass, p.cost].map(f64::to_bits)
+            );
+            overridden += usize::from(report.chosen != 0);
+            let mut command = STALE3;
+            let status = unsafe {
+                lt_rendezvous3_lookahead_step(
+                    &rendezvous_policy,
+                    &nav,
+                    &BODY3,
+                    ttg,
+                    &sc,
+                    &lookahead(k),
+                    &mut command,
+                    ptr::null_mut(),
+                )
+            };
+            let expected = lookahead_step(
+                &rendezvous_rust,
+                &state,
+                &SpatialState::from(BODY3),
+                ttg,
+                &canonical,
+                &rust_lookahead(k),
+            )
+            .unwrap();
+            assert_eq!(
+                (status, rtn_bits(&command)),
+                (LT_OK, rtn_bits(&expected.command.into()))
+            );
+            // Terminal targeting, transfer then rendezvous.
+            let mut command = STALE3;
+            let mut report = std::mem::MaybeUninit::<lt_terminal_report3>::uninit();
+            let status = unsafe {
+                lt_transfer3_terminal_step(
+                    &transfer_policy,
+                    &nav,
+                    &TARGET3,
+                    ttg,
+                    &sc,
+                    &terminal,
+                    &mut command,
+                    report.as_mut_ptr(),
+                )
+            };
+            let report = unsafe { report.assume_init() };
+            let expected = terminal_step(
+                &transfer_rust,
+                &state,
+                &TargetOrbit3::from(TARGET3),
+                ttg,
+                &canonical,
+                &rust_terminal,
+            )
+            .unwrap();
+            assert_eq!(status, LT_OK);
+            assert_eq!(rtn_bits(&command), rtn_bits(&expected.command.into()));
+            assert_eq!(rtn_bits(&report.network), rtn_bits(&expected.network.into()));
+            assert_eq!(report.solved, u32::from(expected.solved));
+            assert_eq!(report.predicted_valid, u32::from(expected.network_miss.is_some()));
+            assert_eq!(
+                [report.network_miss, report.planned_miss].map(f64::to_bits),
+                [expected.network_miss, expected.planned_miss].map(|m| m.unwrap_or(f64::NAN).to_bits())
+            );
+            solved += usize::from(expected.solved);
+            let mut command = STALE3;
+            let status = unsafe {
+                lt_rendezvous3_terminal_step(
+                    &rendezvous_policy,
+                    &nav,
+                    &BODY3,
+                    ttg,
+                    &sc,
+                    &terminal,
+                    &mut command,
+                    ptr::null_mut(),
+                )
+            };
+            let expected = terminal_step(
+                &rendezvous_rust,
+                &state,
+                &SpatialState::from(BODY3),
+                ttg,
+                &canonical,
+                &rust_terminal,
+            )
+            .unwrap();
+            assert_eq!(
+                (status, rtn_bits(&command)),
+                (LT_OK, rtn_bits(&expected.command.into()))
+            );
+        }
+    }
+    // These made-up weights are far from any optimum: both aids override them somewhere.
+    assert!(overridden > 0 && solved > 0, "{overridden} {solved}");
+
+    // Refusals: a planar policy, unusable settings, null inputs; thrust off, nothing predicted.
+    let planar_bytes = f32_blob(ProblemKind::Transfer, &TRANSFER);
+    let (status, planar) = load_transfer(&planar_bytes);
+    assert_eq!(status, LT_OK);
+    let spatial_bytes = f32_blob(ProblemKind::Transfer, &TRANSFER3);
+    let spatial = load(lt_transfer3_load, &spatial_bytes);
+    let nav = states3(1)[0].0;
+    let unusable_lookahead = lt_lookahead_settings {
+        accuracy_floor: 0.0,
+        ..defaults()
+    };
+    let unusable_terminal = lt_terminal_settings {
+        cycles: 0,
+        ..terminal_defaults()
+    };
+    let cases: [(
+        &lt_policy,
+        *const lt_spacecraft,
+        &lt_lookahead_settings,
+        &lt_terminal_settings,
+        lt_status,
+    ); 3] = [
+        (&planar, &sc, &defaults(), &terminal, LT_ERR_WRONG_POLICY_KIND),
+        (
+            &spatial,
+            &sc,
+            &unusable_lookahead,
+            &unusable_terminal,
+            LT_ERR_INPUT_LOOKAHEAD,
+        ),
+        (&spatial, ptr::null(), &defaults(), &terminal, LT_ERR_NULL_POINTER),
+    ];
+    for (policy, spacecraft, lookahead, terminal, code) in cases {
+        let mut command = STALE3;
+        let mut report = std::mem::MaybeUninit::<lt_lookahead_report3>::uninit();
+        let status = unsafe {
+            lt_transfer3_lookahead_step(
+                policy,
+                &nav,
+                &TARGET3,
+                1.0,
+                spacecraft,
+                lookahead,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        assert_eq!(status, code);
+        assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
+        let report = unsafe { report.assume_init() };
+        assert_eq!((report.predicted_valid, report.chosen), (0, 0));
+        let mut command = STALE3;
+        let mut report = std::mem::MaybeUninit::<lt_terminal_report3>::uninit();
+        let status = unsafe {
+            lt_rendezvous3_terminal_step(
+                policy,
+                &nav,
+                &BODY3,
+                1.0,
+                spacecraft,
+                terminal,
+                &mut command,
+                report.as_mut_ptr(),
+            )
+        };
+        // The rendezvous step refuses the spatial transfer policy after checking its inputs.
+        let expected = match code {
+            LT_ERR_INPUT_LOOKAHEAD => LT_ERR_INPUT_TERMINAL,
+            other => other,
+        };
+        assert_eq!(status, expected);
+        assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
+        let report = unsafe { report.assume_init() };
+        assert_eq!((report.predicted_valid, report.solved), (0, 0));
+        assert!(report.planned_miss.is_nan());
+    }
+    // With usable inputs, the other problem's 3D policy is the wrong kind.
+    let mut command = STALE3;
+    let status = unsafe {
+        lt_rendezvous3_lookahead_step(
+            &spatial,
+            &nav,
+            &BODY3,
+            1.0,
+            &sc,
+            &defaults(),
+            &mut command,
+            ptr::null_mut(),
+        )
+    };
+    assert_eq!(status, LT_ERR_WRONG_POLICY_KIND);
+    assert_eq!(rtn_bits(&command), rtn_bits(&RTN_THRUST_OFF));
 }
