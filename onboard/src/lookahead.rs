@@ -19,10 +19,10 @@
 //! flight). Under dispersions each cycle replans from the navigation state.
 //!
 //! The work is at most `CANDIDATES` x the cycles left rollout cycles (an inference and a
-//! propagation each; 1,050 for a 50-cycle transfer at its start), or the settings'
-//! `rollout_budget`, which flies the most useful candidates first; no allocation, no panic; a candidate whose rollout fails (tank dry,
-//! integrator refusal) is simply not chosen, and if every rollout fails the network's command is
-//! flown.
+//! propagation of one or more fixed steps each; 1,050 for a 50-cycle transfer at its start), or
+//! the settings' `rollout_budget` of steps, which flies the most useful candidates first; no
+//! allocation, no panic; a candidate whose rollout fails (tank dry, integrator refusal) is simply
+//! not chosen, and if every rollout fails the network's command is flown.
 
 use shared::spacecraft::CanonicalSpacecraft;
 use shared::units::STEP;
@@ -114,11 +114,14 @@ pub struct LookaheadSettings {
     /// margin, the arrival itself.
     #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero_cycles"))]
     pub arrival_margin: u32,
-    /// Most rollout cycles (one candidate propagated over one cycle: an inference and a
-    /// propagation) a guidance cycle may fly in all, or 0 for no limit (default): the candidates
-    /// are flown in their order of usefulness while a whole rollout still fits, so with `n`
-    /// cycles to go `rollout_budget / n` of them (none: the network's command unexamined). The
-    /// bound on a cycle's work that holds at any time to go, where `max_cycles` stops looking.
+    /// Most rollout steps a guidance cycle may fly in all, or 0 for no limit (default). Each
+    /// cycle of a rollout counts its fixed DOP853 steps ([`rollout_tolerances`]: one from a
+    /// periapsis beyond 0.68 AU, more nearer the Sun; an adaptive cycle counts one), so a step
+    /// costs at most one inference and one step's propagation. The candidates are flown in
+    /// their order of usefulness; one whose rollout runs out of budget, and every later one, is
+    /// not a candidate (none: the network's command unexamined). With one step a cycle and `n`
+    /// cycles to go, `rollout_budget / n` of them. The bound on a cycle's work that holds at any
+    /// time to go and any distance from the Sun, where `max_cycles` stops looking.
     #[cfg_attr(feature = "serde", serde(skip_serializing_if = "is_zero_cycles"))]
     pub rollout_budget: u32,
     /// Length of a guidance cycle (t*; default 14 days, [`STEP`]): the scenario family's.
@@ -266,7 +269,8 @@ pub struct Decision<C = ThrustCommand> {
     /// The network's own predicted arrival (None when its rollout failed or none ran).
     pub network_predicted: Option<Prediction>,
     /// Candidates flown out this cycle: those that fly differently from every earlier one (a
-    /// repeat of an earlier command, or thrust off in another direction, is not flown again).
+    /// repeat of an earlier command, or thrust off in another direction, is not flown again);
+    /// under a rollout budget the last may have been cut short by it.
     pub rollouts: u32,
 }
 
@@ -313,27 +317,43 @@ fn rollout<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim<N, OUT>>(
     horizon: f64,
     cycles: u32,
     first: &<T::Geometry as Dimension>::Command,
-) -> Option<Prediction> {
+    steps_left: &mut u32,
+) -> Result<Option<Prediction>, OutOfBudget> {
     let mut state = *navigation;
     let mut command = *first;
     for cycle in 0..cycles {
         let start = f64::from(cycle) * settings.cycle;
         let duration = cycle_duration(horizon, start, settings.cycle);
         if cycle > 0 {
-            command = command_at(actor, target, &state, start, time_to_go - start).ok()?;
+            let Ok(next) = command_at(actor, target, &state, start, time_to_go - start) else {
+                return Ok(None);
+            };
+            command = next;
         }
         let tolerances = settings.rollout_tolerances(duration, T::Geometry::periapsis(&state));
-        state = T::Geometry::propagate(&state, &command, spacecraft, duration, &tolerances).ok()?;
+        // The budget's unit: a fixed step (an adaptive cycle counts one).
+        let steps = tolerances.fixed_steps.max(1);
+        *steps_left = steps_left.checked_sub(steps).ok_or(OutOfBudget)?;
+        let Ok(next) = T::Geometry::propagate(&state, &command, spacecraft, duration, &tolerances) else {
+            return Ok(None);
+        };
+        state = next;
     }
-    let residuals = target.residuals_after(&state, horizon).ok()?;
+    let Ok(residuals) = target.residuals_after(&state, horizon) else {
+        return Ok(None);
+    };
     let mut arrival = Prediction {
         residuals,
         mass: T::Geometry::mass(&state),
         cost: 0.0,
     };
     arrival.cost = settings.cost(&arrival);
-    arrival.cost.is_finite().then_some(arrival)
+    Ok(arrival.cost.is_finite().then_some(arrival))
 }
+
+/// A rollout stopped where the cycle's rollout budget ran out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct OutOfBudget;
 
 /// One guidance cycle with lookahead, in the plane or in three dimensions (the target's
 /// [`Aim`]): the network's command at `navigation` (refused inputs and non-finite actions are
@@ -379,6 +399,10 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         thrust: spacecraft.thrust * (1.0 - settings.thrust_margin),
         ..*spacecraft
     };
+    let mut steps_left = match settings.rollout_budget {
+        0 => u32::MAX,
+        budget => budget,
+    };
     let mut candidates = [<T::Geometry as Dimension>::OFF; CANDIDATES];
     for index in 0..CANDIDATES {
         let Some(first) = candidate::<T::Geometry>(&network, index) else {
@@ -397,14 +421,27 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         if repeated {
             continue;
         }
-        if settings.rollout_budget > 0 && (decision.rollouts + 1).saturating_mul(cycles) > settings.rollout_budget {
+        // Not even one step a cycle left: no whole rollout fits.
+        if steps_left < cycles {
             break;
         }
         decision.rollouts += 1;
-        let Some(arrival) = rollout(
-            actor, target, &planned, settings, navigation, time_to_go, horizon, cycles, &first,
-        ) else {
-            continue;
+        let arrival = rollout(
+            actor,
+            target,
+            &planned,
+            settings,
+            navigation,
+            time_to_go,
+            horizon,
+            cycles,
+            &first,
+            &mut steps_left,
+        );
+        let arrival = match arrival {
+            Ok(Some(arrival)) => arrival,
+            Ok(None) => continue,
+            Err(OutOfBudget) => break,
         };
         if index == 0 {
             decision.network_predicted = Some(arrival);
@@ -693,7 +730,9 @@ mod tests {
                     time_to_go,
                     3,
                     &first,
+                    &mut { u32::MAX },
                 )
+                .expect("within budget")
                 .expect("flies");
                 if best.is_none_or(|(_, b)| arrival.cost < b.cost) {
                     best = Some((index, arrival));
@@ -734,7 +773,9 @@ mod tests {
                 time_to_go,
                 3,
                 &first,
+                &mut { u32::MAX },
             )
+            .expect("within budget")
             .expect("flies")
         });
         // The budget's candidates must decide differently from the whole set somewhere.
@@ -772,6 +813,75 @@ mod tests {
                 None => assert_eq!((d.command, d.chosen, d.predicted), (d.network, 0, None)),
             }
             decided_otherwise |= flown > 0 && d.chosen != predictions_best(&predictions);
+        }
+        assert!(decided_otherwise, "every budget chose what the whole set chose");
+    }
+
+    /// Near the Sun a rollout cycle takes several steps, and the budget counts each: on an
+    /// orbit at 0.3 AU (about four steps a 14-day cycle) the candidates flown whole are those
+    /// whose steps, summed in order, fit the budget, and the decision is among them alone.
+    #[test]
+    fn near_the_sun_the_budget_counts_every_step() {
+        struct Constant;
+        impl<const N: usize> Actor<N> for Constant {
+            fn act(&self, _: &[f32; N]) -> [f32; ACTION_LEN] {
+                [0.0, 0.3, 0.9]
+            }
+        }
+        const LOW: OrbitShape = OrbitShape {
+            a: 0.3,
+            e: 0.0,
+            omega: 0.0,
+        };
+        let start = SpacecraftState::from_cartesian(&LOW.cartesian_at(0.0), 1.0);
+        let (sc, unlimited) = (spacecraft(), LookaheadSettings::default());
+        let time_to_go = 3.0 * STEP;
+        let network = command_at(&Constant, &ORBIT, &start, 0.0, time_to_go).expect("acts");
+        // Each candidate's steps and prediction, flown alone.
+        let flown: [(u32, Prediction); CANDIDATES] = core::array::from_fn(|index| {
+            let first = candidate::<Planar>(&network, index).expect("in range");
+            let mut steps_left = u32::MAX;
+            let p = rollout(
+                &Constant,
+                &ORBIT,
+                &sc,
+                &unlimited,
+                &start,
+                time_to_go,
+                time_to_go,
+                3,
+                &first,
+                &mut steps_left,
+            )
+            .expect("within budget")
+            .expect("flies");
+            (u32::MAX - steps_left, p)
+        });
+        assert!(flown.iter().all(|(steps, _)| *steps >= 9), "{:?}", flown.map(|f| f.0));
+        let mut decided_otherwise = false;
+        for budget in [flown[0].0 - 1, flown[0].0, 40, 100, 150] {
+            let settings = LookaheadSettings {
+                rollout_budget: budget,
+                ..unlimited
+            };
+            let d = lookahead_step(&Constant, &start, &ORBIT, time_to_go, &sc, &settings).expect("valid inputs");
+            // The candidates whose steps fit, in order.
+            let mut used = 0;
+            let whole = flown
+                .iter()
+                .take_while(|(steps, _)| {
+                    used += steps;
+                    used <= budget
+                })
+                .count();
+            match whole {
+                0 => assert_eq!((d.command, d.predicted), (d.network, None), "budget {budget}"),
+                k => {
+                    let best = predictions_best(&flown.map(|f| f.1)[..k]);
+                    assert_eq!((d.chosen, d.predicted), (best, Some(flown[best].1)), "budget {budget}");
+                    decided_otherwise |= best != predictions_best(&flown.map(|f| f.1));
+                }
+            }
         }
         assert!(decided_otherwise, "every budget chose what the whole set chose");
     }

@@ -89,7 +89,7 @@ const REPEATS: u32 = 64;
 const LOOKAHEAD_CYCLES: u32 = 4;
 /// Cycles left in the measured lookahead cycle under a rollout budget: a transfer's start.
 const BUDGETED_CYCLES: u32 = 50;
-/// The rollout budget of that measurement: 6 rollouts of 50 cycles.
+/// The rollout budget of that measurement, in steps: 6 rollouts of 50 one-step cycles.
 const ROLLOUT_BUDGET: u32 = 300;
 /// Cycles left in the first measured terminal-targeting cycle: the default settings' most.
 const TERMINAL_CYCLES: u32 = 8;
@@ -253,7 +253,7 @@ fn lookahead(
     let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
     writeln!(
         out,
-        "{COMMENT} instructions per lookahead cycle, {cycles} cycles to go, rollout budget {rollout_budget} \
+        "{COMMENT} instructions per lookahead cycle, {cycles} cycles to go, rollout budget {rollout_budget} steps \
          ({flown} of {CANDIDATES} candidates flown, {rollout_cycles} rollout cycles): {total}, {} per rollout \
          cycle; chosen candidate {}",
         total / rollout_cycles,

@@ -362,7 +362,7 @@ pub fn lookahead_terms(l: &onboard::lookahead::LookaheadSettings) -> Vec<String>
     }
     if l.rollout_budget > 0 {
         terms.push(format!(
-            "flying at most {} rollout cycles a guidance cycle",
+            "flying at most {} rollout steps a guidance cycle",
             l.rollout_budget
         ));
     }

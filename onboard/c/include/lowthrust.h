@@ -272,8 +272,9 @@ typedef struct lt_lookahead_settings {
   // Whole cycles before the arrival at which the rollouts are judged (the target met early
   // and followed, the last cycles kept in reserve); default 0.
   uint32_t arrival_margin;
-  // Most rollout cycles (a candidate's inference and propagation over one cycle) a guidance
-  // cycle flies in all, the most useful candidates first; 0 (default): no limit.
+  // Most rollout steps a guidance cycle flies in all (each rollout cycle counts its fixed
+  // DOP853 steps, one from a periapsis beyond 0.68 AU), the most useful candidates first;
+  // 0 (default): no limit.
   uint32_t rollout_budget;
 } lt_lookahead_settings;
 
@@ -501,7 +502,7 @@ lt_status lt_lookahead_defaults(struct lt_lookahead_settings *out);
 // the network's command and 20 alternatives around it are each held for this cycle, the
 // network flies every later one with the onboard propagator and `spacecraft`, and the command
 // of the cheapest predicted arrival is returned. At most 21 x the cycles left rollout cycles, or
-// the settings' `rollout_budget`: run it at the 14-day guidance rate, not in a fast loop.
+// the settings' `rollout_budget` of steps: run it at the 14-day guidance rate, not in a fast loop.
 //
 // Returns as `lt_transfer_step`, and `LT_ERR_INPUT_LOOKAHEAD` for an unusable spacecraft or
 // settings; `report` may be null, else it receives the decision (nothing predicted on error).
