@@ -272,6 +272,9 @@ pub struct Decision<C = ThrustCommand> {
     /// repeat of an earlier command, or thrust off in another direction, is not flown again);
     /// under a rollout budget the last may have been cut short by it.
     pub rollouts: u32,
+    /// Fixed steps the rollouts propagated (an adaptive cycle counts one): the work a rollout
+    /// budget bounds.
+    pub steps: u32,
 }
 
 /// The `index`-th candidate around the network's command `network` (0: itself), in dimension
@@ -379,6 +382,7 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         predicted: None,
         network_predicted: None,
         rollouts: 0,
+        steps: 0,
     };
     if settings.validate().is_err() {
         return Ok(decision);
@@ -399,10 +403,11 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
         thrust: spacecraft.thrust * (1.0 - settings.thrust_margin),
         ..*spacecraft
     };
-    let mut steps_left = match settings.rollout_budget {
+    let budget = match settings.rollout_budget {
         0 => u32::MAX,
         budget => budget,
     };
+    let mut steps_left = budget;
     let mut candidates = [<T::Geometry as Dimension>::OFF; CANDIDATES];
     for index in 0..CANDIDATES {
         let Some(first) = candidate::<T::Geometry>(&network, index) else {
@@ -452,6 +457,7 @@ pub fn lookahead_step<const N: usize, const OUT: usize, A: Actor<N, OUT>, T: Aim
             decision.predicted = Some(arrival);
         }
     }
+    decision.steps = budget - steps_left;
     Ok(decision)
 }
 
@@ -874,6 +880,13 @@ mod tests {
                     used <= budget
                 })
                 .count();
+            // The steps reported: those of the whole rollouts, and of a cut one's cycles that fit.
+            let whole_steps: u32 = flown.iter().take(whole).map(|f| f.0).sum();
+            assert!(
+                whole_steps <= d.steps && d.steps <= budget,
+                "budget {budget}: {} steps",
+                d.steps
+            );
             match whole {
                 0 => assert_eq!((d.command, d.predicted), (d.network, None), "budget {budget}"),
                 k => {

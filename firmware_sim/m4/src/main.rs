@@ -224,7 +224,7 @@ fn first_flight() -> Option<(
 
 /// One guidance cycle with rollout lookahead (`onboard::lookahead`) from the first flight's
 /// start, `cycles` cycles before the arrival, with a rollout budget (0: none): its instructions,
-/// whole and per rollout cycle (an inference and a 14-day propagation).
+/// whole and per step propagated (at one step a cycle, an inference and a 14-day propagation).
 #[inline(never)]
 fn lookahead(
     out: &mut semi::Out,
@@ -248,15 +248,14 @@ fn lookahead(
     let start = counter.now();
     let decision = lookahead_step(controller, &state, &target, time_to_go, &spacecraft, &settings);
     let ticks = Counter::ticks(start, counter.now());
-    let flown = decision.map_or(0, |d| d.rollouts);
-    let rollout_cycles = u64::from(flown.max(1)) * u64::from(cycles);
+    let (flown, steps) = decision.map_or((0, 0), |d| (d.rollouts, d.steps));
     let total = u64::from(ticks) * u64::from(INSTRUCTIONS_PER_TICK);
     writeln!(
         out,
         "{COMMENT} instructions per lookahead cycle, {cycles} cycles to go, rollout budget {rollout_budget} steps \
-         ({flown} of {CANDIDATES} candidates flown, {rollout_cycles} rollout cycles): {total}, {} per rollout \
-         cycle; chosen candidate {}",
-        total / rollout_cycles,
+         ({flown} of {CANDIDATES} candidates flown, {steps} steps propagated): {total}, {} per step; chosen \
+         candidate {}",
+        total / u64::from(steps.max(1)),
         decision.map_or(-1, |d| d.chosen as i64)
     )
 }
