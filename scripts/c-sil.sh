@@ -4,8 +4,9 @@
 #
 # For each weight blob, onboard/c's guidance_calls example records the guidance calls of the
 # Rust SIL's trace flights (firmware_sim's sil_trace: same scenarios, dispersions, seeds; the
-# navigation state each step was given) plus inputs guidance must refuse, and writes what each
-# call must return. The four problems are covered: transfer and rendezvous in the plane, and in
+# navigation state each step was given) plus inputs guidance must refuse, then the onboard aids
+# (rollout lookahead, terminal targeting) on some of those steps and on the refused inputs, and
+# writes what each call must return, the aids' reports included. The four problems are covered: transfer and rendezvous in the plane, and in
 # three dimensions on the inclined trace flights (lt_transfer3_step, lt_rendezvous3_step, RTN
 # commands). Then
 #   1. the host C program (onboard/c/examples/fly.c, gcc) flies every call and its output must
@@ -70,12 +71,14 @@ gcc -std=c99 -O2 -Wall -Wextra -Werror -pedantic -I onboard/c/include "$EXAMPLES
     "$HOST_LIB" -lpthread -ldl -lm -o "$OUT/fly"
 echo "$OUT/fly"
 
-# The Cortex-M4F image of one case: the blob and the calls linked into flash.
+# The Cortex-M4F image of one case: the blob and the calls linked into flash, replay.c built for
+# the case's problem alone (REPLAY_PROBLEM), so the image links that problem's steps and aids and
+# no other's, as flight software would.
 M4_FLAGS=(-mcpu=cortex-m4 -mthumb -mfloat-abi=hard -mfpu=fpv4-sp-d16)
 m4_image() {
-    local blob=$1 calls=$2 elf=$3
+    local blob=$1 calls=$2 elf=$3 problem=$4
     arm-none-eabi-gcc "${M4_FLAGS[@]}" -std=c99 -O2 -ffreestanding -ffunction-sections -fdata-sections \
-        -Wall -Wextra -Werror -I onboard/c/include \
+        -Wall -Wextra -Werror -I onboard/c/include -DREPLAY_PROBLEM="LT_PROBLEM_${problem^^}" \
         -DLT_BLOB_PATH="\"$(realpath "$blob")\"" -DLT_CALLS_PATH="\"$(realpath "$calls")\"" \
         -nostdlib -nostartfiles -T "$M4/mps2-an386.ld" -Wl,--gc-sections -Wl,-z,noexecstack \
         -Wl,-Map="${elf%.elf}.map" \
@@ -171,7 +174,7 @@ run_case() {
     fi
 
     # 3. The Cortex-M4F image under QEMU.
-    m4_image "$blob" "$dir/calls.bin" "$dir/m4.elf"
+    m4_image "$blob" "$dir/calls.bin" "$dir/m4.elf" "$problem"
     local rc=0
     timeout 300 qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -nographic -monitor none -serial none \
         -semihosting-config enable=on,target=native -kernel "$dir/m4.elf" >"$dir/qemu.txt" 2>"$dir/qemu.err" || rc=$?
@@ -239,12 +242,13 @@ run_case rendezvous3-int8 "$OUT/blobs/rendezvous3-int8.blob" rendezvous3 ok
 run_case transfer3-wrong-dimension "$OUT/blobs/transfer-int8.blob" transfer3 refused
 run_case wrong-dimension "$OUT/blobs/transfer3-int8.blob" transfer refused
 
-step "calls files the host program must refuse: another format, another problem"
-# The header's u32s: the format at byte 4 (1: the planar format before), the problem at byte 8.
-for refusal in "format 4 1" "problem 8 4"; do
-    read -r what offset value <<<"$refusal"
+step "calls files the host program must refuse: another format, another problem, an unknown aid"
+# The header's u32s: the format at byte 4 (2: the format before the aids), the problem at byte
+# 8; the first call's aid, an f64 at byte 144 (after the header's 16 bytes and the aids' 16 f64s): 3.0.
+for refusal in "format 4 4 2" "problem 8 4 4" "aid 144 8 $((0x4008000000000000))"; do
+    read -r what offset bytes value <<<"$refusal"
     cp "$OUT/transfer3-int8/calls.bin" "$OUT/unknown-$what.bin"
-    put_le "$OUT/unknown-$what.bin" "$offset" 4 "$value"
+    put_le "$OUT/unknown-$what.bin" "$offset" "$bytes" "$value"
     if "$OUT/fly" "$OUT/blobs/transfer3-int8.blob" "$OUT/unknown-$what.bin" >/dev/null 2>"$OUT/unknown-$what.err"; then
         fail "the host program flew a calls file of $what $value"
     elif grep -q "$what" "$OUT/unknown-$what.err"; then

@@ -16,13 +16,23 @@
 //! command through the plant. So a C-hosted controller that returns the same command bits on
 //! every one of these inputs would have flown the same flights, bit for bit.
 //!
-//! calls.bin (little-endian): `LTGC`, u32 format 2, u32 problem (the C interface's
+//! Then the onboard aids on the first two flights (both of 14-day cycles): rollout lookahead
+//! (`lt_*_lookahead_step`) on six of each flight's steps and terminal targeting
+//! (`lt_*_terminal_step`) on its last five, with the settings of [`lookahead_settings`] and
+//! [`terminal_settings`] and the flights' spacecraft; and both aids on every refused input.
+//!
+//! calls.bin (little-endian): `LTGC`, u32 format 3, u32 problem (the C interface's
 //! `LT_PROBLEM_*`: 0 transfer, 1 rendezvous, 2 transfer in three dimensions, 3 rendezvous in
-//! three dimensions), u32 call count, then per call its f64s: the navigation state (x, y, vx,
-//! vy, m; in three dimensions x, y, z, vx, vy, vz, m), the target (a, e, omega, 0 for a transfer;
-//! the body's x, y, vx, vy for a rendezvous; in three dimensions a, e, omega, inclination, raan,
-//! 0, or the body's x, y, z, vx, vy, vz), the time to go: 10 per planar call, 14 in three
-//! dimensions. (Format 1 was the planar problems alone, with the same records.)
+//! three dimensions), u32 call count; then the aids' 16 f64s: the spacecraft (thrust, exhaust
+//! speed), the lookahead settings (goal position, goal velocity, accuracy floor, fuel weight,
+//! thrust margin, cycle, max cycles, arrival margin, rollout budget) and the terminal settings
+//! (goal position, goal velocity, cycle, cycles, iterations), counts as whole f64s; then per call
+//! its f64s: the aid (0 the network's step, 1 lookahead, 2 terminal targeting), the navigation
+//! state (x, y, vx, vy, m; in three dimensions x, y, z, vx, vy, vz, m), the target (a, e, omega, 0
+//! for a transfer; the body's x, y, vx, vy for a rendezvous; in three dimensions a, e, omega,
+//! inclination, raan, 0, or the body's x, y, z, vx, vy, vz), the time to go: 11 per planar call,
+//! 15 in three dimensions. (Format 2 had neither the aids' values nor the aid of each call;
+//! format 1 was the planar problems alone.)
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -30,7 +40,7 @@ use std::process::ExitCode;
 
 use firmware_sim::trace::{flights_of, TraceProblem};
 use firmware_sim::{
-    fly_observed, CommandOf, Controller, Dimension, FlightGeometry, Planar, Policy, Rendezvous, Rendezvous3,
+    fly_observed, CommandOf, Controller, Dimension, FlightGeometry, Planar, Policy, Problem, Rendezvous, Rendezvous3,
     ScenarioOf, Spatial, StateOf, Transfer, Transfer3,
 };
 use lowthrust::{
@@ -43,15 +53,87 @@ use onboard::features::{
     ACTION3_LEN, ACTION_LEN, RENDEZVOUS3_FEATURES, RENDEZVOUS_FEATURES, TRANSFER3_FEATURES, TRANSFER_FEATURES,
 };
 use onboard::guidance::{
-    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, GuidanceError, Guide, TargetOrbit3,
+    rendezvous3_step, rendezvous_step, transfer3_step, transfer_step, Aim, GuidanceError, Guide, TargetOrbit3,
 };
+use onboard::lookahead::{lookahead_step, LookaheadSettings};
 use onboard::spatial::{RtnCommand, SpatialCraftState};
+use onboard::terminal::{terminal_step, TerminalSettings};
 use shared::blob::Quantization;
 use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::scenario::{Scenario, SpatialScenario};
+use shared::spacecraft::CanonicalSpacecraft;
 
 /// calls.bin's format number.
-const CALLS_FORMAT: u32 = 2;
+const CALLS_FORMAT: u32 = 3;
+
+/// How a recorded call is flown: the network's guidance step, or an onboard aid around it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Aid {
+    Network,
+    Lookahead,
+    Terminal,
+}
+
+impl Aid {
+    /// Its number in calls.bin.
+    fn code(self) -> f64 {
+        match self {
+            Self::Network => 0.0,
+            Self::Lookahead => 1.0,
+            Self::Terminal => 2.0,
+        }
+    }
+
+    /// What follows the call's number on its line (nothing for the network's step).
+    fn word(self) -> &'static str {
+        match self {
+            Self::Network => "",
+            Self::Lookahead => " lookahead",
+            Self::Terminal => " terminal",
+        }
+    }
+}
+
+/// The lookahead of every calls file: a tenth of the thrust kept as margin, at most 60 rollout
+/// steps a call (some 20 million Cortex-M4F instructions, so the image's run stays short).
+fn lookahead_settings() -> LookaheadSettings {
+    LookaheadSettings {
+        thrust_margin: 0.1,
+        rollout_budget: 60,
+        ..LookaheadSettings::default()
+    }
+}
+
+/// The terminal targeting of every calls file: the last 4 cycles solved.
+fn terminal_settings() -> TerminalSettings {
+    TerminalSettings {
+        cycles: 4,
+        ..TerminalSettings::default()
+    }
+}
+
+/// The aids' values of calls.bin's header (see the module doc).
+fn aid_values(spacecraft: &CanonicalSpacecraft) -> Vec<f64> {
+    let (l, t) = (lookahead_settings(), terminal_settings());
+    vec![
+        spacecraft.thrust,
+        spacecraft.exhaust_speed,
+        l.goal_position,
+        l.goal_velocity,
+        l.accuracy_floor,
+        l.fuel_weight,
+        l.thrust_margin,
+        l.cycle,
+        f64::from(l.max_cycles),
+        f64::from(l.arrival_margin),
+        f64::from(l.rollout_budget),
+        t.goal_position,
+        t.goal_velocity,
+        t.cycle,
+        f64::from(t.cycles),
+        f64::from(t.iterations),
+    ]
+}
 
 /// How the calls of a geometry are written, and how its navigation states are made unusable.
 trait CallGeometry: FlightGeometry {
@@ -142,8 +224,10 @@ impl CallGeometry for Spatial {
 
 /// A problem whose guidance calls are recorded: its number and name in the C interface, its
 /// target as calls.bin has it, and the Rust guidance step the C step wraps, on `N` features
-/// with `OUT` action outputs.
-trait RecordedProblem<const N: usize, const OUT: usize>: TraceProblem<N, Geometry: CallGeometry> {
+/// with `OUT` action outputs; the onboard aids fly its target.
+trait RecordedProblem<const N: usize, const OUT: usize>:
+    TraceProblem<N, Geometry: CallGeometry, Target: Aim<N, OUT, Geometry = <Self as Problem<N>>::Geometry>>
+{
     /// calls.bin's problem number: the C interface's `LT_PROBLEM_*`.
     const CODE: u32;
     /// The problem's name on the `load` and `policy` lines, as replay.c prints it.
@@ -294,12 +378,14 @@ impl RecordedProblem<RENDEZVOUS3_FEATURES, ACTION3_LEN> for Rendezvous3 {
     }
 }
 
-/// One guidance call of problem `P`: its inputs and what the Rust controller answered.
+/// One guidance call of problem `P`: how it is flown, its inputs and what the Rust controller
+/// answered: the command and, for an aid, the words of its report; or the refusal.
 struct Call<const N: usize, P: TraceProblem<N>> {
+    aid: Aid,
     navigation: StateOf<P, N>,
     target: P::Target,
     time_to_go: f64,
-    outcome: Result<CommandOf<P, N>, lt_status>,
+    outcome: Result<(CommandOf<P, N>, String), lt_status>,
 }
 
 fn bits(values: &[f64]) -> String {
@@ -309,6 +395,99 @@ fn bits(values: &[f64]) -> String {
 
 fn name(code: lt_status) -> String {
     error_name(code as i32).to_string_lossy().into_owned()
+}
+
+/// A command as replay.c prints it.
+fn command_bits<G: CallGeometry>(command: &G::CCommand) -> String {
+    bits(&G::command_values(command))
+}
+
+/// An aid's report as the C interface writes it: the lookahead's chosen candidate or terminal
+/// targeting's solved flag, whether an arrival was predicted, the predicted values (the
+/// lookahead's position, velocity, mass and cost; terminal targeting's misses of the network's
+/// continuation and of the plan; NaN where none) and the network's own command.
+struct AidReport<C> {
+    flag: u32,
+    predicted: bool,
+    values: Vec<f64>,
+    network: C,
+}
+
+impl<C> AidReport<C> {
+    /// What a refused call of `aid` reports: nothing predicted, the network's command `off`.
+    fn refused(aid: Aid, off: C) -> Self {
+        let values = if aid == Aid::Terminal { 2 } else { 4 };
+        Self {
+            flag: 0,
+            predicted: false,
+            values: vec![f64::NAN; values],
+            network: off,
+        }
+    }
+}
+
+/// The words after the command on an aid's line, as replay.c prints the C report: the
+/// lookahead's `chosen N predicted VALID POSITION VELOCITY MASS COST network COMMAND`, terminal
+/// targeting's `solved S predicted VALID NETWORK_MISS PLANNED_MISS network COMMAND`.
+fn report_words<G: CallGeometry>(aid: Aid, report: &AidReport<G::CCommand>) -> String {
+    let flag = if aid == Aid::Terminal { "solved" } else { "chosen" };
+    format!(
+        " {flag} {} predicted {} {} network {}",
+        report.flag,
+        u32::from(report.predicted),
+        bits(&report.values),
+        command_bits::<G>(&report.network)
+    )
+}
+
+/// What the Rust crates answer to one call flown with `aid`: the command and its report's words.
+fn aided<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
+    aid: Aid,
+    controller: &Controller<'_, N, OUT>,
+    navigation: &StateOf<P, N>,
+    target: &P::Target,
+    time_to_go: f64,
+    spacecraft: &CanonicalSpacecraft,
+) -> Result<(CommandOf<P, N>, String), lt_status>
+where
+    for<'a> Policy<'a, N, OUT>: onboard::guidance::Actor<N, OUT>,
+{
+    // Through the C interface every step of a policy not loaded is refused with thrust off.
+    let Controller::Network(policy) = controller else {
+        return Err(LT_ERR_NOT_LOADED);
+    };
+    let code = |e: GuidanceError| guidance_error_code(&e);
+    let words = |report| report_words::<P::Geometry>(aid, &report);
+    match aid {
+        Aid::Network => P::step(policy, navigation, target, time_to_go)
+            .map(|c| (c, String::new()))
+            .map_err(code),
+        Aid::Lookahead => {
+            let settings = lookahead_settings();
+            let d = lookahead_step(policy, navigation, target, time_to_go, spacecraft, &settings).map_err(code)?;
+            let p = d.predicted;
+            let report = AidReport {
+                flag: u32::try_from(d.chosen).unwrap_or(u32::MAX),
+                predicted: p.is_some(),
+                values: p.map_or(vec![f64::NAN; 4], |p| {
+                    vec![p.residuals.position, p.residuals.velocity, p.mass, p.cost]
+                }),
+                network: d.network.into(),
+            };
+            Ok((d.command, words(report)))
+        }
+        Aid::Terminal => {
+            let settings = terminal_settings();
+            let d = terminal_step(policy, navigation, target, time_to_go, spacecraft, &settings).map_err(code)?;
+            let report = AidReport {
+                flag: u32::from(d.solved),
+                predicted: d.network_miss.is_some(),
+                values: [d.network_miss, d.planned_miss].map(|m| m.unwrap_or(f64::NAN)).to_vec(),
+                network: d.network.into(),
+            };
+            Ok((d.command, words(report)))
+        }
+    }
 }
 
 /// Inputs every guidance step of `P` must refuse (and one the network cannot answer), around
@@ -331,22 +510,39 @@ fn refused_inputs<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
     inputs
 }
 
+/// The positions in a flight of `steps` calls that the aids fly: lookahead on six spread over
+/// the flight (the first, a third, two thirds, then 6, 3 and 1 cycles before the arrival),
+/// terminal targeting on the last five (4 of them within its 4 cycles).
+fn aided_steps(steps: usize) -> Vec<(Aid, usize)> {
+    let lookahead = [
+        0,
+        steps / 3,
+        2 * steps / 3,
+        steps.saturating_sub(6),
+        steps.saturating_sub(3),
+    ];
+    let mut picked: Vec<(Aid, usize)> = lookahead.into_iter().map(|k| (Aid::Lookahead, k)).collect();
+    picked.push((Aid::Lookahead, steps.saturating_sub(1)));
+    picked.extend((steps.saturating_sub(5)..steps).map(|k| (Aid::Terminal, k)));
+    picked
+}
+
 /// The guidance calls of the trace flights of problem `P`, flown by `controller`, then the
-/// inputs it must refuse; a comment line per group to `out`.
+/// inputs it must refuse, then the aids' calls; a comment line per group to `out`.
 fn problem_calls<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
     problem: P,
     controller: &Controller<'_, N, OUT>,
+    spacecraft: &CanonicalSpacecraft,
     out: &mut String,
 ) -> Result<Vec<Call<N, P>>, String>
 where
     for<'a> Controller<'a, N, OUT>: Guide<N, P::Target, P::Geometry>,
+    for<'a> Policy<'a, N, OUT>: onboard::guidance::Actor<N, OUT>,
 {
-    let policy = match controller {
-        Controller::Network(policy) => Some(policy),
-        Controller::SafeMode(_) => None,
-    };
+    let loaded = matches!(controller, Controller::Network(_));
     let mut calls = Vec::new();
     let mut first = 0;
+    let mut flights = Vec::new();
     for flight in flights_of(problem) {
         let mut failed = None;
         // The trace flight itself, on the plant firmware_sim::trace::fly flies it on.
@@ -355,6 +551,7 @@ where
         fly_observed(problem, controller, &flight.scenario, &setup, flight.seed, |step| {
             match P::target(&flight.scenario, step.index) {
                 Ok(target) => calls.push(Call {
+                    aid: Aid::Network,
                     navigation: step.navigation,
                     target,
                     // As fly_observed computes it.
@@ -362,8 +559,8 @@ where
                     // A refused blob flies the SIL in safe mode; through the C interface every
                     // step of a policy not loaded is refused with thrust off.
                     outcome: match step.guidance_error {
-                        _ if policy.is_none() => Err(LT_ERR_NOT_LOADED),
-                        None => Ok(step.command),
+                        _ if !loaded => Err(LT_ERR_NOT_LOADED),
+                        None => Ok((step.command, String::new())),
                         Some(e) => Err(guidance_error_code(&e)),
                     },
                 }),
@@ -382,23 +579,68 @@ where
             flight.seed
         )
         .map_err(|e| e.to_string())?;
+        flights.push((flight.name, first..calls.len()));
         first = calls.len();
     }
 
     let navigation = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
     let target = P::epoch_target(&flights_of(problem)[0].scenario);
-    for (navigation, target, time_to_go) in refused_inputs::<N, OUT, P>(navigation, target) {
+    let refused = refused_inputs::<N, OUT, P>(navigation, target);
+    for &(navigation, target, time_to_go) in &refused {
+        let outcome = aided::<N, OUT, P>(Aid::Network, controller, &navigation, &target, time_to_go, spacecraft);
         calls.push(Call {
+            aid: Aid::Network,
             navigation,
             target,
             time_to_go,
-            outcome: match policy {
-                Some(p) => P::step(p, &navigation, &target, time_to_go).map_err(|e| guidance_error_code(&e)),
-                None => Err(LT_ERR_NOT_LOADED),
-            },
+            outcome,
         });
     }
     writeln!(out, "# calls {first}..{}: inputs guidance refuses", calls.len()).map_err(|e| e.to_string())?;
+
+    // The aids on the flights of 14-day cycles (their settings' cycle), then on every refused input.
+    for (name, steps) in flights.iter().take(2) {
+        first = calls.len();
+        for (aid, k) in aided_steps(steps.len()) {
+            let Some(step) = calls.get(steps.start + k) else {
+                continue;
+            };
+            let (navigation, target, time_to_go) = (step.navigation, step.target, step.time_to_go);
+            let outcome = aided::<N, OUT, P>(aid, controller, &navigation, &target, time_to_go, spacecraft);
+            calls.push(Call {
+                aid,
+                navigation,
+                target,
+                time_to_go,
+                outcome,
+            });
+        }
+        writeln!(
+            out,
+            "# calls {first}..{}: flight {name}'s steps with lookahead, then its last with terminal targeting",
+            calls.len()
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    first = calls.len();
+    for aid in [Aid::Lookahead, Aid::Terminal] {
+        for &(navigation, target, time_to_go) in &refused {
+            let outcome = aided::<N, OUT, P>(aid, controller, &navigation, &target, time_to_go, spacecraft);
+            calls.push(Call {
+                aid,
+                navigation,
+                target,
+                time_to_go,
+                outcome,
+            });
+        }
+    }
+    writeln!(
+        out,
+        "# calls {first}..{}: the inputs guidance refuses, with lookahead then terminal targeting",
+        calls.len()
+    )
+    .map_err(|e| e.to_string())?;
     Ok(calls)
 }
 
@@ -409,6 +651,7 @@ fn record<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
 ) -> Result<(Vec<u8>, String), String>
 where
     for<'a> Controller<'a, N, OUT>: Guide<N, P::Target, P::Geometry>,
+    for<'a> Policy<'a, N, OUT>: onboard::guidance::Actor<N, OUT>,
 {
     let w = |e: std::fmt::Error| e.to_string();
     let mut expected = String::new();
@@ -431,14 +674,20 @@ where
         };
         writeln!(expected, "policy {} {q}", P::NAME).map_err(w)?;
     }
-    let calls = problem_calls(problem, &controller, &mut expected)?;
+    // The aids' rollouts fly the flights' spacecraft as designed.
+    let spacecraft = flights_of(problem)[0].setup().map_err(|e| e.to_string())?.spacecraft;
+    let calls = problem_calls(problem, &controller, &spacecraft, &mut expected)?;
 
     let mut records = b"LTGC".to_vec();
     records.extend(CALLS_FORMAT.to_le_bytes());
     records.extend(P::CODE.to_le_bytes());
     records.extend(u32::try_from(calls.len()).map_err(|e| e.to_string())?.to_le_bytes());
+    for v in aid_values(&spacecraft) {
+        records.extend(v.to_le_bytes());
+    }
     for (i, call) in calls.iter().enumerate() {
         let values = [
+            vec![call.aid.code()],
             P::Geometry::state_values(&call.navigation),
             P::target_values(&call.target),
             vec![call.time_to_go],
@@ -446,15 +695,23 @@ where
         for v in values.concat() {
             records.extend(v.to_le_bytes());
         }
-        let command = |c: &<P::Geometry as CallGeometry>::CCommand| bits(&P::Geometry::command_values(c));
-        match call.outcome {
-            Ok(c) => writeln!(expected, "call {i} cmd {}", command(&c.into())),
+        let word = call.aid.word();
+        match &call.outcome {
+            Ok((c, report)) => writeln!(
+                expected,
+                "call {i}{word} cmd {}{report}",
+                command_bits::<P::Geometry>(&(*c).into())
+            ),
             Err(code) => writeln!(
                 expected,
-                "call {i} refused {} {} cmd {}",
-                code as i32,
-                name(code),
-                command(&P::Geometry::REFUSED)
+                "call {i}{word} refused {} {} cmd {}{}",
+                *code as i32,
+                name(*code),
+                command_bits::<P::Geometry>(&P::Geometry::REFUSED),
+                match call.aid {
+                    Aid::Network => String::new(),
+                    aid => report_words::<P::Geometry>(aid, &AidReport::refused(aid, P::Geometry::REFUSED)),
+                }
             ),
         }
         .map_err(w)?;

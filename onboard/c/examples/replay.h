@@ -9,7 +9,7 @@
 #include <stdint.h>
 
 /* The calls file format this replay reads (guidance_calls.rs documents it). */
-#define REPLAY_CALLS_FORMAT 2
+#define REPLAY_CALLS_FORMAT 3
 
 /* What replay_calls returns: the calls were flown, or why nothing was. */
 enum {
@@ -23,14 +23,17 @@ enum {
     /* The length is not the header's count of the problem's records. */
     REPLAY_WRONG_LENGTH = -4,
     /* lt_version refused. */
-    REPLAY_NO_VERSION = -5
+    REPLAY_NO_VERSION = -5,
+    /* A count of the aids' settings is not a whole number, or a call's aid is unknown. */
+    REPLAY_BAD_AIDS = -6
 };
 
 /* Receives the output, a piece at a time (lines end with '\n'). */
 typedef void (*replay_write_fn)(void *context, const char *text, size_t len);
 
 /* Loads `blob` as the calls file's problem says (transfer or rendezvous, planar or in three
- * dimensions), flies every call, writes one line per call. Returns REPLAY_OK, or a refusal of
+ * dimensions), flies every call (the network's step, or lookahead or terminal targeting with the
+ * file's settings), writes one line per call. Returns REPLAY_OK, or a refusal of
  * the calls file (nothing is written then). */
 int replay_calls(const uint8_t *blob, size_t blob_len, const uint8_t *calls, size_t calls_len,
                  replay_write_fn write, void *context);
