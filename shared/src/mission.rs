@@ -486,6 +486,16 @@ impl SpatialFamily {
         }
     }
 
+    /// The planar family departing in the reference plane, undispersed, towards a target whose
+    /// plane is inclined within `inclination` (rad) with any ascending node: the inclined
+    /// families (`configs/transfer-circular-inclined.toml` gives one as data).
+    pub const fn inclined_target(family: MissionFamily, inclination: Range) -> Self {
+        Self {
+            target_plane: PlaneRanges::any_node(inclination),
+            ..Self::planar(family)
+        }
+    }
+
     /// The planar family when both planes are fixed at the reference plane and the departure
     /// is not dispersed (a dispersed state leaves the plane).
     pub fn as_planar(&self) -> Option<MissionFamily> {
@@ -738,15 +748,11 @@ mod tests {
     }
 
     fn inclined() -> SpatialFamily {
-        SpatialFamily {
-            family: ScenarioKind::TransferCircular.family(),
-            departure_plane: PlaneRanges::REFERENCE,
-            target_plane: PlaneRanges::any_node(Range {
-                lo: 0.0,
-                hi: 5f64.to_radians(),
-            }),
-            departure_dispersion: StateDispersion::NONE,
-        }
+        let inclination = Range {
+            lo: 0.0,
+            hi: 5f64.to_radians(),
+        };
+        SpatialFamily::inclined_target(ScenarioKind::TransferCircular.family(), inclination)
     }
 
     #[test]

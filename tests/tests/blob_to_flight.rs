@@ -411,17 +411,11 @@ fn the_onboard_loader_refuses_what_does_not_fit() {
 
 /// A family of `kind`'s orbits with the target's plane inclined 1 to 5 degrees, any node.
 fn inclined(kind: ScenarioKind) -> shared::mission::SpatialFamily {
-    use shared::mission::PlaneRanges;
-    use shared::scenario::Range;
-    shared::mission::SpatialFamily {
-        family: kind.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges::any_node(Range {
-            lo: 1f64.to_radians(),
-            hi: 5f64.to_radians(),
-        }),
-        departure_dispersion: shared::mission::StateDispersion::NONE,
-    }
+    let inclination = shared::scenario::Range {
+        lo: 1f64.to_radians(),
+        hi: 5f64.to_radians(),
+    };
+    shared::mission::SpatialFamily::inclined_target(kind.family(), inclination)
 }
 
 /// A three-dimensional network of `inputs` features and 4 actions, as the ground exports it:

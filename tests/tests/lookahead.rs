@@ -149,22 +149,18 @@ fn on_rendezvous_the_body_is_coasted_in_the_rollouts_as_the_flight_meets_it() {
 fn in_three_dimensions_the_lookahead_never_arrives_worse_than_the_network() {
     use firmware_sim::{Dimension, Spatial, Transfer3};
     use onboard::features::{ACTION3_LEN, TRANSFER3_FEATURES};
-    use shared::mission::{PlaneRanges, SpatialFamily, StateDispersion};
+    use shared::mission::SpatialFamily;
     use shared::scenario::Range;
     let blob = AlignedBlob::new(include_bytes!(
         "../../models/transfer-circular-inclined/transfer-f32.blob"
     ));
     let network = Controller::<TRANSFER3_FEATURES, ACTION3_LEN>::load::<Transfer3>(blob.bytes());
     assert!(matches!(network, Controller::Network(_)));
-    let family = SpatialFamily {
-        family: ScenarioKind::TransferCircular.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges::any_node(Range {
-            lo: 0.0,
-            hi: 5f64.to_radians(),
-        }),
-        departure_dispersion: StateDispersion::NONE,
+    let inclination = Range {
+        lo: 0.0,
+        hi: 5f64.to_radians(),
     };
+    let family = SpatialFamily::inclined_target(ScenarioKind::TransferCircular.family(), inclination);
     let sc = spacecraft();
     let setup = FlightSetup::nominal(sc);
     let guide = Lookahead {

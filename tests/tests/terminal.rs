@@ -9,7 +9,7 @@ use onboard::features::{ACTION3_LEN, TRANSFER3_FEATURES};
 use onboard::guidance::Guide;
 use onboard::terminal::{Terminal, TerminalSettings};
 use shared::blob::AlignedBlob;
-use shared::mission::{PlaneRanges, SpatialFamily};
+use shared::mission::SpatialFamily;
 use shared::scenario::{Range, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 
@@ -107,15 +107,11 @@ fn targeting_the_last_cycles_brings_inclined_arrivals_within_a_thousandth() {
     let blob = blob("transfer-circular-inclined", "transfer-f32.blob");
     let network = Controller::<TRANSFER3_FEATURES, ACTION3_LEN>::load::<Transfer3>(blob.bytes());
     assert!(matches!(network, Controller::Network(_)));
-    let family = SpatialFamily {
-        family: ScenarioKind::TransferCircular.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges::any_node(Range {
-            lo: 0.0,
-            hi: 5f64.to_radians(),
-        }),
-        departure_dispersion: shared::mission::StateDispersion::NONE,
+    let inclination = Range {
+        lo: 0.0,
+        hi: 5f64.to_radians(),
     };
+    let family = SpatialFamily::inclined_target(ScenarioKind::TransferCircular.family(), inclination);
     let scenario = |i| family.draw(2_000_003, i);
     let alone = arrivals(Transfer3, scenario, &network, 100);
     let guide = Terminal {

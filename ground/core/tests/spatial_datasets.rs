@@ -10,7 +10,7 @@ use ground_core::generate::{
     GenerateError, Manifest, Shard,
 };
 use ground_core::solver::SolveOptions;
-use shared::mission::{PlaneRanges, SpatialFamily};
+use shared::mission::SpatialFamily;
 use shared::orbit::{cross3, dot3, norm3, OrbitPlane};
 use shared::scenario::{Range, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -23,15 +23,11 @@ fn temp_dir(name: &str) -> PathBuf {
 
 /// Transfer-circular's orbits, the target inclined by 2 to 5 degrees with any node.
 fn inclined() -> SpatialFamily {
-    SpatialFamily {
-        family: ScenarioKind::TransferCircular.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges::any_node(Range {
-            lo: 2f64.to_radians(),
-            hi: 5f64.to_radians(),
-        }),
-        departure_dispersion: shared::mission::StateDispersion::NONE,
-    }
+    let inclination = Range {
+        lo: 2f64.to_radians(),
+        hi: 5f64.to_radians(),
+    };
+    SpatialFamily::inclined_target(ScenarioKind::TransferCircular.family(), inclination)
 }
 
 /// The unit normal of an orbit plane: (sin i sin raan, -sin i cos raan, cos i).

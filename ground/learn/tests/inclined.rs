@@ -23,22 +23,18 @@ use learn::export::OnboardPolicy;
 use learn::rl::{train, Start};
 use learn::sac::agent::Sac;
 use shared::blob::FeatureLayout;
-use shared::mission::{PlaneRanges, SpatialFamily};
+use shared::mission::SpatialFamily;
 use shared::scenario::{Range, ScenarioKind};
 use shared::spacecraft::Spacecraft;
 use tch::Device;
 
 /// Transfer-circular's orbits, the target inclined by up to 5 degrees with any node.
 fn inclined() -> SpatialFamily {
-    SpatialFamily {
-        family: ScenarioKind::TransferCircular.family(),
-        departure_plane: PlaneRanges::REFERENCE,
-        target_plane: PlaneRanges::any_node(Range {
-            lo: 1f64.to_radians(),
-            hi: 5f64.to_radians(),
-        }),
-        departure_dispersion: shared::mission::StateDispersion::NONE,
-    }
+    let inclination = Range {
+        lo: 1f64.to_radians(),
+        hi: 5f64.to_radians(),
+    };
+    SpatialFamily::inclined_target(ScenarioKind::TransferCircular.family(), inclination)
 }
 
 /// Two draws of the inclined family solved quickly (eps 0.3) into `dir/spatial`, as
