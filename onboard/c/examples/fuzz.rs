@@ -37,15 +37,16 @@ use std::time::Instant;
 
 use lowthrust::{
     error::{guidance_error_code, policy_error_code},
-    lt_body_state, lt_body_state3, lt_lookahead_defaults, lt_lookahead_settings, lt_navigation_state,
-    lt_navigation_state3, lt_policy, lt_policy_describe, lt_policy_info, lt_rendezvous3_load,
+    lt_body_state, lt_body_state3, lt_lookahead_defaults, lt_lookahead_report3, lt_lookahead_settings,
+    lt_navigation_state, lt_navigation_state3, lt_policy, lt_policy_describe, lt_policy_info, lt_rendezvous3_load,
     lt_rendezvous3_lookahead_step, lt_rendezvous3_step, lt_rendezvous3_terminal_step, lt_rendezvous_load,
     lt_rendezvous_step, lt_rtn_command, lt_spacecraft, lt_status, lt_target_orbit, lt_target_orbit3,
-    lt_terminal_defaults, lt_terminal_settings, lt_thrust_command, lt_transfer3_load, lt_transfer3_lookahead_step,
-    lt_transfer3_step, lt_transfer3_terminal_step, lt_transfer_load, lt_transfer_lookahead_step, lt_transfer_step,
-    lt_transfer_terminal_step, LT_ERR_BLOB_LENGTH, LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL,
-    LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER, LT_ERR_WRONG_POLICY_KIND, LT_OK,
-    LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3, LT_PROBLEM_TRANSFER, LT_PROBLEM_TRANSFER3, RTN_THRUST_OFF,
+    lt_terminal_defaults, lt_terminal_report3, lt_terminal_settings, lt_thrust_command, lt_transfer3_load,
+    lt_transfer3_lookahead_step, lt_transfer3_step, lt_transfer3_terminal_step, lt_transfer_load,
+    lt_transfer_lookahead_step, lt_transfer_step, lt_transfer_terminal_step, LT_ERR_BLOB_LENGTH,
+    LT_ERR_INPUT_LOOKAHEAD, LT_ERR_INPUT_TERMINAL, LT_ERR_MISALIGNED_POLICY, LT_ERR_NOT_LOADED, LT_ERR_NULL_POINTER,
+    LT_ERR_WRONG_POLICY_KIND, LT_OK, LT_PROBLEM_RENDEZVOUS, LT_PROBLEM_RENDEZVOUS3, LT_PROBLEM_TRANSFER,
+    LT_PROBLEM_TRANSFER3, RTN_THRUST_OFF,
 };
 use onboard::dynamics::{SpacecraftState, ThrustCommand};
 use onboard::guidance::{
@@ -666,6 +667,73 @@ enum Target3 {
     Body(lt_body_state3),
 }
 
+/// One aid's settings, as C gets them and as the Rust aid reads them.
+enum AidSettings {
+    Lookahead(lt_lookahead_settings, onboard::lookahead::LookaheadSettings),
+    Terminal(lt_terminal_settings, onboard::terminal::TerminalSettings),
+}
+
+/// A three-dimensional aid step of the C interface towards a target struct `T`, with settings
+/// struct `S` and report struct `R`.
+type CAid3<T, S, R> = unsafe extern "C" fn(
+    *const lt_policy,
+    *const lt_navigation_state3,
+    *const T,
+    f64,
+    *const lt_spacecraft,
+    *const S,
+    *mut lt_rtn_command,
+    *mut R,
+) -> lt_status;
+
+/// The C steps of both aids towards one kind of target.
+struct CAids3<T> {
+    lookahead: CAid3<T, lt_lookahead_settings, lt_lookahead_report3>,
+    terminal: CAid3<T, lt_terminal_settings, lt_terminal_report3>,
+}
+
+/// Flies the aid of `settings` through C (the report null) and, when `usable` (the settings and
+/// spacecraft valid), through the Rust crate with `actor` towards `target` (as the Rust aid reads
+/// `c_target`): the C code and the Rust result.
+#[allow(clippy::too_many_arguments)] // the C step's inputs, and the Rust side's
+fn both_aids3<const N: usize, T, A, R>(
+    c_aids: CAids3<T>,
+    settings: &AidSettings,
+    usable: bool,
+    policy: &lt_policy,
+    nav: &lt_navigation_state3,
+    c_target: &T,
+    target: &R,
+    actor: &A,
+    time_to_go: f64,
+    spacecraft: &lt_spacecraft,
+    command: &mut lt_rtn_command,
+) -> (lt_status, Option<Result<onboard::spatial::RtnCommand, GuidanceError>>)
+where
+    A: onboard::guidance::Actor<N, { onboard::features::ACTION3_LEN }>,
+    R: onboard::guidance::Aim<N, { onboard::features::ACTION3_LEN }, Geometry = onboard::geometry::Spatial>,
+{
+    use onboard::lookahead::lookahead_step;
+    use onboard::terminal::terminal_step;
+    let state = SpatialCraftState::from(*nav);
+    let sc = shared::spacecraft::CanonicalSpacecraft {
+        thrust: spacecraft.thrust,
+        exhaust_speed: spacecraft.exhaust_speed,
+    };
+    use std::ptr::null_mut;
+    // SAFETY (both calls): every pointer is a valid reference; the report may be null.
+    match settings {
+        AidSettings::Lookahead(c, rust) => (
+            unsafe { (c_aids.lookahead)(policy, nav, c_target, time_to_go, spacecraft, c, command, null_mut()) },
+            usable.then(|| lookahead_step(actor, &state, target, time_to_go, &sc, rust).map(|d| d.command)),
+        ),
+        AidSettings::Terminal(c, rust) => (
+            unsafe { (c_aids.terminal)(policy, nav, c_target, time_to_go, spacecraft, c, command, null_mut()) },
+            usable.then(|| terminal_step(actor, &state, target, time_to_go, &sc, rust).map(|d| d.command)),
+        ),
+    }
+}
+
 /// One three-dimensional aid cycle, lookahead or terminal targeting at random, with hostile
 /// spacecraft and settings: the C call commands the Rust aid's bits, or refuses unusable inputs
 /// with its code and thrust off.
@@ -678,14 +746,37 @@ fn aid3(
     target: Target3,
     time_to_go: f64,
 ) -> Result<(), String> {
-    use onboard::lookahead::lookahead_step;
-    use onboard::terminal::terminal_step;
     let (spacecraft, _) = hostile_aid_inputs(rng)?;
-    let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
+    let (settings, time_to_go, usable, unusable_code) = if rng.chance(0.5) {
+        let (c, rust) = hostile_lookahead_settings(rng)?;
+        let usable = rust.validate().is_ok();
+        (
+            AidSettings::Lookahead(c, rust),
+            time_to_go.min(12.0),
+            usable,
+            LT_ERR_INPUT_LOOKAHEAD,
+        )
+    } else {
+        let (c, rust) = hostile_terminal_settings(rng)?;
+        let usable = rust.validate().is_ok();
+        let time_to_go = if rng.chance(0.5) {
+            time_to_go.min(1.0)
+        } else {
+            time_to_go
+        };
+        (
+            AidSettings::Terminal(c, rust),
+            time_to_go,
+            usable,
+            LT_ERR_INPUT_TERMINAL,
+        )
     };
-    let state: SpatialCraftState = (*nav).into();
+    let usable = usable
+        && shared::spacecraft::CanonicalSpacecraft {
+            thrust: spacecraft.thrust,
+            exhaust_speed: spacecraft.exhaust_speed,
+        }
+        .is_valid();
     let mut command = lt_rtn_command {
         throttle: f64::NAN,
         radial: f64::NAN,
@@ -693,135 +784,49 @@ fn aid3(
         normal: f64::NAN,
     };
     let refused = |e: String| format!("Rust refused: {e}");
-    // The C call's code, and the Rust aid's command (None: unusable settings or spacecraft).
-    let (code, rust, unusable_code) = if rng.chance(0.5) {
-        let (settings, rust_settings) = hostile_lookahead_settings(rng)?;
-        let time_to_go = time_to_go.min(12.0);
-        let usable = rust_spacecraft.is_valid() && rust_settings.validate().is_ok();
-        let (code, rust) = match target {
-            // SAFETY (both calls): every pointer is a valid reference; the report may be null.
-            Target3::Orbit(orbit) => {
-                let code = unsafe {
-                    lt_transfer3_lookahead_step(
-                        policy,
-                        nav,
-                        &orbit,
-                        time_to_go,
-                        &spacecraft,
-                        &settings,
-                        &mut command,
-                        std::ptr::null_mut(),
-                    )
-                };
-                let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
-                let rust = usable.then(|| {
-                    lookahead_step(
-                        &actor,
-                        &state,
-                        &TargetOrbit3::from(orbit),
-                        time_to_go,
-                        &rust_spacecraft,
-                        &rust_settings,
-                    )
-                    .map(|d| d.command)
-                });
-                (code, rust)
-            }
-            Target3::Body(body) => {
-                let code = unsafe {
-                    lt_rendezvous3_lookahead_step(
-                        policy,
-                        nav,
-                        &body,
-                        time_to_go,
-                        &spacecraft,
-                        &settings,
-                        &mut command,
-                        std::ptr::null_mut(),
-                    )
-                };
-                let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
-                let rust = usable.then(|| {
-                    lookahead_step(
-                        &actor,
-                        &state,
-                        &SpatialState::from(body),
-                        time_to_go,
-                        &rust_spacecraft,
-                        &rust_settings,
-                    )
-                    .map(|d| d.command)
-                });
-                (code, rust)
-            }
-        };
-        (code, rust, LT_ERR_INPUT_LOOKAHEAD)
-    } else {
-        let (settings, rust_settings) = hostile_terminal_settings(rng)?;
-        let time_to_go = if rng.chance(0.5) {
-            time_to_go.min(1.0)
-        } else {
-            time_to_go
-        };
-        let usable = rust_spacecraft.is_valid() && rust_settings.validate().is_ok();
-        let (code, rust) = match target {
-            // SAFETY (both calls): every pointer is a valid reference; the report may be null.
-            Target3::Orbit(orbit) => {
-                let code = unsafe {
-                    lt_transfer3_terminal_step(
-                        policy,
-                        nav,
-                        &orbit,
-                        time_to_go,
-                        &spacecraft,
-                        &settings,
-                        &mut command,
-                        std::ptr::null_mut(),
-                    )
-                };
-                let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
-                let rust = usable.then(|| {
-                    terminal_step(
-                        &actor,
-                        &state,
-                        &TargetOrbit3::from(orbit),
-                        time_to_go,
-                        &rust_spacecraft,
-                        &rust_settings,
-                    )
-                    .map(|d| d.command)
-                });
-                (code, rust)
-            }
-            Target3::Body(body) => {
-                let code = unsafe {
-                    lt_rendezvous3_terminal_step(
-                        policy,
-                        nav,
-                        &body,
-                        time_to_go,
-                        &spacecraft,
-                        &settings,
-                        &mut command,
-                        std::ptr::null_mut(),
-                    )
-                };
-                let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
-                let rust = usable.then(|| {
-                    terminal_step(
-                        &actor,
-                        &state,
-                        &SpatialState::from(body),
-                        time_to_go,
-                        &rust_spacecraft,
-                        &rust_settings,
-                    )
-                    .map(|d| d.command)
-                });
-                (code, rust)
-            }
-        };
-        (code, rust, LT_ERR_INPUT_TERMINAL)
+    let (code, rust) = match target {
+        Target3::Orbit(orbit) => {
+            let actor = Transfer3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+            let c_aids = CAids3 {
+                lookahead: lt_transfer3_lookahead_step,
+                terminal: lt_transfer3_terminal_step,
+            };
+            let target = TargetOrbit3::from(orbit);
+            both_aids3(
+                c_aids,
+                &settings,
+                usable,
+                policy,
+                nav,
+                &orbit,
+                &target,
+                &actor,
+                time_to_go,
+                &spacecraft,
+                &mut command,
+            )
+        }
+        Target3::Body(body) => {
+            let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
+            let c_aids = CAids3 {
+                lookahead: lt_rendezvous3_lookahead_step,
+                terminal: lt_rendezvous3_terminal_step,
+            };
+            let target = SpatialState::from(body);
+            both_aids3(
+                c_aids,
+                &settings,
+                usable,
+                policy,
+                nav,
+                &body,
+                &target,
+                &actor,
+                time_to_go,
+                &spacecraft,
+                &mut command,
+            )
+        }
     };
     let bits = |c: &lt_rtn_command| [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits);
     let agrees = match &rust {
