@@ -440,6 +440,25 @@ fn report_words<G: CallGeometry>(aid: Aid, report: &AidReport<G::CCommand>) -> S
     )
 }
 
+/// One call flown with `aid` on these inputs, with what the Rust crates answer.
+fn aided_call<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
+    aid: Aid,
+    controller: &Controller<'_, N, OUT>,
+    (navigation, target, time_to_go): (StateOf<P, N>, P::Target, f64),
+    spacecraft: &CanonicalSpacecraft,
+) -> Call<N, P>
+where
+    for<'a> Policy<'a, N, OUT>: onboard::guidance::Actor<N, OUT>,
+{
+    Call {
+        aid,
+        navigation,
+        target,
+        time_to_go,
+        outcome: aided::<N, OUT, P>(aid, controller, &navigation, &target, time_to_go, spacecraft),
+    }
+}
+
 /// What the Rust crates answer to one call flown with `aid`: the command and its report's words.
 fn aided<const N: usize, const OUT: usize, P: RecordedProblem<N, OUT>>(
     aid: Aid,
@@ -586,15 +605,8 @@ where
     let navigation = calls.first().map(|c| c.navigation).ok_or("no flight steps")?;
     let target = P::epoch_target(&flights_of(problem)[0].scenario);
     let refused = refused_inputs::<N, OUT, P>(navigation, target);
-    for &(navigation, target, time_to_go) in &refused {
-        let outcome = aided::<N, OUT, P>(Aid::Network, controller, &navigation, &target, time_to_go, spacecraft);
-        calls.push(Call {
-            aid: Aid::Network,
-            navigation,
-            target,
-            time_to_go,
-            outcome,
-        });
+    for &inputs in &refused {
+        calls.push(aided_call::<N, OUT, P>(Aid::Network, controller, inputs, spacecraft));
     }
     writeln!(out, "# calls {first}..{}: inputs guidance refuses", calls.len()).map_err(|e| e.to_string())?;
 
@@ -605,15 +617,8 @@ where
             let Some(step) = calls.get(steps.start + k) else {
                 continue;
             };
-            let (navigation, target, time_to_go) = (step.navigation, step.target, step.time_to_go);
-            let outcome = aided::<N, OUT, P>(aid, controller, &navigation, &target, time_to_go, spacecraft);
-            calls.push(Call {
-                aid,
-                navigation,
-                target,
-                time_to_go,
-                outcome,
-            });
+            let inputs = (step.navigation, step.target, step.time_to_go);
+            calls.push(aided_call::<N, OUT, P>(aid, controller, inputs, spacecraft));
         }
         writeln!(
             out,
@@ -624,15 +629,8 @@ where
     }
     first = calls.len();
     for aid in [Aid::Lookahead, Aid::Terminal] {
-        for &(navigation, target, time_to_go) in &refused {
-            let outcome = aided::<N, OUT, P>(aid, controller, &navigation, &target, time_to_go, spacecraft);
-            calls.push(Call {
-                aid,
-                navigation,
-                target,
-                time_to_go,
-                outcome,
-            });
+        for &inputs in &refused {
+            calls.push(aided_call::<N, OUT, P>(aid, controller, inputs, spacecraft));
         }
     }
     writeln!(
