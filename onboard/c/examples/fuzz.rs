@@ -57,6 +57,7 @@ use onboard::spatial::SpatialCraftState;
 use shared::blob::{decode, Activation, FeatureLayout, ProblemKind, FORMAT_VERSION, HEADER_LEN, MAGIC, TRAILER_LEN};
 use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::quantize::{DenseWeights, MlpWeights};
+use shared::spacecraft::CanonicalSpacecraft;
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -692,21 +693,25 @@ struct CAids3<T> {
     terminal: CAid3<T, lt_terminal_settings, lt_terminal_report3>,
 }
 
-/// Flies the aid of `settings` through C (the report null) and, when `usable` (the settings and
-/// spacecraft valid), through the Rust crate with `actor` towards `target` (as the Rust aid reads
-/// `c_target`): the C code and the Rust result.
-#[allow(clippy::too_many_arguments)] // the C step's inputs, and the Rust side's
-fn both_aids3<const N: usize, T, A, R>(
-    c_aids: CAids3<T>,
-    settings: &AidSettings,
+/// The inputs of one three-dimensional aid cycle, whatever its target.
+struct AidCall3<'a> {
+    settings: AidSettings,
+    /// The settings and the spacecraft are valid: the Rust aid is flown too (C must refuse the rest).
     usable: bool,
-    policy: &lt_policy,
-    nav: &lt_navigation_state3,
+    policy: &'a lt_policy,
+    nav: &'a lt_navigation_state3,
+    time_to_go: f64,
+    spacecraft: lt_spacecraft,
+}
+
+/// Flies `call`'s aid through C (the report null) and, when usable, through the Rust crate with
+/// `actor` towards `target` (as the Rust aid reads `c_target`): the C code and the Rust result.
+fn both_aids3<const N: usize, T, A, R>(
+    call: &AidCall3,
+    c_aids: CAids3<T>,
     c_target: &T,
     target: &R,
     actor: &A,
-    time_to_go: f64,
-    spacecraft: &lt_spacecraft,
     command: &mut lt_rtn_command,
 ) -> (lt_status, Option<Result<onboard::spatial::RtnCommand, GuidanceError>>)
 where
@@ -715,14 +720,18 @@ where
 {
     use onboard::lookahead::lookahead_step;
     use onboard::terminal::terminal_step;
-    let state = SpatialCraftState::from(*nav);
-    let sc = shared::spacecraft::CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
-    };
     use std::ptr::null_mut;
+    let AidCall3 {
+        usable,
+        policy,
+        nav,
+        time_to_go,
+        ..
+    } = *call;
+    let state = SpatialCraftState::from(*nav);
+    let (spacecraft, sc) = (&call.spacecraft, CanonicalSpacecraft::from(call.spacecraft));
     // SAFETY (both calls): every pointer is a valid reference; the report may be null.
-    match settings {
+    match &call.settings {
         AidSettings::Lookahead(c, rust) => (
             unsafe { (c_aids.lookahead)(policy, nav, c_target, time_to_go, spacecraft, c, command, null_mut()) },
             usable.then(|| lookahead_step(actor, &state, target, time_to_go, &sc, rust).map(|d| d.command)),
@@ -771,12 +780,14 @@ fn aid3(
             LT_ERR_INPUT_TERMINAL,
         )
     };
-    let usable = usable
-        && shared::spacecraft::CanonicalSpacecraft {
-            thrust: spacecraft.thrust,
-            exhaust_speed: spacecraft.exhaust_speed,
-        }
-        .is_valid();
+    let call = AidCall3 {
+        settings,
+        usable: usable && CanonicalSpacecraft::from(spacecraft).is_valid(),
+        policy,
+        nav,
+        time_to_go,
+        spacecraft,
+    };
     let mut command = lt_rtn_command {
         throttle: f64::NAN,
         radial: f64::NAN,
@@ -791,20 +802,7 @@ fn aid3(
                 lookahead: lt_transfer3_lookahead_step,
                 terminal: lt_transfer3_terminal_step,
             };
-            let target = TargetOrbit3::from(orbit);
-            both_aids3(
-                c_aids,
-                &settings,
-                usable,
-                policy,
-                nav,
-                &orbit,
-                &target,
-                &actor,
-                time_to_go,
-                &spacecraft,
-                &mut command,
-            )
+            both_aids3(&call, c_aids, &orbit, &TargetOrbit3::from(orbit), &actor, &mut command)
         }
         Target3::Body(body) => {
             let actor = Rendezvous3Policy::from_bytes(bytes, kind).map_err(|e| refused(e.to_string()))?;
@@ -812,20 +810,7 @@ fn aid3(
                 lookahead: lt_rendezvous3_lookahead_step,
                 terminal: lt_rendezvous3_terminal_step,
             };
-            let target = SpatialState::from(body);
-            both_aids3(
-                c_aids,
-                &settings,
-                usable,
-                policy,
-                nav,
-                &body,
-                &target,
-                &actor,
-                time_to_go,
-                &spacecraft,
-                &mut command,
-            )
+            both_aids3(&call, c_aids, &body, &SpatialState::from(body), &actor, &mut command)
         }
     };
     let bits = |c: &lt_rtn_command| [c.throttle, c.radial, c.transverse, c.normal].map(f64::to_bits);
@@ -952,10 +937,7 @@ fn lookahead(
         )
     };
     check_command(code, &command)?;
-    let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
-    };
+    let rust_spacecraft = CanonicalSpacecraft::from(spacecraft);
     if !rust_spacecraft.is_valid() || rust_settings.validate().is_err() {
         return if code == LT_ERR_INPUT_LOOKAHEAD {
             Ok(())
@@ -1018,10 +1000,7 @@ fn terminal(
         )
     };
     check_command(code, &command)?;
-    let rust_spacecraft = shared::spacecraft::CanonicalSpacecraft {
-        thrust: spacecraft.thrust,
-        exhaust_speed: spacecraft.exhaust_speed,
-    };
+    let rust_spacecraft = CanonicalSpacecraft::from(spacecraft);
     if !rust_spacecraft.is_valid() || rust_settings.validate().is_err() {
         return if code == LT_ERR_INPUT_TERMINAL {
             Ok(())

@@ -539,9 +539,9 @@ fn aided_steps(steps: usize) -> Vec<(Aid, usize)> {
         2 * steps / 3,
         steps.saturating_sub(6),
         steps.saturating_sub(3),
+        steps.saturating_sub(1),
     ];
     let mut picked: Vec<(Aid, usize)> = lookahead.into_iter().map(|k| (Aid::Lookahead, k)).collect();
-    picked.push((Aid::Lookahead, steps.saturating_sub(1)));
     picked.extend((steps.saturating_sub(5)..steps).map(|k| (Aid::Terminal, k)));
     picked
 }

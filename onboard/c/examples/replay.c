@@ -227,22 +227,21 @@ static lt_status fly_spatial(uint32_t problem, uint32_t aid, const aids_t *aids,
     return status;
 }
 
-/* One call of `problem` from its values (the aid first): the command's values (throttle first)
- * to `command`, their count to `*command_len`, an aid's report to `report`. */
-static lt_status fly_call(uint32_t calls_problem, const aids_t *aids, const lt_policy *policy,
+/* One call of `problem` flown with `aid` from its values (after the aid): the command's values
+ * (throttle first) to `command`, their count to `*command_len`, an aid's report to `report`. */
+static lt_status fly_call(uint32_t calls_problem, uint32_t aid, const aids_t *aids, const lt_policy *policy,
                           const double *v, double command[MAX_COMMAND_VALUES], uint32_t *command_len,
                           report_t *report) {
     const uint32_t problem = FLOWN_PROBLEM(calls_problem);
-    const uint32_t aid = (uint32_t)v[0];
     lt_status status;
     if (problem == LT_PROBLEM_TRANSFER || problem == LT_PROBLEM_RENDEZVOUS) {
         lt_thrust_command c;
-        status = fly_planar(problem, aid, aids, policy, v + 1, &c, report);
+        status = fly_planar(problem, aid, aids, policy, v, &c, report);
         planar_values(&c, command);
         *command_len = 3u;
     } else {
         lt_rtn_command c;
-        status = fly_spatial(problem, aid, aids, policy, v + 1, &c, report);
+        status = fly_spatial(problem, aid, aids, policy, v, &c, report);
         rtn_values(&c, command);
         *command_len = 4u;
     }
@@ -357,8 +356,9 @@ int replay_calls(const uint8_t *blob, size_t blob_len, const uint8_t *calls, siz
         double command[MAX_COMMAND_VALUES];
         uint32_t command_len;
         report_t report = {0};
-        const lt_status status = fly_call(problem, &aids, &policy, v, command, &command_len, &report);
+        /* A whole number 0 to 2: every call's aid was checked before any was flown. */
         const uint32_t aid = (uint32_t)v[0];
+        const lt_status status = fly_call(problem, aid, &aids, &policy, v + 1, command, &command_len, &report);
         put(&out, "call ");
         put_unsigned(&out, i);
         put(&out, aid == AID_LOOKAHEAD ? " lookahead" : aid == AID_TERMINAL ? " terminal" : "");
