@@ -109,6 +109,21 @@ pub fn by_last_missed_thrust<G: Geometry>(
         .collect()
 }
 
+/// The per-flight missed-thrust file of a SIL run, beside `mc.csv` (same `episode` numbers).
+pub const MISSED_THRUST_CSV: &str = "missed-thrust.csv";
+
+/// One row per flight: the episode, the canonical time it spent in missed-thrust events, and
+/// where its last one ended as a fraction of its steps (empty: none), so each flight's outcome
+/// (`mc.csv`) and its optimum (`optimality-gap.csv`) can be read against its missed thrust.
+pub fn missed_thrust_csv<G: Geometry>(outcomes: &[EpisodeOutcome<G>], missed: &[MissedThrust]) -> String {
+    let mut csv = String::from("episode,missed_thrust_time,last_missed_thrust_end\n");
+    for (o, m) in outcomes.iter().zip(missed) {
+        let end = m.last_end.map(|e| e.to_string()).unwrap_or_default();
+        csv += &format!("{},{},{end}\n", o.episode, m.time);
+    }
+    csv
+}
+
 /// What SIL adds to the Monte Carlo report.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct SilReport {
@@ -533,6 +548,8 @@ where
         by_last_missed_thrust: by_last_missed_thrust(&outcomes, &missed),
         monte_carlo,
     };
+    let path = out.join(MISSED_THRUST_CSV);
+    atomic_write(&path, missed_thrust_csv(&outcomes, &missed).as_bytes()).map_err(|e| ExperimentError::Io(path, e))?;
     let path = out.join("sil.json");
     atomic_write(&path, &serde_json::to_vec_pretty(&report).unwrap_or_default())
         .map_err(|e| ExperimentError::Io(path, e))?;
@@ -709,6 +726,12 @@ mod tests {
         let outcomes: Vec<_> = cases.iter().enumerate().map(|(i, c)| flight(i, c.1)).collect();
         let flights: Vec<_> = cases.iter().map(|c| missed(c.0)).collect();
         let bands = by_last_missed_thrust(&outcomes, &flights);
+        let csv = missed_thrust_csv(&outcomes, &flights);
+        let rows: Vec<&str> = csv.lines().collect();
+        assert_eq!(rows.len(), cases.len() + 1);
+        assert_eq!(rows[0], "episode,missed_thrust_time,last_missed_thrust_end");
+        assert_eq!(rows[1], "0,0,");
+        assert_eq!(rows[5], "4,0.1,0.85");
         let got: Vec<(&str, usize, f64)> = bands
             .iter()
             .map(|b| (b.band.as_str(), b.flights, b.within_goal))
