@@ -369,34 +369,21 @@ pub(crate) fn episode_of_draw<S: CycledScenario>(own: S, draw: S) -> S {
     }
 }
 
-/// Relabels a state a policy visited (DAgger-style): the fuel-optimal rest of `episode`
-/// re-solved by the indirect method from `state` at step `step`, as a record and its
-/// [`Placement`]. `None` when the state has no orbit (not bound), the step leaves no flight, or
-/// (rendezvous) the body's state at that step cannot be computed. The rest departs from the
-/// state's osculating orbit; a rendezvous rest chases the same body from where it is at that
-/// step. The rest is labelled with the episode's `family` less its departure eccentricities (an
-/// osculating orbit may have any: a near-circular rest that the near-circular path cannot solve
-/// falls back to the general one), with the options' arrival margin ([`solve_arriving_early`]);
-/// seed and index are the caller's, for tracing.
-pub fn relabel(
-    family: &MissionFamily,
-    (seed, index): (u64, u64),
+/// The rest of `episode` from `state` at step `step`, as a scenario of its own, and the
+/// spacecraft scaled to the state's mass (the solvers start at unit mass): the problem a relabel
+/// or a recoverability check solves. `None` when the state has no orbit (not bound), the step
+/// leaves no flight, or (rendezvous) the body's state at that step cannot be computed. The rest
+/// departs from the state's osculating orbit; a rendezvous rest chases the same body from where
+/// it is at that step.
+pub fn rest_of_flight(
     episode: &Scenario,
     state: &SpacecraftState,
     step: u32,
     spacecraft: &CanonicalSpacecraft,
-    options: &SolveOptions,
-) -> Option<(TrajectoryRecord, Placement)> {
+) -> Option<(Scenario, CanonicalSpacecraft)> {
     if step >= episode.steps {
         return None;
     }
-    let label = MissionFamily {
-        departure: OrbitRanges {
-            e: Range { lo: 0.0, hi: 0.99 },
-            ..family.departure
-        },
-        ..*family
-    };
     let target_nu0 = match episode.problem {
         ProblemKind::Transfer => episode.target_nu0,
         ProblemKind::Rendezvous => {
@@ -416,6 +403,33 @@ pub fn relabel(
     let scaled = CanonicalSpacecraft {
         thrust: spacecraft.thrust / state.m,
         ..*spacecraft
+    };
+    Some((rest, scaled))
+}
+
+/// Relabels a state a policy visited (DAgger-style): the fuel-optimal rest of `episode`
+/// re-solved by the indirect method from `state` at step `step` ([`rest_of_flight`]), as a
+/// record and its [`Placement`]; `None` where there is no rest to solve. The rest is labelled
+/// with the episode's `family` less its departure eccentricities (an osculating orbit may have
+/// any: a near-circular rest that the near-circular path cannot solve falls back to the general
+/// one), with the options' arrival margin ([`solve_arriving_early`]); seed and index are the
+/// caller's, for tracing.
+pub fn relabel(
+    family: &MissionFamily,
+    (seed, index): (u64, u64),
+    episode: &Scenario,
+    state: &SpacecraftState,
+    step: u32,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Option<(TrajectoryRecord, Placement)> {
+    let (rest, scaled) = rest_of_flight(episode, state, step, spacecraft)?;
+    let label = MissionFamily {
+        departure: OrbitRanges {
+            e: Range { lo: 0.0, hi: 0.99 },
+            ..family.departure
+        },
+        ..*family
     };
     let record = solve_arriving_early(label, seed, index, &rest, &scaled, options);
     let placement = Placement {
@@ -1312,6 +1326,32 @@ mod tests {
             .iter()
             .all(|t| t.action == coast));
         assert!(demo.transitions.last().unwrap().done);
+    }
+
+    /// The rest of a rendezvous chases the same body: at the rest's start and at its arrival
+    /// the body stands where it stands at those steps of the whole flight (Kepler from two
+    /// epochs); the spacecraft is scaled to the state's mass; no rest after the last step.
+    #[test]
+    fn the_rest_of_a_rendezvous_meets_the_same_body_at_the_same_time() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let whole = rendezvous_record();
+        let n = whole.scenario.steps;
+        let k = n / 2;
+        let mid = state_of(&whole.steps[k as usize]);
+        let (rest, scaled) = rest_of_flight(&whole.scenario, &mid, k, &sc).unwrap();
+        assert_eq!(rest.steps, n - k);
+        assert!((scaled.thrust * mid.m - sc.thrust).abs() < 1e-15);
+        for (rest_step, whole_step) in [(0, k), (n - k, n)] {
+            let a = body_at(&rest, rest_step).unwrap();
+            let b = body_at(&whole.scenario, whole_step).unwrap();
+            let gap = (0..2)
+                .map(|i| (a.r[i] - b.r[i]).abs() + (a.v[i] - b.v[i]).abs())
+                .sum::<f64>();
+            assert!(gap < 1e-9, "step {whole_step}: {gap:e}");
+        }
+        let start = rest.initial.cartesian();
+        assert!((0..2).all(|i| (start.r[i] - mid.r[i]).abs() < 1e-12 && (start.v[i] - mid.v[i]).abs() < 1e-12));
+        assert!(rest_of_flight(&whole.scenario, &mid, n, &sc).is_none());
     }
 
     /// A margin the flight cannot hold is not applied: the draw is solved on time.
