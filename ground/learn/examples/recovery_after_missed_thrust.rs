@@ -7,13 +7,18 @@
 //! classification's are). What no controller can recover bounds the share any can reach.
 //!
 //! ```text
-//! cargo run --release -p lowthrust-learn --example recovery_after_missed_thrust -- CONFIG BLOB COUNT OUT_CSV [GAP_CSV]
+//! cargo run --release -p lowthrust-learn --example recovery_after_missed_thrust -- CONFIG BLOB COUNT misses|arrivals OUT_CSV [GAP_CSV]
 //! ```
-//! One row per missing flight with missed thrust: its episode (the SIL's `mc.csv` numbering on
+//! `arrivals` checks the flights within the goal after missed thrust instead: the control,
+//! since each of them did arrive, a verdict of a long shortfall there would discredit the check.
+//! One row per flight checked (a miss, or an arrival) with missed thrust: its episode (the SIL's `mc.csv` numbering on
 //! the config's Monte Carlo seed), residuals, where its last event ended, and the verdict.
 //! GAP_CSV, a SIL run's `optimality-gap.csv` on the same seed, keeps only the draws the indirect
-//! method solves from departure (`optimal_converged`): the others may have no transfer at all.
+//! method solves from departure (`optimal_converged`; the others may have no transfer at all),
+//! and bounds them without foresight of the check: a flight that lost more thrust than its
+//! draw's fuel optimum coasts could not have arrived exactly on time by any control.
 
+use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -44,27 +49,40 @@ enum Verdict {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let (config, blob, count, out, gap) = match &args[..] {
-        [_, config, blob, count, out] => (config, blob, count, out, None),
-        [_, config, blob, count, out, gap] => (config, blob, count, out, Some(gap)),
-        _ => return Err("usage: recovery_after_missed_thrust CONFIG BLOB COUNT OUT_CSV [GAP_CSV]".into()),
+    let usage = "usage: recovery_after_missed_thrust CONFIG BLOB COUNT misses|arrivals OUT_CSV [GAP_CSV]";
+    let (config, blob, count, select, out, gap) = match &args[..] {
+        [_, config, blob, count, select, out] => (config, blob, count, select, out, None),
+        [_, config, blob, count, select, out, gap] => (config, blob, count, select, out, Some(gap)),
+        _ => return Err(usage.into()),
     };
-    // The draws solved from departure, where a GAP_CSV says (its `optimal_converged` column).
-    let solved: Option<Vec<usize>> = match gap {
+    let arrivals = match select.as_str() {
+        "misses" => false,
+        "arrivals" => true,
+        _ => return Err(usage.into()),
+    };
+    // The final mass of each draw's fuel optimum from departure, where a GAP_CSV says (its
+    // `optimal_mass` where `optimal_converged`).
+    let optima: Option<HashMap<usize, f64>> = match gap {
         None => None,
         Some(gap) => {
             let text = std::fs::read_to_string(gap)?;
             let mut lines = text.lines();
             let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-            let column = header
-                .iter()
-                .position(|&c| c == "optimal_converged")
-                .ok_or("GAP_CSV has no optimal_converged column")?;
+            let column = |name: &str| {
+                header
+                    .iter()
+                    .position(|&c| c == name)
+                    .ok_or(format!("GAP_CSV has no {name} column"))
+            };
+            let (converged, mass) = (column("optimal_converged")?, column("optimal_mass")?);
             Some(
                 lines
                     .filter_map(|line| {
                         let cells: Vec<&str> = line.split(',').collect();
-                        (cells.get(column) == Some(&"true")).then(|| cells[0].parse().ok())?
+                        if cells.get(converged) != Some(&"true") {
+                            return None;
+                        }
+                        Some((cells[0].parse().ok()?, cells.get(mass)?.parse().ok()?))
                     })
                     .collect(),
             )
@@ -84,17 +102,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         final_eps: config.generate.final_eps,
         ..SolveOptions::default()
     };
-    let missing: Vec<usize> = (0..outcomes.len())
+    let checked: Vec<usize> = (0..outcomes.len())
         .filter(|&k| {
             let t = &outcomes[k].terminal;
-            !(outcomes[k].completed && t.position <= GOAL && t.velocity <= GOAL)
+            (outcomes[k].completed && t.position <= GOAL && t.velocity <= GOAL) == arrivals
                 && missed[k].last_end.is_some()
-                && solved.as_ref().is_none_or(|s| s.contains(&k))
+                && optima.as_ref().is_none_or(|o| o.contains_key(&k))
         })
         .collect();
     eprintln!(
-        "{} of {} flights miss after missed thrust; re-solving them",
-        missing.len(),
+        "{} of {} flights checked ({select} after missed thrust)",
+        checked.len(),
         outcomes.len()
     );
     let done = std::sync::atomic::AtomicUsize::new(0);
@@ -102,7 +120,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // days, and as the velocity full thrust gives over it, in velocity goals (0.01 v*). A miss
     // within the goal may need less than the exact arrival that the minimum time measures, so a
     // shortfall of a small fraction of a goal is no proof that the goal is out of reach.
-    let verdicts: Vec<(Verdict, Option<(f64, f64)>)> = missing
+    let verdicts: Vec<(Verdict, Option<(f64, f64)>)> = checked
         .par_iter()
         .map(|&k| {
             let scenario = &scenarios[k];
@@ -146,22 +164,45 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             };
             let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             if n.is_multiple_of(10) {
-                eprintln!("{n}/{}", missing.len());
+                eprintln!("{n}/{}", checked.len());
             }
             verdict
         })
         .collect();
-    let mut csv =
-        String::from("episode,dr,dv,last_missed_thrust_end,verdict,shortfall_days,shortfall_velocity_goals\n");
-    for (&k, (verdict, shortfall)) in missing.iter().zip(&verdicts) {
+    // The fuel optimum burns as little as any arrival on time (its propellant is the burn time
+    // at full thrust), so its coast time is the most thrust-off time an exact arrival on time
+    // allows: a flight that lost more thrust than that could not have arrived by any control,
+    // even one that knew its outages in advance (at the nominal thrust).
+    let mass_flow = spacecraft.thrust / spacecraft.exhaust_speed;
+    let optimum_coast_days = |k: usize| {
+        let mass = optima.as_ref()?.get(&k)?;
+        Some(units.to_days(scenarios[k].time_of_flight() - (1.0 - mass) / mass_flow))
+    };
+    if let Some(optima) = &optima {
+        let beyond = |k: usize| optimum_coast_days(k).is_some_and(|coast| units.to_days(missed[k].time) > coast);
+        let solved: Vec<usize> = (0..outcomes.len()).filter(|k| optima.contains_key(k)).collect();
+        println!(
+            "of {} draws solved from departure, {} lost more thrust than their optimum coasts; of the {} checked, {}",
+            solved.len(),
+            solved.iter().filter(|&&k| beyond(k)).count(),
+            checked.len(),
+            checked.iter().filter(|&&k| beyond(k)).count()
+        );
+    }
+    let mut csv = String::from(
+        "episode,dr,dv,last_missed_thrust_end,verdict,shortfall_days,shortfall_velocity_goals,missed_thrust_days,optimum_coast_days\n",
+    );
+    for (&k, (verdict, shortfall)) in checked.iter().zip(&verdicts) {
         let t = &outcomes[k].terminal;
         let end = missed[k].last_end.unwrap_or(f64::NAN);
         let shortfall = shortfall
             .map(|(d, g)| format!("{d:.3},{g:.3}"))
             .unwrap_or_else(|| ",".into());
+        let missed_days = units.to_days(missed[k].time);
+        let coast = optimum_coast_days(k).map(|d| format!("{d:.3}")).unwrap_or_default();
         let _ = writeln!(
             csv,
-            "{k},{:.4e},{:.4e},{end},{verdict:?},{shortfall}",
+            "{k},{:.4e},{:.4e},{end},{verdict:?},{shortfall},{missed_days:.3},{coast}",
             t.position, t.velocity
         );
     }
