@@ -407,23 +407,18 @@ pub fn rest_of_flight(
     Some((rest, scaled))
 }
 
-/// Relabels a state a policy visited (DAgger-style): the fuel-optimal rest of `episode`
-/// re-solved by the indirect method from `state` at step `step` ([`rest_of_flight`]), as a
-/// record and its [`Placement`]; `None` where there is no rest to solve. The rest is labelled
-/// with the episode's `family` less its departure eccentricities (an osculating orbit may have
-/// any: a near-circular rest that the near-circular path cannot solve falls back to the general
-/// one), with the options' arrival margin ([`solve_arriving_early`]); seed and index are the
-/// caller's, for tracing.
-pub fn relabel(
+/// The fuel-optimal solve of a rest of flight ([`rest_of_flight`], with its scaled spacecraft),
+/// labelled with the episode's `family` less its departure eccentricities (an osculating orbit
+/// may have any: a near-circular rest that the near-circular path cannot solve falls back to the
+/// general one), with the options' arrival margin ([`solve_arriving_early`]); seed and index are
+/// the caller's, for tracing.
+pub fn solve_rest(
     family: &MissionFamily,
     (seed, index): (u64, u64),
-    episode: &Scenario,
-    state: &SpacecraftState,
-    step: u32,
-    spacecraft: &CanonicalSpacecraft,
+    rest: &Scenario,
+    scaled: &CanonicalSpacecraft,
     options: &SolveOptions,
-) -> Option<(TrajectoryRecord, Placement)> {
-    let (rest, scaled) = rest_of_flight(episode, state, step, spacecraft)?;
+) -> TrajectoryRecord {
     let label = MissionFamily {
         departure: OrbitRanges {
             e: Range { lo: 0.0, hi: 0.99 },
@@ -431,7 +426,23 @@ pub fn relabel(
         },
         ..*family
     };
-    let record = solve_arriving_early(label, seed, index, &rest, &scaled, options);
+    solve_arriving_early(label, seed, index, rest, scaled, options)
+}
+
+/// Relabels a state a policy visited (DAgger-style): the fuel-optimal rest of `episode`
+/// re-solved by the indirect method from `state` at step `step` ([`rest_of_flight`],
+/// [`solve_rest`]), as a record and its [`Placement`]; `None` where there is no rest to solve.
+pub fn relabel(
+    family: &MissionFamily,
+    seed_index: (u64, u64),
+    episode: &Scenario,
+    state: &SpacecraftState,
+    step: u32,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Option<(TrajectoryRecord, Placement)> {
+    let (rest, scaled) = rest_of_flight(episode, state, step, spacecraft)?;
+    let record = solve_rest(family, seed_index, &rest, &scaled, options);
     let placement = Placement {
         episode: *episode,
         start_step: step,

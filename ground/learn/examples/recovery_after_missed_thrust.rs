@@ -22,15 +22,17 @@ use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use ground_core::demo::{relabel, rest_of_flight};
+use ground_core::demo::{rest_of_flight, solve_rest};
+use ground_core::env::batch::EpisodeOutcome;
 use ground_core::solver::min_time::{classify_draw, Feasibility};
 use ground_core::solver::SolveOptions;
 use learn::config::ExperimentConfig;
+use learn::eval::{meets, ACCURACY_GOAL};
 use learn::sil::{fly_blob, SilFlights};
 use rayon::prelude::*;
-
-/// The accuracy goal, AU and v* (canonical).
-const GOAL: f64 = 0.01;
+use shared::mission::{MissionFamily, Units};
+use shared::scenario::Scenario;
+use shared::spacecraft::CanonicalSpacecraft;
 
 /// What re-solving one flight's rest found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -45,6 +47,49 @@ enum Verdict {
     NoCycleLeft,
     /// Neither a solve nor a minimum time.
     Unknown,
+}
+
+/// A flight's verdict from its true state at step `step` (where its last missed thrust ended),
+/// and for a rest shorter than its minimum time the shortfall: in days, and as the velocity full
+/// thrust gives over it, in velocity goals (0.01 v*). A miss within the goal may need less than
+/// the exact arrival that the minimum time measures, so a shortfall of a small fraction of a
+/// goal is no proof that the goal is out of reach.
+fn verdict(
+    (family, units): (&MissionFamily, &Units),
+    (k, scenario, outcome): (usize, &Scenario, &EpisodeOutcome),
+    step: u32,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> (Verdict, Option<(f64, f64)>) {
+    if step >= scenario.steps {
+        return (Verdict::NoCycleLeft, None);
+    }
+    let Some(state) = outcome
+        .trajectory
+        .as_ref()
+        .and_then(|t| t.get(step as usize))
+        .map(|p| p.state)
+    else {
+        return (Verdict::Unknown, None);
+    };
+    let Some((rest, scaled)) = rest_of_flight(scenario, &state, step, spacecraft) else {
+        return (Verdict::Unknown, None);
+    };
+    if solve_rest(family, (0, k as u64), &rest, &scaled, options).converged {
+        return (Verdict::Resolves, None);
+    }
+    let tof = rest.time_of_flight();
+    match classify_draw(&rest, &scaled, options) {
+        Feasibility::MinTime { tf_min, .. } if tf_min > tof => (
+            Verdict::Infeasible,
+            Some((
+                units.to_days(tf_min - tof),
+                scaled.thrust * (tf_min - tof) / ACCURACY_GOAL,
+            )),
+        ),
+        Feasibility::Recovered { .. } | Feasibility::MinTime { .. } => (Verdict::Feasible, None),
+        Feasibility::Unknown(_) => (Verdict::Unknown, None),
+    }
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -104,71 +149,32 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let checked: Vec<usize> = (0..outcomes.len())
         .filter(|&k| {
-            let t = &outcomes[k].terminal;
-            (outcomes[k].completed && t.position <= GOAL && t.velocity <= GOAL) == arrivals
+            meets(&outcomes[k], ACCURACY_GOAL) == arrivals
                 && missed[k].last_end.is_some()
                 && optima.as_ref().is_none_or(|o| o.contains_key(&k))
         })
         .collect();
-    eprintln!(
-        "{} of {} flights checked ({select} after missed thrust)",
-        checked.len(),
-        outcomes.len()
+    let bar = ground_core::progress::bar(
+        checked.len() as u64,
+        &format!("{select} after missed thrust {{bar:30}} {{pos}}/{{len}} re-solved [{{elapsed}}<{{eta}}]"),
     );
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    // Each flight's verdict, and for a rest shorter than its minimum time the shortfall: in
-    // days, and as the velocity full thrust gives over it, in velocity goals (0.01 v*). A miss
-    // within the goal may need less than the exact arrival that the minimum time measures, so a
-    // shortfall of a small fraction of a goal is no proof that the goal is out of reach.
     let verdicts: Vec<(Verdict, Option<(f64, f64)>)> = checked
         .par_iter()
         .map(|&k| {
             let scenario = &scenarios[k];
-            let end = missed[k].last_end.unwrap_or(1.0);
-            let step = (end * f64::from(scenario.steps)).round() as u32;
-            let verdict = if step >= scenario.steps {
-                (Verdict::NoCycleLeft, None)
-            } else {
-                let state = outcomes[k]
-                    .trajectory
-                    .as_ref()
-                    .and_then(|t| t.get(step as usize))
-                    .map(|p| p.state);
-                match state {
-                    None => (Verdict::Unknown, None),
-                    Some(state) => {
-                        let solved = relabel(&family, (0, k as u64), scenario, &state, step, &spacecraft, &options)
-                            .is_some_and(|(record, _)| record.converged);
-                        if solved {
-                            (Verdict::Resolves, None)
-                        } else {
-                            match rest_of_flight(scenario, &state, step, &spacecraft) {
-                                None => (Verdict::Unknown, None),
-                                Some((rest, scaled)) => {
-                                    let tof = rest.time_of_flight();
-                                    match classify_draw(&rest, &scaled, &options) {
-                                        Feasibility::MinTime { tf_min, .. } if tf_min > tof => (
-                                            Verdict::Infeasible,
-                                            Some((units.to_days(tf_min - tof), scaled.thrust * (tf_min - tof) / GOAL)),
-                                        ),
-                                        Feasibility::Recovered { .. } | Feasibility::MinTime { .. } => {
-                                            (Verdict::Feasible, None)
-                                        }
-                                        Feasibility::Unknown(_) => (Verdict::Unknown, None),
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-            };
-            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            if n.is_multiple_of(10) {
-                eprintln!("{n}/{}", checked.len());
-            }
-            verdict
+            let step = (missed[k].last_end.unwrap_or(1.0) * f64::from(scenario.steps)).round() as u32;
+            let found = verdict(
+                (&family, &units),
+                (k, scenario, &outcomes[k]),
+                step,
+                &spacecraft,
+                &options,
+            );
+            bar.inc(1);
+            found
         })
         .collect();
+    bar.finish_and_clear();
     // The fuel optimum burns as little as any arrival on time (its propellant is the burn time
     // at full thrust), so its coast time is the most thrust-off time an exact arrival on time
     // allows: a flight that lost more thrust than that could not have arrived by any control,

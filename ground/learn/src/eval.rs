@@ -259,7 +259,7 @@ pub fn within_tolerance<G: Geometry>(outcomes: &[EpisodeOutcome<G>], tolerance: 
 }
 
 /// A completed episode that ends with |dr| <= `tolerance` AU and |dv| <= `tolerance`.
-fn meets<G: Geometry>(outcome: &EpisodeOutcome<G>, tolerance: f64) -> bool {
+pub fn meets<G: Geometry>(outcome: &EpisodeOutcome<G>, tolerance: f64) -> bool {
     outcome.completed && outcome.terminal.position <= tolerance && outcome.terminal.velocity <= tolerance
 }
 
