@@ -17,7 +17,7 @@ use ground_core::env::batch::evaluate_batched;
 use ground_core::env::{MdpEnv, Transfer};
 use ground_core::solver::SolveOptions;
 use learn::config::ExperimentConfig;
-use learn::eval::load_agent;
+use learn::eval::{load_agent, meets, ACCURACY_GOAL};
 use learn::phase::policy_batch;
 use onboard::dynamics::SpacecraftState;
 use rayon::prelude::*;
@@ -82,7 +82,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     csv.push('\n');
     for (k, outcome) in flown.iter().enumerate() {
-        let within = outcome.completed && outcome.terminal.position < 0.01 && outcome.terminal.velocity < 0.01;
+        let within = meets(outcome, ACCURACY_GOAL);
         let _ = write!(
             csv,
             "{},{:.4e},{:.4e},{}",
