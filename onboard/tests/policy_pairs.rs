@@ -1,13 +1,13 @@
-//! The int8 pair kernel (activations reordered into `(x0, x2), (x1, x3)` pairs, weights split
-//! by `sxtb16`, two products per `smlad`) and the cheaper quantization, checked on the host:
-//! here the pair kernel runs its portable emulation, the Cortex-M4 image runs the same steps in
-//! `asm!` (scripts/qemu-sil.sh compares the two bit for bit).
+//! The int8 pair kernel (a row pair's i16 `256 b + a + 128` against two activations per
+//! `smlad`, the high bytes by `sxtb16` into another, the first row recovered from both sums)
+//! and the cheaper quantization, checked on the host: here the pair kernel runs its portable
+//! emulation, the Cortex-M4 image runs the same steps in `asm!` (scripts/qemu-sil.sh compares
+//! the two bit for bit). The lanes and rows kernels decode each byte instead: a second method.
 
 mod policy_support;
 
 use onboard::policy::{
-    quantize, quantize_relu, to_pair_order, DenseInt8, Int8Kernel, MlpLayers, RendezvousPolicy, TransferPolicy,
-    INT8_KERNEL,
+    quantize, quantize_relu, DenseInt8, Int8Kernel, MlpLayers, RendezvousPolicy, TransferPolicy, INT8_KERNEL,
 };
 use policy_support::{calibrate, int8_layer, int8_net, quantize_net, random_input, QuantLayer, RefNet, Rng};
 use shared::blob::{Activation, ProblemKind, ACTIVATION_LEVELS, MAX_INT8_INPUTS};
@@ -28,9 +28,9 @@ fn random_layer<const IN: usize, const OUT: usize>(rng: &mut Rng) -> (Vec<Vec<i8
     (q, bias, ql)
 }
 
-/// Reordering + pair kernel equals the exact dot product plus bias, on random i16 activations
-/// over the full quantized range and random i8 weights, for widths that exercise the 8-input
-/// loop, a leftover group of 4, the last `IN % 4` inputs and the `OUT % 4` last rows.
+/// The pair kernel equals the exact dot product plus bias, on random i16 activations over the
+/// full quantized range and random i8 weights, for widths that exercise the 8-input block, the
+/// last `IN % 8` inputs (odd among them), a third pair and the odd last row.
 fn check_pairs<const IN: usize, const OUT: usize>(seed: u64) {
     let mut rng = Rng::new(seed);
     let (q, bias, ql) = random_layer::<IN, OUT>(&mut rng);
@@ -97,15 +97,6 @@ fn pair_kernel_at_the_accumulator_limit() {
     let want = [i32::MAX, i32::MIN + top, i32::MIN, top, i32::MAX];
     assert_eq!(layer.accumulate_pairs(&[-L; IN]), want);
     assert_eq!(layer.accumulate_lanes(&[-L; IN]), want);
-}
-
-#[test]
-fn pair_order_swaps_the_middle_of_each_group_of_four() {
-    let mut x: [i16; 11] = core::array::from_fn(|i| i as i16);
-    to_pair_order(&mut x);
-    assert_eq!(x, [0, 2, 1, 3, 4, 6, 5, 7, 8, 9, 10]);
-    to_pair_order(&mut x);
-    assert_eq!(x, core::array::from_fn(|i| i as i16));
 }
 
 /// Every kernel gives the same network output bit for bit, equal to the layers' public steps

@@ -25,16 +25,24 @@
 //! the inference kernels:
 //! - f32: weights f32 LE, **input-major** (`w[i * outputs + j]`, the transpose of PyTorch's
 //!   `[out][in]`), so a layer is a sequence of axpy updates over the output vector; bias f32 LE.
-//! - int8: weights i8, **output-major** (`w[j * inputs + i]`, PyTorch's layout), so each output
-//!   is an integer dot product; one f32 scale per output channel (symmetric, zero point 0);
+//! - int8: weights i8 in **row pairs** ([`int8_weight_bytes`]): rows `2p` and `2p + 1` share
+//!   `2 * inputs` bytes, input `i` at bytes `2i` (row `2p`'s weight plus 128, as u8) and
+//!   `2i + 1` (row `2p + 1`'s, as i8); an odd last row follows as `inputs` i8. Each
+//!   little-endian i16 of a pair is then `256 b + a + 128` (`a`, `b` the two rows' weights), so
+//!   one 16 x 16 multiply-add serves both rows, and `b` is that i16 shifted right by 8: the
+//!   Cortex-M4F kernel makes 4 multiply-adds of 3 instructions (`smlad`, `sxtb16`, `smlad`),
+//!   and recovers row `2p` exactly from `256 S_b + S_a + 128 sum(x)`. One f32 scale per output
+//!   channel (symmetric, zero point 0);
 //!   bias i32 LE in units of `input_scale * weight_scale[j]`; the layer input is quantized
 //!   symmetrically to 16 bits (`±ACTIVATION_LEVELS`) with `input_scale` (calibrated on the
 //!   ground).
 //!
 //! Versions: 1 quantized int8 activations to ±127; 2 to 16 bits; 3 keeps the first and last
 //! layers of an `Int8` network in f32 and aligns the weight arrays; 4 ends the payload with the
-//! mission the network flies ([`BlobMission`]: its guidance cycle, canonical units and family).
-//! Version 3 is still read, as the thesis's mission ([`BlobMission::THESIS`]).
+//! mission the network flies ([`BlobMission`]: its guidance cycle, canonical units and family);
+//! 5 stores int8 weights in row pairs. Only version 5 is read: an older blob is refused with
+//! [`BlobError::UnsupportedVersion`] and is re-exported from its actor (`ground model export`
+//! gives the same network, bit for bit, in the new layout).
 
 use serde::{Deserialize, Serialize};
 
@@ -42,11 +50,8 @@ pub use crate::scenario::ProblemKind;
 
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"LTGB";
-/// The format version this crate writes (and reads).
-pub const FORMAT_VERSION: u16 = 4;
-/// The older format version this crate still reads: a network without its mission, read as the
-/// thesis's ([`BlobMission::THESIS`]).
-pub const FORMAT_3: u16 = 3;
+/// The format version this crate writes and reads.
+pub const FORMAT_VERSION: u16 = 5;
 /// Each weight array starts at a multiple of this many bytes from the start of the blob: a
 /// cache line, which covers the Cortex-M4F's word alignment too.
 pub const WEIGHT_ALIGN: usize = 64;
@@ -177,7 +182,8 @@ pub struct LayerBlob<'a> {
     /// from the start of the blob. [`encode`] writes them whatever the view holds.
     #[serde(borrow)]
     pub padding: &'a [u8],
-    /// f32: `inputs * outputs * 4` bytes input-major; int8: `inputs * outputs` bytes output-major.
+    /// f32: `inputs * outputs * 4` bytes input-major; int8: `inputs * outputs` bytes in row
+    /// pairs ([`int8_weight_bytes`]).
     #[serde(borrow)]
     pub weights: &'a [u8],
     /// f32: `outputs` f32 LE; int8: `outputs` i32 LE.
@@ -203,12 +209,12 @@ pub struct BlobMission {
     /// The canonical time unit, s.
     pub time_unit_s: f64,
     /// The family's fingerprint (`shared::mission::MissionFamily::fingerprint`; 0: any family
-    /// of the thesis's units and cycle, as format 3 blobs are read).
+    /// of the thesis's units and cycle).
     pub family: u32,
 }
 
 impl BlobMission {
-    /// The thesis's: 14-day cycles, AU and the Sun's time unit, any family (a format-3 blob's).
+    /// The thesis's: 14-day cycles, AU and the Sun's time unit, any family.
     pub const THESIS: Self = Self {
         cycle: crate::units::STEP,
         length_unit_m: crate::units::AU_M,
@@ -244,34 +250,8 @@ pub struct NetworkBlob<'a> {
     /// The dense layers, input to output (1..=[`MAX_LAYERS`]).
     #[serde(borrow)]
     pub layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
-    /// The mission the network flies (last in the payload, so the weights' offsets are those of
-    /// format 3).
+    /// The mission the network flies.
     pub mission: BlobMission,
-}
-
-/// A format-3 payload: [`NetworkBlob`] without its mission.
-#[derive(Deserialize)]
-struct NetworkBlobFormat3<'a> {
-    kind: ProblemKind,
-    features: FeatureLayout,
-    quantization: Quantization,
-    #[serde(borrow)]
-    provenance: &'a str,
-    #[serde(borrow)]
-    layers: heapless::Vec<LayerBlob<'a>, MAX_LAYERS>,
-}
-
-impl<'a> From<NetworkBlobFormat3<'a>> for NetworkBlob<'a> {
-    fn from(old: NetworkBlobFormat3<'a>) -> Self {
-        Self {
-            kind: old.kind,
-            features: old.features,
-            quantization: old.quantization,
-            provenance: old.provenance,
-            layers: old.layers,
-            mission: BlobMission::THESIS,
-        }
-    }
 }
 
 /// The CRC-32 of the trailer: the common zlib/PNG polynomial, so any tool can check a blob.
@@ -381,7 +361,7 @@ pub enum BlobError {
         /// The first four bytes.
         found: [u8; 4],
     },
-    /// The header's format version is neither [`FORMAT_VERSION`] nor [`FORMAT_3`].
+    /// The header's format version is not [`FORMAT_VERSION`].
     UnsupportedVersion {
         /// The version in the header.
         found: u16,
@@ -530,7 +510,7 @@ impl core::fmt::Display for BlobError {
             Self::BadMagic { found } => write!(f, "bad magic {found:02x?}, expected \"LTGB\""),
             Self::UnsupportedVersion { found, supported } => write!(
                 f,
-                "unsupported blob format version {found} (this build reads versions 3 and {supported})"
+                "unsupported blob format version {found} (this build reads version {supported}; re-export an older blob from its actor)"
             ),
             Self::CrcMismatch { stored, computed } => write!(
                 f,
@@ -690,10 +670,48 @@ pub fn i32_le_bytes(values: &[i32]) -> std::vec::Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
 }
 
-/// i8 values as the bytes a blob array holds (Int8 weights).
+/// An int8 layer's weights, output-major (`weights[j * inputs + i]`, PyTorch's layout), as the
+/// bytes a blob holds: in row pairs (see the module doc). `weights.len()` is `inputs * outputs`;
+/// a length that is not a multiple of `inputs` (or `inputs == 0`) gives the bytes of the whole
+/// rows only, which the decoder then refuses by length.
 #[cfg(feature = "std")]
-pub fn i8_bytes(values: &[i8]) -> std::vec::Vec<u8> {
-    values.iter().map(|&v| v as u8).collect()
+pub fn int8_weight_bytes(weights: &[i8], inputs: usize) -> std::vec::Vec<u8> {
+    let mut out = std::vec::Vec::with_capacity(weights.len());
+    if inputs == 0 {
+        return out;
+    }
+    let mut pairs = weights.chunks_exact(2 * inputs);
+    for pair in pairs.by_ref() {
+        let (a, b) = pair.split_at(inputs);
+        for (&wa, &wb) in a.iter().zip(b) {
+            out.push((wa as u8) ^ 0x80);
+            out.push(wb as u8);
+        }
+    }
+    if let Some(last) = pairs.remainder().chunks_exact(inputs).next() {
+        out.extend(last.iter().map(|&w| w as u8));
+    }
+    out
+}
+
+/// Weight `(j, i)` (output `j`, input `i`) of an int8 layer of `inputs` x `outputs` stored by
+/// [`int8_weight_bytes`]; `None` outside the layer or the bytes.
+pub fn int8_weight_at(bytes: &[u8], inputs: usize, outputs: usize, j: usize, i: usize) -> Option<i8> {
+    if i >= inputs || j >= outputs {
+        return None;
+    }
+    let pair_start = (j / 2).checked_mul(2 * inputs)?;
+    let at = if j / 2 < outputs / 2 {
+        pair_start + 2 * i + j % 2
+    } else {
+        pair_start + i
+    };
+    let byte = *bytes.get(at)?;
+    Some(if j / 2 < outputs / 2 && j.is_multiple_of(2) {
+        (byte ^ 0x80) as i8
+    } else {
+        byte as i8
+    })
 }
 
 impl LayerBlob<'_> {
@@ -879,7 +897,7 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
         return Err(BlobError::BadMagic { found: magic });
     }
     let version = u16::from_le_bytes([bytes[4], bytes[5]]);
-    if version != FORMAT_VERSION && version != FORMAT_3 {
+    if version != FORMAT_VERSION {
         return Err(BlobError::UnsupportedVersion {
             found: version,
             supported: FORMAT_VERSION,
@@ -910,12 +928,7 @@ pub fn decode(bytes: &[u8]) -> Result<NetworkBlob<'_>, BlobError> {
     if stored != computed {
         return Err(BlobError::CrcMismatch { stored, computed });
     }
-    let taken = if version == FORMAT_3 {
-        postcard::take_from_bytes::<NetworkBlobFormat3<'_>>(payload).map(|(blob, rest)| (blob.into(), rest))
-    } else {
-        postcard::take_from_bytes::<NetworkBlob<'_>>(payload)
-    };
-    let (blob, rest): (NetworkBlob<'_>, _) = match taken {
+    let (blob, rest): (NetworkBlob<'_>, _) = match postcard::take_from_bytes::<NetworkBlob<'_>>(payload) {
         Ok(v) => v,
         Err(e) => {
             return Err(match declared_layer_count(payload) {

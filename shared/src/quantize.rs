@@ -19,8 +19,8 @@ use std::vec::Vec;
 use nalgebra::{DMatrix, DVector};
 
 use crate::blob::{
-    encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, BlobMission, FeatureLayout, LayerBlob,
-    NetworkBlob, Quantization, ACTIVATION_LEVELS,
+    encode_to_vec, f32_le_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError, BlobMission, FeatureLayout,
+    LayerBlob, NetworkBlob, Quantization, ACTIVATION_LEVELS,
 };
 
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
@@ -461,7 +461,7 @@ impl MlpWeights {
                 let stored = Quantization::Int8.of_layer(index, count);
                 match (stored == Quantization::Int8).then(|| int8.next()).flatten() {
                     Some(q) => OwnedArrays {
-                        weights: i8_bytes(&q.weights),
+                        weights: int8_weight_bytes(&q.weights, l.inputs),
                         bias: i32_le_bytes(&q.bias),
                         weight_scales: f32_le_bytes(&q.weight_scales),
                         input_scale: q.input_scale,
@@ -543,6 +543,26 @@ mod tests {
                 }
             }
             assert_eq!(f32s(b.bias).collect::<Vec<_>>(), l.bias);
+        }
+    }
+
+    #[test]
+    fn the_int8_blob_holds_the_quantized_weights_in_row_pairs() {
+        let net = tiny();
+        let calib: Vec<Vec<f32>> = (0..20)
+            .map(|k| (0..10).map(|i| ((k * 10 + i) as f32 * 0.3).cos()).collect())
+            .collect();
+        let (bytes, quant) = net.int8_blob(&calib, "test").unwrap();
+        let blob = decode(&bytes).unwrap();
+        let (l, b, q) = (&net.layers[1], &blob.layers[1], &quant[0]);
+        assert_eq!(b.weights.len(), l.inputs * l.outputs);
+        // Odd outputs (5): two pairs and a plain last row.
+        assert_eq!(l.outputs % 2, 1);
+        for j in 0..l.outputs {
+            for i in 0..l.inputs {
+                let stored = crate::blob::int8_weight_at(b.weights, l.inputs, l.outputs, j, i);
+                assert_eq!(stored, Some(q.weights[j * l.inputs + i]), "({j}, {i})");
+            }
         }
     }
 

@@ -6,8 +6,8 @@ use proptest::prelude::*;
 use serde::Serialize;
 use shared::blob::{
     decode, encode, encode_unchecked, encoded_len, f32_at, f32s, i32_at, Activation, AlignedBlob, ArrayKind, BlobError,
-    BlobMission, FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_3,
-    FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
+    BlobMission, FeatureLayout, LayerBlob, NetworkBlob, PayloadError, ProblemKind, Quantization, FORMAT_VERSION,
+    HEADER_LEN, MAGIC, MAX_LAYERS, MAX_WIDTH, TRAILER_LEN, WEIGHT_ALIGN,
 };
 
 // ---------------------------------------------------------------- owned test networks
@@ -354,11 +354,10 @@ fn every_single_bit_flip_is_refused_with_the_error_of_its_region() {
     }
 }
 
-/// Format 4 ends the payload with the mission: a mission written is read back; the same
-/// network written as format 3 (the payload without it) is read as the thesis's mission with the
-/// same weights in place; a mission that cannot be flown is refused.
+/// The payload ends with the mission: a mission written is read back; a payload without it
+/// (version 3's) is refused, and so is a mission that cannot be flown.
 #[test]
-fn the_mission_is_carried_and_format_3_is_read_as_the_thesis() {
+fn the_mission_is_carried_and_checked() {
     let owned = small(Quantization::Int8);
     let weekly = BlobMission {
         cycle: 0.12,
@@ -374,27 +373,9 @@ fn the_mission_is_carried_and_format_3_is_read_as_the_thesis() {
     let decoded = decode(&bytes).unwrap();
     assert_eq!(decoded.mission, weekly);
     assert_eq!(decoded, view);
-    // Format 3: the payload less the mission's bytes, version 3, framed anew.
     let mission_len = postcard::to_allocvec(&weekly).unwrap().len();
     let payload = &bytes[HEADER_LEN..bytes.len() - TRAILER_LEN];
     let old_payload = &payload[..payload.len() - mission_len];
-    let mut old = frame(old_payload);
-    old[4..6].copy_from_slice(&FORMAT_3.to_le_bytes());
-    let read = decode(&old).unwrap();
-    assert_eq!(read.mission, BlobMission::THESIS);
-    assert_eq!(
-        read,
-        NetworkBlob {
-            mission: BlobMission::THESIS,
-            ..view.clone()
-        }
-    );
-    // The weights sit at the same offsets in both formats: still aligned.
-    for (a, b) in read.layers.iter().zip(&decoded.layers) {
-        let offset = |w: &[u8], base: &[u8]| w.as_ptr() as usize - base.as_ptr() as usize;
-        assert_eq!(offset(a.weights, &old), offset(b.weights, &bytes));
-    }
-    // A format-3 payload framed as format 4 lacks its mission.
     assert!(matches!(decode(&frame(old_payload)), Err(BlobError::Payload(_))));
     for bad in [
         BlobMission {
@@ -424,21 +405,24 @@ fn the_mission_is_carried_and_format_3_is_read_as_the_thesis() {
 }
 
 #[test]
-fn wrong_magic_and_next_version_are_refused() {
+fn wrong_magic_and_other_versions_are_refused() {
     let bytes = to_bytes(&small(Quantization::F32).view());
     let mut b = bytes.clone();
     b[..4].copy_from_slice(b"LTGA");
     assert_eq!(decode(&b), Err(BlobError::BadMagic { found: *b"LTGA" }));
     // The CRC covers the payload only, so a version bump alone is what fires here.
     let mut b = bytes.clone();
-    b[4..6].copy_from_slice(&(FORMAT_VERSION + 1).to_le_bytes());
-    assert_eq!(
-        decode(&b),
-        Err(BlobError::UnsupportedVersion {
-            found: FORMAT_VERSION + 1,
-            supported: FORMAT_VERSION
-        })
-    );
+    // Version 4 (int8 weights output-major) and the next one: refused, never misread.
+    for version in [FORMAT_VERSION - 1, FORMAT_VERSION + 1] {
+        b[4..6].copy_from_slice(&version.to_le_bytes());
+        assert_eq!(
+            decode(&b),
+            Err(BlobError::UnsupportedVersion {
+                found: version,
+                supported: FORMAT_VERSION
+            })
+        );
+    }
 }
 
 // ---------------------------------------------------------------- semantic defects
@@ -866,10 +850,24 @@ fn element_accessors_read_le_and_refuse_out_of_range() {
 #[cfg(feature = "std")]
 #[test]
 fn std_helpers_match_the_no_std_path() {
-    use shared::blob::{encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes};
+    use shared::blob::{encode_to_vec, f32_le_bytes, i32_le_bytes, int8_weight_at, int8_weight_bytes};
     assert_eq!(f32_le_bytes(&[1.5, -2.0]), le_f32(&[1.5, -2.0]));
     assert_eq!(i32_le_bytes(&[-7, 9]), le_i32(&[-7, 9]));
-    assert_eq!(i8_bytes(&[-1, 127, -128]), vec![0xFF, 0x7F, 0x80]);
+    // Rows (-1, 127, -128) and (5, -6, 7), then the odd row (-128, 0, 127): the pair's first row
+    // is offset by 128, the second and the odd row are plain i8.
+    let w = [-1i8, 127, -128, 5, -6, 7, -128, 0, 127];
+    let bytes = int8_weight_bytes(&w, 3);
+    assert_eq!(bytes, vec![0x7F, 5, 0xFF, 0xFA, 0x00, 7, 0x80, 0x00, 0x7F]);
+    for j in 0..3 {
+        for i in 0..3 {
+            assert_eq!(int8_weight_at(&bytes, 3, 3, j, i), Some(w[j * 3 + i]), "({j}, {i})");
+        }
+    }
+    assert_eq!(int8_weight_at(&bytes, 3, 3, 3, 0), None);
+    assert_eq!(int8_weight_at(&bytes, 3, 3, 0, 3), None);
+    // Each i16 of a pair is 256 b + a + 128.
+    let h = i16::from_le_bytes([bytes[2], bytes[3]]);
+    assert_eq!(i32::from(h), 256 * -6 + 127 + 128);
     let owned = small(Quantization::Int8);
     assert_eq!(encode_to_vec(&owned.view()).unwrap(), to_bytes(&owned.view()));
     let mut bad = owned.clone();

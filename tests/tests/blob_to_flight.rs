@@ -9,8 +9,8 @@ use onboard::features::{decode_action, to_network_input, RENDEZVOUS_FEATURES, TR
 use onboard::guidance::Actor;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use shared::blob::{
-    decode, encode_to_vec, f32_le_bytes, i32_le_bytes, i8_bytes, Activation, BlobError, FeatureLayout, LayerBlob,
-    NetworkBlob, ProblemKind, Quantization, FORMAT_VERSION,
+    decode, encode_to_vec, f32_le_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError, FeatureLayout,
+    LayerBlob, NetworkBlob, ProblemKind, Quantization, FORMAT_VERSION,
 };
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -114,7 +114,12 @@ fn network(sizes: &[usize], quantization: Quantization, seed: u64) -> Vec<OwnedL
                     let bq: Vec<i32> = (0..n_out)
                         .map(|j| (b[j] / (input_scale * scales[j])).round() as i32)
                         .collect();
-                    (i8_bytes(&q), i32_le_bytes(&bq), f32_le_bytes(&scales), input_scale)
+                    (
+                        int8_weight_bytes(&q, n_in),
+                        i32_le_bytes(&bq),
+                        f32_le_bytes(&scales),
+                        input_scale,
+                    )
                 }
             };
             OwnedLayer {

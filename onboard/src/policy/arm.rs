@@ -1,6 +1,6 @@
 //! The Cortex-M4F kernels in `asm!`, for what stable Rust cannot express or LLVM does not
-//! generate: the int8 pair kernel's Arm DSP instructions (`sxtb16`, `smlad`; stable Rust has
-//! no intrinsics for them) with two-word weight loads (`ldrd`), and the f32 tile kernel, which
+//! generate: the int8 pair kernel's Arm DSP instructions (`smlad`, `sxtb16`; stable Rust has
+//! no intrinsics for them) with multi-word loads (`ldm`, `ldrd`), and the f32 tile kernel, which
 //! keeps 16 accumulators in FPU registers and loads inputs and weights eight at a time (`vldm`;
 //! LLVM spills the accumulators and moves every weight separately: 5.15 instructions per
 //! multiply-add, against 1.21 here). Both multi-word loads need word-aligned weights, which
@@ -17,168 +17,163 @@
 
 use core::arch::asm;
 
-use super::int8::{dot1_pairs, Acts};
+use super::int8::{dot1_pair_words, Acts};
 
-/// `acc + w0 * lo(xe) + w2 * hi(xe) + w1 * lo(xo) + w3 * hi(xo)` (wrapping), `w0..w3` the
-/// signed bytes of `w` (little endian), `lo`/`hi` the signed halves of a word; the portable
-/// `pair_mac` in the parent module emulates exactly these four instructions.
+/// `(raw + lo(w) lo(x) + hi(w) hi(x), high + (lo(w) >> 8) lo(x) + (hi(w) >> 8) hi(x))`
+/// (wrapping), `lo`/`hi` the signed halves of a word: a word of a row pair (two inputs, each
+/// an i16 `256 b + a + 128`) against the word of the two activations. The portable `pair_mac`
+/// in the parent module emulates exactly these three instructions.
 ///
-/// `sxtb16 t, w` sign-extends bytes 0 and 2 of `w` to the halves of `t`; `ror #8` first takes
-/// bytes 1 and 3. `smlad a, t, x, a` adds both 16 x 16 products of the halves to `a`, modulo
-/// 2^32 (it sets the sticky Q flag on a signed overflow, which nothing reads).
+/// `smlad r, w, x, r` adds both 16 x 16 products of the halves to `r`, modulo 2^32 (it sets the
+/// sticky Q flag on a signed overflow, which nothing reads); `sxtb16 t, w, ror #8`
+/// sign-extends bytes 1 and 3 of `w` to the halves of `t`: each half's high byte, which is
+/// the half shifted right by 8 since its low byte is `a + 128` in `0..=255`.
 #[inline(always)]
-pub(super) fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
-    let sum: i32;
-    // SAFETY: four register-to-register data-processing instructions of ARMv7E-M (the DSP
+pub(super) fn pair_mac(raw: i32, high: i32, w: u32, x: u32) -> (i32, i32) {
+    let (r, h): (i32, i32);
+    // SAFETY: three register-to-register data-processing instructions of ARMv7E-M (the DSP
     // extension, present on every target this module is compiled for, see `ARM_ASM`): no memory
     // access (`nomem`), no stack use (`nostack`), only the named registers are written (the
     // scratch `t` is a declared output). They change only the Q flag, so `preserves_flags` is
     // not claimed. The result depends only on the inputs (`pure`).
     unsafe {
         asm!(
-            "sxtb16 {t}, {w}",
-            "smlad {a}, {t}, {xe}, {a}",
+            "smlad {r}, {w}, {x}, {r}",
             "sxtb16 {t}, {w}, ror #8",
-            "smlad {a}, {t}, {xo}, {a}",
-            a = inout(reg) acc => sum,
+            "smlad {h}, {t}, {x}, {h}",
+            r = inout(reg) raw => r,
+            h = inout(reg) high => h,
             w = in(reg) w,
-            xe = in(reg) xe,
-            xo = in(reg) xo,
+            x = in(reg) x,
             t = out(reg) _,
             options(pure, nomem, nostack),
         );
     }
-    sum
+    (r, h)
 }
 
-/// Inputs per iteration of [`dot4_pairs`]'s loop (`1 << PAIR_LOOP_SHIFT`): the deployed
-/// hidden width, so its rows take one pass with no loop overhead.
-const PAIR_LOOP_SHIFT: u32 = 8;
-const PAIR_LOOP_INPUTS: usize = 1 << PAIR_LOOP_SHIFT;
+/// Inputs per repetition of [`dot2_pairs`]' unrolled block (`1 << PAIR_BLOCK_SHIFT`): four
+/// activation words.
+const PAIR_BLOCK_SHIFT: u32 = 3;
+const PAIR_BLOCK_INPUTS: usize = 1 << PAIR_BLOCK_SHIFT;
 
-/// Four rows (`block`: at least `4 * IN` bytes, row `k` at byte `k * IN`) against the
-/// activations `xp` in pair order: the pair kernel's inner loop. Per 8 inputs one `ldrd` loads
-/// the activation words `(x0, x2)`, `(x1, x3)` and another `(x4, x6)`, `(x5, x7)`; per row one
-/// `ldrd` loads its 8 weights, then [`pair_mac`]'s steps for each word (the second word's
-/// `sxtb16` results overwrite the weights they came from): 38 instructions for 32
-/// multiply-adds, repeated 32 times per iteration (`.rept`), so 256 inputs per iteration.
+/// Two row pairs (`block`: at least `4 * IN` bytes, pair 1 at byte `2 * IN`) against the
+/// activations: `[raw0, high0, raw1, high1]`, the raw and high sums of each pair ([`pair_mac`]).
 ///
-/// `ldrd` needs word-aligned addresses: the blob format aligns the weight arrays (see
-/// [`f32_tile`]), so each row is aligned when `IN` is a multiple of 4. An unaligned block, a
-/// width whose row offsets do not fit `ldrd`'s immediate (`3 IN <= 1020`) and the last
-/// `IN % 256` inputs take [`dot1_pairs`] (the same integers).
+/// Per 8 inputs one `ldmia` loads the 4 activation words; two `ldrd` (at the fixed offset
+/// `2 * IN`) load pair 1's 4 words and one `ldmia` pair 0's, each word followed by
+/// [`pair_mac`]'s 3 instructions (the `sxtb16` overwrites the word it came from): 28
+/// instructions for 32 multiply-adds. The block repeats `IN / 8` times (`.rept`), with no loop
+/// counter: the 14 allocatable core registers hold the two pointers, the 4 activation words,
+/// the 4 weight words and the 4 sums.
+///
+/// `ldm`/`ldrd` need word-aligned addresses: the blob format aligns the weight arrays and
+/// `2 * IN` bytes keep pair 1 aligned; `Acts` is 8-aligned. An unaligned block, a width whose
+/// offset does not fit `ldrd`'s immediate (`2 IN + 8 <= 1020`) and the last `IN % 8` inputs
+/// take [`dot1_pair_words`] (the same integers).
 #[inline(always)]
-pub(super) fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
+pub(super) fn dot2_pairs<const IN: usize>(x: &Acts<IN>, block: &[u8]) -> [i32; 4] {
     let Some(block) = block.get(..4 * IN) else {
-        // Unreachable: `accumulate_paired` passes `chunks_exact(4 * IN)` blocks.
+        // Unreachable: `map_paired` passes `chunks_exact(4 * IN)` blocks.
         return [0; 4];
     };
-    let fits = IN.is_multiple_of(4) && 3 * IN <= 1020 && (block.as_ptr() as usize).is_multiple_of(4);
-    let iterations = if fits { IN >> PAIR_LOOP_SHIFT } else { 0 };
-    let [mut a0, mut a1, mut a2, mut a3] = [0i32; 4];
-    if iterations > 0 {
-        // SAFETY: the loop runs `iterations >= 1` times (`subs`/`bne` at the bottom) and reads
-        // only through `px` and `pw`:
-        // - `px` starts at `xp.0`, an `[i16; IN]` (`2 * IN` bytes) aligned to 8 (`Acts` is
-        //   `repr(align(8))`); each `ldrd` reads 8 bytes at `px` and advances it by 8, 64 per
-        //   iteration: bytes `0..512 * iterations <= 2 * IN` of `xp.0`, at multiples of 8.
-        // - `pw` starts at `block`, word-aligned and of `4 * IN` bytes (both checked above);
-        //   each of the 32 repetitions reads 8 bytes at `pw + k * IN` for rows `k = 1, 2, 3` and at
-        //   `pw` for row 0 (the post-indexed load then advances `pw` by 8). After `h`
-        //   repetitions `pw` is at `8 h`, and `8 h + 8 <= 256 * iterations <= IN`, so row `k`
-        //   reads bytes `k * IN .. k * IN + 256 * iterations`, within row `k`'s `IN` bytes of
-        //   `block`; every address is word-aligned (`IN` is a multiple of 4, checked above) and
-        //   every offset `k * IN <= 1020` fits `ldrd`'s immediate.
+    let fits = IN.is_multiple_of(2) && 2 * IN + 8 <= 1020 && (block.as_ptr() as usize).is_multiple_of(4);
+    let blocks = if fits { IN >> PAIR_BLOCK_SHIFT } else { 0 };
+    let [mut raw0, mut high0, mut raw1, mut high1] = [0i32; 4];
+    if blocks > 0 {
+        // SAFETY: the block below repeats `IN / 8 = blocks >= 1` times and reads only through
+        // `r0` and `r1`:
+        // - `r0` starts at `x.q`, an `[i16; IN]` (`2 * IN` bytes) at the start of the 8-aligned
+        //   `Acts`; each repetition's `ldmia` reads 16 bytes and advances it by 16: bytes
+        //   `0..16 * blocks <= 2 * IN` of `x.q`, word-aligned.
+        // - `r1` starts at `block`, word-aligned and of `4 * IN` bytes (both checked above). In
+        //   repetition `h` (from 0) it is at `16 h`: the two `ldrd` read bytes `2 IN + 16 h ..
+        //   2 IN + 16 h + 16` (pair 1's words for inputs `8 h .. 8 h + 8`) and the `ldmia` bytes
+        //   `16 h .. 16 h + 16` (pair 0's), then advances `r1` by 16. With `16 blocks <= 2 IN`
+        //   every read lies in `block`'s `4 * IN` bytes; every address is word-aligned (`block`
+        //   is, and `IN` is even, so `2 IN` is a multiple of 4: both checked above) and the
+        //   offsets `2 IN`, `2 IN + 8 <= 1020` fit `ldrd`'s immediate (checked above).
         // - the stack: `push`/`pop` of `r6`, `r7` (8 bytes), balanced, so `sp` is restored. The two
         //   registers, which Rust cannot name as operands (LLVM may keep its base and frame
-        //   pointers there), hold the second activation pair inside the block and get their
-        //   values back before it ends; every operand is pinned to another register, so none is
-        //   in them.
+        //   pointers there), hold weight words inside the block and get their values back
+        //   before it ends; every operand is pinned to another register, so none is in them.
         // Nothing else is written to memory, and every other register written is a declared
-        // output; the flags are clobbered (`subs`, Q).
+        // output; the flags are clobbered (Q).
         unsafe {
             asm!(
                 "push {{r6, r7}}",
-                "2:",
-                ".rept 32",
-                "ldrd r9, r10, [r0], #8",
-                "ldrd r6, r7, [r0], #8",
-                "ldrd r11, r12, [r1, #{row1}]",
-                "sxtb16 lr, r11",
-                "smlad r4, lr, r9, r4",
-                "sxtb16 r11, r11, ror #8",
-                "smlad r4, r11, r10, r4",
-                "sxtb16 lr, r12",
-                "smlad r4, lr, r6, r4",
-                "sxtb16 r12, r12, ror #8",
-                "smlad r4, r12, r7, r4",
-                "ldrd r11, r12, [r1, #{row2}]",
-                "sxtb16 lr, r11",
-                "smlad r5, lr, r9, r5",
-                "sxtb16 r11, r11, ror #8",
-                "smlad r5, r11, r10, r5",
-                "sxtb16 lr, r12",
-                "smlad r5, lr, r6, r5",
-                "sxtb16 r12, r12, ror #8",
-                "smlad r5, r12, r7, r5",
-                "ldrd r11, r12, [r1, #{row3}]",
-                "sxtb16 lr, r11",
-                "smlad r8, lr, r9, r8",
-                "sxtb16 r11, r11, ror #8",
-                "smlad r8, r11, r10, r8",
-                "sxtb16 lr, r12",
-                "smlad r8, lr, r6, r8",
-                "sxtb16 r12, r12, ror #8",
-                "smlad r8, r12, r7, r8",
-                "ldrd r11, r12, [r1], #8",
-                "sxtb16 lr, r11",
-                "smlad r3, lr, r9, r3",
-                "sxtb16 r11, r11, ror #8",
-                "smlad r3, r11, r10, r3",
-                "sxtb16 lr, r12",
-                "smlad r3, lr, r6, r3",
-                "sxtb16 r12, r12, ror #8",
-                "smlad r3, r12, r7, r3",
+                ".rept {reps}",
+                "ldmia r0!, {{r2, r3, r4, r5}}",
+                "ldrd r6, r7, [r1, #{off0}]",
+                "smlad r10, r6, r2, r10",
+                "sxtb16 r6, r6, ror #8",
+                "smlad r11, r6, r2, r11",
+                "smlad r10, r7, r3, r10",
+                "sxtb16 r7, r7, ror #8",
+                "smlad r11, r7, r3, r11",
+                "ldrd r6, r7, [r1, #{off1}]",
+                "smlad r10, r6, r4, r10",
+                "sxtb16 r6, r6, ror #8",
+                "smlad r11, r6, r4, r11",
+                "smlad r10, r7, r5, r10",
+                "sxtb16 r7, r7, ror #8",
+                "smlad r11, r7, r5, r11",
+                "ldmia r1!, {{r6, r7, r9, lr}}",
+                "smlad r8, r6, r2, r8",
+                "sxtb16 r6, r6, ror #8",
+                "smlad r12, r6, r2, r12",
+                "smlad r8, r7, r3, r8",
+                "sxtb16 r7, r7, ror #8",
+                "smlad r12, r7, r3, r12",
+                "smlad r8, r9, r4, r8",
+                "sxtb16 r9, r9, ror #8",
+                "smlad r12, r9, r4, r12",
+                "smlad r8, lr, r5, r8",
+                "sxtb16 lr, lr, ror #8",
+                "smlad r12, lr, r5, r12",
                 ".endr",
-                "subs r2, r2, #1",
-                "bne 2b",
                 "pop {{r6, r7}}",
                 // Every other allocatable core register, named (`asm!` cannot name pinned
                 // operands in the template), so none lands in r6 or r7: r0 the activations,
-                // r1 the weights, r2 the count, r3, r4, r5, r8 the rows' sums, r9, r10 and r6,
-                // r7 the activation pairs, r11, r12 the weights, lr the sign-extended pair.
-                inout("r0") xp.0.as_ptr() => _,
+                // r1 pair 0's weights, r2-r5 the activation words, r6, r7, r9, lr the weight
+                // words, r8, r12 pair 0's raw and high sums, r10, r11 pair 1's.
+                inout("r0") x.q.as_ptr() => _,
                 inout("r1") block.as_ptr() => _,
-                inout("r2") iterations => _,
-                inout("r3") a0,
-                inout("r4") a1,
-                inout("r5") a2,
-                inout("r8") a3,
+                out("r2") _,
+                out("r3") _,
+                out("r4") _,
+                out("r5") _,
+                inout("r8") raw0,
                 out("r9") _,
-                out("r10") _,
-                out("r11") _,
-                out("r12") _,
+                inout("r10") raw1,
+                inout("r11") high1,
+                inout("r12") high0,
                 out("lr") _,
-                row1 = const IN,
-                row2 = const 2 * IN,
-                row3 = const 3 * IN,
+                reps = const IN >> PAIR_BLOCK_SHIFT,
+                off0 = const 2 * IN,
+                off1 = const 2 * IN + 8,
                 options(pure, readonly),
             );
         }
     }
-    // The inputs the loop leaves (all of them for a block it declines).
-    let done = PAIR_LOOP_INPUTS * iterations;
-    let mut s = [a0, a1, a2, a3];
-    let rows = block.chunks_exact(IN);
-    let (Some(x_rest), true) = (xp.0.get(done..), done <= IN) else {
-        return s;
-    };
-    for (sk, row) in s.iter_mut().zip(rows) {
-        if let Some(w_rest) = row.get(done..) {
-            *sk = sk.wrapping_add(dot1_pairs(x_rest, w_rest));
-        }
+    // The inputs the block leaves (all of them for a block it declines).
+    let done = PAIR_BLOCK_INPUTS * blocks;
+    if done == IN {
+        return [raw0, high0, raw1, high1];
     }
-    s
+    let (p0, p1) = block.split_at(2 * IN);
+    // `block` is `4 * IN` bytes: `p1` is pair 1's `2 * IN`.
+    let (Some(x_rest), Some(w0), Some(w1)) = (x.q.get(done..), p0.get(2 * done..), p1.get(2 * done..)) else {
+        return [raw0, high0, raw1, high1];
+    };
+    let (r0, h0) = dot1_pair_words(x_rest, w0);
+    let (r1, h1) = dot1_pair_words(x_rest, w1);
+    [
+        raw0.wrapping_add(r0),
+        high0.wrapping_add(h0),
+        raw1.wrapping_add(r1),
+        high1.wrapping_add(h1),
+    ]
 }
 
 /// `acc + x * w` rounded once (`vfma.f32`): the portable f32 kernel's fused multiply-add on

@@ -1,15 +1,16 @@
 //! The int8 kernels: a dense layer's exact i32 dot products against 16-bit quantized
-//! activations in three kernels giving the same integers ([`Int8Kernel`]), the requantization
-//! between layers ([`quantize`], [`quantize_relu`]) and the pair order of the Arm DSP kernel
-//! (see the module doc of [`super`]).
+//! activations in three kernels giving the same integers ([`Int8Kernel`]) over the blob's row
+//! pairs, and the requantization between layers ([`quantize`], [`quantize_relu`]) (see the
+//! module doc of [`super`]).
 
 use shared::blob::{self, LayerBlob, ACTIVATION_LEVELS};
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-use super::arm::{dot4_pairs, pair_mac};
+use super::arm::{dot2_pairs, pair_mac};
 use super::{check_len, check_shape, f32_le, i32_le, relu, LayerArray, PolicyError, ARM_ASM};
 
-/// Output rows computed per pass over the input by [`DenseInt8::accumulate_rows`].
+/// Output rows (two row pairs) computed per pass over the input by [`DenseInt8::accumulate_rows`]
+/// and [`DenseInt8::accumulate_pairs`].
 pub const INT8_ROWS: usize = 4;
 /// Independent i32 lanes of [`DenseInt8::accumulate_lanes`] (two AVX-512 registers).
 pub const INT8_LANES: usize = 32;
@@ -95,8 +96,9 @@ pub fn quantize_relu(y: f32, scale: f32) -> i16 {
 
 /// A dense int8 layer viewing its blob arrays in place.
 ///
-/// `weights`: `IN * OUT` i8 output-major (`w[j * IN + i]`); `bias`: `OUT` i32 LE in units of
-/// `input_scale * weight_scale[j]`; `weight_scales`: `OUT` f32 LE.
+/// `weights`: `IN * OUT` bytes in row pairs (`shared::blob::int8_weight_bytes`: rows `2p`,
+/// `2p + 1` interleaved per input, the first offset by 128; an odd last row plain); `bias`:
+/// `OUT` i32 LE in units of `input_scale * weight_scale[j]`; `weight_scales`: `OUT` f32 LE.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DenseInt8<'a, const IN: usize, const OUT: usize> {
     weights: &'a [u8],
@@ -151,18 +153,17 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         q
     }
 
-    /// `relu(y)` quantized like [`Self::quantize_input`] ([`quantize_relu`]), in `kernel`'s
-    /// activation order: the int8 layer after the f32 first layer takes its pre-activation.
+    /// `relu(y)` quantized like [`Self::quantize_input`] ([`quantize_relu`]), with the sum the
+    /// pair kernel needs: the int8 layer after the f32 first layer takes its pre-activation.
     #[inline(always)]
-    pub(super) fn quantize_relu_input_for(&self, y: &[f32; IN], kernel: Int8Kernel) -> Acts<IN> {
-        let mut q = Acts([0i16; IN]);
-        for (qi, &yi) in q.0.iter_mut().zip(y.iter()) {
+    pub(super) fn quantize_relu_input(&self, y: &[f32; IN]) -> Acts<IN> {
+        let mut q = [0i16; IN];
+        let mut sum = 0i32;
+        for (qi, &yi) in q.iter_mut().zip(y.iter()) {
             *qi = quantize_relu(yi, self.input_scale);
+            sum = sum.wrapping_add(i32::from(*qi));
         }
-        if kernel == Int8Kernel::Pairs {
-            to_pair_order(&mut q.0);
-        }
-        q
+        Acts { q, sum }
     }
 
     /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]`, saturating at the bias add.
@@ -172,126 +173,149 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     ///
     /// Uses the target's kernel, [`INT8_KERNEL`]: [`Self::accumulate_lanes`] on x86 and other
     /// wide-SIMD targets, [`Self::accumulate_pairs`] on Arm with the DSP extension (the
-    /// Cortex-M4F), [`Self::accumulate_rows`] on other 32-bit Arm, where [`INT8_LANES`]
-    /// accumulators would not fit in registers. All three give the same integers.
+    /// Cortex-M4F), [`Self::accumulate_rows`] on other 32-bit Arm. All three give the same
+    /// integers.
     #[inline]
     pub fn accumulate(&self, xq: &[i16; IN]) -> [i32; OUT] {
-        match INT8_KERNEL {
-            Int8Kernel::Lanes => self.accumulate_lanes(xq),
-            Int8Kernel::Rows => self.accumulate_rows(xq),
-            Int8Kernel::Pairs => self.accumulate_pairs(xq),
-        }
+        self.accumulate_for(&Acts::new(xq), INT8_KERNEL)
     }
 
-    /// [`Self::accumulate`] with `kernel`, `xk` in that kernel's activation order.
+    /// [`Self::accumulate`] with `kernel`.
     #[inline(always)]
-    fn accumulate_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [i32; OUT] {
+    fn accumulate_for(&self, x: &Acts<IN>, kernel: Int8Kernel) -> [i32; OUT] {
         match kernel {
-            Int8Kernel::Lanes => self.accumulate_lanes(&xk.0),
-            Int8Kernel::Rows => self.accumulate_rows(&xk.0),
-            Int8Kernel::Pairs => self.accumulate_paired(xk),
+            Int8Kernel::Lanes => self.accumulate_lanes(&x.q),
+            Int8Kernel::Rows => self.accumulate_rows(&x.q),
+            Int8Kernel::Pairs => {
+                let mut acc = [0i32; OUT];
+                self.map_paired(x, &mut acc, |a, _| a);
+                acc
+            }
         }
     }
 
-    /// [`Self::accumulate`] with the pair kernel: `xq` is put in pair order
-    /// ([`to_pair_order`]) and handed to it. In flight the activations are quantized straight
-    /// into pair order, so this copy is only made here.
+    /// [`Self::accumulate`] with the pair kernel.
     pub fn accumulate_pairs(&self, xq: &[i16; IN]) -> [i32; OUT] {
-        let mut xp = Acts(*xq);
-        to_pair_order(&mut xp.0);
-        self.accumulate_paired(&xp)
+        self.accumulate_for(&Acts::new(xq), Int8Kernel::Pairs)
     }
 
-    /// The pair kernel, `xp` in pair order (see [`Self::map_paired`]).
-    fn accumulate_paired(&self, xp: &Acts<IN>) -> [i32; OUT] {
-        let mut acc = [0i32; OUT];
-        self.map_paired(xp, &mut acc, |a, _| a);
-        acc
-    }
-
-    /// The pair kernel, `xp` in pair order, with each output finished as soon as its group of
-    /// rows is summed: `out[j] = f(acc[j], input_scale * ws[j])`, `acc[j]` the accumulator
-    /// with the bias added (saturating). No accumulator array, no separate pass.
+    /// The pair kernel, with each output finished as soon as its rows are summed:
+    /// `out[j] = f(acc[j], input_scale * ws[j])`, `acc[j]` the accumulator with the bias added
+    /// (saturating). No accumulator array, no separate pass.
     ///
-    /// [`INT8_ROWS`] rows per pass; per group of 4 inputs, two words of activation pairs
-    /// `(x0, x2)`, `(x1, x3)` shared by the rows, and per row one word of 4 weights split by
-    /// `sxtb16` into the matching i16 pairs and multiply-accumulated two products at a time by
-    /// `smlad` ([`pair_mac`]). The last `IN % 4` inputs (natural order) and `OUT % 4` rows take
-    /// the scalar path.
+    /// Two row pairs ([`INT8_ROWS`] rows) per pass: per word of a pair (two inputs, each an i16
+    /// `h = 256 b + a + 128`) and the word of the two activations, one `smlad` adds `h . x` to
+    /// the pair's raw sum and one `sxtb16` (`ror #8`) + `smlad` adds `(h >> 8) . x = b . x` to
+    /// its high sum ([`pair_mac`]); then row `2p + 1` is the high sum and row `2p` is
+    /// [`unpair`]ed from both. The last `OUT % 4` rows take one pair and the odd plain row.
     #[inline(always)]
-    fn map_paired<T>(&self, xp: &Acts<IN>, out: &mut [T; OUT], f: impl Fn(i32, f32) -> T) {
+    fn map_paired<T>(&self, x: &Acts<IN>, out: &mut [T; OUT], f: impl Fn(i32, f32) -> T) {
         let s_in = self.input_scale;
         let finish = |a: i32, b: &[u8], w: &[u8]| f(a.saturating_add(i32_le(b)), s_in * f32_le(w));
-        let mut blocks = self.weights.chunks_exact(INT8_ROWS * IN);
-        let mut biases = self.bias.chunks_exact(4 * INT8_ROWS);
-        let mut scales = self.weight_scales.chunks_exact(4 * INT8_ROWS);
-        let mut groups = out.chunks_exact_mut(INT8_ROWS);
-        for (((g, block), b), w) in groups
-            .by_ref()
-            .zip(blocks.by_ref())
-            .zip(biases.by_ref())
-            .zip(scales.by_ref())
-        {
-            let [a0, a1, a2, a3] = dot4_pairs(xp, block);
+        // Indexed rather than zipped iterators: the `asm!` block takes every core register, and
+        // fewer live values around it mean fewer spills.
+        let groups = OUT >> INT8_ROWS.trailing_zeros();
+        for k in 0..groups {
+            let (Some(block), Some(b), Some(w), Some(g)) = (
+                self.weights.get(k * INT8_ROWS * IN..(k + 1) * INT8_ROWS * IN),
+                self.bias.get(4 * INT8_ROWS * k..4 * INT8_ROWS * (k + 1)),
+                self.weight_scales.get(4 * INT8_ROWS * k..4 * INT8_ROWS * (k + 1)),
+                out.get_mut(INT8_ROWS * k..INT8_ROWS * (k + 1)),
+            ) else {
+                break;
+            };
+            let [raw0, high0, raw1, high1] = dot2_pairs(x, block);
             if let ([g0, g1, g2, g3], [b0, b1, b2, b3], [w0, w1, w2, w3]) =
                 (g, b.as_chunks::<4>().0, w.as_chunks::<4>().0)
             {
-                *g0 = finish(a0, b0, w0);
-                *g1 = finish(a1, b1, w1);
-                *g2 = finish(a2, b2, w2);
-                *g3 = finish(a3, b3, w3);
+                *g0 = finish(unpair(raw0, high0, x.sum), b0, w0);
+                *g1 = finish(high0, b1, w1);
+                *g2 = finish(unpair(raw1, high1, x.sum), b2, w2);
+                *g3 = finish(high1, b3, w3);
             }
         }
-        let rest = blocks
-            .remainder()
-            .chunks_exact(IN)
-            .zip(biases.remainder().chunks_exact(4))
-            .zip(scales.remainder().chunks_exact(4));
-        for (o, ((row, b), w)) in groups.into_remainder().iter_mut().zip(rest) {
-            *o = finish(dot1_pairs(&xp.0, row), b, w);
+        let done = INT8_ROWS * groups;
+        let (Some(rest), Some(weights), Some(biases), Some(scales)) = (
+            out.get_mut(done..),
+            self.weights.get(done * IN..),
+            self.bias.get(4 * done..),
+            self.weight_scales.get(4 * done..),
+        ) else {
+            return;
+        };
+        // At most one more pair (`OUT % 4 >= 2`), then the odd row.
+        let mut rows = rest.iter_mut().zip(biases.chunks_exact(4)).zip(scales.chunks_exact(4));
+        let mut pairs = weights.chunks_exact(2 * IN);
+        if let Some(pair) = pairs.next() {
+            let (raw, high) = dot1_pair_words(&x.q, pair);
+            if let Some(((o, b), w)) = rows.next() {
+                *o = finish(unpair(raw, high, x.sum), b, w);
+            }
+            if let Some(((o, b), w)) = rows.next() {
+                *o = finish(high, b, w);
+            }
+        }
+        if let Some(((o, b), w)) = rows.next() {
+            *o = finish(dot1(&x.q, pairs.remainder()), b, w);
         }
     }
 
-    /// [`Self::accumulate`], one row at a time with [`INT8_LANES`] independent i32 lanes:
-    /// a fixed-width block LLVM maps onto whole vector registers (`pmaddwd` with the baseline
-    /// SSE2). On x86-64 with AVX2 (found at run time) the explicit kernel of `policy/x86.rs`
-    /// runs instead: 8 rows per activation load, the same integers.
+    /// [`Self::accumulate`] decoding each byte of a pair (row `2p`'s minus 128, row `2p + 1`'s
+    /// as i8) into [`INT8_LANES`] independent i32 lanes per row: a fixed-width block LLVM maps
+    /// onto whole vector registers. On x86-64 with AVX2 (found at run time) the kernel of
+    /// `policy/x86.rs` runs instead: four pairs per activation load, `vpmaddwd` of the pair's
+    /// i16 and of their high bytes, the same integers.
     pub fn accumulate_lanes(&self, xq: &[i16; IN]) -> [i32; OUT] {
         let mut acc = [0i32; OUT];
         #[cfg(target_arch = "x86_64")]
-        if super::x86::int8_dots(self.weights, xq, &mut acc) {
-            for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
-                *a = a.saturating_add(i32_le(c));
+        let done = super::x86::int8_dots(self.weights, xq, &mut acc);
+        #[cfg(not(target_arch = "x86_64"))]
+        let done = false;
+        if !done {
+            let mut pairs = self.weights.chunks_exact(2 * IN);
+            let mut rows = acc.chunks_exact_mut(2);
+            for (r, pair) in rows.by_ref().zip(pairs.by_ref()) {
+                if let [a, b] = r {
+                    (*a, *b) = dot_pair_lanes(xq, pair);
+                }
             }
-            return acc;
+            for a in rows.into_remainder() {
+                *a = dot1(xq, pairs.remainder());
+            }
         }
-        for ((a, row), c) in acc
-            .iter_mut()
-            .zip(self.weights.chunks_exact(IN))
-            .zip(self.bias.chunks_exact(4))
-        {
-            *a = dot_lanes(xq, row).saturating_add(i32_le(c));
+        for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
+            *a = a.saturating_add(i32_le(c));
         }
         acc
     }
 
-    /// [`Self::accumulate`], [`INT8_ROWS`] rows per pass with one scalar accumulator each, so
-    /// every activation load serves several rows (the Cortex-M4 form: `ldrsb` + `smlabb`).
+    /// [`Self::accumulate`], two row pairs per pass with one scalar accumulator per row, each
+    /// byte decoded as in [`Self::accumulate_lanes`], so every activation load serves four
+    /// rows (the Cortex-M4 form without the DSP extension).
     pub fn accumulate_rows(&self, xq: &[i16; IN]) -> [i32; OUT] {
         let mut acc = [0i32; OUT];
-        let mut rows = self.weights.chunks_exact(IN);
+        let mut blocks = self.weights.chunks_exact(INT8_ROWS * IN);
         let mut groups = acc.chunks_exact_mut(INT8_ROWS);
-        for g in groups.by_ref() {
-            let (Some(r0), Some(r1), Some(r2), Some(r3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
-                break;
-            };
-            let sums = dot4(xq, r0, r1, r2, r3);
-            for (a, s) in g.iter_mut().zip(sums) {
+        for (g, block) in groups.by_ref().zip(blocks.by_ref()) {
+            let (p0, p1) = block.split_at(2 * IN);
+            for (a, s) in g.iter_mut().zip(dot2_pairs_decoded(xq, p0, p1)) {
                 *a = s;
             }
         }
-        for (a, row) in groups.into_remainder().iter_mut().zip(rows) {
-            *a = dot1(xq, row);
+        let rest = groups.into_remainder();
+        let mut pairs = blocks.remainder().chunks_exact(2 * IN);
+        let mut rows = rest.iter_mut();
+        if let Some(pair) = pairs.next() {
+            let (a, b) = dot_pair_lanes(xq, pair);
+            if let Some(o) = rows.next() {
+                *o = a;
+            }
+            if let Some(o) = rows.next() {
+                *o = b;
+            }
+        }
+        if let Some(o) = rows.next() {
+            *o = dot1(xq, pairs.remainder());
         }
         for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
             *a = a.saturating_add(i32_le(c));
@@ -301,7 +325,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
 
     /// The dequantized pre-activation `(bias[j] + sum_i w[j][i] xq[i]) * input_scale * ws[j]`.
     pub fn forward(&self, xq: &[i16; IN]) -> [f32; OUT] {
-        self.dequantize(&self.accumulate(xq))
+        self.forward_for(&Acts::new(xq), INT8_KERNEL)
     }
 
     /// `acc[j] * (input_scale * ws[j])`.
@@ -314,16 +338,26 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         y
     }
 
-    /// [`Self::forward`], `xk` in `kernel`'s order.
+    /// [`Self::forward`] with `kernel`.
     #[inline(always)]
-    pub(super) fn forward_for(&self, xk: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
+    pub(super) fn forward_for(&self, x: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
         if kernel == Int8Kernel::Pairs {
             let mut y = [0.0f32; OUT];
-            self.map_paired(xk, &mut y, |a, s| a as f32 * s);
+            self.map_paired(x, &mut y, |a, s| a as f32 * s);
             return y;
         }
-        self.dequantize(&self.accumulate_for(xk, kernel))
+        self.dequantize(&self.accumulate_for(x, kernel))
     }
+}
+
+/// Row `2p`'s dot product from its pair's sums: `raw = sum_i (256 b_i + a_i + 128) x_i` and
+/// `high = sum_i b_i x_i`, so `sum_i a_i x_i = raw - 256 high - 128 sum_i x_i`. Wrapping, and
+/// exact: the true value fits in i32 (see [`DenseInt8::accumulate`]), so it is what the
+/// arithmetic modulo 2^32 gives.
+#[inline(always)]
+pub(super) fn unpair(raw: i32, high: i32, sum: i32) -> i32 {
+    raw.wrapping_sub(high.wrapping_mul(256))
+        .wrapping_sub(sum.wrapping_mul(128))
 }
 
 /// Which integer kernel computes the int8 layers' dot products (all give the same integers).
@@ -333,9 +367,9 @@ pub enum Int8Kernel {
     Lanes,
     /// [`DenseInt8::accumulate_rows`]: scalar, several rows per pass (32-bit Arm without DSP).
     Rows,
-    /// [`DenseInt8::accumulate_pairs`]: two i16 x i8 products per instruction (`smlad`) with the
-    /// activations in pair order ([`to_pair_order`]); `asm!` on Arm with the DSP extension, a
-    /// portable emulation of the same steps elsewhere (for tests).
+    /// [`DenseInt8::accumulate_pairs`]: a pair's two rows from two i16 x i16 sums (`smlad`);
+    /// `asm!` on Arm with the DSP extension, a portable emulation of the same steps elsewhere
+    /// (for tests).
     Pairs,
 }
 
@@ -349,28 +383,24 @@ pub const INT8_KERNEL: Int8Kernel = if ARM_ASM {
     Int8Kernel::Lanes
 };
 
-/// Puts activations in the pair kernel's order, in place: in each whole group of 4,
-/// `(x0, x1, x2, x3)` becomes `(x0, x2, x1, x3)`, so the group's two words are the pairs
-/// `(x0, x2)` and `(x1, x3)` that `sxtb16` makes of a word of weights (bytes 0, 2 and 1, 3).
-/// The last `len % 4` values stay. The order is its own inverse.
-pub fn to_pair_order(x: &mut [i16]) {
-    for g in x.chunks_exact_mut(4) {
-        if let [_, b, c, _] = g {
-            core::mem::swap(b, c);
-        }
-    }
-}
-
-/// Quantized activations in a kernel's order, aligned so that the pair kernel may load them two
-/// words at a time (`ldrd` needs word alignment on the Cortex-M4).
+/// Quantized activations and their sum (wrapping), aligned so that the pair kernel may load
+/// them several words at a time (`ldm` needs word alignment on the Cortex-M4).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(C, align(8))]
-pub(super) struct Acts<const N: usize>(pub(super) [i16; N]);
+pub(super) struct Acts<const N: usize> {
+    /// The levels, in input order.
+    pub(super) q: [i16; N],
+    /// Their sum, which [`unpair`] needs.
+    pub(super) sum: i32,
+}
 
-/// Packs two i16 as the low and high halves of a word (a 32-bit load of two adjacent i16).
-#[inline(always)]
-fn pack(lo: i16, hi: i16) -> u32 {
-    u32::from(lo as u16) | (u32::from(hi as u16) << 16)
+impl<const N: usize> Acts<N> {
+    fn new(q: &[i16; N]) -> Self {
+        Self {
+            q: *q,
+            sum: q.iter().fold(0i32, |s, &v| s.wrapping_add(i32::from(v))),
+        }
+    }
 }
 
 /// A u32 from 4 little-endian bytes.
@@ -379,132 +409,124 @@ fn u32_le(c: &[u8]) -> u32 {
     <[u8; 4]>::try_from(c).map_or(0, u32::from_le_bytes)
 }
 
-/// `acc + w0 * lo(xe) + w2 * hi(xe) + w1 * lo(xo) + w3 * hi(xo)` (wrapping), `w0..w3` the
-/// signed bytes of `w` (little endian), `lo`/`hi` the signed halves of a word: the portable
-/// emulation of `arm::pair_mac` (`policy/arm.rs`)'s `sxtb16` + `smlad` steps, for targets without them.
+/// Packs two i16 as the low and high halves of a word (a 32-bit load of two adjacent i16).
+#[inline(always)]
+fn pack(lo: i16, hi: i16) -> u32 {
+    u32::from(lo as u16) | (u32::from(hi as u16) << 16)
+}
+
+/// `(raw + lo(w) lo(x) + hi(w) hi(x), high + (lo(w) >> 8) lo(x) + (hi(w) >> 8) hi(x))`
+/// (wrapping), `lo`/`hi` the signed halves of a word: a word of a pair (two inputs) against
+/// the word of their activations. The portable emulation of `arm::pair_mac` (`policy/arm.rs`),
+/// whose `smlad`, `sxtb16 ror #8`, `smlad` compute exactly this.
 #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
 #[inline(always)]
-fn pair_mac(acc: i32, w: u32, xe: u32, xo: u32) -> i32 {
-    let [w0, w1, w2, w3] = w.to_le_bytes().map(|b| i32::from(b as i8));
+fn pair_mac(raw: i32, high: i32, w: u32, x: u32) -> (i32, i32) {
     let lo = |p: u32| i32::from(p as u16 as i16);
     let hi = |p: u32| i32::from((p >> 16) as u16 as i16);
-    // Each product is below 2^22 in magnitude, each pair below 2^23: only the sums wrap.
-    acc.wrapping_add(w0 * lo(xe) + w2 * hi(xe))
-        .wrapping_add(w1 * lo(xo) + w3 * hi(xo))
+    // Each product is below 2^30 in magnitude, each pair's sum below 2^31: only the sums wrap.
+    let raw = raw.wrapping_add(lo(w) * lo(x) + hi(w) * hi(x));
+    let high = high.wrapping_add((lo(w) >> 8) * lo(x) + (hi(w) >> 8) * hi(x));
+    (raw, high)
 }
 
-/// `i16`-widened product, exact in i32.
+/// Product of a level and a stored byte, exact in i32.
 #[inline(always)]
-fn mac(acc: i32, x: i16, w: u8) -> i32 {
-    acc.wrapping_add(i32::from(x) * i32::from(i16::from(w as i8)))
+fn mac(acc: i32, x: i16, w: i32) -> i32 {
+    acc.wrapping_add(i32::from(x) * w)
 }
 
-/// Dot product over [`INT8_LANES`] independent lanes, then the remainder.
+/// The two weights of a pair at one input: `(a, b)` from the bytes `(a + 128, b)`.
 #[inline(always)]
-fn dot_lanes(x: &[i16], w: &[u8]) -> i32 {
-    let mut lanes = [0i32; INT8_LANES];
-    let mut xc = x.chunks_exact(INT8_LANES);
-    let mut wc = w.chunks_exact(INT8_LANES);
-    for (xs, ws) in xc.by_ref().zip(wc.by_ref()) {
-        for ((l, &a), &b) in lanes.iter_mut().zip(xs).zip(ws) {
-            *l = mac(*l, a, b);
-        }
-    }
-    let s = lanes.iter().fold(0i32, |s, &l| s.wrapping_add(l));
-    dot1(xc.remainder(), wc.remainder()).wrapping_add(s)
+fn decode_pair(lo: u8, hi: u8) -> (i32, i32) {
+    (i32::from(lo) - 128, i32::from(hi as i8))
 }
 
+/// A plain i8 row against the activations (the odd last row).
 #[inline(always)]
 fn dot1(x: &[i16], w: &[u8]) -> i32 {
-    x.iter().zip(w.iter()).fold(0i32, |s, (&a, &b)| mac(s, a, b))
+    x.iter()
+        .zip(w.iter())
+        .fold(0i32, |s, (&a, &b)| mac(s, a, i32::from(b as i8)))
 }
 
-/// Four rows against one activation vector, two inputs per step (each activation load serves
-/// eight multiply-accumulates), then the odd input if any.
+/// A pair's two rows, decoded byte by byte, over [`INT8_LANES`] independent lanes each, then
+/// the remainder.
 #[inline(always)]
-fn dot4(x: &[i16], r0: &[u8], r1: &[u8], r2: &[u8], r3: &[u8]) -> [i32; 4] {
-    let mut s = [0i32; 4];
-    let pairs = x
-        .chunks_exact(2)
-        .zip(r0.chunks_exact(2))
-        .zip(r1.chunks_exact(2))
-        .zip(r2.chunks_exact(2))
-        .zip(r3.chunks_exact(2));
-    for ((((xs, w0), w1), w2), w3) in pairs {
-        if let ([a, b], [p0, q0], [p1, q1], [p2, q2], [p3, q3]) = (xs, w0, w1, w2, w3) {
-            let [s0, s1, s2, s3] = s;
-            s = [
-                mac(mac(s0, *a, *p0), *b, *q0),
-                mac(mac(s1, *a, *p1), *b, *q1),
-                mac(mac(s2, *a, *p2), *b, *q2),
-                mac(mac(s3, *a, *p3), *b, *q3),
-            ];
-        }
-    }
-    if x.len() % 2 == 1 {
-        if let Some(a) = x.last() {
-            for (sk, r) in s.iter_mut().zip([r0, r1, r2, r3]) {
-                if let Some(w) = r.last() {
-                    *sk = mac(*sk, *a, *w);
-                }
+fn dot_pair_lanes(x: &[i16], pair: &[u8]) -> (i32, i32) {
+    let mut la = [0i32; INT8_LANES];
+    let mut lb = [0i32; INT8_LANES];
+    let mut xc = x.chunks_exact(INT8_LANES);
+    let mut wc = pair.chunks_exact(2 * INT8_LANES);
+    for (xs, ws) in xc.by_ref().zip(wc.by_ref()) {
+        for (((a, b), &xi), w) in la.iter_mut().zip(lb.iter_mut()).zip(xs).zip(ws.chunks_exact(2)) {
+            if let [lo, hi] = w {
+                let (wa, wb) = decode_pair(*lo, *hi);
+                *a = mac(*a, xi, wa);
+                *b = mac(*b, xi, wb);
             }
         }
     }
+    let (mut a, mut b) = (
+        la.iter().fold(0i32, |s, &l| s.wrapping_add(l)),
+        lb.iter().fold(0i32, |s, &l| s.wrapping_add(l)),
+    );
+    for (&xi, w) in xc.remainder().iter().zip(wc.remainder().chunks_exact(2)) {
+        if let [lo, hi] = w {
+            let (wa, wb) = decode_pair(*lo, *hi);
+            a = mac(a, xi, wa);
+            b = mac(b, xi, wb);
+        }
+    }
+    (a, b)
+}
+
+/// Two pairs (four rows), decoded byte by byte, one scalar accumulator per row.
+#[inline(always)]
+fn dot2_pairs_decoded(x: &[i16], p0: &[u8], p1: &[u8]) -> [i32; 4] {
+    let mut s = [0i32; 4];
+    for ((&xi, w0), w1) in x.iter().zip(p0.chunks_exact(2)).zip(p1.chunks_exact(2)) {
+        if let ([l0, h0], [l1, h1]) = (w0, w1) {
+            let (a0, b0) = decode_pair(*l0, *h0);
+            let (a1, b1) = decode_pair(*l1, *h1);
+            let [s0, s1, s2, s3] = s;
+            s = [mac(s0, xi, a0), mac(s1, xi, b0), mac(s2, xi, a1), mac(s3, xi, b1)];
+        }
+    }
     s
 }
 
-/// Four rows (`block`: `4 * IN` bytes, rows at stride `IN`) against activations in pair order:
-/// per group of 4 inputs, two activation words shared by the rows and one weight word per row;
-/// then the last `IN % 4` inputs. The portable form of `arm::dot4_pairs` (`policy/arm.rs`).
+/// One pair's raw and high sums over all inputs, a word (two inputs) at a time with
+/// [`pair_mac`], then the odd input if any.
+#[inline(always)]
+pub(super) fn dot1_pair_words(x: &[i16], pair: &[u8]) -> (i32, i32) {
+    let (mut raw, mut high) = (0i32, 0i32);
+    let xg = x.chunks_exact(2);
+    let wg = pair.chunks_exact(4);
+    let (x_tail, w_tail) = (xg.remainder(), wg.remainder());
+    for (xs, w) in xg.zip(wg) {
+        if let [a, b] = xs {
+            (raw, high) = pair_mac(raw, high, u32_le(w), pack(*a, *b));
+        }
+    }
+    if let ([xi], [lo, hi]) = (x_tail, w_tail) {
+        let h = i32::from(i16::from_le_bytes([*lo, *hi]));
+        raw = mac(raw, *xi, h);
+        high = mac(high, *xi, h >> 8);
+    }
+    (raw, high)
+}
+
+/// Two pairs (`block`: `4 * IN` bytes, pair 1 at byte `2 * IN`): `[raw0, high0, raw1, high1]`.
+/// The portable form of `arm::dot2_pairs` (`policy/arm.rs`).
 #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
 #[inline(always)]
-fn dot4_pairs<const IN: usize>(xp: &Acts<IN>, block: &[u8]) -> [i32; 4] {
-    let mut rows = block.chunks_exact(IN);
-    let (Some(r0), Some(r1), Some(r2), Some(r3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
-        return [0; 4];
-    };
-    let xp = &xp.0;
-    let mut s = [0i32; 4];
-    let (c0, c1, c2, c3) = (
-        r0.chunks_exact(4),
-        r1.chunks_exact(4),
-        r2.chunks_exact(4),
-        r3.chunks_exact(4),
-    );
-    let xg = xp.chunks_exact(4);
-    let tails = [c0.remainder(), c1.remainder(), c2.remainder(), c3.remainder()];
-    let x_tail = xg.remainder();
-    for ((((xs, w0), w1), w2), w3) in xg.zip(c0).zip(c1).zip(c2).zip(c3) {
-        if let [a, b, c, d] = xs {
-            let (xe, xo) = (pack(*a, *b), pack(*c, *d));
-            let [s0, s1, s2, s3] = s;
-            s = [
-                pair_mac(s0, u32_le(w0), xe, xo),
-                pair_mac(s1, u32_le(w1), xe, xo),
-                pair_mac(s2, u32_le(w2), xe, xo),
-                pair_mac(s3, u32_le(w3), xe, xo),
-            ];
-        }
-    }
-    for (sk, t) in s.iter_mut().zip(tails) {
-        *sk = sk.wrapping_add(dot1(x_tail, t));
-    }
-    s
-}
-
-/// One row against activations in pair order (the `OUT % 4` last rows).
-#[inline(always)]
-pub(super) fn dot1_pairs(xp: &[i16], row: &[u8]) -> i32 {
-    let mut s = 0i32;
-    let wg = row.chunks_exact(4);
-    let xg = xp.chunks_exact(4);
-    let tail = dot1(xg.remainder(), wg.remainder());
-    for (xs, w) in xg.zip(wg) {
-        if let [a, b, c, d] = xs {
-            s = pair_mac(s, u32_le(w), pack(*a, *b), pack(*c, *d));
-        }
-    }
-    s.wrapping_add(tail)
+fn dot2_pairs<const IN: usize>(x: &Acts<IN>, block: &[u8]) -> [i32; 4] {
+    let (p0, p1) = block.split_at(block.len().min(2 * IN));
+    let p1 = p1.get(..2 * IN).unwrap_or(p1);
+    let (raw0, high0) = dot1_pair_words(&x.q, p0);
+    let (raw1, high1) = dot1_pair_words(&x.q, p1);
+    [raw0, high0, raw1, high1]
 }
 
 #[cfg(test)]

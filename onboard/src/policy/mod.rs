@@ -22,17 +22,19 @@
 //!   elsewhere (a hardware `fmadd` on AArch64, exact software on a machine without FMA). The
 //!   same fused operations in the same order per output give the same bits on every target.
 //! - int8: the blob keeps the first and the output layer in f32 and the 256 x 256 hidden layer
-//!   (95 % of the multiply-adds) in int8 ([`Quantization::of_layer`]). Its weights are
-//!   output-major (`w[j * IN + i]`); its input, the first layer's ReLU output, is quantized once
-//!   to 16-bit levels held in i16, then each output is an exact i32 dot product with the i8
+//!   (95 % of the multiply-adds) in int8 ([`Quantization::of_layer`]). Its weights are stored in
+//!   row pairs (`shared::blob::int8_weight_bytes`): per input, one i16 `256 b + a + 128` for
+//!   the rows' weights `a`, `b`. Its input, the first layer's ReLU output, is quantized once to
+//!   16-bit levels held in i16, then each output is an exact i32 dot product with the i8
 //!   weights (integer sums reassociate freely, so every kernel gives the same integers). The
 //!   target picks the kernel ([`INT8_KERNEL`]): [`DenseInt8::accumulate_lanes`] (x86 and other
-//!   SIMD targets: [`INT8_LANES`] independent lanes per row, `vpmovsxbw` + `vpmaddwd`);
-//!   [`DenseInt8::accumulate_pairs`] (Arm with the DSP extension, the Cortex-M4F: words of 4
-//!   weights split into two i16 pairs by `sxtb16`, each multiplied against a pair of
-//!   activations and summed by one `smlad`, [`INT8_ROWS`] rows per pass; the activations are
-//!   quantized straight into pair order, see [`to_pair_order`]);
-//!   [`DenseInt8::accumulate_rows`] (other 32-bit Arm: scalar, [`INT8_ROWS`] rows per pass).
+//!   SIMD targets: each byte decoded, [`INT8_LANES`] independent lanes per row; with AVX2
+//!   `vpmaddwd` of the pair's i16 and of their high bytes); [`DenseInt8::accumulate_pairs`]
+//!   (Arm with the DSP extension, the Cortex-M4F: per word of a pair, `smlad` of the two i16
+//!   against two activations, then `sxtb16 ror #8` + `smlad` for the second row, 4
+//!   multiply-adds in 3 instructions; the first row is recovered exactly from both sums and the
+//!   activations' sum); [`DenseInt8::accumulate_rows`] (other 32-bit Arm: scalar, each byte
+//!   decoded, [`INT8_ROWS`] rows per pass).
 //!   The sum plus the i32 bias is rescaled by `input_scale * weight_scale[j]` in f32, and the
 //!   layer's input quantization is `q = clamp(round(x / s), -L, L)`, `L` =
 //!   [`ACTIVATION_LEVELS`](shared::blob::ACTIVATION_LEVELS), round half away from zero
@@ -62,7 +64,7 @@ mod f32;
 mod int8;
 
 pub use self::f32::{DenseF32, F32_TILE};
-pub use int8::{quantize, quantize_relu, to_pair_order, DenseInt8, Int8Kernel, INT8_KERNEL, INT8_LANES, INT8_ROWS};
+pub use int8::{quantize, quantize_relu, DenseInt8, Int8Kernel, INT8_KERNEL, INT8_LANES, INT8_ROWS};
 
 /// Whether this target runs the `asm!` kernels of `policy/arm.rs`: the int8 pair kernel (DSP
 /// extension: `sxtb16`, `smlad`) and the f32 tile kernel (FPU: `vfma.f32`). Arm target
@@ -445,7 +447,7 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
                 c.forward(&h2)
             }
             MlpLayers::Int8(a, b, c) => {
-                let q1 = b.quantize_relu_input_for(&a.forward(input), kernel);
+                let q1 = b.quantize_relu_input(&a.forward(input));
                 let mut h2 = b.forward_for(&q1, kernel);
                 h2.iter_mut().for_each(|v| *v = relu(*v));
                 c.forward(&h2)

@@ -5,9 +5,10 @@
 //! - f32: exactly the portable kernel's fused multiply-adds in the same order per output
 //!   (`policy/f32.rs`): 8 outputs per `vfmadd231ps`, the sum of one output never reassociated,
 //!   so the results are the bits of the Cortex-M4F's `vfma.f32` and of `libm::fmaf`.
-//! - int8: 16 weights per `vpmovsxbw` + `vpmaddwd` against the i16 activations, 8 rows sharing
-//!   each activation load. Integer sums wrap identically in any order, so the accumulators are
-//!   the portable kernels' and the Cortex-M4F's `smlad` ones, bit for bit.
+//! - int8: per row pair, 16 of its i16 (`256 b + a + 128`) per `vpmaddwd` against the i16
+//!   activations and their high bytes (`vpsraw`) per another, 4 pairs sharing each activation
+//!   load. Integer sums wrap identically in any order, so the accumulators are the portable
+//!   kernels' and the Cortex-M4F's `smlad` ones, bit for bit.
 //!
 //! With the machine's `unsafe`: `cpuid`/`xgetbv` to detect the features, the `#[target_feature]`
 //! kernel's call, and its unaligned loads and stores through raw pointers, whose bounds are
@@ -17,11 +18,10 @@
 #![allow(unused_unsafe)]
 
 use core::arch::x86_64::{
-    __cpuid, __cpuid_count, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
-    _mm256_extracti128_si256, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_madd_epi16,
-    _mm256_permutevar8x32_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256, _mm256_storeu_ps, _mm_add_epi32,
-    _mm_cvtsi128_si32, _mm_cvtss_f32, _mm_fmadd_ss, _mm_loadu_si128, _mm_set_ss, _mm_shuffle_epi32, _xgetbv,
-    CpuidResult,
+    __cpuid, __cpuid_count, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_extracti128_si256,
+    _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_permutevar8x32_ps, _mm256_set1_ps,
+    _mm256_setzero_ps, _mm256_setzero_si256, _mm256_srai_epi16, _mm256_storeu_ps, _mm_add_epi32, _mm_cvtsi128_si32,
+    _mm_cvtss_f32, _mm_fmadd_ss, _mm_set_ss, _mm_shuffle_epi32, _xgetbv, CpuidResult,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -242,12 +242,12 @@ unsafe fn narrow<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN]
     }
 }
 
-/// Rows of the int8 kernel that share each activation load.
-const INT8_ROWS: usize = 8;
+/// Row pairs of the int8 kernel that share each activation load.
+const INT8_PAIRS: usize = 4;
 
 /// The int8 layer's dot products `acc[j] = sum_i w[j][i] x[i]` (wrapping; `weights`: `OUT`
-/// rows of `IN` i8, output-major) with AVX2. Returns `false`, touching nothing, if the machine
-/// lacks AVX2 or `weights` is short; the caller then runs the portable kernel.
+/// rows of `IN` in the blob's row pairs) with AVX2. Returns `false`, touching nothing, if the
+/// machine lacks AVX2 or `weights` is short; the caller then runs the portable kernel.
 #[inline]
 pub(super) fn int8_dots<const IN: usize, const OUT: usize>(
     weights: &[u8],
@@ -260,7 +260,7 @@ pub(super) fn int8_dots<const IN: usize, const OUT: usize>(
     }
     // SAFETY: the CPU runs AVX2 and the OS saves YMM state, and `weights` holds the `IN * OUT`
     // bytes the kernel reads.
-    unsafe { int8_rows(weights.as_ptr(), x, acc) };
+    unsafe { int8_pairs(weights.as_ptr(), x, acc) };
     true
 }
 
@@ -274,61 +274,81 @@ fn lane_sum(v: __m256i) -> i32 {
     _mm_cvtsi128_si32(s)
 }
 
-/// Row `j`'s dot product over the inputs past the last whole block of 16.
+/// `K` pairs from pair `p`: each pair's raw sum `sum_i h_i x_i` and high sum
+/// `sum_i (h_i >> 8) x_i`, `h_i` the pair's i16 at input `i`, 16 inputs per `vpmaddwd`.
 ///
 /// # Safety
-/// `w` points to `OUT` readable rows of `IN` bytes, `j < OUT`.
-#[inline(always)]
-unsafe fn tail_dot<const IN: usize>(w: *const u8, j: usize, x: &[i16; IN], first: usize) -> i32 {
-    let mut s = 0i32;
-    for (i, &xi) in x.iter().enumerate().skip(first) {
-        // SAFETY: byte `j IN + i < OUT IN` of `w` (`i < IN`, `j < OUT`).
-        let wi = unsafe { *w.add(j * IN + i) } as i8;
-        s = s.wrapping_add(i32::from(xi) * i32::from(wi));
+/// AVX2 present; `w` points to the `IN * OUT` bytes of an int8 layer with at least `p + K`
+/// row pairs (`2 (p + K) <= OUT`).
+#[target_feature(enable = "avx2")]
+unsafe fn pair_sums<const IN: usize, const K: usize>(w: *const u8, p: usize, x: &[i16; IN]) -> [(i32, i32); K] {
+    let blocks = IN >> 4;
+    let mut raw = [_mm256_setzero_si256(); K];
+    let mut high = [_mm256_setzero_si256(); K];
+    for b in 0..blocks {
+        // SAFETY: inputs `16 b .. 16 b + 16 <= IN` of `x`.
+        let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
+        for (r, (raw, high)) in raw.iter_mut().zip(high.iter_mut()).enumerate() {
+            // SAFETY: bytes `2 IN (p + r) + 32 b .. + 32 <= 2 IN (p + r + 1) <= IN OUT` of `w`.
+            let hv = unsafe { _mm256_loadu_si256(w.add(2 * IN * (p + r) + 32 * b).cast()) };
+            *raw = _mm256_add_epi32(*raw, _mm256_madd_epi16(hv, xv));
+            *high = _mm256_add_epi32(*high, _mm256_madd_epi16(_mm256_srai_epi16::<8>(hv), xv));
+        }
     }
-    s
+    let mut out = [(0i32, 0i32); K];
+    for (r, (o, (raw, high))) in out.iter_mut().zip(raw.iter().zip(&high)).enumerate() {
+        let (mut rs, mut hs) = (lane_sum(*raw), lane_sum(*high));
+        for (i, &xi) in x.iter().enumerate().skip(blocks << 4) {
+            // SAFETY: bytes `2 IN (p + r) + 2 i .. + 2 < 2 IN (p + r + 1)` of `w` (`i < IN`).
+            let h = i32::from(i16::from_le_bytes(unsafe {
+                [*w.add(2 * IN * (p + r) + 2 * i), *w.add(2 * IN * (p + r) + 2 * i + 1)]
+            }));
+            rs = rs.wrapping_add(h * i32::from(xi));
+            hs = hs.wrapping_add((h >> 8) * i32::from(xi));
+        }
+        *o = (rs, hs);
+    }
+    out
 }
 
-/// [`int8_dots`]' kernel: [`INT8_ROWS`] rows at a time, 16 inputs per step.
+/// [`int8_dots`]' kernel: [`INT8_PAIRS`] row pairs at a time, then one pair at a time, then
+/// the odd plain row; row `2p` [`unpair`](super::int8::unpair)ed from its pair's sums.
 ///
 /// # Safety
 /// AVX2 present; `w` points to `IN * OUT` readable bytes (any alignment).
 #[target_feature(enable = "avx2")]
-unsafe fn int8_rows<const IN: usize, const OUT: usize>(w: *const u8, x: &[i16; IN], acc: &mut [i32; OUT]) {
-    let blocks = IN >> 4;
-    let first = blocks << 4;
-    let mut j = 0;
-    while j + INT8_ROWS <= OUT {
-        let mut sums = [_mm256_setzero_si256(); INT8_ROWS];
-        for b in 0..blocks {
-            // SAFETY: inputs `16 b .. 16 b + 16 <= IN` of `x`; bytes `(j + r) IN + 16 b .. + 16
-            // <= (j + r + 1) IN <= OUT IN` of `w` for `r < INT8_ROWS`, `j + INT8_ROWS <= OUT`.
-            let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
-            for (r, sum) in sums.iter_mut().enumerate() {
-                // SAFETY: in bounds, by the SAFETY comment above.
-                let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add((j + r) * IN + 16 * b).cast()) });
-                *sum = _mm256_add_epi32(*sum, _mm256_madd_epi16(wv, xv));
-            }
+unsafe fn int8_pairs<const IN: usize, const OUT: usize>(w: *const u8, x: &[i16; IN], acc: &mut [i32; OUT]) {
+    let sum = x.iter().fold(0i32, |s, &v| s.wrapping_add(i32::from(v)));
+    let pairs = OUT >> 1;
+    let mut p = 0;
+    let mut put = |p: usize, (raw, high): (i32, i32)| {
+        if let Some([a, b]) = acc.get_mut(2 * p..2 * p + 2) {
+            *a = super::int8::unpair(raw, high, sum);
+            *b = high;
         }
-        for (r, (a, sum)) in acc.iter_mut().skip(j).zip(sums).enumerate() {
-            // SAFETY: row `j + r < OUT`.
-            *a = lane_sum(sum).wrapping_add(unsafe { tail_dot(w, j + r, x, first) });
+    };
+    while p + INT8_PAIRS <= pairs {
+        // SAFETY: `2 (p + INT8_PAIRS) <= OUT`, and the caller's guarantees.
+        for (r, s) in unsafe { pair_sums::<IN, INT8_PAIRS>(w, p, x) }.into_iter().enumerate() {
+            put(p + r, s);
         }
-        j += INT8_ROWS;
+        p += INT8_PAIRS;
     }
-    while j < OUT {
-        let mut sum = _mm256_setzero_si256();
-        for b in 0..blocks {
-            // SAFETY: as above for one row.
-            let xv = unsafe { _mm256_loadu_si256(x.as_ptr().add(16 * b).cast()) };
-            // SAFETY: in bounds, by the SAFETY comment above.
-            let wv = _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add(j * IN + 16 * b).cast()) });
-            sum = _mm256_add_epi32(sum, _mm256_madd_epi16(wv, xv));
+    while p < pairs {
+        // SAFETY: `2 (p + 1) <= OUT`, and the caller's guarantees.
+        let [s] = unsafe { pair_sums::<IN, 1>(w, p, x) };
+        put(p, s);
+        p += 1;
+    }
+    if OUT % 2 == 1 {
+        let mut s = 0i32;
+        for (i, &xi) in x.iter().enumerate() {
+            // SAFETY: byte `(OUT - 1) IN + i < OUT IN` of `w`: the odd last row, plain i8.
+            let wi = unsafe { *w.add((OUT - 1) * IN + i) } as i8;
+            s = s.wrapping_add(i32::from(xi) * i32::from(wi));
         }
-        if let Some(a) = acc.get_mut(j) {
-            // SAFETY: row `j < OUT`.
-            *a = lane_sum(sum).wrapping_add(unsafe { tail_dot(w, j, x, first) });
+        if let Some(a) = acc.last_mut() {
+            *a = s;
         }
-        j += 1;
     }
 }

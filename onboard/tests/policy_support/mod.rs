@@ -315,13 +315,13 @@ pub fn quantize_net(net: &RefNet, input_scales: &[f32]) -> Vec<QuantLayer> {
         .collect()
 }
 
-/// int8 layer: weights output-major i8, i32 bias, f32 scales.
+/// int8 layer: weights in the blob's row pairs, i32 bias, f32 scales.
 pub fn int8_layer(q: &QuantLayer, act: Activation) -> OwnedLayer {
     OwnedLayer {
         inputs: q.q[0].len() as u16,
         outputs: q.q.len() as u16,
         activation: act,
-        weights: q.q.iter().flatten().map(|&v| v as u8).collect(),
+        weights: shared::blob::int8_weight_bytes(&q.q.concat(), q.q[0].len()),
         bias: q.bias.iter().flat_map(|v| v.to_le_bytes()).collect(),
         weight_scales: q.weight_scales.iter().flat_map(|v| v.to_le_bytes()).collect(),
         input_scale: q.input_scale,
