@@ -142,6 +142,12 @@ pub enum ModelCommand {
         /// and record them in the card, as --terminal-cycles does.
         #[arg(long, value_name = "CONFIG", requires = "model", conflicts_with_all = ["onnx_only", "terminal_cycles"])]
         aids: Option<PathBuf>,
+        /// With --model: convert the folder's blobs of the previous blob format to the present
+        /// one in place (the same network bit for bit, its weights laid out anew; no dataset
+        /// needed, the int8 calibration kept), fly them in the SIL loop and record them in the
+        /// card; --out holds the converted blobs and the SIL runs.
+        #[arg(long, requires = "model", conflicts_with_all = ["onnx_only", "terminal_cycles", "aids"])]
+        upgrade: bool,
     },
     /// A learner checkpoint made a shipped model: its Monte Carlo (OUT/mc), its blobs exported
     /// and flown in the SIL loop (OUT/export, OUT/sil-*), and the model folder OUT/model
@@ -305,7 +311,27 @@ fn run_model(command: ModelCommand) -> CommandResult {
             onnx_only,
             terminal_cycles,
             aids,
+            upgrade,
         } => match (checkpoint, model) {
+            (_, Some(model)) if upgrade => {
+                if experiment.config.is_some() {
+                    return Err("--upgrade flies the card's config; --config is not used with it".into());
+                }
+                let (card, sil) = in_run_folder(&experiment.out, || {
+                    Ok(learn::model::upgrade_model(&model, &experiment.out)?)
+                })?;
+                for report in &sil {
+                    println!("{}", learn::sil::describe(report));
+                }
+                println!(
+                    "{} upgraded to blob format {} ({} SIL rows); runs in {}",
+                    model.display(),
+                    shared::blob::FORMAT_VERSION,
+                    card.sil.len(),
+                    experiment.out.display()
+                );
+                Ok(())
+            }
             (_, Some(model)) if terminal_cycles.is_some() || aids.is_some() => {
                 // Read before the run folder is made: a refused file leaves nothing behind.
                 let aids = aids.map(|path| learn::model::read_aids(&path)).transpose()?;

@@ -4,9 +4,9 @@
 //! The host result must be bit-identical to the flight computer's (`vfma.f32`), so the kernel
 //! may vectorize across outputs but never reassociate the sum of one output nor round a
 //! product on its own:
-//! - a layer at least one register tile wide: `bias[j]`, then `acc = fma(x[i], w[i][j], acc)`
+//! - a layer at least one block of 8 outputs wide: `bias[j]`, then `acc = fma(x[i], w[i][j], acc)`
 //!   for i = 0, 1, 2, ... in order (one rounding per input);
-//! - a layer narrower than a tile (the 3 action outputs): 8 partial sums from 0, partial `k`
+//! - a layer narrower than a block (the 3 or 4 action outputs): 8 partial sums from 0, partial `k`
 //!   fusing inputs i = k, k + 8, k + 16, ... in order, then `bias[j] + p0 + p1 + ... + p7` in
 //!   order.
 //!
@@ -15,15 +15,15 @@
 
 mod policy_support;
 
-use onboard::policy::{DenseF32, TransferPolicy, F32_TILE};
+use onboard::policy::{DenseF32, TransferPolicy};
 use policy_support::{f32_layer, f32_net, OwnedLayer, RefLayer, RefNet, Rng};
-use shared::blob::{Activation, ProblemKind};
+use shared::blob::{f32_weight_index, Activation, ProblemKind, F32_BLOCK};
 
 /// Partial sums of the narrow kernel.
 const SPLIT: usize = 8;
 
 fn w_at(layer: &OwnedLayer, outputs: usize, i: usize, j: usize) -> f32 {
-    let o = 4 * (i * outputs + j);
+    let o = 4 * f32_weight_index(usize::from(layer.inputs), outputs, j, i);
     f32::from_le_bytes(layer.weights[o..o + 4].try_into().unwrap())
 }
 
@@ -127,7 +127,7 @@ fn check<const IN: usize, const OUT: usize>(seed: u64, trials: usize) -> (usize,
     for t in 0..trials {
         let x: [f32; IN] = rough_input(IN, &mut rng).try_into().unwrap();
         let got = layer.forward(&x);
-        let want = if OUT >= F32_TILE {
+        let want = if OUT >= F32_BLOCK {
             sequential(&owned, &x)
         } else {
             split(&owned, &x)
@@ -142,7 +142,7 @@ fn check<const IN: usize, const OUT: usize>(seed: u64, trials: usize) -> (usize,
             .zip(bits(&want))
             .filter(|(a, b)| **a != *b)
             .count();
-        if OUT >= F32_TILE {
+        if OUT >= F32_BLOCK {
             rounded += bits(&unfused(&owned, &x))
                 .iter()
                 .zip(bits(&want))

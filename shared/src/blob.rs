@@ -23,8 +23,12 @@
 //!
 //! Weight layouts are fixed by each layer's storage ([`Quantization::of_layer`]), chosen for
 //! the inference kernels:
-//! - f32: weights f32 LE, **input-major** (`w[i * outputs + j]`, the transpose of PyTorch's
-//!   `[out][in]`), so a layer is a sequence of axpy updates over the output vector; bias f32 LE.
+//! - f32: weights f32 LE in **blocks of [`F32_BLOCK`] outputs**, each block input-major
+//!   ([`f32_weight_index`]: block `c` holds `w[i][8c..8c + 8]` for `i = 0, 1, ...`; the last
+//!   `outputs % 8` outputs form a narrower block after them, so a layer narrower than 8 is plain
+//!   input-major, the transpose of PyTorch's `[out][in]`). A layer is a sequence of axpy updates
+//!   over the output vector, and a tile of 8 outputs reads its weights as one contiguous run
+//!   (the Cortex-M4F loads 16 of them per `vldmia`); bias f32 LE.
 //! - int8: weights i8 in **row pairs** ([`int8_weight_bytes`]): rows `2p` and `2p + 1` share
 //!   `2 * inputs` bytes, input `i` at bytes `2i` (row `2p`'s weight plus 128, as u8) and
 //!   `2i + 1` (row `2p + 1`'s, as i8); an odd last row follows as `inputs` i8. Each
@@ -40,7 +44,8 @@
 //! Versions: 1 quantized int8 activations to ±127; 2 to 16 bits; 3 keeps the first and last
 //! layers of an `Int8` network in f32 and aligns the weight arrays; 4 ends the payload with the
 //! mission the network flies ([`BlobMission`]: its guidance cycle, canonical units and family);
-//! 5 stores int8 weights in row pairs. Only version 5 is read: an older blob is refused with
+//! 5 stores f32 weights in blocks of 8 outputs and int8 weights in row pairs. Only version 5 is
+//! read: an older blob is refused with
 //! [`BlobError::UnsupportedVersion`] and is re-exported from its actor (`ground model export`
 //! gives the same network, bit for bit, in the new layout).
 
@@ -52,6 +57,12 @@ pub use crate::scenario::ProblemKind;
 pub const MAGIC: [u8; 4] = *b"LTGB";
 /// The format version this crate writes and reads.
 pub const FORMAT_VERSION: u16 = 5;
+/// The previous format version (f32 weights input-major, int8 output-major), which
+/// [`upgrade_format_4`] converts.
+#[cfg(feature = "std")]
+pub const FORMAT_4: u16 = 4;
+/// Outputs per block of an f32 layer's weights (see [`f32_weight_index`]).
+pub const F32_BLOCK: usize = 8;
 /// Each weight array starts at a multiple of this many bytes from the start of the blob: a
 /// cache line, which covers the Cortex-M4F's word alignment too.
 pub const WEIGHT_ALIGN: usize = 64;
@@ -182,8 +193,8 @@ pub struct LayerBlob<'a> {
     /// from the start of the blob. [`encode`] writes them whatever the view holds.
     #[serde(borrow)]
     pub padding: &'a [u8],
-    /// f32: `inputs * outputs * 4` bytes input-major; int8: `inputs * outputs` bytes in row
-    /// pairs ([`int8_weight_bytes`]).
+    /// f32: `inputs * outputs * 4` bytes in blocks of 8 outputs ([`f32_weight_index`]); int8:
+    /// `inputs * outputs` bytes in row pairs ([`int8_weight_bytes`]).
     #[serde(borrow)]
     pub weights: &'a [u8],
     /// f32: `outputs` f32 LE; int8: `outputs` i32 LE.
@@ -668,6 +679,77 @@ pub fn f32_le_bytes(values: &[f32]) -> std::vec::Vec<u8> {
 #[cfg(feature = "std")]
 pub fn i32_le_bytes(values: &[i32]) -> std::vec::Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// Where weight `(j, i)` (output `j`, input `i`) of an f32 layer of `inputs` x `outputs` lies,
+/// in f32 from the start of its weights: in block `j / 8` of [`F32_BLOCK`] outputs (`8 inputs`
+/// f32 each, input-major within), or, for the last `outputs % 8` outputs, in the narrower block
+/// after the whole ones. For `outputs < 8` this is the plain input-major `i * outputs + j`.
+pub const fn f32_weight_index(inputs: usize, outputs: usize, j: usize, i: usize) -> usize {
+    let whole = outputs - outputs % F32_BLOCK;
+    if j < whole {
+        inputs * (j - j % F32_BLOCK) + F32_BLOCK * i + j % F32_BLOCK
+    } else {
+        inputs * whole + (outputs - whole) * i + (j - whole)
+    }
+}
+
+/// An f32 layer's weights, output-major (`weights[j * inputs + i]`, PyTorch's layout), as the
+/// LE bytes a blob holds ([`f32_weight_index`]). `weights.len()` is `inputs * outputs`; a length
+/// that is not (or `inputs == 0`) gives the bytes of the whole rows only, which the decoder
+/// then refuses by length.
+#[cfg(feature = "std")]
+pub fn f32_weight_bytes(weights: &[f32], inputs: usize) -> std::vec::Vec<u8> {
+    if inputs == 0 {
+        return std::vec::Vec::new();
+    }
+    let outputs = weights.len() / inputs;
+    let mut stored = std::vec![0.0f32; inputs * outputs];
+    for (j, row) in weights.chunks_exact(inputs).enumerate() {
+        for (i, &w) in row.iter().enumerate() {
+            stored[f32_weight_index(inputs, outputs, j, i)] = w;
+        }
+    }
+    f32_le_bytes(&stored)
+}
+
+/// A format-4 blob ([`FORMAT_4`]) in the present format: the same network, bit for bit, with
+/// its weights laid out anew (f32 in blocks, int8 in row pairs); a present-format blob comes
+/// back unchanged. Anything else is refused as [`decode`] refuses it (a format-4 blob's payload
+/// has the present structure; only the weights' order differs).
+#[cfg(feature = "std")]
+pub fn upgrade_format_4(bytes: &[u8]) -> Result<std::vec::Vec<u8>, BlobError> {
+    let version = bytes.get(4..6).map(|v| u16::from_le_bytes([v[0], v[1]]));
+    if version != Some(FORMAT_4) {
+        decode(bytes)?;
+        return Ok(bytes.to_vec());
+    }
+    let mut current = bytes.to_vec();
+    current[4..6].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+    let old = decode(&current)?;
+    let mut arrays: std::vec::Vec<std::vec::Vec<u8>> = std::vec::Vec::new();
+    for l in &old.layers {
+        let (inputs, outputs) = (usize::from(l.inputs), usize::from(l.outputs));
+        let stored = match old.quantization.of_layer(arrays.len(), old.layers.len()) {
+            Quantization::F32 => {
+                let input_major: std::vec::Vec<f32> = f32s(l.weights).collect();
+                let rows: std::vec::Vec<f32> = (0..inputs * outputs)
+                    .map(|k| input_major[(k % inputs) * outputs + k / inputs])
+                    .collect();
+                f32_weight_bytes(&rows, inputs)
+            }
+            Quantization::Int8 => {
+                let rows: std::vec::Vec<i8> = l.weights.iter().map(|&b| b as i8).collect();
+                int8_weight_bytes(&rows, inputs)
+            }
+        };
+        arrays.push(stored);
+    }
+    let mut new = old.clone();
+    for (layer, weights) in new.layers.iter_mut().zip(&arrays) {
+        layer.weights = weights;
+    }
+    encode_to_vec(&new)
 }
 
 /// An int8 layer's weights, output-major (`weights[j * inputs + i]`, PyTorch's layout), as the

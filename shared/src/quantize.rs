@@ -19,8 +19,8 @@ use std::vec::Vec;
 use nalgebra::{DMatrix, DVector};
 
 use crate::blob::{
-    encode_to_vec, f32_le_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError, BlobMission, FeatureLayout,
-    LayerBlob, NetworkBlob, Quantization, ACTIVATION_LEVELS,
+    encode_to_vec, f32_le_bytes, f32_weight_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError, BlobMission,
+    FeatureLayout, LayerBlob, NetworkBlob, Quantization, ACTIVATION_LEVELS,
 };
 
 /// One dense layer as trained: PyTorch layout, `weights[j * inputs + i]` is `w_ji`.
@@ -304,8 +304,8 @@ impl MlpWeights {
         self.f32_blob_for(provenance, BlobMission::THESIS)
     }
 
-    /// The f32 blob: weights transposed to the input-major layout the f32 kernel streams,
-    /// flying `mission`.
+    /// The f32 blob: weights in the blocks of 8 outputs the f32 kernel streams
+    /// ([`crate::blob::f32_weight_index`]), flying `mission`.
     pub fn f32_blob_for(&self, provenance: &str, mission: BlobMission) -> Result<Vec<u8>, QuantizeError> {
         self.validate()?;
         let arrays: Vec<OwnedArrays> = self.layers.iter().map(f32_arrays).collect();
@@ -482,15 +482,10 @@ struct OwnedArrays {
     input_scale: f32,
 }
 
-/// A layer's f32 arrays: the weights transposed to the input-major layout the f32 kernel
-/// streams, the bias as is.
+/// A layer's f32 arrays: the weights in the blocks the f32 kernel streams, the bias as is.
 fn f32_arrays(l: &DenseWeights) -> OwnedArrays {
-    let mut transposed = Vec::with_capacity(l.weights.len());
-    for i in 0..l.inputs {
-        transposed.extend((0..l.outputs).map(|j| l.weights[j * l.inputs + i]));
-    }
     OwnedArrays {
-        weights: f32_le_bytes(&transposed),
+        weights: f32_weight_bytes(&l.weights, l.inputs),
         bias: f32_le_bytes(&l.bias),
         weight_scales: Vec::new(),
         input_scale: 1.0,
@@ -529,7 +524,7 @@ mod tests {
     }
 
     #[test]
-    fn the_f32_blob_holds_the_weights_transposed_and_the_bias_as_is() {
+    fn the_f32_blob_holds_the_weights_in_blocks_and_the_bias_as_is() {
         let net = tiny();
         let bytes = net.f32_blob("test").unwrap();
         let blob = decode(&bytes).unwrap();
@@ -539,7 +534,8 @@ mod tests {
             let w: Vec<f32> = f32s(b.weights).collect();
             for j in 0..l.outputs {
                 for i in 0..l.inputs {
-                    assert_eq!(w[i * l.outputs + j], l.weights[j * l.inputs + i]);
+                    let k = crate::blob::f32_weight_index(l.inputs, l.outputs, j, i);
+                    assert_eq!(w[k], l.weights[j * l.inputs + i]);
                 }
             }
             assert_eq!(f32s(b.bias).collect::<Vec<_>>(), l.bias);

@@ -875,6 +875,104 @@ fn std_helpers_match_the_no_std_path() {
     assert_eq!(encode_to_vec(&bad.view()), Err(BlobError::NoLayers));
 }
 
+/// f32 weights in blocks of 8 outputs, the last `outputs % 8` in a narrower block: every weight
+/// where `f32_weight_index` says, and each block one contiguous run per input.
+#[cfg(feature = "std")]
+#[test]
+fn f32_weights_lie_in_blocks_of_eight_outputs() {
+    use shared::blob::{f32_weight_bytes, f32_weight_index, F32_BLOCK};
+    let (inputs, outputs) = (3, 19);
+    let w: Vec<f32> = (0..inputs * outputs).map(|k| k as f32).collect();
+    let stored: Vec<f32> = shared::blob::f32s(&f32_weight_bytes(&w, inputs)).collect();
+    assert_eq!(stored.len(), inputs * outputs);
+    for j in 0..outputs {
+        for i in 0..inputs {
+            assert_eq!(
+                stored[f32_weight_index(inputs, outputs, j, i)],
+                w[j * inputs + i],
+                "({j}, {i})"
+            );
+        }
+    }
+    // Block 1 (outputs 8..16): input 2's weights are the 8 f32 from 3 * 8 + 2 * 8.
+    let run: Vec<f32> = (8..16).map(|j| w[j * inputs + 2]).collect();
+    assert_eq!(stored[inputs * F32_BLOCK + 2 * F32_BLOCK..][..8], run[..]);
+    // The 3 last outputs: input-major after the 2 whole blocks.
+    assert_eq!(f32_weight_index(inputs, outputs, 17, 1), inputs * 16 + 3 + 1);
+    // Narrower than a block: plain input-major.
+    assert_eq!(f32_weight_index(10, 3, 2, 4), 4 * 3 + 2);
+}
+
+/// A format-4 blob (f32 input-major, int8 output-major) upgraded is the present format's blob of
+/// the same network; a present blob comes back as it is, and a damaged one is refused.
+#[cfg(feature = "std")]
+#[test]
+fn format_4_blobs_upgrade_to_the_same_network() {
+    use shared::blob::{encode_to_vec, f32_le_bytes, f32_weight_bytes, int8_weight_bytes, upgrade_format_4, FORMAT_4};
+    let (n_in, hidden, n_out) = (10usize, 19usize, 3usize);
+    let f = |n: usize, seed: f32| -> Vec<f32> { (0..n).map(|k| ((k as f32 + seed) * 0.37).sin()).collect() };
+    let (w1, w3) = (f(n_in * hidden, 1.0), f(hidden * n_out, 3.0));
+    let w2: Vec<i8> = (0..hidden * hidden).map(|k| (k * 37 % 256) as u8 as i8).collect();
+    let transpose = |w: &[f32], inputs: usize, outputs: usize| -> Vec<f32> {
+        (0..inputs * outputs)
+            .map(|k| w[(k % outputs) * inputs + k / outputs])
+            .collect()
+    };
+    let layers = |a: Vec<u8>, b: Vec<u8>, c: Vec<u8>| -> Owned {
+        let mut o = small(Quantization::Int8);
+        o.layers.truncate(0);
+        for (inputs, outputs, weights, act) in [
+            (n_in, hidden, a, Activation::Relu),
+            (hidden, hidden, b, Activation::Relu),
+            (hidden, n_out, c, Activation::Tanh),
+        ] {
+            let int8 = inputs == hidden && outputs == hidden;
+            o.layers.push(OwnedLayer {
+                inputs: inputs as u16,
+                outputs: outputs as u16,
+                activation: act,
+                weights,
+                bias: if int8 {
+                    vec![0; 4 * outputs]
+                } else {
+                    f32_le_bytes(&vec![0.5; outputs])
+                },
+                weight_scales: if int8 {
+                    f32_le_bytes(&vec![0.01; outputs])
+                } else {
+                    Vec::new()
+                },
+                input_scale: if int8 { 0.02 } else { 1.0 },
+            });
+        }
+        o
+    };
+    let old = layers(
+        f32_le_bytes(&transpose(&w1, n_in, hidden)),
+        w2.iter().map(|&v| v as u8).collect(),
+        f32_le_bytes(&transpose(&w3, hidden, n_out)),
+    );
+    let new = layers(
+        f32_weight_bytes(&w1, n_in),
+        int8_weight_bytes(&w2, hidden),
+        f32_weight_bytes(&w3, hidden),
+    );
+    let mut old_bytes = encode_to_vec(&old.view()).unwrap();
+    old_bytes[4..6].copy_from_slice(&FORMAT_4.to_le_bytes());
+    // A format-4 blob is not read as the present format.
+    assert!(matches!(
+        decode(&old_bytes),
+        Err(BlobError::UnsupportedVersion { found: 4, .. })
+    ));
+    let new_bytes = encode_to_vec(&new.view()).unwrap();
+    assert_eq!(upgrade_format_4(&old_bytes).unwrap(), new_bytes);
+    assert_eq!(upgrade_format_4(&new_bytes).unwrap(), new_bytes);
+    let mut damaged = old_bytes.clone();
+    let last = damaged.len() - 1;
+    damaged[last] ^= 1;
+    assert!(matches!(upgrade_format_4(&damaged), Err(BlobError::CrcMismatch { .. })));
+}
+
 // ---------------------------------------------------------------- properties
 
 /// Whatever `decode` accepts validates, borrows from the input and re-encodes to itself.

@@ -9,8 +9,8 @@ use onboard::features::{decode_action, to_network_input, RENDEZVOUS_FEATURES, TR
 use onboard::guidance::Actor;
 use onboard::policy::{PolicyError, RendezvousPolicy, TransferPolicy};
 use shared::blob::{
-    decode, encode_to_vec, f32_le_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError, FeatureLayout,
-    LayerBlob, NetworkBlob, ProblemKind, Quantization, FORMAT_VERSION,
+    decode, encode_to_vec, f32_le_bytes, f32_weight_bytes, i32_le_bytes, int8_weight_bytes, Activation, BlobError,
+    FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization, FORMAT_VERSION,
 };
 use shared::scenario::{Scenario, ScenarioKind};
 use shared::spacecraft::Spacecraft;
@@ -99,10 +99,7 @@ fn network(sizes: &[usize], quantization: Quantization, seed: u64) -> Vec<OwnedL
             let b = weights(n_out, n_in, seed + 100 + l as u64);
             let activation = if l == last { Activation::Tanh } else { Activation::Relu };
             let (weights, bias, scales, input_scale) = match quantization.of_layer(l, sizes.len() - 1) {
-                Quantization::F32 => {
-                    let input_major: Vec<f32> = (0..n_in * n_out).map(|k| wt[(k % n_out) * n_in + k / n_out]).collect();
-                    (f32_le_bytes(&input_major), f32_le_bytes(&b), Vec::new(), 1.0)
-                }
+                Quantization::F32 => (f32_weight_bytes(&wt, n_in), f32_le_bytes(&b), Vec::new(), 1.0),
                 Quantization::Int8 => {
                     let input_scale = calibration[l] / 127.0;
                     let scales: Vec<f32> = (0..n_out)

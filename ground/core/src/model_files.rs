@@ -241,8 +241,8 @@ pub fn verify_model_files(
         let shipped =
             shared::blob::decode(&f32_blob).map_err(|_| ModelFilesError::BlobDisagrees { path: f32_path.clone() })?;
         // Encoded again from the actor, as a network of the card's layout, with the blob's own
-        // provenance and mission, it must be the same network (compared decoded: a format-3
-        // blob is written again as format 4).
+        // provenance and mission, it must be the same network (compared decoded, so that the
+        // padding the encoder chooses does not matter).
         let rebuilt = read_actor(&dir.join(ACTOR_FILE), features)?
             .f32_blob_for(shipped.provenance, shipped.mission)
             .ok();

@@ -656,6 +656,62 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     Ok(Reexport { card, export, sil })
 }
 
+/// `ground model export --model DIR --upgrade`: converts the folder's blobs of the previous
+/// format ([`shared::blob::FORMAT_4`]) to the present one (the same network bit for bit, its
+/// weights laid out anew: [`shared::blob::upgrade_format_4`]), flies them in the SIL loop, and
+/// replaces the blobs and the card's SIL figures and file checksums, as [`reexport_model`]
+/// does. Unlike a re-export it needs neither the pretraining dataset the int8 scales were
+/// calibrated on nor a new calibration: the int8 network stays the one the card measured. The
+/// folder's files must match its card; blobs already of the present format are kept as they
+/// are. The converted blobs and the SIL runs are written under `run`.
+pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
+    let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
+    for (name, recorded) in &card.files {
+        let path = dir.join(name);
+        let found = crc_of(&path)?;
+        if &found != recorded {
+            return Err(ModelError::Checksum {
+                path,
+                found,
+                recorded: recorded.clone(),
+            });
+        }
+    }
+    let kind = config.problem();
+    let upgraded = run.join("upgrade");
+    std::fs::create_dir_all(&upgraded).map_err(io(&upgraded))?;
+    let convert = |quantization| -> Result<(String, PathBuf), ModelError> {
+        let name = blob_file(kind, quantization);
+        let path = dir.join(&name);
+        let bytes = std::fs::read(&path).map_err(io(&path))?;
+        let new = shared::blob::upgrade_format_4(&bytes).map_err(|e| ModelError::Card {
+            path: path.clone(),
+            reason: format!("the blob cannot be upgraded: {e}"),
+        })?;
+        let target = upgraded.join(&name);
+        atomic_write(&target, &new).map_err(io(&target))?;
+        Ok((name, target))
+    };
+    let (f32_name, f32_blob) = convert(Quantization::F32)?;
+    let (int8_name, int8_blob) = convert(Quantization::Int8)?;
+    let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
+    let sil = crate::sil::sil_of_blobs(&config, &f32_blob, &int8_blob, run)
+        .map_err(experiment)?
+        .to_vec();
+    (card.lookahead, card.with_terminal) = fly_aided(&config, &f32_blob, run)?;
+    for (name, blob) in [(f32_name, f32_blob), (int8_name, int8_blob)] {
+        let bytes = std::fs::read(&blob).map_err(io(&blob))?;
+        let target = dir.join(&name);
+        atomic_write(&target, &bytes).map_err(io(&target))?;
+        card.files.insert(name, crc_of(&target)?);
+    }
+    card.sil = sil_figures(&sil);
+    card.reexported = Some((portable_command(), current_commit(), utc_date()));
+    card.reexported_format = Some(shared::blob::FORMAT_VERSION);
+    write_cards(dir, &mut card)?;
+    Ok((card, sil))
+}
+
 /// The running command as a user reruns it from the repository: `ground` for the binary's
 /// path, and arguments under the working folder relative to it. A card never records where
 /// the machine that made it keeps its files.

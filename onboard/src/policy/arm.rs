@@ -1,9 +1,9 @@
 //! The Cortex-M4F kernels in `asm!`, for what stable Rust cannot express or LLVM does not
 //! generate: the int8 pair kernel's Arm DSP instructions (`smlad`, `sxtb16`; stable Rust has
-//! no intrinsics for them) with multi-word loads (`ldm`, `ldrd`), and the f32 tile kernel, which
-//! keeps 16 accumulators in FPU registers and loads inputs and weights eight at a time (`vldm`;
+//! no intrinsics for them) with multi-word loads (`ldm`, `ldrd`), and the f32 block kernel, which
+//! keeps 8 accumulators in FPU registers and loads 8 inputs or 16 weights at a time (`vldm`;
 //! LLVM spills the accumulators and moves every weight separately: 5.15 instructions per
-//! multiply-add, against 1.21 here). Both multi-word loads need word-aligned weights, which
+//! multiply-add, against 1.08 here). Both multi-word loads need word-aligned weights, which
 //! the blob format provides for a blob stored word-aligned; otherwise they decline and the
 //! portable loops run.
 //!
@@ -344,87 +344,63 @@ pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
     true
 }
 
-/// Outputs per tile of [`f32_tile`]: its accumulators fill `s0`-`s15`.
-pub(super) const F32_ARM_TILE: usize = 16;
+/// Outputs per block of [`f32_block`]: its accumulators fill `s0`-`s7`.
+pub(super) const F32_ARM_BLOCK: usize = shared::blob::F32_BLOCK;
 
-/// `acc[k] += x[i] * w[i][col + k]` for `i = 0, 1, 2, ...` in order, `k < 16` (`w` the layer's
-/// input-major f32 LE weights, rows of `stride` bytes): per output the same fused multiply-adds
-/// in the same order as the portable f32 kernel (one `vfma.f32`: rounded once). The 16
-/// accumulators stay in `s0`-`s15` for all inputs; eight inputs at a time are loaded into
-/// `s24`-`s31` by one `vldmia`, and per input the tile's 16 weights by two `vldmia` of 8 into
-/// `s16`-`s23`, each followed by 8 `vfma`, then one `add` steps to the next row: 155
-/// instructions for 128 multiply-adds (the last `n % 8` inputs one at a time, 20 for 16).
+/// `acc[k] += x[i] * w[i][k]` for `i = 0, 1, 2, ...` in order, `k < 8`, `block` one block of
+/// an f32 layer's weights (`IN` runs of 8 f32 LE, input-major: `shared::blob::f32_weight_index`):
+/// per output the same fused multiply-adds in the same order as the portable f32 kernel (one
+/// `vfma.f32`: rounded once). The 8 accumulators stay in `s0`-`s7` for all inputs; eight
+/// inputs at a time are loaded into `s24`-`s31` by one `vldmia`, and the weights of two inputs
+/// at a time into `s8`-`s23` by another, each followed by 16 `vfma`: 69 instructions for 64
+/// multiply-adds (1.08 each), the last `IN % 8` inputs one at a time (10 for 8). Both loops
+/// are unrolled by `.rept` over the const `IN`: no counter, no branch.
 ///
 /// `vldm` needs word-aligned addresses: the blob format puts every weight array at a multiple
-/// of 4 bytes from the blob's start, so the weights of a blob stored at a word-aligned address
-/// (the image's flash, or a C caller's aligned buffer) are. Returns `false`, touching nothing,
-/// unless the tile's first weight is word-aligned, `stride` is a multiple of 4, the tile lies
-/// within a row (`4 * (col + 16) <= stride`) and `weights` has `n * stride` bytes; the caller
-/// then runs the portable kernel. Not inlined: one copy serves every layer and tile.
+/// of 64 bytes from the blob's start and a block's `32 IN` bytes keep the next one aligned, so
+/// the blocks of a blob stored at a word-aligned address (the image's flash, or a C caller's
+/// aligned buffer) are. Returns `false`, touching nothing, unless `block` holds `32 IN` bytes
+/// at a word-aligned address; the caller then runs the portable kernel. Not inlined: one copy
+/// per input width serves every block.
 #[inline(never)]
-pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc: &mut [f32; F32_ARM_TILE]) -> bool {
-    let n = x.len();
-    let fits = col
-        .checked_add(F32_ARM_TILE)
-        .and_then(|end| end.checked_mul(4))
-        .is_some_and(|end| end <= stride);
-    if n == 0 || !fits || !stride.is_multiple_of(4) || n.checked_mul(stride).is_none_or(|len| weights.len() < len) {
-        return false;
-    }
-    let Some(tile) = weights.get(4 * col..) else {
+pub(super) fn f32_block<const IN: usize>(block: &[u8], x: &[f32; IN], acc: &mut [f32; F32_ARM_BLOCK]) -> bool {
+    let Some(block) = block.get(..4 * F32_ARM_BLOCK * IN) else {
         return false;
     };
-    if !(tile.as_ptr() as usize).is_multiple_of(4) {
+    if IN == 0 || !(block.as_ptr() as usize).is_multiple_of(4) {
         return false;
     }
     // SAFETY: memory accessed, all in bounds:
-    // - `acc`: `vldm`/`vstm` of `s0`-`s15` read and write its 16 f32 (64 bytes), through a
-    //   pointer from a `&mut [f32; 16]` (word-aligned, as `vldm`/`vstm` require).
-    // - `x`: the group loop runs `n / 8` times and the single loop `n % 8` times (each skipped
-    //   when its count is 0: `cmp`/`beq` before it, `subs`/`bne` at its bottom); each group's
-    //   `vldmia` reads 8 f32 and each single's one f32 at `px`, advancing it by what it read:
-    //   bytes `0..4 n` of the `[f32]` (word-aligned).
-    // - weights: `pw` starts at `tile`, word-aligned (checked above). For each input `i` two
-    //   `vldmia` read 32 bytes each and advance `pw` by 64, then `add` advances it by
-    //   `stride - 64`, so input `i` reads bytes `i * stride .. i * stride + 64` of `tile`, that
-    //   is bytes `4 col + i * stride .. + 64` of `weights`, whose end for `i = n - 1` is
-    //   `4 (col + 16) + (n - 1) stride <= n stride <= weights.len()` (both checked above); every
-    //   address stays word-aligned (`stride` is a multiple of 4).
+    // - `acc`: `vldm`/`vstm` of `s0`-`s7` read and write its 8 f32 (32 bytes), through a
+    //   pointer from a `&mut [f32; 8]` (word-aligned, as `vldm`/`vstm` require).
+    // - `x`: the `IN / 8` groups' `vldmia` read 8 f32 each and the `IN % 8` singles' one each,
+    //   at `px`, advancing it by what they read: bytes `0..4 IN` of the `[f32; IN]`
+    //   (word-aligned).
+    // - weights: `pw` starts at `block`, word-aligned (checked above); each group's four
+    //   `vldmia` read 64 bytes each and each single's one 32 bytes, advancing `pw` by what they
+    //   read: bytes `0..32 IN` of `block`, which holds them (checked above).
     // - the stack: `vpush`/`vpop` of `d0`-`d15` (`s0`-`s31`, 128 bytes), balanced, so `sp` is
     //   restored.
-    // Registers: every core register written is a declared operand; `s0`-`s31` are saved on entry
+    // Registers: the two pointers are declared operands, written; `s0`-`s31` are saved on entry
     // and restored on exit, so no FPU register changes as the compiler sees it (Rust cannot name
-    // FPU registers as `asm!` operands on stable for this target). The flags (`cmp`, `subs`) are
-    // clobbered; FPSCR's rounding mode is only read, its sticky exception bits may be set, as by
-    // any f32 arithmetic.
+    // FPU registers as `asm!` operands on stable for this target). FPSCR's rounding mode is only
+    // read, its sticky exception bits may be set, as by any f32 arithmetic (so not
+    // `preserves_flags`).
     unsafe {
         asm!(
                 "vpush {{d0-d15}}",
-                "vldm {acc}, {{s0-s15}}",
-                "cmp {groups}, #0",
-                "beq 3f",
-                "2:",
+                "vldm {acc}, {{s0-s7}}",
+                ".rept {groups}",
                 "vldmia {px}!, {{s24-s31}}",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s0, s24, s16",
-                "vfma.f32 s1, s24, s17",
-                "vfma.f32 s2, s24, s18",
-                "vfma.f32 s3, s24, s19",
-                "vfma.f32 s4, s24, s20",
-                "vfma.f32 s5, s24, s21",
-                "vfma.f32 s6, s24, s22",
-                "vfma.f32 s7, s24, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s24, s16",
-                "vfma.f32 s9, s24, s17",
-                "vfma.f32 s10, s24, s18",
-                "vfma.f32 s11, s24, s19",
-                "vfma.f32 s12, s24, s20",
-                "vfma.f32 s13, s24, s21",
-                "vfma.f32 s14, s24, s22",
-                "vfma.f32 s15, s24, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
+                "vldmia {pw}!, {{s8-s23}}",
+                "vfma.f32 s0, s24, s8",
+                "vfma.f32 s1, s24, s9",
+                "vfma.f32 s2, s24, s10",
+                "vfma.f32 s3, s24, s11",
+                "vfma.f32 s4, s24, s12",
+                "vfma.f32 s5, s24, s13",
+                "vfma.f32 s6, s24, s14",
+                "vfma.f32 s7, s24, s15",
                 "vfma.f32 s0, s25, s16",
                 "vfma.f32 s1, s25, s17",
                 "vfma.f32 s2, s25, s18",
@@ -433,36 +409,15 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
                 "vfma.f32 s5, s25, s21",
                 "vfma.f32 s6, s25, s22",
                 "vfma.f32 s7, s25, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s25, s16",
-                "vfma.f32 s9, s25, s17",
-                "vfma.f32 s10, s25, s18",
-                "vfma.f32 s11, s25, s19",
-                "vfma.f32 s12, s25, s20",
-                "vfma.f32 s13, s25, s21",
-                "vfma.f32 s14, s25, s22",
-                "vfma.f32 s15, s25, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s0, s26, s16",
-                "vfma.f32 s1, s26, s17",
-                "vfma.f32 s2, s26, s18",
-                "vfma.f32 s3, s26, s19",
-                "vfma.f32 s4, s26, s20",
-                "vfma.f32 s5, s26, s21",
-                "vfma.f32 s6, s26, s22",
-                "vfma.f32 s7, s26, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s26, s16",
-                "vfma.f32 s9, s26, s17",
-                "vfma.f32 s10, s26, s18",
-                "vfma.f32 s11, s26, s19",
-                "vfma.f32 s12, s26, s20",
-                "vfma.f32 s13, s26, s21",
-                "vfma.f32 s14, s26, s22",
-                "vfma.f32 s15, s26, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
+                "vldmia {pw}!, {{s8-s23}}",
+                "vfma.f32 s0, s26, s8",
+                "vfma.f32 s1, s26, s9",
+                "vfma.f32 s2, s26, s10",
+                "vfma.f32 s3, s26, s11",
+                "vfma.f32 s4, s26, s12",
+                "vfma.f32 s5, s26, s13",
+                "vfma.f32 s6, s26, s14",
+                "vfma.f32 s7, s26, s15",
                 "vfma.f32 s0, s27, s16",
                 "vfma.f32 s1, s27, s17",
                 "vfma.f32 s2, s27, s18",
@@ -471,36 +426,15 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
                 "vfma.f32 s5, s27, s21",
                 "vfma.f32 s6, s27, s22",
                 "vfma.f32 s7, s27, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s27, s16",
-                "vfma.f32 s9, s27, s17",
-                "vfma.f32 s10, s27, s18",
-                "vfma.f32 s11, s27, s19",
-                "vfma.f32 s12, s27, s20",
-                "vfma.f32 s13, s27, s21",
-                "vfma.f32 s14, s27, s22",
-                "vfma.f32 s15, s27, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s0, s28, s16",
-                "vfma.f32 s1, s28, s17",
-                "vfma.f32 s2, s28, s18",
-                "vfma.f32 s3, s28, s19",
-                "vfma.f32 s4, s28, s20",
-                "vfma.f32 s5, s28, s21",
-                "vfma.f32 s6, s28, s22",
-                "vfma.f32 s7, s28, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s28, s16",
-                "vfma.f32 s9, s28, s17",
-                "vfma.f32 s10, s28, s18",
-                "vfma.f32 s11, s28, s19",
-                "vfma.f32 s12, s28, s20",
-                "vfma.f32 s13, s28, s21",
-                "vfma.f32 s14, s28, s22",
-                "vfma.f32 s15, s28, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
+                "vldmia {pw}!, {{s8-s23}}",
+                "vfma.f32 s0, s28, s8",
+                "vfma.f32 s1, s28, s9",
+                "vfma.f32 s2, s28, s10",
+                "vfma.f32 s3, s28, s11",
+                "vfma.f32 s4, s28, s12",
+                "vfma.f32 s5, s28, s13",
+                "vfma.f32 s6, s28, s14",
+                "vfma.f32 s7, s28, s15",
                 "vfma.f32 s0, s29, s16",
                 "vfma.f32 s1, s29, s17",
                 "vfma.f32 s2, s29, s18",
@@ -509,36 +443,15 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
                 "vfma.f32 s5, s29, s21",
                 "vfma.f32 s6, s29, s22",
                 "vfma.f32 s7, s29, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s29, s16",
-                "vfma.f32 s9, s29, s17",
-                "vfma.f32 s10, s29, s18",
-                "vfma.f32 s11, s29, s19",
-                "vfma.f32 s12, s29, s20",
-                "vfma.f32 s13, s29, s21",
-                "vfma.f32 s14, s29, s22",
-                "vfma.f32 s15, s29, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s0, s30, s16",
-                "vfma.f32 s1, s30, s17",
-                "vfma.f32 s2, s30, s18",
-                "vfma.f32 s3, s30, s19",
-                "vfma.f32 s4, s30, s20",
-                "vfma.f32 s5, s30, s21",
-                "vfma.f32 s6, s30, s22",
-                "vfma.f32 s7, s30, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s30, s16",
-                "vfma.f32 s9, s30, s17",
-                "vfma.f32 s10, s30, s18",
-                "vfma.f32 s11, s30, s19",
-                "vfma.f32 s12, s30, s20",
-                "vfma.f32 s13, s30, s21",
-                "vfma.f32 s14, s30, s22",
-                "vfma.f32 s15, s30, s23",
-                "add {pw}, {pw}, {step}",
-                "vldmia {pw}!, {{s16-s23}}",
+                "vldmia {pw}!, {{s8-s23}}",
+                "vfma.f32 s0, s30, s8",
+                "vfma.f32 s1, s30, s9",
+                "vfma.f32 s2, s30, s10",
+                "vfma.f32 s3, s30, s11",
+                "vfma.f32 s4, s30, s12",
+                "vfma.f32 s5, s30, s13",
+                "vfma.f32 s6, s30, s14",
+                "vfma.f32 s7, s30, s15",
                 "vfma.f32 s0, s31, s16",
                 "vfma.f32 s1, s31, s17",
                 "vfma.f32 s2, s31, s18",
@@ -547,53 +460,26 @@ pub(super) fn f32_tile(weights: &[u8], stride: usize, col: usize, x: &[f32], acc
                 "vfma.f32 s5, s31, s21",
                 "vfma.f32 s6, s31, s22",
                 "vfma.f32 s7, s31, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s31, s16",
-                "vfma.f32 s9, s31, s17",
-                "vfma.f32 s10, s31, s18",
-                "vfma.f32 s11, s31, s19",
-                "vfma.f32 s12, s31, s20",
-                "vfma.f32 s13, s31, s21",
-                "vfma.f32 s14, s31, s22",
-                "vfma.f32 s15, s31, s23",
-                "add {pw}, {pw}, {step}",
-                "subs {groups}, {groups}, #1",
-                "bne 2b",
-                "3:",
-                "cmp {singles}, #0",
-                "beq 5f",
-                "4:",
+                ".endr",
+                ".rept {singles}",
                 "vldmia {px}!, {{s24}}",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s0, s24, s16",
-                "vfma.f32 s1, s24, s17",
-                "vfma.f32 s2, s24, s18",
-                "vfma.f32 s3, s24, s19",
-                "vfma.f32 s4, s24, s20",
-                "vfma.f32 s5, s24, s21",
-                "vfma.f32 s6, s24, s22",
-                "vfma.f32 s7, s24, s23",
-                "vldmia {pw}!, {{s16-s23}}",
-                "vfma.f32 s8, s24, s16",
-                "vfma.f32 s9, s24, s17",
-                "vfma.f32 s10, s24, s18",
-                "vfma.f32 s11, s24, s19",
-                "vfma.f32 s12, s24, s20",
-                "vfma.f32 s13, s24, s21",
-                "vfma.f32 s14, s24, s22",
-                "vfma.f32 s15, s24, s23",
-                "add {pw}, {pw}, {step}",
-                "subs {singles}, {singles}, #1",
-                "bne 4b",
-                "5:",
-                "vstm {acc}, {{s0-s15}}",
+                "vldmia {pw}!, {{s8-s15}}",
+                "vfma.f32 s0, s24, s8",
+                "vfma.f32 s1, s24, s9",
+                "vfma.f32 s2, s24, s10",
+                "vfma.f32 s3, s24, s11",
+                "vfma.f32 s4, s24, s12",
+                "vfma.f32 s5, s24, s13",
+                "vfma.f32 s6, s24, s14",
+                "vfma.f32 s7, s24, s15",
+                ".endr",
+                "vstm {acc}, {{s0-s7}}",
                 "vpop {{d0-d15}}",
             acc = in(reg) acc.as_mut_ptr(),
             px = inout(reg) x.as_ptr() => _,
-            pw = inout(reg) tile.as_ptr() => _,
-            step = in(reg) stride - 64,
-            groups = inout(reg) n >> 3 => _,
-            singles = inout(reg) n & 7 => _,
+            pw = inout(reg) block.as_ptr() => _,
+            groups = const IN >> 3,
+            singles = const IN & 7,
         );
     }
     true

@@ -2,7 +2,7 @@
 //! axpys over register tiles of [`F32_TILE`] outputs (see the module doc of [`super`]), each
 //! product and sum one fused multiply-add ([`fma`]).
 
-use shared::blob::LayerBlob;
+use shared::blob::{f32_weight_index, LayerBlob, F32_BLOCK};
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 use super::arm;
@@ -15,7 +15,8 @@ pub const F32_TILE: usize = 64;
 
 /// A dense f32 layer `y = b + W x` viewing its blob arrays in place.
 ///
-/// `weights`: `IN * OUT` f32 LE input-major (`w[i * OUT + j]`); `bias`: `OUT` f32 LE.
+/// `weights`: `IN * OUT` f32 LE in blocks of 8 outputs, input-major within
+/// (`shared::blob::f32_weight_index`); `bias`: `OUT` f32 LE.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DenseF32<'a, const IN: usize, const OUT: usize> {
     weights: &'a [u8],
@@ -63,7 +64,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
         if x86::dense(self.weights, x, &mut y) {
             return y;
         }
-        if OUT < F32_TILE {
+        if OUT < F32_BLOCK {
             axpy_narrow(self.weights, x, &mut y);
         } else {
             self.tiles(x, &mut y);
@@ -71,12 +72,12 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
         y
     }
 
-    /// `y += W x` for a layer at least [`F32_TILE`] wide, in register tiles of [`F32_TILE`]
-    /// outputs (the portable kernel), then the last `OUT % F32_TILE` outputs.
+    /// `y += W x` for a layer at least a block wide, in register tiles of [`F32_TILE`]
+    /// outputs (the portable kernel: per input, the tile's 8 blocks of 8 contiguous weights),
+    /// then the last `OUT % F32_TILE` outputs.
     #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
     #[inline(always)]
     fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        let row_bytes = OUT * 4;
         let mut col = 0usize;
         let mut tiles = y.chunks_exact_mut(F32_TILE);
         for tile in tiles.by_ref() {
@@ -84,11 +85,13 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             for (a, &v) in acc.iter_mut().zip(tile.iter()) {
                 *a = v;
             }
-            let seg = col * 4..(col + F32_TILE) * 4;
-            for (row, &xi) in self.weights.chunks_exact(row_bytes).zip(x.iter()) {
-                if let Some(ws) = row.get(seg.clone()) {
-                    for (a, c) in acc.iter_mut().zip(ws.chunks_exact(4)) {
-                        *a = fma(xi, f32_le(c), *a);
+            for (i, &xi) in x.iter().enumerate() {
+                for (b, block) in acc.chunks_exact_mut(F32_BLOCK).enumerate() {
+                    let start = 4 * f32_weight_index(IN, OUT, col + F32_BLOCK * b, i);
+                    if let Some(ws) = self.weights.get(start..start + 4 * F32_BLOCK) {
+                        for (a, c) in block.iter_mut().zip(ws.chunks_exact(4)) {
+                            *a = fma(xi, f32_le(c), *a);
+                        }
                     }
                 }
             }
@@ -97,31 +100,28 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             }
             col += F32_TILE;
         }
-        let tail = tiles.into_remainder();
-        if !tail.is_empty() {
-            axpy_tail(self.weights, row_bytes, col, x, tail);
-        }
+        axpy_tail::<IN, OUT>(self.weights, col, x, tiles.into_remainder());
     }
 
-    /// [`Self::tiles`] on the Cortex-M4F: tiles of 16 outputs held in `s0`-`s15` by an `asm!`
-    /// loop (`arm::f32_tile`, `policy/arm.rs`), the same products and sums in the same order
-    /// per output as the portable tiles; any tile it declines, and the last `OUT % 16`
+    /// [`Self::tiles`] on the Cortex-M4F: each block of 8 outputs held in `s0`-`s7` by an
+    /// `asm!` block (`arm::f32_block`, `policy/arm.rs`), the same products and sums in the same
+    /// order per output as the portable tiles; any block it declines, and the last `OUT % 8`
     /// outputs, take the portable sequential loop.
     #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
     #[inline(always)]
     fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        let row_bytes = OUT * 4;
+        let block_bytes = 4 * F32_BLOCK * IN;
         let mut col = 0usize;
-        let mut tiles = y.chunks_exact_mut(arm::F32_ARM_TILE);
-        for tile in tiles.by_ref() {
-            let done = <&mut [f32; arm::F32_ARM_TILE]>::try_from(&mut *tile)
-                .is_ok_and(|acc| arm::f32_tile(self.weights, row_bytes, col, x, acc));
+        let mut blocks = y.chunks_exact_mut(arm::F32_ARM_BLOCK);
+        for (tile, block) in blocks.by_ref().zip(self.weights.chunks_exact(block_bytes)) {
+            let done =
+                <&mut [f32; arm::F32_ARM_BLOCK]>::try_from(&mut *tile).is_ok_and(|acc| arm::f32_block(block, x, acc));
             if !done {
-                axpy_tail(self.weights, row_bytes, col, x, tile);
+                axpy_tail::<IN, OUT>(self.weights, col, x, tile);
             }
-            col += arm::F32_ARM_TILE;
+            col += arm::F32_ARM_BLOCK;
         }
-        axpy_tail(self.weights, row_bytes, col, x, tiles.into_remainder());
+        axpy_tail::<IN, OUT>(self.weights, col, x, blocks.into_remainder());
     }
 }
 
@@ -144,7 +144,7 @@ fn fma(x: f32, w: f32, acc: f32) -> f32 {
 /// additions into one output are not a single long latency chain.
 pub(super) const SPLIT: usize = 8;
 
-/// `y += W x` for a layer narrower than a tile (the 3 action outputs): [`SPLIT`] partial sums
+/// `y += W x` for a layer narrower than a block (the 3 or 4 action outputs): [`SPLIT`] partial sums
 /// of the whole (const-size) output vector over interleaved inputs, by the target's own kernel
 /// where it has one for the layer, then added to `y` in order.
 #[inline(always)]
@@ -214,13 +214,14 @@ fn add_partials<const OUT: usize>(part: &[[f32; OUT]; SPLIT], y: &mut [f32; OUT]
     }
 }
 
-/// `y[k] += sum_i x[i] * w[i][col + k]` for the last `y.len() < F32_TILE` outputs of a layer
-/// wider than a tile (odd widths only; the deployed 256 is a whole number of tiles).
-fn axpy_tail<const IN: usize>(weights: &[u8], row_bytes: usize, col: usize, x: &[f32; IN], y: &mut [f32]) {
-    let seg = col * 4..(col + y.len()) * 4;
-    for (row, &xi) in weights.chunks_exact(row_bytes).zip(x.iter()) {
-        if let Some(ws) = row.get(seg.clone()) {
-            for (v, c) in y.iter_mut().zip(ws.chunks_exact(4)) {
+/// `y[k] += sum_i x[i] * w[i][col + k]`, inputs in order, for outputs `col..col + y.len()`
+/// wherever their blocks lie: the last outputs of a layer that are not a whole tile (odd
+/// widths only; the deployed 256 is a whole number of tiles), or a block a kernel declined.
+fn axpy_tail<const IN: usize, const OUT: usize>(weights: &[u8], col: usize, x: &[f32; IN], y: &mut [f32]) {
+    for (i, &xi) in x.iter().enumerate() {
+        for (k, v) in y.iter_mut().enumerate() {
+            let start = 4 * f32_weight_index(IN, OUT, col + k, i);
+            if let Some(c) = weights.get(start..start + 4) {
                 *v = fma(xi, f32_le(c), *v);
             }
         }
@@ -262,7 +263,7 @@ mod tests {
             let x: [f32; IN] = core::array::from_fn(|i| f32_le(&rough(1, &mut s)) * (1 + i % 3) as f32);
             let fast = layer.forward(&x);
             let mut portable: [f32; OUT] = core::array::from_fn(|j| f32_le(&bias[4 * j..4 * j + 4]));
-            if OUT < F32_TILE {
+            if OUT < F32_BLOCK {
                 let mut part = [[0.0f32; OUT]; SPLIT];
                 portable_partials(layer.weights, &x, &mut part);
                 add_partials(&part, &mut portable);

@@ -25,6 +25,8 @@ use core::arch::x86_64::{
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
+use shared::blob::{f32_weight_index, F32_BLOCK};
+
 use super::f32::SPLIT;
 use super::F32_TILE;
 
@@ -91,8 +93,8 @@ fn usable<const IN: usize, const OUT: usize>(weights: &[u8]) -> bool {
     needed.is_some_and(|n| weights.len() >= n) && has_avx2_fma()
 }
 
-/// `y += W x` (`y` holding the bias; `weights`: `IN * OUT` f32 LE input-major) for a layer at
-/// least a tile wide, with AVX2 and FMA, in the portable kernel's order. Returns `false`,
+/// `y += W x` (`y` holding the bias; `weights`: `IN * OUT` f32 LE in blocks of 8 outputs) for a
+/// layer at least a tile wide, with AVX2 and FMA, in the portable kernel's order. Returns `false`,
 /// touching nothing, for a narrower layer (see [`narrow_partials`]), if the machine lacks AVX2
 /// or FMA, or if `weights` is short; the caller then runs the portable kernel.
 #[inline]
@@ -106,7 +108,8 @@ pub(super) fn dense<const IN: usize, const OUT: usize>(weights: &[u8], x: &[f32;
     true
 }
 
-/// The narrow kernel's [`SPLIT`] partial sums (from 0) of a layer narrower than a tile, with
+/// The narrow kernel's [`SPLIT`] partial sums (from 0) of a layer narrower than a block (its
+/// weights plain input-major), with
 /// AVX2 and FMA: `part[k][j]` fuses the inputs `k, k + 8, k + 16, ...` in order. Returns
 /// `false`, touching nothing, where [`dense`] would.
 #[inline]
@@ -115,7 +118,7 @@ pub(super) fn narrow_partials<const IN: usize, const OUT: usize>(
     x: &[f32; IN],
     part: &mut [[f32; OUT]; SPLIT],
 ) -> bool {
-    if OUT >= F32_TILE || !usable::<IN, OUT>(weights) {
+    if OUT >= F32_BLOCK || !usable::<IN, OUT>(weights) {
         return false;
     }
     // SAFETY: as in `dense`.
@@ -130,8 +133,10 @@ fn fma1(x: f32, w: f32, acc: f32) -> f32 {
     _mm_cvtss_f32(_mm_fmadd_ss(_mm_set_ss(x), _mm_set_ss(w), _mm_set_ss(acc)))
 }
 
-/// The wide layer: register tiles of [`F32_TILE`] outputs (8 vectors of 8), each accumulated
-/// over the inputs in order, then vectors of 8 and single outputs for the last `OUT % 64`.
+/// The wide layer: register tiles of [`F32_TILE`] outputs (8 vectors of 8, each a block of the
+/// weights, one contiguous vector per input), each accumulated over the inputs in order, then
+/// vectors of 8 (whole blocks) and single outputs (the narrower last block) for the last
+/// `OUT % 64`.
 ///
 /// # Safety
 /// AVX2 and FMA present; `w` points to `IN * OUT` readable f32 (any alignment).
@@ -141,19 +146,20 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
     let mut col = 0;
     while col + F32_TILE <= OUT {
         let mut acc = [_mm256_setzero_ps(); VECTORS];
-        // SAFETY (every pointer below): output `col + 8 v + l < OUT` of `y`; weight `i * OUT +
-        // col + 8 v + l < IN * OUT` of `w`, for `i < IN`, `v < VECTORS`, `l < 8`.
+        // SAFETY (every pointer below): output `col + 8 v + l < OUT` of `y`; weight
+        // `f32_weight_index(IN, OUT, col + 8 v, i) + l = IN (col + 8 v) + 8 i + l < IN * OUT` of
+        // `w` (a whole block: `col + 8 v + 8 <= OUT`), for `i < IN`, `v < VECTORS`, `l < 8`.
         for (v, a) in acc.iter_mut().enumerate() {
             // SAFETY: in bounds, by the SAFETY comment above.
             *a = unsafe { _mm256_loadu_ps(y.add(col + 8 * v)) };
         }
         for (i, &xi) in x.iter().enumerate() {
             let xv = _mm256_set1_ps(xi);
-            // SAFETY: in bounds, by the SAFETY comment above.
-            let row = unsafe { w.add(i * OUT + col) };
             for (v, a) in acc.iter_mut().enumerate() {
                 // SAFETY: in bounds, by the SAFETY comment above.
-                *a = _mm256_fmadd_ps(xv, unsafe { _mm256_loadu_ps(row.add(8 * v)) }, *a);
+                let run = unsafe { w.add(f32_weight_index(IN, OUT, col + 8 * v, i)) };
+                // SAFETY: in bounds, by the SAFETY comment above.
+                *a = _mm256_fmadd_ps(xv, unsafe { _mm256_loadu_ps(run) }, *a);
             }
         }
         for (v, a) in acc.iter().enumerate() {
@@ -162,23 +168,29 @@ unsafe fn wide<const IN: usize, const OUT: usize>(w: *const f32, x: &[f32; IN], 
         }
         col += F32_TILE;
     }
-    while col + 8 <= OUT {
+    while col + F32_BLOCK <= OUT {
         // SAFETY: as above with one vector.
         let mut a = unsafe { _mm256_loadu_ps(y.add(col)) };
         for (i, &xi) in x.iter().enumerate() {
             // SAFETY: in bounds, by the SAFETY comment above.
-            a = _mm256_fmadd_ps(_mm256_set1_ps(xi), unsafe { _mm256_loadu_ps(w.add(i * OUT + col)) }, a);
+            let run = unsafe { w.add(f32_weight_index(IN, OUT, col, i)) };
+            // SAFETY: in bounds, by the SAFETY comment above.
+            a = _mm256_fmadd_ps(_mm256_set1_ps(xi), unsafe { _mm256_loadu_ps(run) }, a);
         }
         // SAFETY: in bounds, by the SAFETY comment above.
         unsafe { _mm256_storeu_ps(y.add(col), a) };
-        col += 8;
+        col += F32_BLOCK;
     }
     while col < OUT {
-        // SAFETY: output `col < OUT`, weights `i * OUT + col < IN * OUT`.
+        // SAFETY: output `col < OUT`, weight `f32_weight_index(IN, OUT, col, i) < IN * OUT`.
         let mut a = unsafe { *y.add(col) };
         for (i, &xi) in x.iter().enumerate() {
             // SAFETY: in bounds, by the SAFETY comment above.
-            a = fma1(xi, unsafe { w.add(i * OUT + col).read_unaligned() }, a);
+            a = fma1(
+                xi,
+                unsafe { w.add(f32_weight_index(IN, OUT, col, i)).read_unaligned() },
+                a,
+            );
         }
         // SAFETY: in bounds, by the SAFETY comment above.
         unsafe { *y.add(col) = a };

@@ -199,15 +199,10 @@ fn activation(l: usize, n: usize) -> Activation {
     }
 }
 
-/// f32 layer: weights input-major LE.
+/// f32 layer: weights LE in the blob's blocks of 8 outputs.
 pub fn f32_layer(layer: &RefLayer, act: Activation) -> OwnedLayer {
     let (n_in, n_out) = (layer.inputs(), layer.outputs());
-    let mut weights = Vec::with_capacity(n_in * n_out * 4);
-    for i in 0..n_in {
-        for j in 0..n_out {
-            weights.extend_from_slice(&layer.w[j][i].to_le_bytes());
-        }
-    }
+    let weights = shared::blob::f32_weight_bytes(&layer.w.concat(), n_in);
     OwnedLayer {
         inputs: n_in as u16,
         outputs: n_out as u16,
