@@ -621,6 +621,8 @@ pub struct Reexport {
 /// file checksums. The export and SIL Monte Carlos are written under `run`. The folder's files
 /// other than the blobs must still match the card; its blobs may be of an older format.
 pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
+    // Before the folder changes, which would mark the tree modified.
+    let commit = current_commit();
     let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
     let actor = dir.join(ACTOR_FILE);
     let recorded = card.files.get(ACTOR_FILE).cloned().unwrap_or_default();
@@ -650,7 +652,7 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     }
     card.sil = sil_figures(&sil);
     (card.lookahead, card.with_terminal) = fly_aided(&config, &export.f32.file, run)?;
-    card.reexported = Some((portable_command(), current_commit(), utc_date()));
+    card.reexported = Some((portable_command(), commit, utc_date()));
     card.reexported_format = Some(shared::blob::FORMAT_VERSION);
     write_cards(dir, &mut card)?;
     Ok(Reexport { card, export, sil })
@@ -665,6 +667,8 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
 /// folder's files must match its card; blobs already of the present format are kept as they
 /// are. The converted blobs and the SIL runs are written under `run`.
 pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport>), ModelError> {
+    // Before the folder changes, which would mark the tree modified.
+    let commit = current_commit();
     let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
     for (name, recorded) in &card.files {
         let path = dir.join(name);
@@ -706,7 +710,7 @@ pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
-    card.reexported = Some((portable_command(), current_commit(), utc_date()));
+    card.reexported = Some((portable_command(), commit, utc_date()));
     card.reexported_format = Some(shared::blob::FORMAT_VERSION);
     write_cards(dir, &mut card)?;
     Ok((card, sil))
