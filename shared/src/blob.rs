@@ -58,9 +58,13 @@ pub const MAGIC: [u8; 4] = *b"LTGB";
 /// The format version this crate writes and reads.
 pub const FORMAT_VERSION: u16 = 5;
 /// The previous format version (f32 weights input-major, int8 output-major), which
-/// [`upgrade_format_4`] converts.
+/// [`upgrade`] converts.
 #[cfg(feature = "std")]
 pub const FORMAT_4: u16 = 4;
+/// Format 4 without the mission at the end of the payload (read as [`BlobMission::THESIS`]),
+/// which [`upgrade`] converts too.
+#[cfg(feature = "std")]
+pub const FORMAT_3: u16 = 3;
 /// Outputs per block of an f32 layer's weights (see [`f32_weight_index`]).
 pub const F32_BLOCK: usize = 8;
 /// Each weight array starts at a multiple of this many bytes from the start of the blob: a
@@ -713,13 +717,38 @@ pub fn f32_weight_bytes(weights: &[f32], inputs: usize) -> std::vec::Vec<u8> {
     f32_le_bytes(&stored)
 }
 
-/// A format-4 blob ([`FORMAT_4`]) in the present format: the same network, bit for bit, with
-/// its weights laid out anew (f32 in blocks, int8 in row pairs); a present-format blob comes
-/// back unchanged. Anything else is refused as [`decode`] refuses it (a format-4 blob's payload
-/// has the present structure; only the weights' order differs).
+/// A blob of an older format in the present one: the same network, bit for bit, with its
+/// weights laid out anew (f32 in blocks, int8 in row pairs). Format 4 ([`FORMAT_4`]) has the
+/// present payload's structure, only the weights' order differs; format 3 ([`FORMAT_3`]) lacks
+/// the mission, which becomes the thesis's ([`BlobMission::THESIS`]). A present-format blob comes
+/// back unchanged; anything else is refused as [`decode`] refuses it (a format-3 or 4 blob whose
+/// CRC or length does not match, as a present one would be).
 #[cfg(feature = "std")]
-pub fn upgrade_format_4(bytes: &[u8]) -> Result<std::vec::Vec<u8>, BlobError> {
+pub fn upgrade(bytes: &[u8]) -> Result<std::vec::Vec<u8>, BlobError> {
     let version = bytes.get(4..6).map(|v| u16::from_le_bytes([v[0], v[1]]));
+    if version == Some(FORMAT_3) {
+        // Checked as the present format (framing, CRC) with the version patched, the mission
+        // appended to the payload, then framed again as format 4.
+        let mut checked = bytes.to_vec();
+        checked[4..6].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+        if let Err(
+            e @ (BlobError::Truncated { .. } | BlobError::TrailingBytes { .. } | BlobError::CrcMismatch { .. }),
+        ) = decode(&checked)
+        {
+            return Err(e);
+        }
+        let mut payload = bytes[HEADER_LEN..bytes.len() - TRAILER_LEN].to_vec();
+        let mission = postcard::to_allocvec(&BlobMission::THESIS).map_err(|e| BlobError::Payload(e.into()))?;
+        payload.extend(mission);
+        let len = u32::try_from(payload.len()).map_err(|_| BlobError::Payload(PayloadError::Other))?;
+        let mut framed = std::vec::Vec::with_capacity(payload.len() + HEADER_LEN + TRAILER_LEN);
+        framed.extend(MAGIC);
+        framed.extend(FORMAT_4.to_le_bytes());
+        framed.extend(len.to_le_bytes());
+        framed.extend(&payload);
+        framed.extend(CRC32.checksum(&payload).to_le_bytes());
+        return upgrade(&framed);
+    }
     if version != Some(FORMAT_4) {
         decode(bytes)?;
         return Ok(bytes.to_vec());

@@ -903,12 +903,13 @@ fn f32_weights_lie_in_blocks_of_eight_outputs() {
     assert_eq!(f32_weight_index(10, 3, 2, 4), 4 * 3 + 2);
 }
 
-/// A format-4 blob (f32 input-major, int8 output-major) upgraded is the present format's blob of
-/// the same network; a present blob comes back as it is, and a damaged one is refused.
+/// A format-4 blob (f32 input-major, int8 output-major) or a format-3 one (the same without the
+/// mission) upgraded is the present format's blob of the same network; a present blob comes
+/// back as it is, and a damaged one is refused.
 #[cfg(feature = "std")]
 #[test]
 fn format_4_blobs_upgrade_to_the_same_network() {
-    use shared::blob::{encode_to_vec, f32_le_bytes, f32_weight_bytes, int8_weight_bytes, upgrade_format_4, FORMAT_4};
+    use shared::blob::{encode_to_vec, f32_le_bytes, f32_weight_bytes, int8_weight_bytes, upgrade, FORMAT_3, FORMAT_4};
     let (n_in, hidden, n_out) = (10usize, 19usize, 3usize);
     let f = |n: usize, seed: f32| -> Vec<f32> { (0..n).map(|k| ((k as f32 + seed) * 0.37).sin()).collect() };
     let (w1, w3) = (f(n_in * hidden, 1.0), f(hidden * n_out, 3.0));
@@ -965,12 +966,23 @@ fn format_4_blobs_upgrade_to_the_same_network() {
         Err(BlobError::UnsupportedVersion { found: 4, .. })
     ));
     let new_bytes = encode_to_vec(&new.view()).unwrap();
-    assert_eq!(upgrade_format_4(&old_bytes).unwrap(), new_bytes);
-    assert_eq!(upgrade_format_4(&new_bytes).unwrap(), new_bytes);
+    assert_eq!(upgrade(&old_bytes).unwrap(), new_bytes);
+    assert_eq!(upgrade(&new_bytes).unwrap(), new_bytes);
     let mut damaged = old_bytes.clone();
     let last = damaged.len() - 1;
     damaged[last] ^= 1;
-    assert!(matches!(upgrade_format_4(&damaged), Err(BlobError::CrcMismatch { .. })));
+    assert!(matches!(upgrade(&damaged), Err(BlobError::CrcMismatch { .. })));
+    // Format 3: the same payload without the mission (the network flies the thesis's).
+    assert_eq!(old.view().mission, BlobMission::THESIS);
+    let mission_len = postcard::to_allocvec(&BlobMission::THESIS).unwrap().len();
+    let payload = &old_bytes[HEADER_LEN..old_bytes.len() - TRAILER_LEN];
+    let mut v3 = frame(&payload[..payload.len() - mission_len]);
+    v3[4..6].copy_from_slice(&FORMAT_3.to_le_bytes());
+    assert_eq!(upgrade(&v3).unwrap(), new_bytes);
+    let mut damaged = v3.clone();
+    damaged[HEADER_LEN + 3] ^= 1;
+    assert!(matches!(upgrade(&damaged), Err(BlobError::CrcMismatch { .. })));
+    assert!(matches!(upgrade(&v3[..v3.len() - 1]), Err(BlobError::Truncated { .. })));
 }
 
 // ---------------------------------------------------------------- properties

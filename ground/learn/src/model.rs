@@ -115,6 +115,14 @@ pub enum ModelError {
         /// The f32 blob.
         path: PathBuf,
     },
+    /// A blob cannot be read or converted ([`upgrade_model`]).
+    #[error("{}: {source}", .path.display())]
+    Blob {
+        /// The blob.
+        path: PathBuf,
+        /// Why it is refused.
+        source: shared::blob::BlobError,
+    },
     /// The card does not list a file every model has (the actor, either blob).
     #[error("model folder {}: {reason}", .dir.display())]
     Incomplete {
@@ -658,9 +666,9 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     Ok(Reexport { card, export, sil })
 }
 
-/// `ground model export --model DIR --upgrade`: converts the folder's blobs of the previous
-/// format ([`shared::blob::FORMAT_4`]) to the present one (the same network bit for bit, its
-/// weights laid out anew: [`shared::blob::upgrade_format_4`]), flies them in the SIL loop, and
+/// `ground model export --model DIR --upgrade`: converts the folder's blobs of an older format
+/// (3 or 4) to the present one (the same network bit for bit, its weights laid out anew:
+/// [`shared::blob::upgrade`]), flies them in the SIL loop, and
 /// replaces the blobs and the card's SIL figures and file checksums, as [`reexport_model`]
 /// does. Unlike a re-export it needs neither the pretraining dataset the int8 scales were
 /// calibrated on nor a new calibration: the int8 network stays the one the card measured. The
@@ -688,9 +696,9 @@ pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport
         let name = blob_file(kind, quantization);
         let path = dir.join(&name);
         let bytes = std::fs::read(&path).map_err(io(&path))?;
-        let new = shared::blob::upgrade_format_4(&bytes).map_err(|e| ModelError::Card {
+        let new = shared::blob::upgrade(&bytes).map_err(|source| ModelError::Blob {
             path: path.clone(),
-            reason: format!("the blob cannot be upgraded: {e}"),
+            source,
         })?;
         let target = upgraded.join(&name);
         atomic_write(&target, &new).map_err(io(&target))?;
