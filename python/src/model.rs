@@ -43,7 +43,7 @@ pub struct Policy {
     kind: ProblemKind,
     features: FeatureLayout,
     quantization: Quantization,
-    /// The mission the blob flies (format 4; a format-3 blob's is the thesis's).
+    /// The mission the blob flies (fingerprint 0: the thesis's units and cycle, any family).
     mission: shared::blob::BlobMission,
 }
 
@@ -167,8 +167,8 @@ impl Policy {
     }
 
     /// The mission the blob carries, as flight software reads it: `cycle` (t*; 0 for a count
-    /// of cycles), `length_unit_m`, `time_unit_s`, `family` (the fingerprint; 0 for a format-3
-    /// blob, read as the thesis's).
+    /// of cycles), `length_unit_m`, `time_unit_s`, `family` (the fingerprint; 0 for a blob made
+    /// before blobs carried their mission: the thesis's units and cycle, any family).
     #[getter]
     fn mission<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);

@@ -663,7 +663,7 @@ pub struct FamilyCheck {
     pub warnings: Vec<String>,
 }
 
-/// The mission a blob of `family` carries (blob format 4): the aids' cycle (0 for a count of
+/// The mission a blob of `family` carries: the aids' cycle (0 for a count of
 /// cycles), the family's units and fingerprint.
 pub fn blob_mission(family: &SpatialFamily) -> shared::blob::BlobMission {
     let units = family.family.body.units();
@@ -676,7 +676,8 @@ pub fn blob_mission(family: &SpatialFamily) -> shared::blob::BlobMission {
 }
 
 /// Why a blob carrying `mission` cannot fly `family` (None: it can), both named. A blob of
-/// format 3 (fingerprint 0) flies any family of the thesis's units and 14-day cycles.
+/// fingerprint 0 (made before blobs carried their mission) flies any family of the thesis's
+/// units and 14-day cycles.
 pub fn blob_refusal(family: &SpatialFamily, mission: &shared::blob::BlobMission) -> Option<String> {
     use shared::blob::BlobMission;
     let ours = blob_mission(family);
@@ -687,7 +688,7 @@ pub fn blob_refusal(family: &SpatialFamily, mission: &shared::blob::BlobMission)
         };
         return (thesis != ours).then(|| {
             format!(
-                "the blob flies the thesis's 14-day heliocentric cycles (blob format 3), and family {} has another cycle or body",
+                "the blob flies the thesis's 14-day heliocentric cycles (mission fingerprint 0), and family {} has another cycle or body",
                 family.label()
             )
         });

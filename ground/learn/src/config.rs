@@ -577,7 +577,7 @@ impl ExperimentConfig {
         shared::blob::FeatureLayout::of(self.problem(), self.is_inclined())
     }
 
-    /// The mission a blob of this config carries (blob format 4):
+    /// The mission a blob of this config carries:
     /// [`ground_core::mission::blob_mission`] of its family.
     pub fn blob_mission(&self) -> BlobMission {
         ground_core::mission::blob_mission(&self.family)
@@ -1089,8 +1089,8 @@ mod tests {
         assert!(bad.to_string().contains("config does not parse"), "{bad}");
     }
 
-    /// A blob flies its own family: the config's mission is accepted, a format-3 blob (the
-    /// thesis's) only by families of the thesis's units and cycle, another family's refused with
+    /// A blob flies its own family: the config's mission is accepted, a blob of fingerprint 0
+    /// (the thesis's) only by families of the thesis's units and cycle, another family's refused with
     /// both named.
     #[test]
     fn a_blob_of_another_family_is_refused_with_both_named() {
@@ -1102,7 +1102,7 @@ mod tests {
         assert_eq!(preset.mission_refusal(&BlobMission::THESIS), None);
         let old = weekly.mission_refusal(&BlobMission::THESIS).unwrap();
         assert!(
-            old.contains("blob format 3") && old.contains(weekly.family.label().as_str()),
+            old.contains("fingerprint 0") && old.contains(weekly.family.label().as_str()),
             "{old}"
         );
         let other = preset.mission_refusal(&weekly.blob_mission()).unwrap();

@@ -367,8 +367,8 @@ typedef struct lt_terminal_report3 {
   double planned_miss;
 } lt_terminal_report3;
 
-// What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
-// blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
+// What a loaded policy flies, and the mission its blob carries (family 0: any family of the
+// thesis's 14-day cycles, AU and the Sun's time unit).
 typedef struct lt_policy_info {
   // `LT_PROBLEM_TRANSFER` or `LT_PROBLEM_RENDEZVOUS` (planar), `LT_PROBLEM_TRANSFER3` or
   // `LT_PROBLEM_RENDEZVOUS3` (three dimensions).
@@ -383,8 +383,8 @@ typedef struct lt_policy_info {
   double length_unit_m;
   // The canonical time unit, s.
   double time_unit_s;
-  // The mission family's fingerprint (0: a format-3 blob, any family of the thesis's units and
-  // cycle).
+  // The mission family's fingerprint (0: any family of the thesis's units and cycle, as the
+  // blobs made before the mission was carried are upgraded).
   uint32_t family;
 } lt_policy_info;
 

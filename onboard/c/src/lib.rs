@@ -151,8 +151,8 @@ pub struct lt_version_info {
     pub blob_format_version: u16,
 }
 
-/// What a loaded policy flies, and the mission its blob carries (blob format 4; a format-3
-/// blob's is the thesis's: 14-day cycles, AU, the Sun's time unit, family 0).
+/// What a loaded policy flies, and the mission its blob carries (family 0: any family of the
+/// thesis's 14-day cycles, AU and the Sun's time unit).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct lt_policy_info {
@@ -169,8 +169,8 @@ pub struct lt_policy_info {
     pub length_unit_m: f64,
     /// The canonical time unit, s.
     pub time_unit_s: f64,
-    /// The mission family's fingerprint (0: a format-3 blob, any family of the thesis's units and
-    /// cycle).
+    /// The mission family's fingerprint (0: any family of the thesis's units and cycle, as the
+    /// blobs made before the mission was carried are upgraded).
     pub family: u32,
 }
 
