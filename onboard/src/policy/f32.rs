@@ -167,7 +167,11 @@ fn machine_partials<const IN: usize, const OUT: usize>(
 ) -> bool {
     #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
     {
-        OUT == arm::NARROW_OUTPUTS && arm::f32_narrow3(weights, x, part.as_flattened_mut())
+        match OUT {
+            arm::NARROW_OUTPUTS => arm::f32_narrow3(weights, x, part.as_flattened_mut()),
+            arm::NARROW4_OUTPUTS => arm::f32_narrow4(weights, x, part.as_flattened_mut()),
+            _ => false,
+        }
     }
     #[cfg(target_arch = "x86_64")]
     {
