@@ -272,16 +272,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
         #[cfg(not(target_arch = "x86_64"))]
         let done = false;
         if !done {
-            let mut pairs = self.weights.chunks_exact(2 * IN);
-            let mut rows = acc.chunks_exact_mut(2);
-            for (r, pair) in rows.by_ref().zip(pairs.by_ref()) {
-                if let [a, b] = r {
-                    (*a, *b) = dot_pair_lanes(xq, pair);
-                }
-            }
-            for a in rows.into_remainder() {
-                *a = dot1(xq, pairs.remainder());
-            }
+            pairs_decoded(xq, self.weights, &mut acc);
         }
         for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
             *a = a.saturating_add(i32_le(c));
@@ -302,21 +293,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
                 *a = s;
             }
         }
-        let rest = groups.into_remainder();
-        let mut pairs = blocks.remainder().chunks_exact(2 * IN);
-        let mut rows = rest.iter_mut();
-        if let Some(pair) = pairs.next() {
-            let (a, b) = dot_pair_lanes(xq, pair);
-            if let Some(o) = rows.next() {
-                *o = a;
-            }
-            if let Some(o) = rows.next() {
-                *o = b;
-            }
-        }
-        if let Some(o) = rows.next() {
-            *o = dot1(xq, pairs.remainder());
-        }
+        pairs_decoded(xq, blocks.remainder(), groups.into_remainder());
         for (a, c) in acc.iter_mut().zip(self.bias.chunks_exact(4)) {
             *a = a.saturating_add(i32_le(c));
         }
@@ -479,6 +456,23 @@ fn dot_pair_lanes(x: &[i16], pair: &[u8]) -> (i32, i32) {
         }
     }
     (a, b)
+}
+
+/// `acc[j]` = row `j`'s dot product for the rows of `weights` (whole pairs, then the odd plain
+/// row), each pair by [`dot_pair_lanes`]: the lanes kernel's whole layer, the rows kernel's last
+/// `OUT % 4` rows.
+#[inline(always)]
+fn pairs_decoded<const IN: usize>(xq: &[i16; IN], weights: &[u8], acc: &mut [i32]) {
+    let mut pairs = weights.chunks_exact(2 * IN);
+    let mut rows = acc.chunks_exact_mut(2);
+    for (r, pair) in rows.by_ref().zip(pairs.by_ref()) {
+        if let [a, b] = r {
+            (*a, *b) = dot_pair_lanes(xq, pair);
+        }
+    }
+    for a in rows.into_remainder() {
+        *a = dot1(xq, pairs.remainder());
+    }
 }
 
 /// Two pairs (four rows), decoded byte by byte, one scalar accumulator per row.
