@@ -199,6 +199,23 @@ pub struct ModelFiles {
     pub int8_blob: Vec<u8>,
 }
 
+/// Checks that every file the card lists (`files`: name to CRC-32C) in the folder `dir` has its
+/// checksum.
+pub fn verify_checksums(dir: &Path, files: &BTreeMap<String, String>) -> Result<(), ModelFilesError> {
+    for (name, recorded) in files {
+        let path = dir.join(name);
+        let found = file_checksum(&path)?;
+        if &found != recorded {
+            return Err(ModelFilesError::Checksum {
+                path,
+                found,
+                recorded: recorded.clone(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Checks the model folder `dir` of a controller of input encoding `features` (its problem,
 /// planar or three-dimensional) against its card's `files` (name to CRC-32C): the actor and
 /// both blobs are listed, every listed file has its checksum, and the f32 blob is the actor's
@@ -220,17 +237,7 @@ pub fn verify_model_files(
             });
         }
     }
-    for (name, recorded) in files {
-        let path = dir.join(name);
-        let found = file_checksum(&path)?;
-        if &found != recorded {
-            return Err(ModelFilesError::Checksum {
-                path,
-                found,
-                recorded: recorded.clone(),
-            });
-        }
-    }
+    verify_checksums(dir, files)?;
     let read = |name: &str| {
         let path = dir.join(name);
         std::fs::read(&path).map_err(|source| ModelFilesError::Io { path, source })

@@ -645,25 +645,51 @@ pub fn reexport_model(dir: &Path, run: &Path) -> Result<Reexport, ModelError> {
     let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
     // The card's paths are relative to the folder the producing command ran in: the repository.
     let export = crate::export::export(&config, Path::new("."), &actor, &run.join("export")).map_err(experiment)?;
-    let sil = crate::sil::sil_of_blobs(&config, &export.f32.file, &export.int8.file, run)
+    let sil = install_blobs(
+        dir,
+        &mut card,
+        &config,
+        [&export.f32.file, &export.int8.file],
+        &[&export.onnx],
+        run,
+        commit,
+    )?;
+    Ok(Reexport { card, export, sil })
+}
+
+/// The last steps of [`reexport_model`] and [`upgrade_model`]: flies the new blobs (the SIL
+/// Monte Carlos of both, the card's aids with the f32 one) under `run`, then copies them and
+/// `others` into the folder `dir` under their file names and writes the card again with their
+/// checksums, the new figures and `commit`. The folder changes only once every flight is done.
+fn install_blobs(
+    dir: &Path,
+    card: &mut ModelCard,
+    config: &ExperimentConfig,
+    [f32_blob, int8_blob]: [&Path; 2],
+    others: &[&Path],
+    run: &Path,
+    commit: String,
+) -> Result<Vec<SilReport>, ModelError> {
+    let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
+    let sil = crate::sil::sil_of_blobs(config, f32_blob, int8_blob, run)
         .map_err(experiment)?
         .to_vec();
-    for blob in [&export.f32.file, &export.int8.file, &export.onnx] {
-        let name = blob
+    (card.lookahead, card.with_terminal) = fly_aided(config, f32_blob, run)?;
+    for file in [f32_blob, int8_blob].iter().chain(others) {
+        let name = file
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let bytes = std::fs::read(blob).map_err(io(blob))?;
+        let bytes = std::fs::read(file).map_err(io(file))?;
         let target = dir.join(&name);
         atomic_write(&target, &bytes).map_err(io(&target))?;
         card.files.insert(name, crc_of(&target)?);
     }
     card.sil = sil_figures(&sil);
-    (card.lookahead, card.with_terminal) = fly_aided(&config, &export.f32.file, run)?;
     card.reexported = Some((portable_command(), commit, utc_date()));
     card.reexported_format = Some(shared::blob::FORMAT_VERSION);
-    write_cards(dir, &mut card)?;
-    Ok(Reexport { card, export, sil })
+    write_cards(dir, card)?;
+    Ok(sil)
 }
 
 /// `ground model export --model DIR --upgrade`: converts the folder's blobs of an older format
@@ -678,21 +704,11 @@ pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport
     // Before the folder changes, which would mark the tree modified.
     let commit = current_commit();
     let (mut card, config) = read_card(dir, Unsealed::Accepted)?;
-    for (name, recorded) in &card.files {
-        let path = dir.join(name);
-        let found = crc_of(&path)?;
-        if &found != recorded {
-            return Err(ModelError::Checksum {
-                path,
-                found,
-                recorded: recorded.clone(),
-            });
-        }
-    }
+    ground_core::model_files::verify_checksums(dir, &card.files)?;
     let kind = config.problem();
     let upgraded = run.join("upgrade");
     std::fs::create_dir_all(&upgraded).map_err(io(&upgraded))?;
-    let convert = |quantization| -> Result<(String, PathBuf), ModelError> {
+    let convert = |quantization| -> Result<PathBuf, ModelError> {
         let name = blob_file(kind, quantization);
         let path = dir.join(&name);
         let bytes = std::fs::read(&path).map_err(io(&path))?;
@@ -702,25 +718,10 @@ pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport
         })?;
         let target = upgraded.join(&name);
         atomic_write(&target, &new).map_err(io(&target))?;
-        Ok((name, target))
+        Ok(target)
     };
-    let (f32_name, f32_blob) = convert(Quantization::F32)?;
-    let (int8_name, int8_blob) = convert(Quantization::Int8)?;
-    let experiment = |e: ExperimentError| ModelError::Experiment(Box::new(e));
-    let sil = crate::sil::sil_of_blobs(&config, &f32_blob, &int8_blob, run)
-        .map_err(experiment)?
-        .to_vec();
-    (card.lookahead, card.with_terminal) = fly_aided(&config, &f32_blob, run)?;
-    for (name, blob) in [(f32_name, f32_blob), (int8_name, int8_blob)] {
-        let bytes = std::fs::read(&blob).map_err(io(&blob))?;
-        let target = dir.join(&name);
-        atomic_write(&target, &bytes).map_err(io(&target))?;
-        card.files.insert(name, crc_of(&target)?);
-    }
-    card.sil = sil_figures(&sil);
-    card.reexported = Some((portable_command(), commit, utc_date()));
-    card.reexported_format = Some(shared::blob::FORMAT_VERSION);
-    write_cards(dir, &mut card)?;
+    let (f32_blob, int8_blob) = (convert(Quantization::F32)?, convert(Quantization::Int8)?);
+    let sil = install_blobs(dir, &mut card, &config, [&f32_blob, &int8_blob], &[], run, commit)?;
     Ok((card, sil))
 }
 
