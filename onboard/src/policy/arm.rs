@@ -16,6 +16,7 @@
 //! `scripts/qemu-sil.sh` checks bit for bit against the host.
 
 use core::arch::asm;
+use core::mem::MaybeUninit;
 
 use super::int8::{dot1_pair_words, Acts};
 
@@ -217,12 +218,13 @@ const NARROW_PARTIALS: usize = 8 * NARROW_OUTPUTS;
 /// The narrow f32 kernel of a 3-output layer: `part[3 k + j] += x[i] * w[i][j]` (fused, one
 /// `vfma.f32`) for the inputs `i = k, k + 8, k + 16, ...` in order, `k < 8`, `j < 3`: the
 /// portable narrow kernel's partial sums (`f32.rs`), which the caller then adds to the bias in
-/// order. The 24 partials stay in `s0`-`s23` for all inputs; per input one `vldr` of `x[i]`, three
-/// `ldr` of its (possibly unaligned) weights, two `vmov` and three `vfma`: 9 instructions for 3
-/// multiply-adds, against about 15 for the single [`fma`]s through core registers.
+/// order. The 24 partials stay in `s0`-`s23` for all inputs; per two inputs one `vldmia` of
+/// them into `s24`-`s25`, one `vldmia` of their 6 weights into `s26`-`s31` and 6 `vfma`:
+/// 34 instructions for 24 multiply-adds per group of 8 inputs, with the loop's `subs`/`bne`.
 ///
 /// Returns `false`, touching nothing, unless `part` has the 24 partials, `x` has a multiple
-/// `n >= 8` of 8 inputs and `weights` has `12 n` bytes; the caller then runs the portable kernel.
+/// `n >= 8` of 8 inputs and `weights` has `12 n` bytes at a word-aligned address (rows of 3 f32
+/// keep every row aligned); the caller then runs the portable kernel.
 #[inline(never)]
 pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
     let n = x.len();
@@ -230,6 +232,7 @@ pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
         || n < 8
         || !n.is_multiple_of(8)
         || n.checked_mul(4 * NARROW_OUTPUTS).is_none_or(|len| weights.len() < len)
+        || !(weights.as_ptr() as usize).is_multiple_of(4)
     {
         return false;
     }
@@ -237,108 +240,62 @@ pub(super) fn f32_narrow3(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
     // - `part`: `vldm`/`vstm` of `s0`-`s23` read and write its 24 f32 (96 bytes, its length
     //   checked above), through a pointer from a `&mut [f32]` (word-aligned, as `vldm`/`vstm`
     //   require).
-    // - `x`: the loop runs `n / 8 >= 1` times (`subs`/`bne` at the bottom); iteration `t` reads
-    //   the f32 at byte offsets `0, 4, ..., 28` from `px` = byte `32 t` of the `[f32]` by `vldr`
-    //   (word-aligned: an f32 slice), so bytes `0..4 n` of `x`.
-    // - weights: iteration `t` reads 4 bytes by `ldr` at offsets `0, 4, ..., 92` from `pw` = byte
-    //   `96 t`, so bytes `0..12 n` of `weights`, whose length was checked above. `ldr` may be
-    //   unaligned on the Cortex-M4 (unless `CCR.UNALIGN_TRP` is set; it is off at reset and nothing
-    //   here sets it).
-    // - the stack: `vpush`/`vpop` of `s0`-`s27` (112 bytes), balanced, so `sp` is restored.
-    // Registers: every core register written is a declared operand; `s0`-`s27` are saved on entry
-    // and restored on exit, so no FPU register changes as the compiler sees it. The flags (`subs`)
-    // are clobbered; FPSCR's rounding mode is only read, its sticky exception bits may be set, as
-    // by any f32 arithmetic.
+    // - `x`: the loop runs `n / 8 >= 1` times (`subs`/`bne` at the bottom); each iteration's four
+    //   `vldmia` read 8 bytes each at `px`, advancing it by what they read: bytes `0..4 n` of
+    //   the `[f32]` (word-aligned).
+    // - weights: each iteration's four `vldmia` read 24 bytes each at `pw`, advancing it by what
+    //   they read: bytes `0..12 n` of `weights`, whose length and alignment were checked above.
+    // - the stack: `vpush`/`vpop` of `d0`-`d15` (`s0`-`s31`, 128 bytes), balanced, so `sp` is
+    //   restored.
+    // Registers: every core register written is a declared operand; `s0`-`s31` are saved on
+    // entry and restored on exit, so no FPU register changes as the compiler sees it. The flags
+    // (`subs`) are clobbered; FPSCR's rounding mode is only read, its sticky exception bits may
+    // be set, as by any f32 arithmetic.
     unsafe {
         asm!(
-                "vpush {{s0-s27}}",
+                "vpush {{d0-d15}}",
                 "vldm {acc}, {{s0-s23}}",
                 "2:",
-                "vldr s24, [{px}, #0]",
-                "ldr {r0}, [{pw}, #0]",
-                "ldr {r1}, [{pw}, #4]",
-                "ldr {r2}, [{pw}, #8]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s0, s24, s25",
-                "vfma.f32 s1, s24, s26",
-                "vfma.f32 s2, s24, s27",
-                "vldr s24, [{px}, #4]",
-                "ldr {r0}, [{pw}, #12]",
-                "ldr {r1}, [{pw}, #16]",
-                "ldr {r2}, [{pw}, #20]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s3, s24, s25",
-                "vfma.f32 s4, s24, s26",
-                "vfma.f32 s5, s24, s27",
-                "vldr s24, [{px}, #8]",
-                "ldr {r0}, [{pw}, #24]",
-                "ldr {r1}, [{pw}, #28]",
-                "ldr {r2}, [{pw}, #32]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s6, s24, s25",
-                "vfma.f32 s7, s24, s26",
-                "vfma.f32 s8, s24, s27",
-                "vldr s24, [{px}, #12]",
-                "ldr {r0}, [{pw}, #36]",
-                "ldr {r1}, [{pw}, #40]",
-                "ldr {r2}, [{pw}, #44]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s9, s24, s25",
-                "vfma.f32 s10, s24, s26",
-                "vfma.f32 s11, s24, s27",
-                "vldr s24, [{px}, #16]",
-                "ldr {r0}, [{pw}, #48]",
-                "ldr {r1}, [{pw}, #52]",
-                "ldr {r2}, [{pw}, #56]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s12, s24, s25",
-                "vfma.f32 s13, s24, s26",
-                "vfma.f32 s14, s24, s27",
-                "vldr s24, [{px}, #20]",
-                "ldr {r0}, [{pw}, #60]",
-                "ldr {r1}, [{pw}, #64]",
-                "ldr {r2}, [{pw}, #68]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s15, s24, s25",
-                "vfma.f32 s16, s24, s26",
-                "vfma.f32 s17, s24, s27",
-                "vldr s24, [{px}, #24]",
-                "ldr {r0}, [{pw}, #72]",
-                "ldr {r1}, [{pw}, #76]",
-                "ldr {r2}, [{pw}, #80]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s18, s24, s25",
-                "vfma.f32 s19, s24, s26",
-                "vfma.f32 s20, s24, s27",
-                "vldr s24, [{px}, #28]",
-                "ldr {r0}, [{pw}, #84]",
-                "ldr {r1}, [{pw}, #88]",
-                "ldr {r2}, [{pw}, #92]",
-                "vmov s25, s26, {r0}, {r1}",
-                "vmov s27, {r2}",
-                "vfma.f32 s21, s24, s25",
-                "vfma.f32 s22, s24, s26",
-                "vfma.f32 s23, s24, s27",
-                "add {px}, {px}, #32",
-                "add {pw}, {pw}, #96",
+                "vldmia {px}!, {{s24-s25}}",
+                "vldmia {pw}!, {{s26-s31}}",
+                "vfma.f32 s0, s24, s26",
+                "vfma.f32 s1, s24, s27",
+                "vfma.f32 s2, s24, s28",
+                "vfma.f32 s3, s25, s29",
+                "vfma.f32 s4, s25, s30",
+                "vfma.f32 s5, s25, s31",
+                "vldmia {px}!, {{s24-s25}}",
+                "vldmia {pw}!, {{s26-s31}}",
+                "vfma.f32 s6, s24, s26",
+                "vfma.f32 s7, s24, s27",
+                "vfma.f32 s8, s24, s28",
+                "vfma.f32 s9, s25, s29",
+                "vfma.f32 s10, s25, s30",
+                "vfma.f32 s11, s25, s31",
+                "vldmia {px}!, {{s24-s25}}",
+                "vldmia {pw}!, {{s26-s31}}",
+                "vfma.f32 s12, s24, s26",
+                "vfma.f32 s13, s24, s27",
+                "vfma.f32 s14, s24, s28",
+                "vfma.f32 s15, s25, s29",
+                "vfma.f32 s16, s25, s30",
+                "vfma.f32 s17, s25, s31",
+                "vldmia {px}!, {{s24-s25}}",
+                "vldmia {pw}!, {{s26-s31}}",
+                "vfma.f32 s18, s24, s26",
+                "vfma.f32 s19, s24, s27",
+                "vfma.f32 s20, s24, s28",
+                "vfma.f32 s21, s25, s29",
+                "vfma.f32 s22, s25, s30",
+                "vfma.f32 s23, s25, s31",
                 "subs {n}, {n}, #1",
                 "bne 2b",
                 "vstm {acc}, {{s0-s23}}",
-                "vpop {{s0-s27}}",
+                "vpop {{d0-d15}}",
             acc = in(reg) part.as_mut_ptr(),
             px = inout(reg) x.as_ptr() => _,
             pw = inout(reg) weights.as_ptr() => _,
             n = inout(reg) n >> 3 => _,
-            r0 = out(reg) _,
-            r1 = out(reg) _,
-            r2 = out(reg) _,
         );
     }
     true
@@ -435,7 +392,7 @@ pub(super) fn f32_narrow4(weights: &[u8], x: &[f32], part: &mut [f32]) -> bool {
     true
 }
 
-/// One group of [`f32_block`]: 8 inputs into `s24`-`s31`, then 4 times the weights of two
+/// One group of [`f32_layer`]: 8 inputs into `s24`-`s31`, then 4 times the weights of two
 /// inputs into `s8`-`s23` and their 16 `vfma` into `s0`-`s7` (69 instructions, 64 MACs).
 macro_rules! f32_block_group {
     () => {
@@ -513,64 +470,146 @@ macro_rules! f32_block_group {
     };
 }
 
-/// Outputs per block of [`f32_block`]: its accumulators fill `s0`-`s7`.
-pub(super) const F32_ARM_BLOCK: usize = shared::blob::F32_BLOCK;
+/// Outputs per block of [`f32_layer`]: its accumulators fill `s0`-`s7`.
+const F32_ARM_BLOCK: usize = shared::blob::F32_BLOCK;
 
-/// `acc[k] += x[i] * w[i][k]` for `i = 0, 1, 2, ...` in order, `k < 8`, `block` one block of
-/// an f32 layer's weights (`IN` runs of 8 f32 LE, input-major: `shared::blob::f32_weight_index`):
-/// per output the same fused multiply-adds in the same order as the portable f32 kernel (one
-/// `vfma.f32`: rounded once). The 8 accumulators stay in `s0`-`s7` for all inputs; eight
-/// inputs at a time are loaded into `s24`-`s31` by one `vldmia`, and the weights of two inputs
-/// at a time into `s8`-`s23` by another, each followed by 16 `vfma`: 69 instructions for 64
+/// `y[8 c + k] = bias[8 c + k] + x[0] w[0][8 c + k] + x[1] w[1][8 c + k] + ...`, the products
+/// and sums in that order, for the `y.len() / 8` whole blocks `c` of an f32 layer (`weights`:
+/// blocks of `IN` runs of 8 f32 LE, input-major: `shared::blob::f32_weight_index`; `bias`: f32
+/// LE), each fused multiply-add one `vfma.f32` (rounded once): per output the same operations in
+/// the same order as the portable f32 kernel.
+///
+/// One `asm!` block runs the whole layer, so nothing is spent per block outside it. Per block:
+/// the 8 biases by 8 `ldr` (the bias array follows its length prefix, so it may be unaligned)
+/// and 4 `vmov` into the accumulators `s0`-`s7`, which stay there for all inputs; eight inputs
+/// at a time are loaded into `s24`-`s31` by one `vldmia`, and the weights of two inputs at a
+/// time into `s8`-`s23` by another, each followed by 16 `vfma`: 69 instructions for 64
 /// multiply-adds (1.08 each). A loop takes 32 inputs per pass (4 groups, then `subs`/`bne`:
 /// 278 instructions for 256 multiply-adds; left out by `.if` below 32 inputs), then the last
 /// `(IN % 32) / 8` groups and the last `IN % 8` inputs one at a time (10 for 8) unrolled by
-/// `.rept` over the const `IN`. Unrolling all of a 256-input layer would save 16 instructions a
-/// block for 8.9 KiB of flash in every image, f32 or int8 (whose blob may be either).
+/// `.rept` over the const `IN`; with `relu`, each output `v` becomes `0` where `v < 0` (`vcmp`
+/// with 0, `vmrs`, `vmovmi` from a zero: NaN and `-0.0` kept, as the portable `relu`; a
+/// run-time flag, so that the hidden layer and an int8 network's first layer, which leaves the
+/// ReLU to its quantization, share one copy); one `vstmia` stores the block's outputs. Unrolling all of a
+/// 256-input layer would save 16 instructions a block for 8.9 KiB of flash in every image, f32
+/// or int8 (whose blob may be either).
 ///
 /// `vldm` needs word-aligned addresses: the blob format puts every weight array at a multiple
 /// of 64 bytes from the blob's start and a block's `32 IN` bytes keep the next one aligned, so
-/// the blocks of a blob stored at a word-aligned address (the image's flash, or a C caller's
-/// aligned buffer) are. Returns `false`, touching nothing, unless `block` holds `32 IN` bytes
-/// at a word-aligned address; the caller then runs the portable kernel. Not inlined: one copy
-/// per input width serves every block.
+/// the weights of a blob stored at a word-aligned address (the image's flash, or a C caller's
+/// aligned buffer) are. Returns `false`, touching nothing, unless `weights` holds the whole
+/// blocks' `32 IN` bytes each at a word-aligned address and `bias` their `32` bytes each; the
+/// caller then runs the portable kernel. The kernel is not inlined: one copy per input width
+/// serves every layer of that width.
+#[inline(always)]
+pub(super) fn f32_layer<const IN: usize>(
+    weights: &[u8],
+    bias: &[u8],
+    x: &[f32; IN],
+    y: &mut [f32],
+    relu: bool,
+) -> bool {
+    // SAFETY: `MaybeUninit<f32>` has the layout of `f32`, and `f32_layer_uninit` writes only
+    // f32 values into the view, so `y` holds initialized f32 whatever it does.
+    let y = unsafe { &mut *(core::ptr::from_mut(y) as *mut [MaybeUninit<f32>]) };
+    f32_layer_uninit(weights, bias, x, y, relu)
+}
+
+/// [`f32_layer`] into an array that is not initialized yet (so never zeroed first: about 330
+/// instructions for 256 outputs), which the kernel writes whole: `Ok` with the array, or
+/// `Err` with it untouched where the kernel declines or `OUT` is not a whole number of blocks.
+#[inline(always)]
+pub(super) fn f32_layer_fresh<'y, const IN: usize, const OUT: usize>(
+    weights: &[u8],
+    bias: &[u8],
+    x: &[f32; IN],
+    y: &'y mut MaybeUninit<[f32; OUT]>,
+    relu: bool,
+) -> Result<&'y mut [f32; OUT], &'y mut MaybeUninit<[f32; OUT]>> {
+    if !OUT.is_multiple_of(F32_ARM_BLOCK) {
+        return Err(y);
+    }
+    // SAFETY: `[f32; OUT]` and `[MaybeUninit<f32>; OUT]` have the same layout, and any bytes
+    // are a valid `MaybeUninit<f32>`.
+    let view = unsafe { &mut *y.as_mut_ptr().cast::<[MaybeUninit<f32>; OUT]>() };
+    if !f32_layer_uninit(weights, bias, x, view, relu) {
+        return Err(y);
+    }
+    // SAFETY: the kernel returned `true`, so its `vstmia` stored all `OUT / 8` blocks of 8 f32:
+    // every element is initialized.
+    Ok(unsafe { y.assume_init_mut() })
+}
+
+/// [`f32_layer`] on a view that may be uninitialized: it writes the whole blocks' outputs, never
+/// reads them.
 #[inline(never)]
-pub(super) fn f32_block<const IN: usize>(block: &[u8], x: &[f32; IN], acc: &mut [f32; F32_ARM_BLOCK]) -> bool {
-    let Some(block) = block.get(..4 * F32_ARM_BLOCK * IN) else {
+fn f32_layer_uninit<const IN: usize>(
+    weights: &[u8],
+    bias: &[u8],
+    x: &[f32; IN],
+    y: &mut [MaybeUninit<f32>],
+    relu: bool,
+) -> bool {
+    let blocks = y.len() / F32_ARM_BLOCK;
+    let Some(weight_bytes) = blocks.checked_mul(4 * F32_ARM_BLOCK * IN) else {
         return false;
     };
-    if IN == 0 || !(block.as_ptr() as usize).is_multiple_of(4) {
+    let (Some(weights), Some(bias)) = (weights.get(..weight_bytes), bias.get(..4 * F32_ARM_BLOCK * blocks)) else {
+        return false;
+    };
+    if IN == 0 || blocks == 0 || !(weights.as_ptr() as usize).is_multiple_of(4) {
         return false;
     }
     // SAFETY: memory accessed, all in bounds:
-    // - `acc`: `vldm`/`vstm` of `s0`-`s7` read and write its 8 f32 (32 bytes), through a
-    //   pointer from a `&mut [f32; 8]` (word-aligned, as `vldm`/`vstm` require).
-    // - `x`: the loop's `IN / 32` passes read 32 f32 each (4 groups), the `(IN % 32) / 8` groups'
-    //   `vldmia` 8 f32 each and the `IN % 8` singles' one each, at `px`, advancing it by what
-    //   they read: bytes `0..4 IN` of the `[f32; IN]` (word-aligned). The loop runs `IN >> 5`
-    //   times (`subs`/`bne` at its bottom), and is left out when that is 0 (`.if`).
-    // - weights: `pw` starts at `block`, word-aligned (checked above); each group's four
+    // - `y`: block `c` (the outer loop runs `blocks >= 1` times, `subs`/`bne` at its bottom)
+    //   stores its 8 f32 by `vstmia` at `py`, which starts at `y` (word-aligned, an f32 slice)
+    //   and advances by the 32 bytes stored: bytes `0..32 blocks <= 4 y.len()` of `y`.
+    // - `bias`: block `c` reads 8 words by `ldr` at `pb`, which starts at `bias` and advances by
+    //   each word read: bytes `0..32 blocks` of `bias`, which holds them (checked above). `ldr`
+    //   may be unaligned on the Cortex-M4 (unless `CCR.UNALIGN_TRP` is set; it is off at reset
+    //   and nothing here sets it).
+    // - `x`: each block starts `px` at `x` again; the loop's `IN / 32` passes read 32 f32 each
+    //   (4 groups), the `(IN % 32) / 8` groups' `vldmia` 8 f32 each and the `IN % 8` singles'
+    //   one each, at `px`, advancing it by what they read: bytes `0..4 IN` of the `[f32; IN]`
+    //   (word-aligned). The inner loop runs `IN >> 5` times (its count set by `movw`), and is
+    //   left out when that is 0 (`.if`).
+    // - weights: `pw` starts at `weights`, word-aligned (checked above); each group's four
     //   `vldmia` read 64 bytes each and each single's one 32 bytes, advancing `pw` by what they
-    //   read: bytes `0..32 IN` of `block`, which holds them (checked above).
+    //   read: `32 IN` bytes a block, so bytes `0..32 IN blocks` of `weights` (checked above),
+    //   each block's start word-aligned.
     // - the stack: `vpush`/`vpop` of `d0`-`d15` (`s0`-`s31`, 128 bytes), balanced, so `sp` is
     //   restored.
-    // Registers: the two pointers and the loop count are declared operands, written; the flags
-    // are clobbered (`subs`); `s0`-`s31` are saved on entry
-    // and restored on exit, so no FPU register changes as the compiler sees it (Rust cannot name
-    // FPU registers as `asm!` operands on stable for this target). FPSCR's rounding mode is only
-    // read, its sticky exception bits may be set, as by any f32 arithmetic (so not
-    // `preserves_flags`).
+    // Registers: every core register written is a declared operand (`relu` is only read; `px`
+    // and `n` also carry each block's bias words to the FPU before they take their own values);
+    // the flags are clobbered (`cmp`, `subs`); `s0`-`s31` are saved on entry and restored on exit, so no FPU register
+    // changes as the compiler sees it (Rust cannot name FPU registers as `asm!` operands on
+    // stable for this target). FPSCR's rounding mode is only read, its sticky exception bits
+    // may be set, as by any f32 arithmetic (so not `preserves_flags`).
     unsafe {
         asm!(
                 "vpush {{d0-d15}}",
-                "vldm {acc}, {{s0-s7}}",
-                ".if {loops}",
                 "2:",
+                "ldr {n}, [{pb}], #4",
+                "ldr {px}, [{pb}], #4",
+                "vmov s0, s1, {n}, {px}",
+                "ldr {n}, [{pb}], #4",
+                "ldr {px}, [{pb}], #4",
+                "vmov s2, s3, {n}, {px}",
+                "ldr {n}, [{pb}], #4",
+                "ldr {px}, [{pb}], #4",
+                "vmov s4, s5, {n}, {px}",
+                "ldr {n}, [{pb}], #4",
+                "ldr {px}, [{pb}], #4",
+                "vmov s6, s7, {n}, {px}",
+                "mov {px}, {x}",
+                ".if {loops}",
+                "movw {n}, #{loops}",
+                "3:",
                 ".rept 4",
                 f32_block_group!(),
                 ".endr",
                 "subs {n}, {n}, #1",
-                "bne 2b",
+                "bne.w 3b",
                 ".endif",
                 ".rept {groups}",
                 f32_block_group!(),
@@ -587,15 +626,32 @@ pub(super) fn f32_block<const IN: usize>(block: &[u8], x: &[f32; IN], acc: &mut 
                 "vfma.f32 s6, s24, s14",
                 "vfma.f32 s7, s24, s15",
                 ".endr",
-                "vstm {acc}, {{s0-s7}}",
+                "cmp {relu}, #0",
+                "beq 4f",
+                "mov {n}, #0",
+                "vmov s8, {n}",
+                ".irp acc, s0, s1, s2, s3, s4, s5, s6, s7",
+                "vcmp.f32 \\acc, #0",
+                "vmrs APSR_nzcv, fpscr",
+                "it mi",
+                "vmovmi.f32 \\acc, s8",
+                ".endr",
+                "4:",
+                "vstmia {py}!, {{s0-s7}}",
+                "subs {blocks}, {blocks}, #1",
+                "bne.w 2b",
                 "vpop {{d0-d15}}",
-            acc = in(reg) acc.as_mut_ptr(),
-            px = inout(reg) x.as_ptr() => _,
-            pw = inout(reg) block.as_ptr() => _,
-            n = inout(reg) IN >> 5 => _,
+            x = in(reg) x.as_ptr(),
+            px = out(reg) _,
+            n = out(reg) _,
+            pb = inout(reg) bias.as_ptr() => _,
+            pw = inout(reg) weights.as_ptr() => _,
+            py = inout(reg) y.as_mut_ptr() => _,
+            blocks = inout(reg) blocks => _,
             loops = const IN >> 5,
             groups = const (IN >> 3) & 3,
             singles = const IN & 7,
+            relu = in(reg) u32::from(relu),
         );
     }
     true

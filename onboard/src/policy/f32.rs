@@ -2,13 +2,15 @@
 //! axpys over register tiles of [`F32_TILE`] outputs (see the module doc of [`super`]), each
 //! product and sum one fused multiply-add ([`fma`]).
 
+use core::mem::MaybeUninit;
+
 use shared::blob::{f32_weight_index, LayerBlob, F32_BLOCK};
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 use super::arm;
 #[cfg(target_arch = "x86_64")]
 use super::x86;
-use super::{check_len, check_shape, f32_le, LayerArray, PolicyError};
+use super::{check_len, check_shape, f32_le, relu, LayerArray, PolicyError};
 
 /// Outputs per register tile of the f32 kernel (a multiple of 16, the AVX-512 lane count).
 pub const F32_TILE: usize = 64;
@@ -54,28 +56,106 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
 
     /// The pre-activation `b + W x`.
     pub fn forward(&self, x: &[f32; IN]) -> [f32; OUT] {
-        // One array, filled in place: on the Cortex-M4F each copy of a 256-wide vector costs
-        // hundreds of instructions.
         let mut y = [0.0f32; OUT];
+        self.forward_into(x, &mut y);
+        y
+    }
+
+    /// [`Self::forward`] into `y` (every element overwritten): a network passes its own
+    /// arrays, since on the Cortex-M4F each copy of a 256-wide vector costs over a thousand
+    /// instructions.
+    #[inline(always)]
+    pub fn forward_into(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+        if self.machine_layer(x, y, false) {
+            return;
+        }
+        self.portable_into(x, y);
+    }
+
+    /// `relu(b + W x)` into `y` (every element overwritten), `relu` the network's (NaN and
+    /// `-0.0` kept): a hidden layer. The Cortex-M4F kernel applies it to each block while its
+    /// outputs are still in registers.
+    #[inline(always)]
+    pub fn forward_relu_into(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+        if self.machine_layer(x, y, true) {
+            return;
+        }
+        self.portable_into(x, y);
+        y.iter_mut().for_each(|v| *v = relu(*v));
+    }
+
+    /// [`Self::forward_into`] (with `relu`: [`Self::forward_relu_into`]) into an array not
+    /// initialized yet, returned initialized: the Cortex-M4F kernel writes it whole, so it is
+    /// never zeroed first.
+    #[inline(always)]
+    pub(super) fn forward_fresh<'y>(
+        &self,
+        x: &[f32; IN],
+        y: &'y mut MaybeUninit<[f32; OUT]>,
+        relu: bool,
+    ) -> &'y mut [f32; OUT] {
+        #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+        let y = match arm::f32_layer_fresh(self.weights, self.bias, x, y, relu) {
+            Ok(done) => return done,
+            Err(y) => y,
+        };
+        let y = y.write([0.0f32; OUT]);
+        if relu {
+            self.forward_relu_into(x, y);
+        } else {
+            self.forward_into(x, y);
+        }
+        y
+    }
+
+    /// [`Self::forward_into`] by the host's kernels (x86-64) or the portable ones.
+    #[inline(always)]
+    fn portable_into(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         for (yj, c) in y.iter_mut().zip(self.bias.chunks_exact(4)) {
             *yj = f32_le(c);
         }
         #[cfg(target_arch = "x86_64")]
-        if x86::dense(self.weights, x, &mut y) {
-            return y;
+        if x86::dense(self.weights, x, y) {
+            return;
         }
         if OUT < F32_BLOCK {
-            axpy_narrow(self.weights, x, &mut y);
+            axpy_narrow(self.weights, x, y);
+        } else if cfg!(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")) {
+            // Only where `arm::f32_layer` declined (unaligned weights): compact rather than fast.
+            axpy_tail::<IN, OUT>(self.weights, 0, x, y);
         } else {
-            self.tiles(x, &mut y);
+            self.tiles(x, y);
         }
-        y
+    }
+
+    /// The layer's whole blocks of 8 outputs by one `asm!` block on the Cortex-M4F
+    /// (`arm::f32_layer`, `policy/arm.rs`: bias, products and sums per output in the portable
+    /// kernel's order, then `relu` with `relu_too`), then the last `OUT % 8` outputs by the portable
+    /// loop: `false`, with `y` untouched, where it declines (a layer narrower than a block,
+    /// unaligned weights).
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    #[inline(always)]
+    fn machine_layer(&self, x: &[f32; IN], y: &mut [f32; OUT], relu_too: bool) -> bool {
+        let whole = OUT - OUT % F32_BLOCK;
+        let (blocks, tail) = y.split_at_mut(whole);
+        if !arm::f32_layer(self.weights, self.bias, x, blocks, relu_too) {
+            return false;
+        }
+        for (yj, c) in tail.iter_mut().zip(self.bias.chunks_exact(4).skip(whole)) {
+            *yj = f32_le(c);
+        }
+        axpy_tail::<IN, OUT>(self.weights, whole, x, tail);
+        if relu_too {
+            tail.iter_mut().for_each(|v| *v = relu(*v));
+        }
+        true
     }
 
     /// `y += W x` for a layer at least a block wide, in register tiles of [`F32_TILE`]
     /// outputs (the portable kernel: per input, the tile's 8 blocks of 8 contiguous weights),
     /// then the last `OUT % F32_TILE` outputs.
-    #[cfg(not(all(target_arch = "arm", target_os = "none", target_abi = "eabihf")))]
     #[inline(always)]
     fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
         let mut col = 0usize;
@@ -101,27 +181,6 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             col += F32_TILE;
         }
         axpy_tail::<IN, OUT>(self.weights, col, x, tiles.into_remainder());
-    }
-
-    /// [`Self::tiles`] on the Cortex-M4F: each block of 8 outputs held in `s0`-`s7` by an
-    /// `asm!` block (`arm::f32_block`, `policy/arm.rs`), the same products and sums in the same
-    /// order per output as the portable tiles; any block it declines, and the last `OUT % 8`
-    /// outputs, take the portable sequential loop.
-    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-    #[inline(always)]
-    fn tiles(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        let block_bytes = 4 * F32_BLOCK * IN;
-        let mut col = 0usize;
-        let mut blocks = y.chunks_exact_mut(arm::F32_ARM_BLOCK);
-        for (tile, block) in blocks.by_ref().zip(self.weights.chunks_exact(block_bytes)) {
-            let done =
-                <&mut [f32; arm::F32_ARM_BLOCK]>::try_from(&mut *tile).is_ok_and(|acc| arm::f32_block(block, x, acc));
-            if !done {
-                axpy_tail::<IN, OUT>(self.weights, col, x, tile);
-            }
-            col += arm::F32_ARM_BLOCK;
-        }
-        axpy_tail::<IN, OUT>(self.weights, col, x, blocks.into_remainder());
     }
 }
 

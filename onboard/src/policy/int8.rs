@@ -317,13 +317,37 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
 
     /// [`Self::forward`] with `kernel`.
     #[inline(always)]
-    pub(super) fn forward_for(&self, x: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
+    fn forward_for(&self, x: &Acts<IN>, kernel: Int8Kernel) -> [f32; OUT] {
         if kernel == Int8Kernel::Pairs {
             let mut y = [0.0f32; OUT];
             self.map_paired(x, &mut y, |a, s| a as f32 * s);
             return y;
         }
         self.dequantize(&self.accumulate_for(x, kernel))
+    }
+
+    /// `relu` of [`Self::forward`] with `kernel` into `y` (every element overwritten): the
+    /// hidden layer as the network flies it, the pair kernel applying the ReLU to each output
+    /// as it is dequantized.
+    #[inline(always)]
+    pub(super) fn forward_relu_into(&self, x: &Acts<IN>, kernel: Int8Kernel, y: &mut [f32; OUT]) {
+        if kernel == Int8Kernel::Pairs {
+            // The ReLU's 0 from a register: as a constant, LLVM would load it from a literal
+            // pool, which it places beyond reach of the load, mis-sizing the pair kernel's
+            // `.rept` block (an assembler error).
+            let zero = core::hint::black_box(0.0f32);
+            self.map_paired(x, y, |a, s| {
+                let v = a as f32 * s;
+                if v < 0.0 {
+                    zero
+                } else {
+                    v
+                }
+            });
+            return;
+        }
+        *y = self.dequantize(&self.accumulate_for(x, kernel));
+        y.iter_mut().for_each(|v| *v = relu(*v));
     }
 }
 

@@ -55,6 +55,7 @@
 //! quantized to 0 by the int8 kernel (infinities saturate to ±`L`).
 
 use core::fmt;
+use core::mem::MaybeUninit;
 
 use shared::blob::{
     self, Activation, BlobError, BlobMission, FeatureLayout, LayerBlob, NetworkBlob, ProblemKind, Quantization,
@@ -440,16 +441,18 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
         }
         let pre = match &self.layers {
             MlpLayers::F32(a, b, c) => {
-                let mut h1 = a.forward(input);
-                h1.iter_mut().for_each(|v| *v = relu(*v));
-                let mut h2 = b.forward(&h1);
-                h2.iter_mut().for_each(|v| *v = relu(*v));
-                c.forward(&h2)
+                let mut h1 = MaybeUninit::uninit();
+                let h1 = a.forward_fresh(input, &mut h1, true);
+                let mut h2 = MaybeUninit::uninit();
+                let h2 = b.forward_fresh(h1, &mut h2, true);
+                c.forward(h2)
             }
             MlpLayers::Int8(a, b, c) => {
-                let q1 = b.quantize_relu_input(&a.forward(input));
-                let mut h2 = b.forward_for(&q1, kernel);
-                h2.iter_mut().for_each(|v| *v = relu(*v));
+                let mut h1 = MaybeUninit::uninit();
+                // The ReLU is left to the quantization (`quantize_relu`).
+                let q1 = b.quantize_relu_input(a.forward_fresh(input, &mut h1, false));
+                let mut h2 = [0.0f32; H2];
+                b.forward_relu_into(&q1, kernel, &mut h2);
                 c.forward(&h2)
             }
         };
