@@ -157,13 +157,15 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
     /// pair kernel needs: the int8 layer after the f32 first layer takes its pre-activation.
     #[inline(always)]
     pub(super) fn quantize_relu_input(&self, y: &[f32; IN]) -> Acts<IN> {
-        let mut q = [0i16; IN];
+        // Filled in place: moving a finished `[i16; 256]` into the struct is a 512-byte copy.
+        let mut x = Acts { q: [0i16; IN], sum: 0 };
         let mut sum = 0i32;
-        for (qi, &yi) in q.iter_mut().zip(y.iter()) {
+        for (qi, &yi) in x.q.iter_mut().zip(y.iter()) {
             *qi = quantize_relu(yi, self.input_scale);
             sum = sum.wrapping_add(i32::from(*qi));
         }
-        Acts { q, sum }
+        x.sum = sum;
+        x
     }
 
     /// The integer accumulators `bias[j] + sum_i w[j][i] * xq[i]`, saturating at the bias add.
