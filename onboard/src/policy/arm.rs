@@ -1,17 +1,18 @@
 //! The Cortex-M4F kernels in `asm!`, for what stable Rust cannot express or LLVM does not
 //! generate: the int8 pair kernel's Arm DSP instructions (`smlad`, `sxtb16`; stable Rust has
-//! no intrinsics for them) with multi-word loads (`ldm`, `ldrd`), and the f32 block kernel, which
-//! keeps 8 accumulators in FPU registers and loads 8 inputs or 16 weights at a time (`vldm`;
-//! LLVM spills the accumulators and moves every weight separately: 5.15 instructions per
-//! multiply-add, against 1.08 here). Both multi-word loads need word-aligned weights, which
+//! no intrinsics for them) with multi-word loads (`ldm`, `ldrd`), and the f32 layer kernels,
+//! which keep their accumulators in FPU registers and load 8 inputs or 16 weights at a time
+//! (`vldm`; LLVM spills the accumulators and moves every weight separately: 5.15 instructions
+//! per multiply-add, against 1.08 here). Both multi-word loads need word-aligned weights, which
 //! the blob format provides for a blob stored word-aligned; otherwise they decline and the
 //! portable loops run.
 //!
 //! The only module of `onboard` that allows `unsafe` besides `policy::x86`. Each `unsafe` block
-//! is one `asm!` statement whose SAFETY comment shows every memory access in bounds: the loops
-//! read only through pointers taken from slices whose lengths and alignment are checked (by
-//! `from_layer`, and again here, locally, before the `asm!`), for an iteration count derived
-//! from those lengths. Both kernels compute exactly what the portable kernels compute (the same
+//! is one `asm!` statement whose SAFETY comment shows every memory access in bounds (the loops
+//! read only through pointers taken from slices whose lengths and alignment are checked, by
+//! `from_layer` and again here, locally, before the `asm!`, for an iteration count derived
+//! from those lengths), or a view of an array as possibly uninitialized and back once a kernel
+//! has written all of it. Both kernels compute exactly what the portable kernels compute (the same
 //! integers; the same f32 products and sums in the same order per output), which
 //! `scripts/qemu-sil.sh` checks bit for bit against the host.
 
