@@ -75,6 +75,7 @@ use onboard::kepler::{coast, coast3, KeplerError};
 use onboard::policy::{Mlp, PolicyError, Rendezvous3Policy, RendezvousPolicy, Transfer3Policy, TransferPolicy};
 use onboard::spatial::{RtnCommand, SpatialCraftState};
 use shared::blob::ProblemKind;
+use shared::decimal::Decimal6;
 use shared::orbit::{CartesianState, OrbitShape, SpatialState};
 use shared::scenario::{Scenario, ScenarioError, SpatialScenario};
 use shared::spacecraft::CanonicalSpacecraft;
@@ -495,7 +496,7 @@ impl core::fmt::Display for SilError {
         match self {
             Self::Scenario(e) => write!(f, "invalid scenario: {e}"),
             Self::Dispersion(e) => write!(f, "invalid dispersions: {e}"),
-            Self::TimeUnit(s) => write!(f, "the time unit must be finite and > 0 s, got {s}"),
+            Self::TimeUnit(s) => write!(f, "the time unit must be finite and > 0 s, got {}", Decimal6(*s)),
             Self::WrongProblem { expected, found } => {
                 write!(f, "a {found:?} scenario given to the {expected:?} loop")
             }

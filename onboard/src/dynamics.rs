@@ -91,8 +91,8 @@ impl core::fmt::Display for PropagationError {
             Self::Spacecraft => f.write_str("invalid spacecraft: thrust and exhaust speed must be finite and > 0"),
             Self::Duration => f.write_str("propagation duration must be finite"),
             Self::MassDepleted => f.write_str("propellant runs out during the step"),
-            Self::Integration(e) => write!(f, "integration failed: {e:?}"),
-            Self::Kepler(e) => write!(f, "Kepler coast failed: {e:?}"),
+            Self::Integration(e) => write!(f, "integration failed: {e}"),
+            Self::Kepler(e) => write!(f, "Kepler coast failed: {e}"),
             Self::NoOrbitPlane => {
                 f.write_str("the velocity lies along the radius: no orbit plane to hold the command in")
             }

@@ -25,6 +25,8 @@
 //! [`Observer`] (see [`Observer::on_event`]) rather than from the sign of the state, which
 //! the last stages of the landing step see either way.
 
+use shared::decimal::Decimal6;
+
 /// An ordinary differential equation dy/dt = f(t, y) with N states and E event functions.
 ///
 /// E is the system's own business: the flight dynamics have none (the default, E = 0), the
@@ -116,9 +118,9 @@ pub enum IntegrationError {
 impl core::fmt::Display for IntegrationError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            Self::StepBudgetExhausted { t } => write!(f, "step budget exhausted at t = {t}"),
-            Self::StepSizeUnderflow { t } => write!(f, "step size underflow at t = {t}"),
-            Self::NonFinite { t } => write!(f, "derivatives or state not finite at t = {t}"),
+            Self::StepBudgetExhausted { t } => write!(f, "step budget exhausted at t = {}", Decimal6(*t)),
+            Self::StepSizeUnderflow { t } => write!(f, "step size underflow at t = {}", Decimal6(*t)),
+            Self::NonFinite { t } => write!(f, "derivatives or state not finite at t = {}", Decimal6(*t)),
             Self::InvalidInput => f.write_str(
                 "invalid input: times and state must be finite, tolerances finite and > 0, max_steps > 0, \
                  initial_step finite and >= 0, fixed steps at most 1024 and only for systems without events",

@@ -41,5 +41,5 @@ fn every_error_type_is_an_error_with_a_message() {
     for m in &messages {
         assert!(!m.is_empty());
     }
-    assert_eq!(messages[4], "step size underflow at t = 1.5");
+    assert_eq!(messages[4], "step size underflow at t = 1.500000");
 }

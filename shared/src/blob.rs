@@ -579,7 +579,7 @@ impl core::fmt::Display for BlobError {
             } => write!(
                 f,
                 "layer {layer} input_scale {} is not finite and positive",
-                f32::from_bits(bits)
+                crate::decimal::Decimal6(f64::from(f32::from_bits(bits)))
             ),
             Self::BadScale {
                 layer,
@@ -588,7 +588,7 @@ impl core::fmt::Display for BlobError {
             } => write!(
                 f,
                 "layer {layer} weight scale {c} = {} is not finite and positive",
-                f32::from_bits(bits)
+                crate::decimal::Decimal6(f64::from(f32::from_bits(bits)))
             ),
             Self::NonFiniteWeight { layer, array, index } => {
                 write!(f, "layer {layer} {array}[{index}] is not finite")

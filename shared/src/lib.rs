@@ -64,6 +64,7 @@
 #![deny(missing_docs)]
 
 pub mod blob;
+pub mod decimal;
 pub mod mission;
 pub mod orbit;
 #[cfg(feature = "std")]

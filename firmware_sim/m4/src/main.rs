@@ -320,7 +320,12 @@ unsafe fn DefaultHandler(irq: i16) {
     semi::fail(format_args!("unexpected exception {irq}"))
 }
 
+/// Where it panicked, not the message: formatting any panic site's message would link core's
+/// float formatting (some 20 KiB of flash) for asserts the flight code never reaches.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo<'_>) -> ! {
-    semi::fail(format_args!("panic: {info}"))
+    match info.location() {
+        Some(at) => semi::fail(format_args!("panic at {}:{}", at.file(), at.line())),
+        None => semi::fail(format_args!("panic")),
+    }
 }
