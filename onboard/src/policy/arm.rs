@@ -551,7 +551,8 @@ fn f32_layer_uninit<const IN: usize>(
     y: &mut [MaybeUninit<f32>],
     relu: bool,
 ) -> bool {
-    let blocks = y.len() / F32_ARM_BLOCK;
+    // Whole blocks of 8 (a shift: the crate denies integer division).
+    let blocks = y.len() >> F32_ARM_BLOCK.trailing_zeros();
     let Some(weight_bytes) = blocks.checked_mul(4 * F32_ARM_BLOCK * IN) else {
         return false;
     };
