@@ -66,11 +66,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
     /// instructions.
     #[inline(always)]
     pub fn forward_into(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
-        #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-        if self.machine_layer(x, y, false) {
-            return;
-        }
-        self.portable_into(x, y);
+        self.layer_into(x, y, false);
     }
 
     /// `relu(b + W x)` into `y` (every element overwritten), `relu` the network's (NaN and
@@ -78,12 +74,21 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
     /// outputs are still in registers.
     #[inline(always)]
     pub fn forward_relu_into(&self, x: &[f32; IN], y: &mut [f32; OUT]) {
+        self.layer_into(x, y, true);
+    }
+
+    /// `b + W x`, or its `relu` with `relu_too`, into `y`: the Cortex-M4F kernel where it
+    /// takes the layer, else the host's or the portable kernels.
+    #[inline(always)]
+    fn layer_into(&self, x: &[f32; IN], y: &mut [f32; OUT], relu_too: bool) {
         #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-        if self.machine_layer(x, y, true) {
+        if self.machine_layer(x, y, relu_too) {
             return;
         }
         self.portable_into(x, y);
-        y.iter_mut().for_each(|v| *v = relu(*v));
+        if relu_too {
+            y.iter_mut().for_each(|v| *v = relu(*v));
+        }
     }
 
     /// [`Self::forward_into`] (with `relu`: [`Self::forward_relu_into`]) into an array not
@@ -102,11 +107,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseF32<'a, IN, OUT> {
             Err(y) => y,
         };
         let y = y.write([0.0f32; OUT]);
-        if relu {
-            self.forward_relu_into(x, y);
-        } else {
-            self.forward_into(x, y);
-        }
+        self.layer_into(x, y, relu);
         y
     }
 
