@@ -491,9 +491,9 @@ const F32_ARM_BLOCK: usize = shared::blob::F32_BLOCK;
 /// `.rept` over the const `IN`; with `relu`, each output `v` becomes `0` where `v < 0` (`vcmp`
 /// with 0, `vmrs`, `vmovmi` from a zero: NaN and `-0.0` kept, as the portable `relu`; a
 /// run-time flag, so that the hidden layer and an int8 network's first layer, which leaves the
-/// ReLU to its quantization, share one copy); one `vstmia` stores the block's outputs. Unrolling all of a
-/// 256-input layer would save 16 instructions a block for 8.9 KiB of flash in every image, f32
-/// or int8 (whose blob may be either).
+/// ReLU to its quantization, share one copy); one `vstmia` stores the block's outputs.
+/// Unrolling all of a 256-input layer would save 16 instructions a block for 8.9 KiB of flash
+/// in every image, f32 or int8 (whose blob may be either).
 ///
 /// `vldm` needs word-aligned addresses: the blob format puts every weight array at a multiple
 /// of 64 bytes from the blob's start and a block's `32 IN` bytes keep the next one aligned, so

@@ -7,7 +7,7 @@ use shared::blob::{self, LayerBlob, ACTIVATION_LEVELS};
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
 use super::arm::{dot2_pairs, pair_mac};
-use super::{check_len, check_shape, f32_le, i32_le, relu, LayerArray, PolicyError, ARM_ASM};
+use super::{check_len, check_shape, f32_le, i32_le, relu, relu_to, LayerArray, PolicyError, ARM_ASM};
 
 /// Output rows (two row pairs) computed per pass over the input by [`DenseInt8::accumulate_rows`]
 /// and [`DenseInt8::accumulate_pairs`].
@@ -338,14 +338,7 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
             // pool, which it places beyond reach of the load, mis-sizing the pair kernel's
             // `.rept` block (an assembler error).
             let zero = core::hint::black_box(0.0f32);
-            self.map_paired(x, y, |a, s| {
-                let v = a as f32 * s;
-                if v < 0.0 {
-                    zero
-                } else {
-                    v
-                }
-            });
+            self.map_paired(x, y, |a, s| relu_to(a as f32 * s, zero));
             return;
         }
         *y = self.dequantize(&self.accumulate_for(x, kernel));

@@ -296,8 +296,15 @@ fn i32_le(c: &[u8]) -> i32 {
 /// ReLU that keeps NaN (`max(x, 0)` would turn it into 0).
 #[inline(always)]
 fn relu(x: f32) -> f32 {
+    relu_to(x, 0.0)
+}
+
+/// [`relu`] with its 0 passed in (`zero` is `+0.0`), for code that must not load it as a
+/// constant (see `int8::DenseInt8::forward_relu_into`).
+#[inline(always)]
+fn relu_to(x: f32, zero: f32) -> f32 {
     if x < 0.0 {
-        0.0
+        zero
     } else {
         x
     }
