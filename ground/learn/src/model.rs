@@ -868,8 +868,18 @@ pub(crate) fn obs_dim(config: &ExperimentConfig) -> usize {
     crate::with_flown_problem!(config, P => P::OBS)
 }
 
-fn figures_row(name: &str, f: &FlightFigures) -> String {
-    let shares: Vec<String> = f.within.iter().map(|(_, s)| format!("{:.1} %", 100.0 * s)).collect();
+/// The shares within each of `thresholds` (the table's columns), `–` where `f` has none (a card
+/// older than a threshold: its Monte Carlo then has fewer than its later SIL rows).
+fn figures_row(name: &str, f: &FlightFigures, thresholds: &[f64]) -> String {
+    let shares: Vec<String> = thresholds
+        .iter()
+        .map(|t| {
+            f.within
+                .iter()
+                .find(|(u, _)| u == t)
+                .map_or_else(|| "–".to_owned(), |(_, s)| format!("{:.1} %", 100.0 * s))
+        })
+        .collect();
     format!(
         "| {name} | {}/{} | {} | {:.4} / {:.4} | {:.4} / {:.4} | {:.4} |\n",
         f.completed,
@@ -1033,12 +1043,16 @@ pub fn card_markdown(card: &ModelCard) -> String {
         card.rounds
             .map_or(String::new(), |(run, kept)| format!(" Then {run} relabelling rounds; round {kept} is shipped."))
     );
-    let tolerances: Vec<String> = card
-        .monte_carlo
-        .within
-        .iter()
-        .map(|(t, _)| format!("within {t}"))
+    // Every threshold any row of the card has, widest first.
+    let mut thresholds: Vec<f64> = std::iter::once(&card.monte_carlo)
+        .chain(card.sil.iter().map(|(_, f)| f))
+        .chain(card.lookahead.iter().map(|l| &l.flown.monte_carlo))
+        .chain(card.with_terminal.iter().map(|f| &f.monte_carlo))
+        .flat_map(|f| f.within.iter().map(|(t, _)| *t))
         .collect();
+    thresholds.sort_by(|a, b| b.total_cmp(a));
+    thresholds.dedup();
+    let tolerances: Vec<String> = thresholds.iter().map(|t| format!("within {t}")).collect();
     let _ = writeln!(
         s,
         "## Figures\n\nMonte Carlo seed {}; SIL: the blobs flown by the onboard guidance loop against the dispersed plant of the config's `[sil]`{}.\n",
@@ -1054,9 +1068,9 @@ pub fn card_markdown(card: &ModelCard) -> String {
         tolerances.join(" | ")
     );
     let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
-    s.push_str(&figures_row("actor, Monte Carlo", &card.monte_carlo));
+    s.push_str(&figures_row("actor, Monte Carlo", &card.monte_carlo, &thresholds));
     for (blob, f) in &card.sil {
-        s.push_str(&figures_row(&format!("{blob}, SIL"), f));
+        s.push_str(&figures_row(&format!("{blob}, SIL"), f, &thresholds));
     }
     against_the_optimum(&mut s, card.overspend, card.where_solved, &card.by_eccentricity);
     let flown_section = |s: &mut String, heading: &str, row: &str, f: &FlownFigures| {
@@ -1070,7 +1084,7 @@ pub fn card_markdown(card: &ModelCard) -> String {
             tolerances.join(" | ")
         );
         let _ = writeln!(s, "|---|---|{}---|---|---|", "---|".repeat(tolerances.len()));
-        s.push_str(&figures_row(row, &f.monte_carlo));
+        s.push_str(&figures_row(row, &f.monte_carlo, &thresholds));
         against_the_optimum(s, f.overspend, f.where_solved, &f.by_eccentricity);
     };
     if let Some(l) = &card.lookahead {
@@ -1115,5 +1129,39 @@ mod tests {
         let text = portable_config(&config);
         assert!(text.contains("dataset = \"runs/tc/dataset\""), "{text}");
         assert!(!text.contains(&*cwd.to_string_lossy()), "{text}");
+    }
+
+    /// A card whose Monte Carlo has fewer thresholds than its SIL rows (measured before the
+    /// 0.0001 column existed) still renders tables whose every row has its header's cells, the
+    /// missing share shown as a dash, and each SIL share under its own threshold.
+    #[test]
+    fn every_row_of_a_cards_tables_has_its_headers_cells() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/transfer-hard/card.json");
+        let mut card: ModelCard = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        card.monte_carlo.within.truncate(2);
+        let (_, sil) = card.sil.first().cloned().unwrap();
+        assert!(sil.within.len() > card.monte_carlo.within.len());
+        let md = card_markdown(&card);
+        let mut header_cells = None;
+        for line in md.lines().filter(|l| l.starts_with('|')) {
+            let cells = line.matches('|').count();
+            if line.starts_with("| flown |") {
+                assert!(line.contains("within 0.0001"), "{line}");
+                header_cells = Some(cells);
+            } else if line.starts_with("| actor, Monte Carlo |") || line.contains(", SIL |") {
+                assert_eq!(Some(cells), header_cells, "{line}");
+            }
+        }
+        let mc_row = md.lines().find(|l| l.starts_with("| actor, Monte Carlo |")).unwrap();
+        assert_eq!(mc_row.split('|').filter(|c| c.trim() == "–").count(), 2, "{mc_row}");
+        let sil_row = md.lines().find(|l| l.contains(", SIL |")).unwrap();
+        let last = sil.within.last().unwrap();
+        let cells: Vec<&str> = sil_row.split('|').map(str::trim).collect();
+        // `| name | completed | shares |`: split on '|', the shares start at index 3.
+        assert_eq!(
+            cells[2 + sil.within.len()],
+            format!("{:.1} %", 100.0 * last.1),
+            "{sil_row}"
+        );
     }
 }
