@@ -59,6 +59,46 @@ pub(super) fn pair_mac(raw: i32, high: i32, w: u32, x: u32) -> (i32, i32) {
 const PAIR_BLOCK_SHIFT: u32 = 3;
 const PAIR_BLOCK_INPUTS: usize = 1 << PAIR_BLOCK_SHIFT;
 
+/// One repetition of the pair kernel ([`dot2_pairs`], [`int8_relu_layer_fresh`]): 8 inputs
+/// against two row pairs, 28 instructions for 32 multiply-adds. Registers: `r0` the activations
+/// and `r1` pair 0's weights (both advanced by 16 bytes), pair 1's words at `[r1, #off0]` and
+/// `[r1, #off1]` (`2 IN`, `2 IN + 8`), `r2`-`r5` the activation words, `r6`, `r7`, `r9`, `lr`
+/// the weight words, `r8`/`r12` pair 0's raw and high sums, `r10`/`r11` pair 1's.
+macro_rules! pair_block {
+    () => {
+        concat!(
+            "ldmia r0!, {{r2, r3, r4, r5}}\n",
+            "ldrd r6, r7, [r1, #{off0}]\n",
+            "smlad r10, r6, r2, r10\n",
+            "sxtb16 r6, r6, ror #8\n",
+            "smlad r11, r6, r2, r11\n",
+            "smlad r10, r7, r3, r10\n",
+            "sxtb16 r7, r7, ror #8\n",
+            "smlad r11, r7, r3, r11\n",
+            "ldrd r6, r7, [r1, #{off1}]\n",
+            "smlad r10, r6, r4, r10\n",
+            "sxtb16 r6, r6, ror #8\n",
+            "smlad r11, r6, r4, r11\n",
+            "smlad r10, r7, r5, r10\n",
+            "sxtb16 r7, r7, ror #8\n",
+            "smlad r11, r7, r5, r11\n",
+            "ldmia r1!, {{r6, r7, r9, lr}}\n",
+            "smlad r8, r6, r2, r8\n",
+            "sxtb16 r6, r6, ror #8\n",
+            "smlad r12, r6, r2, r12\n",
+            "smlad r8, r7, r3, r8\n",
+            "sxtb16 r7, r7, ror #8\n",
+            "smlad r12, r7, r3, r12\n",
+            "smlad r8, r9, r4, r8\n",
+            "sxtb16 r9, r9, ror #8\n",
+            "smlad r12, r9, r4, r12\n",
+            "smlad r8, lr, r5, r8\n",
+            "sxtb16 lr, lr, ror #8\n",
+            "smlad r12, lr, r5, r12\n",
+        )
+    };
+}
+
 /// Two row pairs (`block`: at least `4 * IN` bytes, pair 1 at byte `2 * IN`) against the
 /// activations: `[raw0, high0, raw1, high1]`, the raw and high sums of each pair ([`pair_mac`]).
 ///
@@ -105,34 +145,7 @@ pub(super) fn dot2_pairs<const IN: usize>(x: &Acts<IN>, block: &[u8]) -> [i32; 4
             asm!(
                 "push {{r6, r7}}",
                 ".rept {reps}",
-                "ldmia r0!, {{r2, r3, r4, r5}}",
-                "ldrd r6, r7, [r1, #{off0}]",
-                "smlad r10, r6, r2, r10",
-                "sxtb16 r6, r6, ror #8",
-                "smlad r11, r6, r2, r11",
-                "smlad r10, r7, r3, r10",
-                "sxtb16 r7, r7, ror #8",
-                "smlad r11, r7, r3, r11",
-                "ldrd r6, r7, [r1, #{off1}]",
-                "smlad r10, r6, r4, r10",
-                "sxtb16 r6, r6, ror #8",
-                "smlad r11, r6, r4, r11",
-                "smlad r10, r7, r5, r10",
-                "sxtb16 r7, r7, ror #8",
-                "smlad r11, r7, r5, r11",
-                "ldmia r1!, {{r6, r7, r9, lr}}",
-                "smlad r8, r6, r2, r8",
-                "sxtb16 r6, r6, ror #8",
-                "smlad r12, r6, r2, r12",
-                "smlad r8, r7, r3, r8",
-                "sxtb16 r7, r7, ror #8",
-                "smlad r12, r7, r3, r12",
-                "smlad r8, r9, r4, r8",
-                "sxtb16 r9, r9, ror #8",
-                "smlad r12, r9, r4, r12",
-                "smlad r8, lr, r5, r8",
-                "sxtb16 lr, lr, ror #8",
-                "smlad r12, lr, r5, r12",
+                pair_block!(),
                 ".endr",
                 "pop {{r6, r7}}",
                 // Every other allocatable core register, named (`asm!` cannot name pinned
@@ -176,6 +189,163 @@ pub(super) fn dot2_pairs<const IN: usize>(x: &Acts<IN>, block: &[u8]) -> [i32; 4
         raw1.wrapping_add(r1),
         high1.wrapping_add(h1),
     ]
+}
+
+/// Rows per group of [`int8_relu_layer_fresh`]: two row pairs.
+const INT8_GROUP_ROWS: usize = 4;
+
+/// The int8 hidden layer with its ReLU, whole, into an array not initialized yet: for every
+/// row `j`, `relu((acc[j] + bias[j]) as f32 * (input_scale * ws[j]))`, `acc[j]` the row's exact
+/// dot product and the bias added saturating (`qadd`), the products rounded as f32 (`vmul`)
+/// and the ReLU the portable `relu_to` (`vcmp` with 0, `vmrs`, `vmovmi` from a zero: NaN and
+/// `-0.0` kept): what `DenseInt8::map_paired` computes with the same closure, bit for bit.
+///
+/// One `asm!` block runs the whole layer. Per group of 4 rows (two row pairs of `block`s of
+/// `4 IN` bytes, as [`dot2_pairs`] reads them): the loop state (bias, scale and output pointers,
+/// groups left) pushed, the 4 sums cleared, [`pair_block`] `IN / 8` times, the state popped;
+/// then the activations' sum read where the pointer stopped (`Acts::sum` follows the levels),
+/// both pairs unpaired (`raw - 256 high - 128 sum`, wrapping), the biases by unaligned `ldr`
+/// (the arrays follow postcard length prefixes), the 4 outputs converted, scaled, ReLU'd in
+/// `s0`-`s3` and stored by one `vstmia`: 61 instructions a group around its kernel, against
+/// about 95 when each group was a call from Rust (and about 330 once a layer to zero the array).
+///
+/// Returns `Ok` with the array written whole, or `Err` with it untouched unless: `IN` is a
+/// multiple of 8 with `2 IN + 8 <= 1020` (`ldrd`'s offset), `OUT` a multiple of 4, `weights`
+/// word-aligned with the `OUT IN` bytes of the groups, `bias` and `scales` the `4 OUT` bytes of
+/// their i32 and f32; the caller then runs the portable kernels.
+#[inline(never)]
+pub(super) fn int8_relu_layer_fresh<'y, const IN: usize, const OUT: usize>(
+    x: &Acts<IN>,
+    weights: &[u8],
+    bias: &[u8],
+    scales: &[u8],
+    input_scale: f32,
+    y: &'y mut MaybeUninit<[f32; OUT]>,
+) -> Result<&'y mut [f32; OUT], &'y mut MaybeUninit<[f32; OUT]>> {
+    let groups = OUT >> INT8_GROUP_ROWS.trailing_zeros();
+    let fits = IN >= PAIR_BLOCK_INPUTS
+        && IN.is_multiple_of(PAIR_BLOCK_INPUTS)
+        && 2 * IN + 8 <= 1020
+        && groups > 0
+        && OUT.is_multiple_of(INT8_GROUP_ROWS)
+        && weights.len() >= OUT * IN
+        && (weights.as_ptr() as usize).is_multiple_of(4)
+        && bias.len() >= 4 * OUT
+        && scales.len() >= 4 * OUT;
+    if !fits {
+        return Err(y);
+    }
+    // SAFETY: memory accessed, all in bounds:
+    // - `x`: the 8-aligned `Acts<IN>`, `IN` even, so its `sum` (i32) is at byte `2 IN`. Each
+    //   group starts `r0` at `x.q`; the `IN / 8` repetitions' `ldmia` read 16 bytes each,
+    //   leaving `r0` at `x.q + 2 IN`: bytes `0..2 IN` of the levels, word-aligned. The `ldr` of
+    //   the sum reads bytes `2 IN..2 IN + 4`, inside `Acts`, and `subw` puts `r0` back at `x.q`.
+    // - `weights`: `r1` starts at `weights` (word-aligned, `OUT IN` bytes: checked above). Group
+    //   `g` (from 0) starts it at `4 IN g`; repetition `h` reads bytes `16 h .. 16 h + 16` past
+    //   that by `ldmia` (pair 0's) and `2 IN + 16 h .. 2 IN + 16 h + 16` by two `ldrd` (pair 1's),
+    //   then advances `r1` by 16; after the `IN / 8` repetitions `addw` skips pair 1's `2 IN`
+    //   bytes, to the next group's `4 IN (g + 1)`. The last group reads up to `4 IN groups = OUT
+    //   IN` bytes, every address word-aligned (`IN` a multiple of 8), every offset within
+    //   `ldrd`'s `1020` (checked above).
+    // - `bias` and `scales`: `r2` and `r3` advance by each word read, 4 per group by `ldr`
+    //   (unaligned allowed on the Cortex-M4 unless `CCR.UNALIGN_TRP` is set; it is off at reset
+    //   and nothing here sets it): bytes `0..16 groups = 4 OUT` of each (checked above).
+    // - `y`: `r4` starts at the array (f32-aligned) and `vstmia` stores 16 bytes a group,
+    //   advancing it: bytes `0..4 OUT`, the whole array, so every element is initialized when
+    //   the block ends (the loop runs `groups >= 1` times, `subs`/`bne` at its bottom).
+    // - the stack: `push`/`pop` of `r6`, `r7` and `vpush`/`vpop` of `d0`-`d4` around the block,
+    //   and of `r2`-`r5` around each group's kernel, all balanced, so `sp` is restored. `r6` and
+    //   `r7`, which Rust cannot name as operands (LLVM may keep its base and frame pointers
+    //   there), get their values back before the block ends; every operand is pinned to another
+    //   register, so none is in them.
+    // Registers: every other core register written is a declared output; the flags are
+    // clobbered (`subs`, `vmrs`, the Q flag of `smlad` and `qadd`); `s0`-`s9` are saved on entry
+    // and restored on exit, so no FPU register changes as the compiler sees it. FPSCR's
+    // rounding mode is only read, its sticky exception bits may be set, as by any f32
+    // arithmetic.
+    unsafe {
+        asm!(
+            "push {{r6, r7}}",
+            "vpush {{d0-d4}}",
+            "vmov s9, r8",
+            "movs r6, #0",
+            "vmov s8, r6",
+            "2:",
+            "push {{r2, r3, r4, r5}}",
+            "mov r8, #0",
+            "mov r10, #0",
+            "mov r11, #0",
+            "mov r12, #0",
+            ".rept {reps}",
+            pair_block!(),
+            ".endr",
+            "pop {{r2, r3, r4, r5}}",
+            "ldr r6, [r0]",
+            "subw r0, r0, #{off0}",
+            "addw r1, r1, #{off0}",
+            "sub r8, r8, r12, lsl #8",
+            "sub r8, r8, r6, lsl #7",
+            "sub r10, r10, r11, lsl #8",
+            "sub r10, r10, r6, lsl #7",
+            "ldr r6, [r2], #4",
+            "qadd r8, r8, r6",
+            "ldr r6, [r2], #4",
+            "qadd r12, r12, r6",
+            "ldr r6, [r2], #4",
+            "qadd r10, r10, r6",
+            "ldr r6, [r2], #4",
+            "qadd r11, r11, r6",
+            "vmov s0, s1, r8, r12",
+            "vmov s2, s3, r10, r11",
+            "vcvt.f32.s32 s0, s0",
+            "vcvt.f32.s32 s1, s1",
+            "vcvt.f32.s32 s2, s2",
+            "vcvt.f32.s32 s3, s3",
+            "ldr r6, [r3], #4",
+            "ldr r7, [r3], #4",
+            "vmov s4, s5, r6, r7",
+            "ldr r6, [r3], #4",
+            "ldr r7, [r3], #4",
+            "vmov s6, s7, r6, r7",
+            "vmul.f32 s4, s9, s4",
+            "vmul.f32 s5, s9, s5",
+            "vmul.f32 s6, s9, s6",
+            "vmul.f32 s7, s9, s7",
+            "vmul.f32 s0, s0, s4",
+            "vmul.f32 s1, s1, s5",
+            "vmul.f32 s2, s2, s6",
+            "vmul.f32 s3, s3, s7",
+            ".irp acc, s0, s1, s2, s3",
+            "vcmp.f32 \\acc, #0",
+            "vmrs APSR_nzcv, fpscr",
+            "it mi",
+            "vmovmi.f32 \\acc, s8",
+            ".endr",
+            "vstmia r4!, {{s0-s3}}",
+            "subs r5, r5, #1",
+            "bne.w 2b",
+            "vpop {{d0-d4}}",
+            "pop {{r6, r7}}",
+            inout("r0") x.q.as_ptr() => _,
+            inout("r1") weights.as_ptr() => _,
+            inout("r2") bias.as_ptr() => _,
+            inout("r3") scales.as_ptr() => _,
+            inout("r4") y.as_mut_ptr().cast::<f32>() => _,
+            inout("r5") groups => _,
+            inout("r8") input_scale.to_bits() => _,
+            out("r9") _,
+            out("r10") _,
+            out("r11") _,
+            out("r12") _,
+            out("lr") _,
+            reps = const IN >> PAIR_BLOCK_SHIFT,
+            off0 = const 2 * IN,
+            off1 = const 2 * IN + 8,
+        );
+    }
+    // SAFETY: the block stored all `OUT / 4` groups of 4 f32 (see above): every element is
+    // initialized.
+    Ok(unsafe { y.assume_init_mut() })
 }
 
 /// `acc + x * w` rounded once (`vfma.f32`): the portable f32 kernel's fused multiply-add on

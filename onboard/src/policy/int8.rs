@@ -3,10 +3,12 @@
 //! pairs, and the requantization between layers ([`quantize`], [`quantize_relu`]) (see the
 //! module doc of [`super`]).
 
+use core::mem::MaybeUninit;
+
 use shared::blob::{self, LayerBlob, ACTIVATION_LEVELS};
 
 #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
-use super::arm::{dot2_pairs, pair_mac};
+use super::arm::{dot2_pairs, int8_relu_layer_fresh, pair_mac};
 use super::{check_len, check_shape, f32_le, i32_le, relu, relu_to, LayerArray, PolicyError, ARM_ASM};
 
 /// Output rows (two row pairs) computed per pass over the input by [`DenseInt8::accumulate_rows`]
@@ -326,6 +328,39 @@ impl<'a, const IN: usize, const OUT: usize> DenseInt8<'a, IN, OUT> {
             return y;
         }
         self.dequantize(&self.accumulate_for(x, kernel))
+    }
+
+    /// [`Self::forward_relu_into`] into an array not initialized yet, returned initialized: on
+    /// the Cortex-M4F the whole-layer kernel (`arm::int8_relu_layer_fresh`, the pair kernel's
+    /// integers and finish) writes it whole, so it is never zeroed first.
+    #[inline(always)]
+    pub(super) fn forward_relu_fresh<'y>(
+        &self,
+        x: &Acts<IN>,
+        kernel: Int8Kernel,
+        y: &'y mut MaybeUninit<[f32; OUT]>,
+    ) -> &'y mut [f32; OUT] {
+        #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+        if kernel == Int8Kernel::Pairs {
+            return match int8_relu_layer_fresh(x, self.weights, self.bias, self.weight_scales, self.input_scale, y) {
+                Ok(done) => done,
+                Err(y) => self.relu_rows_fresh(x, y),
+            };
+        }
+        let y = y.write([0.0f32; OUT]);
+        self.forward_relu_into(x, kernel, y);
+        y
+    }
+
+    /// Where the whole-layer kernel declines (a blob stored unaligned): the scalar rows kernel,
+    /// the same integers. Not inlined, so that neither its arrays on the stack nor a second copy
+    /// of the pair kernel's unrolled block in flash weigh on the flight path.
+    #[cfg(all(target_arch = "arm", target_os = "none", target_abi = "eabihf"))]
+    #[inline(never)]
+    fn relu_rows_fresh<'y>(&self, x: &Acts<IN>, y: &'y mut MaybeUninit<[f32; OUT]>) -> &'y mut [f32; OUT] {
+        let y = y.write([0.0f32; OUT]);
+        self.forward_relu_into(x, Int8Kernel::Rows, y);
+        y
     }
 
     /// `relu` of [`Self::forward`] with `kernel` into `y` (every element overwritten): the

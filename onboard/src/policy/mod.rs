@@ -458,9 +458,8 @@ impl<'a, const IN: usize, const H1: usize, const H2: usize, const OUT: usize> Ml
                 let mut h1 = MaybeUninit::uninit();
                 // The ReLU is left to the quantization (`quantize_relu`).
                 let q1 = b.quantize_relu_input(a.forward_fresh(input, &mut h1, false));
-                let mut h2 = [0.0f32; H2];
-                b.forward_relu_into(&q1, kernel, &mut h2);
-                c.forward(&h2)
+                let mut h2 = MaybeUninit::uninit();
+                c.forward(b.forward_relu_fresh(&q1, kernel, &mut h2))
             }
         };
         let mut out = [0.0f32; OUT];
