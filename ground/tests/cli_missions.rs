@@ -175,6 +175,7 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
             "pretraining",
             "RL",
             "relabelling",
+            "dispersed: rounds",
             "Monte Carlo",
             "export and SIL"
         ]
@@ -206,6 +207,19 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
         .sum();
     assert!((v["total_seconds"].as_f64().unwrap() - total).abs() <= 1e-9 * total);
     assert_eq!(v["rounds"], 10);
+    // The `[[stage]]` "dispersed" runs rounds to 24, the first 10 the relabels of the rounds
+    // before (it inherits them: loaded, not run), each of its own the recipe's round with its
+    // 1,000 scoring episodes flown again against the dispersed plant.
+    let round = v["round_seconds"].as_f64().unwrap();
+    let relabelling = v["stages"][3]["seconds"].as_f64().unwrap();
+    assert!((relabelling - 10.0 * round).abs() <= 1e-9 * relabelling, "{v}");
+    let dispersed_round = round + 1000.0 * episode;
+    let dispersed = v["stages"][4]["seconds"].as_f64().unwrap();
+    assert!((dispersed - 14.0 * dispersed_round).abs() <= 1e-9 * dispersed, "{v}");
+    // The shortest recipe: one round in each stage that runs rounds.
+    let shortest = total - 9.0 * round - 13.0 * dispersed_round;
+    let one_round = v["total_one_round_seconds"].as_f64().unwrap();
+    assert!((one_round - shortest).abs() <= 1e-9 * total, "{v}");
 }
 
 /// An inclined mission file: `check-mission` and `generate` solve its draws in three dimensions,

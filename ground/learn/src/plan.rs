@@ -1,13 +1,14 @@
 //! A recipe's time on this machine, projected before it runs (`ground run --plan`): its family
 //! checked on a sample of draws (`ground_core::mission::check_family`), the unit costs measured
-//! here (a draw's solve, a SAC update, a flown episode, an RL step), and each stage's count of
-//! them from the config. Nothing is written.
+//! here (a draw's solve, a SAC update, a cloning-only update, a flown episode, an RL step), and
+//! each stage's count of them from the config, its `[[stage]]` sections included. Nothing is
+//! written.
 
 use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::config::ExperimentConfig;
+use crate::config::{DaggerConfig, ExperimentConfig};
 use crate::error::ExperimentError;
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
@@ -34,6 +35,8 @@ pub struct UnitCosts {
     pub pretrain_update_s: f64,
     /// One RL (and relabelling round) update, s.
     pub update_s: f64,
+    /// One update of the actor alone on its cloning error (`cloning_only` rounds), s.
+    pub cloning_update_s: f64,
     /// One deterministic episode, flown in lockstep with others as evaluations fly them, s.
     pub episode_s: f64,
     /// One RL environment step apart from its updates, its share of the phase's evaluations
@@ -67,12 +70,10 @@ pub struct RecipePlan {
     pub round_seconds: f64,
     /// The rounds' budget (`[dagger] rounds`; `stop_at` may end them sooner).
     pub rounds: u64,
-    /// The whole recipe with one round, s: the shortest it can be.
+    /// The whole recipe with one round in each stage that runs rounds, s: the shortest it can be.
     pub total_one_round_seconds: f64,
     /// The whole recipe with every round of the budget, s.
     pub total_seconds: f64,
-    /// `[[stage]]` sections, whose rounds are not projected.
-    pub unprojected_stages: usize,
 }
 
 /// Checks the config's family on `sample` draws, measures the unit costs here, and projects
@@ -90,7 +91,8 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
     let options = config.generate.solve_options();
     let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
     let costs = crate::with_flown_problem!(config, P => measure::<P>(config, &check))?;
-    Ok(project(config, check, costs))
+    let staged = config.staged()?;
+    Ok(project(config, &staged, check, costs))
 }
 
 fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError> {
@@ -113,21 +115,73 @@ fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result
     // Each phase's learner: pretraining's on demonstrations alone, RL's with half its rows
     // demonstrations when it keeps its cloning term.
     let mut pretraining = new_agent(config, true, obs, device);
-    let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, P::Geometry::ACT, 1, TIMED_UPDATES);
+    let pretrain_update_s = seconds_per_update_of(&mut pretraining, obs, P::Geometry::ACT, 1, TIMED_UPDATES, false);
     let demonstration_every = if config.train.keep_behaviour_cloning { 2 } else { 0 };
-    let update_s = seconds_per_update_of(&mut learner, obs, P::Geometry::ACT, demonstration_every, TIMED_UPDATES);
+    let update_s = seconds_per_update_of(
+        &mut learner,
+        obs,
+        P::Geometry::ACT,
+        demonstration_every,
+        TIMED_UPDATES,
+        false,
+    );
+    let cloning_update_s = seconds_per_update_of(&mut learner, obs, P::Geometry::ACT, 2, TIMED_UPDATES, true);
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
         pretrain_update_s,
         update_s,
+        cloning_update_s,
         episode_s,
         env_step_s: RL_STEP_UPDATES * update_s,
         solver_threads: rayon::current_num_threads(),
     })
 }
 
-/// Each stage's count of unit costs.
-fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> RecipePlan {
+/// One relabelling round of `dagger` at these costs, s.
+fn round_seconds(dagger: &DaggerConfig, c: &UnitCosts) -> f64 {
+    // Candidates, then the scoring episodes, flown again against the SIL's dispersed plant when
+    // the round scores under dispersions.
+    let scoring = dagger.score_episodes * if dagger.dispersed { 2 } else { 1 };
+    let flown = dagger.candidates.unwrap_or(dagger.episodes) + scoring;
+    let relabels = dagger.episodes * dagger.fractions.len() as u64;
+    // A relabel solves from a flown state with the rest of the flight to go: counted as that
+    // share of a draw's solve (its warm start makes it cheaper still: an upper bound).
+    let left = if dagger.fractions.is_empty() {
+        0.0
+    } else {
+        1.0 - dagger.fractions.iter().sum::<f64>() / dagger.fractions.len() as f64
+    };
+    let update_s = if dagger.cloning_only {
+        c.cloning_update_s
+    } else {
+        c.update_s
+    };
+    let solves = relabels as f64 * left * c.solve_s / c.solver_threads.max(1) as f64;
+    dagger.updates as f64 * update_s + flown as f64 * c.episode_s + solves
+}
+
+/// What a round of `dagger` counts, as the plan prints it.
+fn round_counts(dagger: &DaggerConfig) -> String {
+    let relabels = dagger.episodes * dagger.fractions.len() as u64;
+    let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
+    format!(
+        "{} rounds at most, each {} {}updates, {relabels} relabels, {flown} episodes flown{}",
+        dagger.rounds,
+        dagger.updates,
+        if dagger.cloning_only { "cloning-only " } else { "" },
+        if dagger.dispersed {
+            " and the scoring again dispersed"
+        } else {
+            ""
+        }
+    )
+}
+
+/// Each stage's count of unit costs: the recipe's own stages, then each of `staged` (the
+/// `[[stage]]` sections' configs, [`ExperimentConfig::staged`]) with its demonstrations where
+/// it changes `[generate]` and its rounds (the rounds whose relabels it inherits from the
+/// stage before are loaded, not run).
+fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: FamilyCheck, costs: UnitCosts) -> RecipePlan {
     let c = &costs;
     let threads = c.solver_threads.max(1) as f64;
     let solves = |n: f64| n * c.solve_s / threads;
@@ -169,28 +223,43 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
         ),
     );
     let dagger = &config.dagger;
-    let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
-    let relabels = dagger.episodes * dagger.fractions.len() as u64;
-    let round_seconds = if dagger.rounds == 0 {
+    let round = if dagger.rounds == 0 {
         0.0
     } else {
-        // A relabel solves from a flown state with the rest of the flight to go: counted as that
-        // share of a draw's solve (its warm start makes it cheaper still: an upper bound).
-        let left = if dagger.fractions.is_empty() {
-            0.0
-        } else {
-            1.0 - dagger.fractions.iter().sum::<f64>() / dagger.fractions.len() as f64
-        };
-        dagger.updates as f64 * c.update_s + flown as f64 * c.episode_s + solves(relabels as f64 * left)
+        round_seconds(dagger, c)
     };
-    stage(
-        "relabelling",
-        round_seconds * dagger.rounds as f64,
-        format!(
-            "{} rounds at most, each {} updates, {relabels} relabels, {flown} episodes flown",
-            dagger.rounds, dagger.updates
-        ),
-    );
+    stage("relabelling", round * dagger.rounds as f64, round_counts(dagger));
+    // The shortest the rounds can be: one round a stage (`stop_at` may end each after it).
+    let mut rounds_beyond_one = round * dagger.rounds.saturating_sub(1) as f64;
+    let mut before = config;
+    for (section, staged) in config.stages.iter().zip(staged) {
+        if staged.generate != before.generate {
+            stage(
+                &format!("{}: dataset", section.name),
+                solves(staged.generate.count as f64),
+                format!("{} solves on {} threads", staged.generate.count, c.solver_threads),
+            );
+        }
+        let d = &staged.dagger;
+        let inherited = if section.inherit_relabels {
+            before.dagger.rounds
+        } else {
+            0
+        };
+        let own = d.rounds.saturating_sub(inherited);
+        let each = round_seconds(d, c);
+        let counts = if inherited > 0 {
+            format!(
+                "{}; rounds 1-{inherited} the stage before's relabels, loaded",
+                round_counts(d)
+            )
+        } else {
+            round_counts(d)
+        };
+        stage(&format!("{}: rounds", section.name), each * own as f64, counts);
+        rounds_beyond_one += each * own.saturating_sub(1) as f64;
+        before = staged;
+    }
     let evaluate = &config.evaluate;
     stage(
         "Monte Carlo",
@@ -210,16 +279,14 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
         ),
     );
     let total_seconds: f64 = stages.iter().map(|s| s.seconds).sum();
-    let total_one_round_seconds = total_seconds - round_seconds * dagger.rounds.saturating_sub(1) as f64;
     RecipePlan {
         check,
         costs,
         stages,
-        round_seconds,
+        round_seconds: round,
         rounds: dagger.rounds,
-        total_one_round_seconds,
+        total_one_round_seconds: total_seconds - rounds_beyond_one,
         total_seconds,
-        unprojected_stages: config.stages.len(),
     }
 }
 
@@ -227,33 +294,27 @@ fn project(config: &ExperimentConfig, check: FamilyCheck, costs: UnitCosts) -> R
 pub fn plan_lines(plan: &RecipePlan) -> Vec<String> {
     let c = &plan.costs;
     let mut lines = vec![format!(
-        "measured here: a solve {:.3} s (one thread, {} solver threads), an update {:.2} ms (pretraining {:.2} ms), an episode {:.1} ms, an RL step {:.2} ms besides its updates",
+        "measured here: a solve {:.3} s (one thread, {} solver threads), an update {:.2} ms (pretraining {:.2} ms, cloning only {:.2} ms), an episode {:.1} ms, an RL step {:.2} ms besides its updates",
         c.solve_s,
         c.solver_threads,
         c.update_s * 1e3,
         c.pretrain_update_s * 1e3,
+        c.cloning_update_s * 1e3,
         c.episode_s * 1e3,
         c.env_step_s * 1e3
     )];
     for s in &plan.stages {
-        lines.push(format!("{:<16} {:>7.1} min  ({})", s.stage, s.seconds / 60.0, s.counts));
+        lines.push(format!("{:<28} {:>7.1} min  ({})", s.stage, s.seconds / 60.0, s.counts));
     }
     if plan.rounds > 0 {
         lines.push(format!(
-            "one relabelling round {:.1} min; the recipe {:.0} min with one round, {:.0} min with all {}",
+            "one relabelling round {:.1} min; the recipe {:.0} min with one round a stage, {:.0} min with every round of the budgets",
             plan.round_seconds / 60.0,
             plan.total_one_round_seconds / 60.0,
             plan.total_seconds / 60.0,
-            plan.rounds
         ));
     } else {
         lines.push(format!("the recipe {:.0} min", plan.total_seconds / 60.0));
-    }
-    if plan.unprojected_stages > 0 {
-        lines.push(format!(
-            "and {} [[stage]] section(s) of more rounds, not projected: each round about as above",
-            plan.unprojected_stages
-        ));
     }
     lines
 }

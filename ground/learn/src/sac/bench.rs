@@ -59,18 +59,21 @@ pub const BLOCK: usize = 100;
 pub fn seconds_per_update(config: &SacConfig, obs_dim: usize, act_dim: usize, updates: usize, device: Device) -> f64 {
     tch::manual_seed(0);
     let mut sac = Sac::new(config.clone(), obs_dim, act_dim, device);
-    seconds_per_update_of(&mut sac, obs_dim, act_dim, 0, updates)
+    seconds_per_update_of(&mut sac, obs_dim, act_dim, 0, updates, false)
 }
 
 /// [`seconds_per_update`] of a given learner of `obs_dim` and `act_dim` (its own settings and
 /// losses, its weights trained on), every `demonstration_every`-th transition of the buffer a
-/// demonstration (0: none), so that a behaviour-cloning term has rows to work on.
+/// demonstration (0: none), so that a behaviour-cloning term has rows to work on; with
+/// `cloning_only`, its actor-only cloning update ([`Sac::cloning_update`], as `cloning_only`
+/// relabelling rounds run) instead of the SAC update.
 pub fn seconds_per_update_of(
     sac: &mut Sac,
     obs_dim: usize,
     act_dim: usize,
     demonstration_every: usize,
     updates: usize,
+    cloning_only: bool,
 ) -> f64 {
     let config = sac.config.clone();
     let mut buffer = ReplayBuffer::new(obs_dim, act_dim, 10_000);
@@ -96,7 +99,12 @@ pub fn seconds_per_update_of(
         .map(|_| {
             let t = Instant::now();
             for _ in 0..BLOCK {
-                sac.update(&buffer.sample(config.batch_size, &mut rng));
+                let batch = buffer.sample(config.batch_size, &mut rng);
+                if cloning_only {
+                    sac.cloning_update(&batch);
+                } else {
+                    sac.update(&batch);
+                }
             }
             t.elapsed().as_secs_f64() / BLOCK as f64
         })
