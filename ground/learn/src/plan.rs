@@ -137,6 +137,13 @@ fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result
     })
 }
 
+impl UnitCosts {
+    /// `n` solves spread over the solver threads, s.
+    fn solves_s(&self, n: f64) -> f64 {
+        n * self.solve_s / self.solver_threads.max(1) as f64
+    }
+}
+
 /// One relabelling round of `dagger` at these costs, s.
 fn round_seconds(dagger: &DaggerConfig, c: &UnitCosts) -> f64 {
     // Candidates, then the scoring episodes, flown again against the SIL's dispersed plant when
@@ -156,8 +163,7 @@ fn round_seconds(dagger: &DaggerConfig, c: &UnitCosts) -> f64 {
     } else {
         c.update_s
     };
-    let solves = relabels as f64 * left * c.solve_s / c.solver_threads.max(1) as f64;
-    dagger.updates as f64 * update_s + flown as f64 * c.episode_s + solves
+    dagger.updates as f64 * update_s + flown as f64 * c.episode_s + c.solves_s(relabels as f64 * left)
 }
 
 /// What a round of `dagger` counts, as the plan prints it.
@@ -183,8 +189,6 @@ fn round_counts(dagger: &DaggerConfig) -> String {
 /// stage before are loaded, not run).
 fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: FamilyCheck, costs: UnitCosts) -> RecipePlan {
     let c = &costs;
-    let threads = c.solver_threads.max(1) as f64;
-    let solves = |n: f64| n * c.solve_s / threads;
     let mut stages = Vec::new();
     let mut stage = |name: &str, seconds: f64, counts: String| {
         stages.push(StageTime {
@@ -196,7 +200,7 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
     let generate = &config.generate;
     stage(
         "dataset",
-        solves(generate.count as f64),
+        c.solves_s(generate.count as f64),
         format!("{} solves on {} threads", generate.count, c.solver_threads),
     );
     let train = &config.train;
@@ -236,7 +240,7 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
         if staged.generate != before.generate {
             stage(
                 &format!("{}: dataset", section.name),
-                solves(staged.generate.count as f64),
+                c.solves_s(staged.generate.count as f64),
                 format!("{} solves on {} threads", staged.generate.count, c.solver_threads),
             );
         }
@@ -263,7 +267,7 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
     let evaluate = &config.evaluate;
     stage(
         "Monte Carlo",
-        evaluate.episodes as f64 * c.episode_s + solves(evaluate.optimality_gap_cases as f64),
+        evaluate.episodes as f64 * c.episode_s + c.solves_s(evaluate.optimality_gap_cases as f64),
         format!(
             "{} episodes, {} solves for the optimality gap",
             evaluate.episodes, evaluate.optimality_gap_cases
