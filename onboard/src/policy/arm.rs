@@ -59,6 +59,12 @@ pub(super) fn pair_mac(raw: i32, high: i32, w: u32, x: u32) -> (i32, i32) {
 const PAIR_BLOCK_SHIFT: u32 = 3;
 const PAIR_BLOCK_INPUTS: usize = 1 << PAIR_BLOCK_SHIFT;
 
+/// Whether [`pair_block`]'s `ldrd` offsets to pair 1 (`2 IN` and `2 IN + 8`) fit the
+/// instruction's immediate (at most 1020) for `inputs` inputs.
+const fn pair_offsets_fit(inputs: usize) -> bool {
+    2 * inputs + 8 <= 1020
+}
+
 /// One repetition of the pair kernel ([`dot2_pairs`], [`int8_relu_layer_fresh`]): 8 inputs
 /// against two row pairs, 28 instructions for 32 multiply-adds. Registers: `r0` the activations
 /// and `r1` pair 0's weights (both advanced by 16 bytes), pair 1's words at `[r1, #off0]` and
@@ -119,7 +125,7 @@ pub(super) fn dot2_pairs<const IN: usize>(x: &Acts<IN>, block: &[u8]) -> [i32; 4
         // Unreachable: `map_paired` passes `chunks_exact(4 * IN)` blocks.
         return [0; 4];
     };
-    let fits = IN.is_multiple_of(2) && 2 * IN + 8 <= 1020 && (block.as_ptr() as usize).is_multiple_of(4);
+    let fits = IN.is_multiple_of(2) && pair_offsets_fit(IN) && (block.as_ptr() as usize).is_multiple_of(4);
     let blocks = if fits { IN >> PAIR_BLOCK_SHIFT } else { 0 };
     let [mut raw0, mut high0, mut raw1, mut high1] = [0i32; 4];
     if blocks > 0 {
@@ -225,7 +231,7 @@ pub(super) fn int8_relu_layer_fresh<'y, const IN: usize, const OUT: usize>(
     let groups = OUT >> INT8_GROUP_ROWS.trailing_zeros();
     let fits = IN >= PAIR_BLOCK_INPUTS
         && IN.is_multiple_of(PAIR_BLOCK_INPUTS)
-        && 2 * IN + 8 <= 1020
+        && pair_offsets_fit(IN)
         && groups > 0
         && OUT.is_multiple_of(INT8_GROUP_ROWS)
         && weights.len() >= OUT * IN
