@@ -89,6 +89,18 @@ pub enum TrainCommand {
         #[arg(long)]
         relabels_from: Option<PathBuf>,
     },
+    /// Fine-tuning through the dynamics: each step flies a batch of training flights,
+    /// differentiates what they end with (miss over the goal, propellant) end to end through
+    /// the environment's propagator and steps the actor; the config's [finetune] section.
+    /// Resumable; writes OUT/finetune (best-actor.safetensors: what `model ship --checkpoint` takes).
+    Finetune {
+        #[command(flatten)]
+        experiment: ExperimentArgs,
+        /// Learner checkpoint or actor file (a shipped model's actor.safetensors) to start from
+        /// (ignored when OUT/finetune already holds a start).
+        #[arg(long)]
+        from: PathBuf,
+    },
 }
 
 /// `ground model`: what is done with a trained controller.
@@ -292,7 +304,31 @@ fn run_train(command: TrainCommand) -> CommandResult {
             from,
             relabels_from,
         } => dagger_command(&experiment, from.as_deref(), relabels_from.as_deref()),
+        TrainCommand::Finetune { experiment, from } => finetune_command(&experiment, &from),
     }
+}
+
+fn finetune_command(args: &ExperimentArgs, from: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    let (config, _) = args.load()?;
+    let summary = in_run_folder(&args.out, || Ok(learn::finetune::finetune(&config, &args.out, from)?))?;
+    for row in &summary.rows {
+        println!(
+            "step {:>5}: objective {:.4}, {:>5.1} % within 0.01 AU and 0.01 (dr p50 {:.4} AU, p95 {:.4}; final mass {:.5})",
+            row.step,
+            row.objective,
+            100.0 * row.within_goal,
+            row.summary.terminal_position.p50,
+            row.summary.terminal_position.p95,
+            row.summary.final_mass.mean
+        );
+    }
+    println!(
+        "best: step {} ({}); written to {}",
+        summary.best_step,
+        summary.best_actor.display(),
+        summary.folder.display()
+    );
+    Ok(())
 }
 
 fn run_model(command: ModelCommand) -> CommandResult {

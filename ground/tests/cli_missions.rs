@@ -146,8 +146,23 @@ fn generate_takes_a_mission_file_and_records_its_family() {
 #[cfg(feature = "learn")]
 #[test]
 fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
-    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/venus-inward.toml");
+    // venus-inward's recipe with fine-tuning after its stage.
+    let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+    let recipe = std::fs::read_to_string(configs.join("venus-inward.toml")).unwrap();
+    let mission = configs.join("missions/venus-inward.toml");
     let out = temp("plan");
+    let config = out.with_extension("toml");
+    std::fs::write(
+        &config,
+        format!(
+            "{}\n[finetune]\nsteps = 300\nflights = 64\n",
+            recipe.replace(
+                "\"missions/venus-inward.toml\"",
+                &format!("{:?}", mission.to_str().unwrap())
+            )
+        ),
+    )
+    .unwrap();
     let run = ground(&[
         "run",
         "--config",
@@ -176,6 +191,7 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
             "RL",
             "relabelling",
             "dispersed: rounds",
+            "fine-tuning",
             "Monte Carlo",
             "export and SIL"
         ]
@@ -220,6 +236,12 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     let shortest = total - 9.0 * round - 13.0 * dispersed_round;
     let one_round = v["total_one_round_seconds"].as_f64().unwrap();
     assert!((one_round - shortest).abs() <= 1e-9 * total, "{v}");
+    // Fine-tuning: its steps' flights at the measured flight, and 13 evaluations of 500 episodes.
+    let flight = costs["finetune_flight_s"].as_f64().unwrap();
+    let fine = v["stages"][5]["seconds"].as_f64().unwrap();
+    let expected = 300.0 * 64.0 * flight + 13.0 * 500.0 * episode;
+    assert!(flight > 0.0 && (fine - expected).abs() <= 1e-9 * expected, "{v}");
+    let _ = std::fs::remove_file(&config);
 }
 
 /// An inclined mission file: `check-mission` and `generate` solve its draws in three dimensions,

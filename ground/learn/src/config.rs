@@ -73,6 +73,9 @@ pub struct ExperimentConfig {
     /// DAgger-style rounds of relabelled demonstrations (`ground train dagger`, transfers).
     #[serde(default)]
     pub dagger: DaggerConfig,
+    /// Fine-tuning through the dynamics after the rounds (`ground train finetune`).
+    #[serde(default, skip_serializing_if = "FinetuneConfig::is_off")]
+    pub finetune: FinetuneConfig,
     /// The software-in-the-loop Monte Carlo of exported blobs.
     #[serde(default)]
     pub sil: SilConfig,
@@ -361,6 +364,50 @@ impl Default for DaggerConfig {
             cloning_only: false,
             solvable_only: false,
             max_miss: None,
+        }
+    }
+}
+
+/// Fine-tuning through the dynamics (`ground train finetune`, [`crate::finetune`]): the flown
+/// actor stepped down the gradient of what its flights end with, each flight differentiated
+/// end to end through the environment's propagator. Measured on transfer-circular
+/// (docs/results.md): the miss and the propellant both fall.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FinetuneConfig {
+    /// Adam steps, each on a fresh batch of training flights. 0: none, and `ground run` skips
+    /// the stage.
+    pub steps: u64,
+    /// Flights per step.
+    pub flights: u64,
+    /// Adam's learning rate.
+    pub learning_rate: f64,
+    /// The objective's weight of the propellant burned, per thousandth of the initial mass
+    /// (a miss of the accuracy goal in position or velocity weighs 1).
+    pub propellant_weight: f64,
+    /// Steps between evaluations (each a checkpoint); the evaluation with the smallest mean
+    /// objective is the phase's best.
+    pub eval_every: u64,
+    /// Flights of each evaluation (the evaluation stream's first scenarios).
+    pub eval_episodes: u64,
+}
+
+impl FinetuneConfig {
+    /// No fine-tuning (the default), so configs without the section stay as they were written.
+    pub fn is_off(&self) -> bool {
+        self.steps == 0
+    }
+}
+
+impl Default for FinetuneConfig {
+    fn default() -> Self {
+        Self {
+            steps: 0,
+            flights: 64,
+            learning_rate: 1e-5,
+            propellant_weight: 0.03,
+            eval_every: 25,
+            eval_episodes: 500,
         }
     }
 }
@@ -718,6 +765,21 @@ impl ExperimentConfig {
             positive("dagger.patience", patience)?;
         }
         positive("dagger.score_episodes", self.dagger.score_episodes)?;
+        positive("finetune.flights", self.finetune.flights)?;
+        positive("finetune.eval_every", self.finetune.eval_every)?;
+        positive("finetune.eval_episodes", self.finetune.eval_episodes)?;
+        if !(self.finetune.learning_rate.is_finite() && self.finetune.learning_rate > 0.0) {
+            return Err(ConfigError::Invalid(format!(
+                "finetune.learning_rate must be finite and > 0, got {}",
+                self.finetune.learning_rate
+            )));
+        }
+        if !(self.finetune.propellant_weight.is_finite() && self.finetune.propellant_weight >= 0.0) {
+            return Err(ConfigError::Invalid(format!(
+                "finetune.propellant_weight must be a finite weight >= 0, got {}",
+                self.finetune.propellant_weight
+            )));
+        }
         if self.dagger.fractions.is_empty() || !self.dagger.fractions.iter().all(|f| *f > 0.0 && *f < 1.0) {
             return Err(ConfigError::Invalid(
                 "dagger.fractions must be a non-empty list of values in (0, 1)".into(),

@@ -59,6 +59,7 @@ pub mod dataset;
 pub mod error;
 pub mod eval;
 pub mod export;
+pub mod finetune;
 pub mod model;
 pub mod phase;
 pub mod pipeline;

@@ -1,7 +1,8 @@
 //! The main job and the recipes (`ground run`), top to bottom: demonstrations by the indirect
 //! method, pretraining, RL from the pretrained model, relabelling rounds (when the config's
 //! `[dagger]` has rounds), the recipe's stages (`[[stage]]`: more rounds under changed
-//! settings), Monte Carlo evaluation, then the ship stage (onboard blobs flown in
+//! settings), fine-tuning through the dynamics (when the config's `[finetune]` has steps),
+//! Monte Carlo evaluation, then the ship stage (onboard blobs flown in
 //! the software-in-the-loop against a dispersed plant, the model folder) and the report. All in
 //! one run folder; each stage resumes exactly from what an interrupted run left.
 
@@ -14,6 +15,7 @@ use crate::dataset::demonstrations;
 use crate::error::ExperimentError;
 use crate::eval::{monte_carlo, MonteCarloReport};
 use crate::export::ExportReport;
+use crate::finetune::{finetune, FinetuneSummary};
 use crate::model::{current_commit, ModelCard};
 use crate::phase::PhaseSummary;
 use crate::pretrain::pretrain;
@@ -43,6 +45,9 @@ pub struct MainJob {
     pub dagger: Option<DaggerSummary>,
     /// The recipe's stages after them, in order (`RUN/stages/NAME`).
     pub stages: Vec<StageSummary>,
+    /// Fine-tuning through the dynamics of the last stage's best, when the config has steps
+    /// (`RUN/finetune`).
+    pub finetune: Option<FinetuneSummary>,
     /// The Monte Carlo of the best model (`RUN/mc`).
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
@@ -66,7 +71,8 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let recipe_stages = config.staged()?;
     let mut config = config.clone();
     let relabel = config.dagger.rounds > 0;
-    let stages = 5 + usize::from(relabel) + recipe_stages.len();
+    let finetuned = recipe_stages.last().unwrap_or(&config).finetune.steps > 0;
+    let stages = 5 + usize::from(relabel) + recipe_stages.len() + usize::from(finetuned);
     let mut stage = 0;
     let mut next = |what: String| {
         stage += 1;
@@ -148,16 +154,29 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         input = after;
     }
     // The last stage's learner, flown with its config.
-    let best = input.best;
     let (flown, flown_dataset) = (input.config, input.dataset);
 
-    // 6. Monte Carlo of the best model.
+    // 6. Fine-tuning through the dynamics: its best actor is what ships.
+    let (best, fine) = if finetuned {
+        let t = Instant::now();
+        next(format!(
+            "fine-tuning through the dynamics: {} steps of {} flights",
+            flown.finetune.steps, flown.finetune.flights
+        ));
+        let summary = finetune(&flown, run, &input.best)?;
+        stage_seconds.push(("fine-tuning".into(), t.elapsed().as_secs_f64()));
+        (summary.best_actor.clone(), Some(summary))
+    } else {
+        (input.best, None)
+    };
+
+    // 7. Monte Carlo of the best model.
     let t = Instant::now();
     next(format!("Monte Carlo: {} episodes", flown.evaluate.episodes));
     let mc = monte_carlo(&flown, &best, &run.join("mc"), None, None)?;
     stage_seconds.push(("Monte Carlo".into(), t.elapsed().as_secs_f64()));
 
-    // 7. Onboard blobs, flown in the SIL loop against the dispersed plant.
+    // 8. Onboard blobs, flown in the SIL loop against the dispersed plant.
     let t = Instant::now();
     next(format!(
         "export f32 + int8 blobs, SIL: {} dispersed flights each",
@@ -165,7 +184,11 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     ));
     let last_rounds = stage_runs.last().map(|s| &s.rounds).or(rounds.as_ref());
     let rounds_run = last_rounds.map(|r| (r.rows.last().map_or(0, |row| row.round), r.best_round));
-    let notes: Vec<String> = stage_runs.iter().map(StageSummary::lineage_line).collect();
+    let notes: Vec<String> = stage_runs
+        .iter()
+        .map(StageSummary::lineage_line)
+        .chain(fine.as_ref().map(FinetuneSummary::lineage_line))
+        .collect();
     let lineage = Lineage {
         commit: &commit,
         dataset: &flown_dataset,
@@ -183,6 +206,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
         train: rl,
         dagger: rounds,
         stages: stage_runs,
+        finetune: fine,
         monte_carlo: mc,
         export,
         model,

@@ -10,8 +10,10 @@ use serde::Serialize;
 
 use crate::config::{DaggerConfig, ExperimentConfig};
 use crate::error::ExperimentError;
+use crate::finetune::{action_gradients, Objective};
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
+use ground_core::demo::DemoGeometry;
 use ground_core::env::{Geometry, MdpEnv, Problem};
 use ground_core::mission::{check_family, FamilyCheck};
 
@@ -19,6 +21,8 @@ use ground_core::mission::{check_family, FamilyCheck};
 const TIMED_EPISODES: u64 = 32;
 /// SAC updates timed (after the bench's warm-up).
 const TIMED_UPDATES: usize = 50;
+/// Flights of the timed fine-tuning step.
+const TIMED_FINETUNE_FLIGHTS: u64 = 4;
 /// What the RL phase spends per environment step besides its updates (the action, the
 /// propagation, replay pushes, statistics, checkpoints and its evaluations), in updates: 0.57 and
 /// 0.51 on the recorded RL phases of the venus-inward and mars-fixed-time recipes (5.1 and 4.6 ms
@@ -39,6 +43,8 @@ pub struct UnitCosts {
     pub cloning_update_s: f64,
     /// One deterministic episode, flown in lockstep with others as evaluations fly them, s.
     pub episode_s: f64,
+    /// One flight of a fine-tuning step (flown, linearised, back-propagated), s.
+    pub finetune_flight_s: f64,
     /// One RL environment step apart from its updates, its share of the phase's evaluations
     /// included, s (0.55 updates, as measured on two recorded recipes).
     pub env_step_s: f64,
@@ -95,7 +101,10 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
     Ok(project(config, &staged, check, costs))
 }
 
-fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError> {
+fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError>
+where
+    P::Geometry: DemoGeometry,
+{
     let obs = P::OBS;
     let device = config.device()?;
     // RL's learner flies the timed episodes (untrained: an episode costs what a trained one
@@ -126,12 +135,20 @@ fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result
         false,
     );
     let cloning_update_s = seconds_per_update_of(&mut learner, obs, P::Geometry::ACT, 2, TIMED_UPDATES, true);
+    let family = crate::phase::family_of::<P::Geometry>(config)?;
+    let flights: Vec<_> = (0..TIMED_FINETUNE_FLIGHTS)
+        .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
+        .collect();
+    let start = Instant::now();
+    action_gradients::<P>(config, &learner, &flights, &Objective::of(config))?;
+    let finetune_flight_s = start.elapsed().as_secs_f64() / TIMED_FINETUNE_FLIGHTS as f64;
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
         pretrain_update_s,
         update_s,
         cloning_update_s,
         episode_s,
+        finetune_flight_s,
         env_step_s: RL_STEP_UPDATES * update_s,
         solver_threads: rayon::current_num_threads(),
     })
@@ -144,13 +161,30 @@ impl UnitCosts {
     }
 }
 
+/// What one relabelling round of `dagger` does: its updates, the episodes it flies and the
+/// relabels it solves.
+struct RoundWork {
+    updates: u64,
+    /// Candidates, then the scoring episodes, flown again against the SIL's dispersed plant when
+    /// the round scores under dispersions.
+    flown: u64,
+    relabels: u64,
+}
+
+impl RoundWork {
+    fn of(dagger: &DaggerConfig) -> Self {
+        let scoring = dagger.score_episodes * if dagger.dispersed { 2 } else { 1 };
+        Self {
+            updates: dagger.updates,
+            flown: dagger.candidates.unwrap_or(dagger.episodes) + scoring,
+            relabels: dagger.episodes * dagger.fractions.len() as u64,
+        }
+    }
+}
+
 /// One relabelling round of `dagger` at these costs, s.
 fn round_seconds(dagger: &DaggerConfig, c: &UnitCosts) -> f64 {
-    // Candidates, then the scoring episodes, flown again against the SIL's dispersed plant when
-    // the round scores under dispersions.
-    let scoring = dagger.score_episodes * if dagger.dispersed { 2 } else { 1 };
-    let flown = dagger.candidates.unwrap_or(dagger.episodes) + scoring;
-    let relabels = dagger.episodes * dagger.fractions.len() as u64;
+    let work = RoundWork::of(dagger);
     // A relabel solves from a flown state with the rest of the flight to go: counted as that
     // share of a draw's solve (its warm start makes it cheaper still: an upper bound).
     let left = if dagger.fractions.is_empty() {
@@ -163,20 +197,21 @@ fn round_seconds(dagger: &DaggerConfig, c: &UnitCosts) -> f64 {
     } else {
         c.update_s
     };
-    dagger.updates as f64 * update_s + flown as f64 * c.episode_s + c.solves_s(relabels as f64 * left)
+    work.updates as f64 * update_s + work.flown as f64 * c.episode_s + c.solves_s(work.relabels as f64 * left)
 }
 
 /// What a round of `dagger` counts, as the plan prints it.
 fn round_counts(dagger: &DaggerConfig) -> String {
-    let relabels = dagger.episodes * dagger.fractions.len() as u64;
-    let flown = dagger.candidates.unwrap_or(dagger.episodes) + dagger.score_episodes;
+    let work = RoundWork::of(dagger);
     format!(
-        "{} rounds at most, each {} {}updates, {relabels} relabels, {flown} episodes flown{}",
+        "{} rounds at most, each {} {}updates, {} relabels, {} episodes flown{}",
         dagger.rounds,
-        dagger.updates,
+        work.updates,
         if dagger.cloning_only { "cloning-only " } else { "" },
+        work.relabels,
+        work.flown,
         if dagger.dispersed {
-            " and the scoring again dispersed"
+            " (the scoring twice: nominal and dispersed)"
         } else {
             ""
         }
@@ -264,6 +299,19 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
         rounds_beyond_one += each * own.saturating_sub(1) as f64;
         before = staged;
     }
+    let fine = &before.finetune;
+    if fine.steps > 0 {
+        let evaluations = fine.steps / fine.eval_every + 1;
+        stage(
+            "fine-tuning",
+            (fine.steps * fine.flights) as f64 * c.finetune_flight_s
+                + (evaluations * fine.eval_episodes) as f64 * c.episode_s,
+            format!(
+                "{} steps of {} flights, {evaluations} evaluations of {} episodes",
+                fine.steps, fine.flights, fine.eval_episodes
+            ),
+        );
+    }
     let evaluate = &config.evaluate;
     stage(
         "Monte Carlo",
@@ -298,14 +346,15 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
 pub fn plan_lines(plan: &RecipePlan) -> Vec<String> {
     let c = &plan.costs;
     let mut lines = vec![format!(
-        "measured here: a solve {:.3} s (one thread, {} solver threads), an update {:.2} ms (pretraining {:.2} ms, cloning only {:.2} ms), an episode {:.1} ms, an RL step {:.2} ms besides its updates",
+        "measured here: a solve {:.3} s (one thread, {} solver threads), an update {:.2} ms (pretraining {:.2} ms, cloning only {:.2} ms), an episode {:.1} ms, an RL step {:.2} ms besides its updates, a fine-tuning flight {:.0} ms",
         c.solve_s,
         c.solver_threads,
         c.update_s * 1e3,
         c.pretrain_update_s * 1e3,
         c.cloning_update_s * 1e3,
         c.episode_s * 1e3,
-        c.env_step_s * 1e3
+        c.env_step_s * 1e3,
+        c.finetune_flight_s * 1e3
     )];
     for s in &plan.stages {
         lines.push(format!("{:<28} {:>7.1} min  ({})", s.stage, s.seconds / 60.0, s.counts));

@@ -154,6 +154,14 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         );
         rounds_section(&mut s, &stage.rounds, &format!("stages/{}/dagger", stage.name));
     }
+    if let Some(fine) = &job.finetune {
+        let _ = writeln!(s, "## Fine-tuning through the dynamics\n");
+        let _ = writeln!(
+            s,
+            "{}. [Evaluations](finetune/steps.csv)\n\n![fine-tuning](finetune/steps.svg)\n![terminal residuals](finetune/steps-residuals.svg)\n",
+            fine.lineage_line()
+        );
+    }
     let _ = writeln!(s, "## Monte Carlo ({} episodes, seed {})\n", mc.episodes, mc.seed);
     let _ = writeln!(
         s,

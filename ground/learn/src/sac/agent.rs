@@ -798,6 +798,31 @@ impl Sac {
         loss.double_value(&[])
     }
 
+    /// The gradient of `sum(grad_actions . pi(obs))` with respect to the observations, for
+    /// `rows` observations and the flown actor's deterministic actions: a vector-Jacobian
+    /// product of the policy, which backpropagation through a flight chains from step to step.
+    /// Row-major, `rows x obs_dim`.
+    pub fn action_input_gradient(&self, obs: &[f32], grad_actions: &[f32], rows: usize) -> Vec<f32> {
+        let o = tensor_2d(obs, rows, self.obs_dim, self.device).set_requires_grad(true);
+        let g = tensor_2d(grad_actions, rows, self.act_dim, self.device);
+        let a = self.flown_actor().deterministic(&o);
+        let grads = Tensor::run_backward(&[(a * g).sum(Kind::Float)], &[&o], false, false);
+        Vec::<f32>::try_from(grads[0].to_device(Device::Cpu).view([-1])).unwrap_or_default()
+    }
+
+    /// One Adam step of the online actor along a gradient given through its actions: the loss
+    /// is `sum(grad_actions . pi(obs))` over `rows` observations, so `grad_actions` holding
+    /// d(objective)/d(action) for each row makes this a step down the objective (fine-tuning
+    /// through the dynamics). The averaged actor, when there is one, follows as after any update.
+    pub fn action_gradient_step(&mut self, obs: &[f32], grad_actions: &[f32], rows: usize) {
+        let o = tensor_2d(obs, rows, self.obs_dim, self.device);
+        let g = tensor_2d(grad_actions, rows, self.act_dim, self.device);
+        let loss = (self.actor.deterministic(&o) * g).sum(Kind::Float);
+        self.actor_optimizer.backward_step(&loss);
+        self.average_actor();
+        self.updates += 1;
+    }
+
     /// The averaged actor takes a step towards the online one.
     fn average_actor(&mut self) {
         if let Some(average) = &mut self.average {
