@@ -176,7 +176,7 @@ pub fn evaluate_agent<E: Environment>(
 }
 
 /// The config's family in geometry `G`: refused when it is inclined and `G` planar.
-pub fn family_of<G: Geometry>(config: &ExperimentConfig) -> Result<FamilyOf<G>, ExperimentError> {
+pub(crate) fn family_of<G: Geometry>(config: &ExperimentConfig) -> Result<FamilyOf<G>, ExperimentError> {
     G::family_of(&config.family).ok_or_else(|| ExperimentError::Inclined {
         stage: "a planar environment",
         family: config.family.label().to_string(),
