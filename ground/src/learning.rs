@@ -174,6 +174,10 @@ pub enum ModelCommand {
         /// records the rounds run and the one kept.
         #[arg(long)]
         rounds: Option<PathBuf>,
+        /// The demonstrations' dataset folder the card names, in place of the config's
+        /// [pretrain] dataset (a recipe's config names none: its run generates it).
+        #[arg(long)]
+        dataset: Option<PathBuf>,
         /// A line for the card on the controller's lineage (repeatable).
         #[arg(long)]
         note: Vec<String>,
@@ -408,8 +412,9 @@ fn run_model(command: ModelCommand) -> CommandResult {
             experiment,
             checkpoint,
             rounds,
+            dataset,
             note,
-        } => ship_command(&experiment, &checkpoint, rounds.as_deref(), &note),
+        } => ship_command(&experiment, &checkpoint, rounds.as_deref(), dataset.as_deref(), &note),
         ModelCommand::Sil {
             experiment,
             blob,
@@ -797,9 +802,13 @@ fn ship_command(
     args: &ExperimentArgs,
     checkpoint: &Path,
     rounds: Option<&Path>,
+    dataset: Option<&Path>,
     notes: &[String],
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, base) = args.load_flown()?;
+    let (mut config, base) = args.load_flown()?;
+    if let Some(dir) = dataset {
+        config.pretrain.dataset = Some(std::path::absolute(dir)?);
+    }
     let rounds = match rounds {
         Some(dir) => {
             let summary = learn::dagger::read_rounds(dir)?;
