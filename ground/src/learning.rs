@@ -313,7 +313,8 @@ fn run_train(command: TrainCommand) -> CommandResult {
 }
 
 fn finetune_command(args: &ExperimentArgs, from: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let (config, _) = args.load()?;
+    // A staged recipe's last stage: the settings its shipped learner flies with, as ground run.
+    let (config, _) = args.load_flown()?;
     let summary = in_run_folder(&args.out, || Ok(learn::finetune::finetune(&config, &args.out, from)?))?;
     for row in &summary.rows {
         println!(
