@@ -25,7 +25,6 @@
 //! Each step's flights are drawn from the step's number and the learner's Adam state is in its
 //! checkpoint, so a run stopped anywhere resumes from its last checkpoint to the same weights.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -36,8 +35,8 @@ use crate::config::ExperimentConfig;
 use crate::dagger::progress_bar;
 use crate::error::ExperimentError;
 use crate::eval::{load_agent, meets, ACCURACY_GOAL};
-use crate::phase::{family_of, policy_batch, residual_chart};
-use crate::run_folder::{check_run, prepare_run, write_file};
+use crate::phase::{family_of, policy_batch, write_rows, LogRow};
+use crate::run_folder::{check_run, prepare_run};
 use crate::sac::agent::Sac;
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::DemoGeometry;
@@ -362,7 +361,7 @@ pub struct FinetuneRow {
     pub seconds: f64,
 }
 
-impl FinetuneRow {
+impl LogRow for FinetuneRow {
     const HEADER: &'static str =
         "step,batch_objective,objective,within_goal,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,seconds\n";
 
@@ -381,6 +380,10 @@ impl FinetuneRow {
             s.terminal_velocity.p95,
             self.seconds
         )
+    }
+
+    fn point(&self) -> (f64, OutcomeSummary) {
+        (self.step as f64, self.summary)
     }
 }
 
@@ -558,15 +561,13 @@ fn write_logs(dir: &Path, rows: &[FinetuneRow], agent: &Sac) -> Result<(), Exper
     if best_row(rows).map(|r| r.step) == rows.last().map(|r| r.step) {
         agent.save(&dir.join("best.safetensors"))?;
     }
-    write_file(
-        &dir.join("state.json"),
-        &serde_json::to_vec_pretty(rows).unwrap_or_default(),
+    write_rows(
+        dir,
+        "steps",
+        rows,
+        "Fine-tuning through the dynamics: terminal residuals (evaluation flights)",
+        "step",
     )?;
-    let mut csv = String::from(FinetuneRow::HEADER);
-    for row in rows {
-        let _ = write!(csv, "{}", row.csv());
-    }
-    write_file(&dir.join("steps.csv"), csv.as_bytes())?;
     let series = |name: &str, f: &dyn Fn(&FinetuneRow) -> f64| Series {
         name: name.into(),
         points: rows.iter().map(|r| (r.step as f64, f(r))).collect(),
@@ -584,13 +585,6 @@ fn write_logs(dir: &Path, rows: &[FinetuneRow], agent: &Sac) -> Result<(), Exper
             }),
         ],
         false,
-    );
-    let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(|r| (r.step as f64, r.summary)).collect();
-    residual_chart(
-        &dir.join("steps-residuals.svg"),
-        "Fine-tuning through the dynamics: terminal residuals (evaluation flights)",
-        "step",
-        &points,
     );
     Ok(())
 }

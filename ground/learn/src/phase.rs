@@ -453,3 +453,36 @@ pub(crate) fn residual_chart(path: &Path, title: &str, x_label: &str, points: &[
         true,
     );
 }
+
+/// One row of a phase's table (the relabelling rounds', the fine-tuning's evaluations).
+pub(crate) trait LogRow: Serialize {
+    /// The CSV header, newline-terminated.
+    const HEADER: &'static str;
+    /// The row as a CSV line, newline-terminated.
+    fn csv(&self) -> String;
+    /// Its x (round, step) and its flights' summary.
+    fn point(&self) -> (f64, OutcomeSummary);
+}
+
+/// Writes a phase's rows as `state.json`, `NAME.csv` and `NAME-residuals.svg` (the terminal
+/// residuals against x, titled `what`) in `dir`.
+pub(crate) fn write_rows<R: LogRow>(
+    dir: &Path,
+    name: &str,
+    rows: &[R],
+    what: &str,
+    x_label: &str,
+) -> Result<(), ExperimentError> {
+    write_file(
+        &dir.join("state.json"),
+        &serde_json::to_vec_pretty(rows).unwrap_or_default(),
+    )?;
+    let mut csv = String::from(R::HEADER);
+    for row in rows {
+        csv.push_str(&row.csv());
+    }
+    write_file(&dir.join(format!("{name}.csv")), csv.as_bytes())?;
+    let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(LogRow::point).collect();
+    residual_chart(&dir.join(format!("{name}-residuals.svg")), what, x_label, &points);
+    Ok(())
+}

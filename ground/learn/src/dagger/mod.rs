@@ -30,7 +30,6 @@
 //! round's sampler is seeded from the round number and the agent's noise from its update count. A run stopped anywhere
 //! and resumed ends with the same weights as one that never stopped.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -38,9 +37,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
-use crate::phase::{new_agent, residual_chart};
+use crate::phase::{new_agent, write_rows, LogRow};
 use crate::pretrain::demonstration_buffer;
-use crate::run_folder::{check_run, prepare_run, write_file};
+use crate::run_folder::{check_run, prepare_run};
 use crate::sac::agent::Sac;
 use crate::sac::replay::sampler;
 use crate::sil::SilGeometry;
@@ -97,7 +96,9 @@ impl RoundRow {
     pub fn score(&self) -> f64 {
         self.within_goal_dispersed.unwrap_or(self.within_goal)
     }
+}
 
+impl LogRow for RoundRow {
     const HEADER: &'static str = "round,relabels_attempted,relabels_converged,tuples_added,buffer,updates,\
 within_goal,within_goal_dispersed,completed,reward_mean,final_mass_mean,dr_p50,dr_p95,dv_p50,dv_p95,seconds\n";
 
@@ -122,6 +123,10 @@ within_goal,within_goal_dispersed,completed,reward_mean,final_mass_mean,dr_p50,d
             s.terminal_velocity.p95,
             self.seconds
         )
+    }
+
+    fn point(&self) -> (f64, OutcomeSummary) {
+        (self.round as f64, self.summary)
     }
 }
 
@@ -438,13 +443,13 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
     if best {
         agent.save(&dir.join("best.safetensors"))?;
     }
-    let json = serde_json::to_vec_pretty(rows).unwrap_or_default();
-    write_file(&dir.join("state.json"), &json)?;
-    let mut csv = String::from(RoundRow::HEADER);
-    for row in rows {
-        let _ = write!(csv, "{}", row.csv());
-    }
-    write_file(&dir.join("rounds.csv"), csv.as_bytes())?;
+    write_rows(
+        dir,
+        "rounds",
+        rows,
+        "DAgger-style rounds: terminal residuals (scoring episodes)",
+        "round",
+    )?;
     let series = |name: &str, f: &dyn Fn(&RoundRow) -> f64| Series {
         name: name.into(),
         points: rows.iter().map(|r| (r.round as f64, f(r))).collect(),
@@ -467,13 +472,6 @@ fn write_logs(dir: &Path, rows: &[RoundRow], agent: &Sac, best: bool) -> Result<
             vec![series("within the goal", &|r| r.within_goal)]
         },
         false,
-    );
-    let points: Vec<(f64, OutcomeSummary)> = rows.iter().map(|r| (r.round as f64, r.summary)).collect();
-    residual_chart(
-        &dir.join("rounds-residuals.svg"),
-        "DAgger-style rounds: terminal residuals (scoring episodes)",
-        "round",
-        &points,
     );
     Ok(())
 }
