@@ -184,8 +184,9 @@ where
         value: terminal_value::<P>(scenario, &states[n], n as u32, objective)?,
     };
     for (k, action) in actions.iter().enumerate() {
-        let features = features_of::<P>(scenario, &states[k], k as u32)?;
-        lin.obs.push(features.iter().map(|&f| f as f32).collect());
+        // What the network saw at this step, as the environment forms it.
+        let features = P::features(scenario, &P::Geometry::state_from_numbers(&states[k])?, k as u32).ok()?;
+        lin.obs.push(P::observation(&features).as_ref().to_vec());
         let s = &states[k];
         lin.a.push(jacobian(s, STATE_STEP, d, |x| {
             stepped::<P>(&mut env, scenario, x, k as u32, action)
