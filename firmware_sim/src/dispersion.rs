@@ -120,6 +120,7 @@ impl core::fmt::Display for DispersionError {
 
 /// Standard normal draws (Box-Muller; libm, so identical on the host and the Cortex-M4), one
 /// ChaCha8 stream of a seed each.
+#[derive(Clone)]
 pub struct Normal(ChaCha8Rng);
 
 impl Normal {
@@ -148,7 +149,9 @@ impl Normal {
 }
 
 /// The dispersion state of one flight: random streams, the thruster's bias, the missed-thrust
-/// windows.
+/// windows. A clone taken at a cycle's start replays that cycle's draws exactly, whatever state
+/// and command it is then flown with (the draws depend on neither).
+#[derive(Clone)]
 pub struct DispersedPlant {
     dispersions: Dispersions,
     navigation: Normal,

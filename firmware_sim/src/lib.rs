@@ -630,21 +630,10 @@ where
             Ok(c) => (c, None),
             Err(e) => (P::Geometry::OFF, Some(e)),
         };
-        let pointed = P::Geometry::point(&mut plant, &command);
-        let applied = P::Geometry::with_throttle(&pointed, P::Geometry::throttle(&pointed) * plant.thrust_factor());
-        // The plant, segment by segment: thrust on, or off inside a missed-thrust event.
-        let (cycle_start, cycle) = (plan.cycle_start(index), plan.cycle);
-        let (mut tau, mut missed_thrust) = (0.0, 0.0);
-        while tau < cycle {
-            let (end, thrust_on) = plant.segment(cycle_start, tau, cycle);
-            let flown = if thrust_on { pointed } else { P::Geometry::OFF };
-            state = P::Geometry::propagate(&state, &flown, &actual, end - tau, tolerances)
-                .map_err(|error| SilError::Plant { index, error })?;
-            if !thrust_on {
-                missed_thrust += end - tau;
-            }
-            tau = end;
-        }
+        let cycle = plant_cycle::<P::Geometry>(&mut plant, &state, &command, &actual, plan, index, tolerances)
+            .map_err(|error| SilError::Plant { index, error })?;
+        let (applied, missed_thrust) = (cycle.applied, cycle.missed_thrust);
+        state = cycle.state;
         // The end of the cycle as the MDP sees step index + 1 (its time to go, its target).
         target = P::target(scenario, index + 1)?;
         let after = P::features(&target, &state, plan.time_to_go(index + 1))
@@ -671,6 +660,52 @@ where
         observer(&step);
     }
     Ok(summary)
+}
+
+/// What one guidance cycle of the truth plant did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlantCycle<G: Dimension> {
+    /// The true state at the cycle's end.
+    pub state: G::State,
+    /// The command as the thruster followed it: pointing error and thrust factor applied.
+    pub applied: G::Command,
+    /// Canonical time of the cycle spent in missed-thrust events.
+    pub missed_thrust: f64,
+}
+
+/// One guidance cycle (`index` of `plan`) of the truth plant: `command` turned by the plant's
+/// pointing error and flown by `actual` (the spacecraft with the flight's thrust factor) from
+/// the true `state`, segment by segment, thrust off inside a missed-thrust event. The plant's
+/// draws are consumed as the guidance loop consumes them, so a plant cloned at the cycle's
+/// start flies the same cycle again from any state and command (the ground differentiates
+/// dispersed flights so).
+pub fn plant_cycle<G: FlightGeometry>(
+    plant: &mut DispersedPlant,
+    state: &G::State,
+    command: &G::Command,
+    actual: &CanonicalSpacecraft,
+    plan: &Scenario,
+    index: u32,
+    tolerances: &Tolerances,
+) -> Result<PlantCycle<G>, PropagationError> {
+    let pointed = G::point(plant, command);
+    let applied = G::with_throttle(&pointed, G::throttle(&pointed) * plant.thrust_factor());
+    let (cycle_start, cycle) = (plan.cycle_start(index), plan.cycle);
+    let (mut state, mut tau, mut missed_thrust) = (*state, 0.0, 0.0);
+    while tau < cycle {
+        let (end, thrust_on) = plant.segment(cycle_start, tau, cycle);
+        let flown = if thrust_on { pointed } else { G::OFF };
+        state = G::propagate(&state, &flown, actual, end - tau, tolerances)?;
+        if !thrust_on {
+            missed_thrust += end - tau;
+        }
+        tau = end;
+    }
+    Ok(PlantCycle {
+        state,
+        applied,
+        missed_thrust,
+    })
 }
 
 /// A recorded closed-loop flight.

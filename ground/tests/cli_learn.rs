@@ -71,25 +71,25 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
         "missing.safetensors",
     );
     refused(&["train", "rl", "--out", path(&out), "--from-pretrained"], "pretrain");
-    // Fine-tuning: the embedded config has no [finetune] steps; one that has them, a missing start.
-    let finetune = |config: Option<&Path>| {
-        let mut args = vec!["train", "finetune", "--out", path(&out), "--from", path(&checkpoint)];
-        if let Some(c) = config {
-            args.extend_from_slice(&["--config", path(c)]);
-        }
-        refused(
-            &args,
-            if config.is_some() {
-                "missing.safetensors"
-            } else {
-                "finetune.steps is 0"
-            },
-        );
+    // Fine-tuning: a config without [finetune] steps; one that has them, a missing start.
+    let finetune = |steps: u32, needle: &str| {
+        let config = dir.join(format!("finetune-{steps}.toml"));
+        let text = format!("scenario = \"transfer-circular\"\n[finetune]\nsteps = {steps}\n");
+        std::fs::write(&config, text).unwrap();
+        let args = [
+            "train",
+            "finetune",
+            "--out",
+            path(&out),
+            "--from",
+            path(&checkpoint),
+            "--config",
+            path(&config),
+        ];
+        refused(&args, needle);
     };
-    finetune(None);
-    let config = dir.join("finetune.toml");
-    std::fs::write(&config, "scenario = \"transfer-circular\"\n[finetune]\nsteps = 10\n").unwrap();
-    finetune(Some(&config));
+    finetune(0, "finetune.steps is 0");
+    finetune(10, "missing.safetensors");
     // A lookahead thrust margin without the lookahead, or outside [0, 1).
     let sil = |extra: &[&'static str]| {
         let mut args = vec!["model", "sil", "--out", path(&out), "--blob", path(&checkpoint)];

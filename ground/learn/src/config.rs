@@ -390,6 +390,11 @@ pub struct FinetuneConfig {
     pub eval_every: u64,
     /// Flights of each evaluation (the evaluation stream's first scenarios).
     pub eval_episodes: u64,
+    /// Fly the training and evaluation flights against the SIL's dispersed plant
+    /// (`[sil.dispersions]`: navigation, thrust and pointing errors, missed thrust), the
+    /// network seeing the navigation state, instead of the nominal environment.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub dispersed: bool,
 }
 
 impl FinetuneConfig {
@@ -408,6 +413,7 @@ impl Default for FinetuneConfig {
             propellant_weight: 0.03,
             eval_every: 25,
             eval_episodes: 500,
+            dispersed: false,
         }
     }
 }

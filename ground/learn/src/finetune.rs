@@ -14,6 +14,12 @@
 //! gradient is the sum over the flight of `g_k . dpi(o_k)/dtheta`: one Adam step on a batch of
 //! flights ([`Sac::action_gradient_step`]).
 //!
+//! With `[finetune] dispersed` the flights fly against the SIL's dispersed plant instead
+//! (`firmware_sim::plant_cycle`: navigation, thrust and pointing errors, missed thrust): the
+//! network sees the navigation state, each cycle's Jacobians are central differences of that
+//! cycle flown again from a clone of its plant (the same draws), and the evaluations fly the
+//! network alone in the SIL loop, so the objective is lowered where the flight software flies.
+//!
 //! ```text
 //! RUN/finetune/start-actor.safetensors   the actor it starts from
 //! RUN/finetune/step-S.safetensors        the learner after step S (every eval_every steps)
@@ -38,11 +44,14 @@ use crate::eval::{load_agent, meets, ACCURACY_GOAL};
 use crate::phase::{family_of, policy_batch, write_rows, LogRow};
 use crate::run_folder::{check_run, prepare_run};
 use crate::sac::agent::Sac;
+use crate::sil::{flight_setup, learner_blob, SilFlights, SilGeometry};
+use firmware_sim::{plant_cycle, DispersedPlant, FlightGeometry};
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::DemoGeometry;
 use ground_core::env::batch::{evaluate_batched, summarize, OutcomeSummary};
-use ground_core::env::{Dimension, Environment, Geometry, MdpEnv, Problem, ScenarioOf};
+use ground_core::env::{ActionOf, Dimension, Environment, Geometry, MdpEnv, Problem, ScenarioOf};
 use onboard::features::Residuals;
+use shared::spacecraft::CanonicalSpacecraft;
 
 /// Central-difference step of a state component (AU, AU/t*, fraction of m0): the onboard
 /// propagator's relative tolerance is 1e-12, so the differences carry about 1e-6 of noise.
@@ -156,23 +165,27 @@ fn jacobian<T: Copy + Into<f64> + std::ops::Add<Output = T> + std::ops::Sub<Outp
     Some(out)
 }
 
-/// Linearises one flight of `scenario` flown by `actions` from its departure: None when a
-/// propagation or a feature fails along it.
+/// One flight as flown: the true states s_0..s_N, the states the network saw (the navigation's
+/// under dispersions, else the true ones) and its actions.
+struct Flown {
+    states: Vec<Vec<f64>>,
+    seen: Vec<Vec<f64>>,
+    actions: Vec<Vec<f32>>,
+}
+
+/// Linearises one flight of `scenario` about its flown states and actions, `cycle(k, s, a)`
+/// being its cycle k's map from state and action to the next state: None when a propagation or
+/// a feature fails along it.
 fn linearise<P: Problem>(
-    config: &ExperimentConfig,
     scenario: &ScenarioOf<P::Geometry>,
-    actions: &[Vec<f32>],
+    flown: &Flown,
     objective: &Objective,
+    mut cycle: impl FnMut(u32, &[f64], &[f32]) -> Option<Vec<f64>>,
 ) -> Option<Linearised>
 where
     P::Geometry: DemoGeometry,
 {
-    let mut env = MdpEnv::<P>::new(&config.env).ok()?;
-    let mut states = vec![P::Geometry::state_numbers(&P::Geometry::departure(scenario))];
-    for (k, action) in actions.iter().enumerate() {
-        let next = stepped::<P>(&mut env, scenario, &states[k], k as u32, action)?;
-        states.push(next);
-    }
+    let Flown { states, seen, actions } = flown;
     let n = actions.len();
     let d = states[0].len();
     let mut lin = Linearised {
@@ -184,24 +197,180 @@ where
         value: terminal_value::<P>(scenario, &states[n], n as u32, objective)?,
     };
     for (k, action) in actions.iter().enumerate() {
-        // What the network saw at this step, as the environment forms it.
-        let features = P::features(scenario, &P::Geometry::state_from_numbers(&states[k])?, k as u32).ok()?;
+        let step = k as u32;
+        // What the network saw at this step, as the environment forms it from the state seen.
+        let features = P::features(scenario, &P::Geometry::state_from_numbers(&seen[k])?, step).ok()?;
         lin.obs.push(P::observation(&features).as_ref().to_vec());
         let s = &states[k];
-        lin.a.push(jacobian(s, STATE_STEP, d, |x| {
-            stepped::<P>(&mut env, scenario, x, k as u32, action)
-        })?);
-        lin.b.push(jacobian(action, ACTION_STEP, d, |u| {
-            stepped::<P>(&mut env, scenario, s, k as u32, u)
-        })?);
-        lin.c.push(jacobian(s, STATE_STEP, P::OBS, |x| {
-            features_of::<P>(scenario, x, k as u32)
+        lin.a.push(jacobian(s, STATE_STEP, d, |x| cycle(step, x, action))?);
+        lin.b.push(jacobian(action, ACTION_STEP, d, |u| cycle(step, s, u))?);
+        // A navigation error adds to the true state, so d o/d s is taken where the network saw.
+        lin.c.push(jacobian(&seen[k], STATE_STEP, P::OBS, |x| {
+            features_of::<P>(scenario, x, step)
         })?);
     }
     lin.terminal = jacobian(&states[n], STATE_STEP, 1, |x| {
         terminal_value::<P>(scenario, x, n as u32, objective).map(|v| vec![v])
     })?;
     Some(lin)
+}
+
+/// Linearises one nominal flight (the environment's cycles) flown by `actions`.
+fn linearise_nominal<P: Problem>(
+    config: &ExperimentConfig,
+    scenario: &ScenarioOf<P::Geometry>,
+    actions: Vec<Vec<f32>>,
+    objective: &Objective,
+) -> Option<Linearised>
+where
+    P::Geometry: DemoGeometry,
+{
+    let mut env = MdpEnv::<P>::new(&config.env).ok()?;
+    let mut states = vec![P::Geometry::state_numbers(&P::Geometry::departure(scenario))];
+    for (k, action) in actions.iter().enumerate() {
+        let next = stepped::<P>(&mut env, scenario, &states[k], k as u32, action)?;
+        states.push(next);
+    }
+    let flown = Flown {
+        seen: states.clone(),
+        states,
+        actions,
+    };
+    linearise::<P>(scenario, &flown, objective, |k, x, a| {
+        stepped::<P>(&mut env, scenario, x, k, a)
+    })
+}
+
+/// A flight against the SIL's dispersed plant: as flown, each cycle's plant as it was when the
+/// cycle's command was taken (after the navigation's draw), and the spacecraft as it flies
+/// (the flight's thrust factor applied).
+struct DispersedFlight {
+    flown: Flown,
+    plants: Vec<DispersedPlant>,
+    actual: CanonicalSpacecraft,
+}
+
+/// Flies `scenarios` with the actor against the SIL's dispersed plant, flight i's dispersions
+/// drawn from `seed + i` as the SIL draws them: each cycle the network sees the navigation
+/// state and the plant flies its command (`firmware_sim::plant_cycle`). `nudge(i, k, action)`
+/// may change flight i's action at cycle k before it is flown (the identity in training).
+/// None for a flight whose features or propagation failed.
+fn fly_dispersed<P: Problem>(
+    config: &ExperimentConfig,
+    agent: &Sac,
+    scenarios: &[ScenarioOf<P::Geometry>],
+    seed: u64,
+    nudge: impl Fn(usize, usize, &mut [f32]),
+) -> Result<Vec<Option<DispersedFlight>>, ExperimentError>
+where
+    P::Geometry: DemoGeometry + FlightGeometry,
+{
+    let setup = flight_setup(config, &config.sil.dispersions)?;
+    struct Live<G: Dimension> {
+        truth: G::State,
+        plant: DispersedPlant,
+        flight: Option<DispersedFlight>,
+    }
+    let mut live: Vec<Live<P::Geometry>> = scenarios
+        .iter()
+        .enumerate()
+        .map(|(i, scenario)| {
+            let plant = DispersedPlant::new(&setup.dispersions, setup.time_unit_s, seed.wrapping_add(i as u64));
+            let actual = CanonicalSpacecraft {
+                thrust: setup.spacecraft.thrust * plant.thrust_factor(),
+                ..setup.spacecraft
+            };
+            let truth = P::Geometry::departure(scenario);
+            Live {
+                flight: Some(DispersedFlight {
+                    flown: Flown {
+                        states: vec![P::Geometry::state_numbers(&truth)],
+                        seen: Vec::new(),
+                        actions: Vec::new(),
+                    },
+                    plants: Vec::new(),
+                    actual,
+                }),
+                truth,
+                plant,
+            }
+        })
+        .collect();
+    let longest = scenarios.iter().map(|s| P::Geometry::plan(s).steps).max().unwrap_or(0);
+    for k in 0..longest {
+        // The navigation's draw, then what the network sees; all flights' actions in one batch.
+        let mut rows = Vec::new();
+        let mut obs = Vec::new();
+        for (i, (l, scenario)) in live.iter_mut().zip(scenarios).enumerate() {
+            let Some(flight) = l.flight.as_mut() else { continue };
+            if k >= P::Geometry::plan(scenario).steps {
+                continue;
+            }
+            let navigation = P::Geometry::navigate(&mut l.plant, &l.truth);
+            match P::features(scenario, &navigation, k) {
+                Ok(features) => {
+                    obs.extend_from_slice(P::observation(&features).as_ref());
+                    flight.flown.seen.push(P::Geometry::state_numbers(&navigation));
+                    flight.plants.push(l.plant.clone());
+                    rows.push(i);
+                }
+                Err(_) => l.flight = None,
+            }
+        }
+        let actions = agent.act(&obs, rows.len());
+        for (row, &i) in rows.iter().enumerate() {
+            let mut action = actions[row * P::Geometry::ACT..(row + 1) * P::Geometry::ACT].to_vec();
+            nudge(i, k as usize, &mut action);
+            let l = &mut live[i];
+            let scenario = &scenarios[i];
+            let cycle = ActionOf::<P::Geometry>::try_from(&action[..]).ok().and_then(|a| {
+                let flight = l.flight.as_ref()?;
+                let command = P::Geometry::decode(&a);
+                plant_cycle::<P::Geometry>(
+                    &mut l.plant,
+                    &l.truth,
+                    &command,
+                    &flight.actual,
+                    P::Geometry::plan(scenario),
+                    k,
+                    &setup.tolerances,
+                )
+                .ok()
+            });
+            match (cycle, l.flight.as_mut()) {
+                (Some(cycle), Some(flight)) => {
+                    l.truth = cycle.state;
+                    flight.flown.states.push(P::Geometry::state_numbers(&cycle.state));
+                    flight.flown.actions.push(action);
+                }
+                _ => l.flight = None,
+            }
+        }
+    }
+    Ok(live.into_iter().map(|l| l.flight).collect())
+}
+
+/// Linearises one dispersed flight: its cycles are the plant's, each replayed from the plant
+/// it started with.
+fn linearise_dispersed<P: Problem>(
+    config: &ExperimentConfig,
+    scenario: &ScenarioOf<P::Geometry>,
+    flight: &DispersedFlight,
+    objective: &Objective,
+) -> Option<Linearised>
+where
+    P::Geometry: DemoGeometry + FlightGeometry,
+{
+    let tolerances = config.env.integrator.tolerances();
+    linearise::<P>(scenario, &flight.flown, objective, |k, x, a| {
+        let state = P::Geometry::state_from_numbers(x)?;
+        let command = P::Geometry::decode(&ActionOf::<P::Geometry>::try_from(a).ok()?);
+        let mut plant = flight.plants[k as usize].clone();
+        let plan = P::Geometry::plan(scenario);
+        let cycle =
+            plant_cycle::<P::Geometry>(&mut plant, &state, &command, &flight.actual, plan, k, &tolerances).ok()?;
+        Some(P::Geometry::state_numbers(&cycle.state))
+    })
 }
 
 /// The flights' actions: each scenario flown by the actor from its departure.
@@ -241,23 +410,51 @@ pub struct StepReport {
     pub objective: f64,
 }
 
+/// What fine-tuning flights fly against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Plant {
+    /// The environment's nominal cycles.
+    Nominal,
+    /// The SIL's dispersed plant (`[sil.dispersions]`), flight i's dispersions drawn from
+    /// `seed + i`.
+    Dispersed {
+        /// Flight 0's seed.
+        seed: u64,
+    },
+}
+
 /// The gradient of the batch's mean objective with respect to each flight's actions, and the
 /// observations they were taken at: `(obs rows, action-gradient rows, report)`.
 pub fn action_gradients<P: Problem>(
     config: &ExperimentConfig,
     agent: &Sac,
     scenarios: &[ScenarioOf<P::Geometry>],
+    plant: Plant,
     objective: &Objective,
 ) -> Result<(Vec<f32>, Vec<f32>, StepReport), ExperimentError>
 where
-    P::Geometry: DemoGeometry,
+    P::Geometry: DemoGeometry + FlightGeometry,
 {
-    let actions = flown_actions::<P>(config, agent, scenarios)?;
-    let flights: Vec<Linearised> = scenarios
-        .par_iter()
-        .zip(actions.par_iter())
-        .filter_map(|(scenario, actions)| linearise::<P>(config, scenario, actions, objective))
-        .collect();
+    let flights: Vec<Linearised> = match plant {
+        Plant::Nominal => {
+            let actions = flown_actions::<P>(config, agent, scenarios)?;
+            scenarios
+                .par_iter()
+                .zip(actions.into_par_iter())
+                .filter_map(|(scenario, actions)| linearise_nominal::<P>(config, scenario, actions, objective))
+                .collect()
+        }
+        Plant::Dispersed { seed } => {
+            let flown = fly_dispersed::<P>(config, agent, scenarios, seed, |_, _, _| {})?;
+            scenarios
+                .par_iter()
+                .zip(flown.par_iter())
+                .filter_map(|(scenario, flight)| {
+                    linearise_dispersed::<P>(config, scenario, flight.as_ref()?, objective)
+                })
+                .collect()
+        }
+    };
     let count = flights.len().max(1) as f64;
     let act = agent.act_dim();
     let d = flights.first().map_or(0, |f| f.terminal.len());
@@ -316,13 +513,20 @@ pub fn finetune_step<P: Problem>(
     objective: &Objective,
 ) -> Result<StepReport, ExperimentError>
 where
-    P::Geometry: DemoGeometry,
+    P::Geometry: DemoGeometry + FlightGeometry,
 {
     let family = family_of::<P::Geometry>(config)?;
     let scenarios: Vec<ScenarioOf<P::Geometry>> = (first..first + count)
         .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
-    let (obs, g, report) = action_gradients::<P>(config, agent, &scenarios, objective)?;
+    let plant = if config.finetune.dispersed {
+        Plant::Dispersed {
+            seed: (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first),
+        }
+    } else {
+        Plant::Nominal
+    };
+    let (obs, g, report) = action_gradients::<P>(config, agent, &scenarios, plant, objective)?;
     let rows = obs.len() / P::OBS;
     if rows > 0 {
         agent.action_gradient_step(&obs, &g, rows);
@@ -333,6 +537,8 @@ where
 /// Fine-tuning flights come from the training stream past every round's scenarios (rounds
 /// stride by 1e6 from 1e6).
 const FIRST_SCENARIO: u64 = 1 << 40;
+/// Mixed into the training seed for the dispersions of the fine-tuning flights.
+const DISPERSION_STREAM: u64 = 0xF17E_D15B;
 
 impl Objective {
     /// The objective of `config`'s `[finetune]`: the accuracy goal in both residuals.
@@ -397,6 +603,8 @@ pub struct FinetuneSummary {
     pub rows: Vec<FinetuneRow>,
     /// The step of the best evaluation.
     pub best_step: u64,
+    /// The flights flew against the SIL's dispersed plant.
+    pub dispersed: bool,
     /// Its actor file, what the run ships.
     pub best_actor: PathBuf,
 }
@@ -407,7 +615,8 @@ impl FinetuneSummary {
         let best = self.rows.iter().find(|r| r.step == self.best_step);
         match (self.rows.first(), best) {
             (Some(start), Some(best)) => format!(
-                "fine-tuned through the dynamics for {} steps, step {} kept: on {} evaluation flights objective {:.4} -> {:.4}, within the goal {:.1} -> {:.1} %, mean final mass {:.5} -> {:.5}",
+                "fine-tuned through the dynamics{} for {} steps, step {} kept: on {} evaluation flights objective {:.4} -> {:.4}, within the goal {:.1} -> {:.1} %, mean final mass {:.5} -> {:.5}",
+                if self.dispersed { " on dispersed flights" } else { "" },
                 self.rows.last().map_or(0, |r| r.step),
                 best.step,
                 start.summary.episodes,
@@ -457,7 +666,7 @@ fn finetune_for<P: Problem>(
     start: &Path,
 ) -> Result<FinetuneSummary, ExperimentError>
 where
-    P::Geometry: DemoGeometry,
+    P::Geometry: SilGeometry + FlightGeometry,
 {
     let settings = &config.finetune;
     let objective = Objective::of(config);
@@ -469,7 +678,13 @@ where
         .map(|i| P::Geometry::draw(&family, config.seeds.evaluation, i))
         .collect();
     let evaluate = |agent: &Sac, step: u64, batch_objective: f64, seconds: f64| {
-        let outcomes = evaluate_batched::<MdpEnv<P>, _>(&config.env, &evaluation, |o| policy_batch(agent, o), false)?;
+        // Dispersed fine-tuning is judged as the SIL flies the network alone, dispersed.
+        let outcomes = if settings.dispersed {
+            let flights = SilFlights::network_alone(&config.sil.dispersions, config.seeds.evaluation);
+            P::Geometry::fly_learner(config, agent, &evaluation, &flights)?
+        } else {
+            evaluate_batched::<MdpEnv<P>, _>(&config.env, &evaluation, |o| policy_batch(agent, o), false)?
+        };
         let n = outcomes.len().max(1) as f64;
         Ok::<_, ExperimentError>(FinetuneRow {
             step,
@@ -488,6 +703,10 @@ where
     if !step_file(&dir, 0).exists() {
         // The flown actor of a learner checkpoint or of an actor file.
         let flown = load_agent(config, P::OBS, start)?;
+        if settings.dispersed {
+            // Refused before the folder is made: the SIL loop must fly this network.
+            learner_blob(config, &flown)?;
+        }
         prepare_run(config, run)?;
         let start_actor = dir.join("start-actor.safetensors");
         flown.save_flown_actor(&start_actor)?;
@@ -546,6 +765,7 @@ where
         folder: dir,
         rows,
         best_step: best,
+        dispersed: settings.dispersed,
         best_actor,
     })
 }
@@ -639,7 +859,8 @@ mod tests {
             velocity_goal: 0.01,
             propellant_weight: 0.03,
         };
-        let (_, g, report) = action_gradients::<Transfer>(&config, &agent, &scenarios, &objective).unwrap();
+        let (_, g, report) =
+            action_gradients::<Transfer>(&config, &agent, &scenarios, Plant::Nominal, &objective).unwrap();
         assert_eq!(report.flights, 2);
         // Flight 0's rows come first; the gradient is of the mean over the two flights.
         let steps = Planar::plan(&scenarios[0]).steps as usize;
@@ -661,6 +882,105 @@ mod tests {
             }
         }
         // Not a check of zeros: most of the compared components move the objective.
+        assert!(checked >= 5, "{checked}");
+    }
+
+    /// The torch actor as the flight software's actor, its action at one cycle moved.
+    struct Nudged<'a> {
+        agent: &'a Sac,
+        cycle: std::cell::Cell<usize>,
+        nudge: (usize, usize, f32),
+    }
+
+    impl onboard::guidance::Actor<10> for Nudged<'_> {
+        fn act(&self, features: &[f32; 10]) -> [f32; 3] {
+            let mut a = self.agent.act(features, 1);
+            let (k, j, delta) = self.nudge;
+            if self.cycle.get() == k {
+                a[j] += delta;
+            }
+            self.cycle.set(self.cycle.get() + 1);
+            [a[0], a[1], a[2]]
+        }
+    }
+
+    /// A dispersed flight fine-tuned is the SIL's: flown by the SIL loop itself
+    /// (`firmware_sim::fly`, the torch actor as the flight software's network) against the
+    /// same dispersions, it ends where the fine-tuning's flight ends, and the backward pass's
+    /// d(objective)/d(action) equals central differences of whole SIL flights with one action
+    /// moved (navigation errors, pointing, the thrust factor and missed thrust all drawn).
+    #[test]
+    fn dispersed_action_gradients_equal_central_differences_of_sil_flights() {
+        let mut config = ExperimentConfig::from_toml(EMBEDDED_DEFAULT).unwrap();
+        config.sac.hidden = vec![32, 32];
+        // Missed thrust often enough that the flights see an event.
+        config.sil.dispersions.missed_thrust_per_year = 6.0;
+        tch::manual_seed(5);
+        let agent = Sac::new(config.sac.clone(), Transfer::OBS, 3, tch::Device::Cpu);
+        let family = family_of::<Planar>(&config).unwrap();
+        let scenario = Planar::draw(&family, 11, 0);
+        let objective = Objective {
+            position_goal: 0.01,
+            velocity_goal: 0.01,
+            propellant_weight: 0.03,
+        };
+        let seed = 77;
+        let setup = flight_setup(&config, &config.sil.dispersions).unwrap();
+        let sil = |nudge: (usize, usize, f32)| {
+            let actor = Nudged {
+                agent: &agent,
+                cycle: std::cell::Cell::new(0),
+                nudge,
+            };
+            let flight = firmware_sim::fly(firmware_sim::Transfer, &actor, &scenario, &setup, seed).unwrap();
+            assert_eq!(flight.summary.guidance_faults, 0);
+            flight
+        };
+        let plain = sil((usize::MAX, 0, 0.0));
+        assert!(
+            plain.steps.iter().any(|s| s.missed_thrust > 0.0),
+            "no missed thrust drawn"
+        );
+        let value =
+            |f: &firmware_sim::Flight| objective.value(&f.summary.final_residuals.unwrap(), f.summary.final_state.m);
+        let flown = fly_dispersed::<Transfer>(&config, &agent, std::slice::from_ref(&scenario), seed, |_, _, _| {})
+            .unwrap()
+            .remove(0)
+            .unwrap();
+        let last = flown.flown.states.last().unwrap();
+        let end = Planar::state_numbers(&plain.summary.final_state);
+        for (a, b) in last.iter().zip(&end) {
+            assert!(
+                (a - b).abs() < 1e-9,
+                "fine-tuning flight ends at {last:?}, the SIL's at {end:?}"
+            );
+        }
+        let (_, g, report) = action_gradients::<Transfer>(
+            &config,
+            &agent,
+            std::slice::from_ref(&scenario),
+            Plant::Dispersed { seed },
+            &objective,
+        )
+        .unwrap();
+        assert_eq!(report.flights, 1);
+        assert!((report.objective - value(&plain)).abs() < 1e-6);
+        let steps = Planar::plan(&scenario).steps as usize;
+        let largest = g.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        assert!(largest > 0.0);
+        let mut checked = 0;
+        for k in [0, steps / 3, steps / 2, steps - 2, steps - 1] {
+            for j in 0..3 {
+                let h = ACTION_STEP;
+                let reference = (value(&sil((k, j, h))) - value(&sil((k, j, -h)))) / (2.0 * f64::from(h));
+                let found = f64::from(g[3 * k + j]);
+                assert!(
+                    (found - reference).abs() <= 2e-3 * f64::from(largest),
+                    "step {k} component {j}: backward pass {found}, SIL differences {reference}"
+                );
+                checked += usize::from(reference.abs() > 0.05 * f64::from(largest));
+            }
+        }
         assert!(checked >= 5, "{checked}");
     }
 }

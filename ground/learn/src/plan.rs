@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::config::{DaggerConfig, ExperimentConfig};
 use crate::error::ExperimentError;
-use crate::finetune::{action_gradients, Objective};
+use crate::finetune::{action_gradients, Objective, Plant};
 use crate::phase::{evaluate_agent, new_agent};
 use crate::sac::bench::seconds_per_update_of;
 use ground_core::demo::DemoGeometry;
@@ -103,7 +103,7 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
 
 fn measure<P: Problem>(config: &ExperimentConfig, check: &FamilyCheck) -> Result<UnitCosts, ExperimentError>
 where
-    P::Geometry: DemoGeometry,
+    P::Geometry: DemoGeometry + firmware_sim::FlightGeometry,
 {
     let obs = P::OBS;
     let device = config.device()?;
@@ -140,7 +140,14 @@ where
         .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
     let start = Instant::now();
-    action_gradients::<P>(config, &learner, &flights, &Objective::of(config))?;
+    let plant = if config.finetune.dispersed {
+        Plant::Dispersed {
+            seed: config.seeds.train,
+        }
+    } else {
+        Plant::Nominal
+    };
+    action_gradients::<P>(config, &learner, &flights, plant, &Objective::of(config))?;
     let finetune_flight_s = start.elapsed().as_secs_f64() / TIMED_FINETUNE_FLIGHTS as f64;
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],

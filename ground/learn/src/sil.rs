@@ -331,16 +331,16 @@ pub trait SilGeometry: DemoGeometry {
     ) -> Result<SilFlown<Self>, ExperimentError>;
 
     /// The flights of `agent`'s f32 blob on `scenarios` as `flights` says (the relabelling
-    /// rounds that relabel or score dispersed flights).
+    /// rounds and the fine-tuning that fly dispersed flights). An actor the flight software
+    /// would refuse (not the onboard contract's shape) is an error here, not flights in safe
+    /// mode.
     fn fly_learner(
         config: &ExperimentConfig,
         agent: &Sac,
         scenarios: &[Self::Scenario],
         flights: &SilFlights,
     ) -> Result<Vec<EpisodeOutcome<Self>>, ExperimentError> {
-        let blob = actor_network(agent, config.feature_layout())?
-            .f32_blob_for("relabelling round", config.blob_mission())
-            .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))?;
+        let blob = learner_blob(config, agent)?;
         Ok(Self::fly_blob(config, &blob, scenarios, flights)?.0)
     }
 }
@@ -425,6 +425,21 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
         dispersions: *dispersions,
         time_unit_s: config.family.family.body.units().time_s,
     })
+}
+
+/// The f32 blob of `agent`'s flown actor, as the SIL flies a learner; an actor the flight
+/// software would refuse (not the onboard contract's shape) is an error, not flights in safe
+/// mode.
+pub fn learner_blob(config: &ExperimentConfig, agent: &Sac) -> Result<Vec<u8>, ExperimentError> {
+    let blob = actor_network(agent, config.feature_layout())?
+        .f32_blob_for("learner", config.blob_mission())
+        .map_err(|e| ExperimentError::Mismatch(format!("the actor does not export: {e}")))?;
+    match firmware_sim::load_refusal(&blob, config.feature_layout()) {
+        Some(why) => Err(ExperimentError::Mismatch(format!(
+            "the flight software refuses the learner's blob ({why}): dispersed flights fly it in the SIL loop, so its network must have the onboard contract's shape"
+        ))),
+        None => Ok(blob),
+    }
 }
 
 /// [`SilGeometry::fly_blob`] in the plane for one problem, with the onboard aids.

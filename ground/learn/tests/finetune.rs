@@ -1,6 +1,6 @@
 //! Fine-tuning through the dynamics as a phase: it lowers its objective on the flights it
 //! evaluates, and a run stopped at a checkpoint resumes to the same bytes as one that never
-//! stopped. One test in its own binary: torch's generator is global to the process.
+//! stopped, on the nominal environment and on the SIL's dispersed plant. One test in its own binary: torch's generator is global to the process.
 
 // The toy config alone: no dataset is needed.
 #[allow(dead_code)]
@@ -26,8 +26,20 @@ fn evaluations(path: &Path) -> Vec<(u64, f64, f64, f64)> {
 
 #[test]
 fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
-    let dir = scratch_dir("finetune");
+    // On the nominal environment, and against the SIL's dispersed plant.
+    for dispersed in [false, true] {
+        lowers_and_resumes(dispersed);
+    }
+}
+
+fn lowers_and_resumes(dispersed: bool) {
+    let dir = scratch_dir(if dispersed { "finetune-dispersed" } else { "finetune" });
     let mut config = toy_config(&dir.join("no-dataset"));
+    config.finetune.dispersed = dispersed;
+    if dispersed {
+        // Dispersed flights are evaluated in the SIL loop: the onboard contract's network.
+        config.sac.hidden = vec![256, 256];
+    }
     config.finetune.steps = 12;
     config.finetune.flights = 4;
     config.finetune.eval_every = 4;
@@ -48,7 +60,7 @@ fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
     let best = rows.iter().find(|r| r.step == summary.best_step).unwrap();
     assert!(
         best.objective < rows[0].objective,
-        "no evaluation below the start's objective: {rows:?}"
+        "dispersed {dispersed}: no evaluation below the start's objective: {rows:?}"
     );
 
     // Stopped at step 8 (a checkpoint), then the same command asking for 12.
@@ -66,7 +78,7 @@ fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
     ] {
         assert!(
             bytes(&straight.join("finetune").join(file)) == bytes(&stopped.join("finetune").join(file)),
-            "finetune/{file} differs after a resume"
+            "dispersed {dispersed}: finetune/{file} differs after a resume"
         );
     }
     assert_eq!(
