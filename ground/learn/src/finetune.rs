@@ -323,27 +323,28 @@ where
             nudge(i, k as usize, &mut action);
             let l = &mut live[i];
             let scenario = &scenarios[i];
+            let Some(flight) = l.flight.as_mut() else { continue };
             let cycle = ActionOf::<P::Geometry>::try_from(&action[..]).ok().and_then(|a| {
-                let flight = l.flight.as_ref()?;
                 let command = P::Geometry::decode(&a);
+                let plan = P::Geometry::plan(scenario);
                 plant_cycle::<P::Geometry>(
                     &mut l.plant,
                     &l.truth,
                     &command,
                     &flight.actual,
-                    P::Geometry::plan(scenario),
+                    plan,
                     k,
                     &setup.tolerances,
                 )
                 .ok()
             });
-            match (cycle, l.flight.as_mut()) {
-                (Some(cycle), Some(flight)) => {
+            match cycle {
+                Some(cycle) => {
                     l.truth = cycle.state;
                     flight.flown.states.push(P::Geometry::state_numbers(&cycle.state));
                     flight.flown.actions.push(action);
                 }
-                _ => l.flight = None,
+                None => l.flight = None,
             }
         }
     }
@@ -421,6 +422,20 @@ pub enum Plant {
         /// Flight 0's seed.
         seed: u64,
     },
+}
+
+impl Plant {
+    /// The plant the config's `[finetune]` flies training scenarios `first..` against: the
+    /// dispersed one from its own stream of the training seed when `dispersed` is set.
+    pub fn of(config: &ExperimentConfig, first: u64) -> Self {
+        if config.finetune.dispersed {
+            Plant::Dispersed {
+                seed: (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first),
+            }
+        } else {
+            Plant::Nominal
+        }
+    }
 }
 
 /// The gradient of the batch's mean objective with respect to each flight's actions, and the
@@ -519,14 +534,7 @@ where
     let scenarios: Vec<ScenarioOf<P::Geometry>> = (first..first + count)
         .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
-    let plant = if config.finetune.dispersed {
-        Plant::Dispersed {
-            seed: (config.seeds.train ^ DISPERSION_STREAM).wrapping_add(first),
-        }
-    } else {
-        Plant::Nominal
-    };
-    let (obs, g, report) = action_gradients::<P>(config, agent, &scenarios, plant, objective)?;
+    let (obs, g, report) = action_gradients::<P>(config, agent, &scenarios, Plant::of(config, first), objective)?;
     let rows = obs.len() / P::OBS;
     if rows > 0 {
         agent.action_gradient_step(&obs, &g, rows);

@@ -140,14 +140,7 @@ where
         .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
     let start = Instant::now();
-    let plant = if config.finetune.dispersed {
-        Plant::Dispersed {
-            seed: config.seeds.train,
-        }
-    } else {
-        Plant::Nominal
-    };
-    action_gradients::<P>(config, &learner, &flights, plant, &Objective::of(config))?;
+    action_gradients::<P>(config, &learner, &flights, Plant::of(config, 0), &Objective::of(config))?;
     let finetune_flight_s = start.elapsed().as_secs_f64() / TIMED_FINETUNE_FLIGHTS as f64;
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
