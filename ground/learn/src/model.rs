@@ -726,17 +726,35 @@ pub fn upgrade_model(dir: &Path, run: &Path) -> Result<(ModelCard, Vec<SilReport
 }
 
 /// The running command as a user reruns it from the repository: `ground` for the binary's
-/// path, and arguments under the working folder relative to it. A card never records where
-/// the machine that made it keeps its files.
+/// path, and arguments under the working folder relative to it, each quoted for a POSIX shell
+/// where it needs it (a `--note` of several words). A card never records where the machine
+/// that made it keeps its files.
 fn portable_command() -> String {
     let mut args = std::env::args();
     let program = args.next().map(|p| {
         let name = Path::new(&p).file_stem().map(|n| n.to_string_lossy().into_owned());
         name.unwrap_or(p)
     });
-    program
+    let words: Vec<String> = program
         .into_iter()
         .chain(args.map(|a| portable_path(Path::new(&a)).to_string_lossy().into_owned()))
+        .collect();
+    shell_words(&words)
+}
+
+/// Words joined into one POSIX shell command line that splits back into the same words: a
+/// word of only safe characters as it is, any other in single quotes (a quote inside as `'\''`).
+fn shell_words(words: &[String]) -> String {
+    let safe = |c: char| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c);
+    words
+        .iter()
+        .map(|w| {
+            if !w.is_empty() && w.chars().all(safe) {
+                w.clone()
+            } else {
+                format!("'{}'", w.replace('\'', "'\\''"))
+            }
+        })
         .collect::<Vec<_>>()
         .join(" ")
 }
@@ -1129,6 +1147,38 @@ mod tests {
         let text = portable_config(&config);
         assert!(text.contains("dataset = \"runs/tc/dataset\""), "{text}");
         assert!(!text.contains(&*cwd.to_string_lossy()), "{text}");
+    }
+
+    #[test]
+    fn a_recorded_command_splits_back_into_its_words_in_a_shell() {
+        let words: Vec<String> = [
+            "ground",
+            "model",
+            "ship",
+            "--note",
+            "Fine-tuned (step 275 kept): the actor's \"best\" $HOME `x` \\ *",
+            "",
+            "--out",
+            "runs/a b",
+        ]
+        .iter()
+        .map(|w| w.to_string())
+        .collect();
+        let line = super::shell_words(&words);
+        assert!(line.starts_with("ground model ship --note '"), "{line}");
+        // The shell's own split, one word a line (no word here holds a newline).
+        let out = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!("for w in {line}; do printf '%s\\n' \"$w\"; done"))
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let split: Vec<String> = String::from_utf8(out.stdout)
+            .unwrap()
+            .lines()
+            .map(str::to_string)
+            .collect();
+        assert_eq!(split, words);
     }
 
     /// A card whose Monte Carlo has fewer thresholds than its SIL rows (measured before the
