@@ -643,7 +643,7 @@ fn le4(bytes: &[u8], i: usize) -> Option<[u8; 4]> {
 
 /// A copy of a blob's bytes placed on a 64-byte ([`WEIGHT_ALIGN`]) boundary, so that every
 /// weight array is on a cache line (host inference runs about a fifth faster than with weights
-/// straddling lines; docs/results.md). Flight code links its blob aligned instead.
+/// straddling lines; docs/history/onboard.md). Flight code links its blob aligned instead.
 #[cfg(feature = "std")]
 #[derive(Debug, Clone)]
 pub struct AlignedBlob {

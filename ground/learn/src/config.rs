@@ -349,7 +349,7 @@ pub struct DaggerConfig {
 
 impl Default for DaggerConfig {
     fn default() -> Self {
-        // Measured (docs/results.md): 100 episodes per round plateau near 54 %
+        // Measured (docs/history/learning.md): 100 episodes per round plateau near 54 %
         // within the goal, 200 still climb.
         Self {
             rounds: 0,

@@ -75,7 +75,7 @@ where
     let state = P::Geometry::state_from_numbers(&job.state)?;
     let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
-    // to 10.9 % within the goal (docs/results.md).
+    // to 10.9 % within the goal (docs/history/learning.md).
     let options = config.generate.solve_options();
     let transitions = P::Geometry::relabel_tuples::<P>(
         &family,
