@@ -92,7 +92,8 @@ pub enum TrainCommand {
     /// Fine-tuning through the dynamics: each step flies a batch of training flights,
     /// differentiates what they end with (miss over the goal, propellant) end to end through
     /// the environment's propagator and steps the actor; the config's [finetune] section.
-    /// Resumable; writes OUT/finetune (best-actor.safetensors: what `model ship --checkpoint` takes).
+    /// Resumable; writes OUT/finetune (best-actor.safetensors: what `model ship --checkpoint` takes),
+    /// and a chained phase ([finetune.then]) OUT/finetune/then from that best actor.
     Finetune {
         #[command(flatten)]
         experiment: ExperimentArgs,
@@ -315,24 +316,29 @@ fn run_train(command: TrainCommand) -> CommandResult {
 fn finetune_command(args: &ExperimentArgs, from: &Path) -> Result<(), Box<dyn std::error::Error>> {
     // A staged recipe's last stage: the settings its shipped learner flies with, as ground run.
     let (config, _) = args.load_flown()?;
-    let summary = in_run_folder(&args.out, || Ok(learn::finetune::finetune(&config, &args.out, from)?))?;
-    for row in &summary.rows {
+    let phases = in_run_folder(&args.out, || Ok(learn::finetune::finetune(&config, &args.out, from)?))?;
+    for (i, summary) in phases.iter().enumerate() {
+        if phases.len() > 1 {
+            println!("phase {} of {}: {}", i + 1, phases.len(), summary.folder.display());
+        }
+        for row in &summary.rows {
+            println!(
+                "step {:>5}: objective {:.4}, {:>5.1} % within 0.01 AU and 0.01 (dr p50 {:.4} AU, p95 {:.4}; final mass {:.5})",
+                row.step,
+                row.objective,
+                100.0 * row.within_goal,
+                row.summary.terminal_position.p50,
+                row.summary.terminal_position.p95,
+                row.summary.final_mass.mean
+            );
+        }
         println!(
-            "step {:>5}: objective {:.4}, {:>5.1} % within 0.01 AU and 0.01 (dr p50 {:.4} AU, p95 {:.4}; final mass {:.5})",
-            row.step,
-            row.objective,
-            100.0 * row.within_goal,
-            row.summary.terminal_position.p50,
-            row.summary.terminal_position.p95,
-            row.summary.final_mass.mean
+            "best: step {} ({}); written to {}",
+            summary.best_step,
+            summary.best_actor.display(),
+            summary.folder.display()
         );
     }
-    println!(
-        "best: step {} ({}); written to {}",
-        summary.best_step,
-        summary.best_actor.display(),
-        summary.folder.display()
-    );
     Ok(())
 }
 

@@ -146,7 +146,8 @@ fn generate_takes_a_mission_file_and_records_its_family() {
 #[cfg(feature = "learn")]
 #[test]
 fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
-    // venus-inward's recipe with fine-tuning after its stage.
+    // venus-inward's recipe with fine-tuning after its stage: a nominal phase, then a
+    // dispersed one.
     let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
     let recipe = std::fs::read_to_string(configs.join("venus-inward.toml")).unwrap();
     let mission = configs.join("missions/venus-inward.toml");
@@ -155,7 +156,7 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     std::fs::write(
         &config,
         format!(
-            "{}\n[finetune]\nsteps = 300\nflights = 64\n",
+            "{}\n[finetune]\nsteps = 300\nflights = 64\n[finetune.then]\nsteps = 100\nflights = 8\ndispersed = true\n",
             recipe.replace(
                 "\"missions/venus-inward.toml\"",
                 &format!("{:?}", mission.to_str().unwrap())
@@ -192,6 +193,7 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
             "relabelling",
             "dispersed: rounds",
             "fine-tuning",
+            "fine-tuning, then",
             "Monte Carlo",
             "export and SIL"
         ]
@@ -241,6 +243,14 @@ fn a_recipe_plan_counts_its_stages_and_writes_nothing() {
     let fine = v["stages"][5]["seconds"].as_f64().unwrap();
     let expected = 300.0 * 64.0 * flight + 13.0 * 500.0 * episode;
     assert!(flight > 0.0 && (fine - expected).abs() <= 1e-9 * expected, "{v}");
+    // The dispersed phase: its flights at the measured dispersed flight, 5 evaluations.
+    let dispersed_flight = costs["finetune_dispersed_flight_s"].as_f64().unwrap();
+    let then = v["stages"][6]["seconds"].as_f64().unwrap();
+    let expected = 100.0 * 8.0 * dispersed_flight + 5.0 * 500.0 * episode;
+    assert!(
+        dispersed_flight > 0.0 && (then - expected).abs() <= 1e-9 * expected,
+        "{v}"
+    );
     let _ = std::fs::remove_file(&config);
 }
 

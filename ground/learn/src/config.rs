@@ -372,7 +372,11 @@ impl Default for DaggerConfig {
 /// actor stepped down the gradient of what its flights end with, each flight differentiated
 /// end to end through the environment's propagator. Measured on transfer-circular
 /// (docs/results.md): the miss and the propellant both fall.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+///
+/// A phase may be followed by another (`[finetune.then]`, its keys defaulting as these do)
+/// started from this phase's best actor: first nominal flights, then dispersed ones, as one
+/// recipe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FinetuneConfig {
     /// Adam steps, each on a fresh batch of training flights. 0: none, and `ground run` skips
@@ -395,12 +399,57 @@ pub struct FinetuneConfig {
     /// network seeing the navigation state, instead of the nominal environment.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub dispersed: bool,
+    /// The phase after this one, from its best actor (`RUN/finetune/then`); its best actor is
+    /// then what the run ships.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub then: Option<Box<FinetuneConfig>>,
 }
 
 impl FinetuneConfig {
     /// No fine-tuning (the default), so configs without the section stay as they were written.
     pub fn is_off(&self) -> bool {
-        self.steps == 0
+        self.steps == 0 && self.then.is_none()
+    }
+
+    /// This phase and those after it, in the order they run.
+    pub fn phases(&self) -> impl Iterator<Item = &FinetuneConfig> {
+        std::iter::successors(Some(self), |phase| phase.then.as_deref())
+    }
+
+    /// Each phase's settings as checked in [`ExperimentConfig::validate`], `at` naming the
+    /// section.
+    fn validate(&self, at: &str) -> Result<(), ConfigError> {
+        let positive = |key: &str, value: u64| {
+            if value == 0 {
+                return Err(ConfigError::Invalid(format!("{at}.{key} must be positive")));
+            }
+            Ok(())
+        };
+        positive("flights", self.flights)?;
+        positive("eval_every", self.eval_every)?;
+        positive("eval_episodes", self.eval_episodes)?;
+        if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
+            return Err(ConfigError::Invalid(format!(
+                "{at}.learning_rate must be finite and > 0, got {}",
+                self.learning_rate
+            )));
+        }
+        if !(self.propellant_weight.is_finite() && self.propellant_weight >= 0.0) {
+            return Err(ConfigError::Invalid(format!(
+                "{at}.propellant_weight must be a finite weight >= 0, got {}",
+                self.propellant_weight
+            )));
+        }
+        if let Some(then) = &self.then {
+            if self.steps == 0 || then.steps == 0 {
+                return Err(ConfigError::Invalid(format!(
+                    "{at}.then: each phase of a chained fine-tuning needs steps > 0 ({at}.steps = {}, {at}.then.steps = {})",
+                    self.steps, then.steps
+                )));
+            }
+            then.validate(&format!("{at}.then"))?;
+        }
+        Ok(())
     }
 }
 
@@ -414,6 +463,7 @@ impl Default for FinetuneConfig {
             eval_every: 25,
             eval_episodes: 500,
             dispersed: false,
+            then: None,
         }
     }
 }
@@ -771,21 +821,7 @@ impl ExperimentConfig {
             positive("dagger.patience", patience)?;
         }
         positive("dagger.score_episodes", self.dagger.score_episodes)?;
-        positive("finetune.flights", self.finetune.flights)?;
-        positive("finetune.eval_every", self.finetune.eval_every)?;
-        positive("finetune.eval_episodes", self.finetune.eval_episodes)?;
-        if !(self.finetune.learning_rate.is_finite() && self.finetune.learning_rate > 0.0) {
-            return Err(ConfigError::Invalid(format!(
-                "finetune.learning_rate must be finite and > 0, got {}",
-                self.finetune.learning_rate
-            )));
-        }
-        if !(self.finetune.propellant_weight.is_finite() && self.finetune.propellant_weight >= 0.0) {
-            return Err(ConfigError::Invalid(format!(
-                "finetune.propellant_weight must be a finite weight >= 0, got {}",
-                self.finetune.propellant_weight
-            )));
-        }
+        self.finetune.validate("finetune")?;
         if self.dagger.fractions.is_empty() || !self.dagger.fractions.iter().all(|f| *f > 0.0 && *f < 1.0) {
             return Err(ConfigError::Invalid(
                 "dagger.fractions must be a non-empty list of values in (0, 1)".into(),
@@ -1207,6 +1243,46 @@ mod tests {
     fn round_trips_through_toml_and_the_embedded_default_parses() {
         let c = ExperimentConfig::from_toml(EMBEDDED_DEFAULT).unwrap();
         assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+    }
+
+    /// A chained fine-tuning (`[finetune.then]`): its phases in order, each with its own keys'
+    /// defaults, round-tripping through the run folder's TOML; a phase of no steps in a chain,
+    /// or a bad key of the later phase, is refused with the phase named.
+    #[test]
+    fn chained_finetuning_phases_parse_in_order_and_bad_ones_are_refused() {
+        let base = "scenario = \"rendezvous-circular\"\n";
+        let text = format!(
+            "{base}[finetune]\nsteps = 1200\n[finetune.then]\nsteps = 2000\nlearning_rate = 3e-5\ndispersed = true\n"
+        );
+        let c = ExperimentConfig::from_toml(&text).unwrap();
+        let phases: Vec<(u64, f64, bool)> = c
+            .finetune
+            .phases()
+            .map(|p| (p.steps, p.learning_rate, p.dispersed))
+            .collect();
+        let default = FinetuneConfig::default().learning_rate;
+        assert_eq!(phases, [(1200, default, false), (2000, 3e-5, true)]);
+        assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+        for (bad, needle) in [
+            ("[finetune.then]\nsteps = 5\n", "finetune.then: each phase"),
+            (
+                "[finetune]\nsteps = 5\n[finetune.then]\nsteps = 0\n",
+                "finetune.then: each phase",
+            ),
+            (
+                "[finetune]\nsteps = 5\n[finetune.then]\nsteps = 5\nlearning_rate = -1.0\n",
+                "finetune.then.learning_rate",
+            ),
+            (
+                "[finetune]\nsteps = 5\n[finetune.then]\nsteps = 5\n[finetune.then.then]\nsteps = 1\nflights = 0\n",
+                "finetune.then.then.flights",
+            ),
+        ] {
+            let err = ExperimentConfig::from_toml(&format!("{base}{bad}"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(needle), "{bad}: {err}");
+        }
     }
 
     /// configs/ holds recipes a user runs: each parses, validates, opens with a header saying

@@ -26,6 +26,7 @@
 //! RUN/finetune/best.safetensors          the evaluation with the smallest mean objective
 //! RUN/finetune/best-actor.safetensors    its actor, what the run ships
 //! RUN/finetune/steps.{csv,svg}           the evaluations, state.json the same for machines
+//! RUN/finetune/then/...                   the phase after it (`[finetune.then]`), the same files
 //! ```
 //!
 //! Each step's flights are drawn from the step's number and the learner's Adam state is in its
@@ -37,7 +38,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, FinetuneConfig};
 use crate::dagger::progress_bar;
 use crate::error::ExperimentError;
 use crate::eval::{load_agent, meets, ACCURACY_GOAL};
@@ -659,39 +660,64 @@ fn learner(config: &ExperimentConfig, obs_dim: usize) -> Result<Sac, ExperimentE
     Ok(agent)
 }
 
-/// `ground train finetune`: `config.finetune.steps` steps from `start` (a learner checkpoint or
-/// an actor file: its flown actor) in `RUN/finetune`, resuming the steps already there.
-pub fn finetune(config: &ExperimentConfig, run: &Path, start: &Path) -> Result<FinetuneSummary, ExperimentError> {
+/// `ground train finetune`: the config's fine-tuning from `start` (a learner checkpoint or an
+/// actor file: its flown actor), resuming the steps already there. Each phase runs in its own
+/// folder (`RUN/finetune`, then `RUN/finetune/then`, ...) from the best actor of the phase
+/// before; the last phase's best actor is the result. One summary per phase, in order.
+pub fn finetune(config: &ExperimentConfig, run: &Path, start: &Path) -> Result<Vec<FinetuneSummary>, ExperimentError> {
     if config.finetune.steps == 0 {
         return Err(crate::config::ConfigError::Invalid("finetune.steps is 0: no step to take".into()).into());
     }
-    crate::with_flown_problem!(config, P => finetune_for::<P>(config, run, start))
+    let mut summaries: Vec<FinetuneSummary> = Vec::new();
+    let mut dir = run.join("finetune");
+    for settings in config.finetune.phases() {
+        // The phase's settings as the config's own, so the plant, the objective and the learner
+        // read them where a single phase does.
+        let mut phase = config.clone();
+        phase.finetune = FinetuneConfig {
+            then: None,
+            ..settings.clone()
+        };
+        let from = summaries.last().map_or(start, |before| before.best_actor.as_path());
+        let chained = !summaries.is_empty();
+        let summary =
+            crate::with_flown_problem!(config, P => finetune_for::<P>(config, &phase, run, &dir, from, chained))?;
+        summaries.push(summary);
+        dir = dir.join("then");
+    }
+    Ok(summaries)
 }
 
+/// One phase: `phase.finetune`'s steps in `dir`; `run_config` is the run's, what its folder
+/// records. A `chained` phase (one after another) refuses to go on from a start that is no
+/// longer the phase before's best actor.
 fn finetune_for<P: Problem>(
-    config: &ExperimentConfig,
+    run_config: &ExperimentConfig,
+    phase: &ExperimentConfig,
     run: &Path,
+    dir: &Path,
     start: &Path,
+    chained: bool,
 ) -> Result<FinetuneSummary, ExperimentError>
 where
     P::Geometry: SilGeometry + FlightGeometry,
 {
-    let settings = &config.finetune;
-    let objective = Objective::of(config);
-    check_run(config, run)?;
-    let dir = run.join("finetune");
+    let settings = &phase.finetune;
+    let objective = Objective::of(phase);
+    check_run(run_config, run)?;
+    let dir = dir.to_path_buf();
     let state_path = dir.join("state.json");
-    let family = family_of::<P::Geometry>(config)?;
+    let family = family_of::<P::Geometry>(phase)?;
     let evaluation: Vec<ScenarioOf<P::Geometry>> = (0..settings.eval_episodes)
-        .map(|i| P::Geometry::draw(&family, config.seeds.evaluation, i))
+        .map(|i| P::Geometry::draw(&family, phase.seeds.evaluation, i))
         .collect();
     let evaluate = |agent: &Sac, step: u64, batch_objective: f64, seconds: f64| {
         // Dispersed fine-tuning is judged as the SIL flies the network alone, dispersed.
         let outcomes = if settings.dispersed {
-            let flights = SilFlights::network_alone(&config.sil.dispersions, config.seeds.evaluation);
-            P::Geometry::fly_learner(config, agent, &evaluation, &flights)?
+            let flights = SilFlights::network_alone(&phase.sil.dispersions, phase.seeds.evaluation);
+            P::Geometry::fly_learner(phase, agent, &evaluation, &flights)?
         } else {
-            evaluate_batched::<MdpEnv<P>, _>(&config.env, &evaluation, |o| policy_batch(agent, o), false)?
+            evaluate_batched::<MdpEnv<P>, _>(&phase.env, &evaluation, |o| policy_batch(agent, o), false)?
         };
         let n = outcomes.len().max(1) as f64;
         Ok::<_, ExperimentError>(FinetuneRow {
@@ -707,16 +733,23 @@ where
             seconds,
         })
     };
-    let mut agent = learner(config, P::OBS)?;
+    let mut agent = learner(phase, P::OBS)?;
+    let start_actor = dir.join("start-actor.safetensors");
+    if chained && step_file(&dir, 0).exists() && std::fs::read(&start_actor).ok() != std::fs::read(start).ok() {
+        return Err(ExperimentError::Mismatch(format!(
+            "{} began from another actor than {}, the phase before's best now: the phase before changed since; use a new folder",
+            dir.display(),
+            start.display()
+        )));
+    }
     if !step_file(&dir, 0).exists() {
         // The flown actor of a learner checkpoint or of an actor file.
-        let flown = load_agent(config, P::OBS, start)?;
+        let flown = load_agent(phase, P::OBS, start)?;
         if settings.dispersed {
             // Refused before the folder is made: the SIL loop must fly this network.
-            learner_blob(config, &flown)?;
+            learner_blob(phase, &flown)?;
         }
-        prepare_run(config, run)?;
-        let start_actor = dir.join("start-actor.safetensors");
+        prepare_run(run_config, run)?;
         flown.save_flown_actor(&start_actor)?;
         agent.start_from_actor(&start_actor)?;
         let _ = std::fs::remove_file(&state_path);
@@ -745,7 +778,7 @@ where
     let mut batch_objectives = Vec::new();
     for step in done + 1..=settings.steps {
         let first = FIRST_SCENARIO + step * settings.flights;
-        let report = finetune_step::<P>(config, &mut agent, first, settings.flights, &objective)?;
+        let report = finetune_step::<P>(phase, &mut agent, first, settings.flights, &objective)?;
         batch_objectives.push(report.objective);
         bar.inc(1);
         if step % settings.eval_every == 0 || step == settings.steps {
@@ -766,7 +799,7 @@ where
     bar.finish_and_clear();
     let best = best_row(&rows).map_or(0, |r| r.step);
     let best_actor = dir.join("best-actor.safetensors");
-    let mut flown = learner(config, P::OBS)?;
+    let mut flown = learner(phase, P::OBS)?;
     flown.load(&dir.join("best.safetensors"))?;
     flown.save_flown_actor(&best_actor)?;
     Ok(FinetuneSummary {

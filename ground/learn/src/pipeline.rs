@@ -45,9 +45,9 @@ pub struct MainJob {
     pub dagger: Option<DaggerSummary>,
     /// The recipe's stages after them, in order (`RUN/stages/NAME`).
     pub stages: Vec<StageSummary>,
-    /// Fine-tuning through the dynamics of the last stage's best, when the config has steps
-    /// (`RUN/finetune`).
-    pub finetune: Option<FinetuneSummary>,
+    /// Fine-tuning through the dynamics of the last stage's best, one summary per phase
+    /// (`RUN/finetune`, then `RUN/finetune/then`, ...); empty when the config has no steps.
+    pub finetune: Vec<FinetuneSummary>,
     /// The Monte Carlo of the best model (`RUN/mc`).
     pub monte_carlo: MonteCarloReport,
     /// The onboard blobs of the best model (run/export).
@@ -159,15 +159,25 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // 6. Fine-tuning through the dynamics: its best actor is what ships.
     let (best, fine) = if finetuned {
         let t = Instant::now();
-        next(format!(
-            "fine-tuning through the dynamics: {} steps of {} flights",
-            flown.finetune.steps, flown.finetune.flights
-        ));
-        let summary = finetune(&flown, run, &input.best)?;
+        let phases: Vec<String> = flown
+            .finetune
+            .phases()
+            .map(|p| {
+                format!(
+                    "{} steps of {} flights{}",
+                    p.steps,
+                    p.flights,
+                    if p.dispersed { " (dispersed)" } else { "" }
+                )
+            })
+            .collect();
+        next(format!("fine-tuning through the dynamics: {}", phases.join(", then ")));
+        let summaries = finetune(&flown, run, &input.best)?;
         stage_seconds.push(("fine-tuning".into(), t.elapsed().as_secs_f64()));
-        (summary.best_actor.clone(), Some(summary))
+        let last = summaries.last().map_or(input.best, |s| s.best_actor.clone());
+        (last, summaries)
     } else {
-        (input.best, None)
+        (input.best, Vec::new())
     };
 
     // 7. Monte Carlo of the best model.
@@ -187,7 +197,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     let notes: Vec<String> = stage_runs
         .iter()
         .map(StageSummary::lineage_line)
-        .chain(fine.as_ref().map(FinetuneSummary::lineage_line))
+        .chain(fine.iter().map(FinetuneSummary::lineage_line))
         .collect();
     let lineage = Lineage {
         commit: &commit,

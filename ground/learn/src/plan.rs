@@ -45,6 +45,8 @@ pub struct UnitCosts {
     pub episode_s: f64,
     /// One flight of a fine-tuning step (flown, linearised, back-propagated), s.
     pub finetune_flight_s: f64,
+    /// The same against the SIL's dispersed plant, when a fine-tuning phase flies it, s.
+    pub finetune_dispersed_flight_s: Option<f64>,
     /// One RL environment step apart from its updates, its share of the phase's evaluations
     /// included, s (0.55 updates, as measured on two recorded recipes).
     pub env_step_s: f64,
@@ -139,9 +141,20 @@ where
     let flights: Vec<_> = (0..TIMED_FINETUNE_FLIGHTS)
         .map(|i| P::Geometry::draw(&family, config.seeds.train, i))
         .collect();
-    let start = Instant::now();
-    action_gradients::<P>(config, &learner, &flights, Plant::of(config, 0), &Objective::of(config))?;
-    let finetune_flight_s = start.elapsed().as_secs_f64() / TIMED_FINETUNE_FLIGHTS as f64;
+    let objective = Objective::of(config);
+    let flight_s = |plant: Plant| {
+        let start = Instant::now();
+        action_gradients::<P>(config, &learner, &flights, plant, &objective)?;
+        Ok::<_, ExperimentError>(start.elapsed().as_secs_f64() / TIMED_FINETUNE_FLIGHTS as f64)
+    };
+    let finetune_flight_s = flight_s(Plant::Nominal)?;
+    let finetune_dispersed_flight_s = if config.finetune.phases().any(|phase| phase.dispersed) {
+        Some(flight_s(Plant::Dispersed {
+            seed: config.seeds.train,
+        })?)
+    } else {
+        None
+    };
     Ok(UnitCosts {
         solve_s: check.solve_seconds[0],
         pretrain_update_s,
@@ -149,6 +162,7 @@ where
         cloning_update_s,
         episode_s,
         finetune_flight_s,
+        finetune_dispersed_flight_s,
         env_step_s: RL_STEP_UPDATES * update_s,
         solver_threads: rayon::current_num_threads(),
     })
@@ -299,16 +313,21 @@ fn project(config: &ExperimentConfig, staged: &[ExperimentConfig], check: Family
         rounds_beyond_one += each * own.saturating_sub(1) as f64;
         before = staged;
     }
-    let fine = &before.finetune;
-    if fine.steps > 0 {
+    for (i, fine) in before.finetune.phases().enumerate().filter(|(_, f)| f.steps > 0) {
         let evaluations = fine.steps / fine.eval_every + 1;
+        let flight_s = match (fine.dispersed, c.finetune_dispersed_flight_s) {
+            (true, Some(dispersed)) => dispersed,
+            _ => c.finetune_flight_s,
+        };
         stage(
-            "fine-tuning",
-            (fine.steps * fine.flights) as f64 * c.finetune_flight_s
-                + (evaluations * fine.eval_episodes) as f64 * c.episode_s,
+            if i == 0 { "fine-tuning" } else { "fine-tuning, then" },
+            (fine.steps * fine.flights) as f64 * flight_s + (evaluations * fine.eval_episodes) as f64 * c.episode_s,
             format!(
-                "{} steps of {} flights, {evaluations} evaluations of {} episodes",
-                fine.steps, fine.flights, fine.eval_episodes
+                "{} steps of {}{} flights, {evaluations} evaluations of {} episodes",
+                fine.steps,
+                fine.flights,
+                if fine.dispersed { " dispersed" } else { "" },
+                fine.eval_episodes
             ),
         );
     }

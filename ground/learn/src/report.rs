@@ -154,11 +154,15 @@ pub fn report_markdown(config: &ExperimentConfig, run: &Path, job: &MainJob) -> 
         );
         rounds_section(&mut s, &stage.rounds, &format!("stages/{}/dagger", stage.name));
     }
-    if let Some(fine) = &job.finetune {
+    if !job.finetune.is_empty() {
         let _ = writeln!(s, "## Fine-tuning through the dynamics\n");
+    }
+    for fine in &job.finetune {
+        // Each phase's folder, relative to the report beside RUN/finetune.
+        let folder = fine.folder.strip_prefix(run).unwrap_or(&fine.folder).display();
         let _ = writeln!(
             s,
-            "{}. [Evaluations](finetune/steps.csv)\n\n![fine-tuning](finetune/steps.svg)\n![terminal residuals](finetune/steps-residuals.svg)\n",
+            "{}. [Evaluations]({folder}/steps.csv)\n\n![fine-tuning]({folder}/steps.svg)\n![terminal residuals]({folder}/steps-residuals.svg)\n",
             fine.lineage_line()
         );
     }

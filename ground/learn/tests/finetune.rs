@@ -1,6 +1,8 @@
 //! Fine-tuning through the dynamics as a phase: it lowers its objective on the flights it
 //! evaluates, and a run stopped at a checkpoint resumes to the same bytes as one that never
-//! stopped, on the nominal environment and on the SIL's dispersed plant. One test in its own binary: torch's generator is global to the process.
+//! stopped, on the nominal environment and on the SIL's dispersed plant; chained phases
+//! (`[finetune.then]`) are the hand-run chain of single phases, also when stopped between
+//! them. One test in its own binary: torch's generator is global to the process.
 
 // The toy config alone: no dataset is needed.
 #[allow(dead_code)]
@@ -9,6 +11,7 @@ mod common;
 use std::path::Path;
 
 use common::{scratch_dir, toy_config};
+use learn::config::{ExperimentConfig, FinetuneConfig};
 use learn::finetune::{finetune, FinetuneRow};
 use learn::sac::agent::Sac;
 
@@ -30,31 +33,42 @@ fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
     for dispersed in [false, true] {
         lowers_and_resumes(dispersed);
     }
+    chained_phases_are_the_hand_run_chain();
 }
 
-fn lowers_and_resumes(dispersed: bool) {
-    let dir = scratch_dir(if dispersed { "finetune-dispersed" } else { "finetune" });
+/// A toy config fine-tuning `steps` steps (flights on the SIL's dispersed plant when
+/// `dispersed`), and an untrained actor file to start from in `dir`.
+fn toy_finetuning(dir: &Path, steps: u64, dispersed: bool) -> (ExperimentConfig, std::path::PathBuf) {
     let mut config = toy_config(&dir.join("no-dataset"));
-    config.finetune.dispersed = dispersed;
     if dispersed {
         // Dispersed flights are evaluated in the SIL loop: the onboard contract's network.
         config.sac.hidden = vec![256, 256];
     }
-    config.finetune.steps = 12;
-    config.finetune.flights = 4;
-    config.finetune.eval_every = 4;
-    config.finetune.eval_episodes = 8;
-    // A fast learning rate: the toy actor starts untrained.
-    config.finetune.learning_rate = 1e-3;
+    config.finetune = FinetuneConfig {
+        steps,
+        flights: 4,
+        eval_every: 4,
+        eval_episodes: 8,
+        // A fast learning rate: the toy actor starts untrained.
+        learning_rate: 1e-3,
+        dispersed,
+        ..FinetuneConfig::default()
+    };
     config.compute.threads = 1;
     tch::manual_seed(7);
     let start = dir.join("actor.safetensors");
     Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu)
         .save_flown_actor(&start)
         .unwrap();
+    (config, start)
+}
+
+fn lowers_and_resumes(dispersed: bool) {
+    let dir = scratch_dir(if dispersed { "finetune-dispersed" } else { "finetune" });
+    let (config, start) = toy_finetuning(&dir, 12, dispersed);
 
     let straight = dir.join("straight");
-    let summary = finetune(&config, &straight, &start).unwrap();
+    let summary = finetune(&config, &straight, &start).unwrap().remove(0);
     let rows = &summary.rows;
     assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [0, 4, 8, 12]);
     let best = rows.iter().find(|r| r.step == summary.best_step).unwrap();
@@ -84,6 +98,74 @@ fn lowers_and_resumes(dispersed: bool) {
     assert_eq!(
         evaluations(&straight.join("finetune/state.json")),
         evaluations(&stopped.join("finetune/state.json"))
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `[finetune]` then `[finetune.then]` in one run folder: each phase's files are those of the
+/// single phase run by hand from the best actor of the one before (a nominal phase, then a
+/// dispersed one), and a run stopped inside the second phase resumes to the same bytes.
+fn chained_phases_are_the_hand_run_chain() {
+    let dir = scratch_dir("finetune-chained");
+    // The SIL's network for both phases (the dispersed phase flies it in the SIL loop); the
+    // start file is the second call's, written over the first's.
+    let (first, _) = toy_finetuning(&dir, 8, false);
+    let (second, start) = toy_finetuning(&dir, 8, true);
+    let mut first = ExperimentConfig {
+        sac: second.sac.clone(),
+        ..first
+    };
+
+    // By hand: two commands, the second from the first's best actor.
+    let by_hand = [dir.join("hand-1"), dir.join("hand-2")];
+    let one = finetune(&first, &by_hand[0], &start).unwrap();
+    let two = finetune(&second, &by_hand[1], &one[0].best_actor).unwrap();
+
+    first.finetune.then = Some(Box::new(second.finetune.clone()));
+    let chained = dir.join("chained");
+    let phases = finetune(&first, &chained, &start).unwrap();
+    assert_eq!(phases.len(), 2);
+    assert_eq!(
+        phases[1].best_actor,
+        chained.join("finetune/then/best-actor.safetensors")
+    );
+    assert!(phases[1].dispersed && !phases[0].dispersed);
+
+    // Stopped at the second phase's step 4, then the full chain.
+    let stopped = dir.join("stopped");
+    let mut short = first.clone();
+    short.finetune.then.as_mut().unwrap().steps = 4;
+    finetune(&short, &stopped, &start).unwrap();
+    finetune(&first, &stopped, &start).unwrap();
+
+    for (phase, hand) in [("finetune", &one[0].folder), ("finetune/then", &two[0].folder)] {
+        for file in ["step-8.safetensors", "best.safetensors", "best-actor.safetensors"] {
+            let reference = bytes(&hand.join(file));
+            assert!(
+                bytes(&chained.join(phase).join(file)) == reference,
+                "chained {phase}/{file} differs from the hand-run phase's"
+            );
+            assert!(
+                bytes(&stopped.join(phase).join(file)) == reference,
+                "{phase}/{file} differs after a resume inside the second phase"
+            );
+        }
+    }
+    // The second phase moved the actor: not two copies of one phase.
+    assert!(bytes(&one[0].best_actor) != bytes(&two[0].best_actor));
+
+    // The first phase's best changed under a begun second phase (here its step 4 put in
+    // place): refused, with the second phase's folder named, rather than gone on from a start
+    // the chain no longer has.
+    std::fs::copy(
+        chained.join("finetune/step-4.safetensors"),
+        chained.join("finetune/best.safetensors"),
+    )
+    .unwrap();
+    let err = finetune(&first, &chained, &start).unwrap_err().to_string();
+    assert!(
+        err.contains("finetune/then") && err.contains("use a new folder"),
+        "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
