@@ -279,11 +279,15 @@ pub fn monte_carlo(
 /// phase's best.safetensors) or an actor file (a shipped model's actor.safetensors).
 pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) -> Result<Sac, ExperimentError> {
     tch::set_num_threads(config.compute.threads);
-    let actor_only = read_checked_safetensors(checkpoint)?
-        .iter()
-        .all(|(name, _)| name.starts_with("actor."));
+    let names: Vec<String> = read_checked_safetensors(checkpoint)?
+        .into_iter()
+        .map(|(name, _)| name)
+        .collect();
+    let actor_only = names.iter().all(|name| name.starts_with("actor."));
+    // A learner saved without an averaged copy (a fine-tuning step's) flies its own actor.
+    let averaged = names.iter().any(|name| name.starts_with("average."));
     let mut sac = config.sac.clone();
-    if actor_only {
+    if actor_only || !averaged {
         // The file holds the actor that flies; no average to keep.
         sac.actor_averaging = 0.0;
     }

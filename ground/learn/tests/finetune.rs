@@ -12,6 +12,7 @@ use std::path::Path;
 
 use common::{scratch_dir, toy_config};
 use learn::config::{ExperimentConfig, FinetuneConfig};
+use learn::eval::load_agent;
 use learn::finetune::{finetune, FinetuneRow};
 use learn::sac::agent::Sac;
 
@@ -166,6 +167,20 @@ fn chained_phases_are_the_hand_run_chain() {
     assert!(
         err.contains("finetune/then") && err.contains("use a new folder"),
         "{err}"
+    );
+
+    // A step checkpoint is a learner without an averaged copy: loaded under a config that
+    // averages (the recipe's own, as `ground model export --checkpoint` loads it), it flies the
+    // step's actor instead of being refused for a missing average.
+    let step = chained.join("finetune/then/step-8.safetensors");
+    let mut averaging = first.clone();
+    averaging.sac.actor_averaging = 0.001;
+    let mut plain = first.clone();
+    plain.sac.actor_averaging = 0.0;
+    let obs = [0.1f32; 10];
+    assert_eq!(
+        load_agent(&averaging, 10, &step).unwrap().act(&obs, 1),
+        load_agent(&plain, 10, &step).unwrap().act(&obs, 1)
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
