@@ -744,7 +744,7 @@ fn portable_command() -> String {
 
 /// Words joined into one POSIX shell command line that splits back into the same words: a
 /// word of only safe characters as it is, any other in single quotes (a quote inside as `'\''`).
-fn shell_words(words: &[String]) -> String {
+pub(crate) fn shell_words(words: &[String]) -> String {
     let safe = |c: char| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c);
     words
         .iter()

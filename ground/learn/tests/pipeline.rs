@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{scratch_dir, toy_config, toy_dataset};
-use learn::config::ExperimentConfig;
+use learn::config::{ExperimentConfig, FinetuneConfig};
 use learn::error::ExperimentError;
 use learn::eval::monte_carlo;
 use learn::phase::PhaseState;
@@ -178,6 +178,18 @@ fn main_job_writes_a_report_whose_links_resolve() {
     config.dagger.fractions = vec![0.5];
     config.dagger.updates = 20;
     config.dagger.score_episodes = 4;
+    // Fine-tuning after it in two phases, toy-sized: nominal flights, then dispersed ones.
+    config.finetune = FinetuneConfig {
+        steps: 2,
+        flights: 2,
+        eval_every: 1,
+        eval_episodes: 2,
+        ..FinetuneConfig::default()
+    };
+    config.finetune.then = Some(Box::new(FinetuneConfig {
+        dispersed: true,
+        ..config.finetune.clone()
+    }));
     // A relative run folder, as `ground run --out runs/quick` gives (the dataset path must not be
     // resolved against it twice).
     let run = relative_to_cwd(&dir.join("run"));
@@ -226,11 +238,35 @@ fn main_job_writes_a_report_whose_links_resolve() {
     assert_eq!(rounds.rows.iter().map(|r| r.round).collect::<Vec<_>>(), vec![0, 1]);
     assert!(text.contains("## Relabelling rounds"), "{text}");
     assert!(run.join("dagger/rounds.csv").is_file());
-    assert_eq!(job.monte_carlo.checkpoint, run.join("dagger/best.safetensors"));
+    // The fine-tuning's phases ran from the round's best, the second from the first's best
+    // actor, and the second's best actor is what the Monte Carlo evaluated and the run ships.
+    let phases: Vec<(PathBuf, bool)> = job.finetune.iter().map(|f| (f.folder.clone(), f.dispersed)).collect();
+    assert_eq!(
+        phases,
+        [(run.join("finetune"), false), (run.join("finetune/then"), true)]
+    );
+    assert_eq!(
+        bytes(&run.join("finetune/then/start-actor.safetensors")),
+        bytes(&run.join("finetune/best-actor.safetensors"))
+    );
+    assert_eq!(
+        job.monte_carlo.checkpoint,
+        run.join("finetune/then/best-actor.safetensors")
+    );
+    assert!(text.contains("## Fine-tuning through the dynamics"), "{text}");
+    assert!(text.contains("](finetune/then/steps.csv)"), "{text}");
     // The model folder opens, and its actor file flies exactly as the checkpoint it came from.
     let model_dir = run.join("model");
     let model = learn::model::open_model(&model_dir).unwrap();
     assert_eq!(model.card.rounds, Some((1, rounds.best_round)));
+    let fine_tuned: Vec<&String> = model
+        .card
+        .notes
+        .iter()
+        .filter(|n| n.starts_with("fine-tuned through the dynamics"))
+        .collect();
+    assert_eq!(fine_tuned.len(), 2, "{:?}", model.card.notes);
+    assert!(fine_tuned[1].contains("on dispersed flights"), "{fine_tuned:?}");
     // The actor as ONNX beside the blobs, bound by the card like them.
     assert!(model.card.files.contains_key(learn::model::ONNX_FILE));
     assert!(run.join("export/actor.onnx").is_file());
@@ -448,8 +484,9 @@ fn main_job_writes_a_report_whose_links_resolve() {
         learn::eval::REPORTED_TOLERANCES.to_vec()
     );
 
-    // Relabelling rounds of dispersed flights started from the shipped actor alone, with
-    // cloning-only updates, then `ship`ped: round 0 flies exactly the main job's best learner,
+    // Relabelling rounds of dispersed flights started from an actor file alone (the rounds'
+    // best actor, which the fine-tuning started from), with cloning-only updates, then
+    // `ship`ped: round 0 flies exactly the main job's best round,
     // every round is also scored under the dispersions, and the new card records the rounds
     // and the lineage note.
     let mut dispersed = config.clone();
@@ -461,7 +498,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
     // below equals the main job's), the card adds the lookahead's Monte Carlo.
     dispersed.sil.lookahead = Some(Default::default());
     let again = dir.join("dispersed");
-    let actor = model_dir.join(learn::model::ACTOR_FILE);
+    let actor = run.join("finetune/start-actor.safetensors");
     let summary = learn::dagger::dagger(&dispersed, &dir, &again, &actor, None).unwrap();
     let kept = rounds.rows.iter().find(|r| r.round == rounds.best_round).unwrap();
     assert_eq!(summary.rows[0].within_goal, kept.within_goal);

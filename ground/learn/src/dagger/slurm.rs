@@ -157,11 +157,15 @@ fn submit_relabel_array(
         Some(path) => path.clone(),
         None => std::env::current_exe().map_err(|e| ExperimentError::Io(PathBuf::from("ground"), e))?,
     };
+    // Quoted as a card's command is: the batch script runs the line in a POSIX shell.
     let quoted = |p: &Path| -> Result<String, ExperimentError> {
-        let text = p.to_str().filter(|t| !t.contains('\'')).ok_or_else(|| {
-            ExperimentError::Mismatch(format!("{}: a Slurm task cannot be given this path", p.display()))
+        let text = p.to_str().ok_or_else(|| {
+            ExperimentError::Mismatch(format!(
+                "{}: a Slurm task cannot be given a path that is not UTF-8",
+                p.display()
+            ))
         })?;
-        Ok(format!("'{text}'"))
+        Ok(crate::model::shell_words(&[text.to_string()]))
     };
     let command = format!(
         "{} relabel-shard --request {} --shard \"$SLURM_ARRAY_TASK_ID/{tasks}\"",
