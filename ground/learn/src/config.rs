@@ -405,6 +405,15 @@ pub struct FinetuneConfig {
     pub then: Option<Box<FinetuneConfig>>,
 }
 
+/// A count that must be at least 1, refused with its key named.
+fn positive(name: &str, v: u64) -> Result<(), ConfigError> {
+    if v == 0 {
+        Err(ConfigError::Invalid(format!("{name} must be positive")))
+    } else {
+        Ok(())
+    }
+}
+
 impl FinetuneConfig {
     /// No fine-tuning (the default), so configs without the section stay as they were written.
     pub fn is_off(&self) -> bool {
@@ -419,15 +428,9 @@ impl FinetuneConfig {
     /// Each phase's settings as checked in [`ExperimentConfig::validate`], `at` naming the
     /// section.
     fn validate(&self, at: &str) -> Result<(), ConfigError> {
-        let positive = |key: &str, value: u64| {
-            if value == 0 {
-                return Err(ConfigError::Invalid(format!("{at}.{key} must be positive")));
-            }
-            Ok(())
-        };
-        positive("flights", self.flights)?;
-        positive("eval_every", self.eval_every)?;
-        positive("eval_episodes", self.eval_episodes)?;
+        positive(&format!("{at}.flights"), self.flights)?;
+        positive(&format!("{at}.eval_every"), self.eval_every)?;
+        positive(&format!("{at}.eval_episodes"), self.eval_episodes)?;
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
             return Err(ConfigError::Invalid(format!(
                 "{at}.learning_rate must be finite and > 0, got {}",
@@ -755,13 +758,6 @@ impl ExperimentConfig {
             };
             ConfigError::Invalid(format!("env.spacecraft.{key} = {value}: {e}"))
         })?;
-        let positive = |name: &str, v: u64| {
-            if v == 0 {
-                Err(ConfigError::Invalid(format!("{name} must be positive")))
-            } else {
-                Ok(())
-            }
-        };
         if let Some(slurm) = &self.compute.slurm {
             if !(1..=10_000).contains(&slurm.tasks) {
                 return Err(ConfigError::Invalid(format!(

@@ -284,11 +284,10 @@ pub fn load_agent(config: &ExperimentConfig, obs_dim: usize, checkpoint: &Path) 
         .map(|(name, _)| name)
         .collect();
     let actor_only = names.iter().all(|name| name.starts_with("actor."));
-    // A learner saved without an averaged copy (a fine-tuning step's) flies its own actor.
-    let averaged = names.iter().any(|name| name.starts_with("average."));
     let mut sac = config.sac.clone();
-    if actor_only || !averaged {
-        // The file holds the actor that flies; no average to keep.
+    if !names.iter().any(|name| name.starts_with("average.")) {
+        // No averaged copy in the file (an actor file, or a learner saved without one: a
+        // fine-tuning step's): its own actor is the one that flies.
         sac.actor_averaging = 0.0;
     }
     let mut agent = Sac::new(sac, obs_dim, config.action_dim(), config.device()?);
