@@ -33,7 +33,7 @@ enum Command {
     /// Trajectories and datasets by the indirect method: solve, generate, merge, compare, oem,
     /// demos, crosscheck, feasibility (no PyTorch needed).
     #[command(subcommand)]
-    Data(DataCommand),
+    Data(Box<DataCommand>),
     #[cfg(feature = "learn")]
     #[command(flatten)]
     Learn(learning::LearnCommand),
@@ -91,6 +91,9 @@ enum DataCommand {
         /// Use every solved record, not only converged ones.
         #[arg(long)]
         all: bool,
+        /// The spacecraft the dataset was solved for.
+        #[command(flatten)]
+        spacecraft: trajectories::SpacecraftArgs,
     },
     /// Check the converged records of a dataset against the direct transcription started on its
     /// own (tangential thrust, the record's cost): exit status 1 when a direct solution that
@@ -123,6 +126,9 @@ enum DataCommand {
         /// Dataset folder of a whole (unsharded) `ground data generate` run.
         #[arg(long)]
         out: PathBuf,
+        /// The spacecraft the dataset was solved for.
+        #[command(flatten)]
+        spacecraft: trajectories::SpacecraftArgs,
     },
 }
 
@@ -139,8 +145,12 @@ fn run_data(command: DataCommand) -> Result<(), Box<dyn std::error::Error>> {
         } => trajectories::oem_command(&dataset, index, &out, &departure),
         DataCommand::Merge { out, inputs } => trajectories::merge_command(&inputs, &out),
         DataCommand::Compare { first, second } => trajectories::compare_command(&first, &second),
-        DataCommand::Demos { dataset, all } => trajectories::demos_command(&dataset, all),
-        DataCommand::Feasibility { out } => trajectories::feasibility_command(&out),
+        DataCommand::Demos {
+            dataset,
+            all,
+            spacecraft,
+        } => trajectories::demos_command(&dataset, all, &spacecraft),
+        DataCommand::Feasibility { out, spacecraft } => trajectories::feasibility_command(&out, &spacecraft),
         DataCommand::Crosscheck(args) => trajectories::crosscheck_command(&args),
         DataCommand::CheckMission(args) => trajectories::check_mission_command(&args),
         DataCommand::Solve3d(args) => spatial::solve_3d_command(&args),
@@ -158,7 +168,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Data(command) => run_data(command),
+        Command::Data(command) => run_data(*command),
         #[cfg(feature = "learn")]
         Command::Learn(command) => learning::run(command),
     };

@@ -108,6 +108,10 @@ pub struct GenerateArgs {
     /// where that converges, on time otherwise: a reserve for thrust lost late in the flight.
     #[arg(long, default_value_t = 0)]
     arrival_margin: u32,
+    /// The spacecraft the draws are solved for (recorded in the folder's request.json; a
+    /// learner refuses a dataset solved for another than its config's).
+    #[command(flatten)]
+    spacecraft: SpacecraftArgs,
 }
 
 /// `ground data check-mission`: a family checked on a sample of its draws.
@@ -170,8 +174,8 @@ pub fn check_mission_command(args: &CheckMissionArgs) -> Result<(), Box<dyn std:
 }
 
 /// `--thrust-n`, `--isp-s` and `--mass-kg`: a spacecraft (default: the thesis's, as configs
-/// default). A dataset does not record its spacecraft: a command that reads one must be given
-/// the one its records were solved with.
+/// default). A dataset records the spacecraft it was solved for (its request.json): a command
+/// that reads one refuses another ([`SpacecraftArgs::for_dataset`]).
 #[derive(clap::Args)]
 pub struct SpacecraftArgs {
     /// Maximum thrust, N.
@@ -186,16 +190,37 @@ pub struct SpacecraftArgs {
 }
 
 impl SpacecraftArgs {
-    /// The spacecraft in the canonical units of `family`'s central body, checked.
-    fn canonical_in(&self, family: &MissionFamily) -> Result<CanonicalSpacecraft, String> {
-        let craft = Spacecraft {
+    /// The spacecraft as given.
+    fn physical(&self) -> Spacecraft {
+        Spacecraft {
             max_thrust_n: self.thrust_n,
             isp_s: self.isp_s,
             initial_mass_kg: self.mass_kg,
-        };
-        craft
+        }
+    }
+
+    /// The spacecraft in the canonical units of `family`'s central body, checked.
+    fn canonical_in(&self, family: &MissionFamily) -> Result<CanonicalSpacecraft, String> {
+        self.physical()
             .canonical_in(&family.body.units())
             .map_err(|e| format!("spacecraft: {e}"))
+    }
+
+    /// [`Self::canonical_in`] for the records of the dataset file `file`, refused when the
+    /// dataset records that they were solved for another spacecraft.
+    fn for_dataset(
+        &self,
+        file: &Path,
+        family: &MissionFamily,
+    ) -> Result<CanonicalSpacecraft, Box<dyn std::error::Error>> {
+        let spacecraft = self.canonical_in(family)?;
+        ground_core::generate::check_spacecraft(
+            ground_core::generate::dataset_solve_request(file)?.as_ref(),
+            &spacecraft,
+            || format!("dataset {} holds records", file.display()),
+            "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
+        )?;
+        Ok(spacecraft)
     }
 }
 
@@ -208,9 +233,7 @@ fn thread_count(text: &str) -> Result<NonZeroUsize, String> {
 }
 
 pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let sc = Spacecraft::MSR_ERO
-        .canonical_in(&args.scenario.family.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))?;
+    let sc = args.spacecraft.canonical_in(&args.scenario.family)?;
     let options = SolveOptions {
         final_eps: args.final_eps,
         arrival_margin_steps: args.arrival_margin,
@@ -223,7 +246,7 @@ pub fn generate_command(args: &GenerateArgs) -> Result<(), Box<dyn std::error::E
         // An inclined family: records of the three-dimensional solver, one drawn.
         let (_held, summary) = generate_family(args.scenario, args, &sc, &options)?;
         print_summary(&summary);
-        if ground_core::spatial::plot_spatial_dataset_sample(&args.out, args.shard, &Spacecraft::MSR_ERO)? > 0 {
+        if ground_core::spatial::plot_spatial_dataset_sample(&args.out, args.shard, &args.spacecraft.physical())? > 0 {
             println!(
                 "plotted the first solved trajectory in {}",
                 args.out.join("trajectories.svg").display()
@@ -257,7 +280,7 @@ fn generate_family<F: DatasetFamily>(
         seed: args.seed,
         count: args.count,
     };
-    let run = hold_run(manifest, args.shard, &args.out, options)?;
+    let run = hold_run(manifest, args.shard, &args.out, spacecraft, options)?;
     let summary = generate_in(&run, manifest, args.shard, spacecraft, options, true)?;
     Ok((run, summary))
 }
@@ -531,7 +554,7 @@ pub fn crosscheck_command(args: &CrossCheckArgs) -> Result<(), Box<dyn std::erro
         refinements: args.refinements,
         margin: args.margin,
     };
-    let spacecraft_of = |family: &MissionFamily| args.spacecraft.canonical_in(family);
+    let spacecraft_of = |family: &MissionFamily| args.spacecraft.for_dataset(&file, family);
     let limit = args.count.map(NonZeroUsize::get);
     if spatial {
         let dataset = read_dataset_of::<SpatialFamily>(&file)?;
@@ -627,7 +650,7 @@ fn report_crosscheck<const C: usize>(
     }
 }
 
-pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error::Error>> {
+pub fn demos_command(dataset: &Path, all: bool, spacecraft: &SpacecraftArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ground_core::demo::{print_mismatch_report, RecordFilter};
     let filter = if all {
         RecordFilter::All
@@ -639,7 +662,13 @@ pub fn demos_command(dataset: &Path, all: bool) -> Result<(), Box<dyn std::error
     } else {
         dataset.to_path_buf()
     };
-    print_mismatch_report(&file, &shared::spacecraft::Spacecraft::MSR_ERO, filter)?;
+    let family = if holds_spatial_records(&file)? {
+        read_dataset_of::<SpatialFamily>(&file)?.manifest.family.family
+    } else {
+        read_dataset(&file)?.manifest.family
+    };
+    spacecraft.for_dataset(&file, &family)?;
+    print_mismatch_report(&file, &spacecraft.physical(), filter)?;
     Ok(())
 }
 
@@ -652,11 +681,10 @@ fn dataset_file(path: &Path) -> PathBuf {
     }
 }
 
-pub fn feasibility_command(out: &Path) -> Result<(), Box<dyn std::error::Error>> {
-    let family = read_dataset(&dataset_file(out))?.manifest.family;
-    let sc = Spacecraft::MSR_ERO
-        .canonical_in(&family.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))?;
+pub fn feasibility_command(out: &Path, spacecraft: &SpacecraftArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let file = dataset_file(out);
+    let family = read_dataset(&file)?.manifest.family;
+    let sc = spacecraft.for_dataset(&file, &family)?;
     // A recovered draw is solved as the run's other records were (its request.json).
     let options = ground_core::generate::run_solve_options(out)?;
     let summary = ground_core::generate::classify_run(out, &sc, &options)?;

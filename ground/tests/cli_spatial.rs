@@ -185,3 +185,81 @@ fn solve_3d_solves_an_inclined_transfer_to_a_target_orbit() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("either [arrival]"));
     let _ = std::fs::remove_file(&file);
 }
+
+/// `generate` solves for the spacecraft it is given and records it: Zavoli and Federici's
+/// Earth–Mars family with their spacecraft ends near their optimum's mass (603.556 kg of
+/// 1,000, the departure dispersed by 1 km and 50 m/s), and the commands that read the dataset or
+/// resume its folder with another spacecraft (the thesis's, the default) refuse it.
+#[test]
+fn generate_solves_for_the_given_spacecraft_and_readers_refuse_another() {
+    let out_dir = temp("spacecraft");
+    let family = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/missions/earth-mars.toml");
+    let study = ["--thrust-n", "0.5", "--isp-s", "2000", "--mass-kg", "1000"];
+    let generate = |craft: &[&str]| {
+        let mut args = vec![
+            "data",
+            "generate",
+            "--scenario",
+            family.to_str().unwrap(),
+            "--count",
+            "2",
+            "--threads",
+            "1",
+            "--final-eps",
+            "0.004",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ];
+        args.extend_from_slice(craft);
+        ground(&args)
+    };
+    let out = generate(&study);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["converged"], 2, "{summary}");
+    let mass = summary["final_mass_mean"].as_f64().unwrap();
+    // Within 0.005 (the homotopy stops at eps 0.004, the departures are dispersed); the thesis's
+    // spacecraft ends near 0.70 on this family.
+    assert!(
+        (mass - 0.603556).abs() < 5e-3,
+        "final mass {mass}, the study's optimum 0.603556"
+    );
+    let request: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("request.json")).unwrap()).unwrap();
+    assert!(request["spacecraft"]["thrust"].as_f64().unwrap() > 0.0, "{request}");
+
+    let files = |dir: &Path| {
+        let mut names: Vec<_> = std::fs::read_dir(dir.join("records"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        names
+    };
+    let before = (files(&out_dir), std::fs::read(out_dir.join("request.json")).unwrap());
+    // Resumed for the default spacecraft: refused, the folder as it was.
+    let resumed = generate(&[]);
+    assert!(!resumed.status.success());
+    let why = String::from_utf8_lossy(&resumed.stderr);
+    assert!(
+        why.contains("another spacecraft") && why.contains("--thrust-n"),
+        "{why}"
+    );
+    assert_eq!(
+        (files(&out_dir), std::fs::read(out_dir.join("request.json")).unwrap()),
+        before
+    );
+    // Read for the default spacecraft: refused; for the study's: checked.
+    let demos = |craft: &[&str]| {
+        let mut args = vec!["data", "demos", "--dataset", out_dir.to_str().unwrap()];
+        args.extend_from_slice(craft);
+        ground(&args)
+    };
+    let refused = demos(&[]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("another spacecraft"));
+    let checked = demos(&study);
+    assert!(checked.status.success(), "{}", String::from_utf8_lossy(&checked.stderr));
+    let _ = std::fs::remove_dir_all(&out_dir);
+}

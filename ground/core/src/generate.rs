@@ -7,8 +7,8 @@
 //! Layout of an output folder:
 //! - `manifest.json`: scenario, seed, count (a resumed run must match it, or ask for more
 //!   scenarios of the same stream: it then extends the run);
-//! - `request.json`: the final eps the records were solved to and their arrival margin (a resumed
-//!   run must match them too);
+//! - `request.json`: the final eps the records were solved to, their arrival margin and the
+//!   spacecraft they were solved for (a resumed run must match them too);
 //! - `records/NNNNNNNN.rec`: one checksummed record per scenario index, written atomically as
 //!   soon as it is solved, so a killed run loses at most the cases in flight;
 //! - `dataset.ltds` (or `dataset-I-of-N.ltds` for a shard): all records of the run, sorted;
@@ -288,9 +288,10 @@ pub struct Manifest<F = MissionFamily> {
     pub count: u64,
 }
 
-/// The homotopy depth a run's records were solved to and their arrival margin, stored as
-/// `request.json` beside the manifest: a run resumed with another final eps or margin would mix
-/// records of two kinds.
+/// The homotopy depth a run's records were solved to, their arrival margin and the spacecraft
+/// they were solved for, stored as `request.json` beside the manifest: a run resumed with another
+/// would mix records of two kinds, and a learner flying another spacecraft would learn from
+/// optima that are not its own.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SolveRequest {
     /// The homotopy's last eps ([`SolveOptions::final_eps`]).
@@ -298,6 +299,10 @@ pub struct SolveRequest {
     /// [`SolveOptions::arrival_margin_steps`] (absent: 0, as before it existed).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub arrival_margin_steps: u32,
+    /// The spacecraft, in the family's canonical units (absent: not recorded, a folder written
+    /// before it was).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spacecraft: Option<CanonicalSpacecraft>,
 }
 
 fn is_zero(n: &u32) -> bool {
@@ -305,10 +310,11 @@ fn is_zero(n: &u32) -> bool {
 }
 
 impl SolveRequest {
-    fn of(options: &SolveOptions) -> Self {
+    fn of(options: &SolveOptions, spacecraft: &CanonicalSpacecraft) -> Self {
         Self {
             final_eps: options.final_eps,
             arrival_margin_steps: options.arrival_margin_steps,
+            spacecraft: Some(*spacecraft),
         }
     }
 
@@ -397,6 +403,22 @@ pub enum GenerateError {
         found: u32,
         /// The run's.
         wanted: u32,
+    },
+    /// The folder holds records solved for another spacecraft.
+    #[error(
+        "{what} solved for another spacecraft ({found}), not {wanted}: {advice}",
+        found = describe_spacecraft(found),
+        wanted = describe_spacecraft(wanted)
+    )]
+    SpacecraftMismatch {
+        /// What holds the records: an output folder or a dataset.
+        what: String,
+        /// The recorded spacecraft.
+        found: CanonicalSpacecraft,
+        /// This command's.
+        wanted: CanonicalSpacecraft,
+        /// What to do instead.
+        advice: String,
     },
     /// Writing a solved record failed (a full disk): the run stopped solving there.
     #[error(
@@ -715,7 +737,7 @@ fn plan_crosscheck(
 ) -> Result<PlannedCrossCheck, GenerateError> {
     let (held, manifest, records) = hold_whole_run(out)?;
     // A repair re-solves to the records' own final eps: another would be another demonstration.
-    check_solve_request(out, options)?;
+    check_solve_request(out, options, Some(spacecraft))?;
     let checks = crosscheck_records(&records, None, spacecraft, settings, show_progress);
     let mut run = CrossCheckRun {
         checks,
@@ -1141,13 +1163,52 @@ pub fn run_solve_options(out: &Path) -> Result<SolveOptions, GenerateError> {
     Ok(found.map_or_else(SolveOptions::default, |r| r.options()))
 }
 
-/// Refuses a folder whose records were solved to another final eps or arrival margin; says
-/// whether it records one. A folder without `request.json` (written before it existed) is taken
-/// as it is.
-fn check_solve_request(out: &Path, options: &SolveOptions) -> Result<bool, GenerateError> {
+/// A canonical spacecraft as an error message names it.
+fn describe_spacecraft(craft: &CanonicalSpacecraft) -> String {
+    format!(
+        "thrust over initial mass {:.6e}, exhaust speed {:.6} in the family's canonical units",
+        craft.thrust, craft.exhaust_speed
+    )
+}
+
+/// Refuses records recorded as solved for a spacecraft other than `wanted` (records that do not
+/// record theirs are taken as they are); `what` names where they are, `advice` what to do.
+pub fn check_spacecraft(
+    request: Option<&SolveRequest>,
+    wanted: &CanonicalSpacecraft,
+    what: impl FnOnce() -> String,
+    advice: impl Into<String>,
+) -> Result<(), GenerateError> {
+    match request.and_then(|r| r.spacecraft) {
+        Some(found) if found != *wanted => Err(GenerateError::SpacecraftMismatch {
+            what: what(),
+            found,
+            wanted: *wanted,
+            advice: advice.into(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Refuses a folder whose records were solved to another final eps or arrival margin, or for
+/// another spacecraft; says whether it records a request. A folder without `request.json`
+/// (written before it existed) is taken as it is.
+fn check_solve_request(
+    out: &Path,
+    options: &SolveOptions,
+    spacecraft: Option<&CanonicalSpacecraft>,
+) -> Result<bool, GenerateError> {
     let Some(found) = read_json::<SolveRequest>(&out.join("request.json"))? else {
         return Ok(false);
     };
+    if let Some(wanted) = spacecraft {
+        check_spacecraft(
+            Some(&found),
+            wanted,
+            || format!("output folder {} holds records", out.display()),
+            "use another --out, or give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
+        )?;
+    }
     if found.final_eps != options.final_eps {
         return Err(GenerateError::FinalEpsMismatch {
             found: found.final_eps,
@@ -1173,7 +1234,7 @@ pub fn generate<F: DatasetFamily>(
     options: &SolveOptions,
     show_progress: bool,
 ) -> Result<Summary, GenerateError> {
-    let run = hold_run(manifest, shard, out, options)?;
+    let run = hold_run(manifest, shard, out, spacecraft, options)?;
     generate_in(&run, manifest, shard, spacecraft, options, show_progress)
 }
 
@@ -1184,11 +1245,12 @@ pub fn hold_run<F: DatasetFamily>(
     manifest: Manifest<F>,
     shard: Shard,
     out: &Path,
+    spacecraft: &CanonicalSpacecraft,
     options: &SolveOptions,
 ) -> Result<RunLock, GenerateError> {
     check_request(&manifest, shard, options)?;
     check_manifest_or_fewer(out, &manifest)?;
-    check_solve_request(out, options)?;
+    check_solve_request(out, options, Some(spacecraft))?;
     Ok(RunLock::acquire(out)?)
 }
 
@@ -1206,13 +1268,13 @@ pub fn generate_in<F: DatasetFamily>(
     check_request(&manifest, shard, options)?;
     // Checked again under the hold: another run may have written its manifest meanwhile.
     let has_manifest = check_manifest_or_fewer(out, &manifest)?;
-    let has_request = check_solve_request(out, options)?;
+    let has_request = check_solve_request(out, options, Some(spacecraft))?;
     fs::create_dir_all(out.join("records")).map_err(io_err(out))?;
     if !has_manifest {
         write_json(&out.join("manifest.json"), &manifest)?;
     }
     if !has_request {
-        write_json(&out.join("request.json"), &SolveRequest::of(options))?;
+        write_json(&out.join("request.json"), &SolveRequest::of(options, spacecraft))?;
     }
     let indices: Vec<u64> = (0..manifest.count).filter(|&i| shard.contains(i)).collect();
     let bar = count_bar(indices.len(), "solved", show_progress);
@@ -1300,7 +1362,7 @@ fn merge_of<F: DatasetFamily>(inputs: &[PathBuf], out: &Path) -> Result<Summary,
         .collect::<Result<Vec<_>, _>>()?;
     if requests.windows(2).any(|w| w[0] != w[1]) {
         return Err(GenerateError::Merge(
-            "inputs were solved to different final eps or arrival margins (their request.json)".into(),
+            "inputs were solved to different final eps or arrival margins, or for different spacecraft (their request.json)".into(),
         ));
     }
     let request = requests.into_iter().next().flatten();
@@ -1337,7 +1399,7 @@ fn merge_of<F: DatasetFamily>(inputs: &[PathBuf], out: &Path) -> Result<Summary,
     let held = RunLock::acquire(out)?;
     check_manifest(out, &manifest)?;
     if let Some(request) = &request {
-        check_solve_request(held.dir(), &request.options())?;
+        check_solve_request(held.dir(), &request.options(), request.spacecraft.as_ref())?;
         write_json(&held.dir().join("request.json"), request)?;
     }
     write_outputs(

@@ -159,6 +159,37 @@ fn a_folder_solved_with_another_arrival_margin_is_refused_and_left_unchanged() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+#[test]
+fn a_folder_solved_for_another_spacecraft_is_refused_and_left_unchanged() {
+    // The finished run records the spacecraft its records were solved for.
+    let request: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(finished_run().join("request.json")).unwrap()).unwrap();
+    let recorded: CanonicalSpacecraft = serde_json::from_value(request["spacecraft"].clone()).unwrap();
+    assert_eq!(recorded, spacecraft());
+    // Resuming it for Zavoli and Federici's spacecraft (0.5 N, 2,000 s, 1,000 kg) is refused.
+    let study = Spacecraft {
+        max_thrust_n: 0.5,
+        isp_s: 2000.0,
+        initial_mass_kg: 1000.0,
+    }
+    .canonical()
+    .unwrap();
+    let out = temp_dir("other-spacecraft");
+    write_manifest(&out, &MANIFEST);
+    std::fs::write(out.join("request.json"), serde_json::to_vec(&request).unwrap()).unwrap();
+    let before = snapshot(&out);
+    let err = generate(MANIFEST, Shard::WHOLE, &out, &study, &options(), false).unwrap_err();
+    assert!(
+        matches!(err, GenerateError::SpacecraftMismatch { found, wanted, .. } if found == spacecraft() && wanted == study),
+        "{err}"
+    );
+    assert!(err.to_string().contains("--thrust-n"), "{err}");
+    assert_eq!(snapshot(&out), before);
+    // The same folder resumes for its own spacecraft.
+    generate(MANIFEST, Shard::WHOLE, &out, &spacecraft(), &options(), false).unwrap();
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 fn is_held(e: &GenerateError) -> bool {
     matches!(e, GenerateError::Lock(LockError::Held { .. }))
 }

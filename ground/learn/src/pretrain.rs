@@ -29,7 +29,7 @@ pub fn pretrain(config: &ExperimentConfig, config_dir: &Path, run: &Path) -> Res
 pub type ProblemDemonstrations<P> = Demonstrations<<P as Problem>::Obs, ActionOf<<P as Problem>::Geometry>>;
 
 /// The demonstration tuples of the config's dataset (refused when the dataset is of another
-/// problem, central body, guidance cycle, arrival margin or dimension), with the dataset file
+/// problem, central body, guidance cycle, arrival margin, spacecraft or dimension), with the dataset file
 /// and its record count.
 pub fn load_demonstrations<P: Problem>(
     config: &ExperimentConfig,
@@ -61,6 +61,24 @@ where
             config.generate.arrival_margin
         )));
     }
+    // Optima of another spacecraft are not this learner's: their cycles would not re-integrate.
+    let spacecraft = &config.env.spacecraft;
+    let canonical = config
+        .env
+        .canonical_spacecraft()
+        .map_err(|e| ExperimentError::Mismatch(format!("env.spacecraft: {e}")))?;
+    let request = ground_core::generate::dataset_solve_request(&file)
+        .map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
+    ground_core::generate::check_spacecraft(
+        request.as_ref(),
+        &canonical,
+        || format!("dataset {} holds records", file.display()),
+        format!(
+            "solve it for the config's [env.spacecraft] (ground data generate --thrust-n {} --isp-s {} --mass-kg {})",
+            spacecraft.max_thrust_n, spacecraft.isp_s, spacecraft.initial_mass_kg
+        ),
+    )
+    .map_err(|e| ExperimentError::Mismatch(e.to_string()))?;
     let demos = P::Geometry::tuples::<P>(
         &dataset.records,
         &config.env,

@@ -173,5 +173,21 @@ fn dagger_rounds_resume_to_the_same_learner_and_refuse_corrupt_relabels() {
         "{err}"
     );
     assert!(!dir.join("early").exists(), "{err}");
+    // Demonstrations solved for the thesis's spacecraft, a config flying another: refused before
+    // any work, with the command that solves them for the config's.
+    let mut other_craft = config.clone();
+    other_craft.env.spacecraft = shared::spacecraft::Spacecraft {
+        max_thrust_n: 0.5,
+        isp_s: 2000.0,
+        initial_mass_kg: 1000.0,
+    };
+    let err = dagger(&other_craft, &dir, &dir.join("other-craft"), &start, None).unwrap_err();
+    assert!(
+        matches!(err, ExperimentError::Mismatch(_))
+            && err.to_string().contains("another spacecraft")
+            && err.to_string().contains("--thrust-n 0.5 --isp-s 2000 --mass-kg 1000"),
+        "{err}"
+    );
+    assert!(!dir.join("other-craft").exists(), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
