@@ -66,6 +66,9 @@ pub struct SolveArgs {
     /// folder must exist).
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// The spacecraft the case is solved for.
+    #[command(flatten)]
+    spacecraft: SpacecraftArgs,
 }
 
 /// `--scenario`: a preset's name or a mission file, checked.
@@ -399,9 +402,7 @@ fn scenario_from_args(args: &SolveArgs) -> Result<(MissionFamily, Scenario), Str
 
 pub fn solve_command(args: &SolveArgs) -> Result<(), Box<dyn std::error::Error>> {
     let (kind, scenario) = scenario_from_args(args)?;
-    let sc = Spacecraft::MSR_ERO
-        .canonical_in(&kind.body.units())
-        .map_err(|e| format!("spacecraft: {e}"))?;
+    let sc = args.spacecraft.canonical_in(&kind)?;
     // A figure path that cannot be written is refused before the solve, not after it.
     if let Some(path) = &args.plot {
         check_svg_path(path)?;

@@ -59,6 +59,13 @@ fn json_output_has_the_documented_fields_and_a_physical_solution() {
     assert!(v["residual"].as_f64().unwrap() < 1e-8, "{v}");
     let m = v["final_mass"].as_f64().unwrap();
     assert!(m > 0.85 && m < 0.908443, "{v}");
+    // The same transfer for a spacecraft of twice the specific impulse: above anything the
+    // thesis's spacecraft reaches, below its own Hohmann bound exp(-0.122416 / (2 c)) = 0.953122.
+    let out = ground(&["data", "solve", "--a0", "1", "--af", "1.3", "--isp-s", "7744", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let m = v["final_mass"].as_f64().unwrap();
+    assert!(m > 0.908443 && m < 0.953122, "{v}");
 }
 
 /// `ground data solve ... | head -c 1`: the reader goes away before the output is written; the CLI
