@@ -218,7 +218,7 @@ impl SpacecraftArgs {
     ) -> Result<CanonicalSpacecraft, Box<dyn std::error::Error>> {
         let spacecraft = self.canonical_in(family)?;
         ground_core::generate::check_spacecraft(
-            ground_core::generate::dataset_solve_request(file)?.as_ref(),
+            ground_core::generate::dataset_solve_request(file)?.and_then(|r| r.spacecraft),
             &spacecraft,
             || format!("dataset {} holds records", file.display()),
             "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
@@ -663,12 +663,7 @@ pub fn demos_command(dataset: &Path, all: bool, spacecraft: &SpacecraftArgs) -> 
     } else {
         dataset.to_path_buf()
     };
-    let family = if holds_spatial_records(&file)? {
-        read_dataset_of::<SpatialFamily>(&file)?.manifest.family.family
-    } else {
-        read_dataset(&file)?.manifest.family
-    };
-    spacecraft.for_dataset(&file, &family)?;
+    // The report refuses a dataset that records another spacecraft.
     print_mismatch_report(&file, &spacecraft.physical(), filter)?;
     Ok(())
 }

@@ -676,6 +676,9 @@ pub struct LoadedDataset<R> {
     /// Cycles before the end of its episode a record was solved to arrive
     /// ([`SolveOptions::arrival_margin_steps`]).
     pub arrival_margin: u32,
+    /// The spacecraft they were solved for, in the family's canonical units (`None`: not
+    /// recorded, a dataset written before it was).
+    pub spacecraft: Option<CanonicalSpacecraft>,
 }
 
 /// How a geometry's datasets become tuples (docs/spec.md sections 7 and 7.1): the planar
@@ -716,14 +719,33 @@ pub trait DemoGeometry: crate::env::Geometry {
     ) -> Option<Vec<Transition<P::Obs, Self::Action>>>;
 }
 
-/// The arrival margin of the dataset at `path`: its run's request says it; a folder without one
-/// (written before it existed, or a file moved out of its folder) shows it by its records'
-/// `shortfalls` (cycles each ends before its episode).
-fn dataset_arrival_margin(path: &Path, shortfalls: impl Iterator<Item = u32>) -> Result<u32, DemoError> {
+/// The arrival margin and the spacecraft of the dataset at `path`: its run's request says them;
+/// a folder without one (written before it existed, or a file moved out of its folder) shows the
+/// margin by its records' `shortfalls` (cycles each ends before its episode) and no spacecraft.
+fn dataset_margin_and_spacecraft(
+    path: &Path,
+    shortfalls: impl Iterator<Item = u32>,
+) -> Result<(u32, Option<CanonicalSpacecraft>), DemoError> {
     Ok(match crate::generate::dataset_solve_request(path)? {
-        Some(request) => request.arrival_margin_steps,
-        None => shortfalls.max().unwrap_or(0),
+        Some(request) => (request.arrival_margin_steps, request.spacecraft),
+        None => (shortfalls.max().unwrap_or(0), None),
     })
+}
+
+/// Refuses the dataset at `path` when it records a spacecraft other than the one `config` flies
+/// (`config.body` the dataset's central body).
+fn check_flown_spacecraft(path: &Path, config: &EnvConfig) -> Result<(), DemoError> {
+    let flown = config
+        .canonical_spacecraft()
+        .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
+    let recorded = crate::generate::dataset_solve_request(path)?.and_then(|r| r.spacecraft);
+    crate::generate::check_spacecraft(
+        recorded,
+        &flown,
+        || format!("dataset {} holds records", path.display()),
+        "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
+    )?;
+    Ok(())
 }
 
 impl DemoGeometry for Planar {
@@ -731,7 +753,7 @@ impl DemoGeometry for Planar {
 
     fn load_dataset(path: &Path) -> Result<LoadedDataset<TrajectoryRecord>, DemoError> {
         let dataset = read_dataset(path)?;
-        let arrival_margin = dataset_arrival_margin(
+        let (arrival_margin, spacecraft) = dataset_margin_and_spacecraft(
             path,
             dataset
                 .records
@@ -742,6 +764,7 @@ impl DemoGeometry for Planar {
             family: shared::mission::SpatialFamily::planar(dataset.manifest.family),
             records: dataset.records,
             arrival_margin,
+            spacecraft,
         })
     }
 
@@ -791,7 +814,7 @@ impl DemoGeometry for crate::env::Spatial {
 
     fn load_dataset(path: &Path) -> Result<LoadedDataset<Self::Record>, DemoError> {
         let dataset = crate::generate::read_dataset_of::<shared::mission::SpatialFamily>(path)?;
-        let arrival_margin = dataset_arrival_margin(
+        let (arrival_margin, spacecraft) = dataset_margin_and_spacecraft(
             path,
             dataset
                 .records
@@ -802,6 +825,7 @@ impl DemoGeometry for crate::env::Spatial {
             family: dataset.manifest.family,
             records: dataset.records,
             arrival_margin,
+            spacecraft,
         })
     }
 
@@ -1010,6 +1034,7 @@ pub fn mismatch_report(dataset: &Path, config: &EnvConfig, filter: RecordFilter)
         body: file.manifest.family.body,
         ..*config
     };
+    check_flown_spacecraft(dataset, config)?;
     let tol = default_tolerances();
     Ok(crate::with_problem!(problem, P => MismatchReport::from_mismatch(
         problem,
@@ -1027,6 +1052,7 @@ fn spatial_mismatch_report(dataset: &Path, config: &EnvConfig) -> Result<Mismatc
         body: family.body,
         ..*config
     };
+    check_flown_spacecraft(dataset, config)?;
     let tol = default_tolerances();
     Ok(
         crate::with_spatial_problem!(family.problem, P => MismatchReport::from_mismatch(

@@ -1171,15 +1171,16 @@ fn describe_spacecraft(craft: &CanonicalSpacecraft) -> String {
     )
 }
 
-/// Refuses records recorded as solved for a spacecraft other than `wanted` (records that do not
-/// record theirs are taken as they are); `what` names where they are, `advice` what to do.
+/// Refuses records recorded as solved for `found`, a spacecraft other than `wanted` (records that
+/// do not record theirs, `None`, are taken as they are); `what` names where they are, `advice`
+/// what to do.
 pub fn check_spacecraft(
-    request: Option<&SolveRequest>,
+    found: Option<CanonicalSpacecraft>,
     wanted: &CanonicalSpacecraft,
     what: impl FnOnce() -> String,
     advice: impl Into<String>,
 ) -> Result<(), GenerateError> {
-    match request.and_then(|r| r.spacecraft) {
+    match found {
         Some(found) if found != *wanted => Err(GenerateError::SpacecraftMismatch {
             what: what(),
             found,
@@ -1203,7 +1204,7 @@ fn check_solve_request(
     };
     if let Some(wanted) = spacecraft {
         check_spacecraft(
-            Some(&found),
+            found.spacecraft,
             wanted,
             || format!("output folder {} holds records", out.display()),
             "use another --out, or give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",

@@ -67,10 +67,8 @@ where
         .env
         .canonical_spacecraft()
         .map_err(|e| ExperimentError::Mismatch(format!("env.spacecraft: {e}")))?;
-    let request = ground_core::generate::dataset_solve_request(&file)
-        .map_err(|e| ExperimentError::Dataset(format!("{}: {e}", file.display())))?;
     ground_core::generate::check_spacecraft(
-        request.as_ref(),
+        dataset.spacecraft,
         &canonical,
         || format!("dataset {} holds records", file.display()),
         format!(
