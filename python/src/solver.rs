@@ -2,20 +2,25 @@
 //! (one scenario, `ground data solve`), `generate` (a family in parallel, `ground data
 //! generate`, the same files) and `read_dataset` (a dataset as numpy arrays).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use ground_core::generate::{generate as generate_records, read_dataset as read_records, Manifest, Shard};
+use ground_core::generate::{
+    dataset_solve_request, generate as generate_records, holds_spatial_records, read_dataset as read_records,
+    read_dataset_of, DatasetFamily, DatasetFile, GenerateError, Manifest, Shard, Summary,
+};
 use ground_core::solver::record::{TrajectoryRecord, TrajectorySample};
+use ground_core::solver::spatial::SpatialSample;
 use ground_core::solver::{solve_arriving_early, SolveOptions};
+use shared::mission::SpatialFamily;
 use shared::scenario::Scenario;
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 
-use crate::{refused, scenario_family};
+use crate::{refused, scenario_family, spatial_scenario_family};
 
 fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -50,20 +55,47 @@ fn draw_scenario<'py>(py: Python<'py>, kind: &str, seed: u64, index: u64) -> PyR
     scenario_dict(py, &scenario_family(kind)?.draw(seed, index))
 }
 
-fn canonical(spacecraft: &Spacecraft, family: &shared::mission::MissionFamily) -> PyResult<CanonicalSpacecraft> {
-    spacecraft
-        .canonical_in(&family.body.units())
-        .map_err(|e| refused(format!("spacecraft: {e:?}")))
+/// The spacecraft given as `thrust_n`, `isp_s` and `mass_kg` (each absent: the thesis's, Table
+/// 4.1), in the canonical units of `family`'s central body, checked.
+fn canonical(
+    family: &shared::mission::MissionFamily,
+    thrust_n: Option<f64>,
+    isp_s: Option<f64>,
+    mass_kg: Option<f64>,
+) -> PyResult<CanonicalSpacecraft> {
+    let thesis = Spacecraft::MSR_ERO;
+    let spacecraft = Spacecraft {
+        max_thrust_n: thrust_n.unwrap_or(thesis.max_thrust_n),
+        isp_s: isp_s.unwrap_or(thesis.isp_s),
+        initial_mass_kg: mass_kg.unwrap_or(thesis.initial_mass_kg),
+    };
+    spacecraft.canonical_in(&family.body.units()).map_err(|e| {
+        refused(format!(
+            "spacecraft ({} N, {} s, {} kg): {e}",
+            spacecraft.max_thrust_n, spacecraft.isp_s, spacecraft.initial_mass_kg
+        ))
+    })
 }
 
-/// The default spacecraft (thesis Table 4.1) in canonical units: `thrust` (T / m0, AU/t*^2)
+/// A spacecraft (`thrust_n`, `isp_s`, `mass_kg`; each absent: the thesis's, Table 4.1) in the
+/// canonical units of `kind`'s central body (default: the Sun's): `thrust` (T / m0, AU/t*^2)
 /// and `exhaust_speed` (g0 Isp, AU/t*).
 #[pyfunction]
-fn spacecraft<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-    let sc = canonical(
-        &Spacecraft::default(),
-        &shared::scenario::ScenarioKind::TransferCircular.family(),
-    )?;
+#[pyo3(signature = (kind="transfer-circular", thrust_n=None, isp_s=None, mass_kg=None))]
+fn spacecraft<'py>(
+    py: Python<'py>,
+    kind: &str,
+    thrust_n: Option<f64>,
+    isp_s: Option<f64>,
+    mass_kg: Option<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    spacecraft_dict(
+        py,
+        &canonical(&spatial_scenario_family(kind)?.family, thrust_n, isp_s, mass_kg)?,
+    )
+}
+
+fn spacecraft_dict<'py>(py: Python<'py>, sc: &CanonicalSpacecraft) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("thrust", sc.thrust)?;
     d.set_item("exhaust_speed", sc.exhaust_speed)?;
@@ -129,12 +161,14 @@ fn record_dict<'py>(py: Python<'py>, record: &TrajectoryRecord) -> PyResult<Boun
 
 /// Solves scenario `index` of the stream `seed` of `kind` by the indirect method (multi-start,
 /// energy-to-fuel homotopy to `final_eps`, default the project's; arriving `arrival_margin`
-/// steps early where that converges), as `ground data solve`. Returns the record: `converged`,
-/// `failure`, `final_mass`, `costates` (5: lambda_r, lambda_v, lambda_m), the solution at each
-/// step boundary (`steps`) and on a fine grid (`ephemeris`). Never raises for a scenario that
-/// does not converge: `converged` says so.
+/// steps early where that converges), for the spacecraft `thrust_n` (N), `isp_s` (s) and
+/// `mass_kg` (each absent: the thesis's), as `ground data solve`. Returns the record:
+/// `converged`, `failure`, `final_mass`, `costates` (5: lambda_r, lambda_v, lambda_m), the
+/// solution at each step boundary (`steps`) and on a fine grid (`ephemeris`). Never raises for a
+/// scenario that does not converge: `converged` says so.
 #[pyfunction]
-#[pyo3(signature = (kind, seed, index, final_eps=None, arrival_margin=0))]
+#[pyo3(signature = (kind, seed, index, final_eps=None, arrival_margin=0, thrust_n=None, isp_s=None, mass_kg=None))]
+#[allow(clippy::too_many_arguments)]
 fn solve<'py>(
     py: Python<'py>,
     kind: &str,
@@ -142,20 +176,26 @@ fn solve<'py>(
     index: u64,
     final_eps: Option<f64>,
     arrival_margin: u32,
+    thrust_n: Option<f64>,
+    isp_s: Option<f64>,
+    mass_kg: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let kind = scenario_family(kind)?;
     let options = options(final_eps, arrival_margin)?;
-    let sc = canonical(&Spacecraft::default(), &kind)?;
+    let sc = canonical(&kind, thrust_n, isp_s, mass_kg)?;
     let scenario = kind.draw(seed, index);
     let record = py.detach(|| solve_arriving_early(kind, seed, index, &scenario, &sc, &options));
     record_dict(py, &record)
 }
 
 /// Solves scenarios `0..count` of the stream `seed` of `kind` into the folder `out` on every
-/// core, resuming what a stopped run left, exactly as `ground data generate` (the same files).
-/// Returns the run's summary (`summary.json`) as a dict.
+/// core for the spacecraft `thrust_n`, `isp_s` and `mass_kg` (each absent: the thesis's),
+/// resuming what a stopped run left, exactly as `ground data generate` (the same files; a run
+/// folder solved for another spacecraft is refused). Returns the run's summary
+/// (`summary.json`) as a dict.
 #[pyfunction]
-#[pyo3(signature = (kind, seed, count, out, final_eps=None, arrival_margin=0))]
+#[pyo3(signature = (kind, seed, count, out, final_eps=None, arrival_margin=0, thrust_n=None, isp_s=None, mass_kg=None))]
+#[allow(clippy::too_many_arguments)]
 fn generate<'py>(
     py: Python<'py>,
     kind: &str,
@@ -164,22 +204,37 @@ fn generate<'py>(
     out: PathBuf,
     final_eps: Option<f64>,
     arrival_margin: u32,
+    thrust_n: Option<f64>,
+    isp_s: Option<f64>,
+    mass_kg: Option<f64>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let manifest = Manifest {
-        family: scenario_family(kind)?,
-        seed,
-        count,
-    };
+    let family = spatial_scenario_family(kind)?;
     if count == 0 {
         return Err(refused("count must be at least 1"));
     }
     let options = options(final_eps, arrival_margin)?;
-    let sc = canonical(&Spacecraft::default(), &manifest.family)?;
+    let sc = canonical(&family.family, thrust_n, isp_s, mass_kg)?;
     let summary = py
-        .detach(|| generate_records(manifest, Shard::WHOLE, &out, &sc, &options, false))
+        .detach(|| match family.as_planar() {
+            Some(planar) => generate_family(planar, seed, count, &out, &sc, &options),
+            None => generate_family(family, seed, count, &out, &sc, &options),
+        })
         .map_err(refused)?;
     let json = serde_json_string(&summary)?;
     py.import("json")?.call_method1("loads", (json,))
+}
+
+/// The whole family `0..count` of `seed` into `out`, planar or inclined records.
+fn generate_family<F: DatasetFamily>(
+    family: F,
+    seed: u64,
+    count: u64,
+    out: &Path,
+    spacecraft: &CanonicalSpacecraft,
+    options: &SolveOptions,
+) -> Result<Summary, GenerateError> {
+    let manifest = Manifest { family, seed, count };
+    generate_records(manifest, Shard::WHOLE, out, spacecraft, options, false)
 }
 
 fn serde_json_string(value: &impl serde::Serialize) -> PyResult<String> {
@@ -190,38 +245,118 @@ fn serde_json_string(value: &impl serde::Serialize) -> PyResult<String> {
 /// index order: per record `index`, `converged`, `final_mass`, `final_eps`, `costates` (n, 5),
 /// `steps` (n: N per record); the step-boundary samples of every record one after another
 /// (`t`, `state` (m, 5), `throttle`, `direction`, `direction_polar`, see `solve`), record i's
-/// rows `offsets[i]:offsets[i + 1]`.
+/// rows `offsets[i]:offsets[i + 1]`; `spacecraft` the one its records were solved for (as
+/// `spacecraft()` gives it; `None` for a folder that does not record it). An inclined family's
+/// records are in three dimensions: `costates` (n, 7: lambda_r, lambda_v, lambda_m), `state`
+/// (m, 7: x, y, z, vx, vy, vz, m), `direction` (m, 3, inertial), no `direction_polar`.
 #[pyfunction]
 fn read_dataset<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
     let file = if path.is_dir() { path.join("dataset.ltds") } else { path };
-    let dataset = read_records(&file).map_err(refused)?;
+    let solved_for = dataset_solve_request(&file)
+        .map_err(refused)?
+        .and_then(|r| r.spacecraft);
+    let d = if holds_spatial_records(&file).map_err(refused)? {
+        spatial_dataset_dict(py, &read_dataset_of::<SpatialFamily>(&file).map_err(refused)?)?
+    } else {
+        planar_dataset_dict(py, &read_records(&file).map_err(refused)?)?
+    };
+    d.set_item("spacecraft", solved_for.map(|sc| spacecraft_dict(py, &sc)).transpose()?)?;
+    Ok(d)
+}
+
+/// What every dataset gives per record, of either geometry.
+fn record_arrays<'py, R>(
+    py: Python<'py>,
+    d: &Bound<'py, PyDict>,
+    records: &[R],
+    fields: impl Fn(&R) -> (u64, bool, f64, f64, u32),
+) -> PyResult<()> {
+    let rows: Vec<_> = records.iter().map(fields).collect();
+    d.set_item("index", PyArray1::from_iter(py, rows.iter().map(|r| r.0)))?;
+    d.set_item("converged", PyArray1::from_iter(py, rows.iter().map(|r| r.1)))?;
+    d.set_item("final_mass", PyArray1::from_iter(py, rows.iter().map(|r| r.2)))?;
+    d.set_item("final_eps", PyArray1::from_iter(py, rows.iter().map(|r| r.3)))?;
+    d.set_item("steps", PyArray1::from_iter(py, rows.iter().map(|r| r.4)))?;
+    Ok(())
+}
+
+/// An inclined family's dataset as arrays (see [`read_dataset`]).
+fn spatial_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile<SpatialFamily>) -> PyResult<Bound<'py, PyDict>> {
     let records = &dataset.records;
     let d = PyDict::new(py);
     d.set_item("kind", dataset.manifest.family.label().as_str())?;
     d.set_item("seed", dataset.manifest.seed)?;
-    d.set_item("index", PyArray1::from_iter(py, records.iter().map(|r| r.index)))?;
+    record_arrays(py, &d, records, |r| {
+        (
+            r.index,
+            r.converged,
+            r.final_mass,
+            r.final_eps,
+            r.scenario.scenario.steps,
+        )
+    })?;
+    let costates: Vec<f64> = records.iter().flat_map(|r| r.costates).collect();
     d.set_item(
-        "converged",
-        PyArray1::from_iter(py, records.iter().map(|r| r.converged)),
+        "costates",
+        Array2::from_shape_vec((records.len(), 7), costates)
+            .map_err(refused)?
+            .into_pyarray(py),
     )?;
+    let mut offsets = vec![0u64];
+    let samples: Vec<&SpatialSample> = records
+        .iter()
+        .flat_map(|record| {
+            offsets.push(offsets[offsets.len() - 1] + record.steps.len() as u64);
+            record.steps.iter()
+        })
+        .collect();
+    d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
+    let k = samples.len();
+    d.set_item("t", PyArray1::from_iter(py, samples.iter().map(|s| s.t)))?;
+    let state: Vec<f64> = samples
+        .iter()
+        .flat_map(|s| {
+            [
+                s.state.r[0],
+                s.state.r[1],
+                s.state.r[2],
+                s.state.v[0],
+                s.state.v[1],
+                s.state.v[2],
+                s.m,
+            ]
+        })
+        .collect();
     d.set_item(
-        "final_mass",
-        PyArray1::from_iter(py, records.iter().map(|r| r.final_mass)),
+        "state",
+        Array2::from_shape_vec((k, 7), state).map_err(refused)?.into_pyarray(py),
     )?;
+    d.set_item("throttle", PyArray1::from_iter(py, samples.iter().map(|s| s.throttle)))?;
+    let direction: Vec<f64> = samples.iter().flat_map(|s| s.direction).collect();
     d.set_item(
-        "final_eps",
-        PyArray1::from_iter(py, records.iter().map(|r| r.final_eps)),
+        "direction",
+        Array2::from_shape_vec((k, 3), direction)
+            .map_err(refused)?
+            .into_pyarray(py),
     )?;
+    Ok(d)
+}
+
+/// A planar family's dataset as arrays (see [`read_dataset`]).
+fn planar_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile) -> PyResult<Bound<'py, PyDict>> {
+    let records = &dataset.records;
+    let d = PyDict::new(py);
+    d.set_item("kind", dataset.manifest.family.label().as_str())?;
+    d.set_item("seed", dataset.manifest.seed)?;
+    record_arrays(py, &d, records, |r| {
+        (r.index, r.converged, r.final_mass, r.final_eps, r.scenario.steps)
+    })?;
     let costates: Vec<f64> = records.iter().flat_map(|r| r.costates).collect();
     d.set_item(
         "costates",
         Array2::from_shape_vec((records.len(), 5), costates)
             .map_err(refused)?
             .into_pyarray(py),
-    )?;
-    d.set_item(
-        "steps",
-        PyArray1::from_iter(py, records.iter().map(|r| r.scenario.steps)),
     )?;
     let mut offsets = vec![0u64];
     let mut samples = Vec::new();
