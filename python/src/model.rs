@@ -399,7 +399,7 @@ fn fly_sil<'py>(
     }
     let spacecraft = env
         .canonical_spacecraft()
-        .map_err(|e| refused(format!("spacecraft: {e:?}")))?;
+        .map_err(|e| refused(format!("spacecraft: {e}")))?;
     let setup = FlightSetup {
         spacecraft,
         tolerances: env.integrator.tolerances(),

@@ -22,7 +22,7 @@ pub fn demonstrations(
     let spacecraft = config
         .env
         .canonical_spacecraft()
-        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e}")))?;
     let options = config.generate.solve_options();
     if config.is_inclined() {
         // Records of the three-dimensional solver; the direct transcription is planar.

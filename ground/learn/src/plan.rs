@@ -95,7 +95,7 @@ pub fn plan_recipe(config: &ExperimentConfig, sample: u64) -> Result<RecipePlan,
     let spacecraft = config
         .env
         .canonical_spacecraft()
-        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e}")))?;
     let options = config.generate.solve_options();
     let check = check_family(&config.family, &spacecraft, sample, config.generate.seed, &options);
     let costs = crate::with_flown_problem!(config, P => measure::<P>(config, &check))?;

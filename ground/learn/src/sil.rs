@@ -417,7 +417,7 @@ pub fn flight_setup(config: &ExperimentConfig, dispersions: &Dispersions) -> Res
     let spacecraft = config
         .env
         .canonical_spacecraft()
-        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e:?}")))?;
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e}")))?;
     Ok(FlightSetup {
         spacecraft,
         tolerances: config.env.integrator.tolerances(),
