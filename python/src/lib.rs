@@ -41,11 +41,6 @@ fn family_spec(text: &str) -> PyResult<ground_core::mission::FamilySpec> {
     }
 }
 
-/// A planar scenario family ([`family_spec`]'s text), checked; an inclined one is refused.
-pub(crate) fn scenario_family(text: &str) -> PyResult<shared::mission::MissionFamily> {
-    family_spec(text)?.family().map_err(refused)
-}
-
 /// A scenario family, planar or inclined (`inclination`, `raan` in the mission table), checked.
 pub(crate) fn spatial_scenario_family(text: &str) -> PyResult<shared::mission::SpatialFamily> {
     family_spec(text)?.spatial_family().map_err(refused)

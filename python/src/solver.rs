@@ -14,13 +14,14 @@ use ground_core::generate::{
     read_dataset_of, DatasetFamily, DatasetFile, GenerateError, Manifest, Shard, Summary,
 };
 use ground_core::solver::record::{TrajectoryRecord, TrajectorySample};
+use ground_core::solver::spatial::record::{solve_spatial_arriving_early, SpatialRecord};
 use ground_core::solver::spatial::SpatialSample;
 use ground_core::solver::{solve_arriving_early, SolveOptions};
 use shared::mission::SpatialFamily;
-use shared::scenario::Scenario;
+use shared::scenario::{Scenario, SpatialScenario};
 use shared::spacecraft::{CanonicalSpacecraft, Spacecraft};
 
-use crate::{refused, scenario_family, spatial_scenario_family};
+use crate::{refused, spatial_scenario_family};
 
 fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -47,12 +48,33 @@ fn scenario_dict<'py>(py: Python<'py>, scenario: &Scenario) -> PyResult<Bound<'p
     Ok(d)
 }
 
+/// An inclined family's scenario: the planar one in each orbit's own plane, and the planes.
+fn spatial_scenario_dict<'py>(py: Python<'py>, scenario: &SpatialScenario) -> PyResult<Bound<'py, PyDict>> {
+    let d = scenario_dict(py, &scenario.scenario)?;
+    for (key, plane) in [
+        ("initial_plane", scenario.initial_plane),
+        ("target_plane", scenario.target_plane),
+    ] {
+        let p = PyDict::new(py);
+        p.set_item("inclination", plane.inclination)?;
+        p.set_item("raan", plane.raan)?;
+        d.set_item(key, p)?;
+    }
+    Ok(d)
+}
+
 /// Scenario `index` of the stream `seed` of the distribution `kind` (docs/spec.md section 4):
 /// `problem`, `initial` (`a`, `e`, `omega`, `nu`), `target` (`a`, `e`, `omega`), `target_nu0`
-/// (rendezvous: the body's anomaly at departure) and `steps` N (14-day steps).
+/// (rendezvous: the body's anomaly at departure) and `steps` N (guidance cycles); an inclined
+/// family's also `initial_plane` and `target_plane` (`inclination`, `raan`), the orbits' shapes
+/// then in their own planes.
 #[pyfunction]
 fn draw_scenario<'py>(py: Python<'py>, kind: &str, seed: u64, index: u64) -> PyResult<Bound<'py, PyDict>> {
-    scenario_dict(py, &scenario_family(kind)?.draw(seed, index))
+    let family = spatial_scenario_family(kind)?;
+    match family.as_planar() {
+        Some(planar) => scenario_dict(py, &planar.draw(seed, index)),
+        None => spatial_scenario_dict(py, &family.draw(seed, index)),
+    }
 }
 
 /// The spacecraft given as `thrust_n`, `isp_s` and `mass_kg` (each absent: the thesis's, Table
@@ -164,8 +186,9 @@ fn record_dict<'py>(py: Python<'py>, record: &TrajectoryRecord) -> PyResult<Boun
 /// steps early where that converges), for the spacecraft `thrust_n` (N), `isp_s` (s) and
 /// `mass_kg` (each absent: the thesis's), as `ground data solve`. Returns the record:
 /// `converged`, `failure`, `final_mass`, `costates` (5: lambda_r, lambda_v, lambda_m), the
-/// solution at each step boundary (`steps`) and on a fine grid (`ephemeris`). Never raises for a
-/// scenario that does not converge: `converged` says so.
+/// solution at each step boundary (`steps`) and on a fine grid (`ephemeris`); an inclined
+/// family's in three dimensions (`costates` 7, `state` (k, 7), `direction` (k, 3), see
+/// `read_dataset`). Never raises for a scenario that does not converge: `converged` says so.
 #[pyfunction]
 #[pyo3(signature = (kind, seed, index, final_eps=None, arrival_margin=0, thrust_n=None, isp_s=None, mass_kg=None))]
 #[allow(clippy::too_many_arguments)]
@@ -180,12 +203,80 @@ fn solve<'py>(
     isp_s: Option<f64>,
     mass_kg: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let kind = scenario_family(kind)?;
+    let family = spatial_scenario_family(kind)?;
     let options = options(final_eps, arrival_margin)?;
-    let sc = canonical(&kind, thrust_n, isp_s, mass_kg)?;
-    let scenario = kind.draw(seed, index);
-    let record = py.detach(|| solve_arriving_early(kind, seed, index, &scenario, &sc, &options));
-    record_dict(py, &record)
+    let sc = canonical(&family.family, thrust_n, isp_s, mass_kg)?;
+    match family.as_planar() {
+        Some(kind) => {
+            let scenario = kind.draw(seed, index);
+            let record = py.detach(|| solve_arriving_early(kind, seed, index, &scenario, &sc, &options));
+            record_dict(py, &record)
+        }
+        None => {
+            let scenario = family.draw(seed, index);
+            let record = py.detach(|| solve_spatial_arriving_early(&family, (seed, index), &scenario, &sc, &options));
+            spatial_record_dict(py, &record)
+        }
+    }
+}
+
+/// An inclined family's record, as [`record_dict`] in three dimensions.
+fn spatial_record_dict<'py>(py: Python<'py>, record: &SpatialRecord) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("kind", record.family.label().as_str())?;
+    d.set_item("seed", record.seed)?;
+    d.set_item("index", record.index)?;
+    d.set_item("scenario", spatial_scenario_dict(py, &record.scenario)?)?;
+    d.set_item("converged", record.converged)?;
+    d.set_item("failure", record.failure.clone())?;
+    d.set_item("costates", PyArray1::from_slice(py, &record.costates))?;
+    d.set_item("final_anomaly", record.final_anomaly)?;
+    d.set_item("final_eps", record.final_eps)?;
+    d.set_item("final_mass", record.final_mass)?;
+    d.set_item("thrust_arcs", record.thrust_arcs)?;
+    d.set_item("residual", record.residual)?;
+    d.set_item("seconds", record.seconds)?;
+    d.set_item("steps", spatial_samples_dict(py, record.steps.iter())?)?;
+    d.set_item("ephemeris", spatial_samples_dict(py, record.ephemeris.iter())?)?;
+    Ok(d)
+}
+
+/// Three-dimensional samples as arrays: `t` (k,), `state` (k, 7: x, y, z, vx, vy, vz, m),
+/// `throttle` (k,), `direction` (k, 3, inertial).
+fn spatial_samples_dict<'py, 'a>(
+    py: Python<'py>,
+    samples: impl ExactSizeIterator<Item = &'a SpatialSample> + Clone,
+) -> PyResult<Bound<'py, PyDict>> {
+    let k = samples.len();
+    let d = PyDict::new(py);
+    d.set_item("t", PyArray1::from_iter(py, samples.clone().map(|s| s.t)))?;
+    let state: Vec<f64> = samples
+        .clone()
+        .flat_map(|s| {
+            [
+                s.state.r[0],
+                s.state.r[1],
+                s.state.r[2],
+                s.state.v[0],
+                s.state.v[1],
+                s.state.v[2],
+                s.m,
+            ]
+        })
+        .collect();
+    d.set_item(
+        "state",
+        Array2::from_shape_vec((k, 7), state).map_err(refused)?.into_pyarray(py),
+    )?;
+    d.set_item("throttle", PyArray1::from_iter(py, samples.clone().map(|s| s.throttle)))?;
+    let direction: Vec<f64> = samples.flat_map(|s| s.direction).collect();
+    d.set_item(
+        "direction",
+        Array2::from_shape_vec((k, 3), direction)
+            .map_err(refused)?
+            .into_pyarray(py),
+    )?;
+    Ok(d)
 }
 
 /// Solves scenarios `0..count` of the stream `seed` of `kind` into the folder `out` on every
@@ -303,42 +394,14 @@ fn spatial_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile<SpatialFamil
             .into_pyarray(py),
     )?;
     let mut offsets = vec![0u64];
-    let samples: Vec<&SpatialSample> = records
-        .iter()
-        .flat_map(|record| {
-            offsets.push(offsets[offsets.len() - 1] + record.steps.len() as u64);
-            record.steps.iter()
-        })
-        .collect();
+    for record in records {
+        offsets.push(offsets[offsets.len() - 1] + record.steps.len() as u64);
+    }
     d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
-    let k = samples.len();
-    d.set_item("t", PyArray1::from_iter(py, samples.iter().map(|s| s.t)))?;
-    let state: Vec<f64> = samples
-        .iter()
-        .flat_map(|s| {
-            [
-                s.state.r[0],
-                s.state.r[1],
-                s.state.r[2],
-                s.state.v[0],
-                s.state.v[1],
-                s.state.v[2],
-                s.m,
-            ]
-        })
-        .collect();
-    d.set_item(
-        "state",
-        Array2::from_shape_vec((k, 7), state).map_err(refused)?.into_pyarray(py),
-    )?;
-    d.set_item("throttle", PyArray1::from_iter(py, samples.iter().map(|s| s.throttle)))?;
-    let direction: Vec<f64> = samples.iter().flat_map(|s| s.direction).collect();
-    d.set_item(
-        "direction",
-        Array2::from_shape_vec((k, 3), direction)
-            .map_err(refused)?
-            .into_pyarray(py),
-    )?;
+    let samples = records.iter().flat_map(|r| r.steps.iter()).collect::<Vec<_>>();
+    for (key, value) in spatial_samples_dict(py, samples.into_iter())?.iter() {
+        d.set_item(key, value)?;
+    }
     Ok(d)
 }
 

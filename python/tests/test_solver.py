@@ -144,6 +144,15 @@ def test_an_inclined_family_is_generated_in_three_dimensions(tmp_path):
     assert data["state"].shape == (data["offsets"][-1], 7)
     # Within 0.005 of the optimum: the homotopy stops at eps 0.004, the departures are dispersed.
     assert abs(data["final_mass"].mean() - 0.603556) < 5e-3
+    # One draw solved alone is the dataset's record, bit for bit; Mars's orbit is inclined.
+    record = lowthrust.solve(family, 7, 1, final_eps=0.004, **study)
+    assert record["final_mass"] == data["final_mass"][1]
+    assert np.array_equal(record["costates"], data["costates"][1])
+    rows = slice(data["offsets"][1], data["offsets"][2])
+    assert np.array_equal(record["steps"]["state"], data["state"][rows])
+    assert np.array_equal(record["steps"]["direction"], data["direction"][rows])
+    assert record["scenario"] == lowthrust.draw_scenario(family, 7, 1)
+    assert record["scenario"]["target_plane"]["inclination"] > np.radians(1.0)
     env = lowthrust.Env(family, "[spacecraft]\nmax_thrust_n = 0.5\nisp_s = 2000.0\ninitial_mass_kg = 1000.0")
     for i in range(2):
         rows = slice(data["offsets"][i], data["offsets"][i + 1])
