@@ -161,21 +161,29 @@ fn samples_dict<'py>(py: Python<'py>, samples: &[TrajectorySample]) -> PyResult<
     Ok(d)
 }
 
+/// Sets on `d` the fields a planar and a three-dimensional record share by name (the two
+/// record types have no common trait).
+macro_rules! record_fields {
+    ($py:expr, $d:expr, $record:expr) => {
+        $d.set_item("kind", $record.family.label().as_str())?;
+        $d.set_item("seed", $record.seed)?;
+        $d.set_item("index", $record.index)?;
+        $d.set_item("converged", $record.converged)?;
+        $d.set_item("failure", $record.failure.clone())?;
+        $d.set_item("costates", PyArray1::from_slice($py, &$record.costates))?;
+        $d.set_item("final_anomaly", $record.final_anomaly)?;
+        $d.set_item("final_eps", $record.final_eps)?;
+        $d.set_item("final_mass", $record.final_mass)?;
+        $d.set_item("thrust_arcs", $record.thrust_arcs)?;
+        $d.set_item("residual", $record.residual)?;
+        $d.set_item("seconds", $record.seconds)?;
+    };
+}
+
 fn record_dict<'py>(py: Python<'py>, record: &TrajectoryRecord) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("kind", record.family.label().as_str())?;
-    d.set_item("seed", record.seed)?;
-    d.set_item("index", record.index)?;
+    record_fields!(py, d, record);
     d.set_item("scenario", scenario_dict(py, &record.scenario)?)?;
-    d.set_item("converged", record.converged)?;
-    d.set_item("failure", record.failure.clone())?;
-    d.set_item("costates", PyArray1::from_slice(py, &record.costates))?;
-    d.set_item("final_anomaly", record.final_anomaly)?;
-    d.set_item("final_eps", record.final_eps)?;
-    d.set_item("final_mass", record.final_mass)?;
-    d.set_item("thrust_arcs", record.thrust_arcs)?;
-    d.set_item("residual", record.residual)?;
-    d.set_item("seconds", record.seconds)?;
     d.set_item("steps", samples_dict(py, &record.steps)?)?;
     d.set_item("ephemeris", samples_dict(py, &record.ephemeris)?)?;
     Ok(d)
@@ -223,19 +231,8 @@ fn solve<'py>(
 /// An inclined family's record, as [`record_dict`] in three dimensions.
 fn spatial_record_dict<'py>(py: Python<'py>, record: &SpatialRecord) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("kind", record.family.label().as_str())?;
-    d.set_item("seed", record.seed)?;
-    d.set_item("index", record.index)?;
+    record_fields!(py, d, record);
     d.set_item("scenario", spatial_scenario_dict(py, &record.scenario)?)?;
-    d.set_item("converged", record.converged)?;
-    d.set_item("failure", record.failure.clone())?;
-    d.set_item("costates", PyArray1::from_slice(py, &record.costates))?;
-    d.set_item("final_anomaly", record.final_anomaly)?;
-    d.set_item("final_eps", record.final_eps)?;
-    d.set_item("final_mass", record.final_mass)?;
-    d.set_item("thrust_arcs", record.thrust_arcs)?;
-    d.set_item("residual", record.residual)?;
-    d.set_item("seconds", record.seconds)?;
     d.set_item("steps", spatial_samples_dict(py, record.steps.iter())?)?;
     d.set_item("ephemeris", spatial_samples_dict(py, record.ephemeris.iter())?)?;
     Ok(d)
