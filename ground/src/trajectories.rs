@@ -217,12 +217,7 @@ impl SpacecraftArgs {
         family: &MissionFamily,
     ) -> Result<CanonicalSpacecraft, Box<dyn std::error::Error>> {
         let spacecraft = self.canonical_in(family)?;
-        ground_core::generate::check_spacecraft(
-            ground_core::generate::dataset_solve_request(file)?.and_then(|r| r.spacecraft),
-            &spacecraft,
-            || format!("dataset {} holds records", file.display()),
-            "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
-        )?;
+        ground_core::generate::check_dataset_spacecraft(file, &spacecraft)?;
         Ok(spacecraft)
     }
 }

@@ -352,49 +352,67 @@ fn read_dataset<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDi
     Ok(d)
 }
 
-/// What every dataset gives per record, of either geometry.
-fn record_arrays<'py, R>(
+/// What a record of either geometry gives a dataset's arrays.
+struct RecordRow<'a> {
+    index: u64,
+    converged: bool,
+    final_mass: f64,
+    final_eps: f64,
+    /// Guidance cycles N of its scenario.
+    steps: u32,
+    /// Initial costates: 5 in the plane, 7 in three dimensions.
+    costates: &'a [f64],
+    /// Its step-boundary samples (N + 1 once solved).
+    samples: usize,
+}
+
+/// A dataset's arrays that do not depend on its geometry: `kind`, `seed`, per record `index`,
+/// `converged`, `final_mass`, `final_eps`, `steps`, `costates` (n, width) and the samples'
+/// `offsets` (see [`read_dataset`]).
+fn dataset_dict<'py, F: DatasetFamily>(
     py: Python<'py>,
-    d: &Bound<'py, PyDict>,
-    records: &[R],
-    fields: impl Fn(&R) -> (u64, bool, f64, f64, u32),
-) -> PyResult<()> {
-    let rows: Vec<_> = records.iter().map(fields).collect();
-    d.set_item("index", PyArray1::from_iter(py, rows.iter().map(|r| r.0)))?;
-    d.set_item("converged", PyArray1::from_iter(py, rows.iter().map(|r| r.1)))?;
-    d.set_item("final_mass", PyArray1::from_iter(py, rows.iter().map(|r| r.2)))?;
-    d.set_item("final_eps", PyArray1::from_iter(py, rows.iter().map(|r| r.3)))?;
-    d.set_item("steps", PyArray1::from_iter(py, rows.iter().map(|r| r.4)))?;
-    Ok(())
+    dataset: &DatasetFile<F>,
+    row: impl Fn(&F::Record) -> RecordRow<'_>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let rows: Vec<RecordRow> = dataset.records.iter().map(row).collect();
+    let d = PyDict::new(py);
+    d.set_item("kind", dataset.manifest.family.name())?;
+    d.set_item("seed", dataset.manifest.seed)?;
+    d.set_item("index", PyArray1::from_iter(py, rows.iter().map(|r| r.index)))?;
+    d.set_item("converged", PyArray1::from_iter(py, rows.iter().map(|r| r.converged)))?;
+    d.set_item("final_mass", PyArray1::from_iter(py, rows.iter().map(|r| r.final_mass)))?;
+    d.set_item("final_eps", PyArray1::from_iter(py, rows.iter().map(|r| r.final_eps)))?;
+    d.set_item("steps", PyArray1::from_iter(py, rows.iter().map(|r| r.steps)))?;
+    let width = rows.first().map_or(0, |r| r.costates.len());
+    let costates: Vec<f64> = rows.iter().flat_map(|r| r.costates.iter().copied()).collect();
+    d.set_item(
+        "costates",
+        Array2::from_shape_vec((rows.len(), width), costates)
+            .map_err(refused)?
+            .into_pyarray(py),
+    )?;
+    let offsets: Vec<u64> = std::iter::once(0)
+        .chain(rows.iter().scan(0u64, |end, r| {
+            *end += r.samples as u64;
+            Some(*end)
+        }))
+        .collect();
+    d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
+    Ok(d)
 }
 
 /// An inclined family's dataset as arrays (see [`read_dataset`]).
 fn spatial_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile<SpatialFamily>) -> PyResult<Bound<'py, PyDict>> {
     let records = &dataset.records;
-    let d = PyDict::new(py);
-    d.set_item("kind", dataset.manifest.family.label().as_str())?;
-    d.set_item("seed", dataset.manifest.seed)?;
-    record_arrays(py, &d, records, |r| {
-        (
-            r.index,
-            r.converged,
-            r.final_mass,
-            r.final_eps,
-            r.scenario.scenario.steps,
-        )
+    let d = dataset_dict(py, dataset, |r| RecordRow {
+        index: r.index,
+        converged: r.converged,
+        final_mass: r.final_mass,
+        final_eps: r.final_eps,
+        steps: r.scenario.scenario.steps,
+        costates: &r.costates,
+        samples: r.steps.len(),
     })?;
-    let costates: Vec<f64> = records.iter().flat_map(|r| r.costates).collect();
-    d.set_item(
-        "costates",
-        Array2::from_shape_vec((records.len(), 7), costates)
-            .map_err(refused)?
-            .into_pyarray(py),
-    )?;
-    let mut offsets = vec![0u64];
-    for record in records {
-        offsets.push(offsets[offsets.len() - 1] + record.steps.len() as u64);
-    }
-    d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
     let samples = records.iter().flat_map(|r| r.steps.iter()).collect::<Vec<_>>();
     for (key, value) in spatial_samples_dict(py, samples.into_iter())?.iter() {
         d.set_item(key, value)?;
@@ -405,26 +423,16 @@ fn spatial_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile<SpatialFamil
 /// A planar family's dataset as arrays (see [`read_dataset`]).
 fn planar_dataset_dict<'py>(py: Python<'py>, dataset: &DatasetFile) -> PyResult<Bound<'py, PyDict>> {
     let records = &dataset.records;
-    let d = PyDict::new(py);
-    d.set_item("kind", dataset.manifest.family.label().as_str())?;
-    d.set_item("seed", dataset.manifest.seed)?;
-    record_arrays(py, &d, records, |r| {
-        (r.index, r.converged, r.final_mass, r.final_eps, r.scenario.steps)
+    let d = dataset_dict(py, dataset, |r| RecordRow {
+        index: r.index,
+        converged: r.converged,
+        final_mass: r.final_mass,
+        final_eps: r.final_eps,
+        steps: r.scenario.steps,
+        costates: &r.costates,
+        samples: r.steps.len(),
     })?;
-    let costates: Vec<f64> = records.iter().flat_map(|r| r.costates).collect();
-    d.set_item(
-        "costates",
-        Array2::from_shape_vec((records.len(), 5), costates)
-            .map_err(refused)?
-            .into_pyarray(py),
-    )?;
-    let mut offsets = vec![0u64];
-    let mut samples = Vec::new();
-    for record in records {
-        samples.extend_from_slice(&record.steps);
-        offsets.push(samples.len() as u64);
-    }
-    d.set_item("offsets", PyArray1::from_vec(py, offsets))?;
+    let samples: Vec<TrajectorySample> = records.iter().flat_map(|r| r.steps.iter().copied()).collect();
     for (key, value) in samples_dict(py, &samples)?.iter() {
         d.set_item(key, value)?;
     }

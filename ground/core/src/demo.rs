@@ -738,14 +738,7 @@ fn check_flown_spacecraft(path: &Path, config: &EnvConfig) -> Result<(), DemoErr
     let flown = config
         .canonical_spacecraft()
         .map_err(|e| DemoError::Env(EnvError::Spacecraft(e)))?;
-    let recorded = crate::generate::dataset_solve_request(path)?.and_then(|r| r.spacecraft);
-    crate::generate::check_spacecraft(
-        recorded,
-        &flown,
-        || format!("dataset {} holds records", path.display()),
-        "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
-    )?;
-    Ok(())
+    Ok(crate::generate::check_dataset_spacecraft(path, &flown)?)
 }
 
 impl DemoGeometry for Planar {

@@ -1191,6 +1191,17 @@ pub fn check_spacecraft(
     }
 }
 
+/// Refuses the records of the dataset file `file` when its run recorded them as solved for a
+/// spacecraft other than `wanted` (a command that reads a dataset and is given a spacecraft).
+pub fn check_dataset_spacecraft(file: &Path, wanted: &CanonicalSpacecraft) -> Result<(), GenerateError> {
+    check_spacecraft(
+        dataset_solve_request(file)?.and_then(|r| r.spacecraft),
+        wanted,
+        || format!("dataset {} holds records", file.display()),
+        "give the spacecraft it was solved with (--thrust-n, --isp-s, --mass-kg)",
+    )
+}
+
 /// Refuses a folder whose records were solved to another final eps or arrival margin, or for
 /// another spacecraft; says whether it records a request. A folder without `request.json`
 /// (written before it existed) is taken as it is.
