@@ -660,6 +660,24 @@ fn learner(config: &ExperimentConfig, obs_dim: usize) -> Result<Sac, ExperimentE
     Ok(agent)
 }
 
+/// Whether a begun phase's `start_actor` file is the flown actor of `start` (a learner
+/// checkpoint or an actor file), compared as the files the phase writes.
+fn began_from(phase: &ExperimentConfig, obs: usize, start_actor: &Path, start: &Path) -> Result<bool, ExperimentError> {
+    let written = std::fs::read(start_actor).map_err(|e| ExperimentError::Io(start_actor.to_path_buf(), e))?;
+    if std::fs::read(start).is_ok_and(|bytes| bytes == written) {
+        return Ok(true);
+    }
+    let flown = load_agent(phase, obs, start)?;
+    let file = start_actor.with_extension(format!("{}.tmp", std::process::id()));
+    let saved = flown.save_flown_actor(&file).map(|()| std::fs::read(&file));
+    let _ = std::fs::remove_file(&file);
+    match saved {
+        Ok(Ok(bytes)) => Ok(bytes == written),
+        Ok(Err(e)) => Err(ExperimentError::Io(file, e)),
+        Err(e) => Err(e.into()),
+    }
+}
+
 /// `ground train finetune`: the config's fine-tuning from `start` (a learner checkpoint or an
 /// actor file: its flown actor), resuming the steps already there. Each phase runs in its own
 /// folder (`RUN/finetune`, then `RUN/finetune/then`, ...) from the best actor of the phase
@@ -735,9 +753,14 @@ where
     };
     let mut agent = learner(phase, P::OBS)?;
     let start_actor = dir.join("start-actor.safetensors");
-    if chained && step_file(&dir, 0).exists() && std::fs::read(&start_actor).ok() != std::fs::read(start).ok() {
+    if step_file(&dir, 0).exists() && !began_from(phase, P::OBS, &start_actor, start)? {
+        let why = if chained {
+            "the phase before's best now: the phase before changed since; use a new folder"
+        } else {
+            "the actor it is asked to go on from: resume with the start it began from, or use a new folder"
+        };
         return Err(ExperimentError::Mismatch(format!(
-            "{} began from another actor than {}, the phase before's best now: the phase before changed since; use a new folder",
+            "{} began from another actor than {}, {why}",
             dir.display(),
             start.display()
         )));

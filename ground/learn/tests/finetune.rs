@@ -120,6 +120,36 @@ fn lowers_and_resumes(dispersed: bool) {
         evaluations(&straight.join("finetune/state.json")),
         evaluations(&stopped.join("finetune/state.json"))
     );
+
+    // Asked to go on from another actor: refused with both named, the folder as it was. A
+    // learner checkpoint whose flown actor is the start (step 0) goes on.
+    tch::manual_seed(8);
+    let other = dir.join("other-actor.safetensors");
+    Sac::new(config.sac.clone(), 10, 3, tch::Device::Cpu)
+        .save_flown_actor(&other)
+        .unwrap();
+    let folder = |run: &Path| -> Vec<(std::path::PathBuf, Vec<u8>)> {
+        let mut files: Vec<_> = std::fs::read_dir(run.join("finetune"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_file())
+            .map(|p| (p.clone(), bytes(&p)))
+            .collect();
+        files.sort();
+        files
+    };
+    let before = folder(&stopped);
+    let err = finetune(&config, &stopped, &other).unwrap_err().to_string();
+    assert!(
+        err.contains("began from another actor") && err.contains("other-actor.safetensors"),
+        "{err}"
+    );
+    assert!(folder(&stopped) == before, "a refused resume changed the folder");
+    finetune(&config, &stopped, &straight.join("finetune/step-0.safetensors")).unwrap();
+    assert!(
+        folder(&stopped) == before,
+        "a finished phase gone on from its own start changed"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
