@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1};
+use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -138,6 +138,13 @@ fn options(final_eps: Option<f64>, arrival_margin: u32) -> PyResult<SolveOptions
     Ok(options)
 }
 
+/// `values`, row after row, as a (rows, width) array.
+fn matrix(py: Python<'_>, rows: usize, width: usize, values: Vec<f64>) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    Ok(Array2::from_shape_vec((rows, width), values)
+        .map_err(refused)?
+        .into_pyarray(py))
+}
+
 /// Samples as arrays: `t` (k,), `state` (k, 5: x, y, vx, vy, m), `throttle` (k,), `direction`
 /// (k, 2, inertial), `direction_polar` (k, 2: radial, transverse).
 fn samples_dict<'py>(py: Python<'py>, samples: &[TrajectorySample]) -> PyResult<Bound<'py, PyDict>> {
@@ -148,16 +155,11 @@ fn samples_dict<'py>(py: Python<'py>, samples: &[TrajectorySample]) -> PyResult<
         .iter()
         .flat_map(|s| [s.r[0], s.r[1], s.v[0], s.v[1], s.m])
         .collect();
-    d.set_item(
-        "state",
-        Array2::from_shape_vec((k, 5), state).map_err(refused)?.into_pyarray(py),
-    )?;
+    d.set_item("state", matrix(py, k, 5, state)?)?;
     d.set_item("throttle", PyArray1::from_iter(py, samples.iter().map(|s| s.throttle)))?;
-    let pairs = |f: fn(&TrajectorySample) -> [f64; 2]| {
-        Array2::from_shape_vec((k, 2), samples.iter().flat_map(f).collect()).map_err(refused)
-    };
-    d.set_item("direction", pairs(|s| s.direction)?.into_pyarray(py))?;
-    d.set_item("direction_polar", pairs(|s| s.direction_polar)?.into_pyarray(py))?;
+    let pairs = |f: fn(&TrajectorySample) -> [f64; 2]| matrix(py, k, 2, samples.iter().flat_map(f).collect());
+    d.set_item("direction", pairs(|s| s.direction)?)?;
+    d.set_item("direction_polar", pairs(|s| s.direction_polar)?)?;
     Ok(d)
 }
 
@@ -261,17 +263,11 @@ fn spatial_samples_dict<'py, 'a>(
             ]
         })
         .collect();
-    d.set_item(
-        "state",
-        Array2::from_shape_vec((k, 7), state).map_err(refused)?.into_pyarray(py),
-    )?;
+    d.set_item("state", matrix(py, k, 7, state)?)?;
     d.set_item("throttle", PyArray1::from_iter(py, samples.clone().map(|s| s.throttle)))?;
-    let direction: Vec<f64> = samples.flat_map(|s| s.direction).collect();
     d.set_item(
         "direction",
-        Array2::from_shape_vec((k, 3), direction)
-            .map_err(refused)?
-            .into_pyarray(py),
+        matrix(py, k, 3, samples.flat_map(|s| s.direction).collect())?,
     )?;
     Ok(d)
 }
@@ -385,12 +381,7 @@ fn dataset_dict<'py, F: DatasetFamily>(
     d.set_item("steps", PyArray1::from_iter(py, rows.iter().map(|r| r.steps)))?;
     let width = rows.first().map_or(0, |r| r.costates.len());
     let costates: Vec<f64> = rows.iter().flat_map(|r| r.costates.iter().copied()).collect();
-    d.set_item(
-        "costates",
-        Array2::from_shape_vec((rows.len(), width), costates)
-            .map_err(refused)?
-            .into_pyarray(py),
-    )?;
+    d.set_item("costates", matrix(py, rows.len(), width, costates)?)?;
     let offsets: Vec<u64> = std::iter::once(0)
         .chain(rows.iter().scan(0u64, |end, r| {
             *end += r.samples as u64;
