@@ -106,10 +106,10 @@ fn on_hard_transfers_the_lookahead_predicts_its_flight_and_never_arrives_worse_t
     let blob = AlignedBlob::new(include_bytes!("../../models/transfer-hard/transfer-f32.blob"));
     let controller = Controller::load_transfer(blob.bytes());
     assert!(matches!(controller, Controller::Network(_)));
-    // Draws of the shipped card's Monte Carlo stream: 0 and 7 the network misses (0.067 and
-    // 0.049 AU), 3 and 5 it flies within the goal.
+    // Draws of the shipped card's Monte Carlo stream: 1 and 23 the network misses (0.019 and
+    // 0.042 AU off, 0.031 and 0.049 in velocity), 0 and 3 it flies within the goal.
     let (mut alone_within, mut looked_within) = (0, 0);
-    for index in [0, 3, 5, 7] {
+    for index in [0, 1, 3, 23] {
         let scenario = ScenarioKind::TransferHard.draw(2_000_003, index);
         let (alone, looked) = check(Transfer, &controller, &scenario, SLACK);
         assert!(
