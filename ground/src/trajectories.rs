@@ -673,9 +673,8 @@ fn dataset_file(path: &Path) -> PathBuf {
 }
 
 pub fn feasibility_command(out: &Path, spacecraft: &SpacecraftArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let file = dataset_file(out);
-    let family = read_dataset(&file)?.manifest.family;
-    let sc = spacecraft.for_dataset(&file, &family)?;
+    let family = ground_core::generate::require_manifest(out)?.family;
+    let sc = spacecraft.for_dataset(&dataset_file(out), &family)?;
     // A recovered draw is solved as the run's other records were (its request.json).
     let options = ground_core::generate::run_solve_options(out)?;
     let summary = ground_core::generate::classify_run(out, &sc, &options)?;

@@ -932,8 +932,9 @@ fn crosscheck_once_stopping(
     Ok((summary, Some(rewritten)))
 }
 
-/// The manifest of the run in `out`; a folder without one is no `generate` run.
-fn require_manifest(out: &Path) -> Result<Manifest, GenerateError> {
+/// The manifest of the run in `out` (its family, seed and count, without reading a record); a
+/// folder without one is no `generate` run.
+pub fn require_manifest(out: &Path) -> Result<Manifest, GenerateError> {
     read_manifest(out)?.ok_or_else(|| {
         GenerateError::Io(
             out.join("manifest.json"),
