@@ -667,15 +667,7 @@ fn began_from(phase: &ExperimentConfig, obs: usize, start_actor: &Path, start: &
     if std::fs::read(start).is_ok_and(|bytes| bytes == written) {
         return Ok(true);
     }
-    let flown = load_agent(phase, obs, start)?;
-    let file = start_actor.with_extension(format!("{}.tmp", std::process::id()));
-    let saved = flown.save_flown_actor(&file).map(|()| std::fs::read(&file));
-    let _ = std::fs::remove_file(&file);
-    match saved {
-        Ok(Ok(bytes)) => Ok(bytes == written),
-        Ok(Err(e)) => Err(ExperimentError::Io(file, e)),
-        Err(e) => Err(e.into()),
-    }
+    Ok(load_agent(phase, obs, start)?.flown_actor_bytes()? == written)
 }
 
 /// `ground train finetune`: the config's fine-tuning from `start` (a learner checkpoint or an

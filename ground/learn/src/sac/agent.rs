@@ -113,9 +113,19 @@ pub fn write_checked_safetensors(
     labels: &BTreeMap<String, String>,
     path: &Path,
 ) -> Result<(), CheckpointError> {
-    use safetensors::tensor::{Dtype, TensorView};
     // The file is built in memory and written once, atomically: a failed write (a full disk)
     // is an I/O error naming the file, and leaves neither a part nor a temporary behind.
+    let checked = checked_safetensors(tensors, labels)?;
+    ground_core::io::atomic_write(path, &checked)
+        .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))
+}
+
+/// The bytes [`write_checked_safetensors`] writes.
+fn checked_safetensors(
+    tensors: &[(String, Tensor)],
+    labels: &BTreeMap<String, String>,
+) -> Result<Vec<u8>, CheckpointError> {
+    use safetensors::tensor::{Dtype, TensorView};
     let mut raw = Vec::with_capacity(tensors.len());
     for (name, tensor) in tensors {
         let cpu = tensor.to_device(Device::Cpu).contiguous();
@@ -152,13 +162,11 @@ pub fn write_checked_safetensors(
     // With labels the metadata has several keys, which safetensors writes in a hash map's
     // random order: the header is written again with sorted keys, so the same state is the same
     // bytes (a resumed run's files equal an uninterrupted one's). Without, the bytes are as ever.
-    let checked = if labels.is_empty() {
-        checked
+    if labels.is_empty() {
+        Ok(checked)
     } else {
-        sorted_header(&checked)?
-    };
-    ground_core::io::atomic_write(path, &checked)
-        .map_err(|e| CheckpointError::Io(std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))))
+        sorted_header(&checked)
+    }
 }
 
 /// A safetensors file with its JSON header's keys sorted (the metadata's too), padded to 8
@@ -887,10 +895,20 @@ impl Sac {
     /// `actor.l0.weight`, ..., `actor.mean.*`, `actor.log_std.*`, checksummed: what a shipped
     /// model carries ([`Sac::load_actor`] reads it back).
     pub fn save_flown_actor(&self, path: &Path) -> Result<(), CheckpointError> {
+        write_checked_safetensors(&self.flown_actor_tensors(), &BTreeMap::new(), path)
+    }
+
+    /// The bytes [`Sac::save_flown_actor`] writes, to compare with an actor file.
+    pub fn flown_actor_bytes(&self) -> Result<Vec<u8>, CheckpointError> {
+        checked_safetensors(&self.flown_actor_tensors(), &BTreeMap::new())
+    }
+
+    /// The flown actor's tensors by name.
+    fn flown_actor_tensors(&self) -> Vec<(String, Tensor)> {
         let store = self.average.as_ref().map_or(&self.actor_store, |a| &a.store);
         let mut vars: Vec<(String, Tensor)> = store.variables().into_iter().collect();
         vars.sort_by(|a, b| a.0.cmp(&b.0));
-        write_checked_safetensors(&vars, &BTreeMap::new(), path)
+        vars
     }
 
     /// Loads an actor file of [`Sac::save_flown_actor`] into the flown actor (for evaluation:
