@@ -65,10 +65,11 @@ fn toy_finetuning(dir: &Path, steps: u64, dispersed: bool) -> (ExperimentConfig,
 }
 
 /// The shipped transfer-circular actor as the start (fine-tuning only reads it), at the
-/// recipes' learning rate: an untrained actor only learns to coast (under dispersions its
+/// recipes' learning rate and with its network's widths: an untrained actor only learns to coast (under dispersions its
 /// objective falls to coasting's, about 4.76 on the toy's flights, and stays), so a lower
 /// objective from it would not show that the phase steers.
 fn from_a_controller_that_arrives(config: &mut ExperimentConfig) -> std::path::PathBuf {
+    config.sac.hidden = vec![256, 256];
     config.finetune.learning_rate = 3e-5;
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/transfer-circular/actor.safetensors")
 }
@@ -76,7 +77,6 @@ fn from_a_controller_that_arrives(config: &mut ExperimentConfig) -> std::path::P
 fn lowers_and_resumes(dispersed: bool) {
     let dir = scratch_dir(if dispersed { "finetune-dispersed" } else { "finetune" });
     let (mut config, _) = toy_finetuning(&dir, 12, dispersed);
-    config.sac.hidden = vec![256, 256];
     let start = from_a_controller_that_arrives(&mut config);
     if !dispersed {
         // The shipped actor is nominal fine-tuning's own result at the default weight: weighed
