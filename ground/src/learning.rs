@@ -125,6 +125,12 @@ pub enum ModelCommand {
         /// Scenarios also solved by the indirect method (default: the config's).
         #[arg(long)]
         gap_cases: Option<u64>,
+        /// Take the optimality gap's optima from an earlier Monte Carlo of the same draws (the
+        /// folder of a `ground model evaluate` or `sil` run with gap cases) instead of solving
+        /// them again: refused unless it solved them for this family, Monte Carlo seed and
+        /// spacecraft.
+        #[arg(long, value_name = "RUN", conflicts_with = "gap_cases")]
+        gap_from: Option<PathBuf>,
     },
     /// Onboard weight blobs (f32 and int8) and the actor as ONNX (OUT/actor.onnx) from a
     /// checkpoint's actor, with the action error of each blob against the trained actor and
@@ -221,6 +227,12 @@ pub enum ModelCommand {
         /// the share within the goal where solved, by eccentricity band (default 0: none).
         #[arg(long, default_value_t = 0)]
         gap_cases: u64,
+        /// Take the optimality gap's optima from an earlier Monte Carlo of the same draws (the
+        /// folder of a `ground model evaluate` or `sil` run with gap cases) instead of solving
+        /// them again: refused unless it solved them for this family, Monte Carlo seed and
+        /// spacecraft.
+        #[arg(long, value_name = "RUN", conflicts_with = "gap_cases")]
+        gap_from: Option<PathBuf>,
         /// Exit 0 when the blob is refused and the flights run in safe mode (thrust off), as
         /// the flight software does; without it a refused blob is a failed command.
         #[arg(long)]
@@ -350,7 +362,13 @@ fn run_model(command: ModelCommand) -> CommandResult {
             model,
             episodes,
             gap_cases,
-        } => evaluate_command(&experiment, Flown::from(checkpoint, model, false), episodes, gap_cases),
+            gap_from,
+        } => evaluate_command(
+            &experiment,
+            Flown::from(checkpoint, model, false),
+            episodes,
+            (gap_cases, gap_from.as_deref()),
+        ),
         ModelCommand::Export {
             experiment,
             checkpoint,
@@ -433,6 +451,7 @@ fn run_model(command: ModelCommand) -> CommandResult {
             thrust_margin,
             terminal,
             gap_cases,
+            gap_from,
             allow_safe_mode,
         } => sil_command(
             &experiment,
@@ -443,7 +462,7 @@ fn run_model(command: ModelCommand) -> CommandResult {
                 lookahead,
                 thrust_margin,
                 terminal,
-                gap_cases,
+                optima: (Some(gap_cases), gap_from),
                 allow_safe_mode,
             },
         ),
@@ -757,17 +776,18 @@ fn evaluate_command(
     args: &ExperimentArgs,
     flown: Flown,
     episodes: Option<NonZeroU64>,
-    gap_cases: Option<u64>,
+    (gap_cases, gap_from): (Option<u64>, Option<&Path>),
 ) -> Result<(), Box<dyn std::error::Error>> {
     let (config, checkpoint) = flown.resolve(args, false)?;
     let checkpoint = checkpoint.as_path();
+    let optima = optima(&config, gap_cases, gap_from)?;
     let report = in_run_folder(&args.out, || {
         Ok(learn::eval::monte_carlo(
             &config,
             checkpoint,
             &args.out,
             episodes.map(NonZeroU64::get),
-            gap_cases,
+            optima,
         )?)
     })?;
     print!("{}", learn::eval::describe(&report));
@@ -838,13 +858,27 @@ fn ship_command(
     }
 }
 
+/// The optimality gap's optima: solved for the first `gap_cases` scenarios, or those of the
+/// earlier Monte Carlo `gap_from` of the same draws, checked before anything is written.
+fn optima(
+    config: &ExperimentConfig,
+    gap_cases: Option<u64>,
+    gap_from: Option<&Path>,
+) -> Result<learn::eval::Optima, learn::error::ExperimentError> {
+    match gap_from {
+        Some(run) => learn::eval::reused_optima(config, run),
+        None => Ok(learn::eval::Optima::Solve(gap_cases)),
+    }
+}
+
 /// How `ground model sil` flies, beyond the config.
 struct SilFlags {
     no_dispersions: bool,
     lookahead: bool,
     thrust_margin: Option<f64>,
     terminal: Option<u32>,
-    gap_cases: u64,
+    /// Gap cases, or the earlier run whose optima are reused.
+    optima: (Option<u64>, Option<PathBuf>),
     allow_safe_mode: bool,
 }
 
@@ -859,7 +893,7 @@ fn sil_command(
         lookahead,
         thrust_margin,
         terminal,
-        gap_cases,
+        optima: (gap_cases, gap_from),
         allow_safe_mode,
     } = flags;
     let (mut config, blob) = flown.resolve(args, true)?;
@@ -897,6 +931,7 @@ fn sil_command(
         )
         .into());
     }
+    let optima = optima(&config, gap_cases, gap_from.as_deref())?;
     let report = in_run_folder(&args.out, || {
         Ok(learn::sil::sil_monte_carlo(
             &config,
@@ -904,7 +939,7 @@ fn sil_command(
             &args.out,
             episodes.map(NonZeroU64::get),
             &dispersions,
-            gap_cases,
+            optima,
         )?)
     })?;
     println!("{}", learn::sil::describe(&report));

@@ -98,6 +98,21 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
     };
     refused(&sil(&["--thrust-margin", "0.05"]), "--lookahead");
     refused(&sil(&["--lookahead", "--thrust-margin", "1.5"]), "thrust margin");
+    // Optima reused from a folder that holds no Monte Carlo, or asked for twice: refused
+    // before the folder is taken.
+    let nothing = dir.join("nothing");
+    let evaluate = [
+        "model",
+        "evaluate",
+        "--out",
+        path(&out),
+        "--checkpoint",
+        path(&checkpoint),
+        "--gap-from",
+        path(&nothing),
+    ];
+    refused(&evaluate, "summary.json");
+    refused(&[&evaluate[..], &["--gap-cases", "3"]].concat(), "--gap-cases");
     assert!(!dir.join("new").exists(), "a refused command left a folder behind");
     std::fs::remove_dir_all(&dir).unwrap();
 }

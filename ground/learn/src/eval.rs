@@ -34,6 +34,115 @@ pub const ACCURACY_GOAL: f64 = 0.01;
 /// that published RL rendezvous results quote to what terminal targeting reaches.
 pub const REPORTED_TOLERANCES: [f64; 4] = [0.01, 0.005, 0.001, 0.0001];
 
+/// Where a Monte Carlo's optimality gap takes the indirect optima of its first scenarios from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Optima {
+    /// Solve the first N scenarios (None: the config's `evaluate.optimality_gap_cases`; 0: no
+    /// gap).
+    Solve(Option<u64>),
+    /// The optima an earlier Monte Carlo of the same draws solved ([`reused_optima`]): the
+    /// optimum of a draw does not depend on what flies it, so screening controllers on the
+    /// same draws solves them once.
+    Reused(Vec<Optimum>),
+}
+
+/// One draw's indirect optimum, as a Monte Carlo's gap row records it.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct Optimum {
+    /// Index of the draw in the Monte Carlo stream.
+    pub episode: usize,
+    /// Final mass of the indirect solution (NaN where none was found; written as null).
+    #[serde(rename = "optimal_mass", deserialize_with = "nan_if_null")]
+    pub mass: f64,
+    /// Whether the energy-to-fuel homotopy reached its final eps.
+    #[serde(rename = "optimal_converged")]
+    pub converged: bool,
+    /// The eps the homotopy ended at.
+    #[serde(rename = "optimal_eps", deserialize_with = "nan_if_null")]
+    pub eps: f64,
+}
+
+impl From<&GapRow> for Optimum {
+    fn from(row: &GapRow) -> Self {
+        Self {
+            episode: row.episode,
+            mass: row.optimal_mass,
+            converged: row.optimal_converged,
+            eps: row.optimal_eps,
+        }
+    }
+}
+
+/// JSON writes a NaN as null: read back as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::NAN))
+}
+
+/// What [`reused_optima`] reads of a Monte Carlo's `summary.json`.
+#[derive(Deserialize)]
+struct SavedOptima {
+    #[serde(default)]
+    optima_key: Option<String>,
+    gap: Vec<Optimum>,
+}
+
+impl Optima {
+    /// No optimality gap.
+    pub const NONE: Optima = Optima::Solve(Some(0));
+}
+
+/// What the indirect optima of a Monte Carlo's draws depend on, as 8 hex digits (CRC-32C):
+/// the scenario family, the Monte Carlo seed and the spacecraft. Two Monte Carlos with the same
+/// key solve the same optima for the same episodes.
+pub fn optima_key(config: &ExperimentConfig) -> Result<String, ExperimentError> {
+    const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+    let spacecraft = config
+        .env
+        .canonical_spacecraft()
+        .map_err(|e| ExperimentError::Mismatch(format!("spacecraft: {e}")))?;
+    let posed = serde_json::to_vec(&(&config.family, config.seeds.monte_carlo, spacecraft))
+        .map_err(|e| ExperimentError::Mismatch(format!("the optima's key: {e}")))?;
+    Ok(format!("{:08x}", CRC.checksum(&posed)))
+}
+
+/// The optima of the Monte Carlo written to `run` (its `summary.json`, from `ground model
+/// evaluate` or `ground model sil` with gap cases), refused unless they were solved for the
+/// draws `config` flies (the same [`optima_key`]) or when there are none.
+pub fn reused_optima(config: &ExperimentConfig, run: &Path) -> Result<Optima, ExperimentError> {
+    let path = run.join("summary.json");
+    let bytes = std::fs::read(&path).map_err(|e| ExperimentError::Io(path.clone(), e))?;
+    let report: SavedOptima = serde_json::from_slice(&bytes)
+        .map_err(|e| ExperimentError::Mismatch(format!("{} is not a Monte Carlo summary: {e}", path.display())))?;
+    let wanted = optima_key(config)?;
+    match report.optima_key.as_deref() {
+        _ if report.gap.is_empty() => Err(ExperimentError::Mismatch(format!(
+            "{} holds no optima (its Monte Carlo solved no scenario): solve them with --gap-cases N",
+            path.display()
+        ))),
+        None => Err(ExperimentError::Mismatch(format!(
+            "{} names no optima key, so its optima cannot be checked against these draws: solve them with --gap-cases N",
+            path.display()
+        ))),
+        Some(key) if key != wanted => Err(ExperimentError::Mismatch(format!(
+            "{}'s optima were solved for other draws (optima key {key}, these draws {wanted}: another family, Monte Carlo seed or spacecraft): solve them with --gap-cases N",
+            path.display()
+        ))),
+        Some(_) => Ok(Optima::Reused(report.gap)),
+    }
+}
+
+/// The optima a Monte Carlo of `config`'s draws needs (its `evaluate.optimality_gap_cases`),
+/// taken from `earlier` when it solved them for the same draws, else solved.
+pub fn optima_from(config: &ExperimentConfig, earlier: &MonteCarloReport) -> Result<Optima, ExperimentError> {
+    let wanted = config.evaluate.optimality_gap_cases.min(config.evaluate.episodes) as usize;
+    let same_draws = earlier.optima_key.as_deref() == Some(optima_key(config)?.as_str());
+    Ok(if same_draws && earlier.gap.len() >= wanted {
+        Optima::Reused(earlier.gap.iter().take(wanted).map(Optimum::from).collect())
+    } else {
+        Optima::Solve(None)
+    })
+}
+
 /// One scenario's indirect optimum next to what the policy flew.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct GapRow {
@@ -100,6 +209,10 @@ pub struct MonteCarloReport {
     /// The goal's share by eccentricity (eccentric distributions only).
     #[serde(default)]
     pub accuracy_by_eccentricity: Vec<EccentricityBand>,
+    /// [`optima_key`] of the draws, when the gap has rows: what lets a later Monte Carlo of
+    /// the same draws reuse its optima ([`reused_optima`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optima_key: Option<String>,
 }
 
 /// The goal's share on the scenarios with an indirect optimum.
@@ -270,9 +383,9 @@ pub fn monte_carlo(
     checkpoint: &Path,
     out: &Path,
     episodes: Option<u64>,
-    gap_cases: Option<u64>,
+    optima: Optima,
 ) -> Result<MonteCarloReport, ExperimentError> {
-    with_flown_problem!(config, P => monte_carlo_for::<P>(config, checkpoint, out, episodes, gap_cases))
+    with_flown_problem!(config, P => monte_carlo_for::<P>(config, checkpoint, out, episodes, optima))
 }
 
 /// Loads the flown actor of a checkpoint for the config's problem: a learner checkpoint (a
@@ -319,7 +432,7 @@ fn monte_carlo_for<P: Problem>(
     checkpoint: &Path,
     out: &Path,
     episodes: Option<u64>,
-    gap_cases: Option<u64>,
+    optima: Optima,
 ) -> Result<MonteCarloReport, ExperimentError> {
     let start = Instant::now();
     let n = episodes.unwrap_or(config.evaluate.episodes);
@@ -345,7 +458,7 @@ fn monte_carlo_for<P: Problem>(
         policy: &policy,
         plotted: &plotted,
     };
-    report_and_write::<P>(config, checkpoint, &flown, out, gap_cases, start)
+    report_and_write::<P>(config, checkpoint, &flown, out, optima, start)
 }
 
 /// A policy's Monte Carlo flights, however flown: the scenarios, one outcome per scenario, and
@@ -367,7 +480,7 @@ pub fn report_and_write<P: Problem>(
     source: &Path,
     flown: &Flown<P::Geometry>,
     out: &Path,
-    gap_cases: Option<u64>,
+    optima: Optima,
     start: Instant,
 ) -> Result<MonteCarloReport, ExperimentError> {
     let Flown {
@@ -395,8 +508,29 @@ pub fn report_and_write<P: Problem>(
         false,
     )?;
 
-    let k = gap_cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
-    let gap = optimality_gap(config, k, policy)?;
+    let gap = match optima {
+        Optima::Solve(cases) => {
+            let k = cases.unwrap_or(config.evaluate.optimality_gap_cases).min(n) as usize;
+            optimality_gap(config, k, policy)?
+        }
+        Optima::Reused(optima) => optima
+            .iter()
+            .filter_map(|optimum| {
+                Some(gap_row(
+                    optimum.episode,
+                    policy.get(optimum.episode)?,
+                    optimum.mass,
+                    optimum.converged,
+                    optimum.eps,
+                ))
+            })
+            .collect(),
+    };
+    let optima_key = if gap.is_empty() {
+        None
+    } else {
+        Some(optima_key(config)?)
+    };
     let within = within_accuracy_goal(policy);
     let usable: Vec<&GapRow> = gap
         .iter()
@@ -422,6 +556,7 @@ pub fn report_and_write<P: Problem>(
         accuracy_by_eccentricity: accuracy_by_eccentricity(scenarios, policy, &gap),
         accuracy_by_coast_miss: accuracy_by_coast_miss(policy, &zero, 5),
         gap,
+        optima_key,
     };
     write_outputs(out, &report, policy, &zero, &random, scenarios, plotted)?;
     Ok(report)
@@ -452,22 +587,27 @@ fn optimality_gap<G: Geometry>(
             let record = family.solve(config.seeds.monte_carlo, i as u64, &spacecraft, &options);
             let figures = record.figures();
             bar.inc(1);
-            let optimal = figures.final_mass;
-            GapRow {
-                episode: i,
-                policy_mass: flown.final_mass,
-                optimal_mass: optimal,
-                optimal_converged: figures.converged,
-                optimal_eps: figures.final_eps,
-                mass_ratio: flown.final_mass / optimal,
-                overspend: (1.0 - flown.final_mass) / (1.0 - optimal) - 1.0,
-                policy_dr: flown.terminal.position,
-                policy_dv: flown.terminal.velocity,
-            }
+            gap_row(i, flown, figures.final_mass, figures.converged, figures.final_eps)
         })
         .collect();
     bar.finish_and_clear();
     Ok(rows)
+}
+
+/// Episode `episode`'s row of the gap: what `flown` arrived with against the optimum's final
+/// mass `optimal`.
+fn gap_row<G: Geometry>(episode: usize, flown: &EpisodeOutcome<G>, optimal: f64, converged: bool, eps: f64) -> GapRow {
+    GapRow {
+        episode,
+        policy_mass: flown.final_mass,
+        optimal_mass: optimal,
+        optimal_converged: converged,
+        optimal_eps: eps,
+        mass_ratio: flown.final_mass / optimal,
+        overspend: (1.0 - flown.final_mass) / (1.0 - optimal) - 1.0,
+        policy_dr: flown.terminal.position,
+        policy_dv: flown.terminal.velocity,
+    }
 }
 
 fn write_outputs<G: Geometry>(
@@ -715,6 +855,48 @@ mod tests {
             non_finite_actions: 0,
             trajectory: None,
         }
+    }
+
+    /// An unsolved draw's NaN optimum is written as null and read back as NaN; the rows come
+    /// back as the Monte Carlo wrote them.
+    #[test]
+    fn optima_written_by_a_monte_carlo_are_read_back_including_unsolved_draws() {
+        let config = ExperimentConfig::from_toml("scenario = \"transfer-hard\"\n").unwrap();
+        let flown = [outcome(0, 0.001, 0.7), outcome(1, 0.3, 0.9)];
+        let rows = [
+            super::gap_row(0, &flown[0], 0.72, true, 6.1e-5),
+            super::gap_row(1, &flown[1], f64::NAN, false, 0.25),
+        ];
+        let dir = std::env::temp_dir().join(format!("lowthrust-optima-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let summary = serde_json::json!({ "optima_key": optima_key(&config).unwrap(), "gap": rows });
+        std::fs::write(dir.join("summary.json"), serde_json::to_vec(&summary).unwrap()).unwrap();
+        let Optima::Reused(optima) = reused_optima(&config, &dir).unwrap() else {
+            panic!("not reused");
+        };
+        assert_eq!(optima.len(), 2);
+        assert_eq!(
+            (optima[0].episode, optima[0].mass, optima[0].converged),
+            (0, 0.72, true)
+        );
+        assert!(optima[1].mass.is_nan() && !optima[1].converged && optima[1].eps == 0.25);
+        // The gap rows rebuilt from them against the same flights are the rows written.
+        let again: Vec<GapRow> = optima
+            .iter()
+            .map(|o| super::gap_row(o.episode, &flown[o.episode], o.mass, o.converged, o.eps))
+            .collect();
+        assert_eq!(format!("{again:?}"), format!("{rows:?}"));
+        // Another spacecraft poses other optima.
+        let other = ExperimentConfig::from_toml(
+            "scenario = \"transfer-hard\"\n[env.spacecraft]\nmax_thrust_n = 2.5\nisp_s = 3872.0\ninitial_mass_kg = 3366.0",
+        )
+        .unwrap();
+        assert_ne!(optima_key(&other).unwrap(), optima_key(&config).unwrap());
+        assert!(reused_optima(&other, &dir)
+            .unwrap_err()
+            .to_string()
+            .contains("other draws"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -321,7 +321,8 @@ fn fly_aided(
     blob: &Path,
     run: &Path,
 ) -> Result<(Option<LookaheadFigures>, Option<FlownFigures>), ModelError> {
-    let aided = crate::sil::aided_monte_carlo(config, blob, run).map_err(|e| ModelError::Experiment(Box::new(e)))?;
+    let aided = crate::sil::aided_monte_carlo(config, blob, run, crate::eval::Optima::Solve(None))
+        .map_err(|e| ModelError::Experiment(Box::new(e)))?;
     Ok(aided_figures(aided.as_ref()))
 }
 

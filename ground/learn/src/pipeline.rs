@@ -13,7 +13,7 @@ use crate::config::ExperimentConfig;
 use crate::dagger::{dagger, DaggerSummary};
 use crate::dataset::demonstrations;
 use crate::error::ExperimentError;
-use crate::eval::{monte_carlo, MonteCarloReport};
+use crate::eval::{monte_carlo, MonteCarloReport, Optima};
 use crate::export::ExportReport;
 use crate::finetune::{finetune, FinetuneSummary};
 use crate::model::{current_commit, ModelCard};
@@ -183,7 +183,7 @@ pub fn run_main_job(config: &ExperimentConfig, run: &Path) -> Result<MainJob, Ex
     // 7. Monte Carlo of the best model.
     let t = Instant::now();
     next(format!("Monte Carlo: {} episodes", flown.evaluate.episodes));
-    let mc = monte_carlo(&flown, &best, &run.join("mc"), None, None)?;
+    let mc = monte_carlo(&flown, &best, &run.join("mc"), None, Optima::Solve(None))?;
     stage_seconds.push(("Monte Carlo".into(), t.elapsed().as_secs_f64()));
 
     // 8. Onboard blobs, flown in the SIL loop against the dispersed plant.

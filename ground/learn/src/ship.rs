@@ -6,7 +6,7 @@ use std::path::Path;
 
 use crate::config::ExperimentConfig;
 use crate::error::ExperimentError;
-use crate::eval::{monte_carlo, MonteCarloReport};
+use crate::eval::{monte_carlo, optima_from, MonteCarloReport, Optima};
 use crate::export::{export, ExportReport};
 use crate::model::{current_commit, write_model, ModelCard, ModelSources};
 use crate::sil::{aided_monte_carlo, sil_of_blobs, SilReport};
@@ -43,7 +43,8 @@ pub(crate) fn export_and_ship(
     } = *lineage;
     let export = export(config, config_dir, checkpoint, &run.join("export"))?;
     let sil = sil_of_blobs(config, &export.f32.file, &export.int8.file, run)?;
-    let aided = aided_monte_carlo(config, &export.f32.file, run)?;
+    // The nominal draws of the checkpoint's Monte Carlo: its optima serve the aided one.
+    let aided = aided_monte_carlo(config, &export.f32.file, run, optima_from(config, mc)?)?;
     let model = write_model(
         &run.join("model"),
         &ModelSources {
@@ -98,7 +99,7 @@ pub fn ship(
     let bytes = std::fs::read(&summary_path).map_err(|e| ExperimentError::Io(summary_path.clone(), e))?;
     let dataset: Summary = serde_json::from_slice(&bytes)
         .map_err(|e| ExperimentError::Mismatch(format!("{} does not parse: {e}", summary_path.display())))?;
-    let monte_carlo = monte_carlo(config, checkpoint, &run.join("mc"), None, None)?;
+    let monte_carlo = monte_carlo(config, checkpoint, &run.join("mc"), None, Optima::Solve(None))?;
     let lineage = Lineage {
         commit: &commit,
         dataset: &dataset,

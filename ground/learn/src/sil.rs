@@ -22,7 +22,7 @@ use shared::scenario::{Scenario, SpatialScenario};
 
 use crate::config::{ConfigError, ExperimentConfig};
 use crate::error::ExperimentError;
-use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, Flown, MonteCarloReport};
+use crate::eval::{gap_line, report_and_write, solved_line, within_accuracy_goal, Flown, MonteCarloReport, Optima};
 use crate::export::actor_network;
 use crate::sac::agent::Sac;
 use ground_core::demo::DemoGeometry;
@@ -485,16 +485,16 @@ fn fly_blob_as<const N: usize, P: PlanarProblem<N> + Sync>(
 }
 
 /// `ground model sil`: the SIL Monte Carlo of `blob_path`, written to `out` (the evaluation's files
-/// plus sil.json), with the optimality gap on the first `gap_cases` scenarios (0: none).
+/// plus sil.json), with the optimality gap where `optima` says.
 pub fn sil_monte_carlo(
     config: &ExperimentConfig,
     blob_path: &Path,
     out: &Path,
     episodes: Option<u64>,
     dispersions: &Dispersions,
-    gap_cases: u64,
+    optima: Optima,
 ) -> Result<SilReport, ExperimentError> {
-    crate::with_flown_problem!(config, P => sil_monte_carlo_for::<P>(config, blob_path, out, episodes, dispersions, gap_cases))
+    crate::with_flown_problem!(config, P => sil_monte_carlo_for::<P>(config, blob_path, out, episodes, dispersions, optima))
 }
 
 fn sil_monte_carlo_for<P: ground_core::env::Problem>(
@@ -503,7 +503,7 @@ fn sil_monte_carlo_for<P: ground_core::env::Problem>(
     out: &Path,
     episodes: Option<u64>,
     dispersions: &Dispersions,
-    gap_cases: u64,
+    optima: Optima,
 ) -> Result<SilReport, ExperimentError>
 where
     P::Geometry: SilGeometry,
@@ -549,7 +549,7 @@ where
         policy: &outcomes,
         plotted: &plotted,
     };
-    let monte_carlo = report_and_write::<P>(config, blob_path, &flown, out, Some(gap_cases), start)?;
+    let monte_carlo = report_and_write::<P>(config, blob_path, &flown, out, optima, start)?;
     let report = SilReport {
         blob: blob_path.to_path_buf(),
         controller,
@@ -583,8 +583,16 @@ pub fn sil_of_blobs(
     run: &Path,
 ) -> Result<[SilReport; 2], ExperimentError> {
     let [f32_folder, int8_folder] = SIL_FOLDERS;
-    let fly =
-        |blob: &Path, folder: &str| sil_monte_carlo(config, blob, &run.join(folder), None, &config.sil.dispersions, 0);
+    let fly = |blob: &Path, folder: &str| {
+        sil_monte_carlo(
+            config,
+            blob,
+            &run.join(folder),
+            None,
+            &config.sil.dispersions,
+            Optima::NONE,
+        )
+    };
     Ok([fly(f32_blob, f32_folder)?, fly(int8_blob, int8_folder)?])
 }
 
@@ -594,11 +602,13 @@ pub const AIDED_FOLDER: &str = "mc-aided";
 /// When the config flies an onboard aid (`[sil] lookahead` or `[sil] terminal`): the nominal
 /// Monte Carlo of `blob` flown with it (the config's `[evaluate]` episodes and optimality-gap
 /// cases, no dispersions) in `run`'s [`AIDED_FOLDER`], for the model card: the controller as it
-/// flies, where the card's Monte Carlo is the network alone. None otherwise.
+/// flies, where the card's Monte Carlo is the network alone. None otherwise. The optima come
+/// from `optima` (the network's Monte Carlo of the same draws has them: [`Optima::Reused`]).
 pub fn aided_monte_carlo(
     config: &ExperimentConfig,
     blob: &Path,
     run: &Path,
+    optima: Optima,
 ) -> Result<Option<SilReport>, ExperimentError> {
     if config.sil.lookahead.is_none() && config.sil.terminal.is_none() {
         return Ok(None);
@@ -609,7 +619,7 @@ pub fn aided_monte_carlo(
         &run.join(AIDED_FOLDER),
         Some(config.evaluate.episodes),
         &Dispersions::NONE,
-        config.evaluate.optimality_gap_cases,
+        optima,
     )
     .map(Some)
 }

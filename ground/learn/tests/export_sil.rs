@@ -7,6 +7,7 @@ use firmware_sim::Dispersions;
 use ground_core::env::batch::{draw_scenarios, evaluate, EpisodeOutcome};
 use ground_core::env::{MdpEnv, Planar, Rendezvous, Transfer};
 use learn::config::ExperimentConfig;
+use learn::eval::{reused_optima, Optima};
 use learn::export::{export, OnboardPolicy};
 use learn::sac::agent::Sac;
 use learn::sil::{fly_blob, sil_monte_carlo, SilFlights};
@@ -153,7 +154,15 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
 
     // The SIL Monte Carlo writes the evaluation's files, and a refused blob flies thrust off.
     let sil_dir = dir.join("sil");
-    let sil = sil_monte_carlo(&config, &report.int8.file, &sil_dir, None, &config.sil.dispersions, 0).unwrap();
+    let sil = sil_monte_carlo(
+        &config,
+        &report.int8.file,
+        &sil_dir,
+        None,
+        &config.sil.dispersions,
+        Optima::NONE,
+    )
+    .unwrap();
     assert_eq!((sil.flights, sil.controller.as_str()), (12, "int8"));
     for file in [
         "sil.json",
@@ -164,11 +173,65 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
     ] {
         assert!(sil_dir.join(file).is_file(), "sil/{file} missing");
     }
+
+    // A draw's optimum does not depend on what flies it: the optima solved under the f32 blob's
+    // nominal flights serve the int8 blob's dispersed ones on the same draws, row for row what
+    // solving them again gives; optima of other draws, or none, are refused.
+    let solved_dir = dir.join("gap-solved");
+    let solved = sil_monte_carlo(
+        &config,
+        &report.f32.file,
+        &solved_dir,
+        Some(4),
+        &Dispersions::NONE,
+        Optima::Solve(Some(3)),
+    )
+    .unwrap();
+    assert_eq!(solved.monte_carlo.gap.len(), 3);
+    assert!(solved.monte_carlo.gap.iter().all(|row| row.optimal_converged));
+    let fly_int8 = |folder: &str, optima: Optima| {
+        sil_monte_carlo(
+            &config,
+            &report.int8.file,
+            &dir.join(folder),
+            Some(4),
+            &config.sil.dispersions,
+            optima,
+        )
+        .unwrap()
+        .monte_carlo
+    };
+    let reused = fly_int8("gap-reused", reused_optima(&config, &solved_dir).unwrap());
+    let fresh = fly_int8("gap-fresh", Optima::Solve(Some(3)));
+    assert_eq!(format!("{:?}", reused.gap), format!("{:?}", fresh.gap));
+    assert_eq!(reused.where_solved, fresh.where_solved);
+    assert_eq!(reused.overspend, fresh.overspend);
+    assert_eq!(reused.optima_key, solved.monte_carlo.optima_key);
+    // The rows are the int8 flights' (dispersed), against the f32 flights' optima.
+    for (row, before) in reused.gap.iter().zip(&solved.monte_carlo.gap) {
+        assert_eq!(row.optimal_mass.to_bits(), before.optimal_mass.to_bits());
+        assert_ne!(row.policy_mass.to_bits(), before.policy_mass.to_bits());
+    }
+    let mut other_draws = config.clone();
+    other_draws.seeds.monte_carlo += 1;
+    let refused = reused_optima(&other_draws, &solved_dir).unwrap_err().to_string();
+    assert!(refused.contains("other draws"), "{refused}");
+    let refused = reused_optima(&config, &sil_dir).unwrap_err().to_string();
+    assert!(refused.contains("holds no optima"), "{refused}");
+
     let mut altered = int8_bytes.clone();
     altered[int8_bytes.len() / 2] ^= 0x10;
     let bad = dir.join("altered.blob");
     std::fs::write(&bad, &altered).unwrap();
-    let refused = sil_monte_carlo(&config, &bad, &dir.join("sil-bad"), None, &config.sil.dispersions, 0).unwrap();
+    let refused = sil_monte_carlo(
+        &config,
+        &bad,
+        &dir.join("sil-bad"),
+        None,
+        &config.sil.dispersions,
+        Optima::NONE,
+    )
+    .unwrap();
     assert!(refused.controller.starts_with("safe mode"), "{}", refused.controller);
     assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
     // With lookahead: a good blob arrives no worse than alone on each nominal flight (the rollout
@@ -214,7 +277,7 @@ fn exported_blobs_fly_the_trained_actor_and_sil_reproduces_the_environment() {
         &dir.join("sil-bad-lookahead"),
         None,
         &Dispersions::TYPICAL,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert_eq!(refused.monte_carlo.policy.final_mass.min, 1.0);
@@ -302,7 +365,7 @@ threads = 1
         &dir.join("sil"),
         None,
         &config.sil.dispersions,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert_eq!((sil.flights, sil.controller.as_str()), (8, "int8"));
@@ -327,7 +390,7 @@ threads = 1
         &dir.join("sil-bad"),
         None,
         &config.sil.dispersions,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert!(refused.controller.contains("Transfer"), "{}", refused.controller);

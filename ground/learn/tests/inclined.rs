@@ -19,6 +19,7 @@ use ground_core::solver::SolveOptions;
 use learn::cloning::CloningTarget;
 use learn::config::ExperimentConfig;
 use learn::error::ExperimentError;
+use learn::eval::Optima;
 use learn::export::OnboardPolicy;
 use learn::rl::{train, Start};
 use learn::sac::agent::Sac;
@@ -120,7 +121,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     // The Monte Carlo: every episode flown in 3D, the zero-thrust baseline keeps its mass and
     // misses, the optimality gap's optimum solved in 3D.
     let out = dir.join("mc");
-    let report = learn::eval::monte_carlo(&config, &best, &out, None, None).unwrap();
+    let report = learn::eval::monte_carlo(&config, &best, &out, None, Optima::Solve(None)).unwrap();
     assert_eq!((report.episodes, report.policy.completed), (6, 6));
     let zero = &report.zero_thrust;
     assert!(zero.final_mass.min == 1.0 && zero.final_mass.max == 1.0, "{zero:?}");
@@ -261,7 +262,8 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
     ] {
         assert_eq!(learn::sil::blob_refusal(&wide, file).unwrap(), None);
         let nominal =
-            learn::sil::sil_monte_carlo(&wide, file, &dir.join("sil"), Some(6), &Dispersions::NONE, 0).unwrap();
+            learn::sil::sil_monte_carlo(&wide, file, &dir.join("sil"), Some(6), &Dispersions::NONE, Optima::NONE)
+                .unwrap();
         assert_eq!((nominal.flights, nominal.guidance_faults), (6, 0));
         let flown = &nominal.monte_carlo.policy;
         assert_eq!(flown.completed, 6);
@@ -270,8 +272,15 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
                 <= 1e-12 * closed_loop.total_reward.mean.abs()
         );
         assert_eq!(flown.terminal_position.p50, closed_loop.terminal_position.p50);
-        let dispersed =
-            learn::sil::sil_monte_carlo(&wide, file, &dir.join("sil"), Some(6), &Dispersions::TYPICAL, 0).unwrap();
+        let dispersed = learn::sil::sil_monte_carlo(
+            &wide,
+            file,
+            &dir.join("sil"),
+            Some(6),
+            &Dispersions::TYPICAL,
+            Optima::NONE,
+        )
+        .unwrap();
         assert_eq!(dispersed.monte_carlo.policy.completed, 6);
         assert_ne!(
             dispersed.monte_carlo.policy.terminal_position.p50,
@@ -302,7 +311,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
             &dir.join(name),
             Some(6),
             &Dispersions::NONE,
-            0,
+            Optima::NONE,
         )
         .unwrap()
     };
@@ -321,7 +330,7 @@ fn an_inclined_family_pretrains_trains_and_is_evaluated_in_three_dimensions() {
         &dir.join("aided"),
         Some(2),
         &Dispersions::NONE,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert!(looked.lookahead.is_some() && looked.terminal.is_some());

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use common::{scratch_dir, toy_config, toy_dataset};
 use learn::config::{ExperimentConfig, FinetuneConfig};
 use learn::error::ExperimentError;
-use learn::eval::monte_carlo;
+use learn::eval::{monte_carlo, Optima};
 use learn::phase::PhaseState;
 use learn::pretrain::pretrain;
 use learn::rl::{train, Start};
@@ -107,7 +107,7 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
 
     // Monte Carlo: every episode completes, baselines on the same scenarios, files written.
     let mc_dir = run.join("mc");
-    let report = monte_carlo(&config, &best, &mc_dir, None, None).unwrap();
+    let report = monte_carlo(&config, &best, &mc_dir, None, Optima::Solve(None)).unwrap();
     assert_eq!(report.episodes, 16);
     assert_eq!(report.policy.completed, 16);
     assert_eq!(report.zero_thrust.completed, 16);
@@ -125,7 +125,13 @@ fn pretrain_train_resume_and_evaluate_at_toy_scale() {
     // it where it is used, both named.
     let mut transfer_hard = config.clone();
     transfer_hard.family = shared::mission::SpatialFamily::planar(ScenarioKind::TransferHard.family());
-    match monte_carlo(&transfer_hard, &best, &dir.join("mc-other"), Some(2), Some(0)) {
+    match monte_carlo(
+        &transfer_hard,
+        &best,
+        &dir.join("mc-other"),
+        Some(2),
+        Optima::Solve(Some(0)),
+    ) {
         Err(e) => {
             let why = e.to_string();
             assert!(
@@ -277,7 +283,14 @@ fn main_job_writes_a_report_whose_links_resolve() {
         "card date {}",
         model.card.created
     );
-    let from_actor = monte_carlo(&config, &model.actor(), &dir.join("mc-actor"), None, Some(0)).unwrap();
+    let from_actor = monte_carlo(
+        &config,
+        &model.actor(),
+        &dir.join("mc-actor"),
+        None,
+        Optima::Solve(Some(0)),
+    )
+    .unwrap();
     assert_eq!(from_actor.policy, job.monte_carlo.policy);
     assert_eq!(
         model.card.monte_carlo.share_within(0.01),
@@ -396,7 +409,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
         &dir.join("terminal-again"),
         None,
         &reopened.config.sil.dispersions,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert_eq!(reopened.card.sil[0].1.within, again.monte_carlo.within_tolerances);
@@ -413,7 +426,7 @@ fn main_job_writes_a_report_whose_links_resolve() {
         &dir.join("terminal-nominal"),
         Some(reopened.config.evaluate.episodes),
         &firmware_sim::Dispersions::NONE,
-        0,
+        Optima::NONE,
     )
     .unwrap();
     assert_eq!(flown.monte_carlo.within, nominal.monte_carlo.within_tolerances);
