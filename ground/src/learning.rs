@@ -210,8 +210,9 @@ pub enum ModelCommand {
         /// Fly without dispersions (reproduces the ground evaluation of the blob exactly).
         #[arg(long)]
         no_dispersions: bool,
-        /// Fly the blob with rollout lookahead (onboard::lookahead): the config's
-        /// [sil] lookahead settings, or the defaults.
+        /// Fly the blob with rollout lookahead (onboard::lookahead) at its default settings
+        /// when the config has no [sil] lookahead (a config's lookahead flies with or without
+        /// this flag).
         #[arg(long)]
         lookahead: bool,
         /// With lookahead: the fraction of the thrust its rollouts plan without, in [0, 1)
