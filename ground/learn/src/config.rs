@@ -399,10 +399,22 @@ pub struct FinetuneConfig {
     /// network seeing the navigation state, instead of the nominal environment.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub dispersed: bool,
+    /// Cycles before the arrival at which the flights' miss is also counted, in the steps'
+    /// objective and in the evaluations that pick the best (0: at the arrival only): the
+    /// network learns to meet its target early and follow it, keeping the last cycles in
+    /// reserve against thrust lost late. A flight of no more cycles than the margin is judged
+    /// at its arrival only.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub arrival_margin: u32,
     /// The phase after this one, from its best actor (`RUN/finetune/then`); its best actor is
     /// then what the run ships.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub then: Option<Box<FinetuneConfig>>,
+}
+
+/// For `skip_serializing_if`: a zero count is the default and left out of written configs.
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 /// A count that must be at least 1, refused with its key named.
@@ -466,6 +478,7 @@ impl Default for FinetuneConfig {
             eval_every: 25,
             eval_episodes: 500,
             dispersed: false,
+            arrival_margin: 0,
             then: None,
         }
     }

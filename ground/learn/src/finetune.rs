@@ -49,8 +49,8 @@ use crate::sil::{flight_setup, learner_blob, SilFlights, SilGeometry};
 use firmware_sim::{plant_cycle, DispersedPlant, FlightGeometry};
 use ground_core::charts::{line_chart, Series};
 use ground_core::demo::DemoGeometry;
-use ground_core::env::batch::{evaluate_batched, summarize, OutcomeSummary};
-use ground_core::env::{ActionOf, Dimension, Environment, Geometry, MdpEnv, Problem, ScenarioOf};
+use ground_core::env::batch::{evaluate_batched, summarize, EpisodeOutcome, OutcomeSummary};
+use ground_core::env::{ActionOf, Dimension, Environment, Geometry, MdpEnv, Problem, ScenarioOf, StateOf};
 use onboard::features::Residuals;
 use shared::spacecraft::CanonicalSpacecraft;
 
@@ -72,6 +72,10 @@ pub struct Objective {
     pub velocity_goal: f64,
     /// Units per thousandth of the initial mass burned.
     pub propellant_weight: f64,
+    /// Cycles before the arrival at which the miss counts too (0: only at the arrival): a
+    /// flight that meets its target early and follows it keeps the last cycles in reserve.
+    #[serde(default)]
+    pub arrival_margin: u32,
 }
 
 impl Objective {
@@ -95,6 +99,8 @@ struct Linearised {
     c: Vec<Vec<f64>>,
     /// dJ/ds_N.
     terminal: Vec<f64>,
+    /// With an arrival margin: the cycle e it is judged at and the miss term's dJ/ds_e.
+    early: Option<(usize, Vec<f64>)>,
     /// J of the flight.
     value: f64,
 }
@@ -138,6 +144,22 @@ where
     let s = P::Geometry::state_from_numbers(state)?;
     let features = P::features(scenario, &s, n).ok()?;
     Some(objective.value(&P::residuals(&features), P::Geometry::mass(&s)))
+}
+
+/// The arrival margin's term of the objective: the miss of `state`, `e` cycles into the flight,
+/// against the target there (the propellant not counted again).
+fn early_miss<P: Problem>(
+    scenario: &ScenarioOf<P::Geometry>,
+    state: &StateOf<P::Geometry>,
+    e: u32,
+    objective: &Objective,
+) -> Option<f64> {
+    let features = P::features(scenario, state, e).ok()?;
+    let miss_only = Objective {
+        propellant_weight: 0.0,
+        ..*objective
+    };
+    Some(miss_only.value(&P::residuals(&features), 1.0))
 }
 
 /// Central differences of `f` at `x` with step `h`: column j of the result is df/dx_j, laid out
@@ -195,8 +217,19 @@ where
         b: Vec::with_capacity(n),
         c: Vec::with_capacity(n),
         terminal: Vec::new(),
+        early: None,
         value: terminal_value::<P>(scenario, &states[n], n as u32, objective)?,
     };
+    let margin = objective.arrival_margin as usize;
+    if margin > 0 && n > margin {
+        let e = n - margin;
+        let term = |x: &[f64]| {
+            let s = P::Geometry::state_from_numbers(x)?;
+            Some(vec![early_miss::<P>(scenario, &s, e as u32, objective)?])
+        };
+        lin.value += term(&states[e])?[0];
+        lin.early = Some((e, jacobian(&states[e], STATE_STEP, 1, term)?));
+    }
     for (k, action) in actions.iter().enumerate() {
         let step = k as u32;
         // What the network saw at this step, as the environment forms it from the state seen.
@@ -508,6 +541,12 @@ where
                 })
                 .collect();
             lambda[i] = next;
+            // The margin's miss adds to the adjoint of the state it is judged at.
+            if let Some((e, g)) = &f.early {
+                if *e == k {
+                    lambda[i].iter_mut().zip(g).for_each(|(l, g)| *l += g / count);
+                }
+            }
         }
     }
     let obs: Vec<f32> = flights.iter().flat_map(|f| f.obs.iter().flatten().copied()).collect();
@@ -556,6 +595,7 @@ impl Objective {
             position_goal: ACCURACY_GOAL,
             velocity_goal: ACCURACY_GOAL,
             propellant_weight: config.finetune.propellant_weight,
+            arrival_margin: config.finetune.arrival_margin,
         }
     }
 }
@@ -721,23 +761,40 @@ where
     let evaluation: Vec<ScenarioOf<P::Geometry>> = (0..settings.eval_episodes)
         .map(|i| P::Geometry::draw(&family, phase.seeds.evaluation, i))
         .collect();
+    // With an arrival margin the evaluation judges what the steps minimise: the miss at the
+    // margin's cycle too, read off the flights' states there.
+    let margin = objective.arrival_margin;
+    let judged = |o: &EpisodeOutcome<P::Geometry>| {
+        let early = (margin > 0)
+            .then(|| {
+                let scenario = &evaluation[o.episode];
+                let e = P::Geometry::plan(scenario)
+                    .steps
+                    .checked_sub(margin)
+                    .filter(|&e| e > 0)?;
+                let point = o.trajectory.as_ref()?.get(e as usize)?;
+                early_miss::<P>(scenario, &point.state, e, &objective)
+            })
+            .flatten()
+            .unwrap_or(0.0);
+        early + objective.value(&o.terminal, o.final_mass)
+    };
     let evaluate = |agent: &Sac, step: u64, batch_objective: f64, seconds: f64| {
         // Dispersed fine-tuning is judged as the SIL flies the network alone, dispersed.
         let outcomes = if settings.dispersed {
-            let flights = SilFlights::network_alone(&phase.sil.dispersions, phase.seeds.evaluation);
+            let flights = SilFlights {
+                record: if margin > 0 { evaluation.len() } else { 0 },
+                ..SilFlights::network_alone(&phase.sil.dispersions, phase.seeds.evaluation)
+            };
             P::Geometry::fly_learner(phase, agent, &evaluation, &flights)?
         } else {
-            evaluate_batched::<MdpEnv<P>, _>(&phase.env, &evaluation, |o| policy_batch(agent, o), false)?
+            evaluate_batched::<MdpEnv<P>, _>(&phase.env, &evaluation, |o| policy_batch(agent, o), margin > 0)?
         };
         let n = outcomes.len().max(1) as f64;
         Ok::<_, ExperimentError>(FinetuneRow {
             step,
             batch_objective,
-            objective: outcomes
-                .iter()
-                .map(|o| objective.value(&o.terminal, o.final_mass))
-                .sum::<f64>()
-                / n,
+            objective: outcomes.iter().map(judged).sum::<f64>() / n,
             within_goal: outcomes.iter().filter(|o| meets(o, ACCURACY_GOAL)).count() as f64 / n,
             summary: summarize(&outcomes),
             seconds,
@@ -883,6 +940,13 @@ mod tests {
     ) -> f64 {
         let mut env = MdpEnv::<Transfer>::new(&config.env).unwrap();
         let mut obs = env.reset(scenario).unwrap();
+        let steps = Planar::plan(scenario).steps as usize;
+        let early = steps - objective.arrival_margin as usize;
+        let only_miss = Objective {
+            propellant_weight: 0.0,
+            ..*objective
+        };
+        let mut value = 0.0;
         let mut step = 0;
         loop {
             let mut action = agent.act(obs.as_ref(), 1);
@@ -891,8 +955,13 @@ mod tests {
             }
             let s = env.step_slice(&action).unwrap();
             step += 1;
+            if step == early && objective.arrival_margin > 0 {
+                let state = s.info.state;
+                let features = Transfer::features(scenario, &state, step as u32).unwrap();
+                value += only_miss.value(&Transfer::residuals(&features), 1.0);
+            }
             if s.done {
-                return objective.value(&s.info.residuals, s.info.mass);
+                return value + objective.value(&s.info.residuals, s.info.mass);
             }
             obs = s.observation;
         }
@@ -904,6 +973,13 @@ mod tests {
     /// against central differences of whole flights.
     #[test]
     fn action_gradients_equal_central_differences_of_the_closed_loop() {
+        // At the arrival only, and with the miss also counted two cycles before it.
+        for arrival_margin in [0, 2] {
+            gradients_match_differences(arrival_margin);
+        }
+    }
+
+    fn gradients_match_differences(arrival_margin: u32) {
         let mut config = ExperimentConfig::from_toml(EMBEDDED_DEFAULT).unwrap();
         config.sac.hidden = vec![32, 32];
         tch::manual_seed(5);
@@ -914,6 +990,7 @@ mod tests {
             position_goal: 0.01,
             velocity_goal: 0.01,
             propellant_weight: 0.03,
+            arrival_margin,
         };
         let (_, g, report) =
             action_gradients::<Transfer>(&config, &agent, &scenarios, Plant::Nominal, &objective).unwrap();
@@ -979,6 +1056,7 @@ mod tests {
             position_goal: 0.01,
             velocity_goal: 0.01,
             propellant_weight: 0.03,
+            arrival_margin: 0,
         };
         let seed = 77;
         let setup = flight_setup(&config, &config.sil.dispersions).unwrap();

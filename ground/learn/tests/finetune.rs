@@ -11,9 +11,13 @@ mod common;
 use std::path::Path;
 
 use common::{scratch_dir, toy_config};
+use ground_core::env::batch::evaluate_batched;
+use ground_core::env::{MdpEnv, Problem, Transfer};
 use learn::config::{ExperimentConfig, FinetuneConfig};
 use learn::eval::load_agent;
+use learn::finetune::Objective;
 use learn::finetune::{finetune, FinetuneRow};
+use learn::phase::policy_batch;
 use learn::sac::agent::Sac;
 
 fn bytes(path: &Path) -> Vec<u8> {
@@ -35,6 +39,7 @@ fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
         lowers_and_resumes(dispersed);
     }
     chained_phases_are_the_hand_run_chain();
+    an_arrival_margin_counts_the_early_miss_in_the_evaluations();
 }
 
 /// A toy config fine-tuning `steps` steps (flights on the SIL's dispersed plant when
@@ -239,6 +244,54 @@ fn chained_phases_are_the_hand_run_chain() {
     assert_eq!(
         load_agent(&averaging, 10, &step).unwrap().act(&obs, 1),
         load_agent(&plain, 10, &step).unwrap().act(&obs, 1)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// With `arrival_margin = 2` the evaluations that pick the best judge what the steps minimise:
+/// their objective exceeds the margin-free one, on the same flights of the same actor, by the
+/// mean miss two cycles before the arrival, recomputed here from the flights' own states.
+fn an_arrival_margin_counts_the_early_miss_in_the_evaluations() {
+    let dir = scratch_dir("finetune-margin");
+    let (mut config, _) = toy_finetuning(&dir, 4, false);
+    let start = from_a_controller_that_arrives(&mut config);
+    let start_objective = |margin: u32| {
+        let mut phase = config.clone();
+        phase.finetune.arrival_margin = margin;
+        let summary = finetune(&phase, &dir.join(format!("margin-{margin}")), &start)
+            .unwrap()
+            .remove(0);
+        assert_eq!(summary.rows[0].step, 0);
+        summary.rows[0].objective
+    };
+    let (on_time, early) = (start_objective(0), start_objective(2));
+
+    let family = config.planar_family("the test").unwrap();
+    let scenarios: Vec<_> = (0..config.finetune.eval_episodes)
+        .map(|i| family.draw(config.seeds.evaluation, i))
+        .collect();
+    let agent = load_agent(&config, 10, &start).unwrap();
+    let flown =
+        evaluate_batched::<MdpEnv<Transfer>, _>(&config.env, &scenarios, |o| policy_batch(&agent, o), true).unwrap();
+    let miss_only = Objective {
+        propellant_weight: 0.0,
+        ..Objective::of(&config)
+    };
+    let early_misses: Vec<f64> = flown
+        .iter()
+        .map(|o| {
+            let scenario = &scenarios[o.episode];
+            let e = scenario.steps - 2;
+            let state = o.trajectory.as_ref().unwrap()[e as usize].state;
+            let features = Transfer::features(scenario, &state, e).unwrap();
+            miss_only.value(&Transfer::residuals(&features), 1.0)
+        })
+        .collect();
+    let mean = early_misses.iter().sum::<f64>() / early_misses.len() as f64;
+    assert!(mean > 0.0, "{early_misses:?}");
+    assert!(
+        ((early - on_time) - mean).abs() < 1e-9,
+        "margin 2: {early}, on time: {on_time}, mean early miss {mean}"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
