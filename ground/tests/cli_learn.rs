@@ -32,44 +32,26 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
     let dir = scratch("counts");
     let out = dir.join("new/run");
     let checkpoint = dir.join("missing.safetensors");
+    // The two Monte Carlo commands, each refusal adding its arguments.
+    let evaluate = [
+        "model",
+        "evaluate",
+        "--out",
+        path(&out),
+        "--checkpoint",
+        path(&checkpoint),
+    ];
+    let sil = ["model", "sil", "--out", path(&out), "--blob", path(&checkpoint)];
     for args in [
-        vec![
-            "model",
-            "evaluate",
-            "--out",
-            path(&out),
-            "--checkpoint",
-            path(&checkpoint),
-            "--episodes",
-            "0",
-        ],
-        vec![
-            "model",
-            "sil",
-            "--out",
-            path(&out),
-            "--blob",
-            path(&checkpoint),
-            "--episodes",
-            "0",
-        ],
+        [&evaluate[..], &["--episodes", "0"]].concat(),
+        [&sil[..], &["--episodes", "0"]].concat(),
         vec!["dev", "pendulum", "--threads", "0"],
         vec!["dev", "bench-sac", "--threads", "1,0"],
     ] {
         refused(&args, "0");
     }
     // Refused after the folder was taken: a missing checkpoint, a missing pretraining phase.
-    refused(
-        &[
-            "model",
-            "evaluate",
-            "--out",
-            path(&out),
-            "--checkpoint",
-            path(&checkpoint),
-        ],
-        "missing.safetensors",
-    );
+    refused(&evaluate, "missing.safetensors");
     refused(&["train", "rl", "--out", path(&out), "--from-pretrained"], "pretrain");
     // Fine-tuning: a config without [finetune] steps; one that has them, a missing start.
     let finetune = |steps: u32, needle: &str| {
@@ -91,28 +73,17 @@ fn impossible_counts_are_refused_and_leave_nothing_behind() {
     finetune(0, "finetune.steps is 0");
     finetune(10, "missing.safetensors");
     // A lookahead thrust margin without the lookahead, or outside [0, 1).
-    let sil = |extra: &[&'static str]| {
-        let mut args = vec!["model", "sil", "--out", path(&out), "--blob", path(&checkpoint)];
-        args.extend_from_slice(extra);
-        args
-    };
-    refused(&sil(&["--thrust-margin", "0.05"]), "--lookahead");
-    refused(&sil(&["--lookahead", "--thrust-margin", "1.5"]), "thrust margin");
+    refused(&[&sil[..], &["--thrust-margin", "0.05"]].concat(), "--lookahead");
+    refused(
+        &[&sil[..], &["--lookahead", "--thrust-margin", "1.5"]].concat(),
+        "thrust margin",
+    );
     // Optima reused from a folder that holds no Monte Carlo, or asked for twice: refused
     // before the folder is taken.
     let nothing = dir.join("nothing");
-    let evaluate = [
-        "model",
-        "evaluate",
-        "--out",
-        path(&out),
-        "--checkpoint",
-        path(&checkpoint),
-        "--gap-from",
-        path(&nothing),
-    ];
-    refused(&evaluate, "summary.json");
-    refused(&[&evaluate[..], &["--gap-cases", "3"]].concat(), "--gap-cases");
+    let reusing = [&evaluate[..], &["--gap-from", path(&nothing)]].concat();
+    refused(&reusing, "summary.json");
+    refused(&[&reusing[..], &["--gap-cases", "3"]].concat(), "--gap-cases");
     assert!(!dir.join("new").exists(), "a refused command left a folder behind");
     std::fs::remove_dir_all(&dir).unwrap();
 }

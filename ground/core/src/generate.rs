@@ -305,7 +305,8 @@ pub struct SolveRequest {
     pub spacecraft: Option<CanonicalSpacecraft>,
 }
 
-fn is_zero(n: &u32) -> bool {
+/// For `skip_serializing_if`: a count of zero is the default, left out of what is written.
+pub fn is_zero(n: &u32) -> bool {
     *n == 0
 }
 

@@ -404,17 +404,12 @@ pub struct FinetuneConfig {
     /// network learns to meet its target early and follow it, keeping the last cycles in
     /// reserve against thrust lost late. A flight of no more cycles than the margin is judged
     /// at its arrival only.
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(skip_serializing_if = "ground_core::generate::is_zero")]
     pub arrival_margin: u32,
     /// The phase after this one, from its best actor (`RUN/finetune/then`); its best actor is
     /// then what the run ships.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub then: Option<Box<FinetuneConfig>>,
-}
-
-/// For `skip_serializing_if`: a zero count is the default and left out of written configs.
-fn is_zero(v: &u32) -> bool {
-    *v == 0
 }
 
 /// A count that must be at least 1, refused with its key named.

@@ -146,6 +146,13 @@ where
     Some(objective.value(&P::residuals(&features), P::Geometry::mass(&s)))
 }
 
+/// The cycle an arrival margin judges a flight of `steps` cycles at: `margin` before its end,
+/// for a flight longer than the margin (None: judged at the arrival alone).
+fn margin_cycle(steps: usize, margin: u32) -> Option<usize> {
+    let margin = margin as usize;
+    (margin > 0 && steps > margin).then(|| steps - margin)
+}
+
 /// The arrival margin's term of the objective: the miss of `state`, `e` cycles into the flight,
 /// against the target there (the propellant not counted again).
 fn early_miss<P: Problem>(
@@ -220,9 +227,7 @@ where
         early: None,
         value: terminal_value::<P>(scenario, &states[n], n as u32, objective)?,
     };
-    let margin = objective.arrival_margin as usize;
-    if margin > 0 && n > margin {
-        let e = n - margin;
+    if let Some(e) = margin_cycle(n, objective.arrival_margin) {
         let term = |x: &[f64]| {
             let s = P::Geometry::state_from_numbers(x)?;
             Some(vec![early_miss::<P>(scenario, &s, e as u32, objective)?])
@@ -765,19 +770,12 @@ where
     // margin's cycle too, read off the flights' states there.
     let margin = objective.arrival_margin;
     let judged = |o: &EpisodeOutcome<P::Geometry>| {
-        let early = (margin > 0)
-            .then(|| {
-                let scenario = &evaluation[o.episode];
-                let e = P::Geometry::plan(scenario)
-                    .steps
-                    .checked_sub(margin)
-                    .filter(|&e| e > 0)?;
-                let point = o.trajectory.as_ref()?.get(e as usize)?;
-                early_miss::<P>(scenario, &point.state, e, &objective)
-            })
-            .flatten()
-            .unwrap_or(0.0);
-        early + objective.value(&o.terminal, o.final_mass)
+        let scenario = &evaluation[o.episode];
+        let early = margin_cycle(P::Geometry::plan(scenario).steps as usize, margin).and_then(|e| {
+            let point = o.trajectory.as_ref()?.get(e)?;
+            early_miss::<P>(scenario, &point.state, e as u32, &objective)
+        });
+        early.unwrap_or(0.0) + objective.value(&o.terminal, o.final_mass)
     };
     let evaluate = |agent: &Sac, step: u64, batch_objective: f64, seconds: f64| {
         // Dispersed fine-tuning is judged as the SIL flies the network alone, dispersed.
