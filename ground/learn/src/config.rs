@@ -14,6 +14,7 @@ use crate::sac::agent::CloningLoss;
 use crate::sac::SacConfig;
 use ground_core::demo::RecordFilter;
 use ground_core::env::EnvConfig;
+use ground_core::solver::Fallbacks;
 use onboard::lookahead::LookaheadSettings;
 pub use onboard::terminal::TerminalSettings;
 
@@ -345,6 +346,19 @@ pub struct DaggerConfig {
     /// 0.01 AU, dv / 0.01)); unset: none. On transfer-hard nearly all such flights are draws
     /// with no transfer in their time of flight, whose solves fail at the largest cost.
     pub max_miss: Option<f64>,
+    /// Where a relabel goes when no multi-start guess converges: `"all"` (default: the
+    /// continuation in the target, then the direct transcription's multipliers, as the
+    /// demonstrations), `"continuation"` (without the direct transcription) or `"none"` (the
+    /// relabel fails at once). On rendezvous-circular's rounds the direct transcription rescued
+    /// no relabel for a fifth of the solve time, the continuation 15 of 543 for half of it
+    /// (docs/results.md).
+    #[serde(skip_serializing_if = "is_all_fallbacks")]
+    pub fallbacks: Fallbacks,
+}
+
+/// Whether a relabel takes every fallback (the default, left out of a written config).
+fn is_all_fallbacks(fallbacks: &Fallbacks) -> bool {
+    *fallbacks == Fallbacks::All
 }
 
 impl Default for DaggerConfig {
@@ -364,6 +378,7 @@ impl Default for DaggerConfig {
             cloning_only: false,
             solvable_only: false,
             max_miss: None,
+            fallbacks: Fallbacks::All,
         }
     }
 }
@@ -1247,6 +1262,25 @@ mod tests {
     fn round_trips_through_toml_and_the_embedded_default_parses() {
         let c = ExperimentConfig::from_toml(EMBEDDED_DEFAULT).unwrap();
         assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+    }
+
+    /// The relabels' fallbacks read by name, default to every fallback, are left out of a
+    /// written config at the default (run folders and cards written before keep their text) and
+    /// round-trip otherwise; an unknown name is refused.
+    #[test]
+    fn relabel_fallbacks_read_by_name_and_round_trip() {
+        let base = "scenario = \"rendezvous-circular\"\n";
+        let plain = ExperimentConfig::from_toml(base).unwrap();
+        assert_eq!(plain.dagger.fallbacks, Fallbacks::All);
+        assert!(!plain.to_toml().contains("fallbacks"));
+        for (name, fallbacks) in [("continuation", Fallbacks::Continuation), ("none", Fallbacks::None)] {
+            let c = ExperimentConfig::from_toml(&format!("{base}[dagger]\nfallbacks = \"{name}\"\n")).unwrap();
+            assert_eq!(c.dagger.fallbacks, fallbacks);
+            assert!(c.to_toml().contains(&format!("fallbacks = \"{name}\"")));
+            assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+        }
+        let err = ExperimentConfig::from_toml(&format!("{base}[dagger]\nfallbacks = \"some\"\n")).unwrap_err();
+        assert!(err.to_string().contains("some"), "{err}");
     }
 
     /// A chained fine-tuning (`[finetune.then]`): its phases in order, each with its own keys'

@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use nalgebra::{Const, DimMin, SMatrix, SVector};
 use onboard::integrator::{IntegrationError, Tolerances};
+use serde::{Deserialize, Serialize};
 use shared::mission::MissionFamily;
 use shared::scenario::{ProblemKind, Scenario};
 use shared::spacecraft::CanonicalSpacecraft;
@@ -28,6 +29,35 @@ use shooting::{
     RendezvousShooting, RendezvousVector, ShootingProblem, TransferShooting, TransferVector, FINAL_EPS,
     RENDEZVOUS_UNKNOWNS,
 };
+
+/// What a draw goes on to when no multi-start guess converges at eps = 1 (docs/spec.md section
+/// 3.3; in three dimensions the same routes on the problem flattened into the departure plane,
+/// then continued out of it). The demonstrations take every route; a relabel that fails costs only its tuples, and on
+/// rendezvous-circular's rounds the failing relabels spent 70 % of the solve time in these
+/// routes, which rescued 15 of 543 (docs/results.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fallbacks {
+    /// The continuation in the target, then the direct transcription's multipliers.
+    #[default]
+    All,
+    /// The continuation in the target only.
+    Continuation,
+    /// Neither: the draw fails at once.
+    None,
+}
+
+impl Fallbacks {
+    /// Whether the continuation in the target is tried.
+    pub fn continuation(self) -> bool {
+        self != Self::None
+    }
+
+    /// Whether the direct transcription's multipliers are tried.
+    pub fn direct(self) -> bool {
+        self == Self::All
+    }
+}
 
 /// Settings of one solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,6 +108,8 @@ pub struct SolveOptions {
     /// guidance cycles before its time of flight (then coasting with its target) where that
     /// converges; 0: on time.
     pub arrival_margin_steps: u32,
+    /// Where a draw goes when no multi-start guess converges (default: every fallback).
+    pub fallbacks: Fallbacks,
 }
 
 impl SolveOptions {
@@ -133,6 +165,7 @@ impl Default for SolveOptions {
             max_homotopy_work: 3_000_000,
             max_transfer_homotopy_work: 15_000_000,
             arrival_margin_steps: 0,
+            fallbacks: Fallbacks::All,
         }
     }
 }
@@ -402,7 +435,7 @@ fn solve_scenario_from(
             let guesses = energy_start.map_or_else(|| transfer_guesses(scenario), |z| vec![z]);
             let mut solved = solve_problem(&problem, scenario, spacecraft, guesses, options);
             // No guess converged at eps = 1: continuation in the target orbit from the coast.
-            if matches!(solved, Err((_, 0))) && energy_start.is_none() {
+            if matches!(solved, Err((_, 0))) && energy_start.is_none() && options.fallbacks.continuation() {
                 match continuation::transfer_start(scenario, spacecraft, options) {
                     Ok(z) => solved = solve_problem(&problem, scenario, spacecraft, vec![z], options),
                     Err(s) => {
@@ -412,7 +445,7 @@ fn solve_scenario_from(
                     }
                 }
             }
-            if energy_start.is_none() {
+            if energy_start.is_none() && options.fallbacks.direct() {
                 solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, nu_f| {
                     TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap_or(0.0)])
                 });
@@ -436,7 +469,7 @@ fn solve_scenario_from(
             };
             let guesses = rendezvous_starts(energy_start.map_or_else(|| transfer_guesses(scenario), |z| vec![z]));
             let mut solved = solve_problem(&problem, scenario, spacecraft, guesses, options);
-            if matches!(solved, Err((_, 0))) && energy_start.is_none() {
+            if matches!(solved, Err((_, 0))) && energy_start.is_none() && options.fallbacks.continuation() {
                 match continuation::rendezvous_start_either_way(scenario, spacecraft, options) {
                     Ok(z) => solved = solve_problem(&problem, scenario, spacecraft, vec![z], options),
                     Err((shorter, longer)) => {
@@ -449,7 +482,7 @@ fn solve_scenario_from(
                     }
                 }
             }
-            if energy_start.is_none() {
+            if energy_start.is_none() && options.fallbacks.direct() {
                 solve_from_direct(&problem, scenario, spacecraft, options, &mut solved, |l, _| {
                     RendezvousVector::from_column_slice(&l)
                 });
@@ -938,6 +971,49 @@ mod tests {
             "time on the throttle ramp at eps = {}: {ramp}",
             spread.level.eps
         );
+    }
+
+    /// The fallbacks a solve may take: rendezvous-circular seed 7 #4 has no multi-start guess
+    /// that converges and is solved by the continuation in the target, so without fallbacks it
+    /// fails with no start, and with the continuation alone it is the same solution as with
+    /// every fallback. #31 fails every way; its failure names the routes taken, and only those.
+    #[test]
+    fn a_solve_takes_the_fallbacks_its_options_allow_and_no_others() {
+        let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+        let kind = ScenarioKind::RendezvousCircular;
+        let solve = |index: u64, fallbacks: Fallbacks| {
+            let options = SolveOptions {
+                fallbacks,
+                ..SolveOptions::default()
+            };
+            solve_scenario(kind, 7, index, &kind.draw(7, index), &sc, &options)
+        };
+        let none = solve(4, Fallbacks::None);
+        assert!(
+            !none.converged && none.distinct_energy_optima == 0,
+            "{:?}",
+            none.failure
+        );
+        let continued = solve(4, Fallbacks::Continuation);
+        let all = solve(4, Fallbacks::All);
+        assert!(continued.converged, "{:?}", continued.failure);
+        assert_eq!(
+            (continued.costates, continued.final_mass),
+            (all.costates, all.final_mass)
+        );
+
+        let routes = |fallbacks: Fallbacks| {
+            let record = solve(31, fallbacks);
+            assert!(!record.converged);
+            let why = record.failure.unwrap_or_default();
+            (
+                why.contains("continuation in the target"),
+                why.contains("direct transcription"),
+            )
+        };
+        assert_eq!(routes(Fallbacks::None), (false, false));
+        assert_eq!(routes(Fallbacks::Continuation), (true, false));
+        assert_eq!(routes(Fallbacks::All), (true, true));
     }
 
     /// Rendezvous-circular seed 7 #58: the old singular-arc stop (more than half the flight on

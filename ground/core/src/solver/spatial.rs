@@ -458,7 +458,7 @@ where
     let mut solved = solve_multistart(problem, guesses, options, work, &mass);
     // No guess converged at eps = 1: the planar solver's own fallbacks on the problem flattened
     // into the departure plane, then continuation out of that plane.
-    if matches!(solved, Err((_, 0))) {
+    if matches!(solved, Err((_, 0))) && options.fallbacks.continuation() {
         let flat = match problem.start_from_flattened(options) {
             Ok(z) => match solve_multistart(problem, vec![z], options, work, &mass) {
                 Err((from_flat, 0)) => Err(format!("; from the flattened problem's start: {from_flat}")),
@@ -614,6 +614,9 @@ fn start_from_flattened(problem: &SpatialRendezvous, options: &SolveOptions) -> 
     let scenario = flattened_scenario(problem, &frame).ok_or("the flattened problem is not a bound rendezvous")?;
     let planar = match super::continuation::rendezvous_start_either_way(&scenario, &problem.spacecraft, options) {
         Ok(z) => z,
+        Err(_) if !options.fallbacks.direct() => {
+            return Err("the flattened problem's continuation in the target stopped".to_string())
+        }
         Err(_) => match super::direct::indirect_start(&scenario, &problem.spacecraft) {
             Ok((l, _)) => RendezvousVector::from_column_slice(&l),
             Err(e) => return Err(format!("the flattened problem has no start either: {e}")),

@@ -76,7 +76,10 @@ where
     let sc = config.env.canonical_spacecraft().ok()?;
     // Smoothed relabels among smoothed demonstrations: bang-bang ones mixed in drop the policy
     // to 10.9 % within the goal (docs/history/learning.md).
-    let options = config.generate.solve_options();
+    let options = ground_core::solver::SolveOptions {
+        fallbacks: config.dagger.fallbacks,
+        ..config.generate.solve_options()
+    };
     let transitions = P::Geometry::relabel_tuples::<P>(
         &family,
         (config.seeds.train, first + job.episode),

@@ -351,6 +351,9 @@ fn start_from_flattened_transfer(
     let planar: TransferVector =
         match crate::solver::continuation::transfer_start(&scenario, &problem.spacecraft, options) {
             Ok(z) => z,
+            Err(_) if !options.fallbacks.direct() => {
+                return Err("the flattened problem's continuation in the target stopped".to_string())
+            }
             Err(_) => match crate::solver::direct::indirect_start(&scenario, &problem.spacecraft) {
                 Ok((l, nu_f)) => {
                     TransferVector::from_column_slice(&[l[0], l[1], l[2], l[3], l[4], nu_f.unwrap_or(0.0)])
