@@ -349,9 +349,9 @@ pub struct DaggerConfig {
     /// Where a relabel goes when no multi-start guess converges: `"all"` (default: the
     /// continuation in the target, then the direct transcription's multipliers, as the
     /// demonstrations), `"continuation"` (without the direct transcription) or `"none"` (the
-    /// relabel fails at once). On rendezvous-circular's rounds the direct transcription rescued
-    /// no relabel for a fifth of the solve time, the continuation 15 of 543 for half of it
-    /// (docs/results.md).
+    /// relabel fails at once). On a rendezvous-circular round the direct transcription rescued
+    /// no relabel for a fifth of the solve time, the continuation 15 of 472 for half of it; on
+    /// transfer-hard the direct transcription none, the continuation 14 % (docs/results.md).
     #[serde(skip_serializing_if = "is_all_fallbacks")]
     pub fallbacks: Fallbacks,
 }
