@@ -33,9 +33,8 @@ use shooting::{
 /// What a draw goes on to when no multi-start guess converges at eps = 1 (docs/spec.md section
 /// 3.3; in three dimensions the same routes on the problem flattened into the departure plane,
 /// then continued out of it). The demonstrations take every route; a relabel that fails costs
-/// only its tuples. On a rendezvous-circular round, the relabels no guess solved spent 70 % of
-/// the solve time in these routes, which rescued 15 of those 472, the direct transcription none
-/// (docs/results.md).
+/// only its tuples, and most relabels that reach these routes cannot be solved, so the rounds
+/// may skip them (`[dagger] fallbacks`; measured in docs/results.md).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Fallbacks {
