@@ -1,7 +1,7 @@
 use super::*;
 use crate::solver::pontryagin::{self, idx, Y_LEN};
 use crate::solver::shooting::{initial_state_costate, ShootingProblem};
-use crate::solver::{rendezvous_starts, solve_scenario, transfer_guesses};
+use crate::solver::{rendezvous_starts, solve_scenario, transfer_guesses, Fallbacks};
 use shared::orbit::cross3 as cross;
 use shared::scenario::ScenarioKind;
 use shared::spacecraft::Spacecraft;
@@ -471,4 +471,72 @@ fn a_scenario_whose_orbits_share_an_inclined_plane_has_the_planar_optimum() {
             "{kind:?}: {m_flat} vs {m_turned}"
         );
     }
+}
+
+/// The fallbacks in three dimensions run on the problem flattened into the departure plane and
+/// take the routes `SolveOptions::fallbacks` allows, as in the plane: rendezvous-circular seed 7
+/// #4 (its planar multi-start fails, the continuation in the target solves it), turned out of the
+/// xy-plane and started from the planar guesses turned with it, fails without fallbacks and
+/// reaches the planar optimum through the flattened problem's continuation; on #31, where both
+/// planar routes fail, the failure names only the routes taken.
+#[test]
+fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let kind = ScenarioKind::RendezvousCircular;
+    let m = rotation([0.8, 0.35, -0.3, 0.2]);
+    let turn = |z: &SpatialVector| {
+        let (lr, lv) = (rotate(&m, &[z[0], z[1], z[2]]), rotate(&m, &[z[3], z[4], z[5]]));
+        SpatialVector::from_column_slice(&[lr[0], lr[1], lr[2], lv[0], lv[1], lv[2], z[6]])
+    };
+    let solve = |index: u64, fallbacks: Fallbacks| {
+        let options = SolveOptions {
+            fallbacks,
+            ..short_options()
+        };
+        let scenario = kind.draw(7, index);
+        let flat = SpatialRendezvous::from_scenario(&SpatialScenario::planar(scenario), sc).unwrap();
+        let guesses = rendezvous_starts(transfer_guesses(&scenario))
+            .iter()
+            .map(|z| turn(&lift_planar(z)))
+            .collect();
+        solve_spatial_rendezvous(&rotated(&flat, &m), guesses, &options)
+    };
+    let why = |result: Result<SpatialSolution, SpatialSolveError>| match result {
+        Err(SpatialSolveError::NotSolved(why)) => why,
+        other => panic!("expected a failure to solve, got {other:?}"),
+    };
+
+    let none = why(solve(4, Fallbacks::None));
+    assert!(!none.contains("flattened"), "{none}");
+    let continued = solve(4, Fallbacks::Continuation).unwrap();
+    let planar = solve_scenario(
+        kind,
+        7,
+        4,
+        &kind.draw(7, 4),
+        &sc,
+        &SolveOptions {
+            fallbacks: Fallbacks::Continuation,
+            ..short_options()
+        },
+    );
+    assert!(planar.converged, "{:?}", planar.failure);
+    assert!(
+        (continued.final_mass - planar.final_mass).abs() < 1e-8 * planar.final_mass,
+        "{} vs {}",
+        continued.final_mass,
+        planar.final_mass
+    );
+    assert!(continued.residual <= 1e-8);
+
+    let continuation_only = why(solve(31, Fallbacks::Continuation));
+    assert!(
+        continuation_only.contains("the flattened problem's continuation in the target stopped"),
+        "{continuation_only}"
+    );
+    let all = why(solve(31, Fallbacks::All));
+    assert!(
+        all.contains("flattened") && !all.contains("continuation in the target stopped"),
+        "{all}"
+    );
 }
