@@ -421,6 +421,12 @@ pub struct FinetuneConfig {
     /// at its arrival only.
     #[serde(skip_serializing_if = "ground_core::generate::is_zero")]
     pub arrival_margin: u32,
+    /// Torch threads of the phase, whatever `[compute] threads` says (1 by default): a step's
+    /// sums run over every cycle of its flights, and its checkpoints depend on the thread count
+    /// in their last bits, where the other stages' do not. A run reproduces a phase at the
+    /// setting it was run at.
+    #[serde(skip_serializing_if = "is_one")]
+    pub threads: i32,
     /// The phase after this one, from its best actor (`RUN/finetune/then`); its best actor is
     /// then what the run ships.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -453,6 +459,12 @@ impl FinetuneConfig {
         positive(&format!("{at}.flights"), self.flights)?;
         positive(&format!("{at}.eval_every"), self.eval_every)?;
         positive(&format!("{at}.eval_episodes"), self.eval_episodes)?;
+        if self.threads < 1 {
+            return Err(ConfigError::Invalid(format!(
+                "{at}.threads must be at least 1, got {}",
+                self.threads
+            )));
+        }
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
             return Err(ConfigError::Invalid(format!(
                 "{at}.learning_rate must be finite and > 0, got {}",
@@ -489,9 +501,14 @@ impl Default for FinetuneConfig {
             eval_episodes: 500,
             dispersed: false,
             arrival_margin: 0,
+            threads: 1,
             then: None,
         }
     }
+}
+
+fn is_one(threads: &i32) -> bool {
+    *threads == 1
 }
 
 /// The software-in-the-loop Monte Carlo (`ground model sil`, and the main job after export).
@@ -535,7 +552,8 @@ impl Default for SilConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ComputeConfig {
-    /// Torch intra-op threads (1 is fastest on 2 cores with anything else running).
+    /// Torch intra-op threads of every stage but fine-tuning (`[finetune] threads`): 1 is
+    /// fastest on 2 cores with anything else running, 2 when the run has them to itself.
     pub threads: i32,
     /// "cpu" or "cuda".
     pub device: String,
@@ -1281,6 +1299,26 @@ mod tests {
         }
         let err = ExperimentConfig::from_toml(&format!("{base}[dagger]\nfallbacks = \"some\"\n")).unwrap_err();
         assert!(err.to_string().contains("some"), "{err}");
+    }
+
+    /// A fine-tuning phase's own torch threads: 1 unless set, written only when set, each
+    /// phase its own, and a count below 1 refused with the phase named.
+    #[test]
+    fn finetuning_threads_default_to_one_per_phase_and_round_trip() {
+        let base = "scenario = \"rendezvous-circular\"\n[compute]\nthreads = 2\n";
+        let plain = ExperimentConfig::from_toml(&format!("{base}[finetune]\nsteps = 10\n")).unwrap();
+        assert_eq!((plain.compute.threads, plain.finetune.threads), (2, 1));
+        assert!(!plain.to_toml().contains("[finetune]\nthreads") && plain.to_toml().matches("threads").count() == 1);
+        let text = format!("{base}[finetune]\nsteps = 10\nthreads = 2\n[finetune.then]\nsteps = 5\n");
+        let c = ExperimentConfig::from_toml(&text).unwrap();
+        let threads: Vec<i32> = c.finetune.phases().map(|p| p.threads).collect();
+        assert_eq!(threads, [2, 1]);
+        assert_eq!(ExperimentConfig::from_toml(&c.to_toml()).unwrap(), c);
+        let err = ExperimentConfig::from_toml(&format!(
+            "{base}[finetune]\nsteps = 10\n[finetune.then]\nsteps = 5\nthreads = 0\n"
+        ))
+        .unwrap_err();
+        assert!(err.to_string().contains("finetune.then.threads"), "{err}");
     }
 
     /// A chained fine-tuning (`[finetune.then]`): its phases in order, each with its own keys'

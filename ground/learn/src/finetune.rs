@@ -733,6 +733,7 @@ pub fn finetune(config: &ExperimentConfig, run: &Path, start: &Path) -> Result<V
             then: None,
             ..settings.clone()
         };
+        phase.compute.threads = settings.threads;
         let from = summaries.last().map_or(start, |before| before.best_actor.as_path());
         let chained = !summaries.is_empty();
         let summary =

@@ -40,6 +40,34 @@ fn finetuning_lowers_its_objective_and_resumes_byte_identical() {
     }
     chained_phases_are_the_hand_run_chain();
     an_arrival_margin_counts_the_early_miss_in_the_evaluations();
+    a_phase_ends_at_the_same_bytes_whatever_the_compute_threads();
+}
+
+/// A phase runs at its own `[finetune] threads`, so `[compute] threads` does not change its
+/// checkpoints: the rendezvous-circular recipe's network from its shipped actor, 3 steps of 64
+/// flights (at two torch threads the third step's checkpoint differed in its last bits).
+fn a_phase_ends_at_the_same_bytes_whatever_the_compute_threads() {
+    let dir = scratch_dir("finetune-threads");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let text = std::fs::read_to_string(root.join("configs/rendezvous-circular.toml")).unwrap();
+    let mut config = ExperimentConfig::from_toml(&text).unwrap();
+    config.finetune = FinetuneConfig {
+        steps: 3,
+        flights: 64,
+        eval_every: 3,
+        eval_episodes: 8,
+        learning_rate: 3e-5,
+        ..FinetuneConfig::default()
+    };
+    let start = root.join("models/rendezvous-circular/actor.safetensors");
+    let mut run = |threads: i32| {
+        config.compute.threads = threads;
+        let out = dir.join(format!("compute-threads-{threads}"));
+        finetune(&config, &out, &start).unwrap();
+        bytes(&out.join("finetune/step-3.safetensors"))
+    };
+    let (one, two) = (run(1), run(2));
+    assert!(one == two, "the phase's checkpoint depends on [compute] threads");
 }
 
 /// A toy config fine-tuning `steps` steps (flights on the SIL's dispersed plant when
