@@ -540,3 +540,37 @@ fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
         "{all}"
     );
 }
+
+/// The transfer's fallback in three dimensions: flattened into the departure plane (the target
+/// turned about its node line into it), solved there, lifted and carried back to the target's
+/// inclination by continuation. Started from a guess that cannot converge (no primer vector),
+/// the transfer to the orbit inclined by 20 degrees fails without fallbacks, and with them
+/// reaches the optimum its own multi-start finds. The continuation is what carries it: the lifted
+/// planar start put straight at the full inclination does not converge.
+#[test]
+fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclination() {
+    let problem = inclined_transfer(20.0);
+    let hopeless = vec![SpatialTransferVector::from_column_slice(&[
+        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+    ])];
+    let solve = |guesses: Vec<SpatialTransferVector>, fallbacks: Fallbacks| {
+        let options = SolveOptions {
+            fallbacks,
+            ..short_options()
+        };
+        solve_spatial_transfer(&problem, guesses, &options)
+    };
+    match solve(hopeless.clone(), Fallbacks::None) {
+        Err(SpatialSolveError::NotSolved(why)) => assert!(!why.contains("flattened"), "{why}"),
+        other => panic!("expected a failure to solve, got {other:?}"),
+    }
+    let fallen_back = solve(hopeless, Fallbacks::Continuation).unwrap();
+    let own = solve(Vec::new(), Fallbacks::None).unwrap();
+    assert!(fallen_back.residual <= 1e-8);
+    assert!(
+        (fallen_back.final_mass - own.final_mass).abs() < 1e-8 * own.final_mass,
+        "{} vs {}",
+        fallen_back.final_mass,
+        own.final_mass
+    );
+}
