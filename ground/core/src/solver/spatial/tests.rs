@@ -546,13 +546,19 @@ fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
 /// inclination by continuation. Started from a guess that cannot converge (no primer vector),
 /// the transfer to the orbit inclined by 20 degrees fails without fallbacks, and with them
 /// reaches the optimum its own multi-start finds. The continuation is what carries it: the lifted
-/// planar start put straight at the full inclination does not converge.
+/// planar start put straight at the full inclination does not converge. On transfer-hard seed 7
+/// #19 with its target tilted by 2 degrees, where both planar routes fail, the failure names only
+/// the routes the options allow.
 #[test]
 fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclination() {
     let problem = inclined_transfer(20.0);
-    let hopeless = vec![SpatialTransferVector::from_column_slice(&[
-        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
-    ])];
+    // No primer vector (lambda_v = 0): no thrust direction, so no convergence.
+    let hopeless_guess = || {
+        vec![SpatialTransferVector::from_column_slice(&[
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ])]
+    };
+    let hopeless = hopeless_guess();
     let solve = |guesses: Vec<SpatialTransferVector>, fallbacks: Fallbacks| {
         let options = SolveOptions {
             fallbacks,
@@ -572,5 +578,39 @@ fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclin
         "{} vs {}",
         fallen_back.final_mass,
         own.final_mass
+    );
+
+    let tilted = SpatialScenario {
+        scenario: ScenarioKind::TransferHard.draw(7, 19),
+        initial_plane: shared::orbit::OrbitPlane {
+            inclination: 0.0,
+            raan: 0.0,
+        },
+        target_plane: shared::orbit::OrbitPlane {
+            inclination: 2f64.to_radians(),
+            raan: 0.0,
+        },
+    };
+    let hard = SpatialTransfer::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap());
+    let why = |fallbacks: Fallbacks| {
+        let options = SolveOptions {
+            fallbacks,
+            ..short_options()
+        };
+        match solve_spatial_transfer(&hard, hopeless_guess(), &options) {
+            Err(SpatialSolveError::NotSolved(why)) => why,
+            other => panic!("expected a failure to solve, got {other:?}"),
+        }
+    };
+    let continuation_only = why(Fallbacks::Continuation);
+    assert!(
+        continuation_only.contains("the flattened problem's continuation in the target stopped"),
+        "{continuation_only}"
+    );
+    let all = why(Fallbacks::All);
+    assert!(
+        all.contains("the flattened problem has no start either")
+            && !all.contains("continuation in the target stopped"),
+        "{all}"
     );
 }
