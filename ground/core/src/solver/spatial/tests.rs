@@ -551,27 +551,29 @@ fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
 /// the routes the options allow.
 #[test]
 fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclination() {
-    let problem = inclined_transfer(20.0);
     // No primer vector (lambda_v = 0): no thrust direction, so no convergence.
-    let hopeless_guess = || {
+    let hopeless = || {
         vec![SpatialTransferVector::from_column_slice(&[
             0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
         ])]
     };
-    let hopeless = hopeless_guess();
-    let solve = |guesses: Vec<SpatialTransferVector>, fallbacks: Fallbacks| {
+    let solve = |problem: &SpatialTransfer, guesses: Vec<SpatialTransferVector>, fallbacks: Fallbacks| {
         let options = SolveOptions {
             fallbacks,
             ..short_options()
         };
-        solve_spatial_transfer(&problem, guesses, &options)
+        solve_spatial_transfer(problem, guesses, &options)
     };
-    match solve(hopeless.clone(), Fallbacks::None) {
-        Err(SpatialSolveError::NotSolved(why)) => assert!(!why.contains("flattened"), "{why}"),
+    let why = |result: Result<SpatialTransferSolution, SpatialSolveError>| match result {
+        Err(SpatialSolveError::NotSolved(why)) => why,
         other => panic!("expected a failure to solve, got {other:?}"),
-    }
-    let fallen_back = solve(hopeless, Fallbacks::Continuation).unwrap();
-    let own = solve(Vec::new(), Fallbacks::None).unwrap();
+    };
+
+    let problem = inclined_transfer(20.0);
+    let none = why(solve(&problem, hopeless(), Fallbacks::None));
+    assert!(!none.contains("flattened"), "{none}");
+    let fallen_back = solve(&problem, hopeless(), Fallbacks::Continuation).unwrap();
+    let own = solve(&problem, Vec::new(), Fallbacks::None).unwrap();
     assert!(fallen_back.residual <= 1e-8);
     assert!(
         (fallen_back.final_mass - own.final_mass).abs() < 1e-8 * own.final_mass,
@@ -581,33 +583,19 @@ fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclin
     );
 
     let tilted = SpatialScenario {
-        scenario: ScenarioKind::TransferHard.draw(7, 19),
-        initial_plane: shared::orbit::OrbitPlane {
-            inclination: 0.0,
-            raan: 0.0,
-        },
         target_plane: shared::orbit::OrbitPlane {
             inclination: 2f64.to_radians(),
             raan: 0.0,
         },
+        ..SpatialScenario::planar(ScenarioKind::TransferHard.draw(7, 19))
     };
     let hard = SpatialTransfer::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap());
-    let why = |fallbacks: Fallbacks| {
-        let options = SolveOptions {
-            fallbacks,
-            ..short_options()
-        };
-        match solve_spatial_transfer(&hard, hopeless_guess(), &options) {
-            Err(SpatialSolveError::NotSolved(why)) => why,
-            other => panic!("expected a failure to solve, got {other:?}"),
-        }
-    };
-    let continuation_only = why(Fallbacks::Continuation);
+    let continuation_only = why(solve(&hard, hopeless(), Fallbacks::Continuation));
     assert!(
         continuation_only.contains("the flattened problem's continuation in the target stopped"),
         "{continuation_only}"
     );
-    let all = why(Fallbacks::All);
+    let all = why(solve(&hard, hopeless(), Fallbacks::All));
     assert!(
         all.contains("the flattened problem has no start either")
             && !all.contains("continuation in the target stopped"),
