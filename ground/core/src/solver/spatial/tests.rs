@@ -602,3 +602,65 @@ fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclin
         "{all}"
     );
 }
+
+/// The transfer fallback's last route: transfer-hard seed 7 #50 with its target tilted by 2
+/// degrees (node on the x axis), started from a guess that cannot converge. The flattened
+/// problem's continuation in the target stops, so the fallbacks without the direct transcription
+/// fail; with it, the direct transcription's multipliers on the flattened problem, lifted and
+/// carried to the inclination, reach a solution. Checked against the direct transcription in
+/// three dimensions from tangential thrust (nothing taken from the indirect solution), at the
+/// same homotopy level: it reaches the target at most the mesh's cost lighter.
+#[test]
+fn a_spatial_transfer_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
+    use crate::solver::direct::DirectOptions;
+    use crate::solver::spatial::direct::{solve_spatial_direct_refined, tangential_guess, SpatialDirectProblem};
+    use crate::spatial::SpatialGoal;
+
+    let draw = ScenarioKind::TransferHard.draw(7, 50);
+    let tilted = SpatialScenario {
+        target_plane: shared::orbit::OrbitPlane {
+            inclination: 2f64.to_radians(),
+            raan: 0.0,
+        },
+        ..SpatialScenario::planar(draw)
+    };
+    let problem = SpatialTransfer::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap());
+    // No primer vector (lambda_v = 0): no thrust direction, so no convergence from it.
+    let hopeless = || {
+        vec![SpatialTransferVector::from_column_slice(&[
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ])]
+    };
+    let solve = |fallbacks: Fallbacks| {
+        let options = SolveOptions {
+            fallbacks,
+            ..short_options()
+        };
+        solve_spatial_transfer(&problem, hopeless(), &options)
+    };
+
+    match solve(Fallbacks::Continuation) {
+        Err(SpatialSolveError::NotSolved(why)) => assert!(
+            why.contains("the flattened problem's continuation in the target stopped"),
+            "{why}"
+        ),
+        other => panic!("expected the continuation to stop, got {other:?}"),
+    }
+    let solved = solve(Fallbacks::All).unwrap();
+    assert!(solved.residual <= 1e-8, "residual {:e}", solved.residual);
+
+    let direct = SpatialDirectProblem::of_goal(&SpatialGoal::Transfer(problem));
+    let options = DirectOptions::default();
+    let guess = tangential_guess(&direct, draw.steps as usize, 0.5, &options.tolerances).unwrap();
+    let meshes = solve_spatial_direct_refined(&direct, guess, 1, solved.final_eps, &options).unwrap();
+    let finest = meshes.last().unwrap();
+    assert!(finest.converged, "{:?}", finest.history.last());
+    // Measured: the direct solution 3.6e-4 of the initial mass lighter (92 segments).
+    let difference = finest.final_mass - solved.final_mass;
+    assert!(
+        (-1e-3..1e-6).contains(&difference),
+        "direct {} against indirect {}",
+        finest.final_mass,
+        solved.final_mass
+    );
+}
