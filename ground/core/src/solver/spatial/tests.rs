@@ -664,3 +664,60 @@ fn a_spatial_transfer_whose_flattened_continuation_stops_is_solved_through_the_d
         solved.final_mass
     );
 }
+
+/// The rendezvous twin: rendezvous-hard seed 7 #109 with its target tilted by 2 degrees, from a
+/// guess that cannot converge. The flattened problem's continuation stops; the direct
+/// transcription's multipliers on it, lifted and carried to the arrival out of the plane, reach a
+/// solution, which the 3D direct transcription from tangential thrust meets within the mesh's
+/// cost.
+#[test]
+fn a_spatial_rendezvous_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
+    use crate::solver::direct::DirectOptions;
+    use crate::solver::spatial::direct::{solve_spatial_direct_refined, tangential_guess, SpatialDirectProblem};
+    use crate::spatial::SpatialGoal;
+
+    let draw = ScenarioKind::RendezvousHard.draw(7, 109);
+    let tilted = SpatialScenario {
+        target_plane: shared::orbit::OrbitPlane {
+            inclination: 2f64.to_radians(),
+            raan: 0.0,
+        },
+        ..SpatialScenario::planar(draw)
+    };
+    let problem = SpatialRendezvous::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap()).unwrap();
+    // No primer vector (lambda_v = 0): no thrust direction, so no convergence from it.
+    let hopeless = || vec![SpatialVector::from_column_slice(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])];
+    let solve = |fallbacks: Fallbacks| {
+        let options = SolveOptions {
+            fallbacks,
+            ..short_options()
+        };
+        solve_spatial_rendezvous(&problem, hopeless(), &options)
+    };
+
+    match solve(Fallbacks::Continuation) {
+        Err(SpatialSolveError::NotSolved(why)) => assert!(
+            why.contains("the flattened problem's continuation in the target stopped"),
+            "{why}"
+        ),
+        other => panic!("expected the continuation to stop, got {other:?}"),
+    }
+    let solved = solve(Fallbacks::All).unwrap();
+    assert!(solved.residual <= 1e-8, "residual {:e}", solved.residual);
+
+    let direct = SpatialDirectProblem::of_goal(&SpatialGoal::Rendezvous(problem));
+    let options = DirectOptions::default();
+    // A quarter of the throttle: from half, the guess's own propagation does not finish.
+    let guess = tangential_guess(&direct, draw.steps as usize, 0.25, &options.tolerances).unwrap();
+    let meshes = solve_spatial_direct_refined(&direct, guess, 1, solved.final_eps, &options).unwrap();
+    let finest = meshes.last().unwrap();
+    assert!(finest.converged, "{:?}", finest.history.last());
+    // Measured: the direct solution 1.7e-4 of the initial mass lighter (92 segments).
+    let difference = finest.final_mass - solved.final_mass;
+    assert!(
+        (-1e-3..1e-6).contains(&difference),
+        "direct {} against indirect {}",
+        finest.final_mass,
+        solved.final_mass
+    );
+}
