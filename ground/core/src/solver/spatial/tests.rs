@@ -603,42 +603,35 @@ fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclin
     );
 }
 
-/// The transfer fallback's last route: transfer-hard seed 7 #50 with its target tilted by 2
-/// degrees (node on the x axis), started from a guess that cannot converge. The flattened
-/// problem's continuation in the target stops, so the fallbacks without the direct transcription
-/// fail; with it, the direct transcription's multipliers on the flattened problem, lifted and
-/// carried to the inclination, reach a solution. Checked against the direct transcription in
-/// three dimensions from tangential thrust (nothing taken from the indirect solution), at the
-/// same homotopy level: it reaches the target at most the mesh's cost lighter.
-#[test]
-fn a_spatial_transfer_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
+/// `goal` solved from a guess that cannot converge (no primer vector) by the flattened fallbacks
+/// at [`short_options`]: without the direct start it must fail where the flattened problem's
+/// continuation stops, and with it reach a solution. That solution against the direct
+/// transcription of `goal` in three dimensions from tangential thrust at `throttle` on
+/// `segments` segments and one mesh twice as fine, nothing taken from the indirect solution:
+/// the direct final mass less the indirect one.
+fn solved_through_the_direct_start(goal: &crate::spatial::SpatialGoal, segments: usize, throttle: f64) -> f64 {
     use crate::solver::direct::DirectOptions;
     use crate::solver::spatial::direct::{solve_spatial_direct_refined, tangential_guess, SpatialDirectProblem};
     use crate::spatial::SpatialGoal;
 
-    let draw = ScenarioKind::TransferHard.draw(7, 50);
-    let tilted = SpatialScenario {
-        target_plane: shared::orbit::OrbitPlane {
-            inclination: 2f64.to_radians(),
-            raan: 0.0,
-        },
-        ..SpatialScenario::planar(draw)
-    };
-    let problem = SpatialTransfer::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap());
-    // No primer vector (lambda_v = 0): no thrust direction, so no convergence from it.
-    let hopeless = || {
-        vec![SpatialTransferVector::from_column_slice(&[
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
-        ])]
-    };
-    let solve = |fallbacks: Fallbacks| {
+    let solve = |fallbacks| {
         let options = SolveOptions {
             fallbacks,
             ..short_options()
         };
-        solve_spatial_transfer(&problem, hopeless(), &options)
+        // lambda_v = 0: no thrust direction, so no convergence from it.
+        let mut hopeless = SpatialTransferVector::zeros();
+        hopeless[6] = 1.0;
+        match goal {
+            SpatialGoal::Transfer(p) => {
+                solve_spatial_transfer(p, vec![hopeless], &options).map(|s| (s.final_mass, s.final_eps, s.residual))
+            }
+            SpatialGoal::Rendezvous(p) => {
+                solve_spatial_rendezvous(p, vec![hopeless.fixed_rows::<7>(0).into()], &options)
+                    .map(|s| (s.final_mass, s.final_eps, s.residual))
+            }
+        }
     };
-
     match solve(Fallbacks::Continuation) {
         Err(SpatialSolveError::NotSolved(why)) => assert!(
             why.contains("the flattened problem's continuation in the target stopped"),
@@ -646,78 +639,56 @@ fn a_spatial_transfer_whose_flattened_continuation_stops_is_solved_through_the_d
         ),
         other => panic!("expected the continuation to stop, got {other:?}"),
     }
-    let solved = solve(Fallbacks::All).unwrap();
-    assert!(solved.residual <= 1e-8, "residual {:e}", solved.residual);
+    let (final_mass, final_eps, residual) = solve(Fallbacks::All).unwrap();
+    assert!(residual <= 1e-8, "residual {residual:e}");
 
-    let direct = SpatialDirectProblem::of_goal(&SpatialGoal::Transfer(problem));
+    let direct = SpatialDirectProblem::of_goal(goal);
     let options = DirectOptions::default();
-    let guess = tangential_guess(&direct, draw.steps as usize, 0.5, &options.tolerances).unwrap();
-    let meshes = solve_spatial_direct_refined(&direct, guess, 1, solved.final_eps, &options).unwrap();
+    let guess = tangential_guess(&direct, segments, throttle, &options.tolerances).unwrap();
+    let meshes = solve_spatial_direct_refined(&direct, guess, 1, final_eps, &options).unwrap();
     let finest = meshes.last().unwrap();
     assert!(finest.converged, "{:?}", finest.history.last());
-    // Measured: the direct solution 3.6e-4 of the initial mass lighter (92 segments).
-    let difference = finest.final_mass - solved.final_mass;
-    assert!(
-        (-1e-3..1e-6).contains(&difference),
-        "direct {} against indirect {}",
-        finest.final_mass,
-        solved.final_mass
-    );
+    finest.final_mass - final_mass
 }
 
-/// The rendezvous twin: rendezvous-hard seed 7 #109 with its target tilted by 2 degrees, from a
-/// guess that cannot converge. The flattened problem's continuation stops; the direct
-/// transcription's multipliers on it, lifted and carried to the arrival out of the plane, reach a
-/// solution, which the 3D direct transcription from tangential thrust meets within the mesh's
-/// cost.
-#[test]
-fn a_spatial_rendezvous_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
-    use crate::solver::direct::DirectOptions;
-    use crate::solver::spatial::direct::{solve_spatial_direct_refined, tangential_guess, SpatialDirectProblem};
-    use crate::spatial::SpatialGoal;
-
-    let draw = ScenarioKind::RendezvousHard.draw(7, 109);
-    let tilted = SpatialScenario {
+/// `draw` with its target's plane tilted by 2 degrees, the node on the x axis.
+fn tilted_by_two_degrees(draw: shared::scenario::Scenario) -> SpatialScenario {
+    SpatialScenario {
         target_plane: shared::orbit::OrbitPlane {
             inclination: 2f64.to_radians(),
             raan: 0.0,
         },
         ..SpatialScenario::planar(draw)
-    };
-    let problem = SpatialRendezvous::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap()).unwrap();
-    // No primer vector (lambda_v = 0): no thrust direction, so no convergence from it.
-    let hopeless = || vec![SpatialVector::from_column_slice(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])];
-    let solve = |fallbacks: Fallbacks| {
-        let options = SolveOptions {
-            fallbacks,
-            ..short_options()
-        };
-        solve_spatial_rendezvous(&problem, hopeless(), &options)
-    };
-
-    match solve(Fallbacks::Continuation) {
-        Err(SpatialSolveError::NotSolved(why)) => assert!(
-            why.contains("the flattened problem's continuation in the target stopped"),
-            "{why}"
-        ),
-        other => panic!("expected the continuation to stop, got {other:?}"),
     }
-    let solved = solve(Fallbacks::All).unwrap();
-    assert!(solved.residual <= 1e-8, "residual {:e}", solved.residual);
+}
 
-    let direct = SpatialDirectProblem::of_goal(&SpatialGoal::Rendezvous(problem));
-    let options = DirectOptions::default();
-    // A quarter of the throttle: from half, the guess's own propagation does not finish.
-    let guess = tangential_guess(&direct, draw.steps as usize, 0.25, &options.tolerances).unwrap();
-    let meshes = solve_spatial_direct_refined(&direct, guess, 1, solved.final_eps, &options).unwrap();
-    let finest = meshes.last().unwrap();
-    assert!(finest.converged, "{:?}", finest.history.last());
-    // Measured: the direct solution 1.7e-4 of the initial mass lighter (92 segments).
-    let difference = finest.final_mass - solved.final_mass;
-    assert!(
-        (-1e-3..1e-6).contains(&difference),
-        "direct {} against indirect {}",
-        finest.final_mass,
-        solved.final_mass
+/// The transfer fallback's last route: transfer-hard seed 7 #50 tilted by 2 degrees, where the
+/// flattened problem's continuation in the target stops. The direct transcription's multipliers
+/// on the flattened problem, lifted and carried to the inclination, reach a solution that the
+/// direct transcription in three dimensions meets within the mesh's cost.
+#[test]
+fn a_spatial_transfer_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
+    let draw = ScenarioKind::TransferHard.draw(7, 50);
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let goal = crate::spatial::SpatialGoal::Transfer(SpatialTransfer::from_scenario(&tilted_by_two_degrees(draw), sc));
+    let difference = solved_through_the_direct_start(&goal, draw.steps as usize, 0.5);
+    // Measured: the direct solution 3.6e-4 of the initial mass lighter (92 segments).
+    assert!((-1e-3..1e-6).contains(&difference), "direct - indirect {difference:e}");
+}
+
+/// The rendezvous twin: rendezvous-hard seed 7 #109 tilted by 2 degrees, solved through the
+/// direct start on the flattened problem, carried to the arrival out of the plane.
+#[test]
+fn a_spatial_rendezvous_whose_flattened_continuation_stops_is_solved_through_the_direct_start() {
+    let draw = ScenarioKind::RendezvousHard.draw(7, 109);
+    let sc = Spacecraft::MSR_ERO.canonical().unwrap();
+    let problem = SpatialRendezvous::from_scenario(&tilted_by_two_degrees(draw), sc).unwrap();
+    // A quarter of the throttle: from half, the direct guess's own propagation does not finish.
+    let difference = solved_through_the_direct_start(
+        &crate::spatial::SpatialGoal::Rendezvous(problem),
+        draw.steps as usize,
+        0.25,
     );
+    // Measured: the direct solution 1.7e-4 of the initial mass lighter (92 segments).
+    assert!((-1e-3..1e-6).contains(&difference), "direct - indirect {difference:e}");
 }
