@@ -541,6 +541,25 @@ fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
     );
 }
 
+/// A transfer guess that cannot converge: no primer vector (lambda_v = 0), so no thrust
+/// direction; lambda_m = 1. Its first 7 components are the rendezvous's.
+fn no_primer_guess() -> SpatialTransferVector {
+    let mut z = SpatialTransferVector::zeros();
+    z[6] = 1.0;
+    z
+}
+
+/// `draw` with its target's plane tilted by 2 degrees, the node on the x axis.
+fn tilted_by_two_degrees(draw: shared::scenario::Scenario) -> SpatialScenario {
+    SpatialScenario {
+        target_plane: shared::orbit::OrbitPlane {
+            inclination: 2f64.to_radians(),
+            raan: 0.0,
+        },
+        ..SpatialScenario::planar(draw)
+    }
+}
+
 /// The transfer's fallback in three dimensions: flattened into the departure plane (the target
 /// turned about its node line into it), solved there, lifted and carried back to the target's
 /// inclination by continuation. Started from a guess that cannot converge (no primer vector),
@@ -551,12 +570,7 @@ fn a_spatial_solve_takes_the_flattened_fallbacks_its_options_allow() {
 /// the routes the options allow.
 #[test]
 fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclination() {
-    // No primer vector (lambda_v = 0): no thrust direction, so no convergence.
-    let hopeless = || {
-        vec![SpatialTransferVector::from_column_slice(&[
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
-        ])]
-    };
+    let hopeless = || vec![no_primer_guess()];
     let solve = |problem: &SpatialTransfer, guesses: Vec<SpatialTransferVector>, fallbacks: Fallbacks| {
         let options = SolveOptions {
             fallbacks,
@@ -582,13 +596,7 @@ fn a_spatial_transfer_falls_back_to_the_flattened_transfer_carried_to_its_inclin
         own.final_mass
     );
 
-    let tilted = SpatialScenario {
-        target_plane: shared::orbit::OrbitPlane {
-            inclination: 2f64.to_radians(),
-            raan: 0.0,
-        },
-        ..SpatialScenario::planar(ScenarioKind::TransferHard.draw(7, 19))
-    };
+    let tilted = tilted_by_two_degrees(ScenarioKind::TransferHard.draw(7, 19));
     let hard = SpatialTransfer::from_scenario(&tilted, Spacecraft::MSR_ERO.canonical().unwrap());
     let continuation_only = why(solve(&hard, hopeless(), Fallbacks::Continuation));
     assert!(
@@ -619,9 +627,7 @@ fn solved_through_the_direct_start(goal: &crate::spatial::SpatialGoal, segments:
             fallbacks,
             ..short_options()
         };
-        // lambda_v = 0: no thrust direction, so no convergence from it.
-        let mut hopeless = SpatialTransferVector::zeros();
-        hopeless[6] = 1.0;
+        let hopeless = no_primer_guess();
         match goal {
             SpatialGoal::Transfer(p) => {
                 solve_spatial_transfer(p, vec![hopeless], &options).map(|s| (s.final_mass, s.final_eps, s.residual))
@@ -649,17 +655,6 @@ fn solved_through_the_direct_start(goal: &crate::spatial::SpatialGoal, segments:
     let finest = meshes.last().unwrap();
     assert!(finest.converged, "{:?}", finest.history.last());
     finest.final_mass - final_mass
-}
-
-/// `draw` with its target's plane tilted by 2 degrees, the node on the x axis.
-fn tilted_by_two_degrees(draw: shared::scenario::Scenario) -> SpatialScenario {
-    SpatialScenario {
-        target_plane: shared::orbit::OrbitPlane {
-            inclination: 2f64.to_radians(),
-            raan: 0.0,
-        },
-        ..SpatialScenario::planar(draw)
-    }
 }
 
 /// The transfer fallback's last route: transfer-hard seed 7 #50 tilted by 2 degrees, where the
